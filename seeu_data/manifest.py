@@ -1,0 +1,124 @@
+"""Dataset manifests (`manifest.json`): written last and atomically; verified on read.
+
+A dataset directory is complete exactly when its manifest exists. Writers put data files in place
+first (each atomically) and the manifest last, so an interrupted write never looks complete.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import platform
+import sys
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import jsonschema
+
+from . import __version__
+from .arrow_io import atomic_write_text, open_ipc_file, sha256_file
+from .errors import SeeUError
+from .schema import MANIFEST_VERSION, check_version, manifest_json_schema
+
+MANIFEST_NAME = "manifest.json"
+
+
+@dataclass(frozen=True)
+class FileEntry:
+    path: str  # relative to the dataset directory
+    rows: int
+    bytes: int
+    sha256: str
+
+    @classmethod
+    def for_file(cls, root: Path, path: Path, rows: int) -> "FileEntry":
+        return cls(str(path.relative_to(root)), int(rows), path.stat().st_size, sha256_file(path))
+
+
+def provenance(command: str, inputs: list[str] | None = None, **extra: Any) -> dict:
+    """Standard provenance block: tool versions, command, inputs, creation time."""
+    import pyarrow
+
+    out = {
+        "tool": f"seeu {__version__}",
+        "command": command,
+        "argv": sys.argv[:],
+        "inputs": [str(i) for i in (inputs or [])],
+        "python": platform.python_version(),
+        "pyarrow": pyarrow.__version__,
+        "created_at": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+    }
+    out.update(extra)
+    return out
+
+
+def write_manifest(
+    root: str | Path,
+    schema: str,
+    schema_version: str,
+    files: list[FileEntry],
+    params: dict,
+    provenance: dict,
+    scenes: list[dict] | None = None,
+    report: dict | None = None,
+) -> dict:
+    """Validate and atomically write `root/manifest.json`. Call after every data file is in place."""
+    root = Path(root)
+    doc: dict[str, Any] = {
+        "manifest_version": MANIFEST_VERSION,
+        "schema": schema,
+        "schema_version": schema_version,
+        "files": [asdict(f) for f in files],
+        "total_rows": int(sum(f.rows for f in files)),
+        "params": params,
+        "provenance": provenance,
+    }
+    if scenes is not None:
+        doc["scenes"] = scenes
+    if report is not None:
+        doc["report"] = report
+    jsonschema.validate(doc, manifest_json_schema())
+    atomic_write_text(root / MANIFEST_NAME, json.dumps(doc, indent=1, sort_keys=False) + "\n")
+    return doc
+
+
+def read_manifest(root: str | Path, expect_schema: str | None = None) -> dict:
+    """Read and check a dataset manifest: JSON shape, known schema and major version."""
+    root = Path(root)
+    path = root / MANIFEST_NAME
+    if not root.exists():
+        raise SeeUError("dataset directory not found", root)
+    if not path.exists():
+        raise SeeUError("no manifest.json: not a SeeU dataset, or its write did not finish", root)
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"manifest is not valid JSON ({exc})", path) from None
+    if not isinstance(doc, dict) or "manifest_version" not in doc:
+        raise SeeUError("not a SeeU manifest (no manifest_version)", path)
+    if str(doc["manifest_version"]).split(".")[0] != MANIFEST_VERSION.split(".")[0]:
+        raise SeeUError(f"manifest version {doc['manifest_version']} is not supported (this seeu reads {MANIFEST_VERSION})", path)
+    try:
+        jsonschema.validate(doc, manifest_json_schema())
+    except jsonschema.ValidationError as exc:
+        raise SeeUError(f"manifest does not match its schema: {exc.message}", path) from None
+    check_version(doc["schema"], doc["schema_version"], path)
+    if expect_schema is not None and doc["schema"] != expect_schema:
+        raise SeeUError(f"expected a {expect_schema} dataset, found {doc['schema']}", root)
+    return doc
+
+
+def verify_file(root: str | Path, entry: dict, check_sha: bool = True) -> None:
+    """Check one listed file: present, byte size, sha256 (optional), row count."""
+    path = Path(root) / entry["path"]
+    if not path.exists():
+        raise SeeUError("listed in the manifest but missing", path)
+    size = path.stat().st_size
+    if size != entry["bytes"]:
+        raise SeeUError(f"size {size} bytes differs from the manifest's {entry['bytes']} (truncated or replaced?)", path)
+    if check_sha and sha256_file(path) != entry["sha256"]:
+        raise SeeUError("sha256 differs from the manifest (corrupt or replaced)", path)
+    rows = open_ipc_file(path).read_all().num_rows  # memory-mapped: no copy of the data
+    if rows != entry["rows"]:
+        raise SeeUError(f"{rows} rows, the manifest says {entry['rows']}", path)

@@ -1,0 +1,261 @@
+"""Posed-frames datasets: the output of `seeu ingest` and `seeu import`, the input of `seeu build`.
+
+Layout of a posed-frames directory::
+
+    manifest.json          written last (schema seeu.posed_frames, files, scenes, params, provenance)
+    posed-00000.arrow      Arrow IPC files; each holds whole scenes, one record batch per scene
+    posed-00001.arrow ...
+
+Rows follow `schemas/posed_frames.v1.json`; cameras follow `seeu_data.cameras`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Iterable, Iterator
+
+import numpy as np
+import pyarrow as pa
+
+from .arrow_io import atomic_ipc_writer, open_ipc_file
+from .errors import SeeUError
+from .manifest import FileEntry, read_manifest, verify_file, write_manifest
+from .schema import arrow_schema, schema_version
+
+SCHEMA = "seeu.posed_frames"
+
+
+@dataclass
+class PosedScene:
+    """All frames of one scene (posed chunk), in frame_index order. N = number of frames.
+
+    images: N encoded images (bytes); width/height: (N,) int; intrinsics_norm: (N, 4);
+    cam_to_world: (N, 4, 4) OpenCV camera-to-world; source_frame/timestamp_us: (N,) int64;
+    source_name: N strings; meta: scene-level metadata kept in the manifest (url, near/far method ...).
+    """
+
+    scene_id: str
+    images: list[bytes]
+    image_format: str
+    width: np.ndarray
+    height: np.ndarray
+    intrinsics_norm: np.ndarray
+    cam_to_world: np.ndarray
+    near: float
+    far: float
+    source_frame: np.ndarray
+    timestamp_us: np.ndarray
+    source_name: list[str] = field(default_factory=list)
+    meta: dict = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+    def check(self) -> None:
+        """Raise SeeUError when the scene is inconsistent or its cameras are not finite rigid poses."""
+        from .cameras import rotation_orthonormality_error
+
+        n = len(self.images)
+        where = f"scene {self.scene_id}"
+        if n == 0:
+            raise SeeUError(f"{where}: no frames")
+        for name in ("width", "height", "source_frame", "timestamp_us"):
+            if len(getattr(self, name)) != n:
+                raise SeeUError(f"{where}: {name} has {len(getattr(self, name))} entries for {n} frames")
+        if self.source_name and len(self.source_name) != n:
+            raise SeeUError(f"{where}: source_name has {len(self.source_name)} entries for {n} frames")
+        if np.shape(self.intrinsics_norm) != (n, 4) or np.shape(self.cam_to_world) != (n, 4, 4):
+            raise SeeUError(f"{where}: cameras have shapes {np.shape(self.intrinsics_norm)} / {np.shape(self.cam_to_world)}, expected ({n}, 4) / ({n}, 4, 4)")
+        if not (np.isfinite(self.cam_to_world).all() and np.isfinite(self.intrinsics_norm).all()):
+            raise SeeUError(f"{where}: non-finite camera values")
+        err = rotation_orthonormality_error(self.cam_to_world).max()
+        if err > 1e-4:
+            raise SeeUError(f"{where}: a camera rotation is not orthonormal (error {err:.2e})")
+        if not (0 < self.near < self.far and np.isfinite(self.far)):
+            raise SeeUError(f"{where}: invalid near/far {self.near}/{self.far}")
+        if self.image_format not in ("jpeg", "png"):
+            raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
+
+    def to_record_batch(self) -> pa.RecordBatch:
+        n = len(self)
+        schema = arrow_schema(SCHEMA)
+        names = self.source_name or [""] * n
+        cols = {
+            "scene_id": pa.array([self.scene_id] * n, pa.string()),
+            "frame_index": pa.array(np.arange(n, dtype=np.int32)),
+            "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
+            "source_name": pa.array(names, pa.string()),
+            "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
+            "image": pa.array(self.images, pa.binary()),
+            "image_format": pa.array([self.image_format] * n, pa.string()),
+            "width": pa.array(np.asarray(self.width, dtype=np.int32)),
+            "height": pa.array(np.asarray(self.height, dtype=np.int32)),
+            "intrinsics_norm": pa.FixedSizeListArray.from_arrays(
+                pa.array(np.asarray(self.intrinsics_norm, dtype=np.float64).reshape(-1)), 4),
+            "cam_to_world": pa.FixedSizeListArray.from_arrays(
+                pa.array(np.asarray(self.cam_to_world, dtype=np.float64).reshape(-1)), 16),
+            "near": pa.array(np.full(n, self.near, dtype=np.float32)),
+            "far": pa.array(np.full(n, self.far, dtype=np.float32)),
+        }
+        return pa.RecordBatch.from_arrays([cols[f.name] for f in schema], schema=schema)
+
+    @classmethod
+    def from_record_batch(cls, batch: pa.RecordBatch | pa.Table, meta: dict | None = None) -> "PosedScene":
+        def fixed(name: str, k: int) -> np.ndarray:
+            col = batch.column(name)
+            if isinstance(col, pa.ChunkedArray):
+                col = col.combine_chunks()
+            return col.values.to_numpy(zero_copy_only=False).reshape(-1, k)
+
+        scene_ids = batch.column("scene_id")
+        fmt = batch.column("image_format")
+        return cls(
+            scene_id=str(scene_ids[0]),
+            images=batch.column("image").to_pylist(),
+            image_format=str(fmt[0]),
+            width=batch.column("width").to_numpy(),
+            height=batch.column("height").to_numpy(),
+            intrinsics_norm=fixed("intrinsics_norm", 4),
+            cam_to_world=fixed("cam_to_world", 16).reshape(-1, 4, 4),
+            near=float(batch.column("near")[0].as_py()),
+            far=float(batch.column("far")[0].as_py()),
+            source_frame=batch.column("source_frame").to_numpy(),
+            timestamp_us=batch.column("timestamp_us").to_numpy(),
+            source_name=batch.column("source_name").to_pylist(),
+            meta=dict(meta or {}),
+        )
+
+
+class PosedDatasetWriter:
+    """Stream scenes into a posed-frames directory with bounded memory.
+
+    Scenes are appended to the current file until it exceeds `target_file_bytes`; each file is
+    written under a temporary name and renamed when closed; `close()` writes the manifest last.
+    Use as a context manager: an exception leaves no manifest, so the output never looks complete.
+    """
+
+    def __init__(self, out_dir: str | Path, params: dict, provenance: dict,
+                 target_file_bytes: int = 256 << 20, prefix: str = "posed"):
+        self.out_dir = Path(out_dir)
+        self.params = params
+        self.provenance = provenance
+        self.target_file_bytes = target_file_bytes
+        self.prefix = prefix
+        self.files: list[FileEntry] = []
+        self.scenes: list[dict] = []
+        self._seen: set[str] = set()
+        self._ctx = None
+        self._writer = None
+        self._path: Path | None = None
+        self._rows = 0
+        self._bytes = 0
+        self.report: dict = {}
+        self.out_dir.mkdir(parents=True, exist_ok=True)
+        (self.out_dir / "manifest.json").unlink(missing_ok=True)  # being rewritten: not complete
+
+    def __enter__(self) -> "PosedDatasetWriter":
+        return self
+
+    def __exit__(self, exc_type, exc, tb) -> None:
+        if exc_type is None:
+            self.close()
+        elif self._ctx is not None:
+            self._ctx.__exit__(exc_type, exc, tb)  # removes the temporary file
+            self._ctx = None
+
+    def add(self, scene: PosedScene) -> None:
+        scene.check()
+        if scene.scene_id in self._seen:
+            raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
+        self._seen.add(scene.scene_id)
+        batch = scene.to_record_batch()
+        if self._writer is None:
+            self._open()
+        assert self._path is not None
+        self._writer.write_batch(batch)
+        entry = {"scene_id": scene.scene_id, "file": self._path.name, "row_start": self._rows,
+                 "num_frames": len(scene), "near": float(scene.near), "far": float(scene.far)}
+        if scene.meta:
+            entry["meta"] = scene.meta
+        self.scenes.append(entry)
+        self._rows += batch.num_rows
+        self._bytes += batch.nbytes
+        if self._bytes >= self.target_file_bytes:
+            self._finish_file()
+
+    def _open(self) -> None:
+        self._path = self.out_dir / f"{self.prefix}-{len(self.files):05d}.arrow"
+        self._ctx = atomic_ipc_writer(self._path, arrow_schema(SCHEMA))
+        self._writer = self._ctx.__enter__()
+        self._rows = 0
+        self._bytes = 0
+
+    def _finish_file(self) -> None:
+        if self._ctx is None:
+            return
+        self._ctx.__exit__(None, None, None)
+        assert self._path is not None
+        self.files.append(FileEntry.for_file(self.out_dir, self._path, self._rows))
+        self._ctx = self._writer = None
+
+    def close(self) -> dict:
+        self._finish_file()
+        if not self.scenes:
+            raise SeeUError("no usable scene to write", self.out_dir)
+        return write_manifest(self.out_dir, SCHEMA, schema_version(SCHEMA), self.files, self.params,
+                              self.provenance, scenes=self.scenes, report=self.report or None)
+
+
+class PosedDataset:
+    """Read a posed-frames directory: manifest checked, files memory-mapped, scenes by id."""
+
+    def __init__(self, root: str | Path, verify: bool = False):
+        self.root = Path(root)
+        self.manifest = read_manifest(self.root, expect_schema=SCHEMA)
+        if verify:
+            for entry in self.manifest["files"]:
+                verify_file(self.root, entry)
+        self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
+        self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
+        self._batch_index: dict[str, dict[int, int]] = {}
+
+    @property
+    def scene_ids(self) -> list[str]:
+        return list(self._scenes)
+
+    def scene_info(self, scene_id: str) -> dict:
+        if scene_id not in self._scenes:
+            raise SeeUError(f"no scene {scene_id!r} in this dataset", self.root)
+        return self._scenes[scene_id]
+
+    def __len__(self) -> int:
+        return len(self._scenes)
+
+    def _reader(self, name: str) -> pa.ipc.RecordBatchFileReader:
+        if name not in self._readers:
+            reader = open_ipc_file(self.root / name)
+            self._readers[name] = reader
+            starts, row = {}, 0
+            for i in range(reader.num_record_batches):
+                starts[row] = i
+                row += reader.get_batch(i).num_rows
+            self._batch_index[name] = starts
+        return self._readers[name]
+
+    def load_scene(self, scene_id: str) -> PosedScene:
+        info = self.scene_info(scene_id)
+        reader = self._reader(info["file"])
+        bi = self._batch_index[info["file"]].get(info["row_start"])
+        if bi is not None and reader.get_batch(bi).num_rows == info["num_frames"]:
+            batch = reader.get_batch(bi)
+        else:  # scenes written as several batches: slice the table
+            batch = reader.read_all().slice(info["row_start"], info["num_frames"])
+        scene = PosedScene.from_record_batch(batch, info.get("meta"))
+        if scene.scene_id != scene_id:
+            raise SeeUError(f"manifest points scene {scene_id!r} at rows holding {scene.scene_id!r}", self.root / info["file"])
+        return scene
+
+    def iter_scenes(self, scene_ids: Iterable[str] | None = None) -> Iterator[PosedScene]:
+        for sid in (scene_ids if scene_ids is not None else self.scene_ids):
+            yield self.load_scene(sid)
