@@ -1,0 +1,55 @@
+"""Export posed frames to the formats peer tools read.
+
+Formats:
+  pixelsplat DATASET    chunks + index.json for the pixelSplat / MVSplat / DepthSplat loaders
+                        (OUT/STAGE/000000.torch ...; same keys and dtypes as the public RE10K chunks)
+  nerfstudio DATASET    OUT/<scene_id>/images/*.jpg|png + transforms.json (OpenGL camera-to-world)
+
+Examples:
+  seeu export pixelsplat data/posed/scene --out datasets/my_re10k --stage test
+  seeu export nerfstudio data/posed/scene --out exports/ns --scenes scene0
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("dataset", type=Path, help="posed-frames directory (holds manifest.json)")
+    common.add_argument("--out", type=Path, required=True, help="output directory")
+    common.add_argument("--scenes", help="export only these scene ids: a,b,c or @file.txt")
+    common.add_argument("--progress", action="store_true", help="show a progress bar even when stderr is not a TTY")
+    sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
+    f = sub.add_parser("pixelsplat", parents=[common], help="pixelSplat / MVSplat chunks + index.json")
+    f.add_argument("--stage", choices=["train", "test"], default="test")
+    f.add_argument("--chunk-mb", type=float, default=100.0, help="image megabytes per chunk (peers: 100)")
+    f = sub.add_parser("nerfstudio", parents=[common], help="nerfstudio transforms.json + image files")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipelines.import_cmd import _scene_list
+    from seeu_data.posed import PosedDataset
+
+    dataset = PosedDataset(args.dataset)
+    scenes = _scene_list(args.scenes)
+    scene_ids = None if scenes is None else sorted(scenes)
+    progress = args.progress or sys.stderr.isatty()
+    if args.format == "pixelsplat":
+        from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
+
+        cfg = PixelSplatExportConfig(out=args.out, stage=args.stage, chunk_bytes=int(args.chunk_mb * 1e6),
+                                     scenes=scene_ids)
+        s = export_pixelsplat(dataset, cfg, progress=progress)
+        note = (f"; note: {s['scenes_not_360x640']} scenes are not 360x640, which the RE10K loaders skip"
+                if s["scenes_not_360x640"] else "")
+        print(f"exported {s['scenes']} scenes in {s['chunks']} chunks to {s['directory']}{note}")
+    else:
+        from seeu_data.exporters.nerfstudio import NerfstudioExportConfig, export_nerfstudio
+
+        s = export_nerfstudio(dataset, NerfstudioExportConfig(out=args.out, scenes=scene_ids), progress=progress)
+        print(f"exported {s['scenes']} scenes ({s['frames']} frames) as nerfstudio folders under {args.out}")
+    return 0

@@ -1,0 +1,184 @@
+"""Import a public dataset or your own posed scenes as posed frames (tables + manifest.json).
+
+Formats:
+  pixelsplat DIR        RE10K / ACID / DTU chunks (DIR/{train,test}/*.torch + index.json)
+  re10k                 raw RealEstate10K / ACID text files + frames named by timestamp
+  dtu DIR               DTU in the MVSNet layout (Cameras/train, Rectified/scanN_train, ...)
+  colmap MODEL_DIR      a COLMAP model (binary or text) + its image folder
+  nerfstudio JSON       a nerfstudio / NeRF transforms.json
+
+Scenes with bad input (an image that fails to decode, missing frames, frame/camera count mismatch,
+non-finite or non-orthonormal poses) are skipped, counted and named in the manifest's report.
+
+Examples:
+  seeu import pixelsplat datasets/re10k --stage test --out data/posed/re10k_test
+  seeu import pixelsplat datasets/dtu --stage test --dataset dtu --out data/posed/dtu_chunks
+  seeu import re10k --cameras RealEstate10K/test --frames dataset/test --out data/posed/re10k_raw
+  seeu import dtu datasets/dtu_training --scans 1,8,21 --out data/posed/dtu
+  seeu import colmap scene/sparse/0 --images scene/images --out data/posed/scene
+  seeu import nerfstudio scene/transforms.json --out data/posed/scene
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+from seeu_data.errors import SeeUError
+
+
+def _scene_list(text: str | None) -> frozenset[str] | None:
+    """`a,b,c` or `@file` (one id per line) -> set of ids."""
+    if text is None:
+        return None
+    if text.startswith("@"):
+        path = Path(text[1:])
+        if not path.exists():
+            raise SeeUError("scene list file not found", path)
+        items = [line.strip() for line in path.read_text().splitlines()]
+    else:
+        items = [s.strip() for s in text.split(",")]
+    items = [s for s in items if s]
+    if not items:
+        raise SeeUError(f"empty scene list {text!r}")
+    return frozenset(items)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    common = argparse.ArgumentParser(add_help=False)
+    common.add_argument("--out", type=Path, required=True, help="output posed-frames directory")
+    common.add_argument("--verify-decode", action="store_true",
+                        help="fully decode every image (slow); default: header + trailer check")
+    common.add_argument("--strict", action="store_true", help="fail on the first bad scene instead of skipping it")
+    common.add_argument("--progress", action="store_true", help="show a progress bar even when stderr is not a TTY")
+    sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
+
+    f = sub.add_parser("pixelsplat", parents=[common], help="RE10K / ACID / DTU pixelSplat chunks")
+    f.add_argument("root", type=Path, help="dataset dir holding train/ and test/ (or a stage dir)")
+    f.add_argument("--stage", choices=["train", "test"], default="train")
+    f.add_argument("--scenes", help="keep only these scene keys: a,b,c or @file.txt")
+    f.add_argument("--dataset", choices=["re10k", "acid", "dtu"], default="re10k",
+                   help="near/far preset (re10k/acid 1/100, dtu 2.125/4.525) and the name kept in the meta")
+    f.add_argument("--near", type=float)
+    f.add_argument("--far", type=float)
+    f.set_defaults(_import=_pixelsplat)
+
+    f = sub.add_parser("re10k", parents=[common], help="raw RealEstate10K / ACID text files + frames")
+    f.add_argument("--cameras", type=Path, required=True, help="directory of <scene>.txt camera files")
+    f.add_argument("--frames", type=Path, required=True,
+                   help="directory of <scene>/<timestamp_us>.{png,jpg} frames (as the download scripts leave them)")
+    f.add_argument("--scenes", help="keep only these scenes: a,b,c or @file.txt")
+    f.add_argument("--dataset", choices=["re10k", "acid"], default="re10k")
+    f.add_argument("--near", type=float, default=1.0)
+    f.add_argument("--far", type=float, default=100.0)
+    f.add_argument("--allow-missing-frames", action="store_true",
+                   help="drop frames whose image is missing instead of skipping the scene")
+    f.set_defaults(_import=_re10k)
+
+    f = sub.add_parser("dtu", parents=[common], help="DTU in the MVSNet layout")
+    f.add_argument("root", type=Path, help="directory holding Cameras/ and Rectified/")
+    f.add_argument("--scans", help="scan numbers, e.g. 1,8,21 (default: every Rectified/scanN_train)")
+    f.add_argument("--lighting", type=int, default=3, help="lighting index of the rectified images (default 3)")
+    f.add_argument("--scale", type=float, default=1 / 200, help="translation scale (default 1/200, as MVSplat)")
+    f.add_argument("--near", type=float, default=2.125)
+    f.add_argument("--far", type=float, default=4.525)
+    f.set_defaults(_import=_dtu)
+
+    f = sub.add_parser("colmap", parents=[common], help="a COLMAP model and its images")
+    f.add_argument("model", type=Path, help="model directory (cameras/images/points3D .bin or .txt)")
+    f.add_argument("--images", type=Path, required=True, help="image directory the model's names are relative to")
+    f.add_argument("--scene-id", help="scene id (default: derived from the model path)")
+    f.add_argument("--no-undistort", action="store_true",
+                   help="refuse distorted camera models instead of undistorting with pycolmap")
+    f.add_argument("--near", type=float, help="near plane (default: from the 3D points' depths)")
+    f.add_argument("--far", type=float, help="far plane (default: from the 3D points' depths)")
+    f.set_defaults(_import=_colmap)
+
+    f = sub.add_parser("nerfstudio", parents=[common], help="a nerfstudio / NeRF transforms.json")
+    f.add_argument("transforms", type=Path, help="transforms.json")
+    f.add_argument("--scene-id", help="scene id (default: the folder name)")
+    f.add_argument("--keep-applied-transform", action="store_true",
+                   help="keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)")
+    f.add_argument("--near", type=float, default=0.1)
+    f.add_argument("--far", type=float, default=100.0)
+    f.set_defaults(_import=_nerfstudio)
+
+
+def _pixelsplat(args):
+    from seeu_data.importers import pixelsplat as m
+
+    cfg = m.PixelSplatImportConfig(root=args.root, stage=args.stage, scenes=_scene_list(args.scenes),
+                                   dataset=args.dataset, near=args.near, far=args.far,
+                                   verify_decode=args.verify_decode)
+    directory, chunks, missing, total = m.plan(cfg)
+
+    def items():
+        yield from missing
+        yield from m.iter_scenes(cfg, chunks, directory)
+
+    near, far = cfg.near_far()
+    params = {"format": "pixelsplat", "root": str(args.root), "stage": args.stage, "dataset": args.dataset,
+              "near": near, "far": far, "scenes": sorted(cfg.scenes) if cfg.scenes else None,
+              "verify_decode": args.verify_decode}
+    return items(), params, total, [str(directory)]
+
+
+def _re10k(args):
+    from seeu_data.importers import re10k_text as m
+
+    cfg = m.Re10kTextImportConfig(cameras_dir=args.cameras, frames_dir=args.frames, scenes=_scene_list(args.scenes),
+                                  dataset=args.dataset, near=args.near, far=args.far,
+                                  allow_missing_frames=args.allow_missing_frames, verify_decode=args.verify_decode)
+    files = m.camera_files(cfg)
+    params = {"format": "re10k", "cameras": str(args.cameras), "frames": str(args.frames), "dataset": args.dataset,
+              "near": args.near, "far": args.far, "allow_missing_frames": args.allow_missing_frames,
+              "verify_decode": args.verify_decode}
+    return m.iter_scenes(cfg, files), params, len(files), [str(args.cameras), str(args.frames)]
+
+
+def _dtu(args):
+    from seeu_data.importers import dtu as m
+
+    scans = None if args.scans is None else [int(s) for s in args.scans.replace("scan", "").split(",") if s.strip()]
+    cfg = m.DtuImportConfig(root=args.root, scans=scans, lighting=args.lighting, scale=args.scale,
+                            near=args.near, far=args.far, verify_decode=args.verify_decode)
+    found = m.scan_list(cfg)
+    params = {"format": "dtu", "root": str(args.root), "scans": found, "lighting": args.lighting,
+              "scale": args.scale, "near": args.near, "far": args.far, "verify_decode": args.verify_decode}
+    return m.iter_scenes(cfg, found), params, len(found), [str(args.root)]
+
+
+def _colmap(args):
+    from seeu_data.importers import colmap as m
+
+    cfg = m.ColmapImportConfig(model_dir=args.model, images_dir=args.images, scene_id=args.scene_id,
+                               undistort=not args.no_undistort, near=args.near, far=args.far,
+                               verify_decode=args.verify_decode)
+    params = {"format": "colmap", "model": str(args.model), "images": str(args.images),
+              "undistort": not args.no_undistort, "near": args.near, "far": args.far}
+    return m.iter_scenes(cfg), params, 1, [str(args.model), str(args.images)]
+
+
+def _nerfstudio(args):
+    from seeu_data.importers import nerfstudio as m
+
+    cfg = m.NerfstudioImportConfig(transforms=args.transforms, scene_id=args.scene_id,
+                                   undo_applied_transform=not args.keep_applied_transform,
+                                   near=args.near, far=args.far, verify_decode=args.verify_decode)
+    params = {"format": "nerfstudio", "transforms": str(args.transforms),
+              "undo_applied_transform": not args.keep_applied_transform, "near": args.near, "far": args.far}
+    return m.iter_scenes(cfg), params, 1, [str(args.transforms)]
+
+
+def run(args: argparse.Namespace) -> int:
+    from seeu_data.importers import ImportReport, write_import
+    from seeu_data.manifest import provenance
+
+    items, params, total, inputs = args._import(args)
+    report = ImportReport(format=args.format)
+    progress = args.progress or sys.stderr.isatty()
+    write_import(items, args.out, report, params=params, provenance=provenance(f"import {args.format}", inputs),
+                 strict=args.strict, progress=progress, total=total)
+    print(report.summary_line(args.out))
+    return 0

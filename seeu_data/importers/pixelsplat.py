@@ -1,0 +1,210 @@
+"""pixelSplat / MVSplat chunk datasets (RealEstate10K, ACID, DTU) -> posed scenes.
+
+Layout: `ROOT/{train,test}/000000.torch ...` and `ROOT/{train,test}/index.json` (scene key -> chunk
+file name). A chunk is `torch.save(list_of_examples)`; an example is a dict with `key` (str), `url`
+(str), `timestamps` (int64 (N,), microseconds), `cameras` (float32 (N, 18): fx, fy, cx, cy
+normalised, two zeros, then the 3x4 world-to-camera row-major) and `images` (N uint8 1-D tensors
+holding the encoded JPEG, or PNG for DTU, bytes).
+
+Conversion: intrinsics are kept (already normalised); world-to-camera -> OpenCV camera-to-world with
+`cameras.cam_to_world_from_world_to_cam` (what the MVSplat loader's `w2c.inverse()` does); image
+bytes are kept as they are; width/height come from the image headers. Scene id = key; the url,
+dataset name, stage and chunk name go into the scene's meta. `source_frame` is the frame's position
+in the example. Chunks are read one at a time (memory ~ one chunk).
+
+A `seeu_posed.json` next to `index.json` (written by `seeu export pixelsplat`) restores what the
+chunk format cannot carry (near/far, source frame numbers and names, meta); peer loaders ignore it.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
+from ..errors import SeeUError
+from ..posed import PosedScene
+from .common import SkippedScene, probe_images
+
+SIDECAR_NAME = "seeu_posed.json"
+# near/far per dataset as MVSplat configures them.
+NEAR_FAR = {"re10k": (1.0, 100.0), "acid": (1.0, 100.0), "dtu": (2.125, 4.525)}
+EXAMPLE_KEYS = ("url", "timestamps", "cameras", "images", "key")
+
+
+@dataclass
+class PixelSplatImportConfig:
+    """`root`: dataset dir holding `train/` and `test/` (or a stage dir itself); `scenes`: keys to keep
+    (None = all); near/far default to the `dataset` preset."""
+
+    root: Path
+    stage: str = "train"
+    scenes: frozenset[str] | None = None
+    dataset: str = "re10k"
+    near: float | None = None
+    far: float | None = None
+    verify_decode: bool = False
+
+    def near_far(self) -> tuple[float, float]:
+        near, far = NEAR_FAR[self.dataset]
+        return (near if self.near is None else self.near, far if self.far is None else self.far)
+
+
+def stage_dir(cfg: PixelSplatImportConfig) -> Path:
+    """The directory holding the chunks: `root/stage`, or `root` itself when it holds chunks."""
+    root = Path(cfg.root)
+    if not root.is_dir():
+        raise SeeUError("pixelSplat dataset directory not found", root)
+    if (root / cfg.stage).is_dir():
+        return root / cfg.stage
+    if any(root.glob("*.torch")):
+        return root
+    raise SeeUError(f"no {cfg.stage}/ directory and no *.torch chunks here", root)
+
+
+def read_index(directory: Path) -> dict[str, str] | None:
+    """`index.json` (key -> chunk file name), or None when absent."""
+    path = directory / "index.json"
+    if not path.exists():
+        return None
+    try:
+        index = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"index.json is not valid JSON ({exc})", path) from None
+    if not isinstance(index, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in index.items()):
+        raise SeeUError("index.json must map scene keys to chunk file names", path)
+    return index
+
+
+def plan(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[SkippedScene], int | None]:
+    """Which chunks to read: `(stage_dir, chunk paths in order, scenes already known missing, scene total)`."""
+    directory = stage_dir(cfg)
+    index = read_index(directory)
+    missing: list[SkippedScene] = []
+    if index is None:
+        chunks = sorted(directory.glob("*.torch"))
+        if not chunks:
+            raise SeeUError("no *.torch chunks", directory)
+        return directory, chunks, missing, (len(cfg.scenes) if cfg.scenes else None)
+    wanted = sorted(index) if cfg.scenes is None else sorted(cfg.scenes)
+    names = []
+    for key in wanted:
+        if key not in index:
+            missing.append(SkippedScene(key, "not in index.json"))
+        elif index[key] not in names:
+            names.append(index[key])
+    names.sort()
+    return directory, [directory / n for n in names], missing, len(wanted)
+
+
+def load_chunk(path: Path) -> list:
+    """torch.load a chunk (weights_only: plain tensors, lists, dicts and strings only)."""
+    import torch
+
+    if not path.exists():
+        raise SeeUError("chunk listed in index.json is missing", path)
+    try:
+        chunk = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:  # corrupt zip, truncated file, pickle of other objects
+        raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
+                        path) from None
+    if not isinstance(chunk, list):
+        raise SeeUError(f"a chunk must hold a list of examples, found {type(chunk).__name__}", path)
+    return chunk
+
+
+def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: str, sidecar: dict | None
+                       ) -> PosedScene:
+    """One chunk example -> PosedScene (SeeUError when the example is malformed)."""
+    import torch
+
+    key = example["key"]
+    where = f"{chunk_name}:{key}"
+    missing = [k for k in EXAMPLE_KEYS if k not in example]
+    if missing:
+        raise SeeUError(f"example lacks {', '.join(missing)}", where)
+    cams = example["cameras"]
+    if not isinstance(cams, torch.Tensor) or cams.ndim != 2 or cams.shape[1] != 18:
+        raise SeeUError(f"cameras must be an (N, 18) tensor, got {getattr(cams, 'shape', type(cams))}", where)
+    images = example["images"]
+    n = cams.shape[0]
+    timestamps = np.asarray(example["timestamps"], dtype=np.int64).reshape(-1)
+    if len(images) != n or len(timestamps) != n:
+        raise SeeUError(f"{len(images)} images, {n} cameras and {len(timestamps)} timestamps disagree", where)
+    cams = cams.to(torch.float64).numpy()
+    cam_to_world = cam_to_world_from_world_to_cam(homogeneous_from_3x4(cams[:, 6:].reshape(n, 3, 4)))
+    data = [t.numpy().tobytes() if isinstance(t, torch.Tensor) else bytes(t) for t in images]
+    names = [f"{where}#{i}" for i in range(n)]
+    fmt, width, height = probe_images(data, names, cfg.verify_decode)
+    near, far = cfg.near_far()
+    meta = {"url": str(example["url"]), "dataset": cfg.dataset, "stage": cfg.stage, "chunk": chunk_name}
+    source_frame = np.arange(n, dtype=np.int64)
+    source_name: list[str] = []
+    if sidecar is not None and key in sidecar:
+        extra = sidecar[key]
+        near, far = float(extra.get("near", near)), float(extra.get("far", far))
+        if len(extra.get("source_frame", [])) == n:
+            source_frame = np.asarray(extra["source_frame"], dtype=np.int64)
+        if len(extra.get("source_name", [])) == n:
+            source_name = [str(s) for s in extra["source_name"]]
+        meta.update(extra.get("meta", {}))
+        meta.update({"dataset": meta.get("dataset", cfg.dataset), "stage": cfg.stage, "chunk": chunk_name})
+    return PosedScene(scene_id=str(key), images=data, image_format=fmt, width=width, height=height,
+                      intrinsics_norm=cams[:, :4].copy(), cam_to_world=cam_to_world, near=near, far=far,
+                      source_frame=source_frame, timestamp_us=timestamps, source_name=source_name, meta=meta)
+
+
+def read_sidecar(directory: Path) -> dict | None:
+    path = directory / SIDECAR_NAME
+    if not path.exists():
+        return None
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"not valid JSON ({exc})", path) from None
+
+
+def iter_scenes(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None
+                ) -> Iterator[PosedScene | SkippedScene]:
+    """Yield scenes chunk by chunk (one chunk in memory); malformed examples and unreadable chunks
+    are yielded as SkippedScene."""
+    missing: list[SkippedScene] = []
+    if chunks is None or directory is None:
+        directory, chunks, missing, _ = plan(cfg)
+        yield from missing
+    sidecar = read_sidecar(directory)
+    index = read_index(directory) or {}
+    seen: set[str] = {s.scene_id for s in missing}
+    for path in chunks:
+        try:
+            chunk = load_chunk(path)
+        except SeeUError as exc:
+            keys = sorted(k for k, v in index.items() if v == path.name and (cfg.scenes is None or k in cfg.scenes))
+            for key in keys or [path.name]:
+                seen.add(key)
+                yield SkippedScene(key, str(exc))
+            continue
+        for i in range(len(chunk)):
+            example, chunk[i] = chunk[i], None  # drop each example once converted: memory ~ one chunk
+            if not isinstance(example, dict) or not isinstance(example.get("key"), str):
+                yield SkippedScene(f"{path.name}#{i}", "example is not a dict with a string 'key'")
+                continue
+            if cfg.scenes is not None and example["key"] not in cfg.scenes:
+                continue
+            seen.add(example["key"])
+            try:
+                yield scene_from_example(example, cfg, path.name, sidecar)
+            except SeeUError as exc:
+                yield SkippedScene(example["key"], str(exc))
+            del example
+        del chunk
+    # Scenes asked for (or listed in index.json for the chunks read) that no chunk held.
+    expected = set(cfg.scenes) if cfg.scenes is not None else {k for k, v in index.items()
+                                                                 if v in {p.name for p in chunks}}
+    for key in sorted(expected - seen):
+        where = f"index.json lists it in {index[key]}, which does not hold it" if key in index else "not found in any chunk"
+        yield SkippedScene(key, where)

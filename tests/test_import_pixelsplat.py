@@ -1,0 +1,210 @@
+"""pixelSplat chunk import: conventions against the MVSplat loader's own projection, streaming,
+skips of bad scenes, the CLI, and the round trips with `seeu export pixelsplat`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from pipelines.cli import main as cli_main
+from pipelines.validate import validate_dataset
+from seeu_data import cameras as cam
+from seeu_data.errors import SeeUError
+from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
+from seeu_data.importers import ImportReport, write_import
+from seeu_data.importers import pixelsplat as ps
+from seeu_data.posed import PosedDataset, PosedDatasetWriter
+from tests.helpers import look_at_cam_to_world, make_posed_scene
+
+H, W = 36, 64
+
+
+def _jpeg(rng, h=H, w=W) -> bytes:
+    ok, buf = cv2.imencode(".jpg", (rng.random((h, w, 3)) * 255).astype(np.uint8))
+    assert ok
+    return buf.tobytes()
+
+
+def _w2c_rows(n: int, rng) -> np.ndarray:
+    """(n, 3, 4) world-to-camera of cameras looking at the origin from random places."""
+    out = []
+    for _ in range(n):
+        eye = rng.normal(size=3) * 2 + np.array([0, 0, -4.0])
+        c2w = look_at_cam_to_world(eye, rng.normal(size=3) * 0.1)
+        out.append(np.linalg.inv(c2w)[:3])
+    return np.stack(out)
+
+
+def make_example(key: str, n: int, rng, url: str = "https://www.youtube.com/watch?v=abc") -> dict:
+    """A chunk example exactly as the peers' convert scripts build it."""
+    intr = np.tile([0.86, 1.53, 0.5, 0.5], (n, 1)) + rng.normal(size=(n, 4)) * 0.01
+    w2c = _w2c_rows(n, rng)
+    cameras = np.concatenate([intr, np.zeros((n, 2)), w2c.reshape(n, 12)], axis=1)
+    return {
+        "url": url,
+        "timestamps": torch.tensor(np.sort(rng.integers(0, 10**8, size=n)), dtype=torch.int64),
+        "cameras": torch.tensor(cameras, dtype=torch.float32),
+        "images": [torch.tensor(np.frombuffer(_jpeg(rng), dtype=np.uint8)) for _ in range(n)],
+        "key": key,
+    }
+
+
+def write_chunks(root: Path, stage: str, chunks: list[list[dict]]) -> Path:
+    directory = root / stage
+    directory.mkdir(parents=True, exist_ok=True)
+    index = {}
+    for i, chunk in enumerate(chunks):
+        name = f"{i:06d}.torch"
+        torch.save(chunk, directory / name)
+        index.update({ex["key"]: name for ex in chunk})
+    (directory / "index.json").write_text(json.dumps(index))
+    return directory
+
+
+def _import(root, out, **kw) -> ImportReport:
+    cfg = ps.PixelSplatImportConfig(root=root, **kw)
+    report = ImportReport("pixelsplat")
+    return write_import(ps.iter_scenes(cfg), out, report, params={}, provenance={})
+
+
+def test_cameras_match_the_mvsplat_loader_projection(tmp_path):
+    rng = np.random.default_rng(0)
+    examples = [make_example(f"scene{i}", 5, rng) for i in range(3)]
+    write_chunks(tmp_path / "re10k", "test", [examples[:2], examples[2:]])
+    _import(tmp_path / "re10k", tmp_path / "posed", stage="test")
+    ds = PosedDataset(tmp_path / "posed", verify=True)
+    assert sorted(ds.scene_ids) == ["scene0", "scene1", "scene2"]
+    point = np.array([[0.3, -0.2, 0.5]])
+    for ex in examples:
+        scene = ds.load_scene(ex["key"])
+        assert scene.meta["url"] == ex["url"] and (scene.width == W).all() and (scene.height == H).all()
+        assert np.array_equal(scene.timestamp_us, ex["timestamps"].numpy())
+        assert scene.near == 1.0 and scene.far == 100.0
+        for i in range(5):
+            # The MVSplat loader: w2c = eye(4); w2c[:3] = cameras[:, 6:].view(3, 4); K normalised.
+            c = ex["cameras"][i].double()
+            w2c = torch.eye(4, dtype=torch.float64)
+            w2c[:3] = c[6:].view(3, 4)
+            K = torch.eye(3, dtype=torch.float64)
+            K[0, 0], K[1, 1], K[0, 2], K[1, 2] = c[0], c[1], c[2], c[3]
+            x_cam = (w2c @ torch.tensor([*point[0], 1.0], dtype=torch.float64))[:3]
+            uvw = K @ x_cam
+            expected = (uvw[:2] / uvw[2]).numpy() * [W, H]
+            uv, depth = cam.project_points(point, scene.cam_to_world[i], scene.intrinsics_norm[i], W, H)
+            assert np.allclose(uv[0], expected, atol=1e-6) and depth[0] > 0
+            assert scene.images[i] == ex["images"][i].numpy().tobytes()
+
+
+def test_bad_scenes_are_skipped_and_named(tmp_path):
+    rng = np.random.default_rng(1)
+    good = make_example("good", 4, rng)
+    truncated = make_example("truncated", 4, rng)
+    truncated["images"][2] = truncated["images"][2][:-200]  # a cut-off download
+    garbage = make_example("garbage", 4, rng)
+    garbage["images"][0] = torch.tensor(np.frombuffer(b"<html>not found</html>", dtype=np.uint8))
+    mismatch = make_example("mismatch", 4, rng)
+    mismatch["images"] = mismatch["images"][:3]
+    nan_pose = make_example("nan_pose", 4, rng)
+    nan_pose["cameras"][1, 9] = float("nan")
+    skewed = make_example("skewed", 4, rng)
+    skewed["cameras"][0, 6:9] *= 1.5  # not a rotation
+    write_chunks(tmp_path / "ds", "train", [[good, truncated, garbage], [mismatch, nan_pose, skewed]])
+    report = _import(tmp_path / "ds", tmp_path / "out")
+    assert report.scenes == 1 and report.frames == 4
+    reasons = {s.scene_id: s.reason for s in report.skipped}
+    assert set(reasons) == {"truncated", "garbage", "mismatch", "nan_pose", "skewed"}
+    assert "failed to decode" in reasons["truncated"] and "failed to decode" in reasons["garbage"]
+    assert "disagree" in reasons["mismatch"]
+    assert "non-finite" in reasons["nan_pose"] and "orthonormal" in reasons["skewed"]
+    manifest = json.loads((tmp_path / "out" / "manifest.json").read_text())
+    assert manifest["report"]["skipped_scenes"] == 5
+    assert PosedDataset(tmp_path / "out").scene_ids == ["good"]
+
+
+def test_nothing_usable_fails_without_manifest(tmp_path, capsys):
+    rng = np.random.default_rng(2)
+    bad = make_example("bad", 3, rng)
+    bad["images"][0] = bad["images"][0][:10]
+    write_chunks(tmp_path / "ds", "test", [[bad]])
+    rc = cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "out")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no usable scene" in err and "bad" in err and len(err.strip().splitlines()) == 1
+    assert not (tmp_path / "out" / "manifest.json").exists()
+    # A corrupt chunk file: its scenes are skipped by name, the rest imports.
+    write_chunks(tmp_path / "ds2", "test", [[make_example("ok", 3, rng)], [make_example("lost", 3, rng)]])
+    (tmp_path / "ds2" / "test" / "000001.torch").write_bytes(b"PK\x03\x04 truncated")
+    rc = cli_main(["import", "pixelsplat", str(tmp_path / "ds2"), "--stage", "test", "--out", str(tmp_path / "o2")])
+    out = capsys.readouterr().out
+    assert rc == 0 and "imported 1 scenes" in out and "skipped 1 scenes (lost)" in out
+    # A missing directory is a one-line error.
+    assert cli_main(["import", "pixelsplat", str(tmp_path / "nope"), "--out", str(tmp_path / "o3")]) == 2
+
+
+def test_scene_filter_reads_only_needed_chunks(tmp_path, monkeypatch):
+    rng = np.random.default_rng(3)
+    write_chunks(tmp_path / "ds", "train", [[make_example(f"a{i}", 2, rng) for i in range(2)],
+                                            [make_example(f"b{i}", 2, rng) for i in range(2)]])
+    loaded = []
+    real = ps.load_chunk
+    monkeypatch.setattr(ps, "load_chunk", lambda p: loaded.append(p.name) or real(p))
+    report = _import(tmp_path / "ds", tmp_path / "out", scenes=frozenset({"b1", "zz"}))
+    assert loaded == ["000001.torch"]
+    assert report.scenes == 1 and [s.scene_id for s in report.skipped] == ["zz"]
+    assert PosedDataset(tmp_path / "out").scene_ids == ["b1"]
+
+
+def _posed_dataset(path: Path, scenes) -> PosedDataset:
+    with PosedDatasetWriter(path, params={}, provenance={}) as w:
+        for s in scenes:
+            w.add(s)
+    return PosedDataset(path)
+
+
+def test_round_trip_posed_export_import(tmp_path):
+    scenes = [make_posed_scene("s0", n=6, seed=0), make_posed_scene("s1", n=4, seed=1, image_format="png")]
+    scenes[0].meta = {"url": "https://example.com/v"}
+    ds = _posed_dataset(tmp_path / "posed", scenes)
+    s = export_pixelsplat(ds, PixelSplatExportConfig(out=tmp_path / "chunks", stage="train", chunk_bytes=1))
+    assert s["chunks"] == 2
+    # Exactly the peer's keys and dtypes.
+    chunk = torch.load(tmp_path / "chunks" / "train" / "000000.torch", weights_only=True)
+    ex = chunk[0]
+    assert list(ex) == ["url", "timestamps", "cameras", "images", "key"]
+    assert ex["timestamps"].dtype == torch.int64 and ex["cameras"].dtype == torch.float32
+    assert ex["cameras"].shape == (6, 18) and all(t.dtype == torch.uint8 and t.ndim == 1 for t in ex["images"])
+    assert json.loads((tmp_path / "chunks" / "train" / "index.json").read_text()) == {"s0": "000000.torch",
+                                                                                      "s1": "000001.torch"}
+    _import(tmp_path / "chunks", tmp_path / "back", stage="train")
+    back = PosedDataset(tmp_path / "back")
+    for orig in scenes:
+        got = back.load_scene(orig.scene_id)
+        assert got.images == orig.images and got.image_format == orig.image_format
+        assert np.allclose(got.cam_to_world, orig.cam_to_world, atol=1e-6)
+        assert np.allclose(got.intrinsics_norm, orig.intrinsics_norm, atol=1e-6)
+        assert np.array_equal(got.timestamp_us, orig.timestamp_us)
+        assert np.array_equal(got.source_frame, orig.source_frame) and got.source_name == orig.source_name
+        assert (got.near, got.far) == (orig.near, orig.far)
+        assert np.array_equal(got.width, orig.width) and np.array_equal(got.height, orig.height)
+    assert back.load_scene("s0").meta["url"] == "https://example.com/v"
+    validate_dataset(tmp_path / "back")
+
+
+def test_round_trip_chunks_import_export(tmp_path):
+    """export(import(chunks)) reproduces the chunks: same keys, camera floats, image bytes."""
+    rng = np.random.default_rng(4)
+    examples = [make_example(f"k{i}", 3, rng) for i in range(3)]
+    write_chunks(tmp_path / "ds", "test", [examples])
+    assert cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "p")]) == 0
+    assert cli_main(["export", "pixelsplat", str(tmp_path / "p"), "--out", str(tmp_path / "again")]) == 0
+    again = torch.load(tmp_path / "again" / "test" / "000000.torch", weights_only=True)
+    by_key = {ex["key"]: ex for ex in again}
+    for ex in examples:
+        got = by_key[ex["key"]]
+        assert got["url"] == ex["url"] and torch.equal(got["timestamps"], ex["timestamps"])
+        assert torch.allclose(got["cameras"], ex["cameras"], atol=1e-6)
+        assert all(torch.equal(a, b) for a, b in zip(got["images"], ex["images"]))
