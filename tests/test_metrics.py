@@ -1,0 +1,108 @@
+"""Metrics against independent truths: scikit-image SSIM, the PSNR closed form, LPIPS loading."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+import torch
+from skimage.metrics import structural_similarity
+
+from seeu_data.errors import SeeUError
+from seeu_model.metrics import psnr, ssim
+
+
+def _pair(seed: int, h: int, w: int, noise: float):
+    rng = np.random.default_rng(seed)
+    # smooth-ish content plus noise, so SSIM is well away from 0 and 1
+    base = rng.random((3, h // 4 + 1, w // 4 + 1))
+    img = torch.nn.functional.interpolate(torch.from_numpy(base)[None], size=(h, w), mode="bilinear",
+                                          align_corners=False)[0].numpy()
+    other = np.clip(img + noise * rng.standard_normal(img.shape), 0, 1)
+    return img.astype(np.float32), other.astype(np.float32)
+
+
+@pytest.mark.parametrize("h,w,noise", [(32, 32, 0.05), (48, 64, 0.2), (11, 17, 0.1), (64, 40, 0.01)])
+def test_ssim_matches_scikit_image(h, w, noise):
+    a, b = _pair(h * w, h, w, noise)
+    ours = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
+    ref = structural_similarity(a, b, win_size=11, gaussian_weights=True, sigma=1.5, data_range=1.0,
+                                channel_axis=0)
+    assert abs(ours - ref) < 1e-6, (ours, ref)
+
+
+def test_ssim_batched_and_population_covariance():
+    pairs = [_pair(s, 24, 24, 0.1) for s in range(6)]
+    a = torch.from_numpy(np.stack([p[0] for p in pairs])).view(2, 3, 3, 24, 24)
+    b = torch.from_numpy(np.stack([p[1] for p in pairs])).view(2, 3, 3, 24, 24)
+    out = ssim(a, b)
+    assert out.shape == (2, 3)
+    for i, (x, y) in enumerate(pairs):
+        ref = structural_similarity(x, y, win_size=11, gaussian_weights=True, data_range=1.0, channel_axis=0)
+        assert abs(out.flatten()[i].item() - ref) < 1e-6
+    x, y = pairs[0]
+    pop = ssim(torch.from_numpy(x), torch.from_numpy(y), use_sample_covariance=False).item()
+    ref = structural_similarity(x, y, win_size=11, gaussian_weights=True, data_range=1.0, channel_axis=0,
+                                use_sample_covariance=False)
+    assert abs(pop - ref) < 1e-6
+    assert ssim(torch.from_numpy(x), torch.from_numpy(x)).item() == pytest.approx(1.0, abs=1e-9)
+
+
+def test_psnr_closed_form_and_clipping():
+    target = torch.full((2, 3, 8, 8), 0.5)
+    pred = target + 0.1  # MSE 0.01 -> 20 dB
+    assert torch.allclose(psnr(pred, target), torch.full((2,), 20.0), atol=1e-4)
+    # out-of-range values are clipped first: 1.7 counts as 1.0 -> MSE 0.25 -> 6.0206 dB
+    pred = torch.full((3, 4, 4), 1.7)
+    assert psnr(pred, torch.full((3, 4, 4), 0.5)).item() == pytest.approx(-10 * math.log10(0.25), abs=1e-4)
+    # per-image, not pooled: mean of the two PSNRs differs from the PSNR of the pooled MSE
+    a = torch.zeros(2, 3, 4, 4)
+    b = torch.stack([torch.full((3, 4, 4), 0.1), torch.full((3, 4, 4), 0.3)])
+    per = psnr(b, a)
+    assert per[0].item() == pytest.approx(20.0, abs=1e-4)
+    assert per[1].item() == pytest.approx(-10 * math.log10(0.09), abs=1e-4)
+
+
+def test_lpips_missing_weights_is_a_clear_error(tmp_path, monkeypatch):
+    from seeu_model.lpips_loss import LPIPS, VGG16_FILENAME
+
+    monkeypatch.setenv("TORCH_HOME", str(tmp_path / "th"))
+    with pytest.raises(SeeUError) as info:
+        LPIPS()
+    assert VGG16_FILENAME in str(info.value) and str(tmp_path / "th") in str(info.value)
+    assert "--lpips-weights" in str(info.value)
+    with pytest.raises(SeeUError, match="not found"):
+        LPIPS(weights=tmp_path / "nope.pth")
+    bad = tmp_path / "bad.pth"
+    torch.save({"features.0.weight": torch.zeros(1)}, bad)
+    with pytest.raises(SeeUError, match="VGG-16 state dict"):
+        LPIPS(weights=bad)
+
+
+def test_lpips_loads_trunk_from_file_and_is_frozen(tmp_path):
+    from torchvision.models.vgg import cfgs, make_layers
+
+    from seeu_model.lpips_loss import LPIPS
+
+    torch.manual_seed(0)
+    features = make_layers(cfgs["D"])
+    path = tmp_path / "vgg16-397923af.pth"
+    torch.save({f"features.{k}": v for k, v in features.state_dict().items()}, path)
+    m = LPIPS(weights=path)
+    assert torch.equal(getattr(m.net.net.slice1, "0").weight, features[0].weight)
+    assert torch.equal(getattr(m.net.net.slice5, "28").bias, features[28].bias)
+    assert not any(p.requires_grad for p in m.parameters())
+    m.train()
+    assert not m.training
+    x = torch.rand(2, 3, 32, 32)
+    y = torch.rand(2, 3, 32, 32)
+    d = m(x, y)
+    assert d.shape == (2,) and (d > 0).all()
+    assert torch.allclose(m(x, x), torch.zeros(2), atol=1e-7)
+    # the linear heads shipped with the wheel are loaded (not the default init of ones/zeros)
+    assert m.net.lin0.model[-1].weight.abs().sum() > 0
+    # gradients flow to the input even though the network is frozen (it is a loss)
+    x.requires_grad_(True)
+    m(x, y).sum().backward()
+    assert x.grad is not None and x.grad.abs().sum() > 0
