@@ -1,0 +1,12 @@
+"""Streaming loader for triple shards: deterministic, elastic, resumable (see `dataset.py`).
+
+`make_loader(shards, batch_size, ...)` -> `StreamingLoader`; the order/partition maths is in `order.py`.
+"""
+
+from .curriculum import GapCurriculum
+from .dataset import LoaderConfig, StreamingLoader, TripleStream, make_loader
+from .order import epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches
+from .source import ShardSource
+
+__all__ = ["GapCurriculum", "LoaderConfig", "StreamingLoader", "TripleStream", "make_loader", "epoch_order",
+           "manifest_fingerprint", "plan_global_batches", "rank_worker_batches", "ShardSource"]

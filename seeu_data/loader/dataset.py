@@ -1,0 +1,341 @@
+"""The streaming dataset (a PyTorch IterableDataset) and `StreamingLoader`, its resumable DataLoader.
+
+```
+loader = make_loader("s3://bucket/re10k-triples", batch_size=14, num_workers=4, seed=0, flip_p=0.5)
+for epoch in range(start_epoch, epochs):
+    loader.set_epoch(epoch)
+    for batch in loader:          # docs/ARCHITECTURE.md "Loader batch" (+ "is_padding")
+        ...
+        ckpt["loader"] = loader.state_dict()   # {"epoch", "samples_seen", "step", ...} integers
+loader.load_state_dict(ckpt["loader"])           # also with other num_workers / world_size / batch size
+```
+
+Order and partition: `seeu_data.loader.order`. The plan of the current epoch is computed in the
+main process when iteration starts (every rank computes the same one) and handed to the workers,
+which read, decode and collate whole batches; batch j of a rank comes from worker j % num_workers,
+and the DataLoader returns batches round-robin, so the output order does not depend on the worker
+count. Each batch carries the global `samples_seen` after it, which the loader records when it hands
+the batch out: a checkpoint taken between two batches resumes exactly.
+"""
+
+from __future__ import annotations
+
+import os
+import warnings
+from collections import OrderedDict
+from dataclasses import dataclass, replace
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+from ..errors import SeeUError
+from .collate import collate_views
+from .curriculum import GapCurriculum
+from .order import (GlobalPlan, epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
+                    shard_offsets)
+from .shard_reader import RawSample, ShardReader
+from .source import DEFAULT_CACHE_LIMIT, ShardSource
+from .transforms import ViewsSample, transform_sample
+
+
+@dataclass(frozen=True)
+class LoaderConfig:
+    """Everything that shapes the stream besides the data and the (rank, world size, workers) geometry."""
+
+    batch_size: int = 1  # per rank
+    image_hw: tuple[int, int] = (256, 256)
+    seed: int = 0
+    shuffle: bool = True
+    block_shards: int = 4  # shuffle rows within blocks of this many (shuffled) shards
+    remainder: str = "pad"  # last partial global batch: "pad" (flagged is_padding) or "drop"
+    flip_p: float = 0.0  # probability of mirroring a sample (deterministic per (seed, epoch, position))
+    interpolation: str = "area"  # resize filter when shrinking: "area" | "linear" | "lanczos" | "cubic"
+    image_dtype: str = "float32"  # "float32" in [0, 1] or "uint8"
+    on_error: str = "raise"  # unreadable shard / image: "raise" a SeeUError, or "skip" (warn, count, replace)
+    verify: str = "sha256"  # local shards: "sha256" on first read, or "size" only
+    cache_dir: str | None = None  # object-storage download cache and verification stamps
+    cache_limit_bytes: int = DEFAULT_CACHE_LIMIT
+    curriculum: GapCurriculum | None = None
+    max_open_shards: int = 16  # per worker
+
+    def __post_init__(self) -> None:
+        if self.batch_size < 1:
+            raise ValueError("batch_size must be >= 1")
+        if self.on_error not in ("raise", "skip"):
+            raise ValueError("on_error must be 'raise' or 'skip'")
+        if self.image_dtype not in ("float32", "uint8"):
+            raise ValueError("image_dtype must be 'float32' or 'uint8'")
+        if not 0.0 <= self.flip_p <= 1.0:
+            raise ValueError("flip_p must be in [0, 1]")
+
+
+def resolve_rank(rank: int | None, world_size: int | None) -> tuple[int, int]:
+    """(rank, world size): the arguments, else torch.distributed, else $RANK / $WORLD_SIZE, else (0, 1)."""
+    if rank is not None and world_size is not None:
+        return int(rank), int(world_size)
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return torch.distributed.get_rank(), torch.distributed.get_world_size()
+    return int(os.environ.get("RANK", 0)), int(os.environ.get("WORLD_SIZE", 1))
+
+
+def flip_decisions(seed: int, epoch: int, positions: np.ndarray, p: float) -> np.ndarray:
+    """`(n,) bool`: whether to mirror the sample at each epoch position (splitmix64 hash, pure)."""
+    if p <= 0.0:
+        return np.zeros(len(positions), dtype=bool)
+    with np.errstate(over="ignore"):
+        x = (np.asarray(positions, dtype=np.uint64) + np.uint64((seed * 0x9E3779B1 + epoch * 0x85EBCA77) & (2**64 - 1)))
+        x = (x + np.uint64(0x9E3779B97F4A7C15))
+        x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        x = x ^ (x >> np.uint64(31))
+    return (x >> np.uint64(11)).astype(np.float64) / float(1 << 53) < p
+
+
+@dataclass
+class _Position:
+    epoch: int = 0
+    samples_seen: int = 0
+    step: int = 0
+
+
+class TripleStream(IterableDataset):
+    """Batches of context-target triples from a triples dataset (local dir or object-storage URL).
+
+    Yields collated batches (`batch_size` samples of this rank), so wrap it in a DataLoader with
+    `batch_size=None` -- or use `StreamingLoader` / `make_loader`, which also keep the resume state.
+    Extra keys: `"is_padding"` (B,) bool; private `"_cursor"` (samples_seen after the batch) and
+    `"_skipped"` (samples replaced because they could not be read), removed by `StreamingLoader`.
+    """
+
+    def __init__(self, source: str | Path | ShardSource, config: LoaderConfig = LoaderConfig(),
+                 rank: int | None = None, world_size: int | None = None, filesystem=None):
+        self.config = config
+        self.source = source if isinstance(source, ShardSource) else ShardSource(
+            source, cache_dir=config.cache_dir, cache_limit_bytes=config.cache_limit_bytes,
+            verify=config.verify, filesystem=filesystem)
+        self.rank, self.world_size = resolve_rank(rank, world_size)
+        if not 0 <= self.rank < self.world_size:
+            raise ValueError(f"rank {self.rank} outside [0, {self.world_size})")
+        self.shard_rows = [s.rows for s in self.source.shards]
+        self.offsets = shard_offsets(self.shard_rows)
+        self.num_samples = int(self.offsets[-1])
+        self.fingerprint = manifest_fingerprint(self.source.manifest["files"])
+        self.position = _Position()
+        self._orders: dict[int, np.ndarray] = {}
+        self._plan_key: tuple | None = None
+        self._plan: GlobalPlan | None = None
+        self._gaps: np.ndarray | None = None
+        self._readers: OrderedDict[int, ShardReader] = OrderedDict()
+        self._bad_shards: dict[int, str] = {}
+
+    # ------------------------------------------------------------------ plan
+    @property
+    def global_batch_size(self) -> int:
+        return self.config.batch_size * self.world_size
+
+    def order(self, epoch: int) -> np.ndarray:
+        """`(N,) int64` row ids of the epoch in order (pure function of seed, epoch, manifest)."""
+        if epoch not in self._orders:
+            self._orders = {epoch: epoch_order(self.shard_rows, self.config.seed, epoch, self.fingerprint,
+                                               self.config.shuffle, self.config.block_shards)}
+        return self._orders[epoch]
+
+    def row_gaps(self) -> np.ndarray:
+        """`(N,) int64` context gap per row id (read once; needed by the curriculum)."""
+        if self._gaps is None:
+            self._gaps = np.concatenate([self._reader(k).gaps() for k in range(len(self.shard_rows))]) \
+                if self.shard_rows else np.zeros(0, np.int64)
+        return self._gaps
+
+    def plan(self) -> GlobalPlan:
+        """The remaining global batches of the current epoch from the current position."""
+        p, c = self.position, self.config
+        key = (p.epoch, p.samples_seen, p.step, self.global_batch_size, c)
+        if self._plan_key != key:
+            order = self.order(p.epoch)
+            if c.curriculum is None:
+                plan = plan_global_batches(self.num_samples, p.samples_seen, self.global_batch_size, c.remainder)
+            else:
+                plan = plan_global_batches(self.num_samples, p.samples_seen, self.global_batch_size, c.remainder,
+                                           gaps=self.row_gaps()[order], max_gap=c.curriculum.max_gap,
+                                           start_step=p.step)
+            self._plan_key, self._plan = key, plan
+        return self._plan
+
+    def num_batches(self) -> int:
+        """Batches this rank still yields in the current epoch (the same on every rank)."""
+        return self.plan().num_batches
+
+    # ------------------------------------------------------------------ reading
+    def _reader(self, k: int) -> ShardReader:
+        reader = self._readers.get(k)
+        if reader is not None:
+            self._readers.move_to_end(k)
+            return reader
+        if k in self._bad_shards:
+            raise SeeUError(self._bad_shards[k], self.source.name(k))
+        try:
+            path = self.source.local_path(k)
+            reader = ShardReader(path, self.source.name(k), self.source.shards[k].rows)
+        except SeeUError as exc:
+            self._bad_shards[k] = str(exc)
+            raise
+        self._readers[k] = reader
+        while len(self._readers) > self.config.max_open_shards:
+            self._readers.popitem(last=False)
+        return reader
+
+    def read_row(self, row_id: int) -> RawSample:
+        """The stored sample with global row id `row_id`."""
+        k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
+        return self._reader(k).sample(int(row_id - self.offsets[k]))
+
+    def _load(self, row_id: int, flip: bool) -> ViewsSample:
+        k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
+        raw = self._reader(k).sample(int(row_id - self.offsets[k]))
+        return transform_sample(raw, self.config.image_hw, flip, self.config.interpolation, where=self.source.name(k))
+
+    def make_batch(self, positions: np.ndarray, is_padding: np.ndarray, epoch: int) -> dict:
+        """Read, transform and collate the samples at these epoch positions, `(B,)` each."""
+        c = self.config
+        order = self.order(epoch)
+        flips = flip_decisions(c.seed, epoch, positions, c.flip_p)
+        pad = np.asarray(is_padding, dtype=bool).copy()
+        samples: list[ViewsSample] = []
+        skipped = 0
+        fill = 0  # next epoch position tried as a replacement for an unreadable sample
+        for i, pos in enumerate(positions):
+            try:
+                samples.append(self._load(int(order[pos]), bool(flips[i])))
+                continue
+            except SeeUError as exc:
+                if c.on_error == "raise":
+                    raise
+                warnings.warn(f"seeu loader: skipping unreadable sample: {exc}", stacklevel=2)
+                skipped += 1
+            while True:  # replace it with the first readable sample from the start of the order
+                if fill >= len(order):
+                    raise SeeUError("no readable sample left to fill a batch (every shard unreadable?)",
+                                    self.source.url)
+                try:
+                    samples.append(self._load(int(order[fill]), False))
+                    pad[i] = True
+                    fill += 1
+                    break
+                except SeeUError:
+                    fill += 1
+        batch = collate_views(samples, pad, c.image_dtype, where=self.source.url)
+        batch["_skipped"] = skipped
+        return batch
+
+    def __iter__(self) -> Iterator[dict]:
+        info = get_worker_info()
+        worker, num_workers = (info.id, info.num_workers) if info is not None else (0, 0)
+        plan = self.plan()
+        epoch = self.position.epoch
+        ids, cols = rank_worker_batches(plan.num_batches, self.config.batch_size, self.rank, self.world_size,
+                                        worker, num_workers)
+        for b in ids:
+            batch = self.make_batch(plan.positions[b, cols], plan.is_padding[b, cols], epoch)
+            batch["_cursor"] = int(plan.cursor_after[b])
+            yield batch
+
+
+def _worker_init(_: int) -> None:
+    import cv2
+
+    cv2.setNumThreads(1)
+
+
+class StreamingLoader:
+    """A DataLoader over a `TripleStream` that knows where it is: `state_dict()` / `load_state_dict()`.
+
+    State: `epoch`, `samples_seen` (global samples of the epoch consumed, all ranks together), `step`
+    (global batches consumed since the start of training; drives the curriculum), plus the seed and
+    the dataset fingerprint to refuse a checkpoint of another dataset. A finished epoch advances
+    `epoch` by itself; `set_epoch(e)` jumps to the start of epoch e (no-op if already in e).
+    """
+
+    def __init__(self, dataset: TripleStream, num_workers: int = 0, pin_memory: bool = False,
+                 prefetch_factor: int | None = 2, multiprocessing_context: str | None = None, timeout: float = 0):
+        self.dataset = dataset
+        self.num_workers = int(num_workers)
+        self.pin_memory = pin_memory
+        self.prefetch_factor = prefetch_factor if num_workers > 0 else None
+        self.multiprocessing_context = multiprocessing_context
+        self.timeout = timeout
+        self.stats = {"skipped_corrupt": 0, "skipped_curriculum": 0, "padding": 0}
+
+    # ------------------------------------------------------------------ state
+    @property
+    def epoch(self) -> int:
+        return self.dataset.position.epoch
+
+    @property
+    def samples_seen(self) -> int:
+        return self.dataset.position.samples_seen
+
+    @property
+    def step(self) -> int:
+        return self.dataset.position.step
+
+    def set_epoch(self, epoch: int) -> None:
+        if epoch != self.dataset.position.epoch:
+            self.dataset.position = _Position(int(epoch), 0, self.dataset.position.step)
+
+    def state_dict(self) -> dict:
+        p = self.dataset.position
+        return {"epoch": p.epoch, "samples_seen": p.samples_seen, "step": p.step, "seed": self.dataset.config.seed,
+                "num_samples": self.dataset.num_samples, "fingerprint": self.dataset.fingerprint}
+
+    def load_state_dict(self, state: dict) -> None:
+        ds = self.dataset
+        if "fingerprint" in state and int(state["fingerprint"]) != ds.fingerprint:
+            raise SeeUError("loader checkpoint belongs to a different dataset (manifest fingerprint differs)",
+                            ds.source.url)
+        if not 0 <= int(state["samples_seen"]) <= ds.num_samples:
+            raise SeeUError(f"loader checkpoint has samples_seen {state['samples_seen']} outside "
+                            f"[0, {ds.num_samples}]", ds.source.url)
+        if "seed" in state and int(state["seed"]) != ds.config.seed:
+            ds.config = replace(ds.config, seed=int(state["seed"]))  # the order must be the checkpoint's
+        ds.position = _Position(int(state["epoch"]), int(state["samples_seen"]), int(state.get("step", 0)))
+
+    def __len__(self) -> int:
+        """Batches this rank yields from the current position to the end of the epoch."""
+        return self.dataset.num_batches()
+
+    # ------------------------------------------------------------------ iteration
+    def __iter__(self) -> Iterator[dict]:
+        ds = self.dataset
+        plan = ds.plan()  # computed here once; forked workers inherit it
+        loader = DataLoader(ds, batch_size=None, num_workers=self.num_workers, pin_memory=self.pin_memory,
+                            prefetch_factor=self.prefetch_factor, persistent_workers=False,
+                            worker_init_fn=_worker_init if self.num_workers else None,
+                            multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
+                            timeout=self.timeout)
+        skipped = plan.skipped
+        for batch in loader:
+            cursor = batch.pop("_cursor")
+            self.stats["skipped_corrupt"] += batch.pop("_skipped")
+            self.stats["padding"] += int(batch["is_padding"].sum())
+            before = ds.position.samples_seen
+            self.stats["skipped_curriculum"] += int(np.searchsorted(skipped, cursor) - np.searchsorted(skipped, before))
+            ds.position = _Position(ds.position.epoch, cursor, ds.position.step + 1)
+            yield batch
+        ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
+
+
+def make_loader(shards: str | Path, batch_size: int, *, num_workers: int = 0, rank: int | None = None,
+                world_size: int | None = None, seed: int = 0, pin_memory: bool = False, filesystem=None,
+                multiprocessing_context: str | None = None, **config) -> StreamingLoader:
+    """A `StreamingLoader` over the triples dataset at `shards` (directory or object-storage URL).
+
+    `config` takes the other `LoaderConfig` fields (image_hw, flip_p, remainder, curriculum, ...).
+    """
+    cfg = LoaderConfig(batch_size=batch_size, seed=seed, **config)
+    ds = TripleStream(shards, cfg, rank=rank, world_size=world_size, filesystem=filesystem)
+    return StreamingLoader(ds, num_workers=num_workers, pin_memory=pin_memory,
+                           multiprocessing_context=multiprocessing_context)

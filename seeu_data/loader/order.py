@@ -1,0 +1,186 @@
+"""Epoch order and partition: pure functions of (seed, epoch, manifest) and the run's geometry.
+
+Vocabulary (all integers, no hidden state):
+
+* **row id** -- a sample's index in the dataset: shard k's row j has id `shard_offset[k] + j`.
+* **order** -- `epoch_order(...)`, a permutation of all row ids, `(N,) int64`; a pure function of
+  (seed, epoch, manifest fingerprint). Shards are shuffled, then rows are shuffled inside blocks of
+  `block_shards` consecutive shards (locality: a stretch of the epoch touches a few shards).
+* **position** -- an index into the order. `samples_seen` is a position: everything before it has been
+  consumed (globally, across all ranks), everything from it on has not.
+* **global batch** -- `G = batch_size * world_size` consecutive positions; rank r takes the
+  contiguous slice `[r * batch_size, (r + 1) * batch_size)` of every global batch. The samples of a
+  global batch therefore do not depend on how G is split into ranks.
+* **workers** -- inside a rank, batch j goes to DataLoader worker `j % num_workers`. PyTorch's
+  DataLoader takes batches from its workers round-robin, so the rank's output order is the same for
+  any number of workers (0 = the main process, same as 1).
+* **remainder** -- the last, partial global batch is either dropped (`"drop"`) or padded (`"pad"`) with
+  positions from the start of the order, flagged `is_padding`. Either way every rank yields the same
+  number of batches, so DDP never waits on a rank that ran out.
+
+Resuming at `samples_seen = s` with another world size / batch size / worker count simply plans the
+positions `[s, N)` with the new geometry: nothing before s is repeated, nothing from s on is lost.
+
+With a gap curriculum (`curriculum.GapCurriculum`) the global batches are formed by walking the
+order from `samples_seen` and skipping positions whose context gap exceeds the curriculum's maximum
+at that batch's training step (`plan_global_batches(..., gaps=..., max_gap=...)`). Skipped samples are
+counted and not revisited in this epoch; the walk is deterministic, so it resumes exactly too.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from dataclasses import dataclass
+from typing import Callable, Sequence
+
+import numpy as np
+
+REMAINDER_MODES = ("pad", "drop")
+
+
+def manifest_fingerprint(files: Sequence[dict]) -> int:
+    """63-bit fingerprint of a manifest's file list (paths, row counts, sha256): the order's dataset key."""
+    digest = hashlib.sha256()
+    for entry in files:
+        digest.update(f"{entry['path']}\0{int(entry['rows'])}\0{entry['sha256']}\n".encode())
+    return int.from_bytes(digest.digest()[:8], "little") >> 1
+
+
+def shard_offsets(shard_rows: Sequence[int]) -> np.ndarray:
+    """`(S + 1,) int64` cumulative row counts: shard k holds row ids `[off[k], off[k + 1])`."""
+    return np.concatenate([[0], np.cumsum(np.asarray(shard_rows, dtype=np.int64))]).astype(np.int64)
+
+
+def epoch_order(shard_rows: Sequence[int], seed: int, epoch: int, fingerprint: int,
+                shuffle: bool = True, block_shards: int = 4) -> np.ndarray:
+    """The epoch's sample order: a permutation of the row ids `0 .. N-1`, `(N,) int64`.
+
+    A pure function of its arguments. `shuffle=False` gives shard order, row order (evaluation).
+    """
+    offsets = shard_offsets(shard_rows)
+    total = int(offsets[-1])
+    if not shuffle:
+        return np.arange(total, dtype=np.int64)
+    if block_shards < 1:
+        raise ValueError("block_shards must be >= 1")
+    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(seed) >> 32, int(epoch), fingerprint & 0xFFFFFFFF, fingerprint >> 32])
+    shards = rng.permutation(len(shard_rows))
+    parts = []
+    for start in range(0, len(shards), block_shards):
+        block = np.concatenate([np.arange(offsets[k], offsets[k + 1], dtype=np.int64)
+                                for k in shards[start:start + block_shards]])
+        parts.append(rng.permutation(block))
+    return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class GlobalPlan:
+    """The global batches still to come in an epoch.
+
+    positions: `(nb, G) int64` positions into the epoch order; is_padding: `(nb, G) bool`;
+    cursor_after: `(nb,) int64` the `samples_seen` value once batch b has been consumed;
+    skipped: `(K,) int64` positions passed over by the curriculum (ascending).
+    """
+
+    positions: np.ndarray
+    is_padding: np.ndarray
+    cursor_after: np.ndarray
+    skipped: np.ndarray
+
+    @property
+    def num_batches(self) -> int:
+        return int(self.positions.shape[0])
+
+
+def _pad_positions(count: int, pool: np.ndarray) -> np.ndarray:
+    """`count` padding positions taken cyclically from `pool` (positions from the start of the order)."""
+    if count == 0:
+        return np.zeros(0, dtype=np.int64)
+    if len(pool) == 0:
+        raise ValueError("cannot pad: no sample is eligible")
+    return pool[np.arange(count) % len(pool)].astype(np.int64)
+
+
+def plan_global_batches(num_samples: int, samples_seen: int, global_batch: int, remainder: str = "pad",
+                        gaps: np.ndarray | None = None, max_gap: Callable[[int], float] | None = None,
+                        start_step: int = 0) -> GlobalPlan:
+    """Global batches of the positions `[samples_seen, num_samples)` of an epoch order.
+
+    Without a curriculum: consecutive runs of `global_batch` positions. With one, `gaps` is the
+    `(N,)` context gap *of each position* (i.e. `gap[order]`) and `max_gap(step)` the largest gap
+    allowed at training step `step`; global batch b (trained at step `start_step + b`) takes the next
+    positions whose gap is allowed, skipping the others.
+    """
+    if remainder not in REMAINDER_MODES:
+        raise ValueError(f"remainder must be one of {REMAINDER_MODES}, got {remainder!r}")
+    if global_batch < 1:
+        raise ValueError("global batch size must be >= 1")
+    if not 0 <= samples_seen <= num_samples:
+        raise ValueError(f"samples_seen {samples_seen} outside [0, {num_samples}]")
+    g = global_batch
+    empty = np.zeros(0, dtype=np.int64)
+    if max_gap is None:
+        rest = num_samples - samples_seen
+        full, part = divmod(rest, g)
+        pos = np.arange(samples_seen, samples_seen + full * g, dtype=np.int64).reshape(full, g)
+        pad = np.zeros((full, g), dtype=bool)
+        cursor = samples_seen + g * np.arange(1, full + 1, dtype=np.int64)
+        if part and remainder == "pad":
+            tail = np.arange(samples_seen + full * g, num_samples, dtype=np.int64)
+            fill = _pad_positions(g - part, np.arange(num_samples, dtype=np.int64))
+            pos = np.concatenate([pos, np.concatenate([tail, fill])[None]])
+            pad = np.concatenate([pad, (np.arange(g) >= part)[None]])
+            cursor = np.concatenate([cursor, [num_samples]])
+        return GlobalPlan(pos, pad, cursor.astype(np.int64), empty)
+
+    gaps = np.asarray(gaps)
+    if gaps.shape != (num_samples,):
+        raise ValueError("gaps must hold one gap per position")
+    rows, pads, cursors, skipped = [], [], [], []
+    cur, step = samples_seen, start_step
+    while cur < num_samples:
+        limit = max_gap(step)
+        ok = np.flatnonzero(gaps[cur:] <= limit)
+        if len(ok) >= g:
+            take = cur + ok[:g]
+            end = int(take[-1]) + 1
+            skipped.append(np.setdiff1d(np.arange(cur, end, dtype=np.int64), take, assume_unique=True))
+            rows.append(take)
+            pads.append(np.zeros(g, dtype=bool))
+            cursors.append(end)
+            cur, step = end, step + 1
+            continue
+        # The epoch ends inside this batch.
+        take = cur + ok
+        skipped.append(np.setdiff1d(np.arange(cur, num_samples, dtype=np.int64), take, assume_unique=True))
+        if remainder == "pad" and len(take):
+            pool = np.flatnonzero(gaps <= limit)
+            rows.append(np.concatenate([take, _pad_positions(g - len(take), pool)]))
+            pads.append(np.arange(g) >= len(take))
+            cursors.append(num_samples)
+        elif remainder == "drop":
+            skipped.append(take)  # never trained on: counted with the skipped ones
+        cur = num_samples
+    if rows:
+        pos, pad = np.stack(rows).astype(np.int64), np.stack(pads)
+    else:
+        pos, pad = np.zeros((0, g), dtype=np.int64), np.zeros((0, g), dtype=bool)
+    skip = np.sort(np.concatenate(skipped)) if skipped else empty
+    return GlobalPlan(pos, pad, np.asarray(cursors, dtype=np.int64), skip.astype(np.int64))
+
+
+def rank_worker_batches(num_global_batches: int, batch_size: int, rank: int, world_size: int,
+                        worker: int = 0, num_workers: int = 0) -> tuple[np.ndarray, slice]:
+    """Which global batches a (rank, worker) pair produces and which columns of them it takes.
+
+    Returns `(batch_indices (nb_w,), columns)`: the worker produces global batches
+    `worker, worker + num_workers, ...` (all of them for `num_workers` 0 or 1) and takes the rank's
+    contiguous columns `[rank * batch_size, (rank + 1) * batch_size)` of each.
+    """
+    if not 0 <= rank < world_size:
+        raise ValueError(f"rank {rank} outside [0, {world_size})")
+    k = max(1, num_workers)
+    if not 0 <= worker < k:
+        raise ValueError(f"worker {worker} outside [0, {k})")
+    return (np.arange(worker, num_global_batches, k, dtype=np.int64),
+            slice(rank * batch_size, (rank + 1) * batch_size))

@@ -1,0 +1,145 @@
+"""Random access to the rows of one triple shard (Arrow IPC file, memory-mapped, zero-copy).
+
+A shard holds record batches of `seeu.triples` rows (`schemas/triples.v1.json`). The reader keeps
+a row -> (batch, row in batch) table and, per record batch it has touched, the per-view columns as
+flat numpy arrays; encoded images are numpy views straight into the memory map (no copy).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from ..arrow_io import open_ipc_file
+from ..errors import SeeUError
+from ..schema import check_version
+
+_PER_VIEW = ("frame_index", "image", "width", "height", "intrinsics_norm", "cam_to_world", "near", "far")
+_REQUIRED = ("sample_id", "scene_id", "num_context", "gap") + _PER_VIEW
+
+
+@dataclass
+class RawSample:
+    """One stored triple, V views (the `num_context` contexts first, then the targets).
+
+    images: V encoded images as 1-D uint8 arrays (views into the shard); width, height: (V,) int;
+    intrinsics_norm: (V, 4) float64; cam_to_world: (V, 4, 4) float64; near, far: (V,) float32;
+    frame_index: (V,) int64; gap: the context gap.
+    """
+
+    sample_id: str
+    scene_id: str
+    num_context: int
+    images: list[np.ndarray]
+    width: np.ndarray
+    height: np.ndarray
+    intrinsics_norm: np.ndarray
+    cam_to_world: np.ndarray
+    near: np.ndarray
+    far: np.ndarray
+    frame_index: np.ndarray
+    gap: int
+
+
+def _binary_parts(arr: pa.Array) -> tuple[np.ndarray, np.ndarray]:
+    """(offsets (n + 1,) int64, data uint8) of a binary array, zero-copy."""
+    bufs = arr.buffers()
+    dtype = np.int64 if pa.types.is_large_binary(arr.type) else np.int32
+    offsets = np.frombuffer(bufs[1], dtype=dtype)[arr.offset: arr.offset + len(arr) + 1].astype(np.int64)
+    data = np.frombuffer(bufs[2], dtype=np.uint8) if bufs[2] is not None else np.zeros(0, np.uint8)
+    return offsets, data
+
+
+class _BatchColumns:
+    """The columns of one record batch as numpy (per-view columns flattened over all views)."""
+
+    def __init__(self, batch: pa.RecordBatch, where: str):
+        col = batch.column
+        self.sample_id = col("sample_id").to_pylist()
+        self.scene_id = col("scene_id").to_pylist()
+        self.num_context = col("num_context").to_numpy()
+        self.gap = col("gap").to_numpy()
+        self.view_offsets = np.asarray(col("frame_index").offsets).astype(np.int64)
+        for name in _PER_VIEW[1:]:
+            if not np.array_equal(np.asarray(col(name).offsets), self.view_offsets):
+                raise SeeUError(f"column {name} has a different number of views than frame_index", where)
+
+        def flat(name: str) -> np.ndarray:
+            return col(name).values.to_numpy(zero_copy_only=False)
+
+        self.frame_index = flat("frame_index").astype(np.int64)
+        self.width = flat("width")
+        self.height = flat("height")
+        self.near = flat("near").astype(np.float32)
+        self.far = flat("far").astype(np.float32)
+        self.intrinsics = col("intrinsics_norm").values.flatten().to_numpy().reshape(-1, 4)
+        self.cam_to_world = col("cam_to_world").values.flatten().to_numpy().reshape(-1, 4, 4)
+        self.image_offsets, self.image_data = _binary_parts(col("image").values)
+
+    def sample(self, j: int) -> RawSample:
+        lo, hi = int(self.view_offsets[j]), int(self.view_offsets[j + 1])
+        io, data = self.image_offsets, self.image_data
+        return RawSample(
+            sample_id=self.sample_id[j], scene_id=self.scene_id[j], num_context=int(self.num_context[j]),
+            images=[data[io[k]:io[k + 1]] for k in range(lo, hi)],
+            width=self.width[lo:hi], height=self.height[lo:hi],
+            intrinsics_norm=self.intrinsics[lo:hi], cam_to_world=self.cam_to_world[lo:hi],
+            near=self.near[lo:hi], far=self.far[lo:hi], frame_index=self.frame_index[lo:hi],
+            gap=int(self.gap[j]),
+        )
+
+
+class ShardReader:
+    """Rows of one shard by index. `name` is what errors call the shard (its URL or path)."""
+
+    def __init__(self, path: str | Path, name: str, expected_rows: int | None = None):
+        self.path = Path(path)
+        self.name = name
+        try:
+            self._reader = open_ipc_file(self.path)
+        except SeeUError as exc:
+            raise SeeUError(str(exc).split(": ", 1)[-1], name) from None
+        meta = self._reader.schema.metadata or {}
+        schema_name = meta.get(b"seeu.schema", b"").decode()
+        if schema_name != "seeu.triples":
+            raise SeeUError(f"not a seeu.triples shard (schema {schema_name or 'missing'!r})", name)
+        check_version(schema_name, meta.get(b"seeu.schema_version", b"").decode(), name)
+        missing = [c for c in _REQUIRED if c not in self._reader.schema.names]
+        if missing:
+            raise SeeUError(f"missing columns: {', '.join(missing)}", name)
+        try:
+            counts = [self._reader.get_batch(i).num_rows for i in range(self._reader.num_record_batches)]
+        except (pa.ArrowInvalid, OSError) as exc:
+            raise SeeUError(f"unreadable record batch (corrupt?): {exc}".splitlines()[0], name) from None
+        self.batch_starts = np.concatenate([[0], np.cumsum(counts, dtype=np.int64)]).astype(np.int64)
+        self.num_rows = int(self.batch_starts[-1])
+        if expected_rows is not None and self.num_rows != expected_rows:
+            raise SeeUError(f"{self.num_rows} rows, the manifest says {expected_rows}", name)
+        self._batches: dict[int, _BatchColumns] = {}
+
+    def _columns(self, b: int) -> _BatchColumns:
+        cols = self._batches.get(b)
+        if cols is None:
+            try:
+                batch = self._reader.get_batch(b)
+                cols = _BatchColumns(batch, self.name)
+            except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, ValueError, KeyError) as exc:
+                raise SeeUError(f"unreadable record batch {b} (corrupt?): {exc}".splitlines()[0], self.name) from None
+            self._batches[b] = cols
+        return cols
+
+    def sample(self, row: int) -> RawSample:
+        """Row `row` of the shard (0-based)."""
+        if not 0 <= row < self.num_rows:
+            raise IndexError(f"row {row} outside [0, {self.num_rows}) in {self.name}")
+        b = int(np.searchsorted(self.batch_starts, row, side="right") - 1)
+        return self._columns(b).sample(row - int(self.batch_starts[b]))
+
+    def gaps(self) -> np.ndarray:
+        """`(rows,) int64` context gap of every row (reads only the gap column's buffers)."""
+        out = [np.asarray(self._reader.get_batch(b).column("gap").to_numpy(), dtype=np.int64)
+               for b in range(len(self.batch_starts) - 1)]
+        return np.concatenate(out) if out else np.zeros(0, np.int64)
