@@ -1,0 +1,432 @@
+"""The built-in synthetic scene: a seedable textured corridor with boxes, rendered by numpy ray casting.
+
+Exact ground truth for tests, the demo and benchmarks: every rendered view comes with its OpenCV
+camera-to-world pose, normalised intrinsics and per-pixel camera depth (z, not ray length).
+
+World frame: OpenCV-like, +x right, +y *down*, +z along the corridor. The scene is a set of
+axis-aligned textured rectangles (the room's inward-facing walls/floor/ceiling and the faces of
+several boxes at varied depths: floor boxes, pillars, a hanging box, boxes ahead of the path), so
+views have occlusions and a real depth range. Textures are procedural (random shapes on a
+noisy base, slightly blurred) and rich in corners, so SIFT finds many stable features. Shading is
+Lambertian with a fixed light, constant per face (view-independent, as SfM assumes).
+
+    scene = make_scene(seed=0)
+    poses = camera_path(90)                       # (90, 4, 4) walk-through that translates and turns
+    intr = default_intrinsics_norm(640, 360)      # (4,) fx/W, fy/H, cx/W, cy/H
+    rgb, depth = render_view(scene, poses[0], intr, 640, 360)   # (360, 640, 3) uint8, (360, 640) float32
+    write_clip("clip.mp4", n_frames=90, width=640, height=360, seed=0)   # + clip.json ground truth
+    posed = synthetic_posed_scene(24, 90, 160, seed=0)                    # PosedScene, no SfM
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from .cameras import intrinsics_pixels, project_points
+from .errors import SeeUError
+
+GT_FORMAT = "seeu.synthetic_ground_truth/1"
+TEXELS_PER_METRE = 128.0
+
+
+@dataclass(frozen=True)
+class SceneConfig:
+    """Layout of the synthetic corridor (metres, world +y down)."""
+
+    room_min: tuple[float, float, float] = (-2.6, -1.3, -2.5)
+    room_max: tuple[float, float, float] = (2.6, 1.4, 16.0)
+    n_floor_boxes: int = 8
+    n_pillars: int = 2
+    n_ahead_boxes: int = 3
+    light_dir: tuple[float, float, float] = (0.4, -0.8, 0.45)  # towards the light (up, right, ahead)
+
+
+@dataclass
+class Scene:
+    """Axis-aligned textured rectangles. R = number of rectangles.
+
+    axis: (R,) int, the constant axis of the rectangle; coord: (R,) its value; lo/hi: (R, 2) the
+    bounds on the two other axes (in increasing axis order); facing: (R,) +1/-1, the side the
+    visible surface faces along `axis`; shade: (R,) Lambert factor; textures: R float32 images
+    (Ht, Wt, 3) in [0, 255] covering the rectangle at TEXELS_PER_METRE.
+    """
+
+    axis: np.ndarray
+    coord: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    facing: np.ndarray
+    shade: np.ndarray
+    textures: list[np.ndarray]
+    boxes: list[tuple[np.ndarray, np.ndarray]] = field(default_factory=list)  # (min, max) per box
+    seed: int = 0
+
+    def __len__(self) -> int:
+        return len(self.axis)
+
+    def face_centres(self) -> np.ndarray:
+        """Centre of every rectangle, `(R, 3)` world points on the visible surfaces."""
+        out = np.zeros((len(self), 3))
+        for k in range(len(self)):
+            a = int(self.axis[k])
+            others = [i for i in range(3) if i != a]
+            out[k, a] = self.coord[k]
+            out[k, others] = 0.5 * (self.lo[k] + self.hi[k])
+        return out
+
+
+def _make_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
+    """Procedural corner-rich texture `(h, w, 3)` float32 in [0, 255]."""
+    base = rng.uniform(60, 200, size=3)
+    coarse = rng.normal(0, 28, size=(max(2, h // 24), max(2, w // 24), 3)).astype(np.float32)
+    img = np.clip(base + cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC), 0, 255).astype(np.uint8)
+    n_shapes = int(h * w / 900) + 4
+    for _ in range(n_shapes):
+        color = tuple(int(c) for c in rng.integers(0, 256, size=3))
+        kind = rng.integers(0, 4)
+        cx, cy = int(rng.integers(0, w)), int(rng.integers(0, h))
+        size = int(rng.integers(4, 28))
+        if kind == 0:
+            cv2.rectangle(img, (cx, cy), (cx + size, cy + int(rng.integers(4, 28))), color, -1)
+        elif kind == 1:
+            cv2.circle(img, (cx, cy), size // 2 + 2, color, -1)
+        elif kind == 2:
+            pts = np.array([[cx, cy], [cx + size, cy + int(rng.integers(-size, size))],
+                            [cx + int(rng.integers(-size, size)), cy + size]], np.int32)
+            cv2.fillPoly(img, [pts], color)
+        else:
+            cv2.line(img, (cx, cy), (cx + int(rng.integers(-40, 40)), cy + int(rng.integers(-40, 40))), color, 2)
+    return cv2.GaussianBlur(img, (0, 0), 0.8).astype(np.float32)
+
+
+def _add_rect(rects: list, rng, axis: int, coord: float, lo, hi, facing: int, light: np.ndarray) -> None:
+    normal = np.zeros(3)
+    normal[axis] = facing
+    shade = 0.55 + 0.45 * max(0.0, float(normal @ light))
+    others = [i for i in range(3) if i != axis]
+    # texture rows follow the second other axis, columns the first
+    w = max(8, int(round((hi[0] - lo[0]) * TEXELS_PER_METRE)))
+    h = max(8, int(round((hi[1] - lo[1]) * TEXELS_PER_METRE)))
+    rects.append((axis, coord, np.asarray(lo, float), np.asarray(hi, float), facing, shade, _make_texture(rng, h, w)))
+    del others
+
+
+def _add_box(rects: list, rng, bmin: np.ndarray, bmax: np.ndarray, light: np.ndarray, inward: bool = False) -> None:
+    for axis in range(3):
+        others = [i for i in range(3) if i != axis]
+        lo, hi = bmin[others], bmax[others]
+        # the face at bmin faces -axis from outside (+axis when seen from inside), and vice versa
+        _add_rect(rects, rng, axis, bmin[axis], lo, hi, +1 if inward else -1, light)
+        _add_rect(rects, rng, axis, bmax[axis], lo, hi, -1 if inward else +1, light)
+
+
+def make_scene(seed: int = 0, config: SceneConfig | None = None) -> Scene:
+    """Build the seeded corridor scene: room + floor boxes + pillars + a hanging box + boxes ahead."""
+    cfg = config or SceneConfig()
+    rng = np.random.default_rng(seed)
+    light = np.asarray(cfg.light_dir, float)
+    light /= np.linalg.norm(light)
+    rmin, rmax = np.asarray(cfg.room_min, float), np.asarray(cfg.room_max, float)
+    rects: list = []
+    _add_box(rects, rng, rmin, rmax, light, inward=True)
+    boxes = []
+    floor = rmax[1]
+    for i in range(cfg.n_floor_boxes):  # along both walls, clear of the path (|x| <= 0.9)
+        side = -1 if i % 2 == 0 else 1
+        sx, sy, sz = rng.uniform(0.35, 0.9), rng.uniform(0.3, 1.3), rng.uniform(0.35, 1.0)
+        x0 = side * rng.uniform(1.15, rmax[0] - sx - 0.05)
+        x0 = x0 if side > 0 else x0 - sx
+        z0 = rng.uniform(0.5, 13.5) if i >= 2 else rng.uniform(1.0, 4.0)
+        boxes.append((np.array([x0, floor - sy, z0]), np.array([x0 + sx, floor, z0 + sz])))
+    for i in range(cfg.n_pillars):
+        side = 1 if i % 2 == 0 else -1
+        x0 = side * rng.uniform(1.3, 1.9)
+        z0 = rng.uniform(2.5, 9.0)
+        boxes.append((np.array([x0 - 0.15, rmin[1], z0]), np.array([x0 + 0.15, rmax[1], z0 + 0.3])))
+    # a box hanging from the ceiling above the path's end, and boxes ahead of the path's end
+    hz = rng.uniform(9.0, 10.5)
+    boxes.append((np.array([-0.4, rmin[1], hz]), np.array([0.4, rmin[1] + 0.5, hz + 0.6])))
+    for i in range(cfg.n_ahead_boxes):
+        sx, sy, sz = rng.uniform(0.4, 0.9), rng.uniform(0.5, 1.6), rng.uniform(0.4, 0.8)
+        x0 = rng.uniform(-1.6, 1.6 - sx)
+        z0 = 9.5 + 2.0 * i + rng.uniform(0, 1.0)
+        boxes.append((np.array([x0, floor - sy, z0]), np.array([x0 + sx, floor, z0 + sz])))
+    for bmin, bmax in boxes:
+        _add_box(rects, rng, bmin, bmax, light)
+    return Scene(
+        axis=np.array([r[0] for r in rects], np.int64), coord=np.array([r[1] for r in rects]),
+        lo=np.stack([r[2] for r in rects]), hi=np.stack([r[3] for r in rects]),
+        facing=np.array([r[4] for r in rects], np.int64), shade=np.array([r[5] for r in rects]),
+        textures=[r[6] for r in rects], boxes=boxes, seed=seed,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
+# Cameras
+# ---------------------------------------------------------------------------------------------
+
+
+def default_intrinsics_norm(width: int, height: int, hfov_deg: float = 70.0) -> np.ndarray:
+    """Square-pixel pinhole, principal point at the centre: `(4,)` (fx/W, fy/H, cx/W, cy/H)."""
+    fx_n = 0.5 / np.tan(np.radians(hfov_deg) / 2)
+    return np.array([fx_n, fx_n * width / height, 0.5, 0.5])
+
+
+def _look_along(eye: np.ndarray, forward: np.ndarray) -> np.ndarray:
+    z = forward / np.linalg.norm(forward)
+    down = np.array([0.0, 1.0, 0.0])
+    x = np.cross(down, z)
+    x /= np.linalg.norm(x)
+    y = np.cross(z, x)
+    m = np.eye(4)
+    m[:3, 0], m[:3, 1], m[:3, 2], m[:3, 3] = x, y, z, eye
+    return m
+
+
+def camera_path(n_frames: int, length: float = 7.0) -> np.ndarray:
+    """Walk-through camera path `(n_frames, 4, 4)` OpenCV camera-to-world.
+
+    Walks `length` metres along +z, weaving sideways by +-0.6 m with a slight bob, and turns
+    (yaw +-22 degrees, small pitch changes) like a person looking around while walking.
+    """
+    if n_frames < 1:
+        raise SeeUError(f"n_frames must be >= 1, got {n_frames}")
+    t = np.linspace(0.0, 1.0, n_frames)
+    poses = []
+    for ti in t:
+        eye = np.array([0.6 * np.sin(1.5 * np.pi * ti), 0.04 * np.sin(6 * np.pi * ti), length * ti])
+        yaw = np.radians(22.0) * np.sin(2 * np.pi * ti + 0.4)
+        pitch = np.radians(6.0) * np.sin(3 * np.pi * ti)
+        forward = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+        poses.append(_look_along(eye, forward))
+    return np.stack(poses)
+
+
+def path_length(cam_to_world: np.ndarray) -> float:
+    """Sum of distances between consecutive camera centres of `(N, 4, 4)` poses."""
+    c = np.asarray(cam_to_world)[:, :3, 3]
+    return float(np.linalg.norm(np.diff(c, axis=0), axis=1).sum())
+
+
+# ---------------------------------------------------------------------------------------------
+# Rendering
+# ---------------------------------------------------------------------------------------------
+
+
+def _rect_pixel_bbox(scene: Scene, k: int, cam_to_world, intr, width: int, height: int):
+    """Pixel bounding box (x0, x1, y0, y1) of rectangle k, or None when it is behind the camera."""
+    a = int(scene.axis[k])
+    others = [i for i in range(3) if i != a]
+    corners = np.zeros((4, 3))
+    corners[:, a] = scene.coord[k]
+    lo, hi = scene.lo[k], scene.hi[k]
+    corners[:, others] = [[lo[0], lo[1]], [hi[0], lo[1]], [lo[0], hi[1]], [hi[0], hi[1]]]
+    uv, depth = project_points(corners, cam_to_world, intr, width, height)
+    if (depth <= 1e-6).all():
+        return None
+    if (depth <= 1e-6).any():  # crosses the camera plane: test the whole image
+        return 0, width, 0, height
+    x0 = int(np.clip(np.floor(uv[:, 0].min()) - 1, 0, width))
+    x1 = int(np.clip(np.ceil(uv[:, 0].max()) + 1, 0, width))
+    y0 = int(np.clip(np.floor(uv[:, 1].min()) - 1, 0, height))
+    y1 = int(np.clip(np.ceil(uv[:, 1].max()) + 1, 0, height))
+    if x0 >= x1 or y0 >= y1:
+        return None
+    return x0, x1, y0, y1
+
+
+def _bilinear(tex: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """Sample `(Ht, Wt, 3)` at continuous texel coordinates (corner-at-origin), clamped: `(M, 3)`."""
+    ht, wt = tex.shape[:2]
+    x = np.clip(u - 0.5, 0, wt - 1.001)
+    y = np.clip(v - 0.5, 0, ht - 1.001)
+    x0 = x.astype(np.int64)
+    y0 = y.astype(np.int64)
+    fx = (x - x0)[:, None]
+    fy = (y - y0)[:, None]
+    top = tex[y0, x0] * (1 - fx) + tex[y0, x0 + 1] * fx
+    bot = tex[y0 + 1, x0] * (1 - fx) + tex[y0 + 1, x0 + 1] * fx
+    return top * (1 - fy) + bot * fy
+
+
+def render_view(scene: Scene, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, width: int, height: int,
+                background: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Ray-cast one view.
+
+    cam_to_world: `(4, 4)` OpenCV; intrinsics_norm: `(4,)`. Rays go through pixel centres
+    (j + 0.5, i + 0.5). Returns rgb `(H, W, 3)` uint8 and depth `(H, W)` float32 camera z-depth
+    (inf where nothing is hit, which cannot happen inside the closed room).
+    """
+    c2w = np.asarray(cam_to_world, np.float64)
+    K = intrinsics_pixels(np.asarray(intrinsics_norm, np.float64), width, height)
+    fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
+    xs = ((np.arange(width) + 0.5 - cx) / fx).astype(np.float32)
+    ys = ((np.arange(height) + 0.5 - cy) / fy).astype(np.float32)
+    rot = c2w[:3, :3].astype(np.float32)
+    origin = c2w[:3, 3]
+    # ray directions with camera-z = 1, so the ray parameter t is the camera depth: (3, H, W)
+    dirs = (rot[:, 0, None, None] * xs[None, None, :] + rot[:, 1, None, None] * ys[None, :, None]
+            + rot[:, 2, None, None])
+    depth = np.full((height, width), np.inf, np.float32)
+    face = np.full((height, width), -1, np.int32)
+    for k in range(len(scene)):
+        a = int(scene.axis[k])
+        if (origin[a] - scene.coord[k]) * scene.facing[k] <= 0:
+            continue  # back-facing: the camera is behind this surface
+        bbox = _rect_pixel_bbox(scene, k, c2w, intrinsics_norm, width, height)
+        if bbox is None:
+            continue
+        x0, x1, y0, y1 = bbox
+        b0, b1 = [i for i in range(3) if i != a]
+        da = dirs[a, y0:y1, x0:x1]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = (scene.coord[k] - origin[a]) / da
+        p0 = origin[b0] + t * dirs[b0, y0:y1, x0:x1]
+        p1 = origin[b1] + t * dirs[b1, y0:y1, x0:x1]
+        lo, hi = scene.lo[k], scene.hi[k]
+        dslice = depth[y0:y1, x0:x1]
+        hit = (t > 1e-6) & (t < dslice) & (p0 >= lo[0]) & (p0 <= hi[0]) & (p1 >= lo[1]) & (p1 <= hi[1])
+        dslice[hit] = t[hit]
+        face[y0:y1, x0:x1][hit] = k
+    rgb = np.full((height, width, 3), background, np.float32)
+    flat_face = face.reshape(-1)
+    order = np.argsort(flat_face, kind="stable")
+    ids, starts = np.unique(flat_face[order], return_index=True)
+    ends = np.append(starts[1:], len(order))
+    flat_depth = depth.reshape(-1)
+    flat_dirs = dirs.reshape(3, -1)
+    flat_rgb = rgb.reshape(-1, 3)
+    for k, s, e in zip(ids, starts, ends):
+        if k < 0:
+            continue
+        idx = order[s:e]
+        a = int(scene.axis[k])
+        b0, b1 = [i for i in range(3) if i != a]
+        t = flat_depth[idx]
+        u = (origin[b0] + t * flat_dirs[b0, idx] - scene.lo[k, 0]) * TEXELS_PER_METRE
+        v = (origin[b1] + t * flat_dirs[b1, idx] - scene.lo[k, 1]) * TEXELS_PER_METRE
+        flat_rgb[idx] = _bilinear(scene.textures[k], u, v) * scene.shade[k]
+    return np.clip(rgb + 0.5, 0, 255).astype(np.uint8), depth
+
+
+# ---------------------------------------------------------------------------------------------
+# Clips and posed scenes
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class ClipConfig:
+    """Parameters of a synthetic clip (the ground-truth JSON records them)."""
+
+    n_frames: int = 90
+    width: int = 640
+    height: int = 360
+    seed: int = 0
+    fps: float = 30.0
+    hfov_deg: float = 70.0
+    path_length_m: float = 7.0
+
+
+def ground_truth_path(video_path: str | Path) -> Path:
+    """Where the ground-truth JSON of a clip lives: `clip.mp4` -> `clip.json`."""
+    return Path(video_path).with_suffix(".json")
+
+
+def write_clip(video_path: str | Path, config: ClipConfig | None = None, progress: bool = False, **overrides) -> dict:
+    """Render the clip to `video_path` (mp4v) and its ground truth to `<stem>.json`; both atomically.
+
+    Returns the ground-truth document: {"format", "config", "width", "height", "fps",
+    "path_length", "frames": [{"frame", "timestamp_us", "cam_to_world" (4x4), "intrinsics_norm" (4)}]}.
+    """
+    from tqdm import tqdm
+
+    from .arrow_io import atomic_write_text, tmp_path_for
+
+    cfg = config or ClipConfig()
+    if overrides:
+        cfg = ClipConfig(**{**cfg.__dict__, **overrides})
+    if cfg.n_frames < 1 or cfg.width < 16 or cfg.height < 16:
+        raise SeeUError(f"invalid clip size {cfg.n_frames} frames of {cfg.width}x{cfg.height}")
+    video_path = Path(video_path)
+    video_path.parent.mkdir(parents=True, exist_ok=True)
+    scene = make_scene(cfg.seed)
+    poses = camera_path(cfg.n_frames, cfg.path_length_m)
+    intr = default_intrinsics_norm(cfg.width, cfg.height, cfg.hfov_deg)
+    tmp = tmp_path_for(video_path).with_suffix(".tmp.mp4")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), cfg.fps, (cfg.width, cfg.height))
+    if not writer.isOpened():
+        raise SeeUError("OpenCV cannot write mp4v video here", video_path)
+    frames = []
+    try:
+        for i in tqdm(range(cfg.n_frames), desc="render", unit="frame", disable=not progress):
+            rgb, _ = render_view(scene, poses[i], intr, cfg.width, cfg.height)
+            writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+            frames.append({"frame": i, "timestamp_us": int(round(i * 1e6 / cfg.fps)),
+                           "cam_to_world": poses[i].tolist(), "intrinsics_norm": intr.tolist()})
+        writer.release()
+        tmp.replace(video_path)
+    except BaseException:
+        writer.release()
+        tmp.unlink(missing_ok=True)
+        raise
+    doc = {"format": GT_FORMAT, "config": dict(cfg.__dict__), "video": video_path.name,
+           "width": cfg.width, "height": cfg.height, "fps": cfg.fps,
+           "path_length": path_length(poses), "frames": frames}
+    atomic_write_text(ground_truth_path(video_path), json.dumps(doc, indent=1) + "\n")
+    return doc
+
+
+def load_ground_truth(path: str | Path) -> dict:
+    """Read a clip's ground-truth JSON (the video path or the JSON path) with numpy arrays added:
+    `cam_to_world` `(N, 4, 4)`, `intrinsics_norm` `(N, 4)`, `frame` `(N,)`."""
+    path = Path(path)
+    if path.suffix != ".json":
+        path = ground_truth_path(path)
+    if not path.exists():
+        raise SeeUError("ground-truth JSON not found", path)
+    doc = json.loads(path.read_text())
+    if doc.get("format") != GT_FORMAT:
+        raise SeeUError(f"not a synthetic ground-truth file (format {doc.get('format')!r})", path)
+    doc["cam_to_world"] = np.array([f["cam_to_world"] for f in doc["frames"]], np.float64)
+    doc["intrinsics_norm"] = np.array([f["intrinsics_norm"] for f in doc["frames"]], np.float64)
+    doc["frame"] = np.array([f["frame"] for f in doc["frames"]], np.int64)
+    return doc
+
+
+def synthetic_posed_scene(n_frames: int = 24, height: int = 90, width: int = 160, seed: int = 0,
+                          scene_id: str | None = None, fps: float = 30.0, jpeg_quality: int = 95,
+                          hfov_deg: float = 70.0, path_length_m: float = 7.0):
+    """A ground-truth `PosedScene` of the synthetic corridor (JPEG images, exact cameras, no SfM).
+
+    near/far are the min/max rendered depth over all frames with a 10 % margin (recorded in meta).
+    """
+    from .posed import PosedScene
+
+    scene = make_scene(seed)
+    poses = camera_path(n_frames, path_length_m)
+    intr = default_intrinsics_norm(width, height, hfov_deg)
+    images, dmin, dmax = [], np.inf, 0.0
+    for pose in poses:
+        rgb, depth = render_view(scene, pose, intr, width, height)
+        ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality])
+        if not ok:  # pragma: no cover - OpenCV always encodes uint8 RGB
+            raise SeeUError("JPEG encoding failed")
+        images.append(buf.tobytes())
+        finite = depth[np.isfinite(depth)]
+        dmin, dmax = min(dmin, float(finite.min())), max(dmax, float(finite.max()))
+    return PosedScene(
+        scene_id=scene_id or f"synthetic_s{seed}", images=images, image_format="jpeg",
+        width=np.full(n_frames, width), height=np.full(n_frames, height),
+        intrinsics_norm=np.tile(intr, (n_frames, 1)), cam_to_world=poses,
+        near=0.9 * dmin, far=1.1 * dmax,
+        source_frame=np.arange(n_frames, dtype=np.int64),
+        timestamp_us=np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64),
+        source_name=[""] * n_frames,
+        meta={"synthetic": True, "seed": seed, "ground_truth": True,
+              "near_far_method": "min/max rendered depth over the frames with a 10% margin"},
+    )
