@@ -76,7 +76,8 @@ class ShardSource:
                  cache_limit_bytes: int = DEFAULT_CACHE_LIMIT, verify: str = "sha256", filesystem=None):
         if verify not in ("sha256", "size"):
             raise ValueError("verify must be 'sha256' or 'size'")
-        self.url = str(url).rstrip("/")
+        self.uri = str(url)  # as given (object-storage options may follow '?')
+        self.url = self.uri.split("?", 1)[0].rstrip("/")  # for messages and cache keys
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
         self.cache_limit_bytes = int(cache_limit_bytes)
         self.verify = verify
@@ -87,12 +88,13 @@ class ShardSource:
                 import pyarrow.fs as pafs
 
                 try:
-                    self._fs, self._root = pafs.FileSystem.from_uri(self.url)
+                    self._fs, self._root = pafs.FileSystem.from_uri(self.uri)
                 except Exception as exc:  # noqa: BLE001 - pyarrow raises several types
                     raise SeeUError(f"cannot open object storage: {exc}".splitlines()[0], self.url) from None
             else:
                 self._root = self.url.split("://", 1)[-1]
-            self.root = self.cache_dir / "manifests" / hashlib.sha1(self.url.encode()).hexdigest()[:16]
+            self._root = self._root.rstrip("/")
+            self.root = self.cache_dir / "manifests" / hashlib.sha1(self.uri.encode()).hexdigest()[:16]
             self._fetch_manifest()
         else:
             self.root = Path(self.url[len("file://"):] if self.url.startswith("file://") else self.url)
