@@ -1,0 +1,349 @@
+"""`seeu build`: posed chunks -> sample plan -> shard specs -> shards (local pool or Ray) -> manifest.
+
+Stages:
+
+1. Scan the posed-frames directories (manifests checked, files present with the listed size and
+   rows; sha256 too with `verify_inputs`). Scene ids must be unique across inputs.
+2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.sampling`,
+   scenes in sorted order), or the entries of an evaluation index (file order; entries naming a
+   missing scene or frame are reported and not written).
+3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
+   (scaled by the pixel ratio when resizing); each shard spec is a JSON-able dict.
+4. Materialise every spec with `triples.build_shard_table` and write `shard-XXXXX.arrow` atomically
+   (the local process pool and Ray run the same function: byte-identical shards). A shard already on
+   disk whose metadata carries the spec's plan hash and the planned row count is kept (resume).
+5. Write `manifest.json` last (files with rows/bytes/sha256, full build parameters, report).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import sys
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+import pyarrow.compute as pc
+
+from .arrow_io import open_ipc_file, write_table
+from .errors import SeeUError
+from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
+from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
+from .triples import PLAN_KEY, SCHEMA, ImageOptions, build_shard_table, plan_sha256
+from .schema import schema_version
+
+SHARD_PATTERN = "shard-{:05d}.arrow"
+_VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
+
+
+@dataclass(frozen=True)
+class BuildConfig:
+    """Everything `seeu build` needs. mode: 'interp' | 'extrap' | 'eval'."""
+
+    inputs: tuple[str, ...]
+    out: str
+    mode: str = "interp"
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)
+    index_path: str | None = None
+    index_format: str = "auto"
+    seed: int = 0
+    image: ImageOptions = field(default_factory=ImageOptions)
+    shard_bytes: int = 128 << 20
+    rows_per_batch: int = 64
+    engine: str = "local"
+    workers: int = 1
+    ray_address: str | None = None
+    progress: bool = False
+    verify_inputs: bool = False
+
+    def params(self) -> dict:
+        """The build parameters recorded in the manifest (engine and workers are not: they do not change bytes)."""
+        out = {"inputs": [str(Path(p).resolve()) for p in self.inputs], "mode": self.mode, "seed": self.seed,
+               "image": self.image.as_dict(), "shard_bytes": self.shard_bytes, "rows_per_batch": self.rows_per_batch}
+        if self.mode == "eval":
+            out.update(index=str(Path(self.index_path).resolve()) if self.index_path else None,
+                       index_format=self.index_format)
+        else:
+            out["sampling"] = asdict(self.sampling)
+        return out
+
+
+@dataclass
+class SceneSource:
+    scene_id: str
+    path: str  # absolute path of the posed Arrow file holding the scene
+    row_start: int
+    num_frames: int
+    file_sha256: str
+
+    def as_spec(self) -> dict:
+        return {"path": self.path, "row_start": self.row_start, "num_frames": self.num_frames,
+                "file_sha256": self.file_sha256}
+
+
+def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> dict[str, SceneSource]:
+    """Scene id -> where its rows are, over all posed directories (duplicates refused)."""
+    scenes: dict[str, SceneSource] = {}
+    for root in inputs:
+        root_p = Path(root)
+        manifest = read_manifest(root_p, expect_schema="seeu.posed_frames")
+        sha = {}
+        for entry in manifest["files"]:
+            verify_file(root_p, entry, check_sha=verify)
+            sha[entry["path"]] = entry["sha256"]
+        for s in manifest.get("scenes", []):
+            if s["scene_id"] in scenes:
+                raise SeeUError(f"scene id {s['scene_id']!r} appears in two inputs "
+                                f"({Path(scenes[s['scene_id']].path).parent} and {root_p})", root_p)
+            if s["file"] not in sha:
+                raise SeeUError(f"scene {s['scene_id']!r} points at {s['file']}, which the manifest does not list", root_p)
+            scenes[s["scene_id"]] = SceneSource(s["scene_id"], str((root_p / s["file"]).resolve()), int(s["row_start"]),
+                                                int(s["num_frames"]), sha[s["file"]])
+    return scenes
+
+
+# ---------------------------------------------------------------------------------------------
+# Planning
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class Plan:
+    samples: list[Sample]
+    report: dict
+
+
+def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
+    """interp / extrap: `samples_per_scene` samples of every long-enough scene, scenes sorted by id."""
+    s = cfg.sampling
+    samples: list[Sample] = []
+    short: list[str] = []
+    for sid in sorted(scenes):
+        got = sample_scene(s, scenes[sid].num_frames, sid, cfg.seed)
+        if not got:
+            short.append(sid)
+        samples.extend(got)
+    report = {"scenes": len(scenes), "scenes_used": len(scenes) - len(short),
+              "scenes_skipped_too_short": len(short), "skipped_scene_examples": short[:20],
+              "min_scene_frames": min_scene_length(s), "samples": len(samples)}
+    return Plan(samples, report)
+
+
+def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
+    """eval: exactly the entries of the index, in file order; problems reported per entry."""
+    from .eval_index import read_index
+
+    if not cfg.index_path:
+        raise SeeUError("--mode eval needs --index FILE")
+    index = read_index(cfg.index_path, cfg.index_format)
+    samples, problems = [], []
+    for e in index.entries:
+        src = scenes.get(e.scene_id)
+        if src is None:
+            problems.append({"key": e.key, "scene_id": e.scene_id, "problem": "scene not in the posed data"})
+            continue
+        bad = [v for v in e.context + e.target if not 0 <= v < src.num_frames]
+        if bad:
+            problems.append({"key": e.key, "scene_id": e.scene_id,
+                             "problem": f"frame(s) {bad} outside 0..{src.num_frames - 1}"})
+            continue
+        samples.append(make_sample(e.scene_id, "eval", e.k, e.context, e.target))
+    report = {"index": index.path, "index_format": index.format, "index_keys": index.num_keys,
+              "index_null_skipped": index.num_null, "index_entries": len(index.entries),
+              "written": len(samples), "not_written": len(problems), "problems": problems}
+    if not samples:
+        raise SeeUError(f"none of the {len(index.entries)} index entries match the posed data "
+                        f"(first problem: {problems[0]['key']}: {problems[0]['problem']})" if problems
+                        else "the index lists no entries", cfg.index_path)
+    return Plan(samples, report)
+
+
+def _view_bytes(scenes: dict[str, SceneSource], ids: set[str], resize: tuple[int, int] | None) -> dict[str, np.ndarray]:
+    """Estimated stored bytes per frame of each scene: its image size (pixel-scaled when resizing)."""
+    tables: dict[str, pa.Table] = {}
+    out = {}
+    for sid in sorted(ids):
+        src = scenes[sid]
+        if src.path not in tables:
+            tables[src.path] = open_ipc_file(src.path).read_all().select(["image", "width", "height"])
+        rows = tables[src.path].slice(src.row_start, src.num_frames)
+        nbytes = pc.binary_length(rows.column("image")).to_numpy().astype(np.float64)
+        if resize is not None:
+            pix = rows.column("width").to_numpy().astype(np.float64) * rows.column("height").to_numpy()
+            nbytes = nbytes * (resize[0] * resize[1]) / np.maximum(pix, 1)
+        out[sid] = nbytes + _VIEW_OVERHEAD_BYTES
+    return out
+
+
+def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) -> list[dict]:
+    """Cut the plan (in order) into shards of about `shard_bytes` each; JSON-able specs."""
+    sizes = _view_bytes(scenes, {s.scene_id for s in plan.samples}, cfg.image.resize)
+    groups: list[list[Sample]] = [[]]
+    acc = 0.0
+    for s in plan.samples:
+        est = float(sizes[s.scene_id][list(s.views)].sum())
+        if groups[-1] and acc + est > cfg.shard_bytes:
+            groups.append([])
+            acc = 0.0
+        groups[-1].append(s)
+        acc += est
+    specs = []
+    for i, group in enumerate(groups):
+        ids = sorted({s.scene_id for s in group})
+        spec = {"index": i, "file": SHARD_PATTERN.format(i),
+                "samples": [s.as_dict() for s in group],
+                "sources": {sid: scenes[sid].as_spec() for sid in ids},
+                "image": cfg.image.as_dict(), "rows_per_batch": cfg.rows_per_batch}
+        spec["plan_sha256"] = plan_sha256(spec)
+        specs.append(spec)
+    return specs
+
+
+# ---------------------------------------------------------------------------------------------
+# Materialising (the same function in every engine)
+# ---------------------------------------------------------------------------------------------
+
+
+def existing_shard_matches(path: Path, spec: dict) -> bool:
+    """True when `path` is a complete shard written from this very spec (resume)."""
+    if not path.exists():
+        return False
+    try:
+        reader = pa.ipc.open_file(pa.memory_map(str(path), "r"))
+        meta = reader.schema.metadata or {}
+        rows = sum(reader.get_batch(i).num_rows for i in range(reader.num_record_batches))
+    except (pa.ArrowInvalid, OSError):
+        return False
+    return meta.get(PLAN_KEY) == spec["plan_sha256"].encode() and rows == len(spec["samples"])
+
+
+def materialise(spec: dict, out_dir: str) -> dict:
+    """Write one shard (or keep a matching one); return its manifest entry, or {"error": message}."""
+    out = Path(out_dir)
+    path = out / spec["file"]
+    try:
+        resumed = existing_shard_matches(path, spec)
+        if not resumed:
+            table = build_shard_table(spec)
+            write_table(path, table, max_chunksize=spec["rows_per_batch"])
+        entry = FileEntry.for_file(out, path, len(spec["samples"]))
+    except SeeUError as exc:
+        return {"index": spec["index"], "error": str(exc)}
+    return {"index": spec["index"], "entry": asdict(entry), "resumed": resumed}
+
+
+def _pool_init() -> None:
+    import cv2
+
+    cv2.setNumThreads(1)  # the pool is the parallelism
+
+
+def _materialise_json(args: tuple[str, str]) -> dict:
+    return materialise(json.loads(args[0]), args[1])
+
+
+def run_local(specs: list[dict], out_dir: str, workers: int, bar) -> list[dict]:
+    """Materialise the specs in this process (workers <= 1) or in a process pool."""
+    results = []
+    if workers <= 1 or len(specs) <= 1:
+        for spec in specs:
+            results.append(materialise(spec, out_dir))
+            bar.update(1)
+        return results
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor, as_completed
+
+    # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch via
+    # seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded in them.
+    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+    with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx, initializer=_pool_init) as pool:
+        futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir)) for s in specs]
+        for fut in as_completed(futures):
+            results.append(fut.result())
+            bar.update(1)
+    return results
+
+
+# ---------------------------------------------------------------------------------------------
+# Driver
+# ---------------------------------------------------------------------------------------------
+
+
+def _progress_bar(total: int, enabled: bool):
+    from tqdm import tqdm
+
+    return tqdm(total=total, unit="shard", desc="seeu build", file=sys.stderr,
+                disable=not (enabled or sys.stderr.isatty()))
+
+
+def prepare_output(out: Path, num_shards: int) -> list[str]:
+    """Mark the output incomplete (manifest removed) and drop leftovers of other builds."""
+    out.mkdir(parents=True, exist_ok=True)
+    (out / MANIFEST_NAME).unlink(missing_ok=True)
+    removed = []
+    for p in out.glob(".shard-*.tmp"):
+        p.unlink(missing_ok=True)
+    for p in sorted(out.glob("shard-*.arrow")):
+        try:
+            idx = int(p.stem.split("-")[1])
+        except (IndexError, ValueError):
+            continue
+        if idx >= num_shards:
+            p.unlink()
+            removed.append(p.name)
+    return removed
+
+
+def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
+    """Run a whole build; return the manifest document."""
+    if cfg.mode not in ("interp", "extrap", "eval"):
+        raise SeeUError(f"unknown mode {cfg.mode!r} (interp, extrap or eval)")
+    if not cfg.inputs:
+        raise SeeUError("no posed-frames directory given")
+    if cfg.mode != "eval" and cfg.sampling.mode != cfg.mode:
+        raise SeeUError(f"sampling config mode {cfg.sampling.mode!r} differs from build mode {cfg.mode!r}")
+    out = Path(cfg.out)
+    for p in cfg.inputs:
+        if Path(p).resolve() == out.resolve():
+            raise SeeUError("the output directory is also an input", out)
+    scenes = scan_inputs(cfg.inputs, cfg.verify_inputs)
+    if not scenes:
+        raise SeeUError("the inputs hold no scenes", cfg.inputs[0])
+    plan = plan_eval(cfg, scenes) if cfg.mode == "eval" else plan_sampled(cfg, scenes)
+    if not plan.samples:
+        raise SeeUError(f"no scene is long enough: all {len(scenes)} scenes have fewer than "
+                        f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)", cfg.inputs[0])
+    specs = shard_specs(cfg, plan, scenes)
+    removed = prepare_output(out, len(specs))
+    with _progress_bar(len(specs), cfg.progress) as bar:
+        if cfg.engine == "ray":
+            from .ray_build import run_ray
+
+            results = run_ray(specs, str(out), cfg.ray_address, bar)
+        elif cfg.engine == "local":
+            results = run_local(specs, str(out), cfg.workers, bar)
+        else:
+            raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
+    results.sort(key=lambda r: r["index"])
+    errors = [r["error"] for r in results if "error" in r]
+    if errors:
+        raise SeeUError(errors[0] + (f" (and {len(errors) - 1} more shard errors)" if len(errors) > 1 else ""))
+    files = [FileEntry(**r["entry"]) for r in results]
+    report = dict(plan.report)
+    report.update(shards=len(files), shards_resumed=sum(1 for r in results if r["resumed"]),
+                  stale_files_removed=removed,
+                  plan_sha256=_combined_hash(specs))
+    prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)
+    return write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report)
+
+
+def _combined_hash(specs: list[dict]) -> str:
+    import hashlib
+
+    return hashlib.sha256("".join(s["plan_sha256"] for s in specs).encode()).hexdigest()
+
+
+def default_workers() -> int:
+    return max(1, min(8, os.cpu_count() or 1))

@@ -1,0 +1,176 @@
+"""Evaluation indices: read the peers' three formats as they are, and generate one for own data.
+
+Formats (frame indices are posed `frame_index` values, contexts and targets in the listed order):
+
+* ``pixelsplat`` (pixelSplat, MVSplat, DepthSplat, HiSplat, TranSplat ``evaluation_index_*.json``):
+  ``{scene: {"context": [l, r], "target": [t1, t2, t3]} | null}``; null entries are skipped and counted.
+* ``latentsplat`` (latentSplat ``re10k_extra.json``): ``{scene: [entry, entry, ...]}``, a list per scene
+  of such entries (null items skipped).
+* ``dtu`` (MVSplat DTU protocol, ``evaluation_index_dtu_nctx2.json``): keys ``scanN_train_0K`` whose
+  scene is ``scanN`` (the DTU importer's scene id) and whose view ids are frame indices.
+
+`read_index` returns the entries in file order; `entry.k` numbers a scene's entries 0, 1, ... in that
+order (the sample id of the written row is ``{scene}/eval/{k}``).
+"""
+
+from __future__ import annotations
+
+import json
+import re
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SeeUError
+from .sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
+
+FORMATS = ("pixelsplat", "latentsplat", "dtu")
+_DTU_KEY = re.compile(r"^(scan\d+)_train_(\d+)$")
+
+
+@dataclass(frozen=True)
+class IndexEntry:
+    """One evaluation example as the index lists it."""
+
+    key: str  # the index key (scene id, or e.g. 'scan1_train_00')
+    scene_id: str
+    k: int  # ordinal of the entry among its scene's entries, in file order
+    context: tuple[int, ...]
+    target: tuple[int, ...]
+
+
+@dataclass
+class EvalIndex:
+    path: str
+    format: str
+    entries: list[IndexEntry]
+    num_keys: int
+    num_null: int
+
+
+def detect_format(doc: dict) -> str:
+    """Guess the format of a parsed index (see the module docstring)."""
+    values = [v for v in doc.values() if v is not None]
+    if values and all(isinstance(v, list) for v in values):
+        return "latentsplat"
+    if doc and all(_DTU_KEY.match(k) for k in doc):
+        return "dtu"
+    return "pixelsplat"
+
+
+def _entry(raw, key: str, where: Path) -> tuple[tuple[int, ...], tuple[int, ...]]:
+    if not isinstance(raw, dict) or "context" not in raw or "target" not in raw:
+        raise SeeUError(f"entry {key!r} is not {{'context': [...], 'target': [...]}}", where)
+    try:
+        ctx = tuple(int(x) for x in raw["context"])
+        tgt = tuple(int(x) for x in raw["target"])
+    except (TypeError, ValueError):
+        raise SeeUError(f"entry {key!r} holds non-integer frame indices", where) from None
+    if not ctx or not tgt:
+        raise SeeUError(f"entry {key!r} has no context or no target frames", where)
+    return ctx, tgt
+
+
+def read_index(path: str | Path, fmt: str = "auto") -> EvalIndex:
+    """Parse an evaluation index file in one of FORMATS (or 'auto')."""
+    path = Path(path)
+    if not path.exists():
+        raise SeeUError("evaluation index not found", path)
+    try:
+        doc = json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"evaluation index is not valid JSON ({exc})", path) from None
+    if not isinstance(doc, dict):
+        raise SeeUError("evaluation index must be a JSON object {scene: entry}", path)
+    if fmt == "auto":
+        fmt = detect_format(doc)
+    if fmt not in FORMATS:
+        raise SeeUError(f"unknown index format {fmt!r} (known: {', '.join(FORMATS)})", path)
+    entries: list[IndexEntry] = []
+    per_scene: dict[str, int] = {}
+    nulls = 0
+    for key, value in doc.items():
+        items = value if fmt == "latentsplat" else [value]
+        if fmt == "latentsplat" and value is not None and not isinstance(value, list):
+            raise SeeUError(f"entry {key!r}: the latentSplat format holds a list per scene", path)
+        if value is None:
+            nulls += 1
+            continue
+        scene = key
+        if fmt == "dtu":
+            m = _DTU_KEY.match(key)
+            if not m:
+                raise SeeUError(f"DTU index key {key!r} is not 'scanN_train_K'", path)
+            scene = m.group(1)
+        for j, raw in enumerate(items):
+            if raw is None:
+                nulls += 1
+                continue
+            ctx, tgt = _entry(raw, key if fmt != "latentsplat" else f"{key}[{j}]", path)
+            k = per_scene.get(scene, 0)
+            per_scene[scene] = k + 1
+            entries.append(IndexEntry(key, scene, k, ctx, tgt))
+    return EvalIndex(str(path), fmt, entries, len(doc), nulls)
+
+
+# ---------------------------------------------------------------------------------------------
+# Generation for own data (`seeu index`)
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True)
+class IndexConfig:
+    """What `seeu index` draws per scene: a SamplingConfig plus an optional overlap window."""
+
+    sampling: SamplingConfig
+    min_overlap: float = 0.0
+    max_overlap: float = 1.0
+    overlap_depth: float | None = None  # None: geometric mean of the scene's near and far
+    max_tries: int = 64
+
+
+def pair_overlap(cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, a: int, b: int, depth: float) -> float:
+    """Symmetric view overlap of frames a and b: min of the two directed frustum overlaps."""
+    return min(frustum_overlap(cam_to_world[a], intrinsics_norm[a], cam_to_world[b], intrinsics_norm[b], depth),
+               frustum_overlap(cam_to_world[b], intrinsics_norm[b], cam_to_world[a], intrinsics_norm[a], depth))
+
+
+def generate_entries(cfg: IndexConfig, scene_id: str, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray,
+                     near: float, far: float, seed: int) -> list[dict] | None:
+    """Up to `samples_per_scene` entries {"context", "target"} for one scene, or None (scene unusable).
+
+    Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4). Context pairs whose overlap falls outside
+    [min_overlap, max_overlap] are redrawn (at most `max_tries` draws per entry).
+    """
+    from .sampling import sample_one, min_scene_length
+
+    s = cfg.sampling
+    n = len(cam_to_world)
+    if n < min_scene_length(s) or max_gap(s, n) < s.gap_min:
+        return None
+    rng = scene_rng(seed, scene_id)
+    use_overlap = cfg.min_overlap > 0.0 or cfg.max_overlap < 1.0
+    depth = cfg.overlap_depth if cfg.overlap_depth is not None else float(np.sqrt(near * far))
+    out = []
+    for k in range(s.samples_per_scene):
+        for _ in range(cfg.max_tries):
+            smp = sample_one(rng, s, n, scene_id, k)
+            if not use_overlap:
+                break
+            ov = pair_overlap(cam_to_world, intrinsics_norm, smp.context[0], smp.context[-1], depth)
+            if cfg.min_overlap <= ov <= cfg.max_overlap:
+                break
+        else:
+            continue  # no pair in the overlap window for this entry
+        out.append({"context": list(smp.context), "target": list(smp.target)})
+    return out or None
+
+
+def index_document(per_scene: dict[str, list[dict] | None], fmt: str) -> dict:
+    """Assemble the JSON document: pixelsplat keeps the first entry per scene (null if none)."""
+    if fmt == "latentsplat":
+        return {sid: entries for sid, entries in per_scene.items()}
+    if fmt == "pixelsplat":
+        return {sid: (entries[0] if entries else None) for sid, entries in per_scene.items()}
+    raise SeeUError(f"cannot write index format {fmt!r} (use pixelsplat or latentsplat)")

@@ -1,0 +1,299 @@
+"""Triple shards (`schemas/triples.v1.json`): build the rows of one shard, and read shards back.
+
+A triples directory::
+
+    manifest.json        written last (schema seeu.triples, files with rows/bytes/sha256, params, report)
+    shard-00000.arrow    Arrow IPC files, uncompressed; schema metadata holds `seeu.shard_plan_sha256`
+    shard-00001.arrow ...
+
+Each row is self-contained: V context views then T target views, every per-view column a list of
+V + T entries (frame_index, source_frame, image, width, height, intrinsics_norm, cam_to_world,
+near, far), plus `gap` and per-target `target_offset`.
+
+`build_shard_table(spec)` is a pure function of its JSON-able shard spec (samples, posed sources,
+image options): the local process pool and the Ray engine both call it, which is why their shards
+are byte-identical.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+import pyarrow as pa
+
+from .arrow_io import open_ipc_file
+from .errors import SeeUError
+from .manifest import read_manifest, verify_file
+from .schema import arrow_schema
+
+SCHEMA = "seeu.triples"
+PLAN_KEY = b"seeu.shard_plan_sha256"
+_PER_VIEW = ("frame_index", "source_frame", "image", "width", "height", "intrinsics_norm", "cam_to_world", "near", "far")
+
+
+@dataclass(frozen=True)
+class ImageOptions:
+    """Build-time image handling. resize None: copy the encoded bytes as they are (no re-encode)."""
+
+    resize: tuple[int, int] | None = None  # (H, W)
+    interpolation: str = "area"
+    jpeg_quality: int = 95
+
+    def as_dict(self) -> dict:
+        return {"resize": list(self.resize) if self.resize else None, "interpolation": self.interpolation,
+                "jpeg_quality": self.jpeg_quality}
+
+
+def shard_schema(plan_sha256: str) -> pa.Schema:
+    """The triples schema with this shard's plan hash in the metadata (identical in every engine)."""
+    schema = arrow_schema(SCHEMA)
+    meta = dict(schema.metadata)
+    meta[PLAN_KEY] = plan_sha256.encode()
+    return schema.with_metadata(meta)
+
+
+def plan_sha256(spec: dict) -> str:
+    """Hash of everything a shard's bytes depend on (samples, inputs' fingerprints, image options)."""
+    content = {k: spec[k] for k in ("samples", "image", "rows_per_batch")}
+    # inputs by content (file sha256 + rows), not by path: moving the posed data does not invalidate shards
+    content["sources"] = {sid: {k: v for k, v in src.items() if k != "path"} for sid, src in spec["sources"].items()}
+    return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+# ---------------------------------------------------------------------------------------------
+# Building
+# ---------------------------------------------------------------------------------------------
+
+
+class _SceneTables:
+    """Memory-mapped posed rows per scene for one shard (files opened once)."""
+
+    def __init__(self, sources: dict[str, dict]):
+        self.sources = sources
+        self._files: dict[str, pa.Table] = {}
+
+    def table(self, scene_id: str) -> pa.Table:
+        src = self.sources[scene_id]
+        path = src["path"]
+        if path not in self._files:
+            self._files[path] = open_ipc_file(path).read_all()
+        full = self._files[path]
+        if src["row_start"] + src["num_frames"] > full.num_rows:
+            raise SeeUError(f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
+                            f"exceed the file's {full.num_rows} rows", path)
+        rows = full.slice(src["row_start"], src["num_frames"])
+        first = rows.column("scene_id")[0].as_py()
+        if first != scene_id:
+            raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", path)
+        return rows
+
+
+def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.DataType) -> pa.Array:
+    if isinstance(values, pa.ChunkedArray):
+        values = values.combine_chunks()
+    return pa.ListArray.from_arrays(offsets, values, type=typ)
+
+
+def _resize_views(taken: pa.Table, view_scene: list[str], view_frame: np.ndarray, opts: ImageOptions,
+                  sources: dict[str, dict]) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
+    """Decode, resize + centre-crop and re-encode every view (cached per scene frame within the shard)."""
+    from .image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
+
+    assert opts.resize is not None
+    out_h, out_w = opts.resize
+    images = taken.column("image").to_pylist()
+    fmts = taken.column("image_format").to_pylist()
+    heights = taken.column("height").to_numpy()
+    widths = taken.column("width").to_numpy()
+    intr = taken.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
+    cache: dict[tuple[str, int], bytes] = {}
+    out = []
+    for i, (sid, f) in enumerate(zip(view_scene, view_frame)):
+        key = (sid, int(f))
+        if key not in cache:
+            try:
+                img = decode_rgb(images[i])
+            except ValueError:
+                raise SeeUError(f"scene {sid!r} frame {int(f)}: image bytes cannot be decoded", sources[sid]["path"]) from None
+            if img.shape[:2] != (heights[i], widths[i]):
+                raise SeeUError(f"scene {sid!r} frame {int(f)}: image is {img.shape[1]}x{img.shape[0]}, "
+                                f"the table says {widths[i]}x{heights[i]}", sources[sid]["path"])
+            img = resize_cover_crop(img, (out_h, out_w), opts.interpolation)
+            cache[key] = encode_png(img) if fmts[i] == "png" else encode_jpeg(img, opts.jpeg_quality)
+        out.append(cache[key])
+    new_intr = np.stack([resized_intrinsics(intr[i], (int(heights[i]), int(widths[i])), (out_h, out_w))
+                         for i in range(len(out))]) if out else np.zeros((0, 4))
+    n = len(out)
+    return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
+
+
+def build_shard_table(spec: dict) -> pa.Table:
+    """Rows of one shard from its spec.
+
+    spec = {"samples": [{"scene_id", "mode", "k", "context": [...], "target": [...]}, ...],
+            "sources": {scene_id: {"path", "row_start", "num_frames", ...}},
+            "image": ImageOptions.as_dict(), "rows_per_batch": int, "plan_sha256": str}
+    """
+    from .sampling import make_sample
+
+    samples = [make_sample(s["scene_id"], s["mode"], s["k"], s["context"], s["target"]) for s in spec["samples"]]
+    opts = ImageOptions(resize=tuple(spec["image"]["resize"]) if spec["image"]["resize"] else None,
+                        interpolation=spec["image"]["interpolation"], jpeg_quality=spec["image"]["jpeg_quality"])
+    tables = _SceneTables(spec["sources"])
+    scene_order: list[str] = []
+    base: dict[str, int] = {}
+    parts = []
+    for s in samples:
+        if s.scene_id not in base:
+            t = tables.table(s.scene_id)
+            base[s.scene_id] = sum(p.num_rows for p in parts)
+            parts.append(t)
+            scene_order.append(s.scene_id)
+        n = spec["sources"][s.scene_id]["num_frames"]
+        if any(not 0 <= v < n for v in s.views):
+            raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec["sources"][s.scene_id]["path"])
+    schema = shard_schema(spec["plan_sha256"])
+    if not samples:
+        return schema.empty_table()
+    posed = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
+    view_scene = [s.scene_id for s in samples for _ in s.views]
+    view_frame = np.array([v for s in samples for v in s.views], dtype=np.int64)
+    flat = np.array([base[s.scene_id] + v for s in samples for v in s.views], dtype=np.int64)
+    taken = posed.take(pa.array(flat))
+    counts = np.array([len(s.views) for s in samples], dtype=np.int32)
+    offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
+
+    if opts.resize is None:
+        images = taken.column("image")
+        width, height = taken.column("width"), taken.column("height")
+        intr = taken.column("intrinsics_norm")
+    else:
+        imgs, w, h, intr_np = _resize_views(taken, view_scene, view_frame, opts, spec["sources"])
+        images = pa.array(imgs, pa.binary())
+        width, height = pa.array(w), pa.array(h)
+        intr = pa.FixedSizeListArray.from_arrays(pa.array(intr_np.reshape(-1)), 4)
+    per_view = {
+        "frame_index": pa.array(view_frame.astype(np.int32)),
+        "source_frame": taken.column("source_frame"),
+        "image": images, "width": width, "height": height, "intrinsics_norm": intr,
+        "cam_to_world": taken.column("cam_to_world"),
+        "near": taken.column("near"), "far": taken.column("far"),
+    }
+    fmt_col = taken.column("image_format")
+    first_view = np.concatenate([[0], np.cumsum(counts)[:-1]])
+    row_fmt = [fmt_col[int(i)].as_py() for i in first_view]
+    tgt_counts = np.array([len(s.target) for s in samples], dtype=np.int32)
+    cols = {
+        "sample_id": pa.array([s.sample_id for s in samples], pa.string()),
+        "scene_id": pa.array([s.scene_id for s in samples], pa.string()),
+        "mode": pa.array([s.mode for s in samples], pa.string()),
+        "num_context": pa.array(np.array([len(s.context) for s in samples], dtype=np.int32)),
+        "image_format": pa.array(row_fmt, pa.string()),
+        "gap": pa.array(np.array([s.gap for s in samples], dtype=np.int32)),
+        "target_offset": pa.ListArray.from_arrays(
+            pa.array(np.concatenate([[0], np.cumsum(tgt_counts)]).astype(np.int32)),
+            pa.array(np.array([o for s in samples for o in s.target_offset], dtype=np.int32))),
+    }
+    for name in _PER_VIEW:
+        cols[name] = _list_column(offsets, per_view[name], schema.field(name).type)
+    arrays = []
+    for f in schema:
+        col = cols[f.name]
+        if col.type != f.type:  # e.g. list field nullability: cast to the schema's exact type
+            col = col.cast(f.type)
+        arrays.append(col)
+    return pa.Table.from_arrays(arrays, schema=schema)
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class TripleRow:
+    """One decoded-metadata row. L = V + T views (contexts first). Images stay encoded.
+
+    frame_index/source_frame/width/height/near/far: (L,); intrinsics_norm: (L, 4);
+    cam_to_world: (L, 4, 4); target_offset: (T,).
+    """
+
+    sample_id: str
+    scene_id: str
+    mode: str
+    num_context: int
+    frame_index: np.ndarray
+    source_frame: np.ndarray
+    images: list[bytes]
+    image_format: str
+    width: np.ndarray
+    height: np.ndarray
+    intrinsics_norm: np.ndarray
+    cam_to_world: np.ndarray
+    near: np.ndarray
+    far: np.ndarray
+    gap: int
+    target_offset: np.ndarray
+
+    @property
+    def context(self) -> list[int]:
+        return self.frame_index[: self.num_context].tolist()
+
+    @property
+    def target(self) -> list[int]:
+        return self.frame_index[self.num_context:].tolist()
+
+    @classmethod
+    def from_pydict(cls, d: dict) -> "TripleRow":
+        return cls(
+            sample_id=d["sample_id"], scene_id=d["scene_id"], mode=d["mode"], num_context=int(d["num_context"]),
+            frame_index=np.asarray(d["frame_index"], np.int64), source_frame=np.asarray(d["source_frame"], np.int64),
+            images=list(d["image"]), image_format=d["image_format"],
+            width=np.asarray(d["width"], np.int64), height=np.asarray(d["height"], np.int64),
+            intrinsics_norm=np.asarray(d["intrinsics_norm"], np.float64).reshape(-1, 4),
+            cam_to_world=np.asarray(d["cam_to_world"], np.float64).reshape(-1, 4, 4),
+            near=np.asarray(d["near"], np.float32), far=np.asarray(d["far"], np.float32),
+            gap=int(d["gap"]), target_offset=np.asarray(d["target_offset"], np.int64),
+        )
+
+
+class TripleShards:
+    """Read a triples directory: manifest checked (sha256 optional), shards memory-mapped, in order."""
+
+    def __init__(self, root: str | Path, verify: bool = False):
+        self.root = Path(root)
+        self.manifest = read_manifest(self.root, expect_schema=SCHEMA)
+        if verify:
+            for entry in self.manifest["files"]:
+                verify_file(self.root, entry)
+
+    @property
+    def files(self) -> list[str]:
+        return [e["path"] for e in self.manifest["files"]]
+
+    def __len__(self) -> int:
+        return int(self.manifest["total_rows"])
+
+    def read_shard(self, i: int, columns: list[str] | None = None) -> pa.Table:
+        table = open_ipc_file(self.root / self.files[i]).read_all()
+        return table.select(columns) if columns else table
+
+    def read_columns(self, columns: list[str]) -> pa.Table:
+        """Selected columns of every shard, concatenated in manifest order (images untouched if unselected)."""
+        parts = [self.read_shard(i, columns) for i in range(len(self.files))]
+        return pa.concat_tables(parts) if parts else arrow_schema(SCHEMA).empty_table().select(columns)
+
+    def iter_rows(self) -> Iterator[TripleRow]:
+        for i in range(len(self.files)):
+            table = self.read_shard(i)
+            for batch in table.to_batches():
+                for d in batch.to_pylist():
+                    yield TripleRow.from_pydict(d)
+
+    def rows(self) -> list[TripleRow]:
+        return list(self.iter_rows())
