@@ -240,8 +240,9 @@ def test_corrupt_shard_raises_or_is_skipped_and_counted(dataset, tmp_path):
     data = bytearray(shard.read_bytes())
     data[len(data) // 2] ^= 0xFF  # same size, different bytes
     shard.write_bytes(bytes(data))
-    with pytest.raises(SeeUError, match=r"shard-00001\.arrow: sha256"):
+    with pytest.raises(SeeUError, match=r"shard-00001\.arrow: sha256") as err:
         list(loader(ds, tmp_path, batch_size=3, num_workers=1))
+    assert "\n" not in str(err.value) and err.value.path.endswith("shard-00001.arrow")  # one line, from a worker
     ld = loader(ds, tmp_path, batch_size=3, on_error="skip")
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")

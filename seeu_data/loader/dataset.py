@@ -239,9 +239,25 @@ class TripleStream(IterableDataset):
         ids, cols = rank_worker_batches(plan.num_batches, self.config.batch_size, self.rank, self.world_size,
                                         worker, num_workers)
         for b in ids:
-            batch = self.make_batch(plan.positions[b, cols], plan.is_padding[b, cols], epoch)
+            try:
+                batch = self.make_batch(plan.positions[b, cols], plan.is_padding[b, cols], epoch)
+            except SeeUError as exc:
+                if info is None:
+                    raise
+                # In a worker: hand the error to the main process as data, so it is raised there as the
+                # same one-line SeeUError (a DataLoader re-raise would carry the worker's traceback).
+                yield {"_error": _error_parts(exc)}
+                return
             batch["_cursor"] = int(plan.cursor_after[b])
             yield batch
+
+
+def _error_parts(exc: SeeUError) -> tuple[str, str | None]:
+    """(message, path) of a SeeUError, so it can be rebuilt in another process."""
+    text = str(exc)
+    if exc.path is not None and text.startswith(exc.path + ": "):
+        return text[len(exc.path) + 2:], exc.path
+    return text, None
 
 
 def _worker_init(_: int) -> None:
@@ -318,6 +334,8 @@ class StreamingLoader:
                             timeout=self.timeout)
         skipped = plan.skipped
         for batch in loader:
+            if "_error" in batch:
+                raise SeeUError(*batch["_error"])
             cursor = batch.pop("_cursor")
             self.stats["skipped_corrupt"] += batch.pop("_skipped")
             self.stats["padding"] += int(batch["is_padding"].sum())
