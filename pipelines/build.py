@@ -137,8 +137,9 @@ def run(args: argparse.Namespace) -> int:
               f"{rep['index_entries']} entries, {rep['written']} written, {rep['not_written']} not written")
         for prob in rep["problems"][:10]:
             print(f"  not written: {prob['key']}: {prob['problem']}")
-        if len(rep["problems"]) > 10:
-            print(f"  ... {len(rep['problems']) - 10} more (manifest.json report.problems)")
+        if rep["not_written"] > 10:
+            kinds = ", ".join(f"{n} {k}" for k, n in rep["problems_by_kind"].items())
+            print(f"  ... {rep['not_written'] - 10} more ({kinds}; see manifest.json report.problems)")
     elif rep.get("scenes_skipped_too_short"):
         print(f"skipped {rep['scenes_skipped_too_short']} of {rep['scenes']} scenes with fewer than "
               f"{rep['min_scene_frames']} frames (e.g. {', '.join(rep['skipped_scene_examples'][:3])})")

@@ -35,7 +35,8 @@ from .triples import PLAN_KEY, SCHEMA, ImageOptions, build_shard_table, plan_sha
 from .schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
-_VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
+_VIEW_OVERHEAD_BYTES = 200
+MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 
 
 @dataclass(frozen=True)
@@ -150,9 +151,15 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
                              "problem": f"frame(s) {bad} outside 0..{src.num_frames - 1}"})
             continue
         samples.append(make_sample(e.scene_id, "eval", e.k, e.context, e.target))
+    kinds: dict[str, int] = {}
+    for prob in problems:
+        kind = "scene not in the posed data" if prob["problem"].startswith("scene") else "frames out of range"
+        kinds[kind] = kinds.get(kind, 0) + 1
     report = {"index": index.path, "index_format": index.format, "index_keys": index.num_keys,
               "index_null_skipped": index.num_null, "index_entries": len(index.entries),
-              "written": len(samples), "not_written": len(problems), "problems": problems}
+              "written": len(samples), "not_written": len(problems), "problems_by_kind": kinds,
+              "problems": problems[:MAX_REPORTED_PROBLEMS],
+              "problems_truncated": len(problems) > MAX_REPORTED_PROBLEMS}
     if not samples:
         raise SeeUError(f"none of the {len(index.entries)} index entries match the posed data "
                         f"(first problem: {problems[0]['key']}: {problems[0]['problem']})" if problems

@@ -1,0 +1,246 @@
+"""`seeu build` (local engine) and `seeu inspect`: row contents against the posed data, byte-identical
+re-builds, resume, resize + crop geometry, skipped scenes, bad input, validate, statistics, sheet."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+
+from pipelines.cli import main as cli_main
+from pipelines.inspect_cmd import triple_statistics
+from pipelines.validate import validate_dataset
+from seeu_data.cameras import project_points
+from seeu_data.errors import SeeUError
+from seeu_data.posed import PosedDataset, PosedDatasetWriter, PosedScene
+from seeu_data.sampling import SamplingConfig, sample_scene
+from seeu_data.triples import TripleShards
+from tests.helpers import look_at_cam_to_world, make_posed_scene
+
+SCENES = {"alpha": 30, "beta": 44, "gamma": 9, "delta": 37}  # gamma too short for gap_min 10
+
+
+@pytest.fixture(scope="module")
+def posed(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("posed") / "posed"
+    with PosedDatasetWriter(root, params={}, provenance={}, target_file_bytes=60_000) as w:
+        for i, (sid, n) in enumerate(SCENES.items()):
+            w.add(make_posed_scene(sid, n=n, height=24, width=32, seed=i))
+    return root
+
+
+def _build(posed: Path, out: Path, *extra: str) -> int:
+    return cli_main(["build", str(posed), "--out", str(out), "--gap-min", "10", "--gap-max", "20",
+                     "--samples-per-scene", "3", "--shard-size", "20kB", *extra])
+
+
+def _shard_bytes(out: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(out.glob("shard-*.arrow"))}
+
+
+def test_interp_rows_match_posed_data_and_plan(posed, tmp_path, capsys):
+    out = tmp_path / "interp"
+    assert _build(posed, out, "--workers", "1") == 0
+    assert "skipped 1 of 4 scenes with fewer than 11 frames (e.g. gamma)" in capsys.readouterr().out
+    shards = TripleShards(out, verify=True)
+    rows = shards.rows()
+    cfg = SamplingConfig(mode="interp", gap_min=10, gap_max=20, samples_per_scene=3)
+    expected = [s for sid in sorted(SCENES) for s in sample_scene(cfg, SCENES[sid], sid, 0)]
+    assert [(r.sample_id, r.context, r.target) for r in rows] == \
+        [(s.sample_id, list(s.context), list(s.target)) for s in expected]
+    assert len(shards.files) > 1  # cut by the target size
+    ds = PosedDataset(posed)
+    scenes = {sid: ds.load_scene(sid) for sid in ds.scene_ids}
+    for r in rows:
+        sc = scenes[r.scene_id]
+        fi = r.frame_index
+        assert r.images == [sc.images[i] for i in fi]  # encoded bytes copied as they are
+        assert np.array_equal(r.cam_to_world, sc.cam_to_world[fi])
+        assert np.array_equal(r.intrinsics_norm, sc.intrinsics_norm[fi])
+        assert np.array_equal(r.source_frame, sc.source_frame[fi])
+        assert (r.width == 32).all() and (r.height == 24).all()
+        assert np.allclose(r.near, sc.near) and np.allclose(r.far, sc.far)
+        assert r.mode == "interp" and r.image_format == "jpeg" and r.num_context == 2
+        assert 10 <= r.gap <= 20 and (r.target_offset == 0).all()
+        assert cv2.imdecode(np.frombuffer(r.images[0], np.uint8), cv2.IMREAD_COLOR).shape == (24, 32, 3)
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["schema"] == "seeu.triples" and doc["total_rows"] == 9
+    assert doc["params"]["sampling"]["gap_min"] == 10 and doc["params"]["seed"] == 0
+    assert doc["report"]["scenes_skipped_too_short"] == 1 and doc["report"]["skipped_scene_examples"] == ["gamma"]
+    assert validate_dataset(out)["rows"] == 9  # seeu validate accepts the shards
+
+
+def test_byte_identical_across_workers_and_runs(posed, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _build(posed, a, "--mode", "extrap", "--extrap-frames", "7", "--workers", "1") == 0
+    assert _build(posed, b, "--mode", "extrap", "--extrap-frames", "7", "--workers", "2") == 0
+    sa, sb = _shard_bytes(a), _shard_bytes(b)
+    assert sa == sb and len(sa) > 1
+    ma, mb = (json.loads((d / "manifest.json").read_text()) for d in (a, b))
+    assert ma["files"] == mb["files"] and ma["params"]["inputs"] == mb["params"]["inputs"]
+    c = tmp_path / "c"
+    assert _build(posed, c, "--mode", "extrap", "--extrap-frames", "7", "--workers", "1", "--seed", "1") == 0
+    assert _shard_bytes(c) != sa  # the seed matters
+
+
+def test_extrap_rows(posed, tmp_path):
+    out = tmp_path / "extrap"
+    assert _build(posed, out, "--mode", "extrap", "--extrap-frames", "6", "-V", "3", "-T", "4") == 0
+    rows = TripleShards(out).rows()
+    assert rows and all(r.mode == "extrap" and r.num_context == 3 and len(r.target) == 4 for r in rows)
+    for r in rows:
+        lo, hi = min(r.context), max(r.context)
+        for t, off in zip(r.target, r.target_offset):
+            assert (t < lo and off == t - lo >= -6) or (t > hi and 0 < off == t - hi <= 6)
+
+
+def test_resume_keeps_good_shards_and_rebuilds_damaged(posed, tmp_path):
+    out = tmp_path / "res"
+    assert _build(posed, out) == 0
+    before = _shard_bytes(out)
+    mtimes = {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.arrow")}
+    assert _build(posed, out) == 0
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["report"]["shards_resumed"] == len(before)
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.arrow")} == mtimes
+    # a truncated shard (crash mid-copy) is rebuilt, the others kept
+    victim = out / "shard-00001.arrow"
+    victim.write_bytes(victim.read_bytes()[:100])
+    assert _build(posed, out) == 0
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["report"]["shards_resumed"] == len(before) - 1
+    assert _shard_bytes(out) == before
+    # other parameters: every shard rebuilt; leftover shards of the bigger build removed
+    assert _build(posed, out, "--shard-size", "1MB") == 0
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["report"]["shards_resumed"] == 0 and len(doc["files"]) == 1
+    assert sorted(p.name for p in out.glob("shard-*.arrow")) == ["shard-00000.arrow"]
+    assert validate_dataset(out)["unlisted_files"] == []
+
+
+def _gradient_scene(n: int = 14, h: int = 48, w: int = 96) -> PosedScene:
+    yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+    images = []
+    for i in range(n):
+        img = np.stack([xx * 2.0, yy * 4.0, np.full_like(xx, 10.0 * i)], -1).astype(np.uint8)  # RGB
+        ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        images.append(buf.tobytes())
+    poses = np.stack([look_at_cam_to_world(np.array([0.05 * i, 0, -2.0]), np.array([0.05 * i, 0, 0.0])) for i in range(n)])
+    return PosedScene("grad", images, "png", np.full(n, w), np.full(n, h), np.tile([0.6, 1.1, 0.48, 0.52], (n, 1)),
+                      poses, 0.5, 10.0, np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64) * 1000)
+
+
+def test_resize_center_crop_pixels_and_intrinsics(tmp_path):
+    posed = tmp_path / "posed"
+    with PosedDatasetWriter(posed, params={}, provenance={}) as w:
+        w.add(_gradient_scene())
+    out = tmp_path / "r"
+    assert cli_main(["build", str(posed), "--out", str(out), "--gap-min", "4", "--gap-max", "6",
+                     "--samples-per-scene", "2", "--resize", "32x40"]) == 0
+    rows = TripleShards(out).rows()
+    # 48x96 -> cover 32x40: scale 2/3 -> 32x64, centre crop offset x = 12
+    s, ox = 2.0 / 3.0, 12
+    scene = _gradient_scene()
+    for r in rows:
+        assert (r.width == 40).all() and (r.height == 32).all() and r.image_format == "png"
+        for v, f in enumerate(r.frame_index):
+            img = cv2.cvtColor(cv2.imdecode(np.frombuffer(r.images[v], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            assert img.shape == (32, 40, 3)
+            # pixel centre (j + 0.5) in the output is at ((j + 0.5 + ox) / s) in the source: R = 2 x, G = 4 y
+            j = np.arange(40)
+            src_x = (j + 0.5 + ox) / s - 0.5
+            assert np.abs(img[16, 2:-2, 0].astype(float) - 2 * src_x[2:-2]).max() <= 2.0
+            src_y = (np.arange(32) + 0.5) / s - 0.5
+            assert np.abs(img[2:-2, 20, 1].astype(float) - 4 * src_y[2:-2]).max() <= 3.0
+            assert abs(float(img[..., 2].mean()) - 10.0 * f) <= 1.0
+            # geometry: a world point projects to the same place in the cropped image as (source pixel * s - offset)
+            pts = np.array([[0.3, -0.2, 1.5], [-0.4, 0.1, 0.7]])
+            uv_src, _ = project_points(pts, scene.cam_to_world[f], scene.intrinsics_norm[f], 96, 48)
+            uv_out, _ = project_points(pts, r.cam_to_world[v], r.intrinsics_norm[v], 40, 32)
+            assert np.allclose(uv_out, uv_src * s - np.array([ox, 0]), atol=1e-9)
+
+
+def test_resize_jpeg_reencode_is_deterministic(posed, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    assert _build(posed, a, "--resize", "16x16", "--workers", "1") == 0
+    assert _build(posed, b, "--resize", "16x16", "--workers", "2") == 0
+    assert _shard_bytes(a) == _shard_bytes(b)
+    r = TripleShards(a).rows()[0]
+    assert (r.width == 16).all() and r.images[0][:2] == b"\xff\xd8"
+
+
+def test_skipped_scenes_and_bad_inputs(posed, tmp_path, capsys):
+    # every scene too short -> one line, exit 2, no manifest
+    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o"), "--gap-min", "100", "--gap-max", "120"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("seeu build: error:") and "no scene is long enough" in err and err.count("\n") == 1
+    assert not (tmp_path / "o" / "manifest.json").exists()
+    # an unreadable posed chunk names the file
+    broken = tmp_path / "broken"
+    with PosedDatasetWriter(broken, params={}, provenance={}) as w:
+        w.add(make_posed_scene("s", n=20, height=16, width=16))
+    arrow = next(broken.glob("*.arrow"))
+    data = arrow.read_bytes()
+    arrow.write_bytes(data[: len(data) // 2] + b"\0" * (len(data) - len(data) // 2))
+    assert cli_main(["build", str(broken), "--out", str(tmp_path / "o2"), "--gap-min", "5", "--gap-max", "6"]) == 2
+    err = capsys.readouterr().err
+    assert str(arrow) in err
+    # not a posed dataset / missing input / invalid options
+    assert cli_main(["build", str(tmp_path / "nope"), "--out", str(tmp_path / "o3")]) == 2
+    assert "dataset directory not found" in capsys.readouterr().err
+    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o4"), "--gap-min", "9", "--gap-max", "3"]) == 2
+    assert "gap_max must be >= gap_min" in capsys.readouterr().err
+    # duplicate scene ids across inputs
+    assert cli_main(["build", str(posed), str(posed), "--out", str(tmp_path / "o5")]) == 2
+    assert "appears in two inputs" in capsys.readouterr().err
+
+
+def test_shard_spec_out_of_range_and_missing_file_are_errors(posed):
+    from seeu_data.build import scan_inputs
+    from seeu_data.triples import build_shard_table
+
+    src = scan_inputs([str(posed)])["alpha"]
+    spec = {"samples": [{"scene_id": "alpha", "mode": "interp", "k": 0, "context": [0, 5], "target": [30]}],
+            "sources": {"alpha": src.as_spec()},
+            "image": {"resize": None, "interpolation": "area", "jpeg_quality": 95}, "rows_per_batch": 8,
+            "plan_sha256": "0"}
+    with pytest.raises(SeeUError, match="frame index out of range 0..29"):
+        build_shard_table(spec)
+    spec["sources"]["alpha"] = dict(src.as_spec(), path="/nonexistent.arrow")
+    with pytest.raises(SeeUError, match="file not found"):
+        build_shard_table(spec)
+
+
+def test_inspect_statistics_and_sheet(posed, tmp_path, capsys):
+    out = tmp_path / "x"
+    assert _build(posed, out, "--mode", "extrap", "--extrap-frames", "5", "--interp-ratio", "0.5") == 0
+    capsys.readouterr()
+    rows = TripleShards(out).rows()
+    stats = triple_statistics(out)
+    offsets = np.concatenate([r.target_offset for r in rows])
+    gaps = np.array([r.gap for r in rows])
+    assert stats["rows"] == len(rows) == 9 and stats["scenes"] == 3 and stats["modes"] == {"extrap": 9}
+    assert stats["target_offset"]["inside"] == int((offsets == 0).sum())
+    assert stats["target_offset"]["before"] == int((offsets < 0).sum())
+    assert stats["target_offset"]["after"] == int((offsets > 0).sum())
+    assert stats["gap"]["min"] == gaps.min() and stats["gap"]["max"] == gaps.max()
+    assert stats["gap"]["mean"] == pytest.approx(gaps.mean(), abs=1e-3)
+    assert sum(stats["gap"]["histogram"]["counts"]) == 9
+    assert stats["image_sizes"] == {"32x24": 45} and stats["num_target"] == {"3": 9}
+    sheet = tmp_path / "sheet.png"
+    assert cli_main(["inspect", str(out), "--json", "--sheet", str(sheet), "--sheet-rows", "4"]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    assert printed["rows"] == 9 and len(printed["sheet"]["samples"]) == 4
+    img = cv2.imread(str(sheet))
+    assert img is not None and img.shape == (4 * 192, 5 * 176, 3)  # 4 examples x 5 views at 2.4 x 2.2 in, 80 dpi
+    assert cli_main(["inspect", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "9 triples" in text and "modes: extrap 9" in text and "inside the pair" in text
+
+
+def test_progress_bar_on_request(posed, tmp_path, capsys):
+    assert _build(posed, tmp_path / "p", "--progress") == 0
+    assert "seeu build" in capsys.readouterr().err
