@@ -1,0 +1,259 @@
+"""Typed training configuration, preset files and ``key=value`` overrides.
+
+A config file is JSON (``configs/*.json``; YAML too when PyYAML is installed) holding any subset
+of the sections below; missing keys keep their defaults. Overrides address fields with dots:
+``optim.lr=1e-4 data.batch_size=4 model.refiner=unet loss.lpips_weight=0``. The ``model`` section
+is passed through to ``SeeUConfig`` (its fields are the model's, checked when the model is built).
+
+Defaults follow the paper (appendix A: AdamW, batch 8, 300k iterations, 256x256, loss
+MSE + 0.05 LPIPS); what the paper leaves open (learning rate, warm-up, clipping) follows MVSplat,
+which SeeU builds on (Adam 2e-4 with cosine decay, 2k warm-up steps, gradient clip 0.5).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import typing
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from seeu_data.errors import SeeUError
+
+
+@dataclass
+class DataConfig:
+    """Loader settings. image_size: (H, W) after resize/centre-crop."""
+
+    batch_size: int = 8               # per process (global batch = batch_size x world size)
+    image_size: tuple[int, int] = (256, 256)
+    num_workers: int = 2
+    seed: int = 0
+    flip: bool = True                 # horizontal flip with p = 0.5 (pose mirrored)
+    val_batch_size: int = 1
+    val_max_samples: int = 16         # validation samples per validation pass (0: all)
+
+
+@dataclass
+class OptimConfig:
+    """AdamW with linear warm-up then cosine decay to ``lr * min_lr_ratio`` at ``max_steps``."""
+
+    lr: float = 2e-4
+    betas: tuple[float, float] = (0.9, 0.999)
+    weight_decay: float = 0.01
+    warmup_steps: int = 2000
+    max_steps: int = 300_000
+    min_lr_ratio: float = 0.0
+    grad_clip: float = 0.5            # max global grad norm; 0 = off
+
+
+@dataclass
+class LossConfig:
+    """MSE + lpips_weight * LPIPS(VGG); lpips_weight = 0 switches LPIPS off (no VGG weights needed)."""
+
+    lpips_weight: float = 0.05
+    lpips_weights: str | None = None  # path to torchvision's vgg16-397923af.pth (default: torch hub cache)
+    lpips_random_trunk: bool = False  # tests only: LPIPS with a random VGG trunk
+
+
+@dataclass
+class CheckpointConfig:
+    every: int = 5000                 # steps between checkpoints (the last step is always saved)
+    keep: int = 3                     # keep the last K checkpoints
+
+
+@dataclass
+class LogConfig:
+    every: int = 50                   # scalars (loss, PSNR, lr, it/s) to TensorBoard
+    image_every: int = 1000           # rendered vs ground-truth image grid
+    val_every: int = 5000             # validation pass (when --val is given); 0 = only at the end
+    progress: bool | None = None      # tqdm bar; None = only on a TTY
+
+
+@dataclass
+class TrainConfig:
+    name: str = "seeu"
+    model: dict[str, Any] = field(default_factory=dict)   # SeeUConfig fields
+    data: DataConfig = field(default_factory=DataConfig)
+    optim: OptimConfig = field(default_factory=OptimConfig)
+    loss: LossConfig = field(default_factory=LossConfig)
+    checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
+    log: LogConfig = field(default_factory=LogConfig)
+    precision: str = "auto"           # "auto" (bf16 autocast on CUDA, fp32 on CPU) | "bf16" | "fp32"
+    rasterizer: str = "auto"          # "auto" | "torch" | "gsplat"
+    seed: int = 0                     # model init and training RNG
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+# ------------------------------------------------------------------------------------------------
+# Building from dicts / files / overrides
+# ------------------------------------------------------------------------------------------------
+
+
+def _coerce(value: Any, tp: Any, where: str) -> Any:
+    """Convert a JSON/CLI value to the annotated type `tp`; raise SeeUError when impossible."""
+    origin = typing.get_origin(tp)
+    args = typing.get_args(tp)
+    if tp is Any:
+        return value
+    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
+        if value is None and type(None) in args:
+            return None
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return _coerce(value, a, where)
+            except SeeUError as exc:
+                errors.append(str(exc))
+        raise SeeUError(f"config {where}: cannot use {value!r} ({'; '.join(errors)})")
+    if origin is tuple:
+        if isinstance(value, str):
+            value = [v for v in value.replace("x", ",").split(",") if v.strip()]
+        if not isinstance(value, (list, tuple)) or len(value) != len(args):
+            raise SeeUError(f"config {where}: expected {len(args)} values, got {value!r}")
+        return tuple(_coerce(v, a, where) for v, a in zip(value, args))
+    if origin is dict or tp is dict:
+        if not isinstance(value, dict):
+            raise SeeUError(f"config {where}: expected a mapping, got {value!r}")
+        return dict(value)
+    if tp is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("1", "true", "yes", "on", "0", "false", "no", "off"):
+            return value.lower() in ("1", "true", "yes", "on")
+        raise SeeUError(f"config {where}: expected true/false, got {value!r}")
+    if tp is int:
+        if isinstance(value, bool):
+            raise SeeUError(f"config {where}: expected an integer, got {value!r}")
+        try:
+            f = float(value)
+        except (TypeError, ValueError):
+            raise SeeUError(f"config {where}: expected an integer, got {value!r}") from None
+        if f != int(f):
+            raise SeeUError(f"config {where}: expected an integer, got {value!r}")
+        return int(f)
+    if tp is float:
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise SeeUError(f"config {where}: expected a number, got {value!r}") from None
+    if tp is str:
+        if not isinstance(value, (str, int, float)):
+            raise SeeUError(f"config {where}: expected a string, got {value!r}")
+        return str(value)
+    return value
+
+
+def _build(cls: type, data: dict, where: str) -> Any:
+    if not isinstance(data, dict):
+        raise SeeUError(f"config {where or 'root'}: expected a mapping, got {type(data).__name__}")
+    hints = typing.get_type_hints(cls)
+    known = {f.name for f in fields(cls)}
+    data = {k: v for k, v in data.items() if not str(k).startswith("_")}  # "_comment" keys
+    unknown = sorted(set(data) - known)
+    if unknown:
+        raise SeeUError(f"config {where or 'root'}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+    kwargs = {}
+    for f in fields(cls):
+        if f.name not in data:
+            continue
+        tp = hints[f.name]
+        key = f"{where}.{f.name}" if where else f.name
+        if dataclasses.is_dataclass(tp):
+            kwargs[f.name] = _build(tp, data[f.name], key)
+        else:
+            kwargs[f.name] = _coerce(data[f.name], tp, key)
+    return cls(**kwargs)
+
+
+def config_from_dict(data: dict) -> TrainConfig:
+    cfg = _build(TrainConfig, data, "")
+    validate(cfg)
+    return cfg
+
+
+def _parse_scalar(text: str) -> Any:
+    """CLI override value: JSON when it parses (numbers, true/false, null, lists), else the string."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def apply_overrides(data: dict, overrides: list[str]) -> dict:
+    """Apply ``a.b.c=value`` overrides to a nested dict (in place; returns it)."""
+    for item in overrides:
+        if "=" not in item:
+            raise SeeUError(f"override {item!r} is not key=value (e.g. optim.lr=1e-4)")
+        key, text = item.split("=", 1)
+        parts = key.strip().split(".")
+        node = data
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+            if not isinstance(node, dict):
+                raise SeeUError(f"override {item!r}: {p} is not a section")
+        node[parts[-1]] = _parse_scalar(text)
+    return data
+
+
+def read_config_file(path: str | Path) -> dict:
+    path = Path(path)
+    if not path.is_file():
+        raise SeeUError("config file not found", path)
+    text = path.read_text()
+    if path.suffix in (".yaml", ".yml"):
+        try:
+            import yaml
+        except ImportError:
+            raise SeeUError("YAML configs need PyYAML (pip install pyyaml), or use the .json preset", path) from None
+        try:
+            data = yaml.safe_load(text) or {}
+        except yaml.YAMLError as exc:
+            raise SeeUError(f"not valid YAML: {str(exc).splitlines()[0]}", path) from None
+    else:
+        try:
+            data = json.loads(text)
+        except json.JSONDecodeError as exc:
+            raise SeeUError(f"not valid JSON: {exc}", path) from None
+    if not isinstance(data, dict):
+        raise SeeUError("a config file must hold a mapping of sections", path)
+    return data
+
+
+def load_config(path: str | Path | None = None, overrides: list[str] | None = None) -> TrainConfig:
+    """Defaults <- preset file <- overrides, validated. Errors name the file or the override."""
+    data = read_config_file(path) if path is not None else {}
+    apply_overrides(data, list(overrides or []))
+    try:
+        return config_from_dict(data)
+    except SeeUError as exc:
+        if path is not None and exc.path is None:
+            raise SeeUError(str(exc), path) from None
+        raise
+
+
+def validate(cfg: TrainConfig) -> None:
+    o = cfg.optim
+    if o.lr <= 0 or o.max_steps <= 0 or o.warmup_steps < 0 or not 0 <= o.min_lr_ratio <= 1:
+        raise SeeUError("config optim: need lr > 0, max_steps > 0, warmup_steps >= 0, 0 <= min_lr_ratio <= 1")
+    if cfg.data.batch_size <= 0 or min(cfg.data.image_size) <= 0:
+        raise SeeUError("config data: batch_size and image_size must be positive")
+    if cfg.checkpoint.every <= 0 or cfg.checkpoint.keep <= 0:
+        raise SeeUError("config checkpoint: every and keep must be positive")
+    if cfg.precision not in ("auto", "bf16", "fp32"):
+        raise SeeUError(f"config precision: {cfg.precision!r} is not auto, bf16 or fp32")
+    if cfg.rasterizer not in ("auto", "torch", "gsplat", "dense"):
+        raise SeeUError(f"config rasterizer: {cfg.rasterizer!r} is not auto, torch, gsplat or dense")
+    if cfg.loss.lpips_weight < 0:
+        raise SeeUError("config loss.lpips_weight must be >= 0")
+
+
+def save_config(cfg: TrainConfig, path: str | Path) -> None:
+    from seeu_data.arrow_io import atomic_write_text
+
+    atomic_write_text(path, json.dumps(cfg.to_dict(), indent=2) + "\n")
