@@ -25,6 +25,7 @@ from seeu_model.rasterizer.gsplat_backend import check_gsplat, gsplat_usable, re
 from seeu_model.rasterizer.projection import ALPHA_MAX, EPS2D, project_gaussians
 
 BACKENDS = ("auto", "torch", "gsplat", "dense")
+TORCH_TILE_SIZE = 4  # default tile edge of the torch backend
 
 
 @dataclass
@@ -71,7 +72,7 @@ def rasterize(
     near_plane: float = 0.01,
     far_plane: float = 1e10,
     antialiased: bool = False,
-    tile_size: int = 16,
+    tile_size: int | None = None,
     alpha_max: float = ALPHA_MAX,
     eps2d: float = EPS2D,
     max_elements: int = 1 << 22,
@@ -83,6 +84,8 @@ def rasterize(
     antialiased: Mip-Splatting opacity compensation (gsplat's rasterize_mode="antialiased").
     alpha_max: per-Gaussian alpha clamp, 0.99 as in 3DGS (torch/dense only: gsplat's kernel is
         fixed at 0.999; the backends agree exactly while opacities stay below 0.99).
+    tile_size: tile edge in pixels; default 16 for gsplat (the only size it tests) and 4 for the torch
+        backend (smaller tiles waste fewer (pixel, Gaussian) pairs; 3x faster than 16 on CPU).
     max_elements: (pixel, Gaussian) pairs processed at once by the torch/dense backends (memory bound).
     Returns `RenderOutput` (see module docstring for the depth definition).
     """
@@ -99,7 +102,7 @@ def rasterize(
 
     if name == "gsplat":
         color, depth, alpha = render_gsplat(gaussians, cam_to_world, intrinsics, width, height, bg,
-                                            near_plane, far_plane, antialiased, tile_size, eps2d)
+                                            near_plane, far_plane, antialiased, tile_size or 16, eps2d)
         to_chw = lambda t: t.permute(0, 1, 4, 2, 3)  # noqa: E731
         return RenderOutput(to_chw(color), to_chw(depth), to_chw(alpha))
 
@@ -112,7 +115,7 @@ def rasterize(
     else:
         from seeu_model.rasterizer.tiled import render_tiled
 
-        feats, alpha = render_tiled(proj, width, height, tile_size=tile_size, alpha_max=alpha_max,
+        feats, alpha = render_tiled(proj, width, height, tile_size=tile_size or TORCH_TILE_SIZE, alpha_max=alpha_max,
                                     max_elements=max_elements)
     feats = feats.reshape(b, v, height, width, feats.shape[-1])
     alpha = alpha.reshape(b, v, height, width)

@@ -88,42 +88,64 @@ class _Compositor:
         self.tiles_x, self.tiles_y, self.tile_size = tiles_x, tiles_y, tile_size
         self.n_tiles_total = n_tiles_total
         self.chunks = _plan_chunks(self.tile_counts, tile_size * tile_size, max_elements)
-        dev = isect_gauss.device
-        local = torch.arange(tile_size * tile_size, device=dev)
+        local = torch.arange(tile_size * tile_size, device=isect_gauss.device)
+        # pixel-centre offsets from the tile centre, (P, 2)
         self.local_xy = torch.stack([local % tile_size, torch.div(local, tile_size, rounding_mode="floor")], -1)
+        self.local_xy = self.local_xy + 0.5 - 0.5 * tile_size
 
-    def chunk_lists(self, tiles: torch.Tensor, dtype):
-        """Padded Gaussian lists (T, L) and validity, plus pixel centres (T, P, 2) of `tiles`."""
+    def chunk_lists(self, tiles: torch.Tensor):
+        """Padded Gaussian lists (T, L) of `tiles` (padding points at Gaussian 0, flagged in `pad`)
+        and the tile centres (T, 2) in pixels."""
         counts = self.tile_counts[tiles]
-        longest = int(counts.max())
-        ar = torch.arange(longest, device=tiles.device)
-        valid = ar[None] < counts[:, None]  # (T, L)
-        pos = torch.where(valid, self.tile_starts[tiles, None] + ar[None], torch.zeros_like(valid, dtype=torch.long))
-        gidx = self.isect_gauss[pos]  # (T, L)
+        ar = torch.arange(int(counts.max()), device=tiles.device)
+        pad = ar[None] >= counts[:, None]  # (T, L)
+        pos = (self.tile_starts[tiles, None] + ar[None]).masked_fill_(pad, 0)
         in_cam = tiles % (self.tiles_x * self.tiles_y)
         origin = torch.stack([in_cam % self.tiles_x, torch.div(in_cam, self.tiles_x, rounding_mode="floor")], -1)
-        pix = (origin[:, None, :] * self.tile_size + self.local_xy[None]).to(dtype) + 0.5  # (T, P, 2)
-        return gidx, valid, pix
+        return self.isect_gauss[pos], pad, origin * self.tile_size + 0.5 * self.tile_size
 
 
-def _alpha_block(pix, mean, conic, opac, valid, alpha_max):
-    """Per-pair quantities of a chunk. pix (T, P, 2); mean (T, L, 2); conic (T, L, 3); opac, valid (T, L).
+def _gather(table: torch.Tensor, gidx: torch.Tensor, pad: torch.Tensor, centre: torch.Tensor):
+    """Per-Gaussian parameters of a chunk from the (M, 6) table (mx, my, a, b, c, o): means relative
+    to the tile centre (T, L, 2), conic (T, L, 3) and opacity (T, L) (0 on padding)."""
+    g = table[gidx]  # (T, L, 6)
+    mean = g[..., :2] - centre[:, None, :]
+    return mean, g[..., 2:5], g[..., 5].masked_fill(pad, 0.0)
 
-    Returns dx, dy, gauss = exp(-power), raw = o * gauss, alpha (masked, clamped, stopped), T_before,
-    all (T, P, L).
+
+def _composite_block(local, mean, conic, opac, alpha_max, need_backward):
+    """Front-to-back compositing of one chunk.
+
+    local (P, 2) pixel offsets from the tile centre; mean (T, L, 2) relative to the tile centre;
+    conic (T, L, 3); opac (T, L). Returns weights w (T, P, L); with `need_backward` also
+    gauss = exp(-power), the kept-and-unclamped mask, T before each Gaussian and 1 - alpha.
     """
-    dx = pix[:, :, None, 0] - mean[:, None, :, 0]
-    dy = pix[:, :, None, 1] - mean[:, None, :, 1]
+    dx = local[None, :, None, 0] - mean[:, None, :, 0]  # (T, P, L)
+    dy = local[None, :, None, 1] - mean[:, None, :, 1]
     a, b, c = (conic[:, None, :, i] for i in range(3))
-    power = dx * (0.5 * a * dx + b * dy) + 0.5 * c * dy * dy
-    gauss = torch.exp(-power)
-    raw = opac[:, None, :] * gauss
-    alpha = raw.clamp(max=alpha_max)
-    alpha = torch.where((power >= 0) & (alpha >= ALPHA_MIN) & valid[:, None, :], alpha, torch.zeros_like(alpha))
-    trans = torch.cumprod(1.0 - alpha, dim=-1)
-    alpha = torch.where(trans > T_MIN, alpha, torch.zeros_like(alpha))
-    trans_before = torch.cat([torch.ones_like(trans[..., :1]), trans[..., :-1]], -1)
-    return dx, dy, gauss, raw, alpha, trans_before
+    power = dx * (0.5 * a)
+    power.mul_(dx)
+    tmp = dy * b
+    power.addcmul_(tmp, dx)
+    torch.mul(dy, 0.5 * c, out=tmp)
+    power.addcmul_(tmp, dy)
+    del dx, dy, tmp
+    gauss = power.neg_().exp_()  # in place: power is not needed any more
+    alpha = gauss * opac[:, None, :] if need_backward else gauss.mul_(opac[:, None, :])
+    clamped = alpha > alpha_max if need_backward else None
+    alpha.clamp_(max=alpha_max)
+    alpha.masked_fill_(alpha < ALPHA_MIN, 0.0)
+    t_pl, p_pl, l_pl = alpha.shape
+    one_minus = alpha.new_empty(t_pl, p_pl, l_pl + 1)
+    one_minus[..., 0] = 1.0
+    torch.sub(1.0, alpha, out=one_minus[..., 1:])
+    trans = torch.cumprod(one_minus, dim=-1)  # trans[..., i] = T before Gaussian i; [..., i + 1] after
+    alpha.masked_fill_(trans[..., 1:] <= T_MIN, 0.0)
+    trans_before = trans[..., :-1]
+    if not need_backward:
+        return alpha.mul_(trans_before), None, None, None, None
+    live = (alpha > 0).logical_and_(clamped.logical_not_())
+    return alpha * trans_before, gauss, live, trans_before, one_minus[..., 1:]
 
 
 class _TiledComposite(torch.autograd.Function):
@@ -131,55 +153,61 @@ class _TiledComposite(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, feats, comp: _Compositor, alpha_max: float):
         """means2d (M, 2), conics (M, 3), opacities (M,), feats (M, F), M = C * N.
         Returns per-tile features (tiles, P, F) and alpha (tiles, P)."""
-        n_f = feats.shape[-1]
         n_pix = comp.tile_size ** 2
-        out = means2d.new_zeros(comp.n_tiles_total, n_pix, n_f)
+        table = torch.cat([means2d, conics, opacities[:, None]], -1)
+        local = comp.local_xy.to(means2d.dtype)
+        out = means2d.new_zeros(comp.n_tiles_total, n_pix, feats.shape[-1])
         out_a = means2d.new_zeros(comp.n_tiles_total, n_pix)
         for tiles in comp.chunks:
-            gidx, valid, pix = comp.chunk_lists(tiles, means2d.dtype)
-            _, _, _, _, alpha, trans_before = _alpha_block(pix, means2d[gidx], conics[gidx], opacities[gidx],
-                                                           valid, alpha_max)
-            w = alpha.mul_(trans_before)  # (T, P, L)
+            gidx, pad, centre = comp.chunk_lists(tiles)
+            mean, conic, opac = _gather(table, gidx, pad, centre)
+            w, *_ = _composite_block(local, mean, conic, opac, alpha_max, need_backward=False)
             out[tiles] = torch.bmm(w, feats[gidx])
             out_a[tiles] = w.sum(-1)
-        ctx.save_for_backward(means2d, conics, opacities, feats)
+        ctx.save_for_backward(table, feats)
         ctx.comp, ctx.alpha_max = comp, alpha_max
         return out, out_a
 
     @staticmethod
     def backward(ctx, g_out, g_alpha):
-        means2d, conics, opacities, feats = ctx.saved_tensors
+        table, feats = ctx.saved_tensors
         comp, alpha_max = ctx.comp, ctx.alpha_max
-        g_means = torch.zeros_like(means2d)
-        g_conics = torch.zeros_like(conics)
-        g_opac = torch.zeros_like(opacities)
+        local = comp.local_xy.to(table.dtype)
+        n_f = feats.shape[-1]
+        # moments basis (P, 6): 1, u, v, u^2, u v, v^2 with (u, v) the pixel offset from the tile centre
+        u, v = local[:, 0], local[:, 1]
+        basis_t = torch.stack([torch.ones_like(u), u, v, u * u, u * v, v * v], 0)  # (6, P)
+        g_table = torch.zeros_like(table)  # (M, 6): d/d(mx, my, a, b, c, o)
         g_feats = torch.zeros_like(feats)
         g_out = g_out.contiguous()
         g_alpha = g_alpha.contiguous()
         for tiles in comp.chunks:
-            gidx, valid, pix = comp.chunk_lists(tiles, means2d.dtype)
-            mean, conic, opac, feat = means2d[gidx], conics[gidx], opacities[gidx], feats[gidx]
-            dx, dy, gauss, raw, alpha, trans_before = _alpha_block(pix, mean, conic, opac, valid, alpha_max)
-            w = alpha * trans_before  # (T, P, L)
+            gidx, pad, centre = comp.chunk_lists(tiles)
+            mean, conic, opac = _gather(table, gidx, pad, centre)
+            feat = feats[gidx]  # (T, L, F)
+            w, gauss, live, trans_before, one_minus = _composite_block(local, mean, conic, opac, alpha_max, True)
             go, ga = g_out[tiles], g_alpha[tiles]  # (T, P, F), (T, P)
-            g_feats.index_add_(0, gidx.reshape(-1), torch.bmm(w.transpose(1, 2), go).reshape(-1, feat.shape[-1]))
-            f = torch.bmm(go, feat.transpose(1, 2)).add_(ga[..., None])  # (T, P, L) value of each contribution
-            wf = w * f
-            after = wf.sum(-1, keepdim=True) - torch.cumsum(wf, -1)  # sum_{k > i} w_k f_k
-            g_alpha_pair = trans_before * f - after / (1.0 - alpha)
-            # alpha = min(alpha_max, raw) where kept, else 0 (piecewise constant)
-            g_raw = torch.where((alpha > 0) & (raw <= alpha_max), g_alpha_pair, torch.zeros_like(g_alpha_pair))
-            g_opac.index_add_(0, gidx.reshape(-1), (g_raw * gauss).sum(1).reshape(-1))
-            g_power = -(g_raw * raw)  # dL/dpower
-            a, b, c = (conic[:, None, :, i] for i in range(3))
-            g_dx = g_power * (a * dx + b * dy)
-            g_dy = g_power * (b * dx + c * dy)
-            g_mean = -torch.stack([g_dx.sum(1), g_dy.sum(1)], -1)  # (T, L, 2)
-            g_conic = torch.stack([(0.5 * g_power * dx * dx).sum(1), (g_power * dx * dy).sum(1),
-                                   (0.5 * g_power * dy * dy).sum(1)], -1)
-            g_means.index_add_(0, gidx.reshape(-1), g_mean.reshape(-1, 2))
-            g_conics.index_add_(0, gidx.reshape(-1), g_conic.reshape(-1, 3))
-        return g_means, g_conics, g_opac, g_feats, None, None
+            flat = gidx.reshape(-1)
+            g_feats.index_add_(0, flat, torch.bmm(w.transpose(1, 2), go).reshape(-1, n_f))
+            f = torch.baddbmm(ga[..., None], go, feat.transpose(1, 2))  # (T, P, L): <feat_i, dC> + dA
+            wf = w.mul_(f)
+            after = torch.cumsum(wf, -1).neg_().add_(wf.sum(-1, keepdim=True))  # sum_{k > i} w_k f_k
+            g_alpha_pair = f.mul_(trans_before).sub_(after.div_(one_minus))
+            q = g_alpha_pair.mul_(live).mul_(gauss)  # dL/d(raw alpha) * exp(-power)
+            # dL/dpower = -o q; its moments over the pixels give the mean and conic gradients
+            mom = torch.bmm(basis_t.expand(q.shape[0], 6, -1), q) * (-opac[:, None, :])  # (T, 6, L)
+            s1, su, sv, suu, suv, svv = mom.unbind(1)
+            mx, my = mean.unbind(-1)
+            a, b, c = conic.unbind(-1)
+            sdx, sdy = su - mx * s1, sv - my * s1  # sum g_power dx, sum g_power dy
+            sdxx = suu - 2 * mx * su + mx * mx * s1
+            sdxy = suv - mx * sv - my * su + mx * my * s1
+            sdyy = svv - 2 * my * sv + my * my * s1
+            g_chunk = torch.stack([-(a * sdx + b * sdy), -(b * sdx + c * sdy),
+                                   0.5 * sdxx, sdxy, 0.5 * sdyy, q.sum(1)], -1)  # (T, L, 6)
+            g_table.index_add_(0, flat, g_chunk.masked_fill_(pad[..., None], 0.0).reshape(-1, 6))
+        g_means, g_conics, g_opac = g_table.split([2, 3, 1], -1)
+        return g_means, g_conics, g_opac.squeeze(-1), g_feats, None, None
 
 
 def render_tiled(proj: Projected, width: int, height: int, tile_size: int = 16, alpha_max: float = ALPHA_MAX,
