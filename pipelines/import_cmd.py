@@ -100,8 +100,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("--scene-id", help="scene id (default: the folder name)")
     f.add_argument("--keep-applied-transform", action="store_true",
                    help="keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)")
-    f.add_argument("--near", type=float, default=0.1)
-    f.add_argument("--far", type=float, default=100.0)
+    f.add_argument("--near", type=float, help="near plane (default: from a seeu export, else 0.1)")
+    f.add_argument("--far", type=float, help="far plane (default: from a seeu export, else 100)")
     f.set_defaults(_import=_nerfstudio)
 
 

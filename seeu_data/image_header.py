@@ -37,7 +37,7 @@ class ImageInfo:
     height: int
 
 
-def _jpeg_size(data: bytes) -> tuple[int, int]:
+def _jpeg_size(data: memoryview) -> tuple[int, int]:
     n = len(data)
     i = 2
     while i + 4 <= n:
@@ -66,20 +66,21 @@ def _jpeg_size(data: bytes) -> tuple[int, int]:
     raise ValueError("no JPEG frame header (truncated?)")
 
 
-def _jpeg_complete(data: bytes) -> bool:
-    if data.endswith(b"\xff\xd9"):
+def _jpeg_complete(data: memoryview) -> bool:
+    if data[-2:] == b"\xff\xd9":
         return True
-    tail = data[-64:].rstrip(b"\x00")  # some writers pad with NULs
+    tail = bytes(data[-64:]).rstrip(b"\x00")  # some writers pad with NULs
     return tail.endswith(b"\xff\xd9")
 
 
-def image_info(data: bytes | memoryview, where: str | None = None) -> ImageInfo:
+def image_info(data, where: str | None = None) -> ImageInfo:
     """Format and size of an encoded JPEG or PNG image from its header; checks the trailer too.
 
+    `data`: any bytes-like object (bytes, memoryview, uint8 numpy array); nothing is copied.
     Raises SeeUError("image failed to decode: ...", where) for anything else, a truncated file,
     or a zero size.
     """
-    data = bytes(data) if isinstance(data, memoryview) else data
+    data = memoryview(data).cast("B") if not isinstance(data, bytes) else memoryview(data)
     try:
         if data[:2] == b"\xff\xd8":
             width, height = _jpeg_size(data)
@@ -90,7 +91,7 @@ def image_info(data: bytes | memoryview, where: str | None = None) -> ImageInfo:
             if len(data) < 33 or data[12:16] != b"IHDR":
                 raise ValueError("PNG without an IHDR chunk")
             width, height = struct.unpack_from(">II", data, 16)
-            if not data.endswith(_PNG_IEND):
+            if data[-12:] != _PNG_IEND:
                 raise ValueError("PNG does not end with IEND (truncated)")
             fmt = "png"
         else:
@@ -102,7 +103,7 @@ def image_info(data: bytes | memoryview, where: str | None = None) -> ImageInfo:
     return ImageInfo(fmt, int(width), int(height))
 
 
-def decode_check(data: bytes, where: str | None = None) -> ImageInfo:
+def decode_check(data, where: str | None = None) -> ImageInfo:
     """Full decode with OpenCV (slow path): header checks, then pixels, then size agreement."""
     import cv2
     import numpy as np

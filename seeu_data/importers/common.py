@@ -11,7 +11,8 @@ import numpy as np
 
 from ..errors import SeeUError
 from ..image_header import decode_check, image_info
-from ..posed import PosedDatasetWriter, PosedScene
+from ..posed import PosedScene
+from .writer import HashingPosedWriter, prefetch
 
 
 @dataclass(frozen=True)
@@ -76,18 +77,19 @@ def write_import(items: Iterable[PosedScene | SkippedScene], out_dir: str | Path
                  total: int | None = None) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
-    A scene whose cameras fail `PosedScene.check` (non-finite, non-orthonormal, bad near/far) is
+    The importer runs in a background thread a few scenes ahead (`writer.prefetch`), so reading
+    the input overlaps with writing and hashing the output. A scene whose cameras fail `PosedScene.check` (non-finite, non-orthonormal, bad near/far) is
     skipped like the importer's own skips. `strict` turns the first skip into an error. Raises
     SeeUError, leaving no manifest, when nothing usable remains.
     """
     from tqdm import tqdm
 
     out_dir = Path(out_dir)
-    writer = PosedDatasetWriter(out_dir, params=params, provenance=provenance)
+    writer = HashingPosedWriter(out_dir, params=params, provenance=provenance)
     bar = tqdm(total=total, unit="scene", desc=f"import {report.format}", file=sys.stderr,
                disable=not progress, dynamic_ncols=True)
     try:
-        for item in items:
+        for item in prefetch(items):
             bar.update(1)
             if isinstance(item, PosedScene):
                 try:

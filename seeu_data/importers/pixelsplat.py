@@ -24,6 +24,7 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
+import pyarrow as pa
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from ..errors import SeeUError
@@ -108,7 +109,8 @@ def load_chunk(path: Path) -> list:
     if not path.exists():
         raise SeeUError("chunk listed in index.json is missing", path)
     try:
-        chunk = torch.load(path, map_location="cpu", weights_only=True)
+        # mmap: storages stay in the page cache instead of being copied into process memory.
+        chunk = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
     except Exception as exc:  # corrupt zip, truncated file, pickle of other objects
         raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
                         path) from None
@@ -137,9 +139,9 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
         raise SeeUError(f"{len(images)} images, {n} cameras and {len(timestamps)} timestamps disagree", where)
     cams = cams.to(torch.float64).numpy()
     cam_to_world = cam_to_world_from_world_to_cam(homogeneous_from_3x4(cams[:, 6:].reshape(n, 3, 4)))
-    data = [t.numpy().tobytes() if isinstance(t, torch.Tensor) else bytes(t) for t in images]
+    data, views = image_column(images)
     names = [f"{where}#{i}" for i in range(n)]
-    fmt, width, height = probe_images(data, names, cfg.verify_decode)
+    fmt, width, height = probe_images(views, names, cfg.verify_decode)
     near, far = cfg.near_far()
     meta = {"url": str(example["url"]), "dataset": cfg.dataset, "stage": cfg.stage, "chunk": chunk_name}
     source_frame = np.arange(n, dtype=np.int64)
@@ -156,6 +158,24 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
     return PosedScene(scene_id=str(key), images=data, image_format=fmt, width=width, height=height,
                       intrinsics_norm=cams[:, :4].copy(), cam_to_world=cam_to_world, near=near, far=far,
                       source_frame=source_frame, timestamp_us=timestamps, source_name=source_name, meta=meta)
+
+
+def image_column(images: list) -> tuple[pa.BinaryArray, list[memoryview]]:
+    """N encoded images (uint8 tensors) -> one Arrow binary column (a single copy of the bytes into
+    one contiguous buffer) and a memoryview per image into that buffer."""
+    import torch
+
+    arrays = [t.numpy() if isinstance(t, torch.Tensor) else np.frombuffer(bytes(t), dtype=np.uint8) for t in images]
+    arrays = [a.reshape(-1).view(np.uint8) for a in arrays]
+    offsets = np.zeros(len(arrays) + 1, dtype=np.int64)
+    np.cumsum([a.size for a in arrays], out=offsets[1:])
+    if offsets[-1] >= 2**31:
+        raise SeeUError(f"the scene's images total {offsets[-1] / 1e9:.1f} GB, over the 2 GB a scene may hold")
+    buf = np.concatenate(arrays) if arrays else np.zeros(0, dtype=np.uint8)
+    column = pa.BinaryArray.from_buffers(pa.binary(), len(arrays),
+                                         [None, pa.py_buffer(offsets.astype(np.int32)), pa.py_buffer(buf)])
+    mv = memoryview(buf)
+    return column, [mv[offsets[i]:offsets[i + 1]] for i in range(len(arrays))]
 
 
 def read_sidecar(directory: Path) -> dict | None:

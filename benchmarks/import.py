@@ -1,0 +1,137 @@
+"""pixelSplat-chunk import throughput against `torch.load` of the same chunks alone.
+
+Generates realistic chunks in a temporary directory (default 4 chunks of ~25 MB: RE10K-like scenes of
+360x640 JPEGs, ~50 KB each), then measures, side by side and interleaved, in fresh child processes:
+
+* baseline: `torch.load(chunk, weights_only=True)` of every chunk, nothing else;
+* import:   `seeu import pixelsplat` (load, convert cameras, probe image headers, write Arrow + manifest).
+
+Prints MB/s and frames/s of both, the ratio import/baseline (target >= 0.8) and each child's peak
+RSS (the import holds about one chunk at a time, so its peak stays near the baseline's largest chunk).
+
+Usage: .venv/bin/python benchmarks/import.py [--chunks 4] [--chunk-mb 25] [--repeats 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import resource
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def make_dataset(root: Path, chunks: int, chunk_mb: float, frames_per_scene: int = 150) -> tuple[int, int]:
+    import cv2
+    import numpy as np
+    import torch
+
+    rng = np.random.default_rng(0)
+    # A pool of distinct, photo-like 360x640 JPEGs (smooth gradients + texture + noise).
+    yy, xx = np.mgrid[0:360, 0:640].astype(np.float32)
+    pool = []
+    for i in range(24):
+        base = 128 + 60 * np.sin(xx / (20 + i) + i) * np.cos(yy / (30 + 2 * i))
+        img = np.stack([base, np.roll(base, i * 7, 1), 255 - base], -1) + rng.normal(0, 12, (360, 640, 3))
+        ok, buf = cv2.imencode(".jpg", np.clip(img, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
+        pool.append(np.frombuffer(buf.tobytes(), dtype=np.uint8))
+    directory = root / "test"
+    directory.mkdir(parents=True)
+    index, total_bytes, frames, scene = {}, 0, 0, 0
+    for c in range(chunks):
+        chunk, size = [], 0
+        while size < chunk_mb * 1e6:
+            n = frames_per_scene
+            w2c = np.tile(np.eye(4)[:3].reshape(1, 12), (n, 1))
+            w2c[:, 11] = np.linspace(0, 3, n)
+            cams = np.concatenate([np.tile([0.86, 1.53, 0.5, 0.5, 0, 0], (n, 1)), w2c], 1)
+            images = [torch.tensor(pool[(scene + i) % len(pool)]) for i in range(n)]
+            chunk.append({"url": f"https://www.youtube.com/watch?v={scene:011d}",
+                          "timestamps": torch.arange(n, dtype=torch.int64) * 33_366,
+                          "cameras": torch.tensor(cams, dtype=torch.float32), "images": images,
+                          "key": f"{scene:016x}"})
+            size += sum(int(t.numel()) for t in images)
+            frames += n
+            scene += 1
+        name = f"{c:06d}.torch"
+        torch.save(chunk, directory / name)
+        index.update({ex["key"]: name for ex in chunk})
+        total_bytes += size
+    (directory / "index.json").write_text(json.dumps(index))
+    return total_bytes, frames
+
+
+def child(mode: str, data: Path, out: Path) -> None:
+    # Library imports happen before timing in both modes (a one-time cost per process, reported apart).
+    t_imports = time.perf_counter()
+    import torch  # noqa: F401
+
+    if mode == "import":
+        import pyarrow as pa
+
+        from seeu_data.importers import ImportReport, write_import
+        from seeu_data.importers import pixelsplat as ps
+
+        pa.array([0])  # pyarrow imports its pandas shim lazily on first use (~1 s)
+    t_imports = time.perf_counter() - t_imports
+    if mode == "load":
+        t0 = time.perf_counter()
+        for path in sorted((data / "test").glob("*.torch")):
+            chunk = torch.load(path, map_location="cpu", weights_only=True)
+            del chunk
+        seconds = time.perf_counter() - t0
+    else:
+        t0 = time.perf_counter()
+        cfg = ps.PixelSplatImportConfig(root=data, stage="test")
+        write_import(ps.iter_scenes(cfg), out, ImportReport("pixelsplat"), params={}, provenance={})
+        seconds = time.perf_counter() - t0
+    print(json.dumps({"seconds": seconds, "imports_s": t_imports,
+                      "maxrss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024}))
+
+
+def run_child(mode: str, data: Path, out: Path) -> dict:
+    res = subprocess.run([sys.executable, __file__, "--child", mode, "--data", str(data), "--out", str(out)],
+                         capture_output=True, text=True, cwd=ROOT, check=True)
+    return json.loads(res.stdout.strip().splitlines()[-1])
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--chunks", type=int, default=4)
+    ap.add_argument("--chunk-mb", type=float, default=25.0)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--child", choices=["load", "import"])
+    ap.add_argument("--data", type=Path)
+    ap.add_argument("--out", type=Path)
+    args = ap.parse_args()
+    if args.child:
+        sys.path.insert(0, str(ROOT))
+        child(args.child, args.data, args.out)
+        return
+    with tempfile.TemporaryDirectory(prefix="seeu-bench-import-") as tmp:
+        tmp = Path(tmp)
+        nbytes, frames = make_dataset(tmp / "chunks", args.chunks, args.chunk_mb)
+        print(f"dataset: {args.chunks} chunks, {nbytes / 1e6:.1f} MB of JPEG, {frames} frames (360x640)")
+        run_child("load", tmp / "chunks", tmp / "warm")  # warm the page cache for both
+        loads, imports = [], []
+        for r in range(args.repeats):
+            loads.append(run_child("load", tmp / "chunks", tmp / f"x{r}"))
+            imports.append(run_child("import", tmp / "chunks", tmp / f"out{r}"))
+        t_load = statistics.median(x["seconds"] for x in loads)
+        t_imp = statistics.median(x["seconds"] for x in imports)
+        for name, t, runs in (("torch.load alone", t_load, loads), ("seeu import pixelsplat", t_imp, imports)):
+            print(f"{name:24s} {t:7.3f} s  {nbytes / 1e6 / t:8.1f} MB/s  {frames / t:8.0f} frames/s  "
+                  f"peak RSS {max(x['maxrss_mb'] for x in runs):7.1f} MB  "
+                  f"(library imports {statistics.median(x['imports_s'] for x in runs):.2f} s, untimed)")
+        print(f"ratio import / torch.load throughput: {t_load / t_imp:.2f}x (target >= 0.8x); "
+              f"largest chunk {args.chunk_mb:.0f} MB")
+
+
+if __name__ == "__main__":
+    main()

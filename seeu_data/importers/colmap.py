@@ -1,0 +1,196 @@
+"""A COLMAP model (binary or text, read with pycolmap) and its image folder -> one posed scene.
+
+Cameras: PINHOLE and SIMPLE_PINHOLE are used directly, as are distortion models whose distortion
+parameters are all zero. Other models with distortion (SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV,
+the fisheye models, ...) are undistorted first with `pycolmap.undistort_images` into a temporary
+folder, and the undistorted model (PINHOLE; sizes can change by a pixel) and images are imported
+(`undistort=False` refuses them with an error instead). Spherical models (EQUIRECTANGULAR) cannot
+be made pinhole and are refused.
+
+Conversion: `image.cam_from_world()` (world-to-camera) -> camera-to-world with
+`cameras.cam_to_world_from_world_to_cam`; `camera.calibration_matrix()` (pixels) -> normalised with
+`cameras.intrinsics_norm_from_pixels` at the camera's size; the world frame is COLMAP's. Image bytes
+are kept as they are (JPEG or PNG). Frames are ordered by image name; `source_name` is the name,
+`source_frame` the number in the name when every name has a distinct one (else the position);
+timestamps are 0 (COLMAP has none). near/far: given, or from the depths of each image's observed
+3D points (0.5 x 1st percentile, 1.5 x 99th percentile; the method is kept in the meta).
+"""
+
+from __future__ import annotations
+
+import re
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intrinsics_norm_from_pixels
+from ..errors import SeeUError
+from ..posed import PosedScene
+from .common import SkippedScene, probe_images
+
+PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
+UNDISTORTABLE_MODELS = {"SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "SIMPLE_RADIAL_FISHEYE",
+                        "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE", "RAD_TAN_THIN_PRISM_FISHEYE",
+                        "FOV", "SIMPLE_FISHEYE", "FISHEYE", "SIMPLE_DIVISION", "DIVISION", "EUCM"}
+
+
+@dataclass
+class ColmapImportConfig:
+    model_dir: Path
+    images_dir: Path
+    scene_id: str | None = None
+    undistort: bool = True
+    near: float | None = None
+    far: float | None = None
+    verify_decode: bool = False
+
+
+def default_scene_id(model_dir: Path) -> str:
+    """`scene/sparse/0` -> `scene`; `scene/sparse` -> `scene`; otherwise the folder name."""
+    parts = Path(model_dir).resolve().parts
+    for i in range(len(parts) - 1, 0, -1):
+        if parts[i] == "sparse":
+            return parts[i - 1]
+    return parts[-1]
+
+
+def read_model(model_dir: Path):
+    """pycolmap.Reconstruction of a model folder (SeeUError when missing or unreadable)."""
+    import cv2  # noqa: F401  (load OpenCV's zlib/libpng before pycolmap's: the other order crashes PNG writes)
+    import pycolmap
+
+    model_dir = Path(model_dir)
+    if not model_dir.is_dir():
+        raise SeeUError("COLMAP model directory not found", model_dir)
+    names = {p.name for p in model_dir.iterdir()}
+    if not ({"cameras.bin", "images.bin"} <= names or {"cameras.txt", "images.txt"} <= names):
+        raise SeeUError("not a COLMAP model (no cameras/images .bin or .txt)", model_dir)
+    try:
+        return pycolmap.Reconstruction(str(model_dir))
+    except Exception as exc:  # pycolmap raises plain RuntimeError/ValueError on bad files
+        raise SeeUError(f"unreadable COLMAP model ({str(exc).splitlines()[0][:160]})", model_dir) from None
+
+
+def _distortion_free(camera) -> bool:
+    name = camera.model.name
+    if name in PINHOLE_MODELS:
+        return True
+    skip = set(camera.focal_length_idxs()) | set(camera.principal_point_idxs())
+    extra = [p for i, p in enumerate(camera.params) if i not in skip]
+    return name in {"SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV"} and np.allclose(extra, 0.0)
+
+
+def needs_undistortion(rec, model_dir: Path) -> bool:
+    """True when a camera of a registered image has distortion; SeeUError for unusable models."""
+    used = {rec.image(i).camera_id for i in rec.reg_image_ids()}
+    need = False
+    for cid in sorted(used):
+        cam = rec.camera(cid)
+        name = cam.model.name
+        if _distortion_free(cam):
+            continue
+        if name not in UNDISTORTABLE_MODELS:
+            raise SeeUError(f"camera {cid} has the unsupported camera model {name} (pinhole-like models only)",
+                            model_dir)
+        need = True
+    return need
+
+
+def _source_frames(names: list[str]) -> np.ndarray:
+    nums = []
+    for name in names:
+        m = re.findall(r"\d+", Path(name).stem)
+        nums.append(int(m[-1]) if m else None)
+    if None not in nums and len(set(nums)) == len(nums):
+        return np.asarray(nums, dtype=np.int64)
+    return np.arange(len(names), dtype=np.int64)
+
+
+def _near_far_from_points(rec, image_ids: list[int]) -> tuple[float, float] | None:
+    depths = []
+    for iid in image_ids:
+        img = rec.image(iid)
+        w2c = np.asarray(img.cam_from_world().matrix(), dtype=np.float64)
+        pts = [rec.point3D(p.point3D_id).xyz for p in img.points2D if p.has_point3D()]
+        if pts:
+            z = (np.asarray(pts) @ w2c[:, :3].T + w2c[:, 3])[:, 2]
+            depths.append(z[z > 0])
+    if not depths or sum(len(d) for d in depths) == 0:
+        return None
+    d = np.concatenate(depths)
+    return 0.5 * float(np.percentile(d, 1)), 1.5 * float(np.percentile(d, 99))
+
+
+def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict) -> PosedScene:
+    images_dir = Path(images_dir)
+    ids = sorted(rec.reg_image_ids(), key=lambda i: rec.image(i).name)
+    if not ids:
+        raise SeeUError("the model has no registered images", cfg.model_dir)
+    names = [rec.image(i).name for i in ids]
+    paths = [images_dir / n for n in names]
+    missing = [n for n, p in zip(names, paths) if not p.is_file()]
+    if missing:
+        raise SeeUError(f"{len(missing)} of {len(names)} registered images are missing (first: {missing[0]})",
+                        images_dir)
+    data = [p.read_bytes() for p in paths]
+    fmt, width, height = probe_images(data, [str(p) for p in paths], cfg.verify_decode)
+    w2c, intr = [], []
+    for k, iid in enumerate(ids):
+        img = rec.image(iid)
+        cam = rec.camera(img.camera_id)
+        if abs(width[k] / height[k] - cam.width / cam.height) > 1e-2 * cam.width / cam.height:
+            raise SeeUError(f"image is {width[k]}x{height[k]} but its camera is {cam.width}x{cam.height}", paths[k])
+        w2c.append(np.asarray(img.cam_from_world().matrix(), dtype=np.float64))
+        intr.append(intrinsics_norm_from_pixels(np.asarray(cam.calibration_matrix(), dtype=np.float64),
+                                                cam.width, cam.height))
+    near, far = cfg.near, cfg.far
+    if near is None or far is None:
+        est = _near_far_from_points(rec, ids)
+        if est is None:
+            raise SeeUError("the model has no 3D points to derive near/far from: pass --near and --far", cfg.model_dir)
+        near = est[0] if near is None else near
+        far = est[1] if far is None else far
+        meta["near_far_method"] = "SfM point depths: 0.5 x 1st / 1.5 x 99th percentile"
+    else:
+        meta["near_far_method"] = "given"
+    scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
+    return PosedScene(scene_id=scene_id, images=data, image_format=fmt, width=width, height=height,
+                      intrinsics_norm=np.stack(intr),
+                      cam_to_world=cam_to_world_from_world_to_cam(homogeneous_from_3x4(np.stack(w2c))),
+                      near=near, far=far, source_frame=_source_frames(names),
+                      timestamp_us=np.zeros(len(ids), dtype=np.int64), source_name=names, meta=meta)
+
+
+def iter_scenes(cfg: ColmapImportConfig) -> Iterator[PosedScene | SkippedScene]:
+    """One scene (or a SkippedScene when its images are unusable); model-level problems raise."""
+    import pycolmap
+
+    if not Path(cfg.images_dir).is_dir():
+        raise SeeUError("image directory not found", cfg.images_dir)
+    rec = read_model(cfg.model_dir)
+    scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
+    meta = {"dataset": "colmap", "model": str(Path(cfg.model_dir).resolve()),
+            "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()})}
+    need = needs_undistortion(rec, cfg.model_dir)  # raises for models that cannot become pinhole
+    if need and not cfg.undistort:
+        raise SeeUError(f"camera models {meta['camera_models']} have lens distortion; undistort first "
+                        f"(COLMAP image_undistorter) or drop --no-undistort", cfg.model_dir)
+    try:
+        if need:
+            with tempfile.TemporaryDirectory(prefix="seeu-undistort-") as tmp:
+                try:
+                    pycolmap.undistort_images(tmp, str(cfg.model_dir), str(cfg.images_dir))
+                    und = pycolmap.Reconstruction(str(Path(tmp) / "sparse"))
+                except Exception as exc:
+                    raise SeeUError(f"undistortion failed ({str(exc).splitlines()[0][:160]})", cfg.model_dir) from None
+                meta["undistorted"] = "pycolmap.undistort_images"
+                scene = scene_from_model(und, Path(tmp) / "images", cfg, meta)
+        else:
+            scene = scene_from_model(rec, cfg.images_dir, cfg, meta)
+    except SeeUError as exc:
+        yield SkippedScene(scene_id, str(exc))
+        return
+    yield scene

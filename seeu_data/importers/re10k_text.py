@@ -1,0 +1,153 @@
+"""Raw RealEstate10K / ACID camera files + extracted frames -> posed scenes.
+
+Camera file `CAMERAS_DIR/<scene>.txt` (the public release): line 0 is the YouTube URL, then one line
+per frame of 19 whitespace-separated tokens::
+
+    timestamp_us fx fy cx cy 0 0 r11 r12 r13 t1 r21 r22 r23 t2 r31 r32 r33 t3
+
+intrinsics normalised by the image size, then the 3x4 **world-to-camera** matrix row-major.
+Frames: `FRAMES_DIR/<scene>/<timestamp_us>.png` (or .jpg/.jpeg), the layout the public download
+scripts leave (e.g. cashiwamochi/RealEstate10K_Downloader extracts one PNG per timestamp with
+ffmpeg, possibly halving its size; normalised intrinsics do not depend on the size).
+
+Conversion: intrinsics kept; camera-to-world = `cam_to_world_from_world_to_cam`; image bytes kept;
+scene id = file stem; url in the meta; `source_frame` = line position (0-based frame in the file),
+`source_name` = the frame's file name.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
+from ..errors import SeeUError
+from ..posed import PosedScene
+from .common import SkippedScene, probe_images
+
+FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg")
+
+
+@dataclass
+class Re10kTextImportConfig:
+    cameras_dir: Path
+    frames_dir: Path
+    scenes: frozenset[str] | None = None
+    dataset: str = "re10k"
+    near: float = 1.0
+    far: float = 100.0
+    allow_missing_frames: bool = False
+    verify_decode: bool = False
+
+
+@dataclass
+class Re10kCameraFile:
+    """A parsed camera file. N = frames; intrinsics_norm (N, 4); world_to_cam (N, 4, 4)."""
+
+    url: str
+    timestamps_us: np.ndarray
+    intrinsics_norm: np.ndarray
+    world_to_cam: np.ndarray
+
+
+def parse_camera_file(path: Path) -> Re10kCameraFile:
+    """Parse one RealEstate10K/ACID camera file exactly (19 tokens per frame line)."""
+    try:
+        lines = path.read_text().splitlines()
+    except (OSError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"unreadable camera file ({exc})", path) from None
+    if not lines or not lines[0].strip():
+        raise SeeUError("empty camera file (line 1 must be the video URL)", path)
+    url = lines[0].strip()
+    if len(url.split()) != 1:
+        raise SeeUError("line 1 must be the video URL alone", path)
+    timestamps, rows = [], []
+    for lineno, line in enumerate(lines[1:], start=2):
+        tokens = line.split()
+        if not tokens:
+            continue
+        if len(tokens) != 19:
+            raise SeeUError(f"line {lineno}: {len(tokens)} tokens, expected 19", path)
+        try:
+            timestamps.append(int(tokens[0]))
+            rows.append([float(t) for t in tokens[1:]])
+        except ValueError:
+            raise SeeUError(f"line {lineno}: not numbers", path) from None
+    if not rows:
+        raise SeeUError("no frame lines", path)
+    values = np.asarray(rows, dtype=np.float64)
+    n = len(rows)
+    return Re10kCameraFile(url=url, timestamps_us=np.asarray(timestamps, dtype=np.int64),
+                           intrinsics_norm=values[:, :4].copy(),
+                           world_to_cam=homogeneous_from_3x4(values[:, 6:].reshape(n, 3, 4)))
+
+
+def camera_files(cfg: Re10kTextImportConfig) -> list[Path]:
+    """The camera files to import (sorted), after the --scenes filter; checks the directories."""
+    if not Path(cfg.cameras_dir).is_dir():
+        raise SeeUError("camera directory not found", cfg.cameras_dir)
+    if not Path(cfg.frames_dir).is_dir():
+        raise SeeUError("frames directory not found", cfg.frames_dir)
+    files = sorted(Path(cfg.cameras_dir).glob("*.txt"))
+    if cfg.scenes is not None:
+        files = [f for f in files if f.stem in cfg.scenes]
+    if not files:
+        raise SeeUError("no <scene>.txt camera files" + (" for the requested scenes" if cfg.scenes else ""),
+                        cfg.cameras_dir)
+    return files
+
+
+def _frame_paths(scene_dir: Path) -> dict[int, Path]:
+    """timestamp -> frame file in a scene's frame directory."""
+    out: dict[int, Path] = {}
+    if not scene_dir.is_dir():
+        return out
+    for p in scene_dir.iterdir():
+        if p.suffix.lower() in FRAME_EXTENSIONS and p.stem.isdigit():
+            out[int(p.stem)] = p
+    return out
+
+
+def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
+    cams = parse_camera_file(cam_file)
+    scene_id = cam_file.stem
+    scene_dir = Path(cfg.frames_dir) / scene_id
+    if not scene_dir.is_dir():
+        raise SeeUError("no frame directory for this scene", scene_dir)
+    frames = _frame_paths(scene_dir)
+    keep = np.array([int(t) in frames for t in cams.timestamps_us])
+    if not keep.all():
+        missing = int((~keep).sum())
+        if not cfg.allow_missing_frames or not keep.any():
+            raise SeeUError(f"{missing} of {len(keep)} frames listed in {cam_file.name} have no image "
+                            f"(first: {cams.timestamps_us[~keep][0]}); --allow-missing-frames drops them", scene_dir)
+    if len(frames) > len(cams.timestamps_us) and not cfg.allow_missing_frames:
+        extra = len(set(frames) - set(int(t) for t in cams.timestamps_us))
+        if extra:
+            raise SeeUError(f"{extra} frame images have no camera line in {cam_file.name}", scene_dir)
+    idx = np.nonzero(keep)[0]
+    paths = [frames[int(cams.timestamps_us[i])] for i in idx]
+    try:
+        images = [p.read_bytes() for p in paths]
+    except OSError as exc:
+        raise SeeUError(f"unreadable frame ({exc})", scene_dir) from None
+    fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
+    meta = {"url": cams.url, "dataset": cfg.dataset, "camera_file": str(cam_file)}
+    if len(idx) < len(keep):
+        meta["dropped_frames_without_image"] = int(len(keep) - len(idx))
+    return PosedScene(scene_id=scene_id, images=images, image_format=fmt, width=width, height=height,
+                      intrinsics_norm=cams.intrinsics_norm[idx],
+                      cam_to_world=cam_to_world_from_world_to_cam(cams.world_to_cam[idx]),
+                      near=cfg.near, far=cfg.far, source_frame=idx.astype(np.int64),
+                      timestamp_us=cams.timestamps_us[idx], source_name=[p.name for p in paths], meta=meta)
+
+
+def iter_scenes(cfg: Re10kTextImportConfig, files: list[Path] | None = None) -> Iterator[PosedScene | SkippedScene]:
+    for cam_file in files if files is not None else camera_files(cfg):
+        try:
+            yield scene_from_files(cam_file, cfg)
+        except SeeUError as exc:
+            yield SkippedScene(cam_file.stem, str(exc))
