@@ -1,0 +1,95 @@
+"""Gaussians <-> the standard 3DGS `.ply` (the layout the INRIA code writes and common viewers open).
+
+One `vertex` element, binary little-endian float32 properties in this order:
+`x y z nx ny nz f_dc_0 f_dc_1 f_dc_2 f_rest_0 .. f_rest_{3(K-1)-1} opacity scale_0 scale_1 scale_2
+rot_0 rot_1 rot_2 rot_3`, where
+* normals are zeros,
+* `f_dc_c` = SH coefficient 0 of channel c; `f_rest` is channel-major: `f_rest_{c (K-1) + k - 1}` is
+  coefficient k >= 1 of channel c,
+* opacity is the logit of our [0, 1] opacity (clamped to [1e-6, 1 - 1e-6] so it stays finite),
+* scales are the natural log of our linear scales (clamped to >= 1e-12),
+* rotation is the unit quaternion (w, x, y, z).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import numpy as np
+import torch
+from plyfile import PlyData, PlyElement, PlyParseError
+
+from seeu_data.errors import SeeUError
+from seeu_model.gaussians import Gaussians
+from seeu_model.rasterizer.sh import sh_degree_from_bases
+
+OPACITY_EPS = 1e-6
+
+
+def ply_property_names(sh_degree: int) -> list[str]:
+    """The 3DGS vertex property names, in file order, for SH of `sh_degree`."""
+    n_rest = 3 * ((sh_degree + 1) ** 2 - 1)
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(n_rest)]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+def save_ply(gaussians: Gaussians, path: str | Path, batch_index: int = 0) -> Path:
+    """Write scene `batch_index` of `gaussians` (B, N, ...) to `path` in the 3DGS layout (atomic)."""
+    g = gaussians.map(lambda t: t[batch_index].detach().to("cpu", torch.float64))
+    n, k = g.sh.shape[0], g.sh.shape[1]
+    degree = sh_degree_from_bases(k)
+    opac = g.opacities.clamp(OPACITY_EPS, 1.0 - OPACITY_EPS)
+    quat = g.rotations / g.rotations.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    columns = torch.cat([
+        g.means, torch.zeros(n, 3, dtype=torch.float64), g.sh[:, 0, :],
+        g.sh[:, 1:, :].transpose(1, 2).reshape(n, 3 * (k - 1)),  # channel-major rest
+        torch.log(opac / (1.0 - opac))[:, None], torch.log(g.scales.clamp_min(1e-12)), quat,
+    ], 1).numpy().astype(np.float32)
+    names = ply_property_names(degree)
+    vertex = np.empty(n, dtype=[(name, "<f4") for name in names])
+    for i, name in enumerate(names):
+        vertex[name] = columns[:, i]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<").write(str(tmp))
+    os.replace(tmp, path)
+    return path
+
+
+def load_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> Gaussians:
+    """Read a 3DGS `.ply` into Gaussians with B = 1 (sigmoid opacity, exp scales, unit wxyz quaternions)."""
+    path = Path(path)
+    try:
+        ply = PlyData.read(str(path))
+        vertex = ply["vertex"]
+    except (OSError, KeyError, ValueError, IndexError, PlyParseError) as exc:
+        raise SeeUError(f"not a readable .ply with a vertex element ({exc})", path) from exc
+    names = [p.name for p in vertex.properties]
+    n_rest = sum(1 for name in names if name.startswith("f_rest_"))
+    if n_rest % 3:
+        raise SeeUError(f"{n_rest} f_rest properties is not a multiple of 3", path)
+    try:
+        degree = sh_degree_from_bases(n_rest // 3 + 1)
+    except ValueError as exc:
+        raise SeeUError(str(exc), path) from exc
+    missing = [name for name in ply_property_names(degree) if name not in names and name[0] != "n"]
+    if missing:
+        raise SeeUError(f"missing 3DGS properties: {', '.join(missing[:5])}", path)
+    col = lambda name: np.asarray(vertex[name], dtype=np.float64)  # noqa: E731
+    stack = lambda keys: torch.from_numpy(np.stack([col(key) for key in keys], -1))  # noqa: E731
+    n = len(vertex.data)
+    k = (degree + 1) ** 2
+    means = stack(["x", "y", "z"])
+    dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])
+    rest = stack([f"f_rest_{i}" for i in range(3 * (k - 1))]) if k > 1 else torch.zeros(n, 0, dtype=torch.float64)
+    sh = torch.cat([dc[:, None, :], rest.reshape(n, 3, k - 1).transpose(1, 2)], 1)
+    quat = stack(["rot_0", "rot_1", "rot_2", "rot_3"])
+    quat = quat / quat.norm(dim=-1, keepdim=True).clamp_min(1e-12)
+    g = Gaussians(means=means, scales=torch.exp(stack(["scale_0", "scale_1", "scale_2"])), rotations=quat,
+                  opacities=torch.sigmoid(torch.from_numpy(col("opacity"))), sh=sh)
+    if not all(torch.isfinite(t).all() for t in (g.means, g.scales, g.rotations, g.opacities, g.sh)):
+        raise SeeUError("non-finite values in the Gaussians", path)
+    return g.map(lambda t: t[None].to(dtype))
