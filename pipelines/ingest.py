@@ -1,0 +1,329 @@
+"""Pose a video, an image folder, or a folder of videos with COLMAP SfM and write posed chunks.
+
+Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parameters, so re-running
+the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
+(--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
+process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
+detection only with --vocab-tree, incremental mapping, undistortion when the model has distortion)
+-> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale: median SfM
+point depth = 1; near/far from point-depth percentiles) -> OUT/<scene>/ posed-frames dataset
+(scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
+
+Example:
+  seeu ingest clip.mp4 --out data/posed --target-frames 120
+  seeu ingest videos/ photos/ --out data/posed --workers 2 --camera-model OPENCV
+  seeu validate data/posed/clip
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+
+# Bump when a stage's output layout changes, so old work directories are redone rather than misread.
+DECODE_STAGE_FORMAT = 1
+SFM_STAGE_FORMAT = 2
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("inputs", nargs="+", metavar="INPUT", help="video file, folder of images, or folder of videos")
+    p.add_argument("--out", required=True, type=Path, help="output directory; one dataset per scene: OUT/<scene>/")
+    p.add_argument("--stride", type=int, default=1, help="keep every N-th decoded frame (default 1)")
+    p.add_argument("--target-frames", type=int, default=None,
+                   help="then keep this many frames, evenly spaced (default: all)")
+    p.add_argument("--sharpness-window", type=int, default=0,
+                   help="drop the blurriest frame in each window of N candidates (0 = off)")
+    p.add_argument("--max-size", type=int, default=None, help="downscale so the longer side is at most N pixels")
+    p.add_argument("--camera-model", default="SIMPLE_RADIAL",
+                   choices=["PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
+                   help="shared camera model; models with distortion are undistorted (default SIMPLE_RADIAL)")
+    p.add_argument("--overlap", type=int, default=10, help="sequential matching overlap in frames (default 10)")
+    p.add_argument("--vocab-tree", type=Path, default=None,
+                   help="vocabulary-tree file: enables loop detection (off without one)")
+    p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
+    p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
+    p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
+    p.add_argument("--threads", type=int, default=-1, help="COLMAP threads per scene (default: all cores / workers)")
+    p.add_argument("--force", action="store_true", help="redo every stage instead of resuming")
+    p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
+
+
+@dataclass(frozen=True)
+class IngestConfig:
+    """All parameters of one ingest run (recorded in each manifest's params)."""
+
+    stride: int = 1
+    target_frames: int | None = None
+    sharpness_window: int = 0
+    max_size: int | None = None
+    camera_model: str = "SIMPLE_RADIAL"
+    overlap: int = 10
+    vocab_tree: str | None = None
+    min_chunk_frames: int = 10
+    max_features: int = 8192
+    threads: int = -1
+    jpeg_quality: int = 95
+    extra: dict = field(default_factory=dict)
+
+
+def _encode_jpeg(rgb, quality: int) -> bytes:
+    import cv2
+
+    from seeu_data.errors import SeeUError
+
+    ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
+    if not ok:  # pragma: no cover
+        raise SeeUError("JPEG encoding failed")
+    return buf.tobytes()
+
+
+def _decode_stage(source, cfg: IngestConfig, progress: bool):
+    """Stage function: decode every stride-th frame, resize, write JPEGs + per-frame metadata."""
+    from tqdm import tqdm
+
+    from seeu_data.errors import SeeUError
+    from seeu_data.video import iter_frames, probe_video, resize_max_side, sharpness
+
+    def fn(d: Path) -> dict:
+        frames_dir = d / "frames"
+        frames_dir.mkdir()
+        total = None
+        if source.kind == "video":
+            total = -(-probe_video(source.path).frame_count // cfg.stride)
+        else:
+            total = -(-len(source.image_files) // cfg.stride)
+        frames, size = [], None
+        for fr in tqdm(iter_frames(source, cfg.stride), total=total, desc=f"{source.name} decode", unit="frame",
+                       disable=not progress, leave=False):
+            rgb = resize_max_side(fr.rgb, cfg.max_size)
+            if size is None:
+                size = rgb.shape[:2]
+            elif rgb.shape[:2] != size:
+                where = source.path / fr.source_name if fr.source_name else source.path
+                raise SeeUError(f"frame size {rgb.shape[1]}x{rgb.shape[0]} differs from the first frame's "
+                                f"{size[1]}x{size[0]} (one shared camera needs one size)", where)
+            name = f"{fr.source_frame:06d}.jpg"
+            (frames_dir / name).write_bytes(_encode_jpeg(rgb, cfg.jpeg_quality))
+            frames.append({"name": name, "source_frame": fr.source_frame, "timestamp_us": fr.timestamp_us,
+                           "source_name": fr.source_name, "sharpness": sharpness(rgb)})
+        if not frames:
+            raise SeeUError("no frames decoded", source.path)
+        return {"frames": frames, "width": int(size[1]), "height": int(size[0])}
+
+    return fn
+
+
+def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, selected: int) -> dict | None:
+    """Accuracy against a synthetic clip's ground-truth JSON lying beside the video, if there is one."""
+    import numpy as np
+
+    from seeu_data.errors import SeeUError
+    from seeu_data.pose_eval import pose_accuracy
+    from seeu_data.synthetic import ground_truth_path, load_ground_truth
+
+    if source.kind != "video" or not ground_truth_path(source.path).exists():
+        return None
+    try:
+        gt = load_ground_truth(source.path)
+    except (SeeUError, ValueError, KeyError):
+        return None
+    index = {int(f): i for i, f in enumerate(gt["frame"])}
+    out = {"file": str(ground_truth_path(source.path)), "registered_pct": 100.0 * registered / max(selected, 1),
+           "chunks": []}
+    for ch in chunks:
+        src = [frames[p]["source_frame"] for p in ch.frame_positions]
+        if len(src) < 3 or any(s not in index for s in src):
+            continue
+        rows = [index[s] for s in src]
+        # Normalised focal lengths survive --max-size; undistortion may crop the image by a few pixels
+        # without resampling, so compare the camera as mapped (on the decoded frames) with the truth.
+        mapped = ch.meta["camera_as_mapped"]
+        intr = np.array([mapped["fx"] / mapped["width"], mapped["fy"] / mapped["height"],
+                         mapped["cx"] / mapped["width"], mapped["cy"] / mapped["height"]])
+        acc = pose_accuracy(ch.cam_to_world, gt["cam_to_world"][rows], [intr] * len(rows), gt["intrinsics_norm"][rows])
+        out["chunks"].append({"scene_id": ch.scene_id, **acc.as_dict()})
+    return out
+
+
+def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False, progress: bool = False) -> dict:
+    """Run every stage for one scene; returns its report (also written to OUT/<scene>/report.json)."""
+    import numpy as np
+
+    from seeu_data.chunks import ChunkConfig, plan_chunks
+    from seeu_data.errors import SeeUError
+    from seeu_data.frame_select import SelectConfig, select_frames
+    from seeu_data.ingest_report import mean_reprojection_error, plot_trajectory, summary_line, write_report
+    from seeu_data.manifest import MANIFEST_NAME, provenance
+    from seeu_data.posed import PosedDatasetWriter, PosedScene
+    from seeu_data.sfm import SfmConfig, run_sfm
+    from seeu_data.stages import StageCache, key_hash
+
+    t_start = time.perf_counter()
+    out_dir = out_root / source.name
+    (out_dir / MANIFEST_NAME).unlink(missing_ok=True)  # being redone: must not look complete meanwhile
+    select_cfg = SelectConfig(cfg.stride, cfg.sharpness_window, cfg.target_frames)
+    select_cfg.check()
+    chunk_cfg = ChunkConfig(min_chunk_frames=cfg.min_chunk_frames)
+    chunk_cfg.check()
+    sfm_cfg = SfmConfig(camera_model=cfg.camera_model, overlap=cfg.overlap,
+                        vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
+                        min_model_size=max(3, min(cfg.min_chunk_frames, 10)), max_num_features=cfg.max_features,
+                        num_threads=cfg.threads)
+    sfm_cfg.check()
+    cache = StageCache(out_root / ".work" / source.name, force=force)
+
+    decode_key = {"input": str(source.path.resolve()), "fingerprint": source.fingerprint(), "kind": source.kind,
+                  "stride": cfg.stride, "max_size": cfg.max_size, "jpeg_quality": cfg.jpeg_quality,
+                  "format": DECODE_STAGE_FORMAT}
+    decoded, _ = cache.run("decode", decode_key, _decode_stage(source, cfg, progress))
+    frames_all = decoded["frames"]
+
+    t0 = time.perf_counter()
+    keep, dropped_sel = select_frames([f["sharpness"] for f in frames_all], [f["source_frame"] for f in frames_all],
+                                      select_cfg)
+    frames = [frames_all[i] for i in keep]
+    cache.timings["select"] = time.perf_counter() - t0
+    need = max(3, cfg.min_chunk_frames)
+    if len(frames) < need:
+        raise SeeUError(f"only {len(frames)} usable frame(s) after selection; SfM and --min-chunk-frames "
+                        f"need at least {need}", source.path)
+
+    names = [f["name"] for f in frames]
+    sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": asdict(sfm_cfg), "format": SFM_STAGE_FORMAT}
+    sfm_result, _ = cache.run("sfm", sfm_key, lambda d: run_sfm(cache.stage_dir("decode") / "frames", names, d,
+                                                                 sfm_cfg, source.path, progress))
+
+    t0 = time.perf_counter()
+    chunks, dropped_chunk = plan_chunks(source.name, names, sfm_result, cache.stage_dir("sfm"), chunk_cfg)
+    registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
+    if not chunks:
+        raise SeeUError(f"SfM registered {registered}/{len(frames)} frames but no contiguous run reaches "
+                        f"--min-chunk-frames {cfg.min_chunk_frames}", source.path)
+    cache.timings["chunks"] = time.perf_counter() - t0
+
+    t0 = time.perf_counter()
+    dropped = dropped_sel + [{"source_frame": frames[d["position"]]["source_frame"], "reason": d["reason"]}
+                             for d in dropped_chunk]
+    dropped.sort(key=lambda d: d["source_frame"])
+    params = {**asdict(cfg), "inputs": [str(source.path)], "sfm": asdict(sfm_cfg)}
+    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=source.fingerprint())
+    report = {
+        "scene": source.name, "input": str(source.path), "input_kind": source.kind,
+        "frames_decoded": None, "frames_candidates": len(frames_all), "frames_selected": len(frames),
+        "registered": registered, "registration_rate": registered / len(frames),
+        "frames_in_chunks": sum(len(c.frame_positions) for c in chunks),
+        "mean_reprojection_error_px": mean_reprojection_error(sfm_result["models"]),
+        "sfm": {"num_keypoints": sfm_result.get("num_keypoints"), "num_verified_pairs": sfm_result.get("num_verified_pairs"),
+                "timings_s": sfm_result.get("timings", {}),
+                "models": [{"index": m["index"], "registered": len(m["images"]), "points3D": m["num_points3D"],
+                            "mean_reprojection_error_px": m["mean_reprojection_error"], "camera": m["camera"],
+                            "undistorted": m["undistorted"]} for m in sfm_result["models"]]},
+        "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
+                    "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],
+                    "near": c.near, "far": c.far, "sfm_model": c.model_index} for c in chunks],
+        "dropped_frames": dropped,
+        "output": str(out_dir),
+    }
+    report["frames_decoded"] = (frames_all[-1]["source_frame"] + 1) if source.kind == "video" else len(source.image_files)
+    gt = _ground_truth_accuracy(source, frames, chunks, registered, len(frames))
+    if gt is not None:
+        report["ground_truth"] = gt
+
+    with PosedDatasetWriter(out_dir, params=params, provenance=prov) as writer:
+        for c in chunks:
+            imgs = []
+            for path in c.image_paths:
+                if not path.exists():
+                    raise SeeUError("SfM image missing from the work directory (re-run with --force)", path)
+                imgs.append(path.read_bytes())
+            fr = [frames[p] for p in c.frame_positions]
+            n = len(fr)
+            writer.add(PosedScene(
+                scene_id=c.scene_id, images=imgs, image_format="jpeg",
+                width=np.full(n, c.width), height=np.full(n, c.height),
+                intrinsics_norm=np.tile(c.intrinsics_norm, (n, 1)), cam_to_world=c.cam_to_world,
+                near=c.near, far=c.far,
+                source_frame=np.array([f["source_frame"] for f in fr], np.int64),
+                timestamp_us=np.array([f["timestamp_us"] for f in fr], np.int64),
+                source_name=[f["source_name"] for f in fr],
+                meta={**c.meta, "source": str(source.path)},
+            ))
+        cache.timings["write"] = time.perf_counter() - t0
+        report["timings_s"] = {**cache.timings, "total": time.perf_counter() - t_start}
+        report["reused"] = dict(cache.reused)
+        writer.report = {k: report[k] for k in ("frames_selected", "registered", "registration_rate",
+                                                "frames_in_chunks", "mean_reprojection_error_px")}
+        writer.report["dropped_frames"] = len(dropped)
+        write_report(out_dir / "report.json", report)
+        plot_trajectory(out_dir / "trajectory.png", chunks,
+                        f"{source.name}: {registered}/{len(frames)} registered, {len(chunks)} chunk(s)")
+    report["summary"] = summary_line(report)
+    return report
+
+
+def _scene_worker(payload: tuple) -> tuple[str, dict | None, str | None]:
+    """Process-pool entry: (name, report, error line)."""
+    from seeu_data.errors import SeeUError
+
+    source, out_root, cfg, force = payload
+    try:
+        return source.name, ingest_scene(source, out_root, cfg, force=force, progress=False), None
+    except SeeUError as exc:
+        return source.name, None, str(exc)
+
+
+def run(args: argparse.Namespace) -> int:
+    from concurrent.futures import ProcessPoolExecutor
+    import multiprocessing
+
+    from tqdm import tqdm
+
+    from seeu_data.errors import SeeUError
+    from seeu_data.video import discover_sources
+
+    progress = args.progress or sys.stderr.isatty()
+    if args.workers < 1:
+        raise SeeUError(f"--workers must be >= 1, got {args.workers}")
+    sources = discover_sources(args.inputs)
+    workers = min(args.workers, len(sources))
+    threads = args.threads if args.threads != -1 else max(1, (os.cpu_count() or 1) // workers)
+    cfg = IngestConfig(stride=args.stride, target_frames=args.target_frames, sharpness_window=args.sharpness_window,
+                       max_size=args.max_size, camera_model=args.camera_model, overlap=args.overlap,
+                       vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
+                       min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads)
+    args.out.mkdir(parents=True, exist_ok=True)
+    if len(sources) == 1:
+        report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress)
+        print(report["summary"])
+        return 0
+    failures = 0
+    if workers == 1:
+        results = []
+        for s in sources:
+            try:
+                results.append((s.name, ingest_scene(s, args.out, cfg, force=args.force, progress=progress), None))
+            except SeeUError as exc:
+                results.append((s.name, None, str(exc)))
+            _print_result(*results[-1])
+            failures += results[-1][2] is not None
+    else:
+        ctx = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
+            futures = pool.map(_scene_worker, [(s, args.out, cfg, args.force) for s in sources])
+            for name, report, err in tqdm(futures, total=len(sources), desc="scenes", disable=not progress):
+                _print_result(name, report, err)
+                failures += err is not None
+    print(f"{len(sources) - failures}/{len(sources)} scenes ingested into {args.out}")
+    return 2 if failures else 0
+
+
+def _print_result(name: str, report: dict | None, err: str | None) -> None:
+    if err is not None:
+        print(f"seeu ingest: error: {err}", file=sys.stderr)
+    else:
+        print(report["summary"])

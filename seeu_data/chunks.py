@@ -1,0 +1,136 @@
+"""Split SfM models into posed chunks, normalise their scale and pick near/far.
+
+A posed chunk is a contiguous run of selected frames registered in one SfM model: a frame that is
+not registered breaks the run, and a model split by COLMAP gives separate chunks. A frame registered
+in several overlapping models belongs to the largest one only. Runs shorter than
+`min_chunk_frames` are dropped (and reported).
+
+Scale and frame of each chunk (recorded in the chunk's meta): poses are expressed relative to the
+chunk's first camera (identity) and scaled so that the median depth of the SfM points seen by the
+model's cameras is 1; near/far are the 0.1th / 99.9th percentiles of those depths times 0.4 / 1.5
+(SfM triangulates few points on the nearest, most foreshortened surfaces, hence the margins).
+
+    chunks, dropped = plan_chunks(scene_name, frames, sfm_result, sfm_dir, ChunkConfig(min_chunk_frames=10))
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, invert_rigid
+from .errors import SeeUError
+
+NEAR_FAR_METHOD = ("sfm_point_depth_percentiles: near = 0.4 * p0.1, far = 1.5 * p99.9 of the depths of SfM point "
+                   "observations in the model's cameras")
+SCALE_METHOD = "median SfM point depth = 1; world frame = first camera of the chunk"
+
+
+@dataclass(frozen=True)
+class ChunkConfig:
+    min_chunk_frames: int = 10
+    near_percentile: float = 0.1
+    far_percentile: float = 99.9
+    near_margin: float = 0.4
+    far_margin: float = 1.5
+
+    def check(self) -> None:
+        if self.min_chunk_frames < 2:
+            raise SeeUError(f"--min-chunk-frames must be >= 2, got {self.min_chunk_frames}")
+
+
+@dataclass
+class Chunk:
+    """One posed chunk. N = frames. cam_to_world: (N, 4, 4) normalised; intrinsics_norm: (4,)."""
+
+    scene_id: str
+    model_index: int
+    frame_positions: list[int]  # positions into the selected-frame list
+    image_paths: list[Path]
+    cam_to_world: np.ndarray
+    intrinsics_norm: np.ndarray
+    width: int
+    height: int
+    near: float
+    far: float
+    meta: dict = field(default_factory=dict)
+
+
+def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
+    """Maximal runs of True in a boolean `(N,)` array as [start, end) pairs."""
+    runs, start = [], None
+    for i, f in enumerate(list(flags) + [False]):
+        if f and start is None:
+            start = i
+        elif not f and start is not None:
+            runs.append((start, i))
+            start = None
+    return runs
+
+
+def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_dir: str | Path,
+                config: ChunkConfig) -> tuple[list[Chunk], list[dict]]:
+    """Turn SfM models into chunks. `frame_names`: the selected frames' image names, in order.
+
+    Returns the chunks (ordered by first frame) and dropped frames as
+    {"position", "reason"} (position into `frame_names`).
+    """
+    config.check()
+    sfm_dir = Path(sfm_dir)
+    pos_of = {n: i for i, n in enumerate(frame_names)}
+    registered_anywhere = np.zeros(len(frame_names), bool)
+    raw: list[tuple[int, int, dict, dict[int, np.ndarray]]] = []
+    dropped: list[dict] = []
+    claimed = np.zeros(len(frame_names), bool)
+    # COLMAP may register a frame in several (overlapping) models: the largest model claims it, so
+    # no frame appears in two chunks.
+    for model in sorted(sfm_result["models"], key=lambda m: -len(m["images"])):
+        w2c = {pos_of[im["name"]]: homogeneous_from_3x4(np.asarray(im["world_to_cam"], np.float64))
+               for im in model["images"] if im["name"] in pos_of}
+        flags = np.zeros(len(frame_names), bool)
+        flags[list(w2c)] = True
+        registered_anywhere |= flags
+        flags &= ~claimed
+        claimed |= flags
+        for start, end in _runs(flags):
+            raw.append((start, end, model, w2c))
+    kept = []
+    for start, end, model, w2c in sorted(raw, key=lambda r: (r[0], -r[1])):
+        if end - start < config.min_chunk_frames:
+            dropped += [{"position": p, "reason": f"in a registered run of {end - start} frames "
+                         f"(< --min-chunk-frames {config.min_chunk_frames})"} for p in range(start, end)]
+            continue
+        kept.append((start, end, model, w2c))
+    dropped += [{"position": int(p), "reason": "not registered by SfM"} for p in np.nonzero(~registered_anywhere)[0]]
+    # a frame dropped from a short run may still be in a kept chunk of another model
+    in_chunks = {p for s, e, _, _ in kept for p in range(s, e)}
+    dropped = sorted((d for d in dropped if d["position"] not in in_chunks), key=lambda d: d["position"])
+    chunks = []
+    for j, (start, end, model, w2c) in enumerate(kept):
+        cam = model["camera"]
+        depths = np.load(sfm_dir / f"points_depth_{model['index']}.npy")
+        depths = depths[np.isfinite(depths) & (depths > 0)]
+        if len(depths) < 10:
+            raise SeeUError(f"SfM model {model['index']} has only {len(depths)} usable 3D points")
+        scale = 1.0 / float(np.median(depths))
+        near = config.near_margin * float(np.percentile(depths, config.near_percentile)) * scale
+        far = config.far_margin * float(np.percentile(depths, config.far_percentile)) * scale
+        positions = list(range(start, end))
+        c2w = cam_to_world_from_world_to_cam(np.stack([w2c[p] for p in positions]))
+        c2w = invert_rigid(c2w[0]) @ c2w  # first camera of the chunk = identity
+        c2w[:, :3, 3] *= scale
+        w, h = int(cam["width"]), int(cam["height"])
+        intr = np.array([cam["fx"] / w, cam["fy"] / h, cam["cx"] / w, cam["cy"] / h])
+        chunks.append(Chunk(
+            scene_id=f"{scene_name}_c{j}", model_index=int(model["index"]), frame_positions=positions,
+            image_paths=[Path(model["image_dir"]) / frame_names[p] for p in positions],
+            cam_to_world=c2w, intrinsics_norm=intr, width=w, height=h, near=near, far=far,
+            meta={"sfm_model": int(model["index"]), "camera_model": cam["model"], "camera_params": cam["params"],
+                  "undistorted": bool(model["undistorted"]),
+                  "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, "scale_method": SCALE_METHOD,
+                  "near_far_method": NEAR_FAR_METHOD,
+                  "mean_reprojection_error_px": model["mean_reprojection_error"]},
+        ))
+    return chunks, dropped

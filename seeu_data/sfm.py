@@ -1,0 +1,259 @@
+"""Structure from motion with pycolmap 4.x, run in a child process.
+
+COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop detection without a
+vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
+into a SeeUError. The child runs: SIFT extraction (one shared camera, `camera_model`) ->
+sequential matching (`overlap`; loop detection only with a vocabulary-tree file) -> incremental
+mapping (possibly several models) -> undistortion of every model whose camera has distortion
+(sizes read back from the undistorted model) -> `result.json` + `points_depth_<k>.npy`.
+
+Output directory layout::
+
+    database.db  sfm.log  result.json
+    sparse/<k>/             COLMAP binary model k (as mapped)
+    undistorted/<k>/        images/ + sparse/ (PINHOLE) when the camera model has distortion
+    points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
+
+`result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
+"fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
+"world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "num_keypoints",
+"num_verified_pairs", "timings": {...}} or {"error": "..."}.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+from .errors import SeeUError
+
+CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+_UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
+_PROGRESS = "@@seeu"
+
+
+@dataclass(frozen=True)
+class SfmConfig:
+    """Parameters of the SfM stage (all of them go into the stage stamp)."""
+
+    camera_model: str = "SIMPLE_RADIAL"
+    overlap: int = 10
+    vocab_tree: str | None = None
+    min_model_size: int = 10
+    max_num_features: int = 8192
+    num_threads: int = -1
+    random_seed: int = 0
+
+    def check(self) -> None:
+        if self.camera_model not in CAMERA_MODELS:
+            raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
+        if self.overlap < 1:
+            raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
+        if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
+            raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
+
+
+def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, config: SfmConfig,
+            source: str | Path, progress: bool = False) -> dict:
+    """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
+
+    `source` names the user's input in error messages. Raises SeeUError when the child aborts,
+    crashes, or reports that no model could be built.
+    """
+    from tqdm import tqdm
+
+    config.check()
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    job = {"image_dir": str(Path(image_dir).resolve()), "image_names": list(image_names),
+           "out_dir": str(out_dir.resolve()), "config": asdict(config)}
+    (out_dir / "job.json").write_text(json.dumps(job, indent=1))
+    log_path = out_dir / "sfm.log"
+    env = dict(os.environ, GLOG_minloglevel=os.environ.get("GLOG_minloglevel", "0"))
+    bar = tqdm(total=len(image_names), desc="sfm extract", unit="img", disable=not progress, leave=False)
+    with open(log_path, "wb") as log:
+        proc = subprocess.Popen([sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
+                                stdout=subprocess.PIPE, stderr=log, env=env)
+        assert proc.stdout is not None
+        for raw in proc.stdout:
+            line = raw.decode(errors="replace").strip()
+            if not line.startswith(_PROGRESS):
+                continue
+            parts = line.split()
+            if parts[1] == "stage":
+                bar.set_description(f"sfm {parts[2]}")
+                bar.reset(total=len(image_names))
+            elif parts[1] == "step":
+                bar.update(1)
+        rc = proc.wait()
+    bar.close()
+    result_path = out_dir / "result.json"
+    if rc != 0:
+        if rc < 0:
+            try:
+                sig = signal.Signals(-rc).name
+            except ValueError:
+                sig = f"signal {-rc}"
+            what = f"COLMAP aborted the SfM process ({sig})"
+        else:
+            what = f"the SfM process failed (exit {rc})"
+        raise SeeUError(f"{what}; last log line: {_last_log_line(log_path)} (full log: {log_path})", source)
+    if not result_path.exists():
+        raise SeeUError(f"the SfM process wrote no result (log: {log_path})", source)
+    result = json.loads(result_path.read_text())
+    if result.get("error"):
+        raise SeeUError(result["error"], source)
+    return result
+
+
+def _last_log_line(path: Path) -> str:
+    try:
+        lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
+    except OSError:
+        return "(no log)"
+    for ln in reversed(lines):
+        if ln[:1] in "EF" or "Check failed" in ln or "rror" in ln:
+            return ln[-300:]
+    return lines[-1][-300:] if lines else "(empty log)"
+
+
+# ---------------------------------------------------------------------------------------------
+# Child process
+# ---------------------------------------------------------------------------------------------
+
+
+def _emit(*parts) -> None:
+    print(_PROGRESS, *parts, flush=True)
+
+
+def _camera_dict(camera) -> dict:
+    K = camera.calibration_matrix()
+    return {"model": camera.model.name, "width": int(camera.width), "height": int(camera.height),
+            "params": [float(p) for p in camera.params],
+            "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+
+
+def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool) -> dict:
+    """Cameras, poses and point depths of one reconstruction, as plain JSON/npy."""
+    import numpy as np
+
+    cams = {cid: _camera_dict(c) for cid, c in rec.cameras.items()}
+    if len(cams) != 1:
+        raise RuntimeError(f"expected one shared camera, model {index} has {len(cams)}")
+    images, depths = [], []
+    points = {pid: p.xyz for pid, p in rec.points3D.items()}
+    for iid in sorted(rec.reg_image_ids()):
+        img = rec.image(iid)
+        w2c = img.cam_from_world().matrix()
+        images.append({"name": img.name, "world_to_cam": np.asarray(w2c).tolist()})
+        pids = [p.point3D_id for p in img.points2D if p.has_point3D()]
+        if pids:
+            xyz = np.stack([points[p] for p in pids])
+            depths.append(xyz @ np.asarray(w2c)[:, :3].T[:, 2] + np.asarray(w2c)[2, 3])
+    depth = np.concatenate(depths) if depths else np.zeros(0)
+    np.save(out / f"points_depth_{index}.npy", depth.astype(np.float64))
+    return {"index": index, "camera": next(iter(cams.values())), "undistorted": undistorted,
+            "image_dir": image_dir, "images": images, "num_points3D": int(rec.num_points3D()),
+            "mean_reprojection_error": float(rec.compute_mean_reprojection_error())}
+
+
+def _child(job_path: str) -> int:
+    import pycolmap
+
+    job = json.loads(Path(job_path).read_text())
+    cfg = SfmConfig(**job["config"])
+    out = Path(job["out_dir"])
+    image_dir = job["image_dir"]
+    names = job["image_names"]
+    db_path = out / "database.db"
+    db_path.unlink(missing_ok=True)
+    timings: dict[str, float] = {}
+
+    def fail(msg: str) -> int:
+        (out / "result.json").write_text(json.dumps({"error": msg, "timings": timings}))
+        return 0
+
+    _emit("stage", "extract")
+    t0 = time.perf_counter()
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = cfg.camera_model
+    extraction = pycolmap.FeatureExtractionOptions()
+    extraction.sift.max_num_features = cfg.max_num_features
+    extraction.num_threads = cfg.num_threads
+    pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
+                              reader_options=reader, extraction_options=extraction)
+    timings["extract_s"] = time.perf_counter() - t0
+    db = pycolmap.Database.open(db_path)
+    num_kp = int(db.num_keypoints())
+    db.close()
+    if num_kp < 50:
+        return fail(f"SfM found only {num_kp} image features in {len(names)} frames (blank or textureless video?)")
+
+    _emit("stage", "match")
+    t0 = time.perf_counter()
+    pairing = pycolmap.SequentialPairingOptions()
+    pairing.overlap = cfg.overlap
+    pairing.loop_detection = cfg.vocab_tree is not None
+    if cfg.vocab_tree is not None:
+        pairing.vocab_tree_path = str(cfg.vocab_tree)
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = cfg.num_threads
+    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing)
+    timings["match_s"] = time.perf_counter() - t0
+    db = pycolmap.Database.open(db_path)
+    num_pairs = int(db.num_verified_image_pairs())
+    db.close()
+    if num_pairs == 0:
+        return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
+
+    _emit("stage", "map")
+    t0 = time.perf_counter()
+    options = pycolmap.IncrementalPipelineOptions()
+    options.min_model_size = cfg.min_model_size
+    options.num_threads = cfg.num_threads
+    options.random_seed = cfg.random_seed
+    sparse = out / "sparse"
+    sparse.mkdir(exist_ok=True)
+    recs = pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
+                                        next_image_callback=lambda: _emit("step"))
+    timings["map_s"] = time.perf_counter() - t0
+    # COLMAP can return tiny leftover models (a pair that failed to grow): drop them here
+    recs = {k: r for k, r in recs.items() if r.num_reg_images() >= cfg.min_model_size}
+    if not recs:
+        return fail("SfM found no model: no frame pair with enough parallax "
+                    "(static camera, blank frames, or too few overlapping frames)")
+
+    _emit("stage", "export")
+    t0 = time.perf_counter()
+    models = []
+    for k in sorted(recs):
+        rec = recs[k]
+        model_dir = sparse / str(k)
+        model_dir.mkdir(exist_ok=True)
+        rec.write(model_dir)
+        camera = next(iter(rec.cameras.values()))
+        if camera.model.name in _UNDISTORTED_MODELS:
+            models.append(_export_model(rec, k, image_dir, out, undistorted=False))
+            continue
+        und = out / "undistorted" / str(k)
+        und.mkdir(parents=True, exist_ok=True)
+        reg_names = [rec.image(i).name for i in rec.reg_image_ids()]
+        pycolmap.undistort_images(und, model_dir, image_dir, image_names=reg_names, jpeg_quality=95,
+                                  num_threads=cfg.num_threads)
+        und_rec = pycolmap.Reconstruction(und / "sparse")  # sizes can change by a pixel: read them back
+        models.append(_export_model(und_rec, k, str(und / "images"), out, undistorted=True))
+        models[-1]["camera_distorted"] = _camera_dict(camera)
+    timings["export_s"] = time.perf_counter() - t0
+    (out / "result.json").write_text(json.dumps({"models": models, "num_keypoints": num_kp,
+                                                 "num_verified_pairs": num_pairs, "timings": timings}))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(_child(sys.argv[1]))
