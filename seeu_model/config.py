@@ -58,6 +58,7 @@ class SeeUConfig:
     semantic_model_kwargs: dict[str, Any] = field(default_factory=dict)  # e.g. {"depth": 2} for tests
     clip_backbone: str = "vit_base_patch16_clip_224.openai"
     clip_weights: str | None = None
+    clip_model_kwargs: dict[str, Any] = field(default_factory=dict)
 
     # ---- condition ---------------------------------------------------------------------------
     condition: Condition = "cea"

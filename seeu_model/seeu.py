@@ -1,0 +1,259 @@
+"""The SeeU model (paper §3): multi-view encoder -> coarse matching -> latent Gaussians -> CEA-conditioned
+residual refinement -> upsampling decoder -> rasterised target views.
+
+    context images (B, V, 3, H, W)
+      ResNetBackbone                 -> (B, V, C, h, w)           h, w = H/s, W/s
+      MultiViewTransformer           -> F (B, V, C, h, w)
+      plane_sweep_cost               -> cost (B, V, D, h, w) -> P, coarse depth (B, V, h, w), entropy (B, V, h, w)
+      CoarseGaussianHead             -> Θ_l (B, V, h, w, C_l)      latent Gaussian tokens
+      ConditionEncoder (frozen ViT)  -> E (B, L, condition_dim)   CEA / CLS / CLIP
+      refiner (CGT | UNet | none)    -> Θ^_l = Θ_l + f(Θ_l, E)
+      UpsamplingDecoder              -> Gaussians, N = V*H*W (refined) and the same for Θ_l (coarse)
+      rasterize                      -> target renders (B, T, 3, H, W)
+
+`SeeU.encode(context)` returns the refined Gaussians only (timed separately from rendering by the
+evaluator); `SeeU.encode_all(context)` returns every intermediate; `SeeU.forward(batch)` encodes and
+renders the batch's target views. The frozen semantic encoder stays in eval mode, has no gradients,
+and is left out of `trainable_state_dict()`.
+"""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from seeu_data.errors import SeeUError
+
+from .backbone import ResNetBackbone
+from .cgt import ConditionalGaussianTransformer
+from .condition import ConditionEncoder
+from .config import SeeUConfig
+from .cost_volume import depth_candidates, depth_posterior, expected_depth, matching_entropy, plane_sweep_cost
+from .decoder import UpsamplingDecoder
+from .gaussian_heads import CoarseGaussianHead, LatentLayout, gaussians_from_params
+from .gaussians import Gaussians
+from .multiview_transformer import MultiViewTransformer
+from .semantic import FrozenModule
+from .unet_refiner import UNetRefiner
+
+
+@dataclass
+class SeeUEncoding:
+    """Everything `encode_all` computes for the context views.
+
+    gaussians:         refined Gaussians, N = V*H*W (view-major, row-major pixels)
+    coarse_gaussians:  the unrefined latent tokens decoded the same way ("w/o refinement"), N = V*H*W
+    latent_gaussians:  the coarse Gaussians on the latent grid (pixel-aligned centres at the matched depth), N = V*h*w
+    depth:             (B, V, H, W) depth of the refined Gaussians
+    coarse_depth:      (B, V, h, w) softmax-expected plane-sweep depth
+    entropy:           (B, V, h, w) normalised matching entropy in [0, 1]
+    cost:              (B, V, D, h, w) plane-sweep correlation volume
+    depth_candidates:  (B, V, D)
+    latent:            (B, V, h, w, C_l) coarse latent Gaussian tokens Θ_l
+    residual:          (B, V, h, w, C_l) refiner output (zeros when refiner == "none")
+    condition:         (B, L, condition_dim) condition tokens, or None without a refiner
+    """
+
+    gaussians: Gaussians
+    coarse_gaussians: Gaussians
+    latent_gaussians: Gaussians
+    depth: torch.Tensor
+    coarse_depth: torch.Tensor
+    entropy: torch.Tensor
+    cost: torch.Tensor
+    depth_candidates: torch.Tensor
+    latent: torch.Tensor
+    residual: torch.Tensor
+    condition: torch.Tensor | None
+
+
+@dataclass
+class SeeUOutput:
+    """`forward` output: the encoding plus the target renders (RenderOutput: color (B, T, 3, H, W),
+    depth (B, T, 1, H, W), alpha (B, T, 1, H, W)); `coarse_render` when asked for."""
+
+    encoding: SeeUEncoding
+    render: "RenderOutput | None"  # noqa: F821
+    coarse_render: "RenderOutput | None" = None  # noqa: F821
+
+    @property
+    def gaussians(self) -> Gaussians:
+        return self.encoding.gaussians
+
+    @property
+    def coarse_gaussians(self) -> Gaussians:
+        return self.encoding.coarse_gaussians
+
+    @property
+    def depth(self) -> torch.Tensor:
+        return self.encoding.depth
+
+    @property
+    def entropy(self) -> torch.Tensor:
+        return self.encoding.entropy
+
+
+class SeeU(nn.Module):
+    def __init__(self, cfg: SeeUConfig | None = None):
+        super().__init__()
+        cfg = cfg or SeeUConfig()
+        self.cfg = cfg
+        c = cfg.feature_dim
+        self.layout = LatentLayout(cfg.sh_coeffs, cfg.latent_feature_dim)
+        self.backbone = ResNetBackbone(cfg.backbone_channels, cfg.downsample)
+        self.transformer = MultiViewTransformer(c, cfg.mv_layers, cfg.mv_heads, cfg.mv_ffn_ratio, cfg.mv_windows)
+        # Decoded (full-resolution) Gaussians start near 1.5 pixel footprints: raw = logit((1.5 - min) / (max - min)).
+        unit = (1.5 - cfg.scale_min) / (cfg.scale_max - cfg.scale_min)
+        init_scale = float(torch.logit(torch.tensor(unit).clamp(1e-3, 1 - 1e-3)))
+        self.heads = CoarseGaussianHead(c, cfg.num_depth_candidates, self.layout, cfg.head_hidden, init_scale)
+        self.condition: ConditionEncoder | None = None
+        self.refiner: nn.Module | None = None
+        if cfg.refiner != "none":
+            self.condition = ConditionEncoder(cfg)
+            if cfg.refiner == "transformer":
+                self.refiner = ConditionalGaussianTransformer(self.layout.channels, cfg.condition_dim, cfg.cgt_hidden,
+                                                              cfg.cgt_layers, cfg.cgt_heads, cfg.cgt_mlp_ratio)
+            else:
+                self.refiner = UNetRefiner(self.layout.channels, cfg.condition_dim, cfg.unet_channels, cfg.cgt_heads)
+        self.decoder = UpsamplingDecoder(self.layout, cfg.decoder_hidden, cfg.scale_min, cfg.scale_max)
+
+    # ------------------------------------------------------------------------------------------
+    # Frozen parts
+    # ------------------------------------------------------------------------------------------
+    def frozen_prefixes(self) -> list[str]:
+        """State-dict prefixes of frozen modules (the semantic encoder)."""
+        return [name + "." for name, m in self.named_modules() if isinstance(m, FrozenModule) and name]
+
+    def train(self, mode: bool = True) -> "SeeU":
+        super().train(mode)
+        for m in self.modules():  # frozen encoders stay in eval mode
+            if isinstance(m, FrozenModule):
+                nn.Module.train(m, False)
+        return self
+
+    def trainable_state_dict(self) -> "OrderedDict[str, torch.Tensor]":
+        """The state dict without the frozen semantic encoder (what checkpoints store)."""
+        prefixes = tuple(self.frozen_prefixes())
+        return OrderedDict((k, v) for k, v in self.state_dict().items() if not k.startswith(prefixes))
+
+    def load_trainable_state_dict(self, state: dict[str, torch.Tensor], strict: bool = True) -> None:
+        """Load a `trainable_state_dict()`; the frozen encoder keeps its (pretrained) weights."""
+        prefixes = tuple(self.frozen_prefixes())
+        frozen = [k for k in state if k.startswith(prefixes)] if prefixes else []
+        if frozen:
+            state = {k: v for k, v in state.items() if k not in frozen}
+        try:
+            missing, unexpected = self.load_state_dict(state, strict=False)
+        except RuntimeError as exc:  # shape mismatches
+            raise SeeUError(f"checkpoint does not match the model configuration: {str(exc).splitlines()[-1].strip()}") from exc
+        missing = [k for k in missing if not k.startswith(prefixes)] if prefixes else list(missing)
+        if strict and (missing or unexpected):
+            raise SeeUError(f"checkpoint does not match the model configuration: missing {missing[:5]}"
+                            f"{'...' if len(missing) > 5 else ''}, unexpected {list(unexpected)[:5]}"
+                            f"{'...' if len(unexpected) > 5 else ''}")
+
+    def trainable_parameters(self) -> list[nn.Parameter]:
+        return [p for p in self.parameters() if p.requires_grad]
+
+    # ------------------------------------------------------------------------------------------
+    # Encoding
+    # ------------------------------------------------------------------------------------------
+    def _check_context(self, context: dict) -> None:
+        img = context["image"]
+        if img.dim() != 5 or img.shape[2] != 3:
+            raise ValueError(f"context image must be (B, V, 3, H, W), got {tuple(img.shape)}")
+        b, v, _, h, w = img.shape
+        if v < 2:
+            raise ValueError("SeeU needs at least two context views (plane-sweep matching)")
+        unit = self.cfg.downsample * self.cfg.mv_windows * 2
+        if h % unit or w % unit:
+            raise ValueError(f"context images must have H and W divisible by {unit} "
+                             f"(s={self.cfg.downsample}, {self.cfg.mv_windows} shifted windows); got {h}x{w}")
+
+    def encode_all(self, context: dict) -> SeeUEncoding:
+        """context: image (B, V, 3, H, W) in [0, 1], cam_to_world (B, V, 4, 4), intrinsics (B, V, 3, 3)
+        normalised, near/far (B, V)  ->  SeeUEncoding."""
+        self._check_context(context)
+        images = context["image"]
+        c2w, intr = context["cam_to_world"], context["intrinsics"]
+        near, far = context["near"].to(images.dtype), context["far"].to(images.dtype)
+        b, v, _, hh, ww = images.shape
+
+        feats = self.transformer(self.backbone(images))  # (B, V, C, h, w)
+        h, w = feats.shape[-2:]
+        depths = depth_candidates(near.float(), far.float(), self.cfg.num_depth_candidates)  # (B, V, D)
+        cost = plane_sweep_cost(feats, c2w, intr, depths)  # (B, V, D, h, w)
+        post = depth_posterior(cost)
+        coarse_depth = expected_depth(post, depths)  # (B, V, h, w)
+        entropy = matching_entropy(post)
+        low = F.adaptive_avg_pool2d(images.reshape(b * v, 3, hh, ww), (h, w)).reshape(b, v, 3, h, w)
+        latent = self.heads(feats, post, coarse_depth, low, near, far)  # (B, V, h, w, C_l)
+
+        condition = None
+        if self.refiner is not None:
+            condition = self.condition(images, entropy)
+            residual = self.refiner(latent, condition)
+        else:
+            residual = torch.zeros_like(latent)
+        refined = latent + residual
+
+        gaussians, depth = self.decoder(refined, images, c2w, intr, near, far)
+        if self.refiner is None:
+            coarse_gaussians = gaussians
+        else:
+            coarse_gaussians, _ = self.decoder(latent, images, c2w, intr, near, far)
+        latent_gaussians, _ = gaussians_from_params(latent.permute(0, 1, 4, 2, 3), c2w, intr, near, far, self.layout,
+                                                    self.cfg.scale_min, self.cfg.scale_max)
+        return SeeUEncoding(gaussians, coarse_gaussians, latent_gaussians, depth, coarse_depth, entropy, cost, depths,
+                            latent, residual, condition)
+
+    def encode(self, context: dict) -> Gaussians:
+        """context (as in `encode_all`) -> refined Gaussians (B, V*H*W, ...)."""
+        return self.encode_all(context).gaussians
+
+    # ------------------------------------------------------------------------------------------
+    # Rendering
+    # ------------------------------------------------------------------------------------------
+    @staticmethod
+    def render(gaussians: Gaussians, cameras: dict, size: tuple[int, int], background=None, backend: str = "auto"):
+        """Render Gaussians into cameras: cam_to_world (B, T, 4, 4), intrinsics (B, T, 3, 3) normalised,
+        size (H, W) -> RenderOutput (color (B, T, 3, H, W), depth/alpha (B, T, 1, H, W))."""
+        from .rasterizer import rasterize
+
+        h, w = size
+        return rasterize(gaussians, cameras["cam_to_world"], cameras["intrinsics"], w, h,
+                         background=background, backend=backend)
+
+    def forward(self, batch: dict, render_coarse: bool = False, background=None, backend: str = "auto") -> SeeUOutput:
+        """batch: the loader layout ("context" and optionally "target" dicts) -> SeeUOutput with the
+        target views rendered at the target images' size (context size when no target image is given)."""
+        enc = self.encode_all(batch["context"])
+        target = batch.get("target")
+        render = coarse = None
+        if target is not None:
+            size = tuple(target["image"].shape[-2:]) if "image" in target else tuple(batch["context"]["image"].shape[-2:])
+            render = self.render(enc.gaussians, target, size, background, backend)
+            if render_coarse:
+                coarse = self.render(enc.coarse_gaussians, target, size, background, backend)
+        return SeeUOutput(enc, render, coarse)
+
+
+def build_model(cfg: SeeUConfig | None = None) -> SeeU:
+    """Build SeeU from a config (the paper's defaults when None)."""
+    return SeeU(cfg or SeeUConfig())
+
+
+def parameter_counts(model: SeeU) -> "OrderedDict[str, tuple[int, int]]":
+    """Per top-level module (the semantic encoder split out): name -> (trainable, frozen) parameter counts."""
+    counts: OrderedDict[str, tuple[int, int]] = OrderedDict()
+    for name, module in model.named_children():
+        for sub_name, sub in ([(name, module)] if name != "condition" else list(module.named_children())):
+            key = name if sub is module else f"{name}.{sub_name}"
+            trainable = sum(p.numel() for p in sub.parameters() if p.requires_grad)
+            frozen = sum(p.numel() for p in sub.parameters() if not p.requires_grad)
+            counts[key] = (trainable, frozen)
+    return counts
