@@ -104,7 +104,7 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import config_from_dict, load_config, apply_overrides
     from seeu_model.training.distributed import cleanup_distributed, setup_distributed
-    from seeu_model.training.factory import build_model, encode_context, render_fn, render_gaussians
+    from seeu_model.training.factory import build_model, encode_context, make_render_fn, render_gaussians
     from seeu_model.training.loop import Trainer, autocast_context
 
     out = Path(out)
@@ -144,13 +144,13 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
             def eval_fn(m):  # noqa: F811 - closure over the validation data
                 vl = make_eval_loader(val, cfg.data.image_size, cfg.data.val_batch_size)
                 res = evaluate_model(m, vl, dist.device, encode_context,
-                                     lambda g, t: render_gaussians(g, t, cfg.rasterizer, m),
+                                     lambda g, t: render_gaussians(g, t, cfg.rasterizer),
                                      lpips_fn=lpips_fn, max_samples=cfg.data.val_max_samples, warmup=0,
                                      autocast=lambda: autocast_context(cfg.precision, dist.device))
                 s = summarize(res.records)
                 return {k: s[k] for k in ("psnr", "ssim", "lpips", "num_targets") if not _isnan(s[k])}
 
-        trainer = Trainer(model, cfg, out, render_fn, dist, lpips_fn, model_cfg, eval_fn)
+        trainer = Trainer(model, cfg, out, make_render_fn(cfg.rasterizer), dist, lpips_fn, model_cfg, eval_fn)
         result = trainer.fit(loader, stop_after=stop_after, resume_from=resume_ckpt)
         summary = {"rank": dist.rank, "step": result.step, "checkpoint": result.last_checkpoint,
                    "steps_per_s": result.steps_per_s, "seconds": result.seconds,

@@ -13,9 +13,10 @@ from seeu_data.errors import SeeUError
 from seeu_model.training import checkpoint as ckpt_io
 from seeu_model.training.config import load_config
 from seeu_model.training.schedule import warmup_cosine_factor
-from tests.training_fixtures import ddp_worker, synthetic_triples, tiny_model_factory
+from tests.training_fixtures import ddp_worker, initial_state, synthetic_triples
 
-COMMON = ["data.num_workers=0", "data.image_size=[32,32]", "optim.warmup_steps=2", "optim.lr=2e-3",
+# The real SeeU model (tiny preset: same architecture, tiny widths, random 2-block ViT-S semantic encoder).
+COMMON = ["model.preset=tiny", "data.num_workers=0", "data.image_size=[32,32]", "optim.warmup_steps=2", "optim.lr=2e-3",
           "loss.lpips_weight=0", "log.every=1", "log.image_every=1000", "precision=fp32", "rasterizer=torch"]
 
 
@@ -59,28 +60,28 @@ def test_config_presets_and_overrides(tmp_path):
 def test_resume_continues_the_same_run(shards, tmp_path):
     from pipelines.train import train
 
-    ov = COMMON + ["data.batch_size=2", "optim.max_steps=4", "checkpoint.every=1", "checkpoint.keep=2",
+    ov = COMMON + ["data.batch_size=2", "optim.max_steps=3", "checkpoint.every=1", "checkpoint.keep=2",
                    "data.flip=true"]
-    full = train(str(shards), tmp_path / "full", overrides=ov, model_factory=tiny_model_factory)
-    part = train(str(shards), tmp_path / "part", overrides=ov, stop_after=2, model_factory=tiny_model_factory)
-    assert part["step"] == 2
+    full = train(str(shards), tmp_path / "full", overrides=ov)
+    part = train(str(shards), tmp_path / "part", overrides=ov, stop_after=1)
+    assert part["step"] == 1
     with pytest.raises(SeeUError, match="--resume"):
-        train(str(shards), tmp_path / "part", overrides=ov, model_factory=tiny_model_factory)
-    rest = train(str(shards), tmp_path / "part", overrides=ov, resume=True, model_factory=tiny_model_factory)
-    assert rest["step"] == 4
+        train(str(shards), tmp_path / "part", overrides=ov)
+    rest = train(str(shards), tmp_path / "part", overrides=ov, resume=True)
+    assert rest["step"] == 3
     # keep-K: only the last two checkpoints remain, no temporaries
     names = sorted(p.name for p in (tmp_path / "part" / "checkpoints").iterdir())
-    assert names == ["ckpt-00000003.pt", "ckpt-00000004.pt"]
+    assert names == ["ckpt-00000002.pt", "ckpt-00000003.pt"]
     a, b = _params(tmp_path / "full"), _params(tmp_path / "part")
     assert a.keys() == b.keys()
     for k in a:
         assert torch.allclose(a[k], b[k], atol=1e-6, rtol=0), k
-    # the resumed run continued the same loss curve (steps 3 and 4)
+    # the resumed run continued the same loss curve (steps 2 and 3)
     la = {h["step"]: h["loss"] for h in full["history"]}
     lb = {h["step"]: h["loss"] for h in rest["history"]}
-    assert la[3] == pytest.approx(lb[3], abs=1e-6) and la[4] == pytest.approx(lb[4], abs=1e-6)
+    assert la[2] == pytest.approx(lb[2], abs=1e-6) and la[3] == pytest.approx(lb[3], abs=1e-6)
     # and it learned something different from the initialisation
-    init = tiny_model_factory({})[0].state_dict()
+    init = initial_state({"preset": "tiny"})
     assert any(not torch.allclose(init[k], a[k]) for k in a)
 
 
@@ -95,18 +96,16 @@ def test_ddp_two_processes_match_one_process_with_double_batch(shards, tmp_path)
 
     from pipelines.train import train
 
-    steps = 3
+    steps = 2
     ov = COMMON + [f"optim.max_steps={steps}", f"checkpoint.every={steps}", "data.flip=true"]
-    single = train(str(shards), tmp_path / "one", overrides=ov + ["data.batch_size=4"],
-                   model_factory=tiny_model_factory)
+    single = train(str(shards), tmp_path / "one", overrides=ov + ["data.batch_size=4"])
     assert single["world_size"] == 1
-    kwargs = dict(data=str(shards), out=str(tmp_path / "two"), overrides=ov + ["data.batch_size=2"],
-                  model_factory=tiny_model_factory)
+    kwargs = dict(data=str(shards), out=str(tmp_path / "two"), overrides=ov + ["data.batch_size=2"])
     mp.spawn(ddp_worker, args=(2, _free_port(), kwargs), nprocs=2, join=True)
     summary = (tmp_path / "two" / "train_summary.json").read_text()
     assert '"world_size": 2' in summary
     a, b = _params(tmp_path / "one"), _params(tmp_path / "two")
-    init = tiny_model_factory({})[0].state_dict()
+    init = initial_state({"preset": "tiny"})
     moved = max((a[k] - init[k]).abs().max().item() for k in a)
     assert moved > 1e-4  # training changed the parameters, so the comparison means something
     for k in a:

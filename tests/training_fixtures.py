@@ -98,6 +98,15 @@ def ddp_worker(rank: int, world_size: int, port: int, kwargs: dict) -> None:
 
 
 def tiny_model_factory(section: dict):
-    """The model the training tests train: a stand-in until the SeeU model lands."""
+    """A minimal pixel-aligned stand-in model (fast loop tests with another model than SeeU)."""
     torch.manual_seed(0)
     return PixelSplat2(), {}
+
+
+def initial_state(model_section: dict, seed: int = 0) -> dict:
+    """The state dict `seeu train` starts from for this model section and config seed."""
+    from pipelines.train import _seed_everything
+    from seeu_model.training.factory import build_model
+
+    _seed_everything(seed)
+    return build_model(model_section)[0].state_dict()

@@ -7,6 +7,7 @@ Checkpoints store the resolved ``SeeUConfig`` as a dict, so eval / render rebuil
 
 from __future__ import annotations
 
+import inspect
 from typing import Any
 
 import torch
@@ -49,13 +50,38 @@ def model_from_checkpoint(ckpt: dict, device: torch.device | str = "cpu", **mode
     from seeu_model.seeu import SeeU
 
     model = SeeU(mcfg)
-    missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)
-    frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
-    missing = [m for m in missing if m not in frozen]
-    if missing or unexpected:
-        raise SeeUError(f"checkpoint does not match the model (missing {missing[:3]}, unexpected {unexpected[:3]})",
-                        ckpt.get("path"))
+    load_model_state(model, ckpt["model"], ckpt.get("path"))
     return model.to(device).eval()
+
+
+def _frozen_is_random(model_config: dict) -> bool:
+    """True when the frozen encoders were randomly initialised (tests / CPU demo): their weights
+    cannot be re-created from a file, so checkpoints must carry them."""
+    return (model_config.get("semantic_pretrained") is False and not model_config.get("semantic_weights")
+            and not model_config.get("clip_weights"))
+
+
+def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str, torch.Tensor]:
+    """What a checkpoint stores: the trainable state (frozen pretrained encoders are left out; they
+    are reloaded from their weights), or everything when the frozen encoders are random."""
+    if _frozen_is_random(model_config) or not hasattr(model, "trainable_state_dict"):
+        if hasattr(model, "trainable_state_dict"):
+            return {k: v.detach().cpu() for k, v in model.state_dict().items()}
+        from seeu_model.training.checkpoint import trainable_state_dict
+
+        return trainable_state_dict(model)
+    return {k: v.detach().cpu() for k, v in model.trainable_state_dict().items()}
+
+
+def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: str | None = None) -> None:
+    """Load a `model_state_for_checkpoint` dict; parameters of frozen modules may be absent."""
+    missing, unexpected = model.load_state_dict(state, strict=False)
+    frozen_prefixes = tuple(model.frozen_prefixes()) if hasattr(model, "frozen_prefixes") else ()
+    frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
+    missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]
+    if missing or unexpected:
+        raise SeeUError(f"checkpoint does not match the model (missing {missing[:3]}, unexpected {list(unexpected)[:3]}):"
+                        " was it trained with another model config?", where)
 
 
 def target_color(output: Any) -> torch.Tensor:
@@ -72,9 +98,16 @@ def target_color(output: Any) -> torch.Tensor:
     raise TypeError(f"cannot find the rendered target colours in a {type(output).__name__}")
 
 
-def render_fn(model: nn.Module, batch: dict) -> torch.Tensor:
+def make_render_fn(backend: str = "auto"):
     """Training forward: ``model(batch)`` -> rendered target views (B, T, 3, H, W)."""
-    return target_color(model(batch))
+
+    def render_fn(model: nn.Module, batch: dict) -> torch.Tensor:
+        inner = getattr(model, "module", model)  # DDP wraps the model
+        if "backend" in inspect.signature(inner.forward).parameters:
+            return target_color(model(batch, backend=backend))
+        return target_color(model(batch))
+
+    return render_fn
 
 
 def encode_context(model: nn.Module, context: dict):
@@ -82,10 +115,9 @@ def encode_context(model: nn.Module, context: dict):
     return model.encode(context)
 
 
-def render_gaussians(gaussians, target: dict, backend: str = "auto", model: nn.Module | None = None):
-    """Renderer half: Gaussians -> RenderOutput of the target cameras (B, T, ...)."""
-    if model is not None and hasattr(model, "render"):
-        return model.render(gaussians, target)
+def render_gaussians(gaussians, target: dict, backend: str = "auto"):
+    """Renderer half: Gaussians -> RenderOutput of the target cameras (B, T, ...), black background
+    (as `SeeU.forward` renders in training)."""
     from seeu_model.rasterizer import rasterize
 
     h, w = target["image"].shape[-2:]

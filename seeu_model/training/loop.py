@@ -27,6 +27,7 @@ from torch import nn
 from seeu_data.errors import SeeUError
 from seeu_model.training import checkpoint as ckpt_io
 from seeu_model.training.config import TrainConfig, save_config
+from seeu_model.training.factory import load_model_state, model_state_for_checkpoint
 from seeu_model.training.distributed import DistInfo, all_gather_objects, mean_across
 from seeu_model.training.loss import LossParts, photometric_loss
 from seeu_model.training.schedule import make_scheduler
@@ -121,7 +122,7 @@ class Trainer:
         return {
             "config": self.cfg.to_dict(),
             "model_config": self.model_config,
-            "model": ckpt_io.trainable_state_dict(self.model),
+            "model": model_state_for_checkpoint(self.model, self.model_config),
             "optimizer": self.optimizer.state_dict(),
             "scheduler": self.scheduler.state_dict(),
             "loader": loader.state_dict() if hasattr(loader, "state_dict") else None,
@@ -145,12 +146,7 @@ class Trainer:
         """Restore everything from a checkpoint (a file, a directory of them, or a loaded dict)."""
         ck = source if isinstance(source, dict) else ckpt_io.load_checkpoint(source)
         where = ck.get("path")
-        missing, unexpected = self.model.load_state_dict(ck["model"], strict=False)
-        frozen = {n for n, p in self.model.named_parameters() if not p.requires_grad}
-        missing = [m for m in missing if m not in frozen]
-        if missing or unexpected:
-            raise SeeUError(f"checkpoint does not match the model (missing {missing[:3]}, unexpected {unexpected[:3]}): "
-                            "was it trained with another model config?", where)
+        load_model_state(self.model, ck["model"], where)
         self.optimizer.load_state_dict(ck["optimizer"])
         self.scheduler.load_state_dict(ck["scheduler"])
         if ck.get("loader") is not None and hasattr(loader, "load_state_dict"):

@@ -1,0 +1,165 @@
+"""Evaluate a checkpoint: PSNR / SSIM / LPIPS by the peers' protocol, timing and peak memory.
+
+Examples:
+  seeu eval --checkpoint runs/re10k/checkpoints --data data/re10k/test_eval --out runs/re10k/eval
+  seeu eval --checkpoint runs/cpu/checkpoints/ckpt-00000300.pt --data out/shards/extrap --no-lpips
+
+Protocol (as pixelSplat / MVSplat / SeeU compute it): renders and ground truth clipped to [0, 1];
+PSNR per image from its MSE; SSIM with an 11-pixel Gaussian window (sigma 1.5) as scikit-image
+computes it; LPIPS(VGG) on [0, 1] inputs. Each metric is averaged over the targets of a scene, then
+over scenes (summary.json also has the plain mean over all targets). Encoder (context -> Gaussians)
+and renderer (Gaussians -> target views) are timed separately per sample after `--warmup` batches;
+peak memory is CUDA's max allocated, or the process's peak RSS on CPU.
+Writes OUT/per_scene.csv, OUT/per_target.csv and OUT/summary.json (written last).
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import io
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", required=True, help="a ckpt-*.pt file or a directory (its newest checkpoint)")
+    parser.add_argument("--data", required=True, help="evaluation triple shards (seeu build --mode eval, or interp/extrap)")
+    parser.add_argument("--out", default=None, help="output directory (default: RUN/eval/<data name>)")
+    parser.add_argument("--batch-size", type=int, default=1)
+    parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
+    parser.add_argument("--max-samples", type=int, default=0, help="evaluate at most N samples (0: all)")
+    parser.add_argument("--warmup", type=int, default=2, help="batches run before timing starts")
+    parser.add_argument("--lpips-weights", default=None, metavar="PATH", help="torchvision's vgg16-397923af.pth")
+    parser.add_argument("--no-lpips", action="store_true", help="skip LPIPS (reported as null)")
+    parser.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
+    parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat (default: the training config's)")
+    parser.add_argument("--num-workers", type=int, default=0)
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
+
+
+def run(args: argparse.Namespace) -> int:
+    hw = _parse_hw(args.image_size) if args.image_size else None
+    summary = evaluate(args.checkpoint, args.data, args.out, batch_size=args.batch_size, image_hw=hw,
+                       max_samples=args.max_samples, warmup=args.warmup, lpips=not args.no_lpips,
+                       lpips_weights=args.lpips_weights, device=args.device, rasterizer=args.rasterizer,
+                       num_workers=args.num_workers, progress=args.progress)
+    print(json.dumps({k: summary[k] for k in ("metrics", "timing", "out")}, indent=2))
+    return 0
+
+
+def _parse_hw(text: str) -> tuple[int, int]:
+    from seeu_data.errors import SeeUError
+
+    try:
+        h, w = (int(v) for v in text.lower().replace(",", "x").split("x"))
+    except ValueError:
+        raise SeeUError(f"--image-size {text!r} is not HxW (e.g. 256x256)") from None
+    return h, w
+
+
+def _csv_text(rows: list[dict]) -> str:
+    buf = io.StringIO()
+    if rows:
+        w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else
+                            (f"{v:.6f}" if isinstance(v, float) else v)) for k, v in r.items()})
+    return buf.getvalue()
+
+
+def _nan_to_none(obj: Any) -> Any:
+    if isinstance(obj, float) and math.isnan(obj):
+        return None
+    if isinstance(obj, dict):
+        return {k: _nan_to_none(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_nan_to_none(v) for v in obj]
+    return obj
+
+
+def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None, batch_size: int = 1,
+                     max_samples: int = 0, warmup: int = 2, lpips_fn=None, rasterizer: str = "auto",
+                     precision: str = "auto", num_workers: int = 0, progress: bool | None = None,
+                     keep_renders: int = 0):
+    """Evaluate an in-memory model on triple shards; returns `seeu_model.evaluation.EvalOutput`."""
+    import sys
+
+    import torch
+
+    from pipelines.train import make_eval_loader
+    from seeu_model.evaluation import evaluate_model
+    from seeu_model.training.factory import encode_context, render_gaussians
+    from seeu_model.training.loop import autocast_context
+
+    device = torch.device(device) if device is not None else next(model.parameters()).device
+    loader = make_eval_loader(data, image_hw, batch_size, num_workers)
+    return evaluate_model(model, loader, device, encode_context,
+                          lambda g, t: render_gaussians(g, t, rasterizer), lpips_fn=lpips_fn,
+                          max_samples=max_samples, warmup=warmup, keep_renders=keep_renders,
+                          progress=sys.stderr.isatty() if progress is None else progress,
+                          autocast=lambda: autocast_context(precision, device))
+
+
+def write_results(out: Path, res, extra: dict) -> dict:
+    """per_target.csv, per_scene.csv, then summary.json (last). Returns the summary document."""
+    from dataclasses import asdict
+
+    from seeu_data.arrow_io import atomic_write_text
+    from seeu_model.evaluation import per_scene, summarize, timing_dict
+
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "summary.json").unlink(missing_ok=True)  # being rewritten: not complete
+    atomic_write_text(out / "per_target.csv", _csv_text([asdict(r) for r in res.records]))
+    scenes = [{"scene_id": s, **row} for s, row in per_scene(res.records).items()]
+    atomic_write_text(out / "per_scene.csv", _csv_text(scenes))
+    summary = {**extra, "metrics": summarize(res.records), "timing": timing_dict(res.timing), "out": str(out),
+               "protocol": {"psnr": "clip [0,1], per-image MSE, -10 log10",
+                            "ssim": "11-px Gaussian window, sigma 1.5, scikit-image (sample covariance)",
+                            "lpips": "LPIPS(VGG) on [0,1] inputs (normalize=True)",
+                            "aggregation": "mean over the targets of a scene, then over scenes",
+                            "timing": "ms per sample, encoder and renderer separately, after warm-up"}}
+    summary = _nan_to_none(summary)
+    atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
+    return summary
+
+
+def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *, batch_size: int = 1,
+             image_hw: tuple[int, int] | None = None, max_samples: int = 0, warmup: int = 2, lpips: bool = True,
+             lpips_weights: str | None = None, device: str | None = None, rasterizer: str | None = None,
+             num_workers: int = 0, progress: bool | None = None) -> dict:
+    """Python API of `seeu eval`; returns the summary document (also written to OUT/summary.json)."""
+    import torch
+
+    from seeu_data.errors import SeeUError
+    from seeu_model.lpips_loss import LPIPS
+    from seeu_model.training import checkpoint as ckpt_io
+    from seeu_model.training.config import config_from_dict
+    from seeu_model.training.factory import model_from_checkpoint
+
+    ck = ckpt_io.load_checkpoint(checkpoint)
+    cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
+    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    if batch_size < 1:
+        raise SeeUError("--batch-size must be >= 1")
+    model = model_from_checkpoint(ck, dev)
+    lpips_fn = None
+    lpips_kind = "off"
+    if lpips:
+        lpips_fn = LPIPS(weights=lpips_weights or cfg.loss.lpips_weights).to(dev)
+        lpips_kind = "vgg"
+    hw = tuple(image_hw or cfg.data.image_size)
+    if out is None:
+        run_dir = Path(ck["path"]).parent.parent
+        out = run_dir / "eval" / Path(str(data).rstrip("/")).name
+    res = evaluate_on_data(model, data, hw, device=dev, batch_size=batch_size, max_samples=max_samples,
+                           warmup=warmup, lpips_fn=lpips_fn, rasterizer=rasterizer or cfg.rasterizer,
+                           precision=cfg.precision, num_workers=num_workers, progress=progress)
+    if not res.records:
+        raise SeeUError("the evaluation data yielded no sample", data)
+    extra = {"checkpoint": ck["path"], "step": ck["step"], "data": str(data), "image_hw": list(hw),
+             "lpips": lpips_kind, "device": str(dev)}
+    return write_results(Path(out), res, extra)
