@@ -340,6 +340,56 @@ def test_projection_shapes_and_flattening():
     assert torch.allclose(proj.means2d[1 * 3 + 2], uv) and torch.allclose(proj.depths[5], depth)
 
 
+@pytest.mark.parametrize("version", ["1.5.3", "1.4.0"])
+def test_gsplat_call_follows_its_documented_api(monkeypatch, version):
+    """Without CUDA, check how we call gsplat: a stand-in `gsplat` module asserts the documented shapes
+    and conventions (world-to-camera viewmats, pixel Ks, SH coefficients with sh_degree, backgrounds
+    per camera, "RGB+ED") and renders them with the dense reference after converting back."""
+    import sys
+    import types
+
+    import seeu_model.rasterizer as rz
+    from seeu_model.rasterizer.dense import render_dense
+
+    w, h = 21, 17
+    calls = []
+
+    def rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, near_plane, far_plane,
+                      eps2d, sh_degree, packed, tile_size, backgrounds, render_mode, rasterize_mode):
+        batch = means.shape[:-2]
+        n, c = means.shape[-2], viewmats.shape[-3]
+        calls.append(len(batch))
+        assert version.startswith("1.5") or len(batch) == 0  # 1.4 has no scene batch dimension
+        assert quats.shape == batch + (n, 4) and scales.shape == batch + (n, 3) and opacities.shape == batch + (n,)
+        assert colors.shape == batch + (n, (sh_degree + 1) ** 2, 3) and backgrounds.shape == batch + (c, 3)
+        assert Ks.shape == batch + (c, 3, 3) and render_mode == "RGB+ED" and (width, height) == (w, h)
+        assert all(t.dtype == torch.float32 and t.is_contiguous() for t in (means, viewmats, Ks, colors))
+        g = Gaussians(means.reshape(-1, n, 3), scales.reshape(-1, n, 3), quats.reshape(-1, n, 4),
+                      opacities.reshape(-1, n), colors.reshape(-1, n, colors.shape[-2], 3))
+        c2w = torch.linalg.inv(viewmats.reshape(-1, c, 4, 4))
+        k_norm = Ks.reshape(-1, c, 3, 3) / torch.tensor([[width], [height], [1.0]])
+        proj = project_gaussians(g, c2w, k_norm, width, height, near_plane, far_plane, eps2d,
+                                 rasterize_mode == "antialiased")
+        feats, alpha = render_dense(proj, width, height)
+        alpha = alpha[..., None]
+        rgb = feats[..., :3] + (1 - alpha) * backgrounds.reshape(-1, 3)[:, None, None, :]
+        out = torch.cat([rgb, feats[..., 3:] / alpha.clamp(min=1e-10)], -1)
+        return out.reshape(batch + (c, height, width, 4)), alpha.reshape(batch + (c, height, width, 1)), {}
+
+    monkeypatch.setitem(sys.modules, "gsplat", types.SimpleNamespace(__version__=version, rasterization=rasterization))
+    monkeypatch.setattr(rz, "check_gsplat", lambda device: None)
+    monkeypatch.setattr(gsplat_backend, "check_gsplat", lambda device: None)
+    g = random_scene(2, 30, degree=2, dtype=torch.float32, seed=4)
+    c2w, k = cameras(2, 3, torch.float32)
+    bg = torch.tensor([[0.1, 0.2, 0.3], [0.9, 0.8, 0.7]])
+    for aa in (False, True):
+        out = rasterize(g, c2w, k, w, h, background=bg, backend="gsplat", antialiased=aa)
+        ref = rasterize(g, c2w, k, w, h, background=bg, backend="torch", antialiased=aa)
+        assert out.color.shape == ref.color.shape and out.depth.shape == ref.depth.shape
+        assert max(_diff(out, ref)) <= 2e-5, _diff(out, ref)
+    assert calls == ([1, 1] if version.startswith("1.5") else [0, 0, 0, 0])  # batch dims per call
+
+
 def _psnr(a: torch.Tensor, b: torch.Tensor) -> float:
     return float(-10 * torch.log10(((a - b) ** 2).mean()))
 

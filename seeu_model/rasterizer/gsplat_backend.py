@@ -1,6 +1,6 @@
 """gsplat (CUDA) backend: one batched `gsplat.rasterization` call for all scenes and views.
 
-gsplat >= 1.5 takes leading batch dimensions: means (B, N, 3), quats wxyz (B, N, 4), linear scales,
+gsplat >= 1.5 takes leading batch dimensions (older 1.x: one call per scene): means (B, N, 3), quats wxyz (B, N, 4), linear scales,
 opacities in [0, 1], SH coefficients (B, N, K, 3) with `sh_degree`, world-to-camera `viewmats`
 (B, V, 4, 4), pixel `Ks` (B, V, 3, 3), `render_mode="RGB+ED"` (last channel = sum w z / sum w),
 backgrounds (B, V, 3), `eps2d=0.3`, `rasterize_mode` "classic" or "antialiased". It cannot run on
@@ -60,29 +60,33 @@ def render_gsplat(
     (alpha-normalised) and alpha (B, V, H, W, 1).
     """
     check_gsplat(gaussians.means.device)
-    from gsplat import rasterization  # noqa: PLC0415 - optional CUDA dependency
+    import gsplat  # noqa: PLC0415 - optional CUDA dependency
 
     dtype = torch.float32  # gsplat's kernels are float32
-    viewmats = world_to_cam_from_cam_to_world(cam_to_world.to(dtype))
-    ks = intrinsics_pixels(intrinsics.to(dtype), width, height)
-    colors, alphas, _meta = rasterization(
-        means=gaussians.means.to(dtype).contiguous(),
-        quats=gaussians.rotations.to(dtype).contiguous(),
-        scales=gaussians.scales.to(dtype).contiguous(),
-        opacities=gaussians.opacities.to(dtype).contiguous(),
-        colors=gaussians.sh.to(dtype).contiguous(),
-        viewmats=viewmats.contiguous(),
-        Ks=ks.contiguous(),
-        width=width,
-        height=height,
-        near_plane=near_plane,
-        far_plane=far_plane,
-        eps2d=eps2d,
-        sh_degree=gaussians.sh_degree,
-        packed=False,
-        tile_size=tile_size,
-        backgrounds=background.to(dtype).contiguous(),
-        render_mode="RGB+ED",
-        rasterize_mode="antialiased" if antialiased else "classic",
+    args = dict(
+        means=gaussians.means.to(dtype), quats=gaussians.rotations.to(dtype), scales=gaussians.scales.to(dtype),
+        opacities=gaussians.opacities.to(dtype), colors=gaussians.sh.to(dtype),
+        viewmats=world_to_cam_from_cam_to_world(cam_to_world.to(dtype)),
+        Ks=intrinsics_pixels(intrinsics.to(dtype), width, height), backgrounds=background.to(dtype),
     )
+    common = dict(width=width, height=height, near_plane=near_plane, far_plane=far_plane, eps2d=eps2d,
+                  sh_degree=gaussians.sh_degree, packed=False, tile_size=tile_size, render_mode="RGB+ED",
+                  rasterize_mode="antialiased" if antialiased else "classic")
+    if gsplat_supports_batch():
+        colors, alphas, _meta = gsplat.rasterization(**{k: v.contiguous() for k, v in args.items()}, **common)
+    else:  # gsplat 1.4: one scene (all its views) per call
+        outs = [gsplat.rasterization(**{k: v[i].contiguous() for k, v in args.items()}, **common)
+                for i in range(gaussians.means.shape[0])]
+        colors, alphas = torch.stack([o[0] for o in outs]), torch.stack([o[1] for o in outs])
     return colors[..., :3], colors[..., 3:4], alphas
+
+
+def gsplat_supports_batch() -> bool:
+    """gsplat >= 1.5 accepts leading batch dimensions (scenes) in `rasterization`."""
+    import gsplat  # noqa: PLC0415
+
+    parts = []
+    for piece in str(getattr(gsplat, "__version__", "0")).split(".")[:2]:
+        digits = "".join(ch for ch in piece if ch.isdigit())
+        parts.append(int(digits or 0))
+    return tuple(parts) >= (1, 5)
