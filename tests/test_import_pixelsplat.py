@@ -208,3 +208,38 @@ def test_round_trip_chunks_import_export(tmp_path):
         assert got["url"] == ex["url"] and torch.equal(got["timestamps"], ex["timestamps"])
         assert torch.allclose(got["cameras"], ex["cameras"], atol=1e-6)
         assert all(torch.equal(a, b) for a, b in zip(got["images"], ex["images"]))
+
+
+class _NotPlainData:
+    pass
+
+
+def test_fast_chunk_reader_equals_torch_load_and_refuses_code(tmp_path):
+    from seeu_data.importers.torch_chunk import UnsupportedChunk, load_plain
+
+    base = torch.arange(60, dtype=torch.float32).view(6, 10)
+    obj = [{"key": "k", "url": "u", "n": 3, "f": 0.5, "none": None, "t": (1, "a"),
+            "slice": base[2:5, 1:4],            # storage offset + strides
+            "transposed": base.t(),             # non-contiguous
+            "shared": base[1], "same": base,    # one storage, several tensors
+            "empty": torch.zeros(0, 18), "i64": torch.tensor([2**40, -3]), "u8": torch.tensor([1, 255], dtype=torch.uint8),
+            "f64": torch.tensor([1e-300]), "b": torch.tensor([True, False]), "h": torch.tensor([1.5], dtype=torch.float16)}]
+    torch.save(obj, tmp_path / "c.torch")
+    got = load_plain(tmp_path / "c.torch")
+    ref = torch.load(tmp_path / "c.torch", weights_only=True)
+    for k, v in ref[0].items():
+        if isinstance(v, torch.Tensor):
+            assert got[0][k].dtype == v.numpy().dtype and np.array_equal(got[0][k], v.numpy()), k
+        else:
+            assert got[0][k] == v, k
+    torch.save([{"key": "x", "evil": _NotPlainData()}], tmp_path / "evil.torch")
+    with pytest.raises(UnsupportedChunk):
+        load_plain(tmp_path / "evil.torch")
+    with pytest.raises(SeeUError, match="not a readable pixelSplat chunk"):
+        ps.load_chunk(tmp_path / "evil.torch")  # torch.load(weights_only=True) refuses it too
+    # A legacy (pre-zip) file goes through torch.load.
+    torch.save(obj, tmp_path / "legacy.torch", _use_new_zipfile_serialization=False)
+    with pytest.raises(UnsupportedChunk):
+        load_plain(tmp_path / "legacy.torch")
+    legacy = ps.load_chunk(tmp_path / "legacy.torch")
+    assert torch.equal(legacy[0]["slice"], base[2:5, 1:4])

@@ -10,7 +10,10 @@ Conversion: intrinsics are kept (already normalised); world-to-camera -> OpenCV 
 `cameras.cam_to_world_from_world_to_cam` (what the MVSplat loader's `w2c.inverse()` does); image
 bytes are kept as they are; width/height come from the image headers. Scene id = key; the url,
 dataset name, stage and chunk name go into the scene's meta. `source_frame` is the frame's position
-in the example. Chunks are read one at a time (memory ~ one chunk).
+in the example. Chunks are read one at a time, memory-mapped (`torch_chunk.load_plain`, a restricted
+reader that is several times faster than `torch.load` and copies nothing; `torch.load(weights_only
+=True)` is the fallback), so the process holds about one scene's images, plus one chunk in the page
+cache.
 
 A `seeu_posed.json` next to `index.json` (written by `seeu export pixelsplat`) restores what the
 chunk format cannot carry (near/far, source frame numbers and names, meta); peer loaders ignore it.
@@ -19,6 +22,7 @@ chunk format cannot carry (near/far, source frame numbers and names, meta); peer
 from __future__ import annotations
 
 import json
+import struct
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -103,15 +107,21 @@ def plan(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[SkippedSce
 
 
 def load_chunk(path: Path) -> list:
-    """torch.load a chunk (weights_only: plain tensors, lists, dicts and strings only)."""
-    import torch
+    """Read a chunk: the fast restricted reader (`torch_chunk.load_plain`: numpy views into the
+    memory-mapped file), else `torch.load(weights_only=True, mmap=True)`. Either way only plain
+    data and tensors are accepted."""
+    import pickle
+    import zipfile
+
+    from .torch_chunk import UnsupportedChunk, load_plain
 
     if not path.exists():
         raise SeeUError("chunk listed in index.json is missing", path)
     try:
-        # mmap: storages stay in the page cache instead of being copied into process memory.
-        chunk = torch.load(path, map_location="cpu", weights_only=True, mmap=True)
-    except Exception as exc:  # corrupt zip, truncated file, pickle of other objects
+        chunk = load_plain(path)
+    except UnsupportedChunk:
+        chunk = _torch_load(path)
+    except (OSError, EOFError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError, struct.error) as exc:
         raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
                         path) from None
     if not isinstance(chunk, list):
@@ -119,25 +129,40 @@ def load_chunk(path: Path) -> list:
     return chunk
 
 
+def _torch_load(path: Path):
+    import zipfile
+
+    import torch
+
+    try:
+        # mmap (zip format only): storages stay in the page cache instead of process memory.
+        return torch.load(path, map_location="cpu", weights_only=True, mmap=zipfile.is_zipfile(path))
+    except Exception as exc:  # corrupt zip, truncated file, pickle of other objects
+        raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
+                        path) from None
+
+
 def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: str, sidecar: dict | None
                        ) -> PosedScene:
     """One chunk example -> PosedScene (SeeUError when the example is malformed)."""
-    import torch
-
     key = example["key"]
     where = f"{chunk_name}:{key}"
     missing = [k for k in EXAMPLE_KEYS if k not in example]
     if missing:
         raise SeeUError(f"example lacks {', '.join(missing)}", where)
-    cams = example["cameras"]
-    if not isinstance(cams, torch.Tensor) or cams.ndim != 2 or cams.shape[1] != 18:
-        raise SeeUError(f"cameras must be an (N, 18) tensor, got {getattr(cams, 'shape', type(cams))}", where)
+    try:
+        cams = np.asarray(example["cameras"], dtype=np.float64)
+        timestamps = np.asarray(example["timestamps"], dtype=np.int64).reshape(-1)
+    except (TypeError, ValueError):
+        raise SeeUError("cameras/timestamps are not numeric tensors", where) from None
+    if cams.ndim != 2 or cams.shape[1] != 18:
+        raise SeeUError(f"cameras must be an (N, 18) tensor, got shape {cams.shape}", where)
     images = example["images"]
     n = cams.shape[0]
-    timestamps = np.asarray(example["timestamps"], dtype=np.int64).reshape(-1)
+    if not isinstance(images, (list, tuple)):
+        raise SeeUError(f"images must be a list of tensors, got {type(images).__name__}", where)
     if len(images) != n or len(timestamps) != n:
         raise SeeUError(f"{len(images)} images, {n} cameras and {len(timestamps)} timestamps disagree", where)
-    cams = cams.to(torch.float64).numpy()
     cam_to_world = cam_to_world_from_world_to_cam(homogeneous_from_3x4(cams[:, 6:].reshape(n, 3, 4)))
     data, views = image_column(images)
     names = [f"{where}#{i}" for i in range(n)]
@@ -161,12 +186,14 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
 
 
 def image_column(images: list) -> tuple[pa.BinaryArray, list[memoryview]]:
-    """N encoded images (uint8 tensors) -> one Arrow binary column (a single copy of the bytes into
-    one contiguous buffer) and a memoryview per image into that buffer."""
-    import torch
-
-    arrays = [t.numpy() if isinstance(t, torch.Tensor) else np.frombuffer(bytes(t), dtype=np.uint8) for t in images]
-    arrays = [a.reshape(-1).view(np.uint8) for a in arrays]
+    """N encoded images (uint8 tensors or arrays) -> one Arrow binary column (a single copy of the
+    bytes into one contiguous buffer) and a memoryview per image into that buffer."""
+    arrays = []
+    for t in images:
+        a = np.asarray(t)
+        if a.dtype != np.uint8 or a.ndim != 1:
+            raise SeeUError(f"images must be uint8 1-D tensors of encoded bytes, got {a.dtype} {a.shape}")
+        arrays.append(a)
     offsets = np.zeros(len(arrays) + 1, dtype=np.int64)
     np.cumsum([a.size for a in arrays], out=offsets[1:])
     if offsets[-1] >= 2**31:
