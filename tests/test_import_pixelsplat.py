@@ -243,3 +243,19 @@ def test_fast_chunk_reader_equals_torch_load_and_refuses_code(tmp_path):
         load_plain(tmp_path / "legacy.torch")
     legacy = ps.load_chunk(tmp_path / "legacy.torch")
     assert torch.equal(legacy[0]["slice"], base[2:5, 1:4])
+
+
+def test_verify_decode_catches_what_headers_cannot(tmp_path, capsys):
+    rng = np.random.default_rng(5)
+    ex = make_example("scanless", 3, rng)
+    jpg = ex["images"][1].numpy().tobytes()
+    no_scan = jpg[: jpg.index(b"\xff\xda")] + b"\xff\xd9"
+    ex["images"][1] = torch.tensor(np.frombuffer(no_scan, dtype=np.uint8))
+    write_chunks(tmp_path / "ds", "test", [[ex, make_example("fine", 3, rng)]])
+    args = ["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test"]
+    assert cli_main(args + ["--out", str(tmp_path / "fast")]) == 0
+    assert sorted(PosedDataset(tmp_path / "fast").scene_ids) == ["fine", "scanless"]
+    assert cli_main(args + ["--out", str(tmp_path / "full"), "--verify-decode"]) == 0
+    assert PosedDataset(tmp_path / "full").scene_ids == ["fine"]
+    assert "skipped 1 scenes (scanless)" in capsys.readouterr().out
+    assert cli_main(args + ["--out", str(tmp_path / "strict"), "--verify-decode", "--strict"]) == 2
