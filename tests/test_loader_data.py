@@ -296,3 +296,22 @@ def test_gap_curriculum_in_the_loader(tmp_path):
     assert len(used) == len(set(used))
     assert len(used) + ld.stats["skipped_curriculum"] == 20
     assert ld.stats["skipped_curriculum"] > 0 and ld.state_dict()["step"] == len(batches)
+
+
+def test_workers_do_not_deadlock_after_the_parent_used_opencv_threads(dataset, tmp_path):
+    # A forked child inherits OpenCV's idle thread pool without its threads; touching the pool there
+    # (cv2.setNumThreads in a worker_init_fn) hung forever. The loader forks with OpenCV single-threaded.
+    import time
+
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(2)
+    try:
+        img = np.random.default_rng(0).integers(0, 255, (720, 1280, 3), dtype=np.uint8)
+        for _ in range(3):
+            cv2.GaussianBlur(cv2.resize(img, (640, 360), interpolation=cv2.INTER_AREA), (5, 5), 0)
+        time.sleep(0.3)  # let the pool threads go idle
+        ld = make_loader(dataset, 7, num_workers=1, image_hw=HW, cache_dir=str(tmp_path / "c"), timeout=30)
+        assert len(list(ld)) == 3
+        assert cv2.getNumThreads() == 2  # the caller's setting is restored
+    finally:
+        cv2.setNumThreads(previous)

@@ -23,6 +23,7 @@ from __future__ import annotations
 import os
 import warnings
 from collections import OrderedDict
+from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
@@ -260,10 +261,23 @@ def _error_parts(exc: SeeUError) -> tuple[str, str | None]:
     return text, None
 
 
-def _worker_init(_: int) -> None:
+@contextmanager
+def _single_threaded_cv2() -> Iterator[None]:
+    """Make OpenCV single-threaded while DataLoader workers are forked, then restore the caller's setting.
+
+    A forked child inherits OpenCV's thread-pool state without its threads: calling
+    `cv2.setNumThreads` (or a parallel OpenCV function) there deadlocks once the parent has used the
+    pool. Shrinking the pool in the parent before the fork gives the workers a clean single-threaded
+    OpenCV (one decode per worker process is the right parallelism anyway).
+    """
     import cv2
 
+    previous = cv2.getNumThreads()
     cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)
 
 
 class StreamingLoader:
@@ -329,11 +343,15 @@ class StreamingLoader:
         plan = ds.plan()  # computed here once; forked workers inherit it
         loader = DataLoader(ds, batch_size=None, num_workers=self.num_workers, pin_memory=self.pin_memory,
                             prefetch_factor=self.prefetch_factor, persistent_workers=False,
-                            worker_init_fn=_worker_init if self.num_workers else None,
                             multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
                             timeout=self.timeout)
         skipped = plan.skipped
-        for batch in loader:
+        if self.num_workers:
+            with _single_threaded_cv2():
+                batches = iter(loader)  # forks the workers
+        else:
+            batches = iter(loader)
+        for batch in batches:
             if "_error" in batch:
                 raise SeeUError(*batch["_error"])
             cursor = batch.pop("_cursor")
@@ -348,7 +366,7 @@ class StreamingLoader:
 
 def make_loader(shards: str | Path, batch_size: int, *, num_workers: int = 0, rank: int | None = None,
                 world_size: int | None = None, seed: int = 0, pin_memory: bool = False, filesystem=None,
-                multiprocessing_context: str | None = None, **config) -> StreamingLoader:
+                multiprocessing_context: str | None = None, timeout: float = 0, **config) -> StreamingLoader:
     """A `StreamingLoader` over the triples dataset at `shards` (directory or object-storage URL).
 
     `config` takes the other `LoaderConfig` fields (image_hw, flip_p, remainder, curriculum, ...).
@@ -356,4 +374,4 @@ def make_loader(shards: str | Path, batch_size: int, *, num_workers: int = 0, ra
     cfg = LoaderConfig(batch_size=batch_size, seed=seed, **config)
     ds = TripleStream(shards, cfg, rank=rank, world_size=world_size, filesystem=filesystem)
     return StreamingLoader(ds, num_workers=num_workers, pin_memory=pin_memory,
-                           multiprocessing_context=multiprocessing_context)
+                           multiprocessing_context=multiprocessing_context, timeout=timeout)

@@ -1,0 +1,227 @@
+"""Streaming-loader throughput against a pixelSplat-style loader and the raw JPEG-decode limit.
+
+Builds one data set twice in a temporary directory -- `--samples` triples of 2 context + 3 target
+views, photo-like 360x640 JPEGs (~40-60 KB) -- as SeeU triple shards and as pixelSplat `.torch`
+chunks (torch.save of a list of examples: url, timestamps int64 [N], cameras float32 [N, 18],
+images list of uint8 tensors, key; one example per triple, so the peer loader reads no extra
+frames), then measures side by side, interleaved, with DataLoader num_workers 1 and 2, batch 4,
+output 256x256:
+
+* seeu:       `seeu_data.loader.make_loader` (mmap Arrow, OpenCV decode, INTER_AREA cover resize +
+              centre crop with intrinsics, float32 (B, V, 3, 256, 256) batches);
+* pixelsplat: the peers' dataset code path -- `torch.load` the chunk, PIL decode + `ToTensor`,
+              back to uint8 + PIL Lanczos resize to 256x455, centre crop, w2c -> c2w, default collate;
+* raw:        `cv2.imdecode` of the same JPEG bytes (held in memory) and nothing else.
+
+Prints samples/s (median of `--repeats` interleaved runs) and the ratios seeu/pixelsplat (target
+>= 2) and seeu/raw (target >= 0.7). On a shared machine, re-measure when it is quiet.
+
+Usage: .venv/bin/python benchmarks/loader.py [--samples 240] [--repeats 3] [--workers 1 2]
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import statistics
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pyarrow as pa
+import torch
+from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from seeu_data import cameras  # noqa: E402
+from seeu_data.arrow_io import write_table  # noqa: E402
+from seeu_data.loader import make_loader  # noqa: E402
+from seeu_data.manifest import FileEntry, provenance, write_manifest  # noqa: E402
+from seeu_data.schema import arrow_schema, schema_version  # noqa: E402
+
+H, W, OUT = 360, 640, (256, 256)
+VIEWS, CONTEXT = 5, 2
+
+
+# ------------------------------------------------------------------------------------------ data
+
+def photo_like_frames(n: int, seed: int = 0) -> list[bytes]:
+    """`n` distinct 360x640 JPEGs with photo-like statistics (smooth shading, edges, texture, noise)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for _ in range(n):
+        low = cv2.resize(rng.uniform(40, 215, (6, 10, 3)).astype(np.float32), (W, H), interpolation=cv2.INTER_CUBIC)
+        mid = cv2.resize(rng.normal(0, 25, (45, 80, 3)).astype(np.float32), (W, H), interpolation=cv2.INTER_LINEAR)
+        img = low + mid
+        for _ in range(12):  # hard edges
+            x0, y0 = rng.integers(0, W - 40), rng.integers(0, H - 40)
+            cv2.rectangle(img, (int(x0), int(y0)), (int(x0 + rng.integers(20, 200)), int(y0 + rng.integers(20, 150))),
+                          rng.uniform(0, 255, 3).tolist(), -1)
+        img = cv2.GaussianBlur(img, (3, 3), 0) + rng.normal(0, 3, img.shape)
+        ok, buf = cv2.imencode(".jpg", np.clip(img, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
+        out.append(buf.tobytes())
+    return out
+
+
+def make_data(root: Path, samples: int, shard_rows: int = 60) -> tuple[Path, Path, list[list[bytes]]]:
+    frames = photo_like_frames(64)
+    rng = np.random.default_rng(1)
+    triples = [[frames[i] for i in rng.choice(len(frames), VIEWS, replace=False)] for _ in range(samples)]
+    intr = [0.86, 1.53, 0.5, 0.5]  # RE10K-like normalised intrinsics
+    poses = [np.eye(4) for _ in range(VIEWS)]
+    for v, p in enumerate(poses):
+        p[0, 3] = 0.1 * v
+    # SeeU triple shards.
+    shards = root / "triples"
+    schema = arrow_schema("seeu.triples")
+    entries = []
+    for k, start in enumerate(range(0, samples, shard_rows)):
+        rows = [{"sample_id": f"scene{i}/interp/0", "scene_id": f"scene{i}", "mode": "interp", "num_context": CONTEXT,
+                 "frame_index": list(range(VIEWS)), "source_frame": list(range(VIEWS)), "image": triples[i],
+                 "image_format": "jpeg", "width": [W] * VIEWS, "height": [H] * VIEWS,
+                 "intrinsics_norm": [intr] * VIEWS, "cam_to_world": [p.reshape(-1).tolist() for p in poses],
+                 "near": [1.0] * VIEWS, "far": [100.0] * VIEWS, "gap": VIEWS - 1, "target_offset": [0] * (VIEWS - CONTEXT)}
+                for i in range(start, min(samples, start + shard_rows))]
+        path = shards / f"shard-{k:05d}.arrow"
+        write_table(path, pa.Table.from_pylist(rows, schema=schema), max_chunksize=16)
+        entries.append(FileEntry.for_file(shards, path, len(rows)))
+    write_manifest(shards, "seeu.triples", schema_version("seeu.triples"), entries, params={"benchmark": True},
+                   provenance=provenance("benchmarks/loader.py"))
+    # pixelSplat chunks: world-to-camera 3x4 after fx fy cx cy 0 0.
+    chunks = root / "chunks"
+    chunks.mkdir()
+    w2c = [cameras.world_to_cam_from_cam_to_world(p)[:3].reshape(-1) for p in poses]
+    cams = torch.tensor(np.stack([np.concatenate([intr, [0, 0], m]) for m in w2c]), dtype=torch.float32)
+    for k, start in enumerate(range(0, samples, shard_rows)):
+        examples = [{"url": f"https://example.com/{i}", "timestamps": torch.arange(VIEWS, dtype=torch.int64) * 33_000,
+                     "cameras": cams.clone(), "images": [torch.frombuffer(bytearray(b), dtype=torch.uint8) for b in triples[i]],
+                     "key": f"scene{i}"} for i in range(start, min(samples, start + shard_rows))]
+        torch.save(examples, chunks / f"{k:06d}.torch")
+    return shards, chunks, triples
+
+
+# -------------------------------------------------------------------------------- peer loaders
+
+class PixelSplatStyle(IterableDataset):
+    """The peers' RE10K dataset path: torch.load chunks, PIL decode, Lanczos rescale, centre crop."""
+
+    def __init__(self, chunk_dir: Path):
+        self.chunks = sorted(chunk_dir.glob("*.torch"))
+
+    @staticmethod
+    def _rescale_crop(images: torch.Tensor, shape: tuple[int, int]) -> torch.Tensor:
+        from PIL import Image
+
+        h_in, w_in = images.shape[-2:]
+        scale = max(shape[0] / h_in, shape[1] / w_in)
+        h_s, w_s = round(h_in * scale), round(w_in * scale)
+        out = []
+        for image in images:
+            arr = (image * 255).clip(0, 255).type(torch.uint8).permute(1, 2, 0).numpy()
+            pil = Image.fromarray(arr).resize((w_s, h_s), Image.LANCZOS)
+            out.append(torch.tensor(np.array(pil) / 255, dtype=torch.float32).permute(2, 0, 1))
+        scaled = torch.stack(out)
+        r0, c0 = (h_s - shape[0]) // 2, (w_s - shape[1]) // 2
+        return scaled[:, :, r0:r0 + shape[0], c0:c0 + shape[1]]
+
+    def __iter__(self):
+        from PIL import Image
+        from torchvision.transforms import ToTensor
+
+        to_tensor = ToTensor()
+        info = get_worker_info()
+        chunks = self.chunks if info is None else self.chunks[info.id::info.num_workers]
+        for path in chunks:
+            for ex in torch.load(path, weights_only=True):
+                images = torch.stack([to_tensor(Image.open(io.BytesIO(im.numpy().tobytes()))) for im in ex["images"]])
+                cams = ex["cameras"]
+                w2c = torch.eye(4).repeat(len(cams), 1, 1)
+                w2c[:, :3] = cams[:, 6:].reshape(-1, 3, 4)
+                c2w = w2c.inverse()
+                images = self._rescale_crop(images, OUT)
+                yield {"context": {"image": images[:CONTEXT], "extrinsics": c2w[:CONTEXT]},
+                       "target": {"image": images[CONTEXT:], "extrinsics": c2w[CONTEXT:]}, "scene": ex["key"]}
+
+
+class RawDecode(IterableDataset):
+    """OpenCV decode of the same JPEG bytes, nothing else: the decode limit."""
+
+    def __init__(self, triples: list[list[bytes]], batch: int):
+        self.triples, self.batch = triples, batch
+
+    def __iter__(self):
+        info = get_worker_info()
+        w, k = (info.id, info.num_workers) if info else (0, 1)
+        batches = range(0, len(self.triples), self.batch)
+        for j, start in enumerate(batches):
+            if j % k != w:
+                continue
+            n = 0
+            for views in self.triples[start:start + self.batch]:
+                for b in views:
+                    n += cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_COLOR).shape[0] > 0
+            yield torch.tensor(n)
+
+
+def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, triples, cache: Path) -> float:
+    """samples/s of one full pass."""
+    if name == "seeu":
+        loader = make_loader(shards, batch, num_workers=workers, image_hw=OUT, seed=0, cache_dir=str(cache))
+    elif name == "pixelsplat":
+        loader = DataLoader(PixelSplatStyle(chunks), batch_size=batch, num_workers=workers)
+    else:
+        loader = DataLoader(RawDecode(triples, batch), batch_size=None, num_workers=workers)
+    t0 = time.perf_counter()
+    n = 0
+    for b in loader:
+        n += int(b) if name == "raw" else len(b["context"]["image"])
+    dt = time.perf_counter() - t0
+    if name == "raw":
+        n //= VIEWS
+    assert n == len(triples), (name, n)
+    return n / dt
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--samples", type=int, default=240)
+    ap.add_argument("--batch", type=int, default=4)
+    ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--json", type=Path, default=None, help="also write the results here")
+    args = ap.parse_args()
+    torch.set_num_threads(1)
+    cv2.setNumThreads(1)  # one decode per worker process for all three (and fork-safe, see dataset.py)
+    with tempfile.TemporaryDirectory(prefix="seeu-loader-bench-") as tmp:
+        root = Path(tmp)
+        shards, chunks, triples = make_data(root, args.samples)
+        kb = np.mean([len(b) for t in triples for b in t]) / 1024
+        print(f"data: {args.samples} triples x {VIEWS} views of {H}x{W} JPEG (mean {kb:.0f} KB) -> {OUT[0]}x{OUT[1]}, "
+              f"batch {args.batch}; {args.repeats} interleaved repeats, median")
+        cache = root / "cache"
+        list(make_loader(shards, 64, image_hw=(8, 8), cache_dir=str(cache)))  # sha256 stamps + page cache
+        results = {}
+        for workers in args.workers:
+            runs = {"seeu": [], "pixelsplat": [], "raw": []}
+            for _ in range(args.repeats):
+                for name in runs:
+                    runs[name].append(measure(name, workers, args.batch, shards, chunks, triples, cache))
+            med = {k: statistics.median(v) for k, v in runs.items()}
+            results[workers] = {**med, "seeu/pixelsplat": med["seeu"] / med["pixelsplat"],
+                                "seeu/raw": med["seeu"] / med["raw"], "runs": runs}
+            print(f"workers={workers}: seeu {med['seeu']:.1f} samples/s | pixelsplat-style {med['pixelsplat']:.1f} | "
+                  f"raw decode {med['raw']:.1f} || seeu/pixelsplat {med['seeu'] / med['pixelsplat']:.2f}x (target >= 2) "
+                  f"| seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (target >= 70 %)")
+        if args.json:
+            args.json.write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
