@@ -17,6 +17,7 @@ Stages:
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import sys
@@ -27,7 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .arrow_io import open_ipc_file, write_table
+from .arrow_io import open_ipc_file
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
@@ -35,8 +36,9 @@ from .triples import PLAN_KEY, SCHEMA, ImageOptions, build_shard_table, plan_sha
 from .schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
-_VIEW_OVERHEAD_BYTES = 200
-MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)  # per-view camera/metadata bytes in a row (for the shard-size estimate)
+_VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
+_IPC_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)  # as seeu_data.arrow_io: no compression
+MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
 
 
 @dataclass(frozen=True)
@@ -213,6 +215,91 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
 # ---------------------------------------------------------------------------------------------
 
 
+class _HashingFile:
+    """Write-only file object for `pa.PythonFile`: bytes go to the file and, in order, to a sha256
+    computed on a helper thread (hashlib releases the GIL), so hashing overlaps the write.
+
+    The queued memoryviews keep the written Arrow buffers alive until they are hashed.
+    """
+
+    def __init__(self, fh):
+        import queue
+        import threading
+
+        self.fh = fh
+        self.sha = hashlib.sha256()
+        self.size = 0
+        self.closed = False
+        self._queue: queue.SimpleQueue = queue.SimpleQueue()
+        self._thread = threading.Thread(target=self._hash_loop, daemon=True)
+        self._thread.start()
+
+    def _hash_loop(self) -> None:
+        while (view := self._queue.get()) is not None:
+            self.sha.update(view)
+
+    def write(self, data) -> int:
+        view = memoryview(data).cast("B")
+        self._queue.put(view if len(view) >= 1 << 16 else bytes(view))  # small (metadata) pieces: copied
+        self.fh.write(view)
+        self.size += len(view)
+        return len(view)
+
+    def flush(self) -> None:
+        self.fh.flush()
+
+    def close(self) -> None:
+        self.closed = True
+
+    def hexdigest(self) -> str:
+        """Wait for the hash thread; call once, after the last write."""
+        self._queue.put(None)
+        self._thread.join()
+        return self.sha.hexdigest()
+
+
+def pending_path(path: Path) -> Path:
+    """Where a shard waits, written but not yet on disk for sure, until `commit_shard` renames it."""
+    return path.with_name(f".{path.name}.pending")
+
+
+def commit_shard(path: Path) -> None:
+    """fsync the pending file of `path` and rename it into place (the atomic step)."""
+    pending = pending_path(path)
+    with open(pending, "rb") as fh:
+        os.fsync(fh.fileno())
+    os.replace(pending, path)
+
+
+def write_ipc_hashed(path: Path, table: pa.Table, rows_per_batch: int, commit: bool = True) -> tuple[int, str]:
+    """Write `table` as an uncompressed Arrow IPC file; return (bytes, sha256).
+
+    The sha256 is computed from the bytes as they are written (no second pass). The file goes to
+    `pending_path(path)`; with `commit` it is fsynced and renamed to `path` at once (as
+    `seeu_data.arrow_io` does), otherwise the caller calls `commit_shard(path)` later -- the local
+    engine does that on a background thread, so the disk flush overlaps building the next shard.
+    On failure the partial file is removed. Bytes equal those of any IPC writer with the same options.
+    """
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = pending_path(path)
+    hashing = None
+    try:
+        with open(tmp, "wb") as fh:
+            hashing = _HashingFile(fh)
+            with pa.PythonFile(hashing, mode="w") as sink:
+                with pa.ipc.new_file(sink, table.schema, options=_IPC_OPTIONS) as writer:
+                    writer.write_table(table, max_chunksize=rows_per_batch)
+            digest = hashing.hexdigest()
+        if commit:
+            commit_shard(path)
+    except BaseException:
+        if hashing is not None and hashing._thread.is_alive():
+            hashing._queue.put(None)
+        tmp.unlink(missing_ok=True)
+        raise
+    return hashing.size, digest
+
+
 def existing_shard_matches(path: Path, spec: dict) -> bool:
     """True when `path` is a complete shard written from this very spec (resume)."""
     if not path.exists():
@@ -226,19 +313,25 @@ def existing_shard_matches(path: Path, spec: dict) -> bool:
     return meta.get(PLAN_KEY) == spec["plan_sha256"].encode() and rows == len(spec["samples"])
 
 
-def materialise(spec: dict, out_dir: str) -> dict:
-    """Write one shard (or keep a matching one); return its manifest entry, or {"error": message}."""
+def materialise(spec: dict, out_dir: str, commit: bool = True) -> dict:
+    """Write one shard (or keep a matching one); return its manifest entry, or {"error": message}.
+
+    With `commit=False` a new shard is left pending (`"pending": True`): the caller commits it.
+    """
     out = Path(out_dir)
     path = out / spec["file"]
     try:
         resumed = existing_shard_matches(path, spec)
-        if not resumed:
+        if resumed:
+            entry = FileEntry.for_file(out, path, len(spec["samples"]))
+        else:
             table = build_shard_table(spec)
-            write_table(path, table, max_chunksize=spec["rows_per_batch"])
-        entry = FileEntry.for_file(out, path, len(spec["samples"]))
+            size, digest = write_ipc_hashed(path, table, spec["rows_per_batch"], commit=commit)
+            entry = FileEntry(path.name, table.num_rows, size, digest)
     except SeeUError as exc:
         return {"index": spec["index"], "error": str(exc)}
-    return {"index": spec["index"], "entry": asdict(entry), "resumed": resumed}
+    return {"index": spec["index"], "entry": asdict(entry), "resumed": resumed,
+            "pending": not (resumed or commit)}
 
 
 def _pool_init() -> None:
@@ -248,28 +341,45 @@ def _pool_init() -> None:
 
 
 def _materialise_json(args: tuple[str, str]) -> dict:
-    return materialise(json.loads(args[0]), args[1])
+    return materialise(json.loads(args[0]), args[1], commit=False)
 
 
 def run_local(specs: list[dict], out_dir: str, workers: int, bar) -> list[dict]:
-    """Materialise the specs in this process (workers <= 1) or in a process pool."""
-    results = []
-    if workers <= 1 or len(specs) <= 1:
-        for spec in specs:
-            results.append(materialise(spec, out_dir))
-            bar.update(1)
-        return results
-    import multiprocessing as mp
-    from concurrent.futures import ProcessPoolExecutor, as_completed
+    """Materialise the specs in this process (workers <= 1) or in a process pool.
 
-    # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch via
-    # seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded in them.
-    ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-    with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx, initializer=_pool_init) as pool:
-        futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir)) for s in specs]
-        for fut in as_completed(futures):
-            results.append(fut.result())
+    Shards are written pending; one background thread commits them (fsync + rename) while the next
+    shards are built, and every commit has finished when this returns (before the manifest).
+    """
+    from concurrent.futures import ThreadPoolExecutor
+
+    results = []
+    out = Path(out_dir)
+    with ThreadPoolExecutor(max_workers=1) as committer:
+        commits = []
+
+        def collect(result: dict) -> None:
+            results.append(result)
+            if result.get("pending"):
+                commits.append(committer.submit(commit_shard, out / result["entry"]["path"]))
             bar.update(1)
+
+        if workers <= 1 or len(specs) <= 1:
+            for spec in specs:
+                collect(materialise(spec, out_dir, commit=False))
+        else:
+            import multiprocessing as mp
+            from concurrent.futures import ProcessPoolExecutor, as_completed
+
+            # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
+            # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
+            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+            with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx,
+                                     initializer=_pool_init) as pool:
+                futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir)) for s in specs]
+                for fut in as_completed(futures):
+                    collect(fut.result())
+        for c in commits:
+            c.result()
     return results
 
 
@@ -290,8 +400,9 @@ def prepare_output(out: Path, num_shards: int) -> list[str]:
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST_NAME).unlink(missing_ok=True)
     removed = []
-    for p in out.glob(".shard-*.tmp"):
-        p.unlink(missing_ok=True)
+    for pattern in (".shard-*.tmp", ".shard-*.pending"):  # partial writes of an interrupted run
+        for p in out.glob(pattern):
+            p.unlink(missing_ok=True)
     for p in sorted(out.glob("shard-*.arrow")):
         try:
             idx = int(p.stem.split("-")[1])

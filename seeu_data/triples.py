@@ -33,6 +33,8 @@ from .schema import arrow_schema
 
 SCHEMA = "seeu.triples"
 PLAN_KEY = b"seeu.shard_plan_sha256"
+_POSED_COLUMNS = ["source_frame", "image", "image_format", "width", "height", "intrinsics_norm", "cam_to_world",
+                  "near", "far"]
 _PER_VIEW = ("frame_index", "source_frame", "image", "width", "height", "intrinsics_norm", "cam_to_world", "near", "far")
 
 
@@ -90,7 +92,7 @@ class _SceneTables:
         first = rows.column("scene_id")[0].as_py()
         if first != scene_id:
             raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", path)
-        return rows
+        return rows.select(_POSED_COLUMNS)
 
 
 def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.DataType) -> pa.Array:

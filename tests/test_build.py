@@ -244,3 +244,26 @@ def test_inspect_statistics_and_sheet(posed, tmp_path, capsys):
 def test_progress_bar_on_request(posed, tmp_path, capsys):
     assert _build(posed, tmp_path / "p", "--progress") == 0
     assert "seeu build" in capsys.readouterr().err
+
+
+def test_hashed_writer_matches_arrow_io_and_pending_leftovers_are_cleared(posed, tmp_path):
+    import pyarrow as pa
+
+    from seeu_data.arrow_io import sha256_file, write_table
+    from seeu_data.build import pending_path, write_ipc_hashed
+
+    table = pa.table({"a": np.arange(5000), "b": [bytes([i % 251]) * (i % 300) for i in range(5000)]})
+    size, digest = write_ipc_hashed(tmp_path / "x.arrow", table, 64)
+    write_table(tmp_path / "y.arrow", table, max_chunksize=64)
+    assert (tmp_path / "x.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
+    assert size == (tmp_path / "x.arrow").stat().st_size and digest == sha256_file(tmp_path / "x.arrow")
+    assert not pending_path(tmp_path / "x.arrow").exists()
+    # an interrupted run leaves a pending shard and no manifest; the re-run clears it and completes
+    out = tmp_path / "b"
+    assert _build(posed, out) == 0
+    good = _shard_bytes(out)
+    (out / "manifest.json").unlink()
+    (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))
+    assert _build(posed, out) == 0
+    assert _shard_bytes(out) == good and not list(out.glob(".*"))
+    assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == len(good) - 1
