@@ -4,7 +4,8 @@ Generates realistic chunks in a temporary directory (default 4 chunks of ~25 MB:
 360x640 JPEGs, ~50 KB each), then measures, side by side and interleaved, in fresh child processes:
 
 * baseline: `torch.load(chunk, weights_only=True)` of every chunk, nothing else;
-* import:   `seeu import pixelsplat` (load, convert cameras, probe image headers, write Arrow + manifest).
+* input side: the importer's reading alone (chunks, cameras, image headers, Arrow columns), no output;
+* import:   `seeu import pixelsplat` (all of the above, then write + sha256 the Arrow files + manifest).
 
 Prints wall time, MB/s, frames/s and CPU time of both, the ratio import/baseline (target >= 0.8)
 and each child's peak RSS, also as growth over the RSS after the library imports: torch.load holds
@@ -77,7 +78,7 @@ def child(mode: str, data: Path, out: Path) -> None:
     t_imports = time.perf_counter()
     import torch  # noqa: F401
 
-    if mode == "import":
+    if mode in ("import", "read"):
         import pyarrow as pa
 
         from seeu_data.importers import ImportReport, write_import
@@ -92,6 +93,11 @@ def child(mode: str, data: Path, out: Path) -> None:
         for path in sorted((data / "test").glob("*.torch")):
             chunk = torch.load(path, map_location="cpu", weights_only=True)
             del chunk
+        seconds = time.perf_counter() - t0
+    elif mode == "read":  # the importer's input side alone: read chunks, convert, probe, build columns
+        t0 = time.perf_counter()
+        for _ in ps.iter_scenes(ps.PixelSplatImportConfig(root=data, stage="test")):
+            pass
         seconds = time.perf_counter() - t0
     else:
         t0 = time.perf_counter()
@@ -122,7 +128,7 @@ def main() -> None:
     ap.add_argument("--chunks", type=int, default=4)
     ap.add_argument("--chunk-mb", type=float, default=25.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--child", choices=["load", "import"])
+    ap.add_argument("--child", choices=["load", "read", "import"])
     ap.add_argument("--data", type=Path)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
@@ -135,20 +141,24 @@ def main() -> None:
         nbytes, frames = make_dataset(tmp / "chunks", args.chunks, args.chunk_mb)
         print(f"dataset: {args.chunks} chunks, {nbytes / 1e6:.1f} MB of JPEG, {frames} frames (360x640)")
         run_child("load", tmp / "chunks", tmp / "warm")  # warm the page cache for both
-        loads, imports = [], []
+        loads, reads, imports = [], [], []
         for r in range(args.repeats):
             loads.append(run_child("load", tmp / "chunks", tmp / f"x{r}"))
+            reads.append(run_child("read", tmp / "chunks", tmp / f"x{r}"))
             imports.append(run_child("import", tmp / "chunks", tmp / f"out{r}"))
         t_load = statistics.median(x["seconds"] for x in loads)
+        t_read = statistics.median(x["seconds"] for x in reads)
         t_imp = statistics.median(x["seconds"] for x in imports)
         c_load = statistics.median(x["cpu_s"] for x in loads)
         c_imp = statistics.median(x["cpu_s"] for x in imports)
         for name, t, c, runs in (("torch.load alone", t_load, c_load, loads),
+                                 ("import, input side only", t_read, statistics.median(x["cpu_s"] for x in reads), reads),
                                  ("seeu import pixelsplat", t_imp, c_imp, imports)):
             print(f"{name:24s} {t:7.3f} s  {nbytes / 1e6 / t:8.1f} MB/s  {frames / t:8.0f} frames/s  "
                   f"CPU {c:6.3f} s  peak RSS {max(x['maxrss_mb'] for x in runs):6.0f} MB "
                   f"(+{max(x['growth_mb'] for x in runs):5.1f} MB over the libraries)  "
                   f"(library imports {statistics.median(x['imports_s'] for x in runs):.2f} s, untimed)")
+        print(f"ratio input side / torch.load: {t_load / t_read:.2f}x (reading, converting, probing images)")
         print(f"ratio import / torch.load throughput (wall, median of {args.repeats}): {t_load / t_imp:.2f}x "
               f"(target >= 0.8x); CPU-time ratio {c_load / c_imp:.2f}x; largest chunk {args.chunk_mb:.0f} MB")
         print(f"machine load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
