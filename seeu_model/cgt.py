@@ -10,9 +10,11 @@ DiT blocks:
     x <- x + (1 + g1) * SelfAttn(modulate(LN(x), shift1, scale1))     global over all V*h*w tokens
     x <- x + CrossAttn(LN(x), E)                                     the condition tokens
     x <- x + (1 + g2) * MLP(modulate(LN(x), shift2, scale2))
-with (shift, scale, g) from an adaLN MLP of the mean condition token (zero-initialised: identity
-modulation). The output layer (adaLN-modulated LayerNorm, then a linear map to C) is zero-initialised,
-so at initialisation the residual is exactly zero and the refined tokens equal the coarse ones.
+with (shift, scale, g) from an adaLN MLP of the mean condition token, first projected to the hidden
+width as DiT embeds its condition. Unlike DiT's adaLN-Zero, the modulation starts near the identity
+(weights N(0, 0.02), zero bias) rather than at zero, so that one optimiser step opens every gradient path;
+only the output layer (adaLN-modulated LayerNorm, then a linear map to C) is zero-initialised, so at
+initialisation the residual is exactly zero and the refined tokens equal the coarse ones.
 """
 
 from __future__ import annotations
@@ -29,7 +31,7 @@ def modulate(x: torch.Tensor, shift: torch.Tensor, scale: torch.Tensor) -> torch
 
 
 class DiTBlock(nn.Module):
-    """(B, T, hidden) tokens, condition tokens (B, L, cond_dim), pooled condition (B, cond_dim) -> (B, T, hidden)."""
+    """(B, T, hidden) tokens, condition tokens (B, L, cond_dim), pooled condition (B, hidden) -> (B, T, hidden)."""
 
     def __init__(self, hidden: int, heads: int, mlp_ratio: float, cond_dim: int):
         super().__init__()
@@ -39,8 +41,8 @@ class DiTBlock(nn.Module):
         self.cross_attn = Attention(hidden, heads, context_dim=cond_dim)
         self.norm2 = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
         self.mlp = FeedForward(hidden, mlp_ratio)
-        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(cond_dim, 6 * hidden))
-        nn.init.zeros_(self.ada[-1].weight)
+        self.ada = nn.Sequential(nn.SiLU(), nn.Linear(hidden, 6 * hidden))
+        nn.init.normal_(self.ada[-1].weight, std=0.02)
         nn.init.zeros_(self.ada[-1].bias)
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor, pooled: torch.Tensor) -> torch.Tensor:
@@ -58,20 +60,22 @@ class ConditionalGaussianTransformer(nn.Module):
         super().__init__()
         self.hidden = hidden
         self.embed = nn.Linear(channels, hidden)
+        self.cond_embed = nn.Linear(cond_dim, hidden)
         self.blocks = nn.ModuleList(DiTBlock(hidden, heads, mlp_ratio, cond_dim) for _ in range(layers))
         self.norm_out = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
-        self.ada_out = nn.Sequential(nn.SiLU(), nn.Linear(cond_dim, 2 * hidden))
+        self.ada_out = nn.Sequential(nn.SiLU(), nn.Linear(hidden, 2 * hidden))
         self.out = nn.Linear(hidden, channels)
-        for lin in (self.ada_out[-1], self.out):
-            nn.init.zeros_(lin.weight)
-            nn.init.zeros_(lin.bias)
+        nn.init.normal_(self.ada_out[-1].weight, std=0.02)
+        nn.init.zeros_(self.ada_out[-1].bias)
+        nn.init.zeros_(self.out.weight)  # the residual is exactly zero at initialisation
+        nn.init.zeros_(self.out.bias)
 
     def forward(self, latent: torch.Tensor, cond: torch.Tensor) -> torch.Tensor:
         b, v, h, w, c = latent.shape
         pos = sine_positions_2d(h, w, self.hidden, latent.device, latent.dtype)  # (hw, hidden)
         x = self.embed(latent).reshape(b, v, h * w, self.hidden) + pos
         x = x.reshape(b, v * h * w, self.hidden)  # B (V h w) C
-        pooled = cond.mean(1)
+        pooled = self.cond_embed(cond.mean(1))  # (B, hidden)
         for block in self.blocks:
             x = block(x, cond, pooled)
         shift, scale = self.ada_out(pooled).chunk(2, dim=-1)

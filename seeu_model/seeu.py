@@ -47,6 +47,7 @@ class SeeUEncoding:
 
     gaussians:         refined Gaussians, N = V*H*W (view-major, row-major pixels)
     coarse_gaussians:  the unrefined latent tokens decoded the same way ("w/o refinement"), N = V*H*W
+                       (None when not asked for: `encode`, `forward` without ``render_coarse``)
     latent_gaussians:  the coarse Gaussians on the latent grid (pixel-aligned centres at the matched depth), N = V*h*w
     depth:             (B, V, H, W) depth of the refined Gaussians
     coarse_depth:      (B, V, h, w) softmax-expected plane-sweep depth
@@ -59,7 +60,7 @@ class SeeUEncoding:
     """
 
     gaussians: Gaussians
-    coarse_gaussians: Gaussians
+    coarse_gaussians: Gaussians | None
     latent_gaussians: Gaussians
     depth: torch.Tensor
     coarse_depth: torch.Tensor
@@ -174,9 +175,10 @@ class SeeU(nn.Module):
             raise ValueError(f"context images must have H and W divisible by {unit} "
                              f"(s={self.cfg.downsample}, {self.cfg.mv_windows} shifted windows); got {h}x{w}")
 
-    def encode_all(self, context: dict) -> SeeUEncoding:
+    def encode_all(self, context: dict, decode_coarse: bool = True) -> SeeUEncoding:
         """context: image (B, V, 3, H, W) in [0, 1], cam_to_world (B, V, 4, 4), intrinsics (B, V, 3, 3)
-        normalised, near/far (B, V)  ->  SeeUEncoding."""
+        normalised, near/far (B, V)  ->  SeeUEncoding. With ``decode_coarse=False`` the unrefined tokens
+        are not decoded (``coarse_gaussians`` is then None; `encode` uses this)."""
         self._check_context(context)
         images = context["image"]
         c2w, intr = context["cam_to_world"], context["intrinsics"]
@@ -202,9 +204,10 @@ class SeeU(nn.Module):
         refined = latent + residual
 
         gaussians, depth = self.decoder(refined, images, c2w, intr, near, far)
+        coarse_gaussians = None
         if self.refiner is None:
             coarse_gaussians = gaussians
-        else:
+        elif decode_coarse:
             coarse_gaussians, _ = self.decoder(latent, images, c2w, intr, near, far)
         latent_gaussians, _ = gaussians_from_params(latent.permute(0, 1, 4, 2, 3), c2w, intr, near, far, self.layout,
                                                     self.cfg.scale_min, self.cfg.scale_max)
@@ -213,7 +216,7 @@ class SeeU(nn.Module):
 
     def encode(self, context: dict) -> Gaussians:
         """context (as in `encode_all`) -> refined Gaussians (B, V*H*W, ...)."""
-        return self.encode_all(context).gaussians
+        return self.encode_all(context, decode_coarse=False).gaussians
 
     # ------------------------------------------------------------------------------------------
     # Rendering
@@ -231,7 +234,7 @@ class SeeU(nn.Module):
     def forward(self, batch: dict, render_coarse: bool = False, background=None, backend: str = "auto") -> SeeUOutput:
         """batch: the loader layout ("context" and optionally "target" dicts) -> SeeUOutput with the
         target views rendered at the target images' size (context size when no target image is given)."""
-        enc = self.encode_all(batch["context"])
+        enc = self.encode_all(batch["context"], decode_coarse=render_coarse)
         target = batch.get("target")
         render = coarse = None
         if target is not None:
@@ -255,5 +258,6 @@ def parameter_counts(model: SeeU) -> "OrderedDict[str, tuple[int, int]]":
             key = name if sub is module else f"{name}.{sub_name}"
             trainable = sum(p.numel() for p in sub.parameters() if p.requires_grad)
             frozen = sum(p.numel() for p in sub.parameters() if not p.requires_grad)
-            counts[key] = (trainable, frozen)
+            if trainable or frozen:
+                counts[key] = (trainable, frozen)
     return counts

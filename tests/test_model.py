@@ -62,7 +62,7 @@ def test_forward_backward_gradients_reach_every_trainable_module_and_not_the_fro
     assert not semantic.training and model.training  # frozen encoder stays in eval mode
     assert all(not p.requires_grad for p in semantic.parameters())
     batch = _batch()
-    out = model(batch)
+    out = model(batch, render_coarse=True)
     b, v, t = 1, 2, 1
     ent = out.entropy.detach()
     assert out.render.color.shape == (b, t, 3, 64, 64)
@@ -75,6 +75,7 @@ def test_forward_backward_gradients_reach_every_trainable_module_and_not_the_fro
     # At initialisation the refiner's residual is exactly zero: refined == coarse.
     assert torch.count_nonzero(out.encoding.residual) == 0
     assert _gaussians_equal(out.gaussians, out.coarse_gaussians)
+    assert torch.equal(out.render.color, out.coarse_render.color)
 
     # The zero-initialised output layer blocks gradients to the refiner's inner layers at step 0
     # (d residual / d inner = W_out = 0); one optimiser step opens it, as in training.
@@ -89,7 +90,10 @@ def test_forward_backward_gradients_reach_every_trainable_module_and_not_the_fro
     assert no_grad == []
     assert all(p.grad is None for p in semantic.parameters())
     # After the step the refinement is active.
-    assert not _gaussians_equal(out.gaussians, out.coarse_gaussians)
+    with torch.no_grad():
+        enc = model.encode_all(batch["context"])
+    assert torch.count_nonzero(enc.residual) > 0
+    assert not _gaussians_equal(enc.gaussians, enc.coarse_gaussians)
 
 
 @pytest.mark.parametrize("refiner,condition", [("unet", "cea"), ("transformer", "cls")])
@@ -226,3 +230,18 @@ def test_parameter_counts_split_trainable_and_frozen(tiny_model):
     total_trainable = sum(t for t, _ in counts.values())
     assert total_trainable == sum(p.numel() for p in tiny_model.trainable_parameters())
     assert sum(f for _, f in counts.values()) == sum(p.numel() for p in tiny_model.parameters() if not p.requires_grad)
+
+
+def test_model_info_cli_prints_counts(capsys, tmp_path):
+    from pipelines.cli import main
+
+    out_json = tmp_path / "counts.json"
+    assert main(["model-info", "--preset", "tiny", "--json", str(out_json)]) == 0
+    text = capsys.readouterr().out
+    assert "condition.semantic" in text and "MVSplat" in text and "12.0 M" in text
+    import json
+
+    data = json.loads(out_json.read_text())
+    model = SeeU(SeeUConfig.tiny())
+    assert data["total_trainable"] == sum(p.numel() for p in model.trainable_parameters())
+    assert data["modules"]["condition.semantic"]["trainable"] == 0
