@@ -29,7 +29,6 @@ from seeu_data.cameras import unproject_pixels  # noqa: E402
 from seeu_model.gaussians import Gaussians  # noqa: E402
 from seeu_model.rasterizer import rasterize  # noqa: E402
 
-THREADS = 2
 
 
 def pixel_aligned_scene(size: int, views: int = 2, seed: int = 0):
@@ -73,8 +72,9 @@ def _rss_mib() -> float:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def _measure_worker(backend: str, size: int, repeats: int, tile_size: int | None, device: str, queue) -> None:
-    torch.set_num_threads(THREADS)
+def _measure_worker(backend: str, size: int, repeats: int, tile_size: int | None, device: str, threads: int,
+                    queue) -> None:
+    torch.set_num_threads(threads)
     g, c2w, k = pixel_aligned_scene(size)
     g, c2w, k = g.map(lambda t: t.to(device)), c2w.to(device), k.to(device)
     base = _rss_mib()
@@ -89,11 +89,12 @@ def _measure_worker(backend: str, size: int, repeats: int, tile_size: int | None
     queue.put((statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs), peak))
 
 
-def measure(backend: str, size: int, repeats: int, tile_size: int | None, device: str = "cpu") -> tuple[float, float, float]:
+def measure(backend: str, size: int, repeats: int, tile_size: int | None, device: str = "cpu",
+            threads: int = 2) -> tuple[float, float, float]:
     """(median wall s, median CPU s, peak memory MiB above the scene) in a fresh process, so peaks do not mix."""
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
-    proc = ctx.Process(target=_measure_worker, args=(backend, size, repeats, tile_size, device, queue))
+    proc = ctx.Process(target=_measure_worker, args=(backend, size, repeats, tile_size, device, threads, queue))
     proc.start()
     result = queue.get()
     proc.join()
@@ -101,7 +102,6 @@ def measure(backend: str, size: int, repeats: int, tile_size: int | None, device
 
 
 def main() -> None:
-    global THREADS
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", type=int, nargs="+", default=[64, 128])
     ap.add_argument("--repeats", type=int, default=3)
@@ -110,14 +110,14 @@ def main() -> None:
     ap.add_argument("--no-dense", action="store_true", help="skip the dense baseline")
     ap.add_argument("--cuda", action="store_true", help="also time torch and gsplat backends on the GPU")
     args = ap.parse_args()
-    THREADS = args.threads
-    print(f"torch {torch.__version__}, {THREADS} threads, float32, 2 views, tile {args.tile_size or 'default'}; "
+    print(f"torch {torch.__version__}, {args.threads} threads, float32, 2 views, tile {args.tile_size or 'default'}; "
           "times are median wall (CPU) seconds of forward+backward; memory is peak RSS above the scene")
     for size in args.sizes:
-        wall, cpu, mem = measure("torch", size, args.repeats, args.tile_size)
+        wall, cpu, mem = measure("torch", size, args.repeats, args.tile_size, threads=args.threads)
         line = f"{size}^2 Gaussians @ {size}^2: tiled {wall:.3f} s ({cpu:.3f} s CPU), {mem:.0f} MiB"
         if not args.no_dense:
-            d_wall, d_cpu, d_mem = measure("dense", size, args.repeats if size <= 64 else 1, args.tile_size)
+            d_wall, d_cpu, d_mem = measure("dense", size, args.repeats if size <= 64 else 1, args.tile_size,
+                                           threads=args.threads)
             line += (f"; dense {d_wall:.3f} s ({d_cpu:.3f} s CPU), {d_mem:.0f} MiB; "
                      f"dense/tiled = {d_wall / wall:.1f}x wall, {d_cpu / cpu:.1f}x CPU")
         print(line, flush=True)

@@ -150,7 +150,7 @@ def test_gradcheck_tiled_compositor():
     """The hand-written backward of the tiled compositing against finite differences (float64)."""
     dtype = torch.float64
     gen = torch.Generator().manual_seed(2)
-    n, w, h, tile = 5, 7, 6, 4
+    n, w, h, tile = 4, 7, 4, 4  # two tiles, the second one partly outside the image
     means2d = (torch.rand(n, 2, generator=gen, dtype=dtype) * torch.tensor([w, h], dtype=dtype)).requires_grad_()
     sig = torch.rand(n, 2, generator=gen, dtype=dtype) + 0.8
     rho = torch.rand(n, generator=gen, dtype=dtype) * 0.6 - 0.3
@@ -184,7 +184,7 @@ def test_gradcheck_end_to_end():
         return out.color, out.depth, out.alpha
 
     leaves = [t.clone().requires_grad_() for t in _fields(g)]
-    assert float(f(*leaves)[2].max()) > 0.3
+    assert float(f(*leaves)[2].detach().max()) > 0.3
     assert torch.autograd.gradcheck(f, leaves, eps=1e-6, atol=1e-6, fast_mode=True)
 
 

@@ -35,7 +35,7 @@ def bin_gaussians(proj: Projected, width: int, height: int, tile_size: int) -> t
     with torch.no_grad():
         order = torch.sort(torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, float("inf"))),
                            dim=-1, stable=True).indices  # (C, N)
-        ext = torch.gather(proj.extents(), 1, order[..., None].expand(n_cam, n, 2)) + _MARGIN
+        ext = torch.gather(proj.extents(), 1, order[..., None].expand(n_cam, n, 2)) * (1 + 1e-5) + _MARGIN
         mean = torch.gather(proj.means2d.detach(), 1, order[..., None].expand(n_cam, n, 2))
         vis = torch.gather(proj.valid & (proj.opacities.detach() >= ALPHA_MIN), 1, order)
         # pixel columns j with |j + 0.5 - mx| <= ext_x, then their tiles (same for rows)
