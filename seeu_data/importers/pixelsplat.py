@@ -144,7 +144,11 @@ def _torch_load(path: Path):
 
 def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: str, sidecar: dict | None
                        ) -> PosedScene:
-    """One chunk example -> PosedScene (SeeUError when the example is malformed)."""
+    """One chunk example -> PosedScene (SeeUError when the example is malformed).
+
+    The scene's `images` is a pyarrow BinaryArray over one contiguous copy of the encoded bytes
+    (what `PosedScene.to_record_batch` passes through without another copy), not a list of bytes.
+    """
     key = example["key"]
     where = f"{chunk_name}:{key}"
     missing = [k for k in EXAMPLE_KEYS if k not in example]
