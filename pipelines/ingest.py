@@ -26,8 +26,8 @@ from pathlib import Path
 
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
-DECODE_STAGE_FORMAT = 1
-SFM_STAGE_FORMAT = 2
+DECODE_STAGE_FORMAT = 2
+SFM_STAGE_FORMAT = 3
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -92,11 +92,8 @@ def _decode_stage(source, cfg: IngestConfig, progress: bool):
     def fn(d: Path) -> dict:
         frames_dir = d / "frames"
         frames_dir.mkdir()
-        total = None
-        if source.kind == "video":
-            total = -(-probe_video(source.path).frame_count // cfg.stride)
-        else:
-            total = -(-len(source.image_files) // cfg.stride)
+        in_source = probe_video(source.path).frame_count if source.kind == "video" else len(source.image_files)
+        total = -(-in_source // cfg.stride)
         frames, size = [], None
         for fr in tqdm(iter_frames(source, cfg.stride), total=total, desc=f"{source.name} decode", unit="frame",
                        disable=not progress, leave=False):
@@ -113,7 +110,7 @@ def _decode_stage(source, cfg: IngestConfig, progress: bool):
                            "source_name": fr.source_name, "sharpness": sharpness(rgb)})
         if not frames:
             raise SeeUError("no frames decoded", source.path)
-        return {"frames": frames, "width": int(size[1]), "height": int(size[0])}
+        return {"frames": frames, "width": int(size[1]), "height": int(size[0]), "frames_in_source": int(in_source)}
 
     return fn
 
@@ -194,7 +191,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                         f"need at least {need}", source.path)
 
     names = [f["name"] for f in frames]
-    sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": asdict(sfm_cfg), "format": SFM_STAGE_FORMAT}
+    sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "num_threads"}  # threads don't change results
+    sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
     sfm_result, _ = cache.run("sfm", sfm_key, lambda d: run_sfm(cache.stage_dir("decode") / "frames", names, d,
                                                                  sfm_cfg, source.path, progress))
 
@@ -214,7 +212,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=source.fingerprint())
     report = {
         "scene": source.name, "input": str(source.path), "input_kind": source.kind,
-        "frames_decoded": None, "frames_candidates": len(frames_all), "frames_selected": len(frames),
+        "frames_decoded": decoded["frames_in_source"], "frames_candidates": len(frames_all), "frames_selected": len(frames),
         "registered": registered, "registration_rate": registered / len(frames),
         "frames_in_chunks": sum(len(c.frame_positions) for c in chunks),
         "mean_reprojection_error_px": mean_reprojection_error(sfm_result["models"]),
@@ -222,14 +220,14 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 "timings_s": sfm_result.get("timings", {}),
                 "models": [{"index": m["index"], "registered": len(m["images"]), "points3D": m["num_points3D"],
                             "mean_reprojection_error_px": m["mean_reprojection_error"], "camera": m["camera"],
-                            "undistorted": m["undistorted"]} for m in sfm_result["models"]]},
+                            "undistorted": m["undistorted"]} for m in sfm_result["models"]],
+                "discarded_models": sfm_result.get("discarded_models", [])},
         "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
                     "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],
                     "near": c.near, "far": c.far, "sfm_model": c.model_index} for c in chunks],
         "dropped_frames": dropped,
         "output": str(out_dir),
     }
-    report["frames_decoded"] = (frames_all[-1]["source_frame"] + 1) if source.kind == "video" else len(source.image_files)
     gt = _ground_truth_accuracy(source, frames, chunks, registered, len(frames))
     if gt is not None:
         report["ground_truth"] = gt

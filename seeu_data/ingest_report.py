@@ -1,6 +1,6 @@
 """The ingest report: `report.json`, `trajectory.png` (matplotlib Agg) and one summary line.
 
-report.json keys: scene, input, frames_decoded, frames_candidates (after --stride),
+report.json keys: scene, input, frames_decoded (frames in the source), frames_candidates (after --stride),
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
 mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, models: [...]},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model}],

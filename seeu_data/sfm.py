@@ -16,7 +16,7 @@ Output directory layout::
 
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
-"world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "num_keypoints",
+"world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
 "num_verified_pairs", "timings": {...}} or {"error": "..."}.
 """
 
@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -117,10 +118,11 @@ def _last_log_line(path: Path) -> str:
         lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
     except OSError:
         return "(no log)"
-    for ln in reversed(lines):
-        if ln[:1] in "EF" or "Check failed" in ln or "rror" in ln:
-            return ln[-300:]
-    return lines[-1][-300:] if lines else "(empty log)"
+    pick = next((ln for ln in reversed(lines) if ln[:1] in "EF" or "Check failed" in ln or "rror" in ln),
+                lines[-1] if lines else "(empty log)")
+    pick = re.sub(r"^[IWEF]\d{8} [\d:.]+ +\d+ [\w.]+:\d+\] ", "", pick)  # glog prefix
+    return pick if len(pick) <= 200 else pick[:197] + "..."
+
 
 
 # ---------------------------------------------------------------------------------------------
@@ -229,10 +231,22 @@ def _child(job_path: str) -> int:
         return fail("SfM found no model: no frame pair with enough parallax "
                     "(static camera, blank frames, or too few overlapping frames)")
 
+    # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
+    # poor initial pair, with an implausible focal length): keep only models adding new frames.
+    kept, discarded, seen = [], [], set()
+    for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
+        names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
+        if len(names_k & seen) > 0.5 * len(names_k):
+            discarded.append({"index": int(k), "registered": len(names_k),
+                              "reason": "mostly re-registers frames of a larger model"})
+            continue
+        seen |= names_k
+        kept.append(k)
+
     _emit("stage", "export")
     t0 = time.perf_counter()
     models = []
-    for k in sorted(recs):
+    for k in sorted(kept):
         rec = recs[k]
         model_dir = sparse / str(k)
         model_dir.mkdir(exist_ok=True)
@@ -250,7 +264,8 @@ def _child(job_path: str) -> int:
         models.append(_export_model(und_rec, k, str(und / "images"), out, undistorted=True))
         models[-1]["camera_distorted"] = _camera_dict(camera)
     timings["export_s"] = time.perf_counter() - t0
-    (out / "result.json").write_text(json.dumps({"models": models, "num_keypoints": num_kp,
+    (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
+                                                 "num_keypoints": num_kp,
                                                  "num_verified_pairs": num_pairs, "timings": timings}))
     return 0
 

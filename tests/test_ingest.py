@@ -284,3 +284,52 @@ def test_failed_rerun_invalidates_previous_output(ingested, tmp_path, capsys):
     _write_video(vid, [np.full((96, 160, 3), 128, np.uint8)] * 12)
     _expect_failure(["ingest", str(vid), "--out", str(out)], capsys, "walk.mp4")
     _no_complete_output(out)
+
+
+def test_image_folders_and_folder_of_videos(tmp_path, clip, capsys):
+    imgs = tmp_path / "photos"
+    imgs.mkdir()
+    (src,) = discover_sources([clip])
+    for fr in iter_frames(src, stride=3):
+        cv2.imwrite(str(imgs / f"img{fr.source_frame}.png"), cv2.cvtColor(fr.rgb, cv2.COLOR_RGB2BGR))
+    (folder,) = discover_sources([imgs])
+    assert folder.kind == "images" and folder.name == "photos"
+    frames = list(iter_frames(folder, stride=2))
+    # natural order (img3 before img12), source_frame = position in the folder, names kept
+    assert [f.source_name for f in frames] == [f"img{i}.png" for i in range(0, N, 6)]
+    assert [f.source_frame for f in frames] == list(range(0, N // 3, 2))
+    vids = tmp_path / "videos"
+    vids.mkdir()
+    shutil.copy(clip, vids / "a.mp4")
+    shutil.copy(clip, vids / "b.mov")
+    assert [(s.name, s.kind) for s in discover_sources([vids])] == [("a", "video"), ("b", "video")]
+    # frames of different sizes cannot share one camera: one line, before any SfM
+    small = cv2.resize(cv2.imread(str(imgs / "img3.png")), (100, 60))
+    cv2.imwrite(str(imgs / "img4.png"), small)
+    _expect_failure(["ingest", str(imgs), "--out", str(tmp_path / "out")], capsys, "img4.png", "differs")
+    _no_complete_output(tmp_path / "out")
+
+
+def test_demo_small(tmp_path, capsys):
+    argv = ["demo", "--out", str(tmp_path / "demo"), "--frames", "30", "--size", "320x180"]
+    assert cli_main(argv) == 0
+    out = capsys.readouterr().out
+    assert "trajectory.png" in out and "vs ground truth" in out
+    report = json.loads((tmp_path / "demo" / "posed" / "clip" / "report.json").read_text())
+    assert report["registered"] >= 28
+    validate_dataset(tmp_path / "demo" / "posed" / "clip")
+    assert cli_main(argv) == 0  # resumes: clip and stages reused
+    assert "reusing" in capsys.readouterr().out
+    report2 = json.loads((tmp_path / "demo" / "posed" / "clip" / "report.json").read_text())
+    assert all(report2["reused"].values())
+
+
+def test_colmap_abort_in_child_is_one_line(clip, tmp_path, capsys):
+    """An invalid vocabulary tree makes COLMAP abort (SIGABRT): only the child dies; the user gets one line."""
+    bogus = tmp_path / "vocab.bin"
+    bogus.write_bytes(b"not a vocabulary tree")
+    _expect_failure(["ingest", str(clip), "--out", str(tmp_path / "out"), "--target-frames", "8",
+                     "--min-chunk-frames", "3", "--vocab-tree", str(bogus)], capsys, "walk.mp4", "COLMAP aborted")
+    _expect_failure(["ingest", str(clip), "--out", str(tmp_path / "out"), "--vocab-tree", str(tmp_path / "none.bin")],
+                    capsys, "none.bin", "vocabulary-tree file not found")
+    _no_complete_output(tmp_path / "out")
