@@ -333,3 +333,26 @@ def test_colmap_abort_in_child_is_one_line(clip, tmp_path, capsys):
     _expect_failure(["ingest", str(clip), "--out", str(tmp_path / "out"), "--vocab-tree", str(tmp_path / "none.bin")],
                     capsys, "none.bin", "vocabulary-tree file not found")
     _no_complete_output(tmp_path / "out")
+
+
+def test_split_clip_gives_two_chunks_and_reports_dropped_frames(tmp_path):
+    """Frames 16-21 of a 38-frame walk are blank: SfM cannot register them, the run splits into two
+    chunks, each accurate against the ground truth, and the report names the dropped frames."""
+    n, blank = 38, range(16, 22)
+    scene = make_scene(0)
+    poses = camera_path(n)
+    intr = default_intrinsics_norm(W, H)
+    frames = [np.full((H, W, 3), 128, np.uint8) if i in blank else render_view(scene, poses[i], intr, W, H)[0]
+              for i in range(n)]
+    vid = _write_video(tmp_path / "split.mp4", frames)
+    assert cli_main(["ingest", str(vid), "--out", str(tmp_path / "out")]) == 0
+    report = json.loads((tmp_path / "out" / "split" / "report.json").read_text())
+    assert [c["scene_id"] for c in report["chunks"]] == ["split_c0", "split_c1"]
+    assert report["chunks"][0]["source_frames"][1] < 16 and report["chunks"][1]["source_frames"][0] > 21
+    dropped = {d["source_frame"]: d["reason"] for d in report["dropped_frames"]}
+    assert set(blank) <= set(dropped) and all("not registered" in dropped[i] for i in blank)
+    ds = PosedDataset(tmp_path / "out" / "split", verify=True)
+    for sid in ds.scene_ids:
+        s = ds.load_scene(sid)
+        acc = pose_accuracy(s.cam_to_world, poses[s.source_frame])
+        assert acc.centre_rmse_pct_path < 0.5 and acc.rel_rot_err_mean_deg < 0.2, (sid, acc)
