@@ -157,20 +157,22 @@ def _blob_rows(src_hw, point):
     return rows_fn
 
 
-def test_known_frame_pixels_and_cameras_match_the_crop_math(tmp_path):
+@pytest.mark.parametrize("interpolation", ["linear", "area"])
+def test_known_frame_pixels_and_cameras_match_the_crop_math(tmp_path, interpolation):
     src_hw, out_hw = (60, 100), (32, 32)
     point = np.array([0.25, 0.05, 0.3])
     ds = write_triples(tmp_path / "ds", [2], rows_fn=_blob_rows(src_hw, point))
     (sh, sw), (oy, ox) = (32, 53), (0, 10)  # closed form: scale 32/60 -> 32x53.33 -> 32x53, crop 10 px each side
     assert cameras.cover_crop_geometry(src_hw, out_hw) == ((sh, sw), (oy, ox))
-    plain = list(loader(ds, tmp_path, batch_size=2, image_hw=out_hw, shuffle=False))[0]
-    mirrored = list(loader(ds, tmp_path, batch_size=2, image_hw=out_hw, shuffle=False, flip_p=1.0))[0]
+    kw = dict(batch_size=2, image_hw=out_hw, shuffle=False, interpolation=interpolation)
+    plain = list(loader(ds, tmp_path, **kw))[0]
+    mirrored = list(loader(ds, tmp_path, flip_p=1.0, **kw))[0]
     for i, j in enumerate([0, 1]):
         row = row_dict(0, j, 2, 3, src_hw, gap=3)
         for v in range(5):
             part, k = ("context", v) if v < 2 else ("target", v - 2)
             img = plain[part]["image"][i, k].numpy() * 255  # (3, H, W) RGB
-            # Pixels: area resampling of a linear ramp is the ramp at the output pixel's centre.
+            # Pixels: area or bilinear resampling of a linear ramp is the ramp at the output pixel's centre.
             x_src = (np.arange(32) + ox + 0.5) * 100 / sw - 0.5
             y_src = (np.arange(32) + oy + 0.5) * 60 / sh - 0.5
             assert np.abs(img[2][:, 1:-1] - 2 * x_src[None, 1:-1]).max() < 1.01

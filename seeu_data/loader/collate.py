@@ -15,26 +15,31 @@ from typing import Sequence
 
 import numpy as np
 import torch
+from torch.utils.data import get_worker_info
 
 from ..errors import SeeUError
 from .transforms import ViewsSample
 
 
 def images_to_tensor(images: np.ndarray, dtype: str = "float32") -> torch.Tensor:
-    """(..., H, W, 3) uint8 -> (..., 3, H, W) float32 in [0, 1] (contiguous), or uint8 if asked."""
-    u8 = torch.from_numpy(images)
-    nd = u8.dim()
-    perm = u8.permute(*range(nd - 3), nd - 1, nd - 3, nd - 2)
+    """(..., 3, H, W) uint8 -> float32 in [0, 1] (or the uint8 itself), contiguous.
+
+    Inside a DataLoader worker the result is allocated in shared memory up front, so handing the batch
+    to the main process does not copy it again (what PyTorch's default collate does too).
+    """
+    u8 = torch.from_numpy(np.ascontiguousarray(images))
     if dtype == "uint8":
-        return perm.contiguous()
-    out = torch.empty(perm.shape, dtype=torch.float32)
-    out.copy_(perm)
-    return out.mul_(1.0 / 255.0)
+        return u8.clone() if get_worker_info() is None else u8.clone().share_memory_()
+    out = torch.empty(u8.shape, dtype=torch.float32)
+    if get_worker_info() is not None:
+        out.share_memory_()
+    torch.mul(u8, 1.0 / 255.0, out=out)
+    return out
 
 
 def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool], image_dtype: str = "float32",
                   images: np.ndarray | None = None, where: str = "") -> dict:
-    """Stack samples into the batch dict. `images` (B, V, H, W, 3) uint8 if the samples already live in it."""
+    """Stack samples into the batch dict. `images` (B, V, 3, H, W) uint8 if the samples already live in it."""
     if not samples:
         raise ValueError("empty batch")
     vc, v = samples[0].num_context, len(samples[0].frame_index)
