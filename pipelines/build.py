@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import argparse
 import re
-import sys
 
 from seeu_data.errors import SeeUError
 
@@ -127,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         shard_bytes=args.shard_size, rows_per_batch=args.rows_per_batch, engine=args.engine,
         workers=args.workers if args.workers is not None else default_workers(),
         ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs)
-    manifest = build(cfg, " ".join(["seeu", "build"] + sys.argv[2:]))
+    manifest = build(cfg, "seeu build")
     rep = manifest["report"]
     size = sum(f["bytes"] for f in manifest["files"]) / 1e6
     print(f"wrote {manifest['total_rows']} triples in {len(manifest['files'])} shards ({size:.1f} MB) to {args.out}"

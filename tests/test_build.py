@@ -267,3 +267,20 @@ def test_hashed_writer_matches_arrow_io_and_pending_leftovers_are_cleared(posed,
     assert _build(posed, out) == 0
     assert _shard_bytes(out) == good and not list(out.glob(".*"))
     assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == len(good) - 1
+
+
+def test_undecodable_image_names_file_scene_and_frame(tmp_path, capsys):
+    scene = make_posed_scene("bad", n=8, height=16, width=16)
+    scene.images[3] = b"not a jpeg"
+    posed = tmp_path / "posed"
+    with PosedDatasetWriter(posed, params={}, provenance={}) as w:
+        w.add(scene)
+    index = tmp_path / "idx.json"
+    index.write_text(json.dumps({"bad": {"context": [0, 7], "target": [3]}}))
+    out = tmp_path / "o"
+    args = ["build", str(posed), "--out", str(out), "--mode", "eval", "--index", str(index)]
+    assert cli_main([*args, "--resize", "8x8"]) == 2
+    err = capsys.readouterr().err
+    assert "scene 'bad' frame 3: image bytes cannot be decoded" in err and str(next(posed.glob("*.arrow"))) in err
+    assert not (out / "manifest.json").exists() and not list(out.glob("shard-*"))
+    assert cli_main(args) == 0  # without --resize the bytes are copied as they are (validated by the loader)
