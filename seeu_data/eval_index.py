@@ -149,7 +149,9 @@ def generate_entries(cfg: IndexConfig, scene_id: str, cam_to_world: np.ndarray, 
     n = len(cam_to_world)
     if n < min_scene_length(s) or max_gap(s, n) < s.gap_min:
         return None
-    rng = scene_rng(seed, scene_id)
+    # a stream of its own: an index drawn with the same seed and options as a training build does not
+    # repeat that build's samples
+    rng = scene_rng(seed, f"seeu-index/{scene_id}")
     use_overlap = cfg.min_overlap > 0.0 or cfg.max_overlap < 1.0
     depth = cfg.overlap_depth if cfg.overlap_depth is not None else float(np.sqrt(near * far))
     out = []

@@ -142,6 +142,12 @@ def test_seeu_index_generation_round_trip(tmp_path):
     for sid, n in (("s0", 40), ("s1", 60)):
         l, r = doc[sid]["context"]
         assert 10 <= r - l <= 20 and all(l <= t <= r for t in doc[sid]["target"]) and r < n
+    # its own random stream: not the first training sample of a build with the same seed and options
+    from seeu_data.sampling import SamplingConfig, sample_scene
+    train = [sample_scene(SamplingConfig(gap_min=10, gap_max=20, samples_per_scene=1), n, sid, 3)[0]
+             for sid, n in (("s0", 40), ("s1", 60))]
+    assert [(list(t.context), list(t.target)) for t in train] != \
+        [(doc[s]["context"], doc[s]["target"]) for s in ("s0", "s1")]
     out = tmp_path / "ev"
     assert cli_main(["build", str(posed), "--out", str(out), "--mode", "eval", "--index", str(idx_path)]) == 0
     rows = TripleShards(out).rows()
