@@ -41,6 +41,7 @@ class OptimConfig:
 
     lr: float = 2e-4
     betas: tuple[float, float] = (0.9, 0.999)
+    eps: float = 1e-8
     weight_decay: float = 0.01
     warmup_steps: int = 2000
     max_steps: int = 300_000

@@ -108,7 +108,7 @@ class Trainer:
             self.ddp = self.model
         o = cfg.optim
         fused = self.device.type == "cuda"
-        self.optimizer = torch.optim.AdamW(parameter_groups(self.model, o.weight_decay), lr=o.lr, betas=o.betas,
+        self.optimizer = torch.optim.AdamW(parameter_groups(self.model, o.weight_decay), lr=o.lr, betas=o.betas, eps=o.eps,
                                            **({"fused": True} if fused else {}))
         self.scheduler = make_scheduler(self.optimizer, o.warmup_steps, o.max_steps, o.min_lr_ratio)
         self.step = 0

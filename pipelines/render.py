@@ -1,0 +1,244 @@
+"""Render novel views and export the Gaussians (.ply) from a trained checkpoint.
+
+Examples:
+  seeu render --checkpoint runs/cpu/checkpoints --data out/shards/eval --sample 0 --out out/render
+  seeu render --checkpoint runs/re10k/checkpoints --cameras my_views.json --out out/mine --frames 60
+
+Context views come from a triple shard example (`--data`, `--sample` index or sample_id) or from
+your own images with cameras (`--cameras FILE.json`):
+
+  {"near": 0.5, "far": 100.0,
+   "frames": [{"image": "left.jpg",  "cam_to_world": [[...4x4...]], "intrinsics_norm": [fx/W, fy/H, cx/W, cy/H]},
+              {"image": "right.jpg", "cam_to_world": [[...]], "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]}]}
+
+(OpenCV camera-to-world; intrinsics normalised or as a pixel K of the image as stored; image paths
+relative to the JSON file.) Images are resized and centre-cropped to the model's input size with
+the intrinsics updated. The camera path goes from the first to the last context camera (rotation
+along the geodesic, centre on the line): `interp` covers t in [0, 1], `extrap` t in
+[-e, 1 + e] with e = --extrapolate. Writes OUT/frames/{interp,extrap}_NNN.png, OUT/interp.mp4,
+OUT/extrap.mp4, OUT/gaussians.ply (standard 3DGS layout), OUT/context.png, OUT/targets.png
+(shard examples: ground truth over rendering) and OUT/render.json (written last).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--checkpoint", required=True, help="a ckpt-*.pt file or a directory (its newest checkpoint)")
+    src = parser.add_mutually_exclusive_group(required=True)
+    src.add_argument("--data", help="triple shards to take the context views from")
+    src.add_argument("--cameras", help="JSON with your own context images and cameras (see above)")
+    parser.add_argument("--sample", default="0", help="with --data: sample index (in manifest order) or sample_id")
+    parser.add_argument("--out", required=True, help="output directory")
+    parser.add_argument("--frames", type=int, default=30, help="frames per path (default 30)")
+    parser.add_argument("--extrapolate", type=float, default=0.5,
+                        help="extrapolated path runs from t=-e to 1+e (default 0.5)")
+    parser.add_argument("--fps", type=float, default=10.0)
+    parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
+    parser.add_argument("--device", default=None)
+    parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat")
+
+
+def run(args: argparse.Namespace) -> int:
+    from pipelines.evaluate import _parse_hw
+
+    hw = _parse_hw(args.image_size) if args.image_size else None
+    report = render(args.checkpoint, args.out, data=args.data, sample=args.sample, cameras=args.cameras,
+                    frames=args.frames, extrapolate=args.extrapolate, fps=args.fps, image_hw=hw,
+                    device=args.device, rasterizer=args.rasterizer)
+    print(json.dumps(report, indent=2))
+    return 0
+
+
+def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
+    """Context dict (B=1) from a cameras JSON and its images, resized/cropped to `image_hw`."""
+    import numpy as np
+    import torch
+
+    from seeu_data.cameras import intrinsics_norm_from_pixels, intrinsics_norm_matrix, rotation_orthonormality_error
+    from seeu_data.errors import SeeUError
+    from seeu_data.image_ops import decode_rgb, resize_cover_crop, resized_intrinsics
+
+    path = Path(path)
+    if not path.is_file():
+        raise SeeUError("cameras file not found", path)
+    try:
+        doc = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise SeeUError(f"not valid JSON: {exc}", path) from None
+    frames = doc.get("frames") if isinstance(doc, dict) else None
+    if not isinstance(frames, list) or len(frames) < 2:
+        raise SeeUError("need a 'frames' list with at least two context views", path)
+    try:
+        near, far = float(doc["near"]), float(doc["far"])
+    except (KeyError, TypeError, ValueError):
+        raise SeeUError("need numeric 'near' and 'far' (scene depth range in the cameras' units)", path) from None
+    if not 0 < near < far:
+        raise SeeUError(f"need 0 < near < far, got near={near}, far={far}", path)
+    images, poses, intrs = [], [], []
+    for i, f in enumerate(frames):
+        where = f"{path} frame {i}"
+        img_path = (path.parent / str(f.get("image", ""))).resolve()
+        if not img_path.is_file():
+            raise SeeUError(f"frame {i}: image not found", img_path)
+        try:
+            img = decode_rgb(img_path.read_bytes())
+        except ValueError:
+            raise SeeUError(f"frame {i}: not a decodable image", img_path) from None
+        try:
+            pose = np.asarray(f["cam_to_world"], dtype=np.float64).reshape(4, 4)
+        except (KeyError, ValueError, TypeError):
+            raise SeeUError(f"frame {i}: 'cam_to_world' must be a 4x4 matrix", path) from None
+        if rotation_orthonormality_error(pose) > 1e-3:
+            raise SeeUError(f"frame {i}: 'cam_to_world' rotation is not orthonormal", path)
+        h, w = img.shape[:2]
+        try:
+            if "intrinsics_norm" in f:
+                k = np.asarray(f["intrinsics_norm"], dtype=np.float64).reshape(4)
+            else:
+                k = intrinsics_norm_from_pixels(np.asarray(f["K"], dtype=np.float64).reshape(3, 3), w, h)
+        except (KeyError, ValueError, TypeError):
+            raise SeeUError(f"frame {i}: give 'intrinsics_norm' [fx/W, fy/H, cx/W, cy/H] or a pixel 'K' 3x3",
+                            where) from None
+        images.append(resize_cover_crop(img, image_hw))
+        poses.append(pose)
+        intrs.append(intrinsics_norm_matrix(resized_intrinsics(k, (h, w), image_hw)))
+    v = len(images)
+    img_t = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).float().div(255.0)
+    return {"image": img_t[None], "cam_to_world": torch.tensor(np.stack(poses), dtype=torch.float32)[None],
+            "intrinsics": torch.tensor(np.stack(intrs), dtype=torch.float32)[None],
+            "near": torch.full((1, v), near), "far": torch.full((1, v), far),
+            "frame_index": torch.arange(v)[None]}
+
+
+def _shard_sample(data: str, sample: str, image_hw) -> dict:
+    from pipelines.train import make_eval_loader
+    from seeu_data.errors import SeeUError
+
+    loader = make_eval_loader(data, image_hw, 1)
+    index = int(sample) if sample.isdigit() else None
+    for i, batch in enumerate(loader):
+        if (index is not None and i == index) or (index is None and batch["sample_id"][0] == sample):
+            return batch
+    raise SeeUError(f"no sample {sample!r} in this dataset", data)
+
+
+def _to_uint8(img) -> "np.ndarray":  # noqa: F821
+    """(3, H, W) float in [0, 1] -> (H, W, 3) uint8 RGB."""
+    return (img.clamp(0, 1) * 255.0 + 0.5).byte().permute(1, 2, 0).cpu().numpy()
+
+
+def write_png(path: Path, rgb) -> None:
+    import cv2
+
+    from seeu_data.arrow_io import atomic_write_bytes
+
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
+    if not ok:  # pragma: no cover
+        raise RuntimeError("PNG encoding failed")
+    atomic_write_bytes(path, buf.tobytes())
+
+
+def write_mp4(path: Path, frames: list, fps: float) -> None:
+    """(H, W, 3) uint8 RGB frames -> MP4 (mp4v), written to a temporary name and renamed."""
+    import cv2
+
+    h, w = frames[0].shape[:2]
+    tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.mp4")
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+    if not writer.isOpened():
+        raise RuntimeError(f"OpenCV cannot write MP4 files here ({path})")
+    try:
+        for f in frames:
+            writer.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
+    finally:
+        writer.release()
+    os.replace(tmp, path)
+
+
+def render_views(model, context: dict, cam_to_world, intrinsics, image_hw, rasterizer: str, gaussians=None,
+                 chunk: int = 8):
+    """Render (N, 4, 4) poses / (N, 3, 3) normalised intrinsics -> list of (H, W, 3) uint8 frames."""
+    import torch
+
+    from seeu_model.training.factory import encode_context, render_gaussians
+
+    dev = next(model.parameters()).device
+    with torch.no_grad():
+        g = gaussians if gaussians is not None else encode_context(model, context)
+        frames = []
+        for s in range(0, len(cam_to_world), chunk):
+            c2w = torch.as_tensor(cam_to_world[s:s + chunk], dtype=torch.float32, device=dev)[None]
+            k = torch.as_tensor(intrinsics[s:s + chunk], dtype=torch.float32, device=dev)[None]
+            target = {"cam_to_world": c2w, "intrinsics": k,
+                      "image": torch.empty(1, c2w.shape[1], 3, *image_hw, device=dev)}
+            out = render_gaussians(g, target, rasterizer)
+            frames += [_to_uint8(c) for c in out.color[0]]
+    return frames, g
+
+
+def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, sample: str = "0",
+           cameras: str | Path | None = None, frames: int = 30, extrapolate: float = 0.5, fps: float = 10.0,
+           image_hw: tuple[int, int] | None = None, device: str | None = None,
+           rasterizer: str | None = None) -> dict:
+    """Python API of `seeu render`; returns the report (also OUT/render.json)."""
+    import numpy as np
+    import torch
+
+    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.errors import SeeUError
+    from seeu_model.camera_path import camera_path, path_parameters
+    from seeu_model.ply import save_ply
+    from seeu_model.training import checkpoint as ckpt_io
+    from seeu_model.training.config import config_from_dict
+    from seeu_model.training.factory import model_from_checkpoint
+    from seeu_model.training.loop import batch_to
+
+    if frames < 2:
+        raise SeeUError("--frames must be >= 2")
+    if extrapolate < 0:
+        raise SeeUError("--extrapolate must be >= 0")
+    if (data is None) == (cameras is None):
+        raise SeeUError("give exactly one of --data (a shard example) or --cameras (your own views)")
+    ck = ckpt_io.load_checkpoint(checkpoint)
+    cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
+    hw = tuple(image_hw or cfg.data.image_size)
+    backend = rasterizer or cfg.rasterizer
+    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    model = model_from_checkpoint(ck, dev)
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "render.json").unlink(missing_ok=True)
+    batch = _shard_sample(data, str(sample), hw) if data is not None else {"context": load_user_views(cameras, hw)}
+    batch = batch_to(batch, dev)
+    ctx = batch["context"]
+    c2w = ctx["cam_to_world"][0].double().cpu().numpy()
+    intr = ctx["intrinsics"][0].double().cpu().numpy()
+    report: dict = {"checkpoint": ck["path"], "step": ck["step"], "image_hw": list(hw), "fps": fps,
+                    "source": data or str(cameras), "sample_id": batch.get("sample_id", [None])[0]}
+    g = None
+    for name, e in (("interp", 0.0), ("extrap", extrapolate)):
+        ts = path_parameters(frames, e)
+        poses, ks = camera_path(c2w[0], c2w[-1], intr[0], intr[-1], ts)
+        imgs, g = render_views(model, ctx, poses, ks, hw, backend, g)
+        for i, img in enumerate(imgs):
+            write_png(out / "frames" / f"{name}_{i:03d}.png", img)
+        write_mp4(out / f"{name}.mp4", imgs, fps)
+        report[name] = {"mp4": str(out / f"{name}.mp4"), "frames": len(imgs), "t": [float(ts[0]), float(ts[-1])]}
+    write_png(out / "context.png", np.concatenate([_to_uint8(v) for v in ctx["image"][0]], axis=1))
+    if "target" in batch:  # ground truth (top) over the model's renders of the sample's targets
+        tgt = batch["target"]
+        renders, _ = render_views(model, ctx, tgt["cam_to_world"][0].cpu().numpy(),
+                                  tgt["intrinsics"][0].cpu().numpy(), hw, backend, g)
+        top = np.concatenate([_to_uint8(v) for v in tgt["image"][0]], axis=1)
+        write_png(out / "targets.png", np.concatenate([top, np.concatenate(renders, axis=1)], axis=0))
+    ply = save_ply(g.map(lambda t: t.detach().float().cpu()), out / "gaussians.ply")
+    report["ply"] = str(ply)
+    report["num_gaussians"] = int(g.means.shape[1])
+    atomic_write_text(out / "render.json", json.dumps(report, indent=2) + "\n")
+    return report
