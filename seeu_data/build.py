@@ -38,6 +38,7 @@ from .schema import schema_version
 SHARD_PATTERN = "shard-{:05d}.arrow"
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 _IPC_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)  # as seeu_data.arrow_io: no compression
+MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
 MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
 
 
@@ -422,6 +423,8 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         raise SeeUError("no posed-frames directory given")
     if cfg.mode != "eval" and cfg.sampling.mode != cfg.mode:
         raise SeeUError(f"sampling config mode {cfg.sampling.mode!r} differs from build mode {cfg.mode!r}")
+    if not 0 < cfg.shard_bytes <= MAX_SHARD_BYTES:
+        raise SeeUError(f"shard size must be in 1 byte .. {MAX_SHARD_BYTES >> 20} MiB (the image column has 32-bit offsets)")
     out = Path(cfg.out)
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():

@@ -193,6 +193,8 @@ def test_skipped_scenes_and_bad_inputs(posed, tmp_path, capsys):
     assert "dataset directory not found" in capsys.readouterr().err
     assert cli_main(["build", str(posed), "--out", str(tmp_path / "o4"), "--gap-min", "9", "--gap-max", "3"]) == 2
     assert "gap_max must be >= gap_min" in capsys.readouterr().err
+    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o6"), "--shard-size", "3GB"]) == 2
+    assert "shard size must be in" in capsys.readouterr().err
     # duplicate scene ids across inputs
     assert cli_main(["build", str(posed), str(posed), "--out", str(tmp_path / "o5")]) == 2
     assert "appears in two inputs" in capsys.readouterr().err
