@@ -259,3 +259,35 @@ def test_verify_decode_catches_what_headers_cannot(tmp_path, capsys):
     assert PosedDataset(tmp_path / "full").scene_ids == ["fine"]
     assert "skipped 1 scenes (scanless)" in capsys.readouterr().out
     assert cli_main(args + ["--out", str(tmp_path / "strict"), "--verify-decode", "--strict"]) == 2
+
+
+def test_prefetch_keeps_order_reraises_and_stops():
+    import threading
+
+    from seeu_data.importers.writer import prefetch
+
+    assert list(prefetch(iter(range(50)), max_items=2)) == list(range(50))
+
+    def failing():
+        yield 1
+        raise SeeUError("boom")
+
+    got = []
+    with pytest.raises(SeeUError, match="boom"):
+        for x in prefetch(failing()):
+            got.append(x)
+    assert got == [1]
+    produced = []
+
+    def endless():
+        i = 0
+        while True:
+            produced.append(i)
+            yield i
+            i += 1
+
+    gen = prefetch(endless(), max_items=2)
+    assert next(gen) == 0
+    gen.close()  # the consumer stops: the producer thread must end too
+    assert not any(t.name == "seeu-import-prefetch" and t.is_alive() for t in threading.enumerate())
+    assert len(produced) <= 5
