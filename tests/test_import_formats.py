@@ -108,9 +108,10 @@ def test_re10k_text_bad_files_skip_their_scene(tmp_path):
     assert "18 tokens, expected 19" in reasons["short"] and "line 2" in reasons["short"]
     assert "1 of 3 frames" in reasons["missing"] and "failed to decode" in reasons["broken"]
     # --allow-missing-frames keeps the scene without the missing frame.
-    cfg2 = re10k_imp.Re10kTextImportConfig(cameras_dir=cams, frames_dir=frames, scenes=frozenset({"missing"}),
+    cfg2 = re10k_imp.Re10kTextImportConfig(cameras_dir=cams, frames_dir=frames, scenes=frozenset({"missing", "nope"}),
                                            allow_missing_frames=True)
-    _run(re10k_imp.iter_scenes(cfg2), tmp_path / "out2")
+    report = _run(re10k_imp.iter_scenes(cfg2), tmp_path / "out2")
+    assert [s.scene_id for s in report.skipped] == ["nope"]
     scene = PosedDataset(tmp_path / "out2").load_scene("missing")
     assert scene.timestamp_us.tolist() == [50250000, 50316733] and scene.source_frame.tolist() == [0, 2]
 

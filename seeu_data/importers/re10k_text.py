@@ -146,7 +146,10 @@ def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
 
 
 def iter_scenes(cfg: Re10kTextImportConfig, files: list[Path] | None = None) -> Iterator[PosedScene | SkippedScene]:
-    for cam_file in files if files is not None else camera_files(cfg):
+    files = files if files is not None else camera_files(cfg)
+    for scene_id in sorted(set(cfg.scenes or ()) - {f.stem for f in files}):
+        yield SkippedScene(scene_id, f"no {scene_id}.txt camera file in {cfg.cameras_dir}")
+    for cam_file in files:
         try:
             yield scene_from_files(cam_file, cfg)
         except SeeUError as exc:
