@@ -23,14 +23,10 @@ the same kind.
 
 from __future__ import annotations
 
+import sys
 from typing import Any
 
 import numpy as np
-
-try:  # torch is optional for the data side; the functions work on numpy alone.
-    import torch
-except ImportError:  # pragma: no cover - torch is a core dependency
-    torch = None  # type: ignore[assignment]
 
 Array = Any  # numpy.ndarray or torch.Tensor
 
@@ -39,7 +35,14 @@ FLIP_X = np.diag([-1.0, 1.0, 1.0, 1.0])
 OPENGL_TO_OPENCV = np.diag([1.0, -1.0, -1.0, 1.0])
 
 
+def _torch():
+    """The torch module if it is already imported (a tensor can only exist then); never imports it,
+    so data-side processes that only use numpy do not pay torch's import time."""
+    return sys.modules.get("torch")
+
+
 def _is_torch(x: Array) -> bool:
+    torch = _torch()
     return torch is not None and isinstance(x, torch.Tensor)
 
 
@@ -50,17 +53,17 @@ def _t(x: Array) -> Array:
 
 def _like(const: np.ndarray, ref: Array) -> Array:
     if _is_torch(ref):
-        return torch.as_tensor(const, dtype=ref.dtype, device=ref.device)
+        return _torch().as_tensor(const, dtype=ref.dtype, device=ref.device)
     return const.astype(ref.dtype if np.issubdtype(ref.dtype, np.floating) else np.float64)
 
 
 def _stack(xs: list, axis: int) -> Array:
-    return torch.stack(xs, dim=axis) if _is_torch(xs[0]) else np.stack(xs, axis=axis)
+    return _torch().stack(xs, dim=axis) if _is_torch(xs[0]) else np.stack(xs, axis=axis)
 
 
 def _zeros_like_shape(ref: Array, shape: tuple) -> Array:
     if _is_torch(ref):
-        return torch.zeros(shape, dtype=ref.dtype, device=ref.device)
+        return _torch().zeros(shape, dtype=ref.dtype, device=ref.device)
     return np.zeros(shape, dtype=ref.dtype if np.issubdtype(ref.dtype, np.floating) else np.float64)
 
 
