@@ -10,11 +10,15 @@ import cv2
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from seeu_data import cameras
+from seeu_data.image_ops import resize_cover_crop
 from seeu_data.errors import SeeUError
 from seeu_data.loader import GapCurriculum, LoaderConfig, TripleStream, make_loader
 from seeu_data.loader import source as source_mod
+from seeu_data.loader.transforms import cover_crop_linear
 from tests.loader_fixtures import all_sample_ids, row_dict, write_triples
 
 ROWS = [7, 5, 9]
@@ -61,6 +65,12 @@ def test_batch_layout_and_values(dataset, tmp_path):
         assert b["context"]["far"][i, 0] == 10.0 + shard
     assert len(batches) == 7 and ld.state_dict()["epoch"] == 1 and ld.stats["padding"] == 0
     assert sorted(ids_of(batches)) == sorted(all_sample_ids(ROWS))
+    # uint8 images (convert on the GPU), also handed over from a worker: the same pixels.
+    raw = list(loader(dataset, tmp_path, batch_size=3, seed=1, image_dtype="uint8", num_workers=1))
+    for a, r in zip(batches, raw):
+        assert r["context"]["image"].dtype == torch.uint8 and isinstance(r["context"]["near"], torch.Tensor)
+        assert torch.equal((a["target"]["image"] * 255).round().to(torch.uint8), r["target"]["image"])
+        assert torch.equal(r["is_padding"], a["is_padding"]) and r["sample_id"] == a["sample_id"]
 
 
 # ------------------------------------------------------------------------- partition and resume
@@ -317,3 +327,14 @@ def test_workers_do_not_deadlock_after_the_parent_used_opencv_threads(dataset, t
         assert cv2.getNumThreads() == 2  # the caller's setting is restored
     finally:
         cv2.setNumThreads(previous)
+
+
+@settings(max_examples=80, deadline=None)
+@given(h=st.integers(6, 160), w=st.integers(6, 160), oh=st.integers(2, 96), ow=st.integers(2, 96), seed=st.integers(0, 99))
+def test_span_resize_equals_full_resize_then_crop(h, w, oh, ow, seed):
+    img = np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
+    fast = cover_crop_linear(img, (oh, ow))
+    full = resize_cover_crop(img, (oh, ow), "linear")
+    assert fast.shape == full.shape == (oh, ow, 3)
+    diff = np.abs(fast.astype(int) - full)
+    assert diff.max() <= 1 and (diff > 0).mean() < 0.01  # fixed-point weights may round differently

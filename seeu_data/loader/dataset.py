@@ -33,7 +33,7 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 
 from ..errors import SeeUError
-from .collate import collate_views
+from .collate import collate_views, finish_shipped_batch
 from .curriculum import GapCurriculum
 from .order import (GlobalPlan, epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
                     shard_offsets)
@@ -131,6 +131,8 @@ class TripleStream(IterableDataset):
         self._gaps: np.ndarray | None = None
         self._readers: OrderedDict[int, ShardReader] = OrderedDict()
         self._bad_shards: dict[int, str] = {}
+        self._scratch: np.ndarray | None = None  # (B, V, 3, H, W) uint8 image buffer, reused per batch
+        self.ship = False  # set by StreamingLoader: workers hand over uint8 + numpy (collate.finish_shipped_batch)
 
     # ------------------------------------------------------------------ plan
     @property
@@ -194,10 +196,18 @@ class TripleStream(IterableDataset):
         k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
         return self._reader(k).sample(int(row_id - self.offsets[k]))
 
-    def _load(self, row_id: int, flip: bool) -> ViewsSample:
+    def _load(self, row_id: int, flip: bool, slot: int, batch_size: int) -> ViewsSample:
+        """Read and transform one sample into row `slot` of the (reused) batch image buffer."""
         k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
         raw = self._reader(k).sample(int(row_id - self.offsets[k]))
-        return transform_sample(raw, self.config.image_hw, flip, self.config.interpolation, where=self.source.name(k))
+        shape = (batch_size, len(raw.images), 3) + tuple(self.config.image_hw)
+        if self._scratch is None or self._scratch.shape != shape:
+            if slot and self._scratch is not None:
+                raise SeeUError(f"sample {raw.sample_id} has {len(raw.images)} views, the batch "
+                                f"{self._scratch.shape[1]}: batches need equal view counts", self.source.name(k))
+            self._scratch = np.empty(shape, dtype=np.uint8)  # reused: no fresh pages per batch
+        return transform_sample(raw, self.config.image_hw, flip, self.config.interpolation,
+                                where=self.source.name(k), out=self._scratch[slot])
 
     def make_batch(self, positions: np.ndarray, is_padding: np.ndarray, epoch: int) -> dict:
         """Read, transform and collate the samples at these epoch positions, `(B,)` each."""
@@ -205,12 +215,13 @@ class TripleStream(IterableDataset):
         order = self.order(epoch)
         flips = flip_decisions(c.seed, epoch, positions, c.flip_p)
         pad = np.asarray(is_padding, dtype=bool).copy()
+        size = len(positions)
         samples: list[ViewsSample] = []
         skipped = 0
         fill = 0  # next epoch position tried as a replacement for an unreadable sample
         for i, pos in enumerate(positions):
             try:
-                samples.append(self._load(int(order[pos]), bool(flips[i])))
+                samples.append(self._load(int(order[pos]), bool(flips[i]), i, size))
                 continue
             except SeeUError as exc:
                 if c.on_error == "raise":
@@ -222,13 +233,14 @@ class TripleStream(IterableDataset):
                     raise SeeUError("no readable sample left to fill a batch (every shard unreadable?)",
                                     self.source.url)
                 try:
-                    samples.append(self._load(int(order[fill]), False))
+                    samples.append(self._load(int(order[fill]), False, i, size))
                     pad[i] = True
                     fill += 1
                     break
                 except SeeUError:
                     fill += 1
-        batch = collate_views(samples, pad, c.image_dtype, where=self.source.url)
+        batch = collate_views(samples, pad, c.image_dtype, images=self._scratch, where=self.source.url,
+                              ship=self.ship and get_worker_info() is not None)
         batch["_skipped"] = skipped
         return batch
 
@@ -259,6 +271,11 @@ def _error_parts(exc: SeeUError) -> tuple[str, str | None]:
     if exc.path is not None and text.startswith(exc.path + ": "):
         return text[len(exc.path) + 2:], exc.path
     return text, None
+
+
+def _as_is(batch: dict) -> dict:
+    """The DataLoader's per-item collate: batches are collated already (keep numpy as numpy)."""
+    return batch
 
 
 @contextmanager
@@ -341,11 +358,12 @@ class StreamingLoader:
     def __iter__(self) -> Iterator[dict]:
         ds = self.dataset
         plan = ds.plan()  # computed here once; forked workers inherit it
-        loader = DataLoader(ds, batch_size=None, num_workers=self.num_workers, pin_memory=self.pin_memory,
+        loader = DataLoader(ds, batch_size=None, collate_fn=_as_is, num_workers=self.num_workers, pin_memory=self.pin_memory,
                             prefetch_factor=self.prefetch_factor, persistent_workers=False,
                             multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
                             timeout=self.timeout)
         skipped = plan.skipped
+        ds.ship = self.num_workers > 0
         if self.num_workers:
             with _single_threaded_cv2():
                 batches = iter(loader)  # forks the workers
@@ -354,6 +372,8 @@ class StreamingLoader:
         for batch in batches:
             if "_error" in batch:
                 raise SeeUError(*batch["_error"])
+            if ds.ship:
+                batch = finish_shipped_batch(batch, ds.config.image_dtype)
             cursor = batch.pop("_cursor")
             self.stats["skipped_corrupt"] += batch.pop("_skipped")
             self.stats["padding"] += int(batch["is_padding"].sum())

@@ -18,6 +18,7 @@ A flip mirrors every view of a sample (the whole scene is mirrored in world x).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import cv2
@@ -61,30 +62,70 @@ def decode_bgr(buf: np.ndarray, where: str) -> np.ndarray:
 _BGR_TO_PLANAR_RGB = [2, 0, 1, 1, 0, 2]
 
 
+def _aligned_span(size_in: int, size_scaled: int, start: int, length: int) -> tuple[int, int, int, int]:
+    """Source span `[s0, s1)` and scaled span `[d0, d1)` to resize instead of the whole axis.
+
+    `cv2.resize` maps output pixel centres by the ratio `size_in / size_scaled` = p / q (reduced): a
+    run of q output pixels starting at a multiple of q reads exactly p input pixels starting at the
+    same multiple of p, with the same interpolation weights as in the full resize. The span covers
+    the kept `[start, start + length)` plus a margin wider than the bilinear footprint, so the ROI's
+    edge clamping never reaches a kept pixel.
+    """
+    g = math.gcd(size_in, size_scaled)
+    p, q = size_in // g, size_scaled // g
+    margin = 2 + -(-q // (2 * p))  # output pixels whose taps can fall outside the span
+    a = max(0, (start - margin) // q)
+    b = min(size_scaled // q, -(-(start + length + margin) // q))
+    return a * p, b * p, a * q, b * q
+
+
+def cover_crop_linear(img: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
+    """`image_ops.resize_cover_crop(img, out_hw, "linear")`, resizing only the block-aligned span that
+    holds the crop (360x640 -> 256x256 resizes 384 of 640 columns). Same pixels up to the last bit of
+    OpenCV's fixed-point weights (tested); (H, W, 3) -> (out_h, out_w, 3)."""
+    h, w = img.shape[:2]
+    (sh, sw), (oy, ox) = cameras.cover_crop_geometry((h, w), out_hw)
+    oh, ow = out_hw
+    y0, y1, dy0, dy1 = _aligned_span(h, sh, oy, oh)
+    x0, x1, dx0, dx1 = _aligned_span(w, sw, ox, ow)
+    part = cv2.resize(img[y0:y1, x0:x1], (dx1 - dx0, dy1 - dy0), interpolation=cv2.INTER_LINEAR)
+    return part[oy - dy0:oy - dy0 + oh, ox - dx0:ox - dx0 + ow]
+
+
 def transform_sample(raw: RawSample, out_hw: tuple[int, int], flip: bool = False, interpolation: str = "linear",
-                     where: str = "") -> ViewsSample:
+                     where: str = "", out: np.ndarray | None = None) -> ViewsSample:
     """Decode, resize/crop (and optionally mirror) every view of a stored sample.
 
+    `out`, if given, is a (V, 3, H, W) uint8 array the images are written into (a batch buffer row).
     Cameras: intrinsics via `cameras.crop_intrinsics_norm`, mirrored with `cameras.flip_horizontal`.
     """
     if interpolation not in INTERPOLATIONS:
         raise ValueError(f"interpolation must be one of {sorted(INTERPOLATIONS)}")
     num_views = len(raw.images)
     oh, ow = out_hw
-    images = np.empty((num_views, 3, oh, ow), dtype=np.uint8)
-    intrinsics = np.empty((num_views, 4), dtype=np.float64)
     name = f"{where} sample {raw.sample_id}"
+    if out is not None and out.shape != (num_views, 3, oh, ow):
+        raise SeeUError(f"sample has {num_views} views, the batch {out.shape[0]}: batches need equal view counts", name)
+    images = out if out is not None else np.empty((num_views, 3, oh, ow), dtype=np.uint8)
+    sizes = []
     for v in range(num_views):
         bgr = decode_bgr(raw.images[v], f"{name} view {v}")
         h, w = bgr.shape[:2]
-        if (h, w) != (int(raw.height[v]), int(raw.width[v])):
+        if h != raw.height[v] or w != raw.width[v]:
             raise SeeUError(f"view {v} decodes to {w}x{h}, the row says {raw.width[v]}x{raw.height[v]}", name)
-        scaled, offset = cameras.cover_crop_geometry((h, w), out_hw)
-        intrinsics[v] = cameras.crop_intrinsics_norm(raw.intrinsics_norm[v], scaled, offset, out_hw)
-        crop = resize_cover_crop(bgr, out_hw, interpolation)
+        sizes.append((h, w))
+        if interpolation == "linear":
+            crop = cover_crop_linear(bgr, out_hw)
+        else:
+            crop = resize_cover_crop(bgr, out_hw, interpolation)
         if flip:
             crop = cv2.flip(crop, 1)
         cv2.mixChannels([crop], [images[v, 0], images[v, 1], images[v, 2]], _BGR_TO_PLANAR_RGB)
+    intrinsics = np.empty((num_views, 4), dtype=np.float64)
+    for size in set(sizes):  # usually one size for all views
+        scaled, offset = cameras.cover_crop_geometry(size, out_hw)
+        idx = [v for v in range(num_views) if sizes[v] == size]
+        intrinsics[idx] = cameras.crop_intrinsics_norm(raw.intrinsics_norm[idx], scaled, offset, out_hw)
     cam_to_world = np.asarray(raw.cam_to_world, dtype=np.float64)
     if flip:
         cam_to_world, intrinsics = cameras.flip_horizontal(cam_to_world, intrinsics)
