@@ -10,7 +10,10 @@ computes it; LPIPS(VGG) on [0, 1] inputs. Each metric is averaged over the targe
 over scenes (summary.json also has the plain mean over all targets). Encoder (context -> Gaussians)
 and renderer (Gaussians -> target views) are timed separately per sample after `--warmup` batches;
 peak memory is CUDA's max allocated, or the process's peak RSS on CPU.
-Writes OUT/per_scene.csv, OUT/per_target.csv and OUT/summary.json (written last).
+With ground truth (DTU, synthetic): --depth-gt gives the depth RMSE of the rendered expected depth
+per target; --points-gt the DTUeval Chamfer distance (accuracy / completeness / overall, thinned to
+0.2, distances < 20, observation mask when given) of the Gaussian centres with opacity >= 0.5.
+Writes OUT/per_scene.csv, OUT/per_target.csv (OUT/chamfer.csv) and OUT/summary.json (written last).
 """
 
 from __future__ import annotations
@@ -37,6 +40,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat (default: the training config's)")
     parser.add_argument("--num-workers", type=int, default=0)
+    parser.add_argument("--depth-gt", default=None, metavar="DIR",
+                        help="ground-truth depth maps DIR/<scene_id>/<frame_index:06d>.npy|.pfm -> depth RMSE")
+    parser.add_argument("--points-gt", default=None, metavar="DIR",
+                        help="ground-truth points DIR/<scene_id>/points.npy|.ply [+ obs_mask.npz] -> DTUeval Chamfer")
+    parser.add_argument("--geometry-scale", type=float, default=1.0,
+                        help="multiply predicted points by this before Chamfer (DTU: 200 -> mm)")
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
 
 
@@ -45,7 +54,8 @@ def run(args: argparse.Namespace) -> int:
     summary = evaluate(args.checkpoint, args.data, args.out, batch_size=args.batch_size, image_hw=hw,
                        max_samples=args.max_samples, warmup=args.warmup, lpips=not args.no_lpips,
                        lpips_weights=args.lpips_weights, device=args.device, rasterizer=args.rasterizer,
-                       num_workers=args.num_workers, progress=args.progress)
+                       num_workers=args.num_workers, progress=args.progress, depth_gt=args.depth_gt,
+                       points_gt=args.points_gt, geometry_scale=args.geometry_scale)
     print(json.dumps({k: summary[k] for k in ("metrics", "timing", "out")}, indent=2))
     return 0
 
@@ -84,7 +94,8 @@ def _nan_to_none(obj: Any) -> Any:
 def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None, batch_size: int = 1,
                      max_samples: int = 0, warmup: int = 2, lpips_fn=None, rasterizer: str = "auto",
                      precision: str = "auto", num_workers: int = 0, progress: bool | None = None,
-                     keep_renders: int = 0):
+                     keep_renders: int = 0, depth_gt: str | None = None, points_gt: str | None = None,
+                     geometry_scale: float = 1.0):
     """Evaluate an in-memory model on triple shards; returns `seeu_model.evaluation.EvalOutput`."""
     import sys
 
@@ -101,7 +112,9 @@ def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None
                           lambda g, t: render_gaussians(g, t, rasterizer), lpips_fn=lpips_fn,
                           max_samples=max_samples, warmup=warmup, keep_renders=keep_renders,
                           progress=sys.stderr.isatty() if progress is None else progress,
-                          autocast=lambda: autocast_context(precision, device))
+                          autocast=lambda: autocast_context(precision, device),
+                          depth_fn=make_depth_fn(depth_gt, image_hw) if depth_gt else None,
+                          geometry_fn=make_geometry_fn(points_gt, geometry_scale) if points_gt else None)
 
 
 def write_results(out: Path, res, extra: dict) -> dict:
@@ -116,7 +129,16 @@ def write_results(out: Path, res, extra: dict) -> dict:
     atomic_write_text(out / "per_target.csv", _csv_text([asdict(r) for r in res.records]))
     scenes = [{"scene_id": s, **row} for s, row in per_scene(res.records).items()]
     atomic_write_text(out / "per_scene.csv", _csv_text(scenes))
-    summary = {**extra, "metrics": summarize(res.records), "timing": timing_dict(res.timing), "out": str(out),
+    metrics = summarize(res.records)
+    if res.geometry:
+        atomic_write_text(out / "chamfer.csv", _csv_text(res.geometry))
+        by_scene: dict[str, list[dict]] = {}
+        for g in res.geometry:
+            by_scene.setdefault(g["scene_id"], []).append(g)
+        for key in ("accuracy", "completeness", "overall"):
+            vals = [sum(g[key] for g in gs) / len(gs) for gs in by_scene.values()]
+            metrics[f"chamfer_{key}"] = sum(vals) / len(vals)
+    summary = {**extra, "metrics": metrics, "timing": timing_dict(res.timing), "out": str(out),
                "protocol": {"psnr": "clip [0,1], per-image MSE, -10 log10",
                             "ssim": "11-px Gaussian window, sigma 1.5, scikit-image (sample covariance)",
                             "lpips": "LPIPS(VGG) on [0,1] inputs (normalize=True)",
@@ -130,7 +152,8 @@ def write_results(out: Path, res, extra: dict) -> dict:
 def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *, batch_size: int = 1,
              image_hw: tuple[int, int] | None = None, max_samples: int = 0, warmup: int = 2, lpips: bool = True,
              lpips_weights: str | None = None, device: str | None = None, rasterizer: str | None = None,
-             num_workers: int = 0, progress: bool | None = None) -> dict:
+             num_workers: int = 0, progress: bool | None = None, depth_gt: str | None = None,
+             points_gt: str | None = None, geometry_scale: float = 1.0) -> dict:
     """Python API of `seeu eval`; returns the summary document (also written to OUT/summary.json)."""
     import torch
 
@@ -157,9 +180,121 @@ def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *
         out = run_dir / "eval" / Path(str(data).rstrip("/")).name
     res = evaluate_on_data(model, data, hw, device=dev, batch_size=batch_size, max_samples=max_samples,
                            warmup=warmup, lpips_fn=lpips_fn, rasterizer=rasterizer or cfg.rasterizer,
-                           precision=cfg.precision, num_workers=num_workers, progress=progress)
+                           precision=cfg.precision, num_workers=num_workers, progress=progress,
+                           depth_gt=depth_gt, points_gt=points_gt, geometry_scale=geometry_scale)
     if not res.records:
         raise SeeUError("the evaluation data yielded no sample", data)
     extra = {"checkpoint": ck["path"], "step": ck["step"], "data": str(data), "image_hw": list(hw),
              "lpips": lpips_kind, "device": str(dev)}
     return write_results(Path(out), res, extra)
+
+
+# ------------------------------------------------------------------------------------------------
+# Ground-truth geometry (DTU and any dataset that has it)
+# ------------------------------------------------------------------------------------------------
+
+
+def read_pfm(path: Path):
+    """A PFM depth map (MVSNet / DTU 'Depths') -> (H, W) float32, rows top to bottom."""
+    import numpy as np
+
+    with open(path, "rb") as fh:
+        header = fh.readline().decode("latin-1").strip()
+        if header not in ("Pf", "PF"):
+            raise ValueError("not a PFM file")
+        w, h = (int(v) for v in fh.readline().decode("latin-1").split())
+        scale = float(fh.readline().decode("latin-1").strip())
+        data = np.frombuffer(fh.read(), dtype="<f4" if scale < 0 else ">f4")
+    ch = 3 if header == "PF" else 1
+    return np.flipud(data[: h * w * ch].reshape(h, w, ch)[..., 0]).astype(np.float32)
+
+
+def load_depth_map(root: Path, scene_id: str, frame_index: int):
+    """Ground-truth depth of a frame: ROOT/<scene_id>/<frame_index:06d>.npy|.pfm (or without zero padding)."""
+    import numpy as np
+
+    for name in (f"{frame_index:06d}", f"{frame_index}", f"depth_map_{frame_index:04d}"):
+        for ext in (".npy", ".pfm"):
+            p = root / scene_id / f"{name}{ext}"
+            if p.is_file():
+                return np.load(p).astype(np.float32) if ext == ".npy" else read_pfm(p)
+    return None
+
+
+def make_depth_fn(root: str | Path, image_hw: tuple[int, int]):
+    """depth_fn for `evaluate_model`: RMSE of the rendered expected depth against ground-truth depth maps
+    (resized to the evaluation size with the loader's cover-crop, nearest neighbour; pixels with
+    depth <= 0 or not finite are ignored). Targets without a depth file give NaN."""
+    import cv2
+    import numpy as np
+    import torch
+
+    from seeu_data.cameras import cover_crop_geometry
+    from seeu_model.geometry_metrics import depth_rmse
+
+    root = Path(root)
+    h, w = image_hw
+
+    def fit(depth: np.ndarray) -> np.ndarray:
+        (sh, sw), (oy, ox) = cover_crop_geometry(depth.shape[:2], (h, w))
+        if (sh, sw) != depth.shape[:2]:
+            depth = cv2.resize(depth, (sw, sh), interpolation=cv2.INTER_NEAREST)
+        return depth[oy:oy + h, ox:ox + w]
+
+    def depth_fn(batch, render):
+        b, t = batch["target"]["frame_index"].shape
+        out = torch.full((b, t), float("nan"))
+        for k in range(b):
+            for j in range(t):
+                gt = load_depth_map(root, batch["scene_id"][k], int(batch["target"]["frame_index"][k, j]))
+                if gt is not None:
+                    out[k, j] = depth_rmse(render.depth[k, j, 0].float().cpu(), torch.from_numpy(fit(gt).copy()))
+        return out
+
+    return depth_fn
+
+
+def make_geometry_fn(root: str | Path, scale: float = 1.0, min_opacity: float = 0.5, density: float = 0.2,
+                     max_dist: float = 20.0):
+    """geometry_fn for `evaluate_model`: DTUeval Chamfer between the Gaussian centres (opacity >=
+    `min_opacity`, multiplied by `scale`, e.g. 200 to undo DTU's 1/200 camera scaling -> mm) and
+    ROOT/<scene_id>/points.npy (M, 3) or points.ply, with the optional observation mask
+    ROOT/<scene_id>/obs_mask.npz (ObsMask, BB, Res[, Plane]: DTU's ObsMask/Plane .mat contents)."""
+    import numpy as np
+
+    from seeu_model.geometry_metrics import chamfer_dtueval, dtu_observation_filter
+
+    root = Path(root)
+    cache: dict = {}
+
+    def load(scene: str):
+        if scene not in cache:
+            d = root / scene
+            pts = None
+            if (d / "points.npy").is_file():
+                pts = np.load(d / "points.npy").reshape(-1, 3)
+            elif (d / "points.ply").is_file():
+                from plyfile import PlyData
+
+                v = PlyData.read(str(d / "points.ply"))["vertex"]
+                pts = np.stack([v["x"], v["y"], v["z"]], -1).astype(np.float64)
+            mask = above = None
+            if pts is not None and (d / "obs_mask.npz").is_file():
+                z = np.load(d / "obs_mask.npz")
+                mask, above_fn = dtu_observation_filter(z["ObsMask"], z["BB"], float(z["Res"]),
+                                                        z["Plane"] if "Plane" in z else None)
+                above = above_fn(pts)
+            cache[scene] = (pts, mask, above)
+        return cache[scene]
+
+    def geometry_fn(batch, gaussians, k):
+        pts, mask, above = load(batch["scene_id"][k])
+        if pts is None:
+            return None
+        keep = gaussians.opacities[k] >= min_opacity
+        pred = (gaussians.means[k][keep].double().cpu().numpy()) * scale
+        r = chamfer_dtueval(pred, pts, mask, above, density=density, max_dist=max_dist)
+        return {"accuracy": r.accuracy, "completeness": r.completeness, "overall": r.overall,
+                "num_pred": r.num_pred}
+
+    return geometry_fn

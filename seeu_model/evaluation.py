@@ -58,6 +58,7 @@ class EvalOutput:
     records: list[TargetRecord] = field(default_factory=list)
     timing: Timing = field(default_factory=Timing)
     renders: list[dict] = field(default_factory=list)   # kept renders (first `keep_renders` samples), CPU tensors
+    geometry: list[dict] = field(default_factory=list)  # per-sample geometry metrics (geometry_fn)
 
 
 def _sync(device: torch.device) -> None:
@@ -77,10 +78,12 @@ def peak_memory_mb(device: torch.device) -> tuple[float, str]:
 def evaluate_model(model: nn.Module, batches: Iterable[dict], device: torch.device,
                    encode_fn: Callable, render_fn: Callable, lpips_fn: nn.Module | None = None,
                    max_samples: int = 0, warmup: int = 1, keep_renders: int = 0,
-                   depth_fn: Callable | None = None, progress: bool = False, autocast=None) -> EvalOutput:
+                   depth_fn: Callable | None = None, progress: bool = False, autocast=None,
+                   geometry_fn: Callable | None = None) -> EvalOutput:
     """Run the model over `batches` and measure every target view.
 
     depth_fn(batch, render) -> (B, T) depth RMSE or None: optional geometry metric (DTU).
+    geometry_fn(batch, gaussians, k) -> dict or None: per-sample geometry (Chamfer), kept in `geometry`.
     autocast: a context-manager factory for mixed precision (None: fp32).
     """
     from seeu_model.training.loop import batch_to
@@ -131,6 +134,10 @@ def evaluate_model(model: nn.Module, batches: Iterable[dict], device: torch.devi
                         batch["scene_id"][k], batch["sample_id"][k], j, int(batch["target"]["frame_index"][k, j]),
                         float(p[k, j]), float(s[k, j]), float(lp[k, j]) if lp is not None else math.nan,
                         float(d[k, j]) if d is not None else math.nan))
+                if geometry_fn is not None:
+                    gm = geometry_fn(batch, gaussians, k)
+                    if gm is not None:
+                        out.geometry.append({"scene_id": batch["scene_id"][k], "sample_id": batch["sample_id"][k], **gm})
                 if len(out.renders) < keep_renders:
                     out.renders.append({"scene_id": batch["scene_id"][k], "sample_id": batch["sample_id"][k],
                                         "pred": pred[k].cpu(), "gt": gt[k].cpu(),

@@ -106,3 +106,65 @@ def test_lpips_loads_trunk_from_file_and_is_frozen(tmp_path):
     x.requires_grad_(True)
     m(x, y).sum().backward()
     assert x.grad is not None and x.grad.abs().sum() > 0
+
+
+def test_depth_rmse_closed_form():
+    from seeu_model.geometry_metrics import depth_rmse
+
+    gt = torch.full((2, 4, 5), 2.0)
+    gt[0, 0, :] = 0.0            # no ground truth there
+    gt[1] = float("nan")         # an image without ground truth
+    pred = torch.full((2, 4, 5), 2.0)
+    pred[0, 1:] += 0.3
+    pred[0, 0] += 5.0            # ignored (gt invalid)
+    out = depth_rmse(pred, gt)
+    assert out[0].item() == pytest.approx(0.3, abs=1e-6) and math.isnan(out[1].item())
+    mask = torch.zeros(2, 4, 5, dtype=torch.bool)
+    mask[0, 1, 0] = True
+    pred[0, 1, 0] = 3.0
+    assert depth_rmse(pred, gt, mask)[0].item() == pytest.approx(1.0, abs=1e-6)
+
+
+def test_chamfer_dtueval_against_brute_force():
+    from seeu_model.geometry_metrics import chamfer_dtueval, downsample_density, dtu_observation_filter
+
+    g = np.stack(np.meshgrid(np.arange(10.0), np.arange(10.0), [0.0], indexing="ij"), -1).reshape(-1, 3)
+    pred = g + [0.0, 0.0, 0.5]
+    pred = np.concatenate([pred, [[100.0, 100.0, 100.0]], pred[:5].copy()])  # outlier + duplicates
+    res = chamfer_dtueval(pred, g, density=0.2, max_dist=20.0)
+    assert res.num_pred == 101              # the 5 duplicates are thinned away, the outlier stays
+    assert res.accuracy == pytest.approx(0.5) and res.completeness == pytest.approx(0.5)
+    assert res.overall == pytest.approx(0.5)
+    # observation mask (a voxel volume) keeps only x < 5 for accuracy; plane keeps gt with y >= 3
+    vol = np.zeros((200, 200, 10), dtype=bool)
+    vol[:50] = True                          # res 0.1 from bb min (0, 0, -0.4): x < 5
+    in_mask, above = dtu_observation_filter(vol, np.array([[0.0, 0.0, -0.4], [20, 20, 0.6]]), 0.1,
+                                            plane=np.array([0.0, 1.0, 0.0, -2.5]))
+    pred2 = g + [0.0, 0.0, 0.5]
+    pred2[g[:, 0] >= 5] += [0.0, 0.0, 1.0]   # outside the mask: worse, must not count for accuracy
+    res2 = chamfer_dtueval(pred2, g, pred_in_mask=in_mask, gt_above_plane=above(g))
+    d = np.linalg.norm(g[above(g)][:, None] - downsample_density(pred2, 0.2)[None], axis=-1).min(1)
+    assert res2.accuracy == pytest.approx(0.5) and res2.num_pred_in_mask == 50
+    assert res2.completeness == pytest.approx(d.mean()) and res2.num_gt == 70
+    kept = downsample_density(np.random.default_rng(0).random((300, 3)), 0.2)
+    dist = np.linalg.norm(kept[:, None] - kept[None], axis=-1) + np.eye(len(kept)) * 9
+    assert dist.min() > 0.2
+
+
+def test_depth_fn_aligns_ground_truth_with_the_loader_crop(tmp_path):
+    from types import SimpleNamespace
+
+    from pipelines.evaluate import make_depth_fn
+
+    # 40x80 ground truth; evaluation at 20x20 -> cover-crop: resize to 20x40, keep columns 10..29
+    gt = np.tile(np.arange(80, dtype=np.float32), (40, 1)) + 1.0
+    (tmp_path / "sceneA").mkdir()
+    np.save(tmp_path / "sceneA" / "000007.npy", gt)
+    fn = make_depth_fn(tmp_path, (20, 20))
+    expect = gt[::2, ::2][:, 10:30]                                    # nearest-neighbour resize, centre crop
+    depth = torch.from_numpy(expect.copy())[None, None, None] + 0.5   # (B=1, T=1, 1, H, W)
+    batch = {"scene_id": ["sceneA"], "target": {"frame_index": torch.tensor([[7]])}}
+    out = fn(batch, SimpleNamespace(depth=depth))
+    assert out.shape == (1, 1) and out[0, 0].item() == pytest.approx(0.5, abs=1e-5)
+    batch["target"]["frame_index"] = torch.tensor([[8]])                # no file -> NaN
+    assert math.isnan(fn(batch, SimpleNamespace(depth=depth))[0, 0].item())
