@@ -29,7 +29,8 @@ def _staging(shape: tuple, dtype) -> np.ndarray:
     key = (tuple(shape), np.dtype(dtype).str)
     buf = _STAGING.get(key)
     if buf is None:
-        _STAGING.clear()
+        if len(_STAGING) >= 8:
+            _STAGING.pop(next(iter(_STAGING)))
         buf = _STAGING[key] = np.empty(shape, dtype=dtype)
     return buf
 
