@@ -96,12 +96,13 @@ class CoarseGaussianHead(nn.Module):
         b, v, c, h, w = features.shape
         lay = self.layout
         x = torch.cat([features, posterior.to(features.dtype), images_lowres.to(features.dtype)], 2)
-        raw = self.net(x.reshape(b * v, -1, h, w)).reshape(b, v, -1, h, w)
-        t = unit_disparity_from_depth(depth, near, far).clamp(1e-4, 1 - 1e-4)
-        depth_raw = torch.logit(t)[:, :, None].to(raw.dtype)
+        # Latent tokens are kept in float32 (also under autocast): the depth logit needs the precision.
+        raw = self.net(x.reshape(b * v, -1, h, w)).reshape(b, v, -1, h, w).float()
+        t = unit_disparity_from_depth(depth.float(), near.float(), far.float()).clamp(1e-4, 1 - 1e-4)
+        depth_raw = torch.logit(t)[:, :, None]
         latent = torch.cat([depth_raw, raw], 2)  # (B, V, C_l, h, w)
         dc = torch.zeros_like(latent)
-        dc[:, :, lay.sh_dc] = rgb_to_sh_dc(images_lowres).to(raw.dtype)
+        dc[:, :, lay.sh_dc] = rgb_to_sh_dc(images_lowres.float())
         latent = latent + dc
         return latent.permute(0, 1, 3, 4, 2)
 
