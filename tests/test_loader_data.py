@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import shutil
 import warnings
 from pathlib import Path
@@ -290,6 +291,23 @@ def test_sha256_verified_once_per_file_version(dataset, tmp_path, monkeypatch):
     monkeypatch.setattr(source_mod, "_VERIFIED", set())  # a new process: the stamp in the cache is used
     list(iter(TripleStream(dataset, cfg)))
     assert len(calls) == 3
+    shard = dataset / "shard-00002.arrow"
+    st = shard.stat()
+    os.utime(shard, ns=(st.st_atime_ns, st.st_mtime_ns + 1_000_000))  # the file may have changed: hash again
+    monkeypatch.setattr(source_mod, "_VERIFIED", set())
+    list(iter(TripleStream(dataset, cfg)))
+    assert [Path(p).name for p in calls[3:]] == ["shard-00002.arrow"]
+
+
+def test_rank_and_world_size_from_the_environment(dataset, tmp_path, monkeypatch):
+    got = []
+    for r in range(3):
+        monkeypatch.setenv("RANK", str(r))
+        monkeypatch.setenv("WORLD_SIZE", "3")
+        ld = loader(dataset, tmp_path, batch_size=2)
+        assert (ld.dataset.rank, ld.dataset.world_size) == (r, 3)
+        got += ids_of(list(ld))
+    assert sorted(got) == sorted(all_sample_ids(ROWS))
 
 
 # ----------------------------------------------------------------------------------- curriculum
