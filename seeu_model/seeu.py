@@ -224,12 +224,15 @@ class SeeU(nn.Module):
     @staticmethod
     def render(gaussians: Gaussians, cameras: dict, size: tuple[int, int], background=None, backend: str = "auto"):
         """Render Gaussians into cameras: cam_to_world (B, T, 4, 4), intrinsics (B, T, 3, 3) normalised,
-        size (H, W) -> RenderOutput (color (B, T, 3, H, W), depth/alpha (B, T, 1, H, W))."""
+        size (H, W) -> RenderOutput (color (B, T, 3, H, W), depth/alpha (B, T, 1, H, W)). Always float32."""
         from .rasterizer import rasterize
 
         h, w = size
-        return rasterize(gaussians, cameras["cam_to_world"], cameras["intrinsics"], w, h,
-                         background=background, backend=backend)
+        device_type = gaussians.means.device.type
+        with torch.autocast(device_type=device_type, enabled=False):  # rasterise in float32, also under autocast
+            g = gaussians.map(lambda t: t.float())
+            return rasterize(g, cameras["cam_to_world"].float(), cameras["intrinsics"].float(), w, h,
+                             background=background, backend=backend)
 
     def forward(self, batch: dict, render_coarse: bool = False, background=None, backend: str = "auto") -> SeeUOutput:
         """batch: the loader layout ("context" and optionally "target" dicts) -> SeeUOutput with the

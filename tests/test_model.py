@@ -245,3 +245,16 @@ def test_model_info_cli_prints_counts(capsys, tmp_path):
     model = SeeU(SeeUConfig.tiny())
     assert data["total_trainable"] == sum(p.numel() for p in model.trainable_parameters())
     assert data["modules"]["condition.semantic"]["trainable"] == 0
+
+
+def test_bf16_autocast_forward_backward_keeps_gaussians_and_renders_float32():
+    torch.manual_seed(0)
+    model = SeeU(SeeUConfig.tiny()).train()
+    batch = _batch(v=2, t=1, size=32, seed=2)
+    with torch.autocast(device_type="cpu", dtype=torch.bfloat16):
+        out = model(batch)
+        loss = F.mse_loss(out.render.color, batch["target"]["image"])
+    assert out.gaussians.means.dtype == torch.float32 and out.render.color.dtype == torch.float32
+    assert out.encoding.latent.dtype == torch.float32
+    loss.backward()
+    assert model.backbone.stem[0].weight.grad is not None and torch.isfinite(model.backbone.stem[0].weight.grad).all()
