@@ -5,7 +5,8 @@ dense reference, on 2 views of pixel-aligned Gaussians (one per pixel, 1 px stan
     .venv/bin/python benchmarks/render.py --sizes 64 --repeats 5
 
 Each measurement runs in a fresh process: median wall and CPU seconds of forward+backward, peak RSS
-above the process's size after building the scene (peak CUDA allocation with --cuda), and the
+above the process's size after building the scene (peak CUDA allocation with --cuda; glibc's mmap
+threshold is pinned to 1 MiB so freed chunk buffers go back to the OS and do not pile up), and the
 dense/tiled ratio measured side by side in the same run. Target: <= 0.5 s for 64^2 on 2 cores.
 With --cuda (on a GPU machine with the `cuda` extra) the torch and gsplat backends are timed too.
 """
@@ -110,8 +111,12 @@ def main() -> None:
     ap.add_argument("--no-dense", action="store_true", help="skip the dense baseline")
     ap.add_argument("--cuda", action="store_true", help="also time torch and gsplat backends on the GPU")
     args = ap.parse_args()
+    # glibc otherwise raises its mmap threshold after the first freed chunk buffer and keeps later ones
+    # on the heap, where fragmentation inflates peak RSS several-fold (the dense 128^2 run: 17 GiB vs 0.4)
+    os.environ.setdefault("MALLOC_MMAP_THRESHOLD_", str(1 << 20))  # read by the spawned workers at start
     print(f"torch {torch.__version__}, {args.threads} threads, float32, 2 views, tile {args.tile_size or 'default'}; "
-          "times are median wall (CPU) seconds of forward+backward; memory is peak RSS above the scene")
+          "times are median wall (CPU) seconds of forward+backward; memory is peak RSS above the scene "
+          f"(MALLOC_MMAP_THRESHOLD_={os.environ['MALLOC_MMAP_THRESHOLD_']})")
     for size in args.sizes:
         wall, cpu, mem = measure("torch", size, args.repeats, args.tile_size, threads=args.threads)
         line = f"{size}^2 Gaussians @ {size}^2: tiled {wall:.3f} s ({cpu:.3f} s CPU), {mem:.0f} MiB"
