@@ -331,6 +331,19 @@ def test_input_validation():
         rasterize(Gaussians(g.means, g.scales, g.rotations, g.opacities, g.sh[:, :, :3]), c2w, k, 8, 8)
 
 
+def test_autocast_and_half_inputs_render_in_float32():
+    g = random_scene(1, 30, dtype=torch.float32, seed=6)
+    c2w, k = cameras(1, 2, torch.float32)
+    ref = rasterize(g, c2w, k, 20, 16, backend="torch")
+    with torch.autocast("cpu", dtype=torch.bfloat16):
+        out = rasterize(g, c2w, k, 20, 16, backend="torch")
+    assert out.color.dtype == torch.float32 and max(_diff(out, ref)) == 0.0
+    half = rasterize(g.map(lambda t: t.to(torch.bfloat16)), c2w, k, 20, 16, backend="torch")
+    assert half.color.dtype == torch.float32
+    exact = rasterize(g.map(lambda t: t.to(torch.bfloat16).float()), c2w, k, 20, 16, backend="torch")
+    assert max(_diff(half, exact)) == 0.0
+
+
 def test_projection_shapes_and_flattening():
     g = random_scene(2, 5)
     c2w, k = cameras(2, 3)

@@ -87,8 +87,20 @@ def rasterize(
     tile_size: tile edge in pixels; default 16 for gsplat (the only size it tests) and 4 for the torch
         backend (smaller tiles waste fewer (pixel, Gaussian) pairs; 3x faster than 16 on CPU).
     max_elements: (pixel, Gaussian) pairs processed at once by the torch/dense backends (memory bound).
-    Returns `RenderOutput` (see module docstring for the depth definition).
+    Returns `RenderOutput` (see module docstring for the depth definition). Runs in float64 when the
+    Gaussians are float64, else float32 (half inputs are upcast and autocast is disabled inside).
     """
+    with torch.autocast(device_type=gaussians.means.device.type, enabled=False):  # positions need float32+
+        return _rasterize(gaussians.map(_at_least_float32), cam_to_world, intrinsics, width, height, background,
+                          backend, near_plane, far_plane, antialiased, tile_size, alpha_max, eps2d, max_elements)
+
+
+def _at_least_float32(t: torch.Tensor) -> torch.Tensor:
+    return t.float() if t.dtype in (torch.float16, torch.bfloat16) else t
+
+
+def _rasterize(gaussians, cam_to_world, intrinsics, width, height, background, backend, near_plane, far_plane,
+               antialiased, tile_size, alpha_max, eps2d, max_elements) -> RenderOutput:
     means = gaussians.means
     b, n = means.shape[:2]
     v = cam_to_world.shape[1] if cam_to_world.dim() == 4 else -1
