@@ -2,9 +2,10 @@
 
 gsplat >= 1.5 takes leading batch dimensions (older 1.x: one call per scene): means (B, N, 3),
 quats wxyz (B, N, 4), linear scales, opacities in [0, 1], SH coefficients (B, N, K, 3) with
-`sh_degree`, world-to-camera `viewmats` (B, V, 4, 4), pixel `Ks` (B, V, 3, 3), `render_mode="RGB+ED"`
-(last channel = sum w z / sum w), backgrounds (B, V, 3), `eps2d=0.3`, `rasterize_mode` "classic" or "antialiased". It cannot run on
-CPU; the PyPI wheel compiles its kernels on the first GPU call (minutes).
+`sh_degree`, world-to-camera `viewmats` (B, V, 4, 4), pixel `Ks` (B, V, 3, 3),
+`render_mode="RGB+ED"` (last channel = sum w z / sum w), backgrounds (B, V, 3), `eps2d=0.3`,
+`rasterize_mode` "classic" or "antialiased". It cannot run on CPU; the PyPI wheel compiles its
+kernels on the first GPU call (minutes).
 """
 
 from __future__ import annotations
