@@ -65,9 +65,12 @@ def run(args: argparse.Namespace) -> int:
     video = stage_synth(args, progress)
     report = stage_ingest(args, video, progress)
     out = Path(report["output"])
+    rows = [(str(video), f"the synthetic clip (ground truth: {video.with_suffix('.json').name})"),
+            (str(out / "trajectory.png"), "camera trajectory of every posed chunk"),
+            (str(out / "report.json"), "registration, reprojection error, chunks, dropped frames, accuracy"),
+            (f"seeu validate {out}", "check the posed-frames dataset")]
+    width = max(len(r[0]) for r in rows)
     print("\nLook at:")
-    print(f"  {video}                  the synthetic clip (ground truth: {video.with_suffix('.json')})")
-    print(f"  {out / 'trajectory.png'}   camera trajectory of every posed chunk")
-    print(f"  {out / 'report.json'}      registration, reprojection error, chunks, dropped frames, accuracy")
-    print(f"  seeu validate {out}")
+    for path, what in rows:
+        print(f"  {path:<{width}}  {what}")
     return 0

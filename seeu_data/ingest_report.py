@@ -48,11 +48,11 @@ def plot_trajectory(path: str | Path, chunks: list, title: str) -> None:
         c = chunk.cam_to_world[:, :3, 3]
         fwd = chunk.cam_to_world[:, :3, 2]
         span = max(float(np.ptp(c, axis=0).max()), 1e-6)
-        step = max(1, len(c) // 25)
+        step = max(1, len(c) // 15)
         for ax, (i, j) in zip(axes, [(0, 2), (2, 1)]):
             line, = ax.plot(c[:, i], c[:, j], ".-", ms=3, lw=1, label=f"{chunk.scene_id} ({len(c)} frames)")
             ax.quiver(c[::step, i], c[::step, j], fwd[::step, i], fwd[::step, j], color=line.get_color(),
-                      angles="xy", scale_units="xy", scale=1 / (0.08 * span), width=0.003)
+                      angles="xy", scale_units="xy", scale=1 / (0.12 * span), width=0.004)
             ax.plot(c[0, i], c[0, j], "o", color=line.get_color())
     axes[0].set(xlabel="x", ylabel="z", title="top view (x-z); arrows: viewing direction")
     axes[1].set(xlabel="z", ylabel="y", title="side view (z-y, +y down)")
