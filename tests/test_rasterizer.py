@@ -227,6 +227,34 @@ def test_isotropic_gaussian_footprint_closed_form(antialiased):
             assert np.allclose(cov, ((f * s / z) ** 2 + 0.3) * np.eye(2))
 
 
+def test_ewa_covariance_is_the_projection_jacobian_sandwich():
+    """For Gaussians inside the view, cov2d = J Sigma J^T + 0.3 I with J the Jacobian (autograd) of
+    seeu_data.cameras.project_points at the mean and Sigma = R diag(s^2) R^T; the conic is its inverse."""
+    dtype = torch.float64
+    g = random_scene(1, 6, dtype=dtype, seed=8)
+    g.scales.data[..., 0] *= 3.0  # clearly anisotropic
+    c2w, k = cameras(1, 2, dtype)
+    w, h = 40, 30
+    proj = project_gaussians(g, c2w, k, w, h)
+    intr = cam.intrinsics_norm_vector(k)
+    for v in range(2):
+        for i in range(6):
+            mean = g.means[0, i]
+            jac = torch.autograd.functional.jacobian(
+                lambda p: cam.project_points(p[None], c2w[0, v], intr[0, v], w, h)[0][0], mean)  # (2, 3)
+            rot = cam.rotmat_from_quat_wxyz(g.rotations[0, i])
+            sigma = rot @ torch.diag(g.scales[0, i] ** 2) @ rot.T
+            expect = jac @ sigma @ jac.T + 0.3 * torch.eye(2, dtype=dtype)
+            uv = cam.project_points(mean[None], c2w[0, v], intr[0, v], w, h)[0][0]
+            if not ((uv > 0) & (uv < torch.tensor([w, h], dtype=dtype))).all():
+                continue  # gsplat's off-screen Jacobian clamp only applies outside the view
+            cxx, cxy, cyy = proj.cov2d[v, i]
+            assert torch.allclose(torch.stack([cxx, cxy, cyy]), expect.reshape(-1)[[0, 1, 3]], rtol=1e-10, atol=1e-10)
+            a, b, c = proj.conics[v, i]
+            conic = torch.stack([torch.stack([a, b]), torch.stack([b, c])])
+            assert torch.allclose(conic @ expect, torch.eye(2, dtype=dtype), atol=1e-10)
+
+
 def test_projection_convention_agrees_with_project_points():
     """Rendered Gaussians land where seeu_data.cameras.project_points puts their means, at its depth."""
     rng = np.random.default_rng(4)
