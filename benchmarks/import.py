@@ -84,6 +84,9 @@ def child(mode: str, data: Path, out: Path) -> None:
         from seeu_data.importers import ImportReport, write_import
         from seeu_data.importers import pixelsplat as ps
 
+        import jsonschema  # noqa: F401  (manifest validation)
+        import tqdm  # noqa: F401  (progress bar)
+
         pa.array([0])  # pyarrow imports its pandas shim lazily on first use (~1 s)
     t_imports = time.perf_counter() - t_imports
     base_rss_mb = _rss_mb()
