@@ -356,3 +356,33 @@ def test_span_resize_equals_full_resize_then_crop(h, w, oh, ow, seed):
     assert fast.shape == full.shape == (oh, ow, 3)
     diff = np.abs(fast.astype(int) - full)
     assert diff.max() <= 1 and (diff > 0).mean() < 0.01  # fixed-point weights may round differently
+
+
+def test_reads_what_seeu_build_writes(tmp_path):
+    # The writer's own output (`seeu build`, resized at build time) streams with the cameras it stored.
+    from pipelines.cli import main as cli_main
+    from seeu_data.posed import PosedDatasetWriter
+    from seeu_data.triples import TripleShards
+    from tests.helpers import make_posed_scene
+
+    posed = tmp_path / "posed"
+    with PosedDatasetWriter(posed, params={}, provenance={}) as w:
+        for i, (sid, n) in enumerate({"a": 20, "b": 26}.items()):
+            w.add(make_posed_scene(sid, n=n, height=24, width=32, seed=i))
+    out = tmp_path / "triples"
+    assert cli_main(["build", str(posed), "--out", str(out), "--gap-min", "4", "--gap-max", "8",
+                     "--samples-per-scene", "3"]) == 0
+    rows = {r.sample_id: r for r in TripleShards(out, verify=True).rows()}
+    batches = list(make_loader(out, 2, image_hw=(24, 32), cache_dir=str(tmp_path / "c"), num_workers=1))
+    assert sorted(ids_of(batches)) == sorted(rows)
+    for b in batches:
+        for i, sid in enumerate(b["sample_id"]):
+            r = rows[sid]
+            c2w = torch.cat([b["context"]["cam_to_world"][i], b["target"]["cam_to_world"][i]]).numpy()
+            assert np.allclose(c2w, r.cam_to_world, atol=1e-6)
+            k = torch.cat([b["context"]["intrinsics"][i], b["target"]["intrinsics"][i]]).numpy()
+            assert np.allclose(k, cameras.intrinsics_norm_matrix(r.intrinsics_norm), atol=1e-6)  # same size: unchanged
+            img = b["context"]["image"][i, 0].numpy() * 255
+            want = cv2.cvtColor(cv2.imdecode(np.frombuffer(r.images[0], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
+            assert np.abs(img - want.transpose(2, 0, 1)).max() < 0.01
+            assert b["target"]["frame_index"][i].tolist() == r.target

@@ -31,6 +31,7 @@ from typing import Iterator
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
+from torch.utils.data._utils.pin_memory import pin_memory
 
 from ..errors import SeeUError
 from .collate import collate_views, finish_shipped_batch
@@ -63,6 +64,7 @@ class LoaderConfig:
     max_open_shards: int = 16  # per worker
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "image_hw", tuple(int(x) for x in self.image_hw))
         if self.batch_size < 1:
             raise ValueError("batch_size must be >= 1")
         if self.on_error not in ("raise", "skip"):
@@ -358,7 +360,8 @@ class StreamingLoader:
     def __iter__(self) -> Iterator[dict]:
         ds = self.dataset
         plan = ds.plan()  # computed here once; forked workers inherit it
-        loader = DataLoader(ds, batch_size=None, collate_fn=_as_is, num_workers=self.num_workers, pin_memory=self.pin_memory,
+        pin = self.pin_memory and torch.cuda.is_available()
+        loader = DataLoader(ds, batch_size=None, collate_fn=_as_is, num_workers=self.num_workers, pin_memory=False,
                             prefetch_factor=self.prefetch_factor, persistent_workers=False,
                             multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
                             timeout=self.timeout)
@@ -374,6 +377,8 @@ class StreamingLoader:
                 raise SeeUError(*batch["_error"])
             if ds.ship:
                 batch = finish_shipped_batch(batch, ds.config.image_dtype)
+            if pin:  # after the float conversion, so the tensors handed out are the pinned ones
+                batch = pin_memory(batch)
             cursor = batch.pop("_cursor")
             self.stats["skipped_corrupt"] += batch.pop("_skipped")
             self.stats["padding"] += int(batch["is_padding"].sum())
