@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import io
 import json
+import os
 import statistics
 import sys
 import tempfile
@@ -48,6 +49,8 @@ from seeu_data.manifest import FileEntry, provenance, write_manifest  # noqa: E4
 from seeu_data.schema import arrow_schema, schema_version  # noqa: E402
 
 H, W, OUT = 360, 640, (256, 256)
+RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
+BEGIN, END = "<!-- loader:begin -->", "<!-- loader:end -->"
 VIEWS, CONTEXT = 5, 2
 
 
@@ -197,6 +200,17 @@ def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, tri
     return n / dt
 
 
+def write_results(text: str) -> None:
+    """Replace (or append) the loader section of benchmarks/RESULTS.md."""
+    old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
+    section = f"{BEGIN}\n{text.rstrip()}\n{END}"
+    if BEGIN in old and END in old:
+        new = old[: old.index(BEGIN)] + section + old[old.index(END) + len(END):]
+    else:
+        new = old.rstrip() + "\n\n" + section + "\n"
+    RESULTS.write_text(new)
+
+
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--samples", type=int, default=240)
@@ -204,6 +218,7 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
+    ap.add_argument("--write", action="store_true", help="write the loader section of benchmarks/RESULTS.md")
     args = ap.parse_args()
     torch.set_num_threads(1)
     cv2.setNumThreads(1)  # one decode per worker process for all three (and fork-safe, see dataset.py)
@@ -216,6 +231,9 @@ def main() -> int:
         cache = root / "cache"
         list(make_loader(shards, 64, image_hw=(8, 8), cache_dir=str(cache)))  # sha256 stamps + page cache
         results = {}
+        lines = ["## Streaming loader (2 context + 3 targets, 360x640 JPEG -> 256x256, batch 4)", "",
+                 f"- machine: {os.cpu_count()} CPUs, torch {torch.__version__}, OpenCV {cv2.__version__}; "
+                 f"{args.samples} triples, median of {args.repeats} interleaved runs (samples/s)"]
         for workers in args.workers:
             runs = {"seeu": [], "seeu-uint8": [], "pixelsplat": [], "raw": [], "raw+resize": []}
             for _ in range(args.repeats):
@@ -231,6 +249,12 @@ def main() -> int:
             print(f"    seeu/pixelsplat {med['seeu'] / med['pixelsplat']:.2f}x (target >= 2); seeu/raw decode "
                   f"{100 * med['seeu'] / med['raw']:.0f} % (uint8 out {100 * med['seeu-uint8'] / med['raw']:.0f} %; "
                   f"target >= 70 %); seeu/(decode+resize) {100 * med['seeu'] / med['raw+resize']:.0f} %")
+            lines.append(f"- workers={workers}: seeu {med['seeu']:.1f} (uint8 out {med['seeu-uint8']:.1f}), "
+                         f"pixelSplat-style {med['pixelsplat']:.1f}, raw decode {med['raw']:.1f}, decode+resize "
+                         f"{med['raw+resize']:.1f}; seeu/pixelSplat {med['seeu'] / med['pixelsplat']:.2f}x, "
+                         f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (uint8 {100 * med['seeu-uint8'] / med['raw']:.0f} %)")
+        if args.write:
+            write_results("\n".join(lines))
         if args.json:
             args.json.write_text(json.dumps(results, indent=1))
     return 0
