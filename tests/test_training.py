@@ -81,6 +81,14 @@ def test_resume_continues_the_same_run(shards, tmp_path):
     la = {h["step"]: h["loss"] for h in full["history"]}
     lb = {h["step"]: h["loss"] for h in rest["history"]}
     assert la[2] == pytest.approx(lb[2], abs=1e-6) and la[3] == pytest.approx(lb[3], abs=1e-6)
+    # TensorBoard: losses, PSNR, learning rate and the rendered-vs-ground-truth grid
+    from tensorboard.backend.event_processing.event_accumulator import EventAccumulator
+
+    ea = EventAccumulator(str(tmp_path / "full" / "tb"))
+    ea.Reload()
+    assert {"train/loss", "train/psnr", "train/lr", "train/mse"} <= set(ea.Tags()["scalars"])
+    assert [e.step for e in ea.Scalars("train/loss")] == [1, 2, 3]
+    assert "train/gt_vs_render" in ea.Tags()["images"]
     # and it learned something different from the initialisation
     init = initial_state({"preset": "tiny"})
     assert any(not torch.allclose(init[k], a[k]) for k in a)
