@@ -335,12 +335,6 @@ def materialise(spec: dict, out_dir: str, commit: bool = True) -> dict:
             "pending": not (resumed or commit)}
 
 
-def _pool_init() -> None:
-    import cv2
-
-    cv2.setNumThreads(1)  # the pool is the parallelism
-
-
 def _materialise_json(args: tuple[str, str]) -> dict:
     return materialise(json.loads(args[0]), args[1], commit=False)
 
@@ -374,8 +368,11 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar) -> list[dict]:
             # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
             # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
             ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-            with ProcessPoolExecutor(max_workers=min(workers, len(specs)), mp_context=ctx,
-                                     initializer=_pool_init) as pool:
+            from .image_ops import single_threaded_cv2
+
+            # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
+            with single_threaded_cv2(), ProcessPoolExecutor(max_workers=min(workers, len(specs)),
+                                                            mp_context=ctx) as pool:
                 futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir)) for s in specs]
                 for fut in as_completed(futures):
                     collect(fut.result())

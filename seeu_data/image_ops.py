@@ -6,6 +6,9 @@ The crop geometry and the intrinsics update come from `seeu_data.cameras` (`cove
 
 from __future__ import annotations
 
+from contextlib import contextmanager
+from typing import Iterator
+
 import cv2
 import numpy as np
 
@@ -59,3 +62,20 @@ def encode_png(img: np.ndarray, compression: int = 3) -> bytes:
     if not ok:
         raise ValueError("PNG encoding failed")
     return buf.tobytes()
+
+
+@contextmanager
+def single_threaded_cv2() -> Iterator[None]:
+    """Make OpenCV single-threaded while worker processes are forked, then restore the caller's setting.
+
+    A forked child inherits OpenCV's thread-pool state without its threads: calling
+    `cv2.setNumThreads` (or a parallel OpenCV function) there deadlocks once the parent has used the
+    pool. Shrinking the pool in the parent before the fork gives the workers a clean single-threaded
+    OpenCV (one decode per worker process is the right parallelism anyway).
+    """
+    previous = cv2.getNumThreads()
+    cv2.setNumThreads(1)
+    try:
+        yield
+    finally:
+        cv2.setNumThreads(previous)

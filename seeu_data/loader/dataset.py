@@ -23,7 +23,6 @@ from __future__ import annotations
 import os
 import warnings
 from collections import OrderedDict
-from contextlib import contextmanager
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
@@ -34,6 +33,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from torch.utils.data._utils.pin_memory import pin_memory
 
 from ..errors import SeeUError
+from ..image_ops import single_threaded_cv2
 from .collate import collate_views, finish_shipped_batch
 from .curriculum import GapCurriculum
 from .order import (GlobalPlan, epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
@@ -280,25 +280,6 @@ def _as_is(batch: dict) -> dict:
     return batch
 
 
-@contextmanager
-def _single_threaded_cv2() -> Iterator[None]:
-    """Make OpenCV single-threaded while DataLoader workers are forked, then restore the caller's setting.
-
-    A forked child inherits OpenCV's thread-pool state without its threads: calling
-    `cv2.setNumThreads` (or a parallel OpenCV function) there deadlocks once the parent has used the
-    pool. Shrinking the pool in the parent before the fork gives the workers a clean single-threaded
-    OpenCV (one decode per worker process is the right parallelism anyway).
-    """
-    import cv2
-
-    previous = cv2.getNumThreads()
-    cv2.setNumThreads(1)
-    try:
-        yield
-    finally:
-        cv2.setNumThreads(previous)
-
-
 class StreamingLoader:
     """A DataLoader over a `TripleStream` that knows where it is: `state_dict()` / `load_state_dict()`.
 
@@ -368,7 +349,7 @@ class StreamingLoader:
         skipped = plan.skipped
         ds.ship = self.num_workers > 0
         if self.num_workers:
-            with _single_threaded_cv2():
+            with single_threaded_cv2():
                 batches = iter(loader)  # forks the workers
         else:
             batches = iter(loader)
