@@ -130,12 +130,12 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
     try:
         if dist.device.type == "cuda" and cfg.precision == "bf16" and not torch.cuda.is_bf16_supported():
             raise SeeUError("precision=bf16 but this GPU does not support bfloat16 (use precision=fp32)")
+        lpips_fn = make_lpips(cfg, lpips_weights)       # fail early: missing VGG weights, bad data
+        loader = make_train_loader(data, cfg, dist)
         _seed_everything(cfg.seed)
         factory = model_factory or build_model
         model, model_cfg = factory(cfg.model)
         _seed_everything(cfg.seed + 1000 * dist.rank)
-        lpips_fn = make_lpips(cfg, lpips_weights)
-        loader = make_train_loader(data, cfg, dist)
 
         eval_fn = None
         if val is not None and dist.is_main:
