@@ -27,7 +27,7 @@ from pathlib import Path
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
-SFM_STAGE_FORMAT = 3
+SFM_STAGE_FORMAT = 4
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -220,7 +220,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 "timings_s": sfm_result.get("timings", {}),
                 "models": [{"index": m["index"], "registered": len(m["images"]), "points3D": m["num_points3D"],
                             "mean_reprojection_error_px": m["mean_reprojection_error"], "camera": m["camera"],
-                            "undistorted": m["undistorted"]} for m in sfm_result["models"]],
+                            "undistorted": m["undistorted"], "distortion_max_px": m.get("distortion_max_px")}
+                           for m in sfm_result["models"]],
                 "discarded_models": sfm_result.get("discarded_models", [])},
         "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
                     "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],

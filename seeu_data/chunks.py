@@ -128,7 +128,7 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
             image_paths=[Path(model["image_dir"]) / frame_names[p] for p in positions],
             cam_to_world=c2w, intrinsics_norm=intr, width=w, height=h, near=near, far=far,
             meta={"sfm_model": int(model["index"]), "camera_model": cam["model"], "camera_params": cam["params"],
-                  "undistorted": bool(model["undistorted"]),
+                  "undistorted": bool(model["undistorted"]), "distortion_max_px": model.get("distortion_max_px"),
                   "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, "scale_method": SCALE_METHOD,
                   "near_far_method": NEAR_FAR_METHOD,
                   "mean_reprojection_error_px": model["mean_reprojection_error"]},

@@ -4,8 +4,9 @@ COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop dete
 vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
 into a SeeUError. The child runs: SIFT extraction (one shared camera, `camera_model`) ->
 sequential matching (`overlap`; loop detection only with a vocabulary-tree file) -> incremental
-mapping (possibly several models) -> undistortion of every model whose camera has distortion
-(sizes read back from the undistorted model) -> `result.json` + `points_depth_<k>.npy`.
+mapping (possibly several models) -> undistortion of every model whose camera has distortion of
+at least `max_negligible_distortion_px` at the image border (sizes read back from the undistorted
+model; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
 
 Output directory layout::
 
@@ -50,6 +51,9 @@ class SfmConfig:
     max_num_features: int = 8192
     num_threads: int = -1
     random_seed: int = 0
+    # A distorted camera model whose distortion moves no border pixel by more than this is used as a
+    # pinhole without resampling the images.
+    max_negligible_distortion_px: float = 0.1
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -139,6 +143,21 @@ def _camera_dict(camera) -> dict:
     return {"model": camera.model.name, "width": int(camera.width), "height": int(camera.height),
             "params": [float(p) for p in camera.params],
             "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+
+
+def _max_distortion_px(camera) -> float:
+    """Largest distance (pixels) between where a border pixel is and where the pinhole part of the
+    camera alone would put its ray: 0 for pinhole models."""
+    import numpy as np
+
+    w, h = float(camera.width), float(camera.height)
+    ts = np.linspace(0.0, 1.0, 9)
+    border = np.concatenate([np.stack([ts * w, np.zeros_like(ts)], 1), np.stack([ts * w, np.full_like(ts, h)], 1),
+                             np.stack([np.zeros_like(ts), ts * h], 1), np.stack([np.full_like(ts, w), ts * h], 1)])
+    rays = np.asarray(camera.cam_from_img(border), np.float64)
+    K = np.asarray(camera.calibration_matrix(), np.float64)
+    pinhole = rays @ K[:2, :2].T + K[:2, 2]
+    return float(np.linalg.norm(pinhole - border, axis=1).max())
 
 
 def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool) -> dict:
@@ -252,8 +271,12 @@ def _child(job_path: str) -> int:
         model_dir.mkdir(exist_ok=True)
         rec.write(model_dir)
         camera = next(iter(rec.cameras.values()))
-        if camera.model.name in _UNDISTORTED_MODELS:
+        distortion = _max_distortion_px(camera)
+        if camera.model.name in _UNDISTORTED_MODELS or distortion < cfg.max_negligible_distortion_px:
+            # Pinhole already, or distortion below a fraction of a pixel everywhere: the frames are
+            # used as they are (no resampling, no crop, no second JPEG generation).
             models.append(_export_model(rec, k, image_dir, out, undistorted=False))
+            models[-1]["distortion_max_px"] = distortion
             continue
         und = out / "undistorted" / str(k)
         und.mkdir(parents=True, exist_ok=True)
@@ -263,6 +286,7 @@ def _child(job_path: str) -> int:
         und_rec = pycolmap.Reconstruction(und / "sparse")  # sizes can change by a pixel: read them back
         models.append(_export_model(und_rec, k, str(und / "images"), out, undistorted=True))
         models[-1]["camera_distorted"] = _camera_dict(camera)
+        models[-1]["distortion_max_px"] = distortion
     timings["export_s"] = time.perf_counter() - t0
     (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
                                                  "num_keypoints": num_kp,
