@@ -13,6 +13,9 @@ peak memory is CUDA's max allocated, or the process's peak RSS on CPU.
 With ground truth (DTU, synthetic): --depth-gt gives the depth RMSE of the rendered expected depth
 per target; --points-gt the DTUeval Chamfer distance (accuracy / completeness / overall, thinned to
 0.2, distances < 20, observation mask when given) of the Gaussian centres with opacity >= 0.5.
+Shards built from DTU imported with `seeu import dtu` need neither: the ground-truth paths the
+importer records in the scene meta (Depths/*.pfm in mm, Points/stl, ObsMask/Plane .mat) are found
+through the shards' manifest and used automatically (depth RMSE in scene units, Chamfer in mm).
 Writes OUT/per_scene.csv, OUT/per_target.csv (OUT/chamfer.csv) and OUT/summary.json (written last).
 """
 
@@ -94,7 +97,7 @@ def _nan_to_none(obj: Any) -> Any:
 def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None, batch_size: int = 1,
                      max_samples: int = 0, warmup: int = 2, lpips_fn=None, rasterizer: str = "auto",
                      precision: str = "auto", num_workers: int = 0, progress: bool | None = None,
-                     keep_renders: int = 0, depth_gt: str | None = None, points_gt: str | None = None,
+                     keep_renders: int = 0, depth_gt=None, points_gt=None,
                      geometry_scale: float = 1.0):
     """Evaluate an in-memory model on triple shards; returns `seeu_model.evaluation.EvalOutput`."""
     import sys
@@ -113,8 +116,8 @@ def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None
                           max_samples=max_samples, warmup=warmup, keep_renders=keep_renders,
                           progress=sys.stderr.isatty() if progress is None else progress,
                           autocast=lambda: autocast_context(precision, device),
-                          depth_fn=make_depth_fn(depth_gt, image_hw) if depth_gt else None,
-                          geometry_fn=make_geometry_fn(points_gt, geometry_scale) if points_gt else None)
+                          depth_fn=make_depth_fn(depth_gt, image_hw) if depth_gt is not None else None,
+                          geometry_fn=make_geometry_fn(points_gt, geometry_scale) if points_gt is not None else None)
 
 
 def write_results(out: Path, res, extra: dict) -> dict:
@@ -152,8 +155,8 @@ def write_results(out: Path, res, extra: dict) -> dict:
 def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *, batch_size: int = 1,
              image_hw: tuple[int, int] | None = None, max_samples: int = 0, warmup: int = 2, lpips: bool = True,
              lpips_weights: str | None = None, device: str | None = None, rasterizer: str | None = None,
-             num_workers: int = 0, progress: bool | None = None, depth_gt: str | None = None,
-             points_gt: str | None = None, geometry_scale: float = 1.0) -> dict:
+             num_workers: int = 0, progress: bool | None = None, depth_gt=None,
+             points_gt=None, geometry_scale: float = 1.0) -> dict:
     """Python API of `seeu eval`; returns the summary document (also written to OUT/summary.json)."""
     import torch
 
@@ -178,6 +181,12 @@ def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *
     if out is None:
         run_dir = Path(ck["path"]).parent.parent
         out = run_dir / "eval" / Path(str(data).rstrip("/")).name
+    geometry_note = None
+    if depth_gt is None and points_gt is None:
+        found = posed_ground_truth(data)
+        if found is not None:  # DTU: ground truth recorded by the importer
+            depth_gt, points_gt, geometry_scale = found
+            geometry_note = "ground truth from the posed scenes' meta (depth RMSE in scene units, Chamfer in mm)"
     res = evaluate_on_data(model, data, hw, device=dev, batch_size=batch_size, max_samples=max_samples,
                            warmup=warmup, lpips_fn=lpips_fn, rasterizer=rasterizer or cfg.rasterizer,
                            precision=cfg.precision, num_workers=num_workers, progress=progress,
@@ -185,7 +194,7 @@ def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *
     if not res.records:
         raise SeeUError("the evaluation data yielded no sample", data)
     extra = {"checkpoint": ck["path"], "step": ck["step"], "data": str(data), "image_hw": list(hw),
-             "lpips": lpips_kind, "device": str(dev)}
+             "lpips": lpips_kind, "device": str(dev), "geometry": geometry_note}
     return write_results(Path(out), res, extra)
 
 
@@ -221,10 +230,13 @@ def load_depth_map(root: Path, scene_id: str, frame_index: int):
     return None
 
 
-def make_depth_fn(root: str | Path, image_hw: tuple[int, int]):
+def make_depth_fn(root_or_loader, image_hw: tuple[int, int]):
     """depth_fn for `evaluate_model`: RMSE of the rendered expected depth against ground-truth depth maps
     (resized to the evaluation size with the loader's cover-crop, nearest neighbour; pixels with
-    depth <= 0 or not finite are ignored). Targets without a depth file give NaN."""
+    depth <= 0 or not finite are ignored). Targets without ground truth give NaN.
+
+    root_or_loader: a directory (ROOT/<scene_id>/<frame_index:06d>.npy|.pfm, scene units) or a
+    callable (scene_id, frame_index) -> (H, W) depth in scene units or None."""
     import cv2
     import numpy as np
     import torch
@@ -232,7 +244,11 @@ def make_depth_fn(root: str | Path, image_hw: tuple[int, int]):
     from seeu_data.cameras import cover_crop_geometry
     from seeu_model.geometry_metrics import depth_rmse
 
-    root = Path(root)
+    if callable(root_or_loader):
+        load = root_or_loader
+    else:
+        root = Path(root_or_loader)
+        load = lambda scene, frame: load_depth_map(root, scene, frame)  # noqa: E731
     h, w = image_hw
 
     def fit(depth: np.ndarray) -> np.ndarray:
@@ -246,7 +262,7 @@ def make_depth_fn(root: str | Path, image_hw: tuple[int, int]):
         out = torch.full((b, t), float("nan"))
         for k in range(b):
             for j in range(t):
-                gt = load_depth_map(root, batch["scene_id"][k], int(batch["target"]["frame_index"][k, j]))
+                gt = load(batch["scene_id"][k], int(batch["target"]["frame_index"][k, j]))
                 if gt is not None:
                     out[k, j] = depth_rmse(render.depth[k, j, 0].float().cpu(), torch.from_numpy(fit(gt).copy()))
         return out
@@ -254,43 +270,55 @@ def make_depth_fn(root: str | Path, image_hw: tuple[int, int]):
     return depth_fn
 
 
-def make_geometry_fn(root: str | Path, scale: float = 1.0, min_opacity: float = 0.5, density: float = 0.2,
+def _read_ply_points(path: Path):
+    import numpy as np
+    from plyfile import PlyData
+
+    v = PlyData.read(str(path))["vertex"]
+    return np.stack([v["x"], v["y"], v["z"]], -1).astype(np.float64)
+
+
+def make_geometry_fn(root_or_loader, scale: float = 1.0, min_opacity: float = 0.5, density: float = 0.2,
                      max_dist: float = 20.0):
     """geometry_fn for `evaluate_model`: DTUeval Chamfer between the Gaussian centres (opacity >=
-    `min_opacity`, multiplied by `scale`, e.g. 200 to undo DTU's 1/200 camera scaling -> mm) and
-    ROOT/<scene_id>/points.npy (M, 3) or points.ply, with the optional observation mask
-    ROOT/<scene_id>/obs_mask.npz (ObsMask, BB, Res[, Plane]: DTU's ObsMask/Plane .mat contents)."""
+    `min_opacity`, multiplied by `scale`, e.g. 200 to undo DTU's 1/200 camera scaling -> mm) and the
+    ground-truth points.
+
+    root_or_loader: a directory (ROOT/<scene_id>/points.npy (M, 3) or points.ply, optional
+    obs_mask.npz with DTU's ObsMask/BB/Res[/Plane]) or a callable scene_id -> (points, in_mask_fn,
+    above_plane_bool) or None."""
     import numpy as np
 
     from seeu_model.geometry_metrics import chamfer_dtueval, dtu_observation_filter
 
-    root = Path(root)
     cache: dict = {}
 
-    def load(scene: str):
-        if scene not in cache:
-            d = root / scene
-            pts = None
-            if (d / "points.npy").is_file():
-                pts = np.load(d / "points.npy").reshape(-1, 3)
-            elif (d / "points.ply").is_file():
-                from plyfile import PlyData
-
-                v = PlyData.read(str(d / "points.ply"))["vertex"]
-                pts = np.stack([v["x"], v["y"], v["z"]], -1).astype(np.float64)
-            mask = above = None
-            if pts is not None and (d / "obs_mask.npz").is_file():
-                z = np.load(d / "obs_mask.npz")
-                mask, above_fn = dtu_observation_filter(z["ObsMask"], z["BB"], float(z["Res"]),
-                                                        z["Plane"] if "Plane" in z else None)
-                above = above_fn(pts)
-            cache[scene] = (pts, mask, above)
-        return cache[scene]
-
-    def geometry_fn(batch, gaussians, k):
-        pts, mask, above = load(batch["scene_id"][k])
+    def from_dir(scene: str):
+        d = Path(root_or_loader) / scene
+        pts = None
+        if (d / "points.npy").is_file():
+            pts = np.load(d / "points.npy").reshape(-1, 3)
+        elif (d / "points.ply").is_file():
+            pts = _read_ply_points(d / "points.ply")
         if pts is None:
             return None
+        mask = above = None
+        if (d / "obs_mask.npz").is_file():
+            z = np.load(d / "obs_mask.npz")
+            mask, above_fn = dtu_observation_filter(z["ObsMask"], z["BB"], float(z["Res"]),
+                                                    z["Plane"] if "Plane" in z else None)
+            above = above_fn(pts)
+        return pts, mask, above
+
+    load = root_or_loader if callable(root_or_loader) else from_dir
+
+    def geometry_fn(batch, gaussians, k):
+        scene = batch["scene_id"][k]
+        if scene not in cache:
+            cache[scene] = load(scene)
+        if cache[scene] is None:
+            return None
+        pts, mask, above = cache[scene]
         keep = gaussians.opacities[k] >= min_opacity
         pred = (gaussians.means[k][keep].double().cpu().numpy()) * scale
         r = chamfer_dtueval(pred, pts, mask, above, density=density, max_dist=max_dist)
@@ -298,3 +326,75 @@ def make_geometry_fn(root: str | Path, scale: float = 1.0, min_opacity: float = 
                 "num_pred": r.num_pred}
 
     return geometry_fn
+
+
+def posed_ground_truth(data: str):
+    """Ground truth recorded by an importer (DTU) in the scene meta of the posed frames the triple
+    shards were built from (found through the shards' manifest). Returns (depth_loader,
+    points_loader, units note) or None when no scene has any.
+
+    Depth maps in mm are converted to scene units with the scene's `scale`; Chamfer compares in mm
+    (predicted centres divided by `scale`), with DTU's ObsMask / Plane .mat files when present."""
+    import numpy as np
+
+    from seeu_data.posed import PosedDataset
+
+    manifest = Path(str(data)) / "manifest.json"
+    if not manifest.is_file():
+        return None
+    try:
+        inputs = json.loads(manifest.read_text()).get("params", {}).get("inputs", []) or []
+    except json.JSONDecodeError:
+        return None
+    scenes: dict[str, tuple] = {}
+    for inp in inputs:
+        try:
+            ds = PosedDataset(inp)
+        except Exception:  # noqa: BLE001 - inputs moved or unreadable: no ground truth
+            continue
+        for sid in ds.scene_ids:
+            meta = (ds.scene_info(sid) or {}).get("meta") or {}
+            if any(k in meta for k in ("gt_depth_dir", "gt_points")):
+                scenes[sid] = (ds, meta)
+    if not scenes:
+        return None
+    frames_cache: dict[str, np.ndarray] = {}
+
+    def depth_loader(scene: str, frame_index: int):
+        if scene not in scenes or "gt_depth_dir" not in scenes[scene][1]:
+            return None
+        ds, meta = scenes[scene]
+        if scene not in frames_cache:
+            frames_cache[scene] = np.asarray(ds.load_scene(scene).source_frame)
+        src = frames_cache[scene]
+        view = int(src[frame_index]) if frame_index < len(src) else frame_index
+        p = Path(meta["gt_depth_dir"]) / meta.get("gt_depth_pattern", "depth_map_{view:04d}.pfm").format(view=view)
+        if not p.is_file():
+            return None
+        depth = read_pfm(p)
+        return depth * float(meta.get("scale", 1.0)) if meta.get("gt_depth_units") == "mm" else depth
+
+    def points_loader(scene: str):
+        if scene not in scenes or "gt_points" not in scenes[scene][1]:
+            return None
+        meta = scenes[scene][1]
+        pts = _read_ply_points(Path(meta["gt_points"]))
+        mask = None
+        above = None
+        if "obs_mask" in meta:
+            from seeu_model.geometry_metrics import dtu_observation_filter
+
+            try:
+                from scipy.io import loadmat
+            except ImportError:
+                loadmat = None
+            if loadmat is not None:
+                om = loadmat(meta["obs_mask"])
+                plane = loadmat(meta["obs_plane"])["P"] if "obs_plane" in meta else None
+                mask, above_fn = dtu_observation_filter(om["ObsMask"], om["BB"], float(np.ravel(om["Res"])[0]),
+                                                        plane)
+                above = above_fn(pts)
+        return pts, mask, above
+
+    scale = next((float(m.get("scale", 1.0)) for _, m in scenes.values()), 1.0)
+    return depth_loader, points_loader, 1.0 / scale

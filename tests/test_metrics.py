@@ -168,3 +168,46 @@ def test_depth_fn_aligns_ground_truth_with_the_loader_crop(tmp_path):
     assert out.shape == (1, 1) and out[0, 0].item() == pytest.approx(0.5, abs=1e-5)
     batch["target"]["frame_index"] = torch.tensor([[8]])                # no file -> NaN
     assert math.isnan(fn(batch, SimpleNamespace(depth=depth))[0, 0].item())
+
+
+def _write_pfm(path, depth: np.ndarray) -> None:
+    h, w = depth.shape
+    with open(path, "wb") as fh:
+        fh.write(f"Pf\n{w} {h}\n-1.0\n".encode())
+        fh.write(np.flipud(depth).astype("<f4").tobytes())
+
+
+def test_dtu_ground_truth_found_through_the_shards(tmp_path):
+    """Ground truth the DTU importer records in the scene meta reaches seeu eval via the shards' manifest."""
+    from plyfile import PlyData, PlyElement
+
+    from pipelines.evaluate import posed_ground_truth, read_pfm
+    from seeu_data.build import BuildConfig, build
+    from seeu_data.manifest import provenance
+    from seeu_data.posed import PosedDatasetWriter
+    from seeu_data.sampling import SamplingConfig
+    from seeu_data.synthetic import synthetic_posed_scene
+
+    gt_dir = tmp_path / "Depths" / "scan1_train"
+    gt_dir.mkdir(parents=True)
+    depth = np.arange(12 * 16, dtype=np.float32).reshape(12, 16) + 500.0   # mm
+    _write_pfm(gt_dir / "depth_map_0005.pfm", depth)
+    assert np.array_equal(read_pfm(gt_dir / "depth_map_0005.pfm"), depth)
+    pts = np.random.default_rng(0).random((50, 3)).astype(np.float32)
+    ply = tmp_path / "stl001_total.ply"
+    PlyData([PlyElement.describe(np.array([tuple(p) for p in pts], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]),
+                                 "vertex")]).write(str(ply))
+    scene = synthetic_posed_scene(12, 24, 32, seed=0, scene_id="scan1")
+    scene.meta = {"dataset": "dtu", "scale": 0.005, "gt_depth_dir": str(gt_dir), "gt_depth_units": "mm",
+                  "gt_depth_pattern": "depth_map_{view:04d}.pfm", "gt_points": str(ply)}
+    with PosedDatasetWriter(tmp_path / "posed", {}, provenance("test")) as w:
+        w.add(scene)
+    build(BuildConfig(inputs=(str(tmp_path / "posed"),), out=str(tmp_path / "shards"),
+                      sampling=SamplingConfig(gap_min=3, gap_max=4, samples_per_scene=2)))
+    found = posed_ground_truth(str(tmp_path / "shards"))
+    assert found is not None
+    depth_loader, points_loader, to_mm = found
+    assert np.allclose(depth_loader("scan1", 5), depth * 0.005) and depth_loader("scan1", 6) is None
+    got_pts, mask, above = points_loader("scan1")
+    assert np.allclose(got_pts, pts, atol=1e-6) and mask is None and to_mm == pytest.approx(200.0)
+    assert posed_ground_truth(str(tmp_path / "nope")) is None
