@@ -5,6 +5,7 @@ Generates realistic chunks in a temporary directory (default 4 chunks of ~25 MB:
 
 * baseline: `torch.load(chunk, weights_only=True)` of every chunk, nothing else;
 * input side: the importer's reading alone (chunks, cameras, image headers, Arrow columns), no output;
+* floor: writing the same number of bytes to a new file and fsyncing it (what any durable import pays);
 * import:   `seeu import pixelsplat` (all of the above, then write + sha256 the Arrow files + manifest).
 
 Prints wall time, MB/s, frames/s and CPU time of both, the ratio import/baseline (target >= 0.8)
@@ -23,6 +24,7 @@ import argparse
 import json
 import os
 import resource
+import shutil
 import statistics
 import subprocess
 import sys
@@ -97,6 +99,16 @@ def child(mode: str, data: Path, out: Path) -> None:
             chunk = torch.load(path, map_location="cpu", weights_only=True)
             del chunk
         seconds = time.perf_counter() - t0
+    elif mode == "write":  # the output floor: write the chunks' byte count to a new file and fsync it
+        nbytes = sum(p.stat().st_size for p in (data / "test").glob("*.torch"))
+        block = memoryview(bytes(range(256)) * (4 << 12))  # 4 MB
+        t0 = time.perf_counter()
+        out.mkdir(parents=True, exist_ok=True)
+        with open(out / "floor.bin", "wb", buffering=0) as fh:
+            for _ in range(0, nbytes, len(block)):
+                fh.write(block)
+            os.fsync(fh.fileno())
+        seconds = time.perf_counter() - t0
     elif mode == "read":  # the importer's input side alone: read chunks, convert, probe, build columns
         t0 = time.perf_counter()
         for _ in ps.iter_scenes(ps.PixelSplatImportConfig(root=data, stage="test")):
@@ -131,7 +143,7 @@ def main() -> None:
     ap.add_argument("--chunks", type=int, default=4)
     ap.add_argument("--chunk-mb", type=float, default=25.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--child", choices=["load", "read", "import"])
+    ap.add_argument("--child", choices=["load", "read", "write", "import"])
     ap.add_argument("--data", type=Path)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
@@ -144,11 +156,14 @@ def main() -> None:
         nbytes, frames = make_dataset(tmp / "chunks", args.chunks, args.chunk_mb)
         print(f"dataset: {args.chunks} chunks, {nbytes / 1e6:.1f} MB of JPEG, {frames} frames (360x640)")
         run_child("load", tmp / "chunks", tmp / "warm")  # warm the page cache for both
-        loads, reads, imports = [], [], []
+        loads, reads, writes, imports = [], [], [], []
         for r in range(args.repeats):
             loads.append(run_child("load", tmp / "chunks", tmp / f"x{r}"))
             reads.append(run_child("read", tmp / "chunks", tmp / f"x{r}"))
+            writes.append(run_child("write", tmp / "chunks", tmp / f"w{r}"))
+            shutil.rmtree(tmp / f"w{r}")
             imports.append(run_child("import", tmp / "chunks", tmp / f"out{r}"))
+            shutil.rmtree(tmp / f"out{r}")
         t_load = statistics.median(x["seconds"] for x in loads)
         t_read = statistics.median(x["seconds"] for x in reads)
         t_imp = statistics.median(x["seconds"] for x in imports)
@@ -156,12 +171,17 @@ def main() -> None:
         c_imp = statistics.median(x["cpu_s"] for x in imports)
         for name, t, c, runs in (("torch.load alone", t_load, c_load, loads),
                                  ("import, input side only", t_read, statistics.median(x["cpu_s"] for x in reads), reads),
+                                 ("floor: write+fsync bytes", statistics.median(x["seconds"] for x in writes),
+                                  statistics.median(x["cpu_s"] for x in writes), writes),
                                  ("seeu import pixelsplat", t_imp, c_imp, imports)):
             print(f"{name:24s} {t:7.3f} s  {nbytes / 1e6 / t:8.1f} MB/s  {frames / t:8.0f} frames/s  "
                   f"CPU {c:6.3f} s  peak RSS {max(x['maxrss_mb'] for x in runs):6.0f} MB "
                   f"(+{max(x['growth_mb'] for x in runs):5.1f} MB over the libraries)  "
                   f"(library imports {statistics.median(x['imports_s'] for x in runs):.2f} s, untimed)")
+        t_floor = statistics.median(x["seconds"] for x in writes)
         print(f"ratio input side / torch.load: {t_load / t_read:.2f}x (reading, converting, probing images)")
+        print(f"ratio floor (write+fsync alone) / torch.load: {t_load / t_floor:.2f}x; import / floor: "
+              f"{t_floor / t_imp:.2f}x (the import also sha256-hashes what it writes)")
         print(f"ratio import / torch.load throughput (wall, median of {args.repeats}): {t_load / t_imp:.2f}x "
               f"(target >= 0.8x); CPU-time ratio {c_load / c_imp:.2f}x; largest chunk {args.chunk_mb:.0f} MB")
         print(f"machine load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
