@@ -80,11 +80,11 @@ class LPIPS(nn.Module):
         import lpips
 
         weights_path = None if random_trunk else resolve_vgg_weights(weights)
+        features = load_vgg16_features(weights_path) if weights_path is not None else None  # fail fast
         with contextlib.redirect_stdout(io.StringIO()), warnings.catch_warnings():
             warnings.simplefilter("ignore")  # lpips prints set-up chatter; torchvision warns on pretrained=
             self.net = lpips.LPIPS(net="vgg", pretrained=True, pnet_rand=True, verbose=False)
-        if weights_path is not None:
-            features = load_vgg16_features(weights_path)
+        if features is not None:
             for slice_ in (self.net.net.slice1, self.net.net.slice2, self.net.net.slice3,
                            self.net.net.slice4, self.net.net.slice5):
                 for name, module in slice_.named_children():
