@@ -28,7 +28,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .arrow_io import open_ipc_file
+from .arrow_io import commit_pending, open_ipc_file, write_table
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
@@ -37,7 +37,6 @@ from .schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
-_IPC_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)  # as seeu_data.arrow_io: no compression
 MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
 MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
 
@@ -216,91 +215,6 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
 # ---------------------------------------------------------------------------------------------
 
 
-class _HashingFile:
-    """Write-only file object for `pa.PythonFile`: bytes go to the file and, in order, to a sha256
-    computed on a helper thread (hashlib releases the GIL), so hashing overlaps the write.
-
-    The queued memoryviews keep the written Arrow buffers alive until they are hashed.
-    """
-
-    def __init__(self, fh):
-        import queue
-        import threading
-
-        self.fh = fh
-        self.sha = hashlib.sha256()
-        self.size = 0
-        self.closed = False
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
-        self._thread = threading.Thread(target=self._hash_loop, daemon=True)
-        self._thread.start()
-
-    def _hash_loop(self) -> None:
-        while (view := self._queue.get()) is not None:
-            self.sha.update(view)
-
-    def write(self, data) -> int:
-        view = memoryview(data).cast("B")
-        self._queue.put(view if len(view) >= 1 << 16 else bytes(view))  # small (metadata) pieces: copied
-        self.fh.write(view)
-        self.size += len(view)
-        return len(view)
-
-    def flush(self) -> None:
-        self.fh.flush()
-
-    def close(self) -> None:
-        self.closed = True
-
-    def hexdigest(self) -> str:
-        """Wait for the hash thread; call once, after the last write."""
-        self._queue.put(None)
-        self._thread.join()
-        return self.sha.hexdigest()
-
-
-def pending_path(path: Path) -> Path:
-    """Where a shard waits, written but not yet on disk for sure, until `commit_shard` renames it."""
-    return path.with_name(f".{path.name}.pending")
-
-
-def commit_shard(path: Path) -> None:
-    """fsync the pending file of `path` and rename it into place (the atomic step)."""
-    pending = pending_path(path)
-    with open(pending, "rb") as fh:
-        os.fsync(fh.fileno())
-    os.replace(pending, path)
-
-
-def write_ipc_hashed(path: Path, table: pa.Table, rows_per_batch: int, commit: bool = True) -> tuple[int, str]:
-    """Write `table` as an uncompressed Arrow IPC file; return (bytes, sha256).
-
-    The sha256 is computed from the bytes as they are written (no second pass). The file goes to
-    `pending_path(path)`; with `commit` it is fsynced and renamed to `path` at once (as
-    `seeu_data.arrow_io` does), otherwise the caller calls `commit_shard(path)` later -- the local
-    engine does that on a background thread, so the disk flush overlaps building the next shard.
-    On failure the partial file is removed. Bytes equal those of any IPC writer with the same options.
-    """
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = pending_path(path)
-    hashing = None
-    try:
-        with open(tmp, "wb") as fh:
-            hashing = _HashingFile(fh)
-            with pa.PythonFile(hashing, mode="w") as sink:
-                with pa.ipc.new_file(sink, table.schema, options=_IPC_OPTIONS) as writer:
-                    writer.write_table(table, max_chunksize=rows_per_batch)
-            digest = hashing.hexdigest()
-        if commit:
-            commit_shard(path)
-    except BaseException:
-        if hashing is not None and hashing._thread.is_alive():
-            hashing._queue.put(None)
-        tmp.unlink(missing_ok=True)
-        raise
-    return hashing.size, digest
-
-
 def existing_shard_matches(path: Path, spec: dict) -> bool:
     """True when `path` is a complete shard written from this very spec (resume)."""
     if not path.exists():
@@ -317,7 +231,8 @@ def existing_shard_matches(path: Path, spec: dict) -> bool:
 def materialise(spec: dict, out_dir: str, commit: bool = True) -> dict:
     """Write one shard (or keep a matching one); return its manifest entry, or {"error": message}.
 
-    With `commit=False` a new shard is left pending (`"pending": True`): the caller commits it.
+    The shard's sha256 is computed while it is written (`arrow_io.write_table`). With `commit=False`
+    a new shard is left at `pending_path` (`"pending": True`): the caller calls `commit_pending`.
     """
     out = Path(out_dir)
     path = out / spec["file"]
@@ -327,7 +242,7 @@ def materialise(spec: dict, out_dir: str, commit: bool = True) -> dict:
             entry = FileEntry.for_file(out, path, len(spec["samples"]))
         else:
             table = build_shard_table(spec)
-            size, digest = write_ipc_hashed(path, table, spec["rows_per_batch"], commit=commit)
+            size, digest = write_table(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
             entry = FileEntry(path.name, table.num_rows, size, digest)
     except SeeUError as exc:
         return {"index": spec["index"], "error": str(exc)}
@@ -355,7 +270,7 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar) -> list[dict]:
         def collect(result: dict) -> None:
             results.append(result)
             if result.get("pending"):
-                commits.append(committer.submit(commit_shard, out / result["entry"]["path"]))
+                commits.append(committer.submit(commit_pending, out / result["entry"]["path"]))
             bar.update(1)
 
         if workers <= 1 or len(specs) <= 1:
@@ -458,8 +373,6 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 
 
 def _combined_hash(specs: list[dict]) -> str:
-    import hashlib
-
     return hashlib.sha256("".join(s["plan_sha256"] for s in specs).encode()).hexdigest()
 
 

@@ -18,7 +18,7 @@ from typing import Iterable, Iterator
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import atomic_ipc_writer, open_ipc_file
+from .arrow_io import AtomicIpcWriter, open_ipc_file
 from .errors import SeeUError
 from .manifest import FileEntry, read_manifest, verify_file, write_manifest
 from .schema import arrow_schema, schema_version
@@ -131,7 +131,8 @@ class PosedDatasetWriter:
     """Stream scenes into a posed-frames directory with bounded memory.
 
     Scenes are appended to the current file until it exceeds `target_file_bytes`; each file is
-    written under a temporary name and renamed when closed; `close()` writes the manifest last.
+    written under a temporary name and renamed when closed, its sha256 computed from the bytes as
+    they are written (`arrow_io.AtomicIpcWriter`); `close()` writes the manifest last.
     Use as a context manager: an exception leaves no manifest, so the output never looks complete.
     """
 
@@ -145,8 +146,7 @@ class PosedDatasetWriter:
         self.files: list[FileEntry] = []
         self.scenes: list[dict] = []
         self._seen: set[str] = set()
-        self._ctx = None
-        self._writer = None
+        self._writer: AtomicIpcWriter | None = None
         self._path: Path | None = None
         self._rows = 0
         self._bytes = 0
@@ -160,9 +160,9 @@ class PosedDatasetWriter:
     def __exit__(self, exc_type, exc, tb) -> None:
         if exc_type is None:
             self.close()
-        elif self._ctx is not None:
-            self._ctx.__exit__(exc_type, exc, tb)  # removes the temporary file
-            self._ctx = None
+        elif self._writer is not None:
+            self._writer.abort()  # removes the temporary file
+            self._writer = None
 
     def add(self, scene: PosedScene) -> None:
         scene.check()
@@ -186,18 +186,17 @@ class PosedDatasetWriter:
 
     def _open(self) -> None:
         self._path = self.out_dir / f"{self.prefix}-{len(self.files):05d}.arrow"
-        self._ctx = atomic_ipc_writer(self._path, arrow_schema(SCHEMA))
-        self._writer = self._ctx.__enter__()
+        self._writer = AtomicIpcWriter(self._path, arrow_schema(SCHEMA))
         self._rows = 0
         self._bytes = 0
 
     def _finish_file(self) -> None:
-        if self._ctx is None:
+        if self._writer is None:
             return
-        self._ctx.__exit__(None, None, None)
+        writer, self._writer = self._writer, None
+        size, sha256 = writer.close()
         assert self._path is not None
-        self.files.append(FileEntry.for_file(self.out_dir, self._path, self._rows))
-        self._ctx = self._writer = None
+        self.files.append(FileEntry(str(self._path.relative_to(self.out_dir)), int(self._rows), size, sha256))
 
     def close(self) -> dict:
         self._finish_file()

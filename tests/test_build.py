@@ -248,18 +248,27 @@ def test_progress_bar_on_request(posed, tmp_path, capsys):
     assert "seeu build" in capsys.readouterr().err
 
 
-def test_hashed_writer_matches_arrow_io_and_pending_leftovers_are_cleared(posed, tmp_path):
+def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed, tmp_path):
     import pyarrow as pa
 
-    from seeu_data.arrow_io import sha256_file, write_table
-    from seeu_data.build import pending_path, write_ipc_hashed
+    from seeu_data.arrow_io import commit_pending, pending_path, sha256_file, write_table
 
-    table = pa.table({"a": np.arange(5000), "b": [bytes([i % 251]) * (i % 300) for i in range(5000)]})
-    size, digest = write_ipc_hashed(tmp_path / "x.arrow", table, 64)
-    write_table(tmp_path / "y.arrow", table, max_chunksize=64)
+    # large values too, so that some buffers take the helper-thread hashing path
+    table = pa.table({"a": np.arange(5000), "b": [bytes([i % 251]) * (i % 300) for i in range(5000)],
+                      "c": [bytes([i % 251]) * ((2 << 20) if i % 1000 == 0 else 10) for i in range(5000)]})
+    size, digest = write_table(tmp_path / "x.arrow", table, max_chunksize=64)
+    with pa.OSFile(str(tmp_path / "y.arrow"), "wb") as sink:
+        with pa.ipc.new_file(sink, table.schema, options=pa.ipc.IpcWriteOptions(compression=None)) as w:
+            w.write_table(table, max_chunksize=64)
     assert (tmp_path / "x.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
     assert size == (tmp_path / "x.arrow").stat().st_size and digest == sha256_file(tmp_path / "x.arrow")
-    assert not pending_path(tmp_path / "x.arrow").exists()
+    assert not pending_path(tmp_path / "x.arrow").exists() and not list(tmp_path.glob(".*"))
+    # deferred commit: complete but pending until commit_pending, then the same bytes in place
+    assert write_table(tmp_path / "z.arrow", table, max_chunksize=64, commit=False) == (size, digest)
+    assert not (tmp_path / "z.arrow").exists() and pending_path(tmp_path / "z.arrow").exists()
+    commit_pending(tmp_path / "z.arrow")
+    assert (tmp_path / "z.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
+    assert not list(tmp_path.glob(".*"))
     # an interrupted run leaves a pending shard and no manifest; the re-run clears it and completes
     out = tmp_path / "b"
     assert _build(posed, out) == 0

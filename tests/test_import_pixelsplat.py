@@ -264,7 +264,7 @@ def test_verify_decode_catches_what_headers_cannot(tmp_path, capsys):
 def test_prefetch_keeps_order_reraises_and_stops():
     import threading
 
-    from seeu_data.importers.writer import prefetch
+    from seeu_data.importers.prefetch import prefetch
 
     assert list(prefetch(iter(range(50)), max_items=2)) == list(range(50))
 

@@ -11,8 +11,8 @@ import numpy as np
 
 from ..errors import SeeUError
 from ..image_header import decode_check, image_info
-from ..posed import PosedScene
-from .writer import HashingPosedWriter, prefetch
+from ..posed import PosedDatasetWriter, PosedScene
+from .prefetch import prefetch
 
 
 @dataclass(frozen=True)
@@ -77,7 +77,7 @@ def write_import(items: Iterable[PosedScene | SkippedScene], out_dir: str | Path
                  total: int | None = None) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
-    The importer runs in a background thread a few scenes ahead (`writer.prefetch`), so reading
+    The importer runs in a background thread a few scenes ahead (`prefetch.prefetch`), so reading
     the input overlaps with writing and hashing the output. A scene whose cameras fail `PosedScene.check` (non-finite, non-orthonormal, bad near/far) is
     skipped like the importer's own skips. `strict` turns the first skip into an error. Raises
     SeeUError, leaving no manifest, when nothing usable remains.
@@ -85,7 +85,7 @@ def write_import(items: Iterable[PosedScene | SkippedScene], out_dir: str | Path
     from tqdm import tqdm
 
     out_dir = Path(out_dir)
-    writer = HashingPosedWriter(out_dir, params=params, provenance=provenance)
+    writer = PosedDatasetWriter(out_dir, params=params, provenance=provenance)
     bar = tqdm(total=total, unit="scene", desc=f"import {report.format}", file=sys.stderr,
                disable=not progress, dynamic_ncols=True)
     try:
