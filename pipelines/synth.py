@@ -1,5 +1,5 @@
 """Render the built-in synthetic clip: a seeded textured corridor with boxes (occlusions, depths from
-~0.5 to ~20 m) seen along a walk-through that translates and turns, ray-cast in numpy.
+about 1 to 16 m) seen along a walk-through that translates and turns, ray-cast in numpy.
 
 Writes OUT/clip.mp4 (mp4v) and OUT/clip.json, the exact ground truth per frame: frame number,
 timestamp_us, cam_to_world (OpenCV 4x4), intrinsics_norm (fx/W, fy/H, cx/W, cy/H); plus W, H,
