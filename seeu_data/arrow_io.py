@@ -1,4 +1,5 @@
-"""Arrow IPC file IO: uncompressed, written to a temporary name and renamed when complete.
+"""File IO: Arrow IPC files (uncompressed) and other outputs written to a temporary name, fsynced and
+renamed when complete; JSON inputs read with a one-line error.
 
 Every IPC file written here is hashed while it is written: `AtomicIpcWriter` feeds the bytes it
 writes to a sha256 (large buffers on a helper thread, overlapping the write; hashlib and file writes
@@ -8,8 +9,11 @@ both release the GIL), so the manifest's (bytes, sha256) come without reading th
 from __future__ import annotations
 
 import hashlib
+import json
 import os
+from contextlib import contextmanager
 from pathlib import Path
+from typing import Iterator
 
 import pyarrow as pa
 
@@ -29,12 +33,33 @@ def pending_path(path: Path) -> Path:
     return path.with_name(f".{path.name}.pending")
 
 
-def commit_pending(path: Path) -> None:
-    """fsync the pending file of `path` and rename it into place (the atomic step)."""
-    pending = pending_path(path)
-    with open(pending, "rb") as fh:
+def _fsync_replace(src: Path, dst: Path) -> None:
+    """Make the written file `src` durable, then rename it to `dst` (the atomic step)."""
+    with open(src, "rb") as fh:
         os.fsync(fh.fileno())
-    os.replace(pending, path)
+    os.replace(src, dst)
+
+
+def commit_pending(path: Path) -> None:
+    """fsync the pending file of `path` and rename it into place."""
+    _fsync_replace(pending_path(path), path)
+
+
+@contextmanager
+def atomic_path(path: str | Path) -> Iterator[Path]:
+    """A temporary name beside `path` for a writer that takes a file name (torch.save, ...).
+
+    When the block succeeds the file is fsynced and renamed to `path`; when it raises, it is removed.
+    """
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = tmp_path_for(path)
+    try:
+        yield tmp
+        _fsync_replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
 
 
 class _HashingFile:
@@ -193,19 +218,18 @@ def sha256_file(path: str | Path, chunk: int = 1 << 22) -> str:
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = tmp_path_for(path)
-    try:
-        with open(tmp, "wb") as fh:
-            fh.write(data)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    with atomic_path(path) as tmp:
+        tmp.write_bytes(data)
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
     atomic_write_bytes(path, text.encode("utf-8"))
+
+
+def read_json(path: str | Path, what: str = ""):
+    """Parse a JSON file; SeeUError naming the file (and `what` it is) when it is not valid JSON."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"{what} is not valid JSON ({exc})" if what else f"not valid JSON ({exc})", path) from None

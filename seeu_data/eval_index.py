@@ -15,13 +15,13 @@ order (the sample id of the written row is ``{scene}/eval/{k}``).
 
 from __future__ import annotations
 
-import json
 import re
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
+from .arrow_io import read_json
 from .errors import SeeUError
 from .sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 
@@ -77,10 +77,7 @@ def read_index(path: str | Path, fmt: str = "auto") -> EvalIndex:
     path = Path(path)
     if not path.exists():
         raise SeeUError("evaluation index not found", path)
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"evaluation index is not valid JSON ({exc})", path) from None
+    doc = read_json(path, "evaluation index")
     if not isinstance(doc, dict):
         raise SeeUError("evaluation index must be a JSON object {scene: entry}", path)
     if fmt == "auto":

@@ -17,7 +17,7 @@ from typing import Any
 import jsonschema
 
 from . import __version__
-from .arrow_io import atomic_write_text, open_ipc_file, sha256_file
+from .arrow_io import atomic_write_text, open_ipc_file, read_json, sha256_file
 from .errors import SeeUError
 from .schema import MANIFEST_VERSION, check_version, manifest_json_schema
 
@@ -83,18 +83,18 @@ def write_manifest(
     return doc
 
 
-def read_manifest(root: str | Path, expect_schema: str | None = None) -> dict:
-    """Read and check a dataset manifest: JSON shape, known schema and major version."""
+def read_manifest(root: str | Path, expect_schema: str | None = None, verify: bool = False) -> dict:
+    """Read and check a dataset manifest: JSON shape, known schema and major version.
+
+    With `verify`, every listed file is checked too (`verify_file`: present, size, sha256, rows).
+    """
     root = Path(root)
     path = root / MANIFEST_NAME
     if not root.exists():
         raise SeeUError("dataset directory not found", root)
     if not path.exists():
         raise SeeUError("no manifest.json: not a SeeU dataset, or its write did not finish", root)
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"manifest is not valid JSON ({exc})", path) from None
+    doc = read_json(path, "manifest")
     if not isinstance(doc, dict) or "manifest_version" not in doc:
         raise SeeUError("not a SeeU manifest (no manifest_version)", path)
     if str(doc["manifest_version"]).split(".")[0] != MANIFEST_VERSION.split(".")[0]:
@@ -106,6 +106,9 @@ def read_manifest(root: str | Path, expect_schema: str | None = None) -> dict:
     check_version(doc["schema"], doc["schema_version"], path)
     if expect_schema is not None and doc["schema"] != expect_schema:
         raise SeeUError(f"expected a {expect_schema} dataset, found {doc['schema']}", root)
+    if verify:
+        for entry in doc["files"]:
+            verify_file(root, entry)
     return doc
 
 

@@ -20,7 +20,7 @@ import pyarrow as pa
 
 from .arrow_io import AtomicIpcWriter, open_ipc_file
 from .errors import SeeUError
-from .manifest import FileEntry, read_manifest, verify_file, write_manifest
+from .manifest import FileEntry, read_manifest, write_manifest
 from .schema import arrow_schema, schema_version
 
 SCHEMA = "seeu.posed_frames"
@@ -211,10 +211,7 @@ class PosedDataset:
 
     def __init__(self, root: str | Path, verify: bool = False):
         self.root = Path(root)
-        self.manifest = read_manifest(self.root, expect_schema=SCHEMA)
-        if verify:
-            for entry in self.manifest["files"]:
-                verify_file(self.root, entry)
+        self.manifest = read_manifest(self.root, expect_schema=SCHEMA, verify=verify)
         self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
         self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
         self._batch_index: dict[str, dict[int, int]] = {}

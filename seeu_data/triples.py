@@ -28,7 +28,7 @@ import pyarrow as pa
 
 from .arrow_io import open_ipc_file
 from .errors import SeeUError
-from .manifest import read_manifest, verify_file
+from .manifest import read_manifest
 from .schema import arrow_schema
 
 SCHEMA = "seeu.triples"
@@ -269,10 +269,7 @@ class TripleShards:
 
     def __init__(self, root: str | Path, verify: bool = False):
         self.root = Path(root)
-        self.manifest = read_manifest(self.root, expect_schema=SCHEMA)
-        if verify:
-            for entry in self.manifest["files"]:
-                verify_file(self.root, entry)
+        self.manifest = read_manifest(self.root, expect_schema=SCHEMA, verify=verify)
 
     @property
     def files(self) -> list[str]:

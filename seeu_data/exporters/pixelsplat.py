@@ -14,7 +14,6 @@ index.json and the sidecar last, so a stage directory without index.json is an u
 from __future__ import annotations
 
 import json
-import os
 import re
 import sys
 from dataclasses import dataclass
@@ -22,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrow_io import atomic_write_text, tmp_path_for
+from ..arrow_io import atomic_path, atomic_write_text
 from ..cameras import world_to_cam_from_cam_to_world
 from ..errors import SeeUError
 from ..posed import PosedDataset, PosedScene
@@ -62,15 +61,8 @@ def example_from_scene(scene: PosedScene) -> dict:
 def _save_chunk(examples: list[dict], path: Path) -> None:
     import torch
 
-    tmp = tmp_path_for(path)
-    try:
+    with atomic_path(path) as tmp:
         torch.save(examples, tmp)
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
 
 
 def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progress: bool = False) -> dict:

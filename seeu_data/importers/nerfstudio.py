@@ -28,6 +28,7 @@ from typing import Iterator
 import numpy as np
 
 from ..cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels, invert_rigid, opencv_from_opengl
+from ..arrow_io import read_json
 from ..errors import SeeUError
 from ..posed import PosedScene
 from .common import SkippedScene, probe_images
@@ -76,10 +77,7 @@ def load_transforms(path: Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise SeeUError("transforms.json not found", path)
-    try:
-        doc = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"not valid JSON ({exc})", path) from None
+    doc = read_json(path)
     if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list) or not doc["frames"]:
         raise SeeUError("no 'frames' list", path)
     return doc

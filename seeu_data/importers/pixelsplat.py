@@ -31,6 +31,7 @@ import numpy as np
 import pyarrow as pa
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
+from ..arrow_io import read_json
 from ..errors import SeeUError
 from ..posed import PosedScene
 from .common import SkippedScene, probe_images
@@ -76,10 +77,7 @@ def read_index(directory: Path) -> dict[str, str] | None:
     path = directory / "index.json"
     if not path.exists():
         return None
-    try:
-        index = json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"index.json is not valid JSON ({exc})", path) from None
+    index = read_json(path, "index.json")
     if not isinstance(index, dict) or not all(isinstance(k, str) and isinstance(v, str) for k, v in index.items()):
         raise SeeUError("index.json must map scene keys to chunk file names", path)
     return index
@@ -213,10 +211,7 @@ def read_sidecar(directory: Path) -> dict | None:
     path = directory / SIDECAR_NAME
     if not path.exists():
         return None
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"not valid JSON ({exc})", path) from None
+    return read_json(path)
 
 
 def iter_scenes(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None
