@@ -42,6 +42,7 @@ from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from benchmarks.results_md import write_section  # noqa: E402
 from seeu_data import cameras  # noqa: E402
 from seeu_data.arrow_io import write_table  # noqa: E402
 from seeu_data.loader import make_loader  # noqa: E402
@@ -49,8 +50,6 @@ from seeu_data.manifest import FileEntry, provenance, write_manifest  # noqa: E4
 from seeu_data.schema import arrow_schema, schema_version  # noqa: E402
 
 H, W, OUT = 360, 640, (256, 256)
-RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
-BEGIN, END = "<!-- loader:begin -->", "<!-- loader:end -->"
 VIEWS, CONTEXT = 5, 2
 
 
@@ -200,17 +199,6 @@ def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, tri
     return n / dt
 
 
-def write_results(text: str) -> None:
-    """Replace (or append) the loader section of benchmarks/RESULTS.md."""
-    old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
-    section = f"{BEGIN}\n{text.rstrip()}\n{END}"
-    if BEGIN in old and END in old:
-        new = old[: old.index(BEGIN)] + section + old[old.index(END) + len(END):]
-    else:
-        new = old.rstrip() + "\n\n" + section + "\n"
-    RESULTS.write_text(new)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--samples", type=int, default=240)
@@ -254,7 +242,7 @@ def main() -> int:
                          f"{med['raw+resize']:.1f}; seeu/pixelSplat {med['seeu'] / med['pixelsplat']:.2f}x, "
                          f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (uint8 {100 * med['seeu-uint8'] / med['raw']:.0f} %)")
         if args.write:
-            write_results("\n".join(lines))
+            write_section("loader", "\n".join(lines))
         if args.json:
             args.json.write_text(json.dumps(results, indent=1))
     return 0

@@ -29,13 +29,12 @@ import torch.nn.functional as F
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks.results_md import write_section  # noqa: E402
 from seeu_data.cameras import intrinsics_norm_matrix  # noqa: E402
 from seeu_model.config import SeeUConfig  # noqa: E402
 from seeu_model.seeu import SeeU, parameter_counts  # noqa: E402
 
 PAPER_LATENCY_S = 0.089  # paper table 1 (H800), encoder + rendering of the 3 target views
-RESULTS = Path(__file__).resolve().parent / "RESULTS.md"
-BEGIN, END = "<!-- model:begin -->", "<!-- model:end -->"
 
 
 def make_batch(b: int, v: int, t: int, size: int, device) -> dict:
@@ -125,16 +124,6 @@ def bench_train_step(model: SeeU, batch: dict, device, repeats: int, backend: st
     return res
 
 
-def write_results(text: str) -> None:
-    old = RESULTS.read_text() if RESULTS.exists() else "# Benchmark results\n"
-    section = f"{BEGIN}\n{text.rstrip()}\n{END}"
-    if BEGIN in old and END in old:
-        new = old[: old.index(BEGIN)] + section + old[old.index(END) + len(END):]
-    else:
-        new = old.rstrip() + "\n\n" + section + "\n"
-    RESULTS.write_text(new)
-
-
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--preset", default="paper", choices=["paper", "cpu_small", "tiny"])
@@ -203,7 +192,7 @@ def main() -> int:
     print(text)
     print(json.dumps(res))
     if args.write:
-        write_results(text)
+        write_section("model", text)
     return 0
 
 
