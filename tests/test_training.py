@@ -48,6 +48,9 @@ def test_config_presets_and_overrides(tmp_path):
                                                     "log.progress=true"])
     assert small.optim.lr == 5e-4 and small.data.image_size == (32, 48) and small.model["refiner"] == "unet"
     assert small.log.progress is True
+    for preset in sorted(root.glob("*.json")):           # every shipped preset parses and validates
+        cfg = load_config(preset)
+        assert cfg.model.get("preset") in ("paper", "cpu_small", "tiny"), preset
     with pytest.raises(SeeUError, match="unknown key"):
         load_config(None, ["optim.learning_rate=1"])
     with pytest.raises(SeeUError, match="integer"):
