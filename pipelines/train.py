@@ -125,6 +125,8 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         cfg = config_from_dict(apply_overrides(_strip_none(resume_ckpt["config"]), overrides))
     else:
         cfg = load_config(config, overrides)
+    if progress is not None:
+        cfg.log.progress = progress
 
     dist = setup_distributed(device)
     try:
