@@ -57,7 +57,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="held-out triples per evaluation set, interp and extrap (default 8)")
     g.add_argument("--config", type=Path, default=DEMO_CONFIG, help="training preset (default configs/demo.json)")
     g.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the preset's optim.max_steps; demo.json: 500, ~4-5 min)")
+                   help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)")
     g.add_argument("--lpips-weights", default=None, metavar="PATH",
                    help="torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; "
                         "LPIPS is skipped when it is missing)")
@@ -411,7 +411,7 @@ def render_grid(renders: dict, path: Path) -> None:
             if c == 0:
                 ax.set_ylabel(label, fontsize=7)
     fig.suptitle("held-out scene: ground truth, initial model, trained model", fontsize=10)
-    fig.tight_layout()
+    fig.tight_layout(rect=(0, 0, 1, 1 - 0.4 / (1.8 * len(rows))))
     buf = io.BytesIO()
     fig.savefig(buf, format="png")
     atomic_write_bytes(path, buf.getvalue())
@@ -574,7 +574,7 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
           f"Preset `{Path(tr['config']).name}` with overrides `{' '.join(tr['overrides'])}`: batch {tr['batch_size']}, "
           f"AdamW lr {tr['lr']:g}, MSE loss, fp32 on CPU. {tr['step']} steps in {tr['seconds']:.0f} s "
           f"({tr['steps_per_s']:.2f} steps/s). Checkpoint: [{_rel(tr['checkpoint'], out)}]({_rel(tr['checkpoint'], out)}); "
-          f"TensorBoard: `tensorboard --logdir {_rel(Path(tr['run']) / 'tb', Path.cwd())}`.", "",
+          f"TensorBoard: `tensorboard --logdir {Path(tr['run']) / 'tb'}`.", "",
           f"![training curve]({_rel(curve_png, out)})", ""]
 
     L += ["## Metrics on the held-out scene", "",
