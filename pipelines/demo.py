@@ -17,7 +17,8 @@ Stages (each resumable: a re-run with the same options reuses every finished sta
   7. report  OUT/report.md: stage timings, SfM accuracy, shard counts, trajectory plot, contact
              sheet, training curve, renders next to ground truth, metrics table (init vs trained).
 
-About 6-10 minutes on 2 CPU cores with the defaults (training is --steps; the rest takes ~3 minutes).
+About 5 minutes on 2 idle CPU cores with the defaults (SfM ~1.5 min, training ~2 min; more on a busy
+machine). Training length: --steps.
 
 Examples:
   seeu demo --out out/demo
@@ -57,7 +58,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="held-out triples per evaluation set, interp and extrap (default 8)")
     g.add_argument("--config", type=Path, default=DEMO_CONFIG, help="training preset (default configs/demo.json)")
     g.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)")
+                   help="training steps (default: the preset's optim.max_steps; demo.json: 200, ~2 min on an idle 2-core CPU)")
     g.add_argument("--lpips-weights", default=None, metavar="PATH",
                    help="torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; "
                         "LPIPS is skipped when it is missing)")
@@ -265,7 +266,8 @@ def stage_train(ctx: dict, stages: Stages, build: dict) -> dict:
     val_every = max(1, steps // 5)
     ov_run = ov + [f"log.val_every={val_every}", f"checkpoint.every={max(1, min(cfg.checkpoint.every, steps))}"]
     run_dir = ctx["out"] / "run"
-    key = {"build": stages.hash("build"), "config": read_config_file(a.config), "overrides": ov_run}
+    preset = {k: v for k, v in read_config_file(a.config).items() if not str(k).startswith("_")}  # not comments
+    key = {"build": stages.hash("build"), "config": preset, "overrides": ov_run}
 
     def fn() -> dict:
         from seeu_data.arrow_io import atomic_write_text
