@@ -310,20 +310,6 @@ def test_image_folders_and_folder_of_videos(tmp_path, clip, capsys):
     _no_complete_output(tmp_path / "out")
 
 
-def test_demo_small(tmp_path, capsys):
-    argv = ["demo", "--out", str(tmp_path / "demo"), "--frames", "30", "--size", "320x180"]
-    assert cli_main(argv) == 0
-    out = capsys.readouterr().out
-    assert "trajectory.png" in out and "vs ground truth" in out
-    report = json.loads((tmp_path / "demo" / "posed" / "clip" / "report.json").read_text())
-    assert report["registered"] >= 28
-    validate_dataset(tmp_path / "demo" / "posed" / "clip")
-    assert cli_main(argv) == 0  # resumes: clip and stages reused
-    assert "reusing" in capsys.readouterr().out
-    report2 = json.loads((tmp_path / "demo" / "posed" / "clip" / "report.json").read_text())
-    assert all(report2["reused"].values())
-
-
 def test_colmap_abort_in_child_is_one_line(clip, tmp_path, capsys):
     """An invalid vocabulary tree makes COLMAP abort (SIGABRT): only the child dies; the user gets one line."""
     bogus = tmp_path / "vocab.bin"
