@@ -19,7 +19,7 @@ demo: $(STAMP)
 	$(BIN)/seeu demo --out out/demo
 
 test: $(STAMP)
-	$(BIN)/python -m pytest -q tests
+	$(BIN)/python -m pytest -q --durations=15 tests
 
 clean-venv:
 	rm -rf $(VENV)
