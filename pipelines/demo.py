@@ -178,9 +178,10 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     from seeu_data.video import discover_sources
 
     # The synthetic clips are rendered with an ideal pinhole camera (square pixels, centred principal
-    # point): SIMPLE_PINHOLE has no distortion term for SfM to trade against the focal length (with
-    # SIMPLE_RADIAL an occasional run settled on a solution with ~5% camera-centre error, and the
-    # model then learned less from the training clip).
+    # point), so SIMPLE_PINHOLE is the matching model. Known issue: multi-threaded SfM is not
+    # deterministic and about one run in four settles on a solution with ~5% camera-centre error
+    # (seen with SIMPLE_RADIAL too; the ingest report and report.md show it); the model then learns
+    # less from the training clip.
     cfg = IngestConfig(camera_model="SIMPLE_PINHOLE")
 
     def fn() -> dict:
