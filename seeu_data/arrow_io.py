@@ -1,8 +1,16 @@
-"""File IO: Arrow IPC files (uncompressed) and other outputs written to a temporary name, fsynced and
-renamed when complete; JSON inputs read with a one-line error.
+"""File IO: Arrow IPC files (uncompressed) and other outputs written to a temporary name and renamed
+when complete; JSON inputs read with a one-line error.
+
+Durability policy (decided here, in one place): every write is atomic (temporary name, rename when
+complete, manifests written last with bytes + sha256 per file), so a crash, Ctrl-C or kill never
+leaves a half-written file under its final name. fsync is opt-in: with it off (the default) data
+reaches the page cache and a file torn by a power loss is caught by its manifest sha256
+(`read_manifest(verify=True)`, `seeu validate`, the size/sha256 checks before a resume keeps a file);
+with it on (`set_fsync(True)`, set by the `--fsync` flag of `seeu import/build/ingest`, or the
+environment variable `SEEU_FSYNC=1`) every file is fsynced before its rename.
 
 Every IPC file written here is hashed while it is written: `AtomicIpcWriter` feeds the bytes it
-writes to a sha256 (large buffers on a helper thread, overlapping the write; hashlib and file writes
+writes to a sha256 on a helper thread, in order, overlapping the writes (hashlib and file writes
 both release the GIL), so the manifest's (bytes, sha256) come without reading the file back.
 """
 
@@ -21,7 +29,22 @@ from .errors import SeeUError
 
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
-_BIG_WRITE = 1 << 20  # buffers at least this large are hashed on the helper thread
+_BIG_WRITE = 1 << 20  # buffers at least this large are queued for hashing by reference, smaller ones copied
+_MAX_QUEUED = 256 << 20  # bytes at most waiting for the hashing thread
+
+
+_FSYNC = os.environ.get("SEEU_FSYNC", "").strip().lower() in ("1", "true", "yes", "on")
+
+
+def set_fsync(enabled: bool) -> None:
+    """Turn fsync-before-rename on or off for every write of this process (and of workers forked later)."""
+    global _FSYNC
+    _FSYNC = bool(enabled)
+
+
+def fsync_enabled() -> bool:
+    """Whether files are fsynced before their rename (`--fsync` / `SEEU_FSYNC=1`; default off)."""
+    return _FSYNC
 
 
 def tmp_path_for(path: Path) -> Path:
@@ -29,19 +52,20 @@ def tmp_path_for(path: Path) -> Path:
 
 
 def pending_path(path: Path) -> Path:
-    """Where a file written with `commit=False` waits, complete but not yet durable, until `commit_pending`."""
+    """Where a file written with `commit=False` waits, complete but not yet in place, until `commit_pending`."""
     return path.with_name(f".{path.name}.pending")
 
 
 def _fsync_replace(src: Path, dst: Path) -> None:
-    """Make the written file `src` durable, then rename it to `dst` (the atomic step)."""
-    with open(src, "rb") as fh:
-        os.fsync(fh.fileno())
+    """Make the written file `src` durable when the fsync policy is on, then rename it to `dst` (the atomic step)."""
+    if _FSYNC:
+        with open(src, "rb") as fh:
+            os.fsync(fh.fileno())
     os.replace(src, dst)
 
 
 def commit_pending(path: Path) -> None:
-    """fsync the pending file of `path` and rename it into place."""
+    """Rename the pending file of `path` into place (fsynced first when the fsync policy is on)."""
     _fsync_replace(pending_path(path), path)
 
 
@@ -49,7 +73,8 @@ def commit_pending(path: Path) -> None:
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that takes a file name (torch.save, ...).
 
-    When the block succeeds the file is fsynced and renamed to `path`; when it raises, it is removed.
+    When the block succeeds the file is renamed to `path` (fsynced first with the fsync policy on);
+    when it raises, it is removed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -65,35 +90,66 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 class _HashingFile:
     """Raw write-only file object that feeds every written buffer to a sha256 (used through pa.PythonFile).
 
-    A large buffer is hashed in a helper thread while the main thread writes it. The call returns
-    only when both are done: the buffer's memory is only guaranteed alive during the call. (Starting
-    write-back early with sync_file_range was measured and made the import slower: it moves the
-    kernel's write-back work into this thread.)
+    Hashing runs on one helper thread, in write order, decoupled from the writes: a large buffer is
+    queued (a reference to it, no copy) and `write` returns at once, so hashing overlaps writing and
+    building the next batch (hashlib and file writes release the GIL). Small buffers are copied into
+    a staging buffer that is queued when it grows large or before the next large buffer. At most
+    `_MAX_QUEUED` bytes wait for the hasher (bounded memory). Large buffers are kept by reference
+    only when immutable (`bytes`, Arrow buffers: pyarrow's IPC writer hands its body buffers over as
+    `pyarrow.Buffer`); anything else is copied first. (Starting write-back early with
+    sync_file_range was measured and made the import slower: it moves the kernel's write-back work
+    into this thread.)
     """
 
     def __init__(self, path: Path):
+        from collections import deque
         from concurrent.futures import ThreadPoolExecutor
 
         self._fh = open(path, "wb", buffering=0)
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seeu-sha256")
-        self.sha256 = hashlib.sha256()
+        self._sha256 = hashlib.sha256()
+        self._queued: deque = deque()  # (future, nbytes) in submission order
+        self._queued_bytes = 0
+        self._small = bytearray()
         self.size = 0
         self.closed = False
 
+    def _submit(self, view) -> None:
+        self._queued.append((self._pool.submit(self._sha256.update, view), view.nbytes))
+        self._queued_bytes += view.nbytes
+        while self._queued and (self._queued[0][0].done() or self._queued_bytes > _MAX_QUEUED):
+            fut, nbytes = self._queued.popleft()
+            fut.result()
+            self._queued_bytes -= nbytes
+
+    def _flush_small(self) -> None:
+        if self._small:
+            self._submit(memoryview(bytes(self._small)))
+            self._small = bytearray()
+
     def write(self, data) -> int:
         view = memoryview(data).cast("B")
-        hashing = self._pool.submit(self.sha256.update, view) if view.nbytes >= _BIG_WRITE else None
-        if hashing is None:
-            self.sha256.update(view)
+        nbytes = view.nbytes
+        if nbytes < _BIG_WRITE:
+            self._small += view
+            if len(self._small) >= _BIG_WRITE:
+                self._flush_small()
+        else:
+            self._flush_small()
+            self._submit(view if isinstance(data, (bytes, pa.Buffer)) else memoryview(bytes(view)))
         written = 0
-        try:
-            while written < view.nbytes:
-                written += self._fh.write(view[written:])
-        finally:
-            if hashing is not None:
-                hashing.result()
-        self.size += view.nbytes
-        return written
+        while written < nbytes:
+            written += self._fh.write(view[written:])
+        self.size += nbytes
+        return nbytes
+
+    def hexdigest(self) -> str:
+        """sha256 of every byte written (waits for the hasher)."""
+        self._flush_small()
+        while self._queued:
+            self._queued.popleft()[0].result()
+        self._queued_bytes = 0
+        return self._sha256.hexdigest()
 
     def flush(self) -> None:
         pass
@@ -107,24 +163,25 @@ class _HashingFile:
     def seekable(self) -> bool:
         return False
 
-    def close(self, sync: bool = False) -> None:
+    def fsync(self) -> None:
+        os.fsync(self._fh.fileno())
+
+    def close(self) -> None:
         if not self.closed:
             try:
-                if sync:
-                    os.fsync(self._fh.fileno())
-            finally:
                 self._fh.close()
-                self._pool.shutdown(wait=True)
+            finally:
+                self._pool.shutdown(wait=True, cancel_futures=True)
                 self.closed = True
 
 
 class AtomicIpcWriter:
     """An Arrow IPC *file* writer (uncompressed) on a temporary name, hashing the bytes as it writes.
 
-    `write_batch` / `write_table` as pyarrow's writer; `close()` finishes the file, fsyncs it,
-    renames it to `path` and returns `(bytes, sha256)` (also kept as `.size` / `.sha256`). With
+    `write_batch` / `write_table` as pyarrow's writer; `close()` finishes the file, fsyncs it when the
+    fsync policy is on (`set_fsync`), renames it to `path` and returns `(bytes, sha256)` (also kept as `.size` / `.sha256`). With
     `commit=False` the finished file is left at `pending_path(path)` and the caller calls
-    `commit_pending(path)` later (`seeu build` does that on a background thread, so the disk flush
+    `commit_pending(path)` later (`seeu build` does that on a background thread, so a disk flush
     overlaps building the next shard). `abort()` removes the partial file. As a context manager: the
     file is closed when the block succeeds and removed when it raises. The bytes equal those of any
     pyarrow IPC file writer with the same options.
@@ -155,14 +212,16 @@ class AtomicIpcWriter:
         """Finish the file and put it in place (or leave it pending); return (bytes, sha256)."""
         try:
             self._writer.close()
-            self._sink.close()
-            self._raw.close(sync=self.commit)
+            digest = self._raw.hexdigest()
+            if self.commit and _FSYNC:
+                self._raw.fsync()
+            self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
             if self.commit:
                 os.replace(self.tmp, self.path)
         except BaseException:
             self.abort()
             raise
-        self.size, self.sha256 = self._raw.size, self._raw.sha256.hexdigest()
+        self.size, self.sha256 = self._raw.size, digest
         return self.size, self.sha256
 
     def abort(self) -> None:
