@@ -51,6 +51,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--threads", type=int, default=-1, help="COLMAP threads per scene (default: all cores / workers)")
     p.add_argument("--force", action="store_true", help="redo every stage instead of resuming")
     p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
+    p.add_argument("--fsync", action="store_true",
+                   help="fsync every output file before its rename (durable across a power loss; slower). "
+                        "Default: atomic renames only, a torn file is caught by the manifest sha256; also SEEU_FSYNC=1")
 
 
 @dataclass(frozen=True)
@@ -277,6 +280,13 @@ def _scene_worker(payload: tuple) -> tuple[str, dict | None, str | None]:
 
 
 def run(args: argparse.Namespace) -> int:
+    from seeu_data.arrow_io import fsync_policy
+
+    with fsync_policy(True if args.fsync else None):
+        return _run(args)
+
+
+def _run(args: argparse.Namespace) -> int:
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
 

@@ -42,6 +42,28 @@ def set_fsync(enabled: bool) -> None:
     _FSYNC = bool(enabled)
 
 
+@contextmanager
+def fsync_policy(enabled: bool | None) -> Iterator[None]:
+    """Within the block, fsync on/off as `enabled` (None: unchanged); the previous policy is restored after.
+
+    What the `--fsync` flags use: `with fsync_policy(True if args.fsync else None): ...`. The
+    environment variable is set too, so worker processes started in the block (spawned or forked)
+    follow the same policy.
+    """
+    previous, previous_env = _FSYNC, os.environ.get("SEEU_FSYNC")
+    if enabled is not None:
+        set_fsync(enabled)
+        os.environ["SEEU_FSYNC"] = "1" if enabled else "0"
+    try:
+        yield
+    finally:
+        set_fsync(previous)
+        if previous_env is None:
+            os.environ.pop("SEEU_FSYNC", None)
+        else:
+            os.environ["SEEU_FSYNC"] = previous_env
+
+
 def fsync_enabled() -> bool:
     """Whether files are fsynced before their rename (`--fsync` / `SEEU_FSYNC=1`; default off)."""
     return _FSYNC

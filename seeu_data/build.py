@@ -10,9 +10,13 @@ Stages:
 3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
    (scaled by the pixel ratio when resizing); each shard spec is a JSON-able dict.
 4. Materialise every spec with `triples.build_shard_table` and write `shard-XXXXX.arrow` atomically
-   (the local process pool and Ray run the same function: byte-identical shards). A shard already on
-   disk whose metadata carries the spec's plan hash and the planned row count is kept (resume).
-5. Write `manifest.json` last (files with rows/bytes/sha256, full build parameters, report).
+   (the local process pool and Ray run the same function: byte-identical shards). Resume: a shard
+   already on disk is kept when a previous run recorded it (its manifest, or the progress journal
+   `.build-progress.jsonl` of an interrupted run) and it still has the recorded size and sha256,
+   the spec's plan hash in its metadata and the planned row count (`resumable_shard`).
+5. Write `manifest.json` last (files with rows/bytes/sha256, full build parameters, report), then
+   drop the journal. Files are renamed into place atomically; fsync before the rename only with the
+   fsync policy on (`arrow_io.set_fsync`, `--fsync`, `SEEU_FSYNC=1`).
 """
 
 from __future__ import annotations
@@ -21,6 +25,7 @@ import hashlib
 import json
 import os
 import sys
+import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -28,7 +33,8 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .arrow_io import commit_pending, open_ipc_file, write_table
+from .arrow_io import (atomic_write_text, commit_pending, fsync_enabled, open_ipc_file, set_fsync, sha256_file,
+                       write_table)
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
@@ -36,6 +42,7 @@ from .triples import PLAN_KEY, SCHEMA, ImageOptions, build_shard_table, plan_sha
 from .schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
+PROGRESS_NAME = ".build-progress.jsonl"  # shards completed by a running (or interrupted) build
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
 MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
@@ -216,7 +223,7 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
 
 
 def existing_shard_matches(path: Path, spec: dict) -> bool:
-    """True when `path` is a complete shard written from this very spec (resume)."""
+    """True when `path` is a complete shard written from this very spec (plan hash and row count)."""
     if not path.exists():
         return False
     try:
@@ -228,49 +235,109 @@ def existing_shard_matches(path: Path, spec: dict) -> bool:
     return meta.get(PLAN_KEY) == spec["plan_sha256"].encode() and rows == len(spec["samples"])
 
 
+def resumable_shard(out: Path, spec: dict, known: dict[str, dict]) -> FileEntry | None:
+    """The manifest entry of a shard a previous run completed for this very spec, or None.
+
+    Not trusted blindly: the shard must be recorded (`known`: the previous manifest's files and the
+    progress journal of an interrupted run), with the spec's plan hash when the record has one, and
+    the file must still have the recorded size and sha256 (a torn write after a power loss without
+    --fsync keeps its size but not its hash), the plan hash in its metadata and the planned rows.
+    """
+    rec = known.get(spec["file"])
+    path = out / spec["file"]
+    if rec is None or rec.get("plan_sha256", spec["plan_sha256"]) != spec["plan_sha256"]:
+        return None
+    try:
+        if path.stat().st_size != rec["bytes"] or rec["rows"] != len(spec["samples"]):
+            return None
+    except OSError:
+        return None
+    if not existing_shard_matches(path, spec) or sha256_file(path) != rec["sha256"]:
+        return None
+    return FileEntry(spec["file"], rec["rows"], rec["bytes"], rec["sha256"])
+
+
 def materialise(spec: dict, out_dir: str, commit: bool = True) -> dict:
-    """Write one shard (or keep a matching one); return its manifest entry, or {"error": message}.
+    """Write one shard; return its manifest entry, or {"error": message}.
 
     The shard's sha256 is computed while it is written (`arrow_io.write_table`). With `commit=False`
-    a new shard is left at `pending_path` (`"pending": True`): the caller calls `commit_pending`.
+    the shard is left at `pending_path` (`"pending": True`): the caller calls `commit_pending`.
+    (Which shards a re-run keeps is decided before, on the driver: `resumable_shard`.)
     """
     out = Path(out_dir)
     path = out / spec["file"]
     try:
-        resumed = existing_shard_matches(path, spec)
-        if resumed:
-            entry = FileEntry.for_file(out, path, len(spec["samples"]))
-        else:
-            table = build_shard_table(spec)
-            size, digest = write_table(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
-            entry = FileEntry(path.name, table.num_rows, size, digest)
+        table = build_shard_table(spec)
+        size, digest = write_table(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
+        entry = FileEntry(path.name, table.num_rows, size, digest)
     except SeeUError as exc:
         return {"index": spec["index"], "error": str(exc)}
-    return {"index": spec["index"], "entry": asdict(entry), "resumed": resumed,
-            "pending": not (resumed or commit)}
+    return {"index": spec["index"], "entry": asdict(entry), "resumed": False, "pending": not commit,
+            "plan_sha256": spec["plan_sha256"]}
 
 
-def _materialise_json(args: tuple[str, str]) -> dict:
+def _materialise_json(args: tuple[str, str, bool]) -> dict:
+    set_fsync(args[2])  # the driver's policy (a forked worker has it already; spawned ones do not)
     return materialise(json.loads(args[0]), args[1], commit=False)
 
 
-def run_local(specs: list[dict], out_dir: str, workers: int, bar) -> list[dict]:
+class ProgressJournal:
+    """`.build-progress.jsonl`: one line per shard in place (file, rows, bytes, sha256, plan hash),
+    appended as shards are committed, so a re-run after an interruption knows what to verify and
+    keep. Removed once the manifest is written (the manifest then holds the same)."""
+
+    def __init__(self, out: Path):
+        self.path = out / PROGRESS_NAME
+        self._lock = threading.Lock()
+
+    def read(self) -> dict[str, dict]:
+        known: dict[str, dict] = {}
+        if self.path.exists():
+            for line in self.path.read_text(errors="replace").splitlines():
+                try:
+                    rec = json.loads(line)
+                    known[rec["path"]] = rec
+                except (json.JSONDecodeError, KeyError, TypeError):
+                    break  # a torn last line
+        return known
+
+    def reset(self, records: list[dict]) -> None:
+        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in records))
+
+    def add(self, result: dict) -> None:
+        rec = dict(result["entry"], plan_sha256=result["plan_sha256"])
+        with self._lock, open(self.path, "a") as fh:  # one write per line: a torn last line is ignored
+            fh.write(json.dumps(rec) + "\n")
+
+    def remove(self) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
+              ) -> list[dict]:
     """Materialise the specs in this process (workers <= 1) or in a process pool.
 
-    Shards are written pending; one background thread commits them (fsync + rename) while the next
-    shards are built, and every commit has finished when this returns (before the manifest).
+    Shards are written pending; one background thread commits them (rename; fsync first with the
+    fsync policy on) while the next shards are built, and records each in the journal; every commit
+    has finished when this returns (before the manifest).
     """
     from concurrent.futures import ThreadPoolExecutor
 
     results = []
     out = Path(out_dir)
+
+    def commit(result: dict) -> None:
+        commit_pending(out / result["entry"]["path"])
+        if journal is not None:
+            journal.add(result)
+
     with ThreadPoolExecutor(max_workers=1) as committer:
         commits = []
 
         def collect(result: dict) -> None:
             results.append(result)
             if result.get("pending"):
-                commits.append(committer.submit(commit_pending, out / result["entry"]["path"]))
+                commits.append(committer.submit(commit, result))
             bar.update(1)
 
         if workers <= 1 or len(specs) <= 1:
@@ -288,7 +355,7 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar) -> list[dict]:
             # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
             with single_threaded_cv2(), ProcessPoolExecutor(max_workers=min(workers, len(specs)),
                                                             mp_context=ctx) as pool:
-                futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir)) for s in specs]
+                futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir, fsync_enabled())) for s in specs]
                 for fut in as_completed(futures):
                     collect(fut.result())
         for c in commits:
@@ -306,6 +373,19 @@ def _progress_bar(total: int, enabled: bool):
 
     return tqdm(total=total, unit="shard", desc="seeu build", file=sys.stderr,
                 disable=not (enabled or sys.stderr.isatty()))
+
+
+def known_shards(out: Path) -> dict[str, dict]:
+    """Shards a previous run recorded as complete: its manifest's files, then its progress journal."""
+    known: dict[str, dict] = {}
+    if (out / MANIFEST_NAME).exists():
+        try:
+            doc = read_manifest(out, expect_schema=SCHEMA)
+            known.update({f["path"]: f for f in doc["files"]})
+        except SeeUError:
+            pass
+    known.update(ProgressJournal(out).read())
+    return known
 
 
 def prepare_output(out: Path, num_shards: int) -> list[str]:
@@ -348,17 +428,34 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     if not plan.samples:
         raise SeeUError(f"no scene is long enough: all {len(scenes)} scenes have fewer than "
                         f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)", cfg.inputs[0])
+    if cfg.engine not in ("local", "ray"):
+        raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
     specs = shard_specs(cfg, plan, scenes)
+    out.mkdir(parents=True, exist_ok=True)
+    known = known_shards(out)
+    journal = ProgressJournal(out)
+    results, todo, kept = [], [], []
+    for spec in specs:
+        entry = resumable_shard(out, spec, known)
+        if entry is None:
+            todo.append(spec)
+        else:
+            results.append({"index": spec["index"], "entry": asdict(entry), "resumed": True})
+            kept.append(dict(asdict(entry), plan_sha256=spec["plan_sha256"]))
+    journal.reset(kept)  # before the manifest goes: what this run keeps stays known if it is interrupted
     removed = prepare_output(out, len(specs))
+    for spec in todo:  # not resumable: never served from a stale file
+        (out / spec["file"]).unlink(missing_ok=True)
     with _progress_bar(len(specs), cfg.progress) as bar:
-        if cfg.engine == "ray":
+        bar.update(len(results))
+        if not todo:
+            pass
+        elif cfg.engine == "ray":
             from .ray_build import run_ray
 
-            results = run_ray(specs, str(out), cfg.ray_address, bar)
-        elif cfg.engine == "local":
-            results = run_local(specs, str(out), cfg.workers, bar)
+            results += run_ray(todo, str(out), cfg.ray_address, bar, journal)
         else:
-            raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
+            results += run_local(todo, str(out), cfg.workers, bar, journal)
     results.sort(key=lambda r: r["index"])
     errors = [r["error"] for r in results if "error" in r]
     if errors:
@@ -369,7 +466,9 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
                   stale_files_removed=removed,
                   plan_sha256=_combined_hash(specs))
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)
-    return write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report)
+    doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report)
+    journal.remove()
+    return doc
 
 
 def _combined_hash(specs: list[dict]) -> str:

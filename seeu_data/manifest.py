@@ -22,6 +22,25 @@ from .errors import SeeUError
 from .schema import MANIFEST_VERSION, check_version, manifest_json_schema
 
 MANIFEST_NAME = "manifest.json"
+_VALIDATOR = None
+
+
+def _validator():
+    """The manifest JSON-schema validator, built (and the schema itself checked) once per process."""
+    global _VALIDATOR
+    if _VALIDATOR is None:
+        schema = manifest_json_schema()
+        cls = jsonschema.validators.validator_for(schema)
+        cls.check_schema(schema)
+        _VALIDATOR = cls(schema)
+    return _VALIDATOR
+
+
+def _validate(doc: dict) -> None:
+    """jsonschema.validate(doc, manifest schema) without re-checking the schema on every call."""
+    error = jsonschema.exceptions.best_match(_validator().iter_errors(doc))
+    if error is not None:
+        raise error
 
 
 @dataclass(frozen=True)
@@ -78,7 +97,7 @@ def write_manifest(
         doc["scenes"] = scenes
     if report is not None:
         doc["report"] = report
-    jsonschema.validate(doc, manifest_json_schema())
+    _validate(doc)
     atomic_write_text(root / MANIFEST_NAME, json.dumps(doc, indent=1, sort_keys=False) + "\n")
     return doc
 
@@ -100,7 +119,7 @@ def read_manifest(root: str | Path, expect_schema: str | None = None, verify: bo
     if str(doc["manifest_version"]).split(".")[0] != MANIFEST_VERSION.split(".")[0]:
         raise SeeUError(f"manifest version {doc['manifest_version']} is not supported (this seeu reads {MANIFEST_VERSION})", path)
     try:
-        jsonschema.validate(doc, manifest_json_schema())
+        _validate(doc)
     except jsonschema.ValidationError as exc:
         raise SeeUError(f"manifest does not match its schema: {exc.message}", path) from None
     check_version(doc["schema"], doc["schema_version"], path)

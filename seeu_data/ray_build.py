@@ -3,7 +3,8 @@
 The driver plans (indices only) and cuts shard specs exactly as the local engine does; Ray Data maps
 `build.materialise` over the specs (one spec per block, JSON strings so Arrow never has to infer a
 type for the nested spec), each task writes `shard-XXXXX.arrow` atomically under its deterministic
-name and returns its manifest entry; the driver writes the manifest last. The output directory and
+name (fsynced first when the driver's fsync policy is on) and returns its manifest entry; the
+driver records it in the build's progress journal and writes the manifest last. The output directory and
 the posed inputs must be on a file system every node sees (or the same path on each node).
 """
 
@@ -20,7 +21,10 @@ def _ray_task(row: dict) -> dict:
 
     from .build import materialise
 
+    from .arrow_io import set_fsync
+
     cv2.setNumThreads(1)  # Ray schedules one task per CPU
+    set_fsync(bool(row["fsync"]))  # the driver's fsync policy
     spec = json.loads(row["spec"])
     return {"result": json.dumps(materialise(spec, row["out_dir"]))}
 
@@ -39,9 +43,12 @@ def ensure_ray(address: str | None = None) -> None:
         raise SeeUError(f"cannot start or reach Ray ({str(exc).splitlines()[0]})", address or "local") from None
 
 
-def run_ray(specs: list[dict], out_dir: str, address: str | None, bar) -> list[dict]:
-    """Materialise every spec on the Ray cluster; results in spec order."""
+def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=None) -> list[dict]:
+    """Materialise every spec on the Ray cluster; results in spec order (each recorded in the build's
+    progress `journal` as it arrives: the task has renamed the shard into place by then)."""
     import ray
+
+    from .arrow_io import fsync_enabled
 
     import logging
 
@@ -49,10 +56,13 @@ def run_ray(specs: list[dict], out_dir: str, address: str | None, bar) -> list[d
     logging.getLogger("ray.data").setLevel(logging.WARNING)
     ctx = ray.data.DataContext.get_current()
     ctx.enable_progress_bars = False
-    items = [{"spec": json.dumps(s), "out_dir": str(Path(out_dir).resolve())} for s in specs]
+    items = [{"spec": json.dumps(s), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync_enabled()} for s in specs]
     ds = ray.data.from_items(items, override_num_blocks=len(items)).map(_ray_task, num_cpus=1)
     results = []
     for row in ds.iter_rows():
-        results.append(json.loads(row["result"]))
+        result = json.loads(row["result"])
+        results.append(result)
+        if journal is not None and "entry" in result:
+            journal.add(result)
         bar.update(1)
     return sorted(results, key=lambda r: r["index"])

@@ -4,6 +4,7 @@ re-builds, resume, resize + crop geometry, skipped scenes, bad input, validate, 
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import cv2
@@ -109,6 +110,15 @@ def test_resume_keeps_good_shards_and_rebuilds_damaged(posed, tmp_path):
     # a truncated shard (crash mid-copy) is rebuilt, the others kept
     victim = out / "shard-00001.arrow"
     victim.write_bytes(victim.read_bytes()[:100])
+    assert _build(posed, out) == 0
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["report"]["shards_resumed"] == len(before) - 1
+    assert _shard_bytes(out) == before
+    # a torn shard that kept its size (power loss without --fsync) fails its sha256: rebuilt
+    victim = out / "shard-00002.arrow"
+    torn = bytearray(victim.read_bytes())
+    torn[len(torn) // 2] ^= 0xFF
+    victim.write_bytes(bytes(torn))
     assert _build(posed, out) == 0
     doc = json.loads((out / "manifest.json").read_text())
     assert doc["report"]["shards_resumed"] == len(before) - 1
@@ -248,7 +258,7 @@ def test_progress_bar_on_request(posed, tmp_path, capsys):
     assert "seeu build" in capsys.readouterr().err
 
 
-def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed, tmp_path):
+def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed, tmp_path, monkeypatch):
     import pyarrow as pa
 
     from seeu_data.arrow_io import commit_pending, pending_path, sha256_file, write_table
@@ -269,15 +279,31 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     commit_pending(tmp_path / "z.arrow")
     assert (tmp_path / "z.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
     assert not list(tmp_path.glob(".*"))
-    # an interrupted run leaves a pending shard and no manifest; the re-run clears it and completes
+    # an interrupted run leaves no manifest, a progress journal of the shards in place (and maybe a
+    # pending shard); the re-run keeps the recorded shards, clears the leftovers and completes
     out = tmp_path / "b"
     assert _build(posed, out) == 0
     good = _shard_bytes(out)
-    (out / "manifest.json").unlink()
-    (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))
+    shutil.rmtree(out)
+    import seeu_data.build as build_mod
+
+    real = build_mod.build_shard_table
+
+    def interrupted(spec):
+        if spec["index"] == 3:
+            raise KeyboardInterrupt
+        return real(spec)
+
+    monkeypatch.setattr(build_mod, "build_shard_table", interrupted)
+    assert _build(posed, out, "--workers", "1") == 130
+    assert not (out / "manifest.json").exists()
+    assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == \
+        ["shard-00000.arrow", "shard-00001.arrow", "shard-00002.arrow"]
+    (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))  # caught before its rename
+    monkeypatch.setattr(build_mod, "build_shard_table", real)
     assert _build(posed, out) == 0
     assert _shard_bytes(out) == good and not list(out.glob(".*"))
-    assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == len(good) - 1
+    assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == 2
 
 
 def test_undecodable_image_names_file_scene_and_frame(tmp_path, capsys):

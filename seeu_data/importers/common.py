@@ -1,18 +1,27 @@
-"""Shared importer machinery: skipped-scene records, image probing, the streaming writer loop."""
+"""Shared importer machinery: skipped-scene records, image probing, the streaming writer loop and its resume."""
 
 from __future__ import annotations
 
+import hashlib
+import json
+import os
 import sys
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Iterable, Sequence
+from typing import Callable, Iterable, Sequence
 
 import numpy as np
+import pyarrow as pa
 
+from ..arrow_io import atomic_write_text, sha256_file
 from ..errors import SeeUError
 from ..image_header import decode_check, image_info
+from ..manifest import FileEntry, read_manifest
 from ..posed import PosedDatasetWriter, PosedScene
 from .prefetch import prefetch
+
+RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
+_UNIT_END = object()
 
 
 @dataclass(frozen=True)
@@ -41,6 +50,9 @@ class ImportReport:
 
     def summary_line(self, out_dir: Path | str) -> str:
         line = f"imported {self.scenes} scenes ({self.frames} frames) from {self.format} into {out_dir}"
+        if self.notes.get("resumed_files"):
+            line += (f" ({self.notes['resumed_scenes']} scenes in {self.notes['resumed_files']} files kept "
+                     "from a previous run)")
         if self.skipped:
             names = ", ".join(s.scene_id for s in self.skipped[:5]) + (", ..." if len(self.skipped) > 5 else "")
             line += f"; skipped {len(self.skipped)} scenes ({names}): see the manifest's report"
@@ -72,47 +84,287 @@ def probe_images(images: Sequence[bytes], names: Sequence[str], verify_decode: b
     return fmt, width, height
 
 
-def write_import(items: Iterable[PosedScene | SkippedScene], out_dir: str | Path, report: ImportReport,
+@dataclass(frozen=True)
+class ImportUnit:
+    """A piece of the input a re-run can skip when its output is already complete (a pixelSplat chunk).
+
+    `key` names it (a chunk file name), `fingerprint` changes when its content may have (size and
+    mtime, `file_fingerprint`), `read()` yields its scenes and skips. A unit with key None is read on
+    every run (bookkeeping such as scenes asked for but not found); when it yields scenes, the file
+    holding them is not resumable.
+    """
+
+    key: str | None
+    fingerprint: str
+    read: Callable[[], Iterable[PosedScene | SkippedScene]]
+
+
+@dataclass
+class ImportPlan:
+    """Units of an importer that supports resuming (`write_import` skips units whose output is complete).
+
+    `seen` receives the scene ids (imported or skipped) of the resumed units, for importers whose
+    trailing bookkeeping unit reports what was asked for but not found; `fingerprint` covers inputs
+    every unit depends on (index files, sidecars): when it changes nothing is resumed.
+    """
+
+    units: list[ImportUnit]
+    seen: set[str] = field(default_factory=set)
+    fingerprint: str = ""
+
+
+def file_fingerprint(path: str | Path) -> str:
+    """`size:mtime_ns` of a file ("missing" when absent): changes when the file is replaced or edited."""
+    try:
+        st = os.stat(path)
+    except OSError:
+        return "missing"
+    return f"{st.st_size}:{st.st_mtime_ns}"
+
+
+def resume_key(params: dict, fingerprint: str = "") -> str:
+    """What an output must have been written with to be resumed: the import parameters and input fingerprint."""
+    text = json.dumps({"params": params, "inputs": fingerprint}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+class _ImportWriter(PosedDatasetWriter):
+    """`PosedDatasetWriter` fed with scenes checked and converted on the reading thread.
+
+    Files close when they reach the target size at a scene boundary (`at_units=False`) or, for
+    resumable units, only at the end of a unit, so that every file covers whole units.
+    """
+
+    def add_prepared(self, scene: PosedScene, batch: pa.RecordBatch, may_close: bool) -> None:
+        """`add` for a scene already `check()`ed with its `to_record_batch()` made."""
+        if scene.scene_id in self._seen:
+            raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
+        self._seen.add(scene.scene_id)
+        if self._writer is None:
+            self._open()
+        assert self._path is not None
+        self._writer.write_batch(batch)
+        entry = {"scene_id": scene.scene_id, "file": self._path.name, "row_start": self._rows,
+                 "num_frames": len(scene), "near": float(scene.near), "far": float(scene.far)}
+        if scene.meta:
+            entry["meta"] = scene.meta
+        self.scenes.append(entry)
+        self._rows += batch.num_rows
+        self._bytes += batch.nbytes
+        if may_close and self._bytes >= self.target_file_bytes:
+            self._finish_file()
+
+    def finish_file(self, force: bool) -> FileEntry | None:
+        """Close the open file when it reached the target size (or `force`); its entry, else None."""
+        if self._writer is None or not (force or self._bytes >= self.target_file_bytes):
+            return None
+        self._finish_file()
+        return self.files[-1]
+
+    def restore(self, record: dict) -> None:
+        """Take a verified file of a previous run as this run's next file."""
+        self.files.append(FileEntry(**record["file"]))
+        self.scenes.extend(record["scenes"])
+        self._seen.update(s["scene_id"] for s in record["scenes"])
+
+
+def _prepare(item: PosedScene | SkippedScene):
+    """On the reading thread: check a scene and make its record batch (a SkippedScene when it fails)."""
+    if isinstance(item, PosedScene):
+        try:
+            item.check()
+            return item, item.to_record_batch()
+        except SeeUError as exc:
+            return SkippedScene(item.scene_id, str(exc)), None
+    return item, None
+
+
+def _read_records(out_dir: Path, key: str) -> list[dict]:
+    """Files a previous run completed: the journal of an interrupted run, else the manifest's report."""
+    journal = out_dir / RESUME_JOURNAL
+    records: list[dict] = []
+    if journal.exists():
+        for line in journal.read_text(errors="replace").splitlines():
+            try:
+                rec = json.loads(line)
+            except json.JSONDecodeError:
+                break  # a torn last line
+            if not isinstance(rec, dict) or rec.get("key") != key:
+                break
+            records.append(rec)
+        if records:
+            return records
+    try:
+        doc = read_manifest(out_dir, expect_schema="seeu.posed_frames")
+    except SeeUError:
+        return []
+    resume = (doc.get("report") or {}).get("resume") or {}
+    if resume.get("key") != key:
+        return []
+    entries = {f["path"]: f for f in doc["files"]}
+    for rec in resume.get("files", []):
+        if rec.get("file") not in entries:
+            break
+        records.append({"key": key, "file": entries[rec["file"]], "units": rec["units"], "skipped": rec["skipped"],
+                        "scenes": [s for s in doc.get("scenes", []) if s["file"] == rec["file"]]})
+    return records
+
+
+def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit], name_of) -> tuple[list[dict], int]:
+    """The records (in order) whose units are the next planned keyed units and whose file is intact
+    (present, its recorded size and sha256), and how many keyed units they cover."""
+    keyed = [[u.key, u.fingerprint] for u in units if u.key is not None]
+    done: list[dict] = []
+    pos = 0
+    for i, rec in enumerate(records):
+        entry = rec.get("file") or {}
+        n = len(rec.get("units") or [])
+        if n == 0 or rec["units"] != keyed[pos:pos + n] or entry.get("path") != name_of(i):
+            break
+        path = out_dir / entry["path"]
+        try:
+            intact = path.stat().st_size == entry["bytes"] and sha256_file(path) == entry["sha256"]
+        except OSError:
+            intact = False
+        if not intact:
+            break
+        done.append(rec)
+        pos += n
+    return done, pos
+
+
+def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_dir: str | Path, report: ImportReport,
                  params: dict, provenance: dict, strict: bool = False, progress: bool = False,
-                 total: int | None = None) -> ImportReport:
+                 total: int | None = None, target_file_bytes: int = 256 << 20) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
-    The importer runs in a background thread a few scenes ahead (`prefetch.prefetch`), so reading
-    the input overlaps with writing and hashing the output. A scene whose cameras fail `PosedScene.check` (non-finite, non-orthonormal, bad near/far) is
-    skipped like the importer's own skips. `strict` turns the first skip into an error. Raises
-    SeeUError, leaving no manifest, when nothing usable remains.
+    The importer runs in a background thread a few scenes ahead (`prefetch.prefetch`), where each
+    scene is also checked (`PosedScene.check`: finite, orthonormal poses, valid near/far) and
+    converted to its record batch, so reading the input overlaps with writing and hashing the output.
+    A scene that fails the check is skipped like the importer's own skips. `strict` turns the first
+    skip into an error. Raises SeeUError, leaving no manifest, when nothing usable remains.
+
+    Resume: given an `ImportPlan` (units, e.g. pixelSplat chunks), files close only at unit ends, and
+    each finished file is recorded (units covered, scenes, skips, bytes, sha256) in a journal
+    (`RESUME_JOURNAL`, removed when the manifest is written; the manifest's `report.resume` keeps the
+    same for a later re-run). A re-run with the same parameters and inputs keeps the leading files
+    whose units are unchanged and whose bytes still have the recorded size and sha256, and reads only
+    the units after them.
     """
     from tqdm import tqdm
 
     out_dir = Path(out_dir)
-    writer = PosedDatasetWriter(out_dir, params=params, provenance=provenance)
+    plan = items if isinstance(items, ImportPlan) else ImportPlan([ImportUnit(None, "", lambda: items)])
+    units = plan.units
+    resumable = any(u.key is not None for u in units)
+    key = resume_key(params, plan.fingerprint)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    records = _read_records(out_dir, key) if resumable else []
+    name_of = lambda i: f"posed-{i:05d}.arrow"  # noqa: E731  (PosedDatasetWriter's file names)
+    done, covered = _resumable_prefix(out_dir, records, units, name_of)
+    journal = out_dir / RESUME_JOURNAL
+    if resumable:
+        atomic_write_text(journal, "".join(json.dumps(r) + "\n" for r in done))  # before the manifest goes
+    else:
+        journal.unlink(missing_ok=True)
+    writer = _ImportWriter(out_dir, params=params, provenance=provenance, target_file_bytes=target_file_bytes)
+    for p in out_dir.glob(".posed-*.tmp"):  # partial files of an interrupted run
+        p.unlink(missing_ok=True)
+    for p in out_dir.glob("posed-*.arrow"):  # files of a previous run that are not kept
+        try:
+            stale = int(p.stem.split("-")[1]) >= len(done)
+        except (IndexError, ValueError):
+            continue
+        if stale:
+            p.unlink()
+    for rec in done:
+        writer.restore(rec)
+        report.scenes += len(rec["scenes"])
+        report.frames += sum(s["num_frames"] for s in rec["scenes"])
+        report.skipped.extend(SkippedScene(sid, reason) for sid, reason in rec["skipped"])
+        plan.seen.update(s["scene_id"] for s in rec["scenes"])
+        plan.seen.update(sid for sid, _ in rec["skipped"])
+    if done:
+        report.notes["resumed_files"] = len(done)
+        report.notes["resumed_scenes"] = report.scenes
+    skip_units = set()
+    pos = 0
+    for i, u in enumerate(units):
+        if u.key is not None:
+            if pos < covered:
+                skip_units.add(i)
+            pos += 1
+
+    def stream():
+        for i, u in enumerate(units):
+            if i in skip_units:
+                continue
+            for item in u.read():
+                yield (i, *_prepare(item))
+            yield (i, _UNIT_END, None)
+
     bar = tqdm(total=total, unit="scene", desc=f"import {report.format}", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True)
+               disable=not progress, dynamic_ncols=True, initial=report.scenes + len(report.skipped))
+    cur_units: list[list[str]] = []
+    cur_skipped: list[list[str]] = []
+    recordable = True
+    new_records = list(done)
+
+    def record_file(entry: FileEntry | None) -> None:
+        nonlocal cur_units, cur_skipped, recordable
+        if entry is None:
+            return
+        if resumable and recordable and cur_units:
+            rec = {"key": key, "file": asdict(entry), "units": cur_units, "skipped": cur_skipped,
+                   "scenes": [s for s in writer.scenes if s["file"] == entry.path]}
+            new_records.append(rec)
+            with open(journal, "a") as fh:  # one write per line: a torn last line is ignored
+                fh.write(json.dumps(rec) + "\n")
+        else:
+            recordable = False  # a file not recorded ends what a re-run can resume
+        cur_units, cur_skipped = [], []
+
     try:
-        for item in prefetch(items):
+        for i, item, batch in prefetch(stream()):
+            unit = units[i]
+            if item is _UNIT_END:
+                if unit.key is not None:
+                    cur_units.append([unit.key, unit.fingerprint])
+                    record_file(writer.finish_file(force=False))
+                continue
             bar.update(1)
             if isinstance(item, PosedScene):
                 try:
-                    writer.add(item)
+                    writer.add_prepared(item, batch, may_close=not resumable or unit.key is None)
                 except SeeUError as exc:
                     item = SkippedScene(item.scene_id, str(exc))
                 else:
                     report.scenes += 1
                     report.frames += len(item)
+                    if unit.key is None:
+                        recordable = False  # files from here on are not resumable
                     continue
             if strict:
                 raise SeeUError(f"scene {item.scene_id}: {item.reason} (--strict)")
             report.skipped.append(item)
+            if unit.key is not None:
+                cur_skipped.append([item.scene_id, item.reason])
             bar.set_postfix(skipped=len(report.skipped))
         if report.scenes == 0:
             reasons = "; ".join(f"{s.scene_id}: {s.reason}" for s in report.skipped[:3])
             raise SeeUError("no usable scene to import" + (f" ({len(report.skipped)} skipped; {reasons})"
                                                           if report.skipped else ""))
+        record_file(writer.finish_file(force=True))
         writer.report = report.as_dict()
+        if resumable:
+            writer.report["resume"] = {
+                "key": key,
+                "files": [{"file": r["file"]["path"], "units": r["units"], "skipped": r["skipped"]} for r in new_records]}
     except BaseException as exc:
         writer.__exit__(type(exc), exc, None)
         raise
     finally:
         bar.close()
     writer.close()
+    journal.unlink(missing_ok=True)
     return report

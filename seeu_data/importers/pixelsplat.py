@@ -214,43 +214,71 @@ def read_sidecar(directory: Path) -> dict | None:
     return read_json(path)
 
 
+def _chunk_items(path: Path, cfg: PixelSplatImportConfig, sidecar: dict | None, index: dict[str, str],
+                 seen: set[str]) -> Iterator[PosedScene | SkippedScene]:
+    """One chunk's scenes (one chunk in memory), its malformed examples as SkippedScene, and the
+    scenes index.json places in it that it does not hold; every id yielded is added to `seen`."""
+    try:
+        chunk = load_chunk(path)
+    except SeeUError as exc:
+        keys = sorted(k for k, v in index.items() if v == path.name and (cfg.scenes is None or k in cfg.scenes))
+        for key in keys or [path.name]:
+            seen.add(key)
+            yield SkippedScene(key, str(exc))
+        return
+    found: set[str] = set()
+    for i in range(len(chunk)):
+        example, chunk[i] = chunk[i], None  # drop each example once converted: memory ~ one chunk
+        if not isinstance(example, dict) or not isinstance(example.get("key"), str):
+            yield SkippedScene(f"{path.name}#{i}", "example is not a dict with a string 'key'")
+            continue
+        if cfg.scenes is not None and example["key"] not in cfg.scenes:
+            continue
+        found.add(example["key"])
+        seen.add(example["key"])
+        try:
+            yield scene_from_example(example, cfg, path.name, sidecar)
+        except SeeUError as exc:
+            yield SkippedScene(example["key"], str(exc))
+        del example
+    del chunk
+    expected = {k for k, v in index.items() if v == path.name and (cfg.scenes is None or k in cfg.scenes)}
+    for key in sorted(expected - found):
+        seen.add(key)
+        yield SkippedScene(key, f"index.json lists it in {path.name}, which does not hold it")
+
+
+def import_plan(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None,
+                missing: list[SkippedScene] | None = None):
+    """The import as resumable units (`importers.common.ImportPlan`): one unit per chunk (fingerprint:
+    size and mtime), scenes asked for but not in index.json first, and, without an index.json,
+    scenes asked for that no chunk held last. index.json and the sidecar are the plan's fingerprint."""
+    from functools import partial
+
+    from .common import ImportPlan, ImportUnit, file_fingerprint
+
+    if chunks is None or directory is None:
+        directory, chunks, missing, _ = plan(cfg)
+    missing = list(missing or [])
+    sidecar = read_sidecar(directory)
+    index = read_index(directory)
+    seen: set[str] = {s.scene_id for s in missing}
+    units = [ImportUnit(None, "", lambda: iter(missing))] if missing else []
+    units += [ImportUnit(p.name, file_fingerprint(p), partial(_chunk_items, p, cfg, sidecar, index or {}, seen))
+              for p in chunks]
+    if index is None and cfg.scenes is not None:
+        def not_found():
+            return (SkippedScene(k, "not found in any chunk") for k in sorted(set(cfg.scenes) - seen))
+
+        units.append(ImportUnit(None, "", not_found))
+    fingerprint = f"{file_fingerprint(directory / 'index.json')}|{file_fingerprint(directory / SIDECAR_NAME)}"
+    return ImportPlan(units, seen, fingerprint)
+
+
 def iter_scenes(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None
                 ) -> Iterator[PosedScene | SkippedScene]:
     """Yield scenes chunk by chunk (one chunk in memory); malformed examples and unreadable chunks
-    are yielded as SkippedScene."""
-    missing: list[SkippedScene] = []
-    if chunks is None or directory is None:
-        directory, chunks, missing, _ = plan(cfg)
-        yield from missing
-    sidecar = read_sidecar(directory)
-    index = read_index(directory) or {}
-    seen: set[str] = {s.scene_id for s in missing}
-    for path in chunks:
-        try:
-            chunk = load_chunk(path)
-        except SeeUError as exc:
-            keys = sorted(k for k, v in index.items() if v == path.name and (cfg.scenes is None or k in cfg.scenes))
-            for key in keys or [path.name]:
-                seen.add(key)
-                yield SkippedScene(key, str(exc))
-            continue
-        for i in range(len(chunk)):
-            example, chunk[i] = chunk[i], None  # drop each example once converted: memory ~ one chunk
-            if not isinstance(example, dict) or not isinstance(example.get("key"), str):
-                yield SkippedScene(f"{path.name}#{i}", "example is not a dict with a string 'key'")
-                continue
-            if cfg.scenes is not None and example["key"] not in cfg.scenes:
-                continue
-            seen.add(example["key"])
-            try:
-                yield scene_from_example(example, cfg, path.name, sidecar)
-            except SeeUError as exc:
-                yield SkippedScene(example["key"], str(exc))
-            del example
-        del chunk
-    # Scenes asked for (or listed in index.json for the chunks read) that no chunk held.
-    expected = set(cfg.scenes) if cfg.scenes is not None else {k for k, v in index.items()
-                                                                 if v in {p.name for p in chunks}}
-    for key in sorted(expected - seen):
-        where = f"index.json lists it in {index[key]}, which does not hold it" if key in index else "not found in any chunk"
-        yield SkippedScene(key, where)
+    are yielded as SkippedScene (and, when the chunks are not given, scenes asked for but missing
+    from index.json first)."""
+    for unit in import_plan(cfg, chunks, directory).units:
+        yield from unit.read()
