@@ -4,6 +4,7 @@ skips of bad scenes, the CLI, and the round trips with `seeu export pixelsplat`.
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import cv2
@@ -291,3 +292,111 @@ def test_prefetch_keeps_order_reraises_and_stops():
     gen.close()  # the consumer stops: the producer thread must end too
     assert not any(t.name == "seeu-import-prefetch" and t.is_alive() for t in threading.enumerate())
     assert len(produced) <= 5
+
+
+def _resumable_import(root, out, target_file_bytes=1, **kw) -> ImportReport:
+    """An import whose every chunk closes its own output file (target size 1 byte)."""
+    cfg = ps.PixelSplatImportConfig(root=root, **kw)
+    return write_import(ps.import_plan(cfg), out, ImportReport("pixelsplat"), params={"near": cfg.near},
+                        provenance={}, target_file_bytes=target_file_bytes)
+
+
+def _files(out: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(out.glob("posed-*.arrow"))}
+
+
+def test_rerun_resumes_complete_chunks_and_redoes_the_rest(tmp_path, monkeypatch):
+    from seeu_data.importers.common import RESUME_JOURNAL
+
+    rng = np.random.default_rng(11)
+    write_chunks(tmp_path / "ds", "train", [[make_example(f"c{c}s{i}", 3, rng) for i in range(2)] for c in range(3)])
+    fresh = tmp_path / "fresh"
+    _resumable_import(tmp_path / "ds", fresh)
+    expected = _files(fresh)
+    assert len(expected) == 3 and not (fresh / RESUME_JOURNAL).exists()
+    loaded: list[str] = []
+    real = ps.load_chunk
+
+    def counting(p):
+        loaded.append(p.name)
+        return real(p)
+
+    monkeypatch.setattr(ps, "load_chunk", counting)
+    # a complete output: nothing is read again, nothing rewritten, the same manifest content
+    mtimes = {p.name: p.stat().st_mtime_ns for p in fresh.glob("posed-*.arrow")}
+    report = _resumable_import(tmp_path / "ds", fresh)
+    assert loaded == [] and report.notes["resumed_files"] == 3 and report.scenes == 6
+    assert {p.name: p.stat().st_mtime_ns for p in fresh.glob("posed-*.arrow")} == mtimes
+    assert PosedDataset(fresh, verify=True).scene_ids == [f"c{c}s{i}" for c in range(3) for i in range(2)]
+
+    # interrupted while reading the third chunk: two files in place, a journal, no manifest
+    out = tmp_path / "out"
+
+    def interrupted(p):
+        if p.name == "000002.torch":
+            raise KeyboardInterrupt
+        return counting(p)
+
+    monkeypatch.setattr(ps, "load_chunk", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        _resumable_import(tmp_path / "ds", out)
+    assert not (out / "manifest.json").exists() and len((out / RESUME_JOURNAL).read_text().splitlines()) == 2
+    monkeypatch.setattr(ps, "load_chunk", counting)
+    loaded.clear()
+    report = _resumable_import(tmp_path / "ds", out)
+    assert loaded == ["000002.torch"] and report.notes["resumed_files"] == 2
+    assert _files(out) == expected and not (out / RESUME_JOURNAL).exists()
+    assert PosedDataset(out, verify=True).scene_ids == PosedDataset(fresh).scene_ids
+
+    # a file torn without changing its size (power loss without --fsync): it and the later ones redone
+    victim = out / "posed-00001.arrow"
+    torn = bytearray(victim.read_bytes())
+    torn[len(torn) // 2] ^= 0xFF
+    victim.write_bytes(bytes(torn))
+    loaded.clear()
+    _resumable_import(tmp_path / "ds", out)
+    assert loaded == ["000001.torch", "000002.torch"] and _files(out) == expected
+
+    # other options, or a chunk replaced: not resumed
+    loaded.clear()
+    _resumable_import(tmp_path / "ds", out, near=0.5)
+    assert loaded == ["000000.torch", "000001.torch", "000002.torch"]
+    chunk = tmp_path / "ds" / "train" / "000000.torch"
+    os.utime(chunk, ns=(chunk.stat().st_atime_ns, chunk.stat().st_mtime_ns + 10**9))
+    loaded.clear()
+    _resumable_import(tmp_path / "ds", out, near=0.5)
+    assert loaded == ["000000.torch", "000001.torch", "000002.torch"]
+
+
+def test_cli_rerun_resumes_and_reports_skips_again(tmp_path, capsys):
+    rng = np.random.default_rng(12)
+    bad = make_example("bad", 2, rng)
+    bad["cameras"] = bad["cameras"][:1]
+    write_chunks(tmp_path / "ds", "test", [[make_example("a", 2, rng), bad], [make_example("b", 2, rng)]])
+    cmd = ["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "o")]
+    assert cli_main(cmd) == 0
+    first = capsys.readouterr().out
+    doc1 = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert cli_main(cmd) == 0
+    second = capsys.readouterr().out
+    doc2 = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert "kept from a previous run" in second and "skipped 1 scenes (bad)" in first and "skipped 1 scenes (bad)" in second
+    assert doc1["files"] == doc2["files"] and doc1["scenes"] == doc2["scenes"]
+    assert doc1["report"]["skipped"] == doc2["report"]["skipped"]
+    assert validate_dataset(tmp_path / "o")["unlisted_files"] == []
+
+
+def test_import_fsyncs_only_with_the_flag(tmp_path, monkeypatch):
+    from seeu_data.arrow_io import fsync_enabled
+
+    rng = np.random.default_rng(13)
+    write_chunks(tmp_path / "ds", "test", [[make_example("a", 2, rng)], [make_example("b", 2, rng)]])
+    calls = []
+    real = os.fsync
+    monkeypatch.setattr(os, "fsync", lambda fd: calls.append(fd) or real(fd))
+    cmd = ["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test"]
+    assert cli_main([*cmd, "--out", str(tmp_path / "a")]) == 0
+    assert calls == []
+    assert cli_main([*cmd, "--out", str(tmp_path / "b"), "--fsync"]) == 0
+    assert len(calls) == 3 and not fsync_enabled()  # the posed file, the progress journal, the manifest
+    assert _files(tmp_path / "a") == _files(tmp_path / "b")

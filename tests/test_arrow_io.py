@@ -1,0 +1,98 @@
+"""Output durability policy (seeu_data.arrow_io): atomic writes always, fsync only when asked for
+(`set_fsync` / `fsync_policy`, `--fsync` on import/build, SEEU_FSYNC=1); the sha256 recorded while
+writing equals the file's."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import numpy as np
+import pyarrow as pa
+import pytest
+
+from pipelines.cli import main as cli_main
+from seeu_data import arrow_io
+from seeu_data.arrow_io import (atomic_write_text, commit_pending, fsync_enabled, fsync_policy, sha256_file,
+                                write_table)
+from seeu_data.posed import PosedDatasetWriter
+from tests.helpers import make_posed_scene
+
+
+@pytest.fixture
+def fsyncs(monkeypatch):
+    """Count os.fsync calls (the real call still runs)."""
+    calls = []
+    real = os.fsync
+
+    def counting(fd):
+        calls.append(fd)
+        return real(fd)
+
+    monkeypatch.setattr(os, "fsync", counting)
+    return calls
+
+
+def _table(n=3000):
+    return pa.table({"a": np.arange(n), "b": [bytes([i % 251]) * ((3 << 20) if i % 1000 == 7 else i % 50) for i in range(n)]})
+
+
+def test_default_is_atomic_without_fsync(tmp_path, fsyncs):
+    assert not fsync_enabled()
+    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
+    atomic_write_text(tmp_path / "m.json", "{}")
+    write_table(tmp_path / "p.arrow", _table(), commit=False)
+    commit_pending(tmp_path / "p.arrow")
+    assert fsyncs == []
+    assert digest == sha256_file(tmp_path / "x.arrow") and size == (tmp_path / "x.arrow").stat().st_size
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "p.arrow", "x.arrow"]  # no temporary left
+
+
+def test_fsync_policy_fsyncs_every_file_before_its_rename(tmp_path, fsyncs):
+    with fsync_policy(True):
+        assert fsync_enabled() and os.environ["SEEU_FSYNC"] == "1"
+        size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
+        atomic_write_text(tmp_path / "m.json", "{}")
+        write_table(tmp_path / "p.arrow", _table(), commit=False)  # pending: fsynced at commit
+        assert len(fsyncs) == 2
+        commit_pending(tmp_path / "p.arrow")
+    assert len(fsyncs) == 3 and not fsync_enabled() and "SEEU_FSYNC" not in os.environ
+    assert digest == sha256_file(tmp_path / "x.arrow")
+    with fsync_policy(None):  # unchanged
+        assert not fsync_enabled()
+
+
+def test_env_var_turns_fsync_on():
+    code = "import seeu_data.arrow_io as a; print(a.fsync_enabled())"
+    env = dict(os.environ, SEEU_FSYNC="1", PYTHONPATH=os.getcwd())
+    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "True"
+    env["SEEU_FSYNC"] = "0"
+    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "False"
+
+
+def test_failed_write_leaves_nothing(tmp_path):
+    writer = arrow_io.AtomicIpcWriter(tmp_path / "x.arrow", _table().schema)
+    writer.write_table(_table())
+    writer.abort()
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_build_and_import_fsync_flag(tmp_path, fsyncs):
+    posed = tmp_path / "posed"
+    with PosedDatasetWriter(posed, params={}, provenance={}, target_file_bytes=30_000) as w:
+        for i in range(3):
+            w.add(make_posed_scene(f"s{i}", n=30, height=24, width=32, seed=i))
+    assert fsyncs == []
+    cmd = ["build", str(posed), "--gap-min", "10", "--gap-max", "20", "--samples-per-scene", "3",
+           "--shard-size", "20kB", "--workers", "1"]
+    assert cli_main([*cmd, "--out", str(tmp_path / "a")]) == 0
+    assert fsyncs == []
+    assert cli_main([*cmd, "--out", str(tmp_path / "b"), "--fsync"]) == 0
+    shards = len(list((tmp_path / "b").glob("shard-*.arrow")))
+    assert shards > 1 and len(fsyncs) == shards + 2  # every shard, the progress journal, the manifest
+    assert not fsync_enabled()
+    assert sorted(os.listdir(tmp_path / "a")) == sorted(os.listdir(tmp_path / "b"))
+    for name in os.listdir(tmp_path / "a"):
+        if name.endswith(".arrow"):
+            assert (tmp_path / "a" / name).read_bytes() == (tmp_path / "b" / name).read_bytes()
