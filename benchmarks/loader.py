@@ -205,6 +205,8 @@ def main() -> int:
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    ap.add_argument("--variants", nargs="+", default=None,
+                    help="measure only these (of seeu, seeu-uint8, pixelsplat, raw, raw+resize); for quick checks")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--write", action="store_true", help="write the loader section of benchmarks/RESULTS.md")
     args = ap.parse_args()
@@ -224,10 +226,17 @@ def main() -> int:
                  f"{args.samples} triples, median of {args.repeats} interleaved runs (samples/s)"]
         for workers in args.workers:
             runs = {"seeu": [], "seeu-uint8": [], "pixelsplat": [], "raw": [], "raw+resize": []}
+            if args.variants:
+                runs = {k: [] for k in args.variants}
             for _ in range(args.repeats):
                 for name in runs:
                     runs[name].append(measure(name, workers, args.batch, shards, chunks, triples, cache))
             med = {k: statistics.median(v) for k, v in runs.items()}
+            if args.variants:  # a quick partial check: the figures, and each against raw decode if measured
+                print(f"workers={workers}: samples/s  " + ", ".join(
+                    f"{k} {m:.1f}" + (f" ({100 * m / med['raw']:.0f} % of raw)" if "raw" in med else "")
+                    for k, m in med.items()) + "   runs: " + json.dumps({k: [round(x) for x in v] for k, v in runs.items()}))
+                continue
             results[workers] = {**med, "seeu/pixelsplat": med["seeu"] / med["pixelsplat"],
                                 "seeu/raw": med["seeu"] / med["raw"], "seeu-uint8/raw": med["seeu-uint8"] / med["raw"],
                                 "runs": runs}

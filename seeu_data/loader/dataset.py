@@ -34,7 +34,7 @@ from torch.utils.data._utils.pin_memory import pin_memory
 
 from ..errors import SeeUError
 from ..image_ops import single_threaded_cv2
-from .collate import collate_views, finish_shipped_batch
+from .collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
 from .curriculum import GapCurriculum
 from .order import (GlobalPlan, epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
                     shard_offsets)
@@ -133,8 +133,13 @@ class TripleStream(IterableDataset):
         self._gaps: np.ndarray | None = None
         self._readers: OrderedDict[int, ShardReader] = OrderedDict()
         self._bad_shards: dict[int, str] = {}
-        self._scratch: np.ndarray | None = None  # (B, V, 3, H, W) uint8 image buffer, reused per batch
-        self.ship = False  # set by StreamingLoader: workers hand over uint8 + numpy (collate.finish_shipped_batch)
+        self._scratch: np.ndarray | None = None  # (B, V, 3, H, W) uint8 images of the current batch
+        self._scratch_own: np.ndarray | None = None  # the reused private buffer (when not shipping via a ring)
+        # Set by StreamingLoader: workers hand over numpy fields and ring-buffered uint8 images
+        # (collate.ImageRing / finish_shipped_batch); `ring` = (released counters, slots) of the ImageRingHost.
+        self.ship = False
+        self.ring: tuple[torch.Tensor, int] | None = None
+        self._ring: ImageRing | None = None  # worker side, made in __iter__
 
     # ------------------------------------------------------------------ plan
     @property
@@ -199,15 +204,20 @@ class TripleStream(IterableDataset):
         return self._reader(k).sample(int(row_id - self.offsets[k]))
 
     def _load(self, row_id: int, flip: bool, slot: int, batch_size: int) -> ViewsSample:
-        """Read and transform one sample into row `slot` of the (reused) batch image buffer."""
+        """Read and transform one sample into row `slot` of the batch image buffer."""
         k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
         raw = self._reader(k).sample(int(row_id - self.offsets[k]))
         shape = (batch_size, len(raw.images), 3) + tuple(self.config.image_hw)
-        if self._scratch is None or self._scratch.shape != shape:
-            if slot and self._scratch is not None:
-                raise SeeUError(f"sample {raw.sample_id} has {len(raw.images)} views, the batch "
-                                f"{self._scratch.shape[1]}: batches need equal view counts", self.source.name(k))
-            self._scratch = np.empty(shape, dtype=np.uint8)  # reused: no fresh pages per batch
+        if slot == 0:  # a new batch (or its first sample again, replaced): choose where its images go
+            if self._ring is not None:
+                self._scratch = self._ring.buffer(shape)  # shared memory the main process reads directly
+            else:
+                if self._scratch_own is None or self._scratch_own.shape != shape:
+                    self._scratch_own = np.empty(shape, dtype=np.uint8)  # reused: no fresh pages per batch
+                self._scratch = self._scratch_own
+        elif self._scratch is None or self._scratch.shape != shape:
+            raise SeeUError(f"sample {raw.sample_id} has {len(raw.images)} views, the batch "
+                            f"{self._scratch.shape[1]}: batches need equal view counts", self.source.name(k))
         return transform_sample(raw, self.config.image_hw, flip, self.config.interpolation,
                                 where=self.source.name(k), out=self._scratch[slot])
 
@@ -241,8 +251,9 @@ class TripleStream(IterableDataset):
                     break
                 except SeeUError:
                     fill += 1
-        batch = collate_views(samples, pad, c.image_dtype, images=self._scratch, where=self.source.url,
-                              ship=self.ship and get_worker_info() is not None)
+        ship = self.ship and get_worker_info() is not None
+        batch = collate_views(samples, pad, c.image_dtype, images=self._scratch, where=self.source.url, ship=ship,
+                              ticket=self._ring.ticket() if ship and self._ring is not None else None)
         batch["_skipped"] = skipped
         return batch
 
@@ -253,6 +264,8 @@ class TripleStream(IterableDataset):
         epoch = self.position.epoch
         ids, cols = rank_worker_batches(plan.num_batches, self.config.batch_size, self.rank, self.world_size,
                                         worker, num_workers)
+        self._ring = ImageRing(self.ring[0], worker, self.ring[1]) \
+            if self.ship and self.ring is not None and info is not None else None
         for b in ids:
             try:
                 batch = self.make_batch(plan.positions[b, cols], plan.is_padding[b, cols], epoch)
@@ -297,7 +310,8 @@ class StreamingLoader:
         self.prefetch_factor = prefetch_factor if num_workers > 0 else None
         self.multiprocessing_context = multiprocessing_context
         self.timeout = timeout
-        self.stats = {"skipped_corrupt": 0, "skipped_curriculum": 0, "padding": 0}
+        # handoff_copies: batches whose images could not use the worker's shared ring (expected 0)
+        self.stats = {"skipped_corrupt": 0, "skipped_curriculum": 0, "padding": 0, "handoff_copies": 0}
 
     # ------------------------------------------------------------------ state
     @property
@@ -348,7 +362,12 @@ class StreamingLoader:
                             timeout=self.timeout)
         skipped = plan.skipped
         ds.ship = self.num_workers > 0
+        ring = None
         if self.num_workers:
+            # Images cross from the workers through a ring of shared buffers per worker (collate.ImageRing):
+            # one more than the batches a worker may have in flight.
+            ring = ImageRingHost(self.num_workers, (self.prefetch_factor or 2) + 1)
+            ds.ring = (ring.released, ring.slots)
             with single_threaded_cv2():
                 batches = iter(loader)  # forks the workers
         else:
@@ -357,8 +376,10 @@ class StreamingLoader:
             if "_error" in batch:
                 raise SeeUError(*batch["_error"])
             if ds.ship:
-                batch = finish_shipped_batch(batch, ds.config.image_dtype)
-            if pin:  # after the float conversion, so the tensors handed out are the pinned ones
+                batch = finish_shipped_batch(batch, ds.config.image_dtype, ring, pin)
+                self.stats["handoff_copies"] += ring.misses
+                ring.misses = 0
+            if pin:  # the images are pinned already (pin_memory keeps a pinned tensor as it is)
                 batch = pin_memory(batch)
             cursor = batch.pop("_cursor")
             self.stats["skipped_corrupt"] += batch.pop("_skipped")
