@@ -5,15 +5,16 @@ Generates realistic chunks in a temporary directory (default 4 chunks of ~25 MB:
 
 * baseline: `torch.load(chunk, weights_only=True)` of every chunk, nothing else;
 * input side: the importer's reading alone (chunks, cameras, image headers, Arrow columns), no output;
-* floor: writing the same number of bytes to a new file and fsyncing it (what any durable import pays);
-* import:   `seeu import pixelsplat` (all of the above, then write + sha256 the Arrow files + manifest).
+* write alone / write+fsync: writing the same number of bytes to a new file (and fsyncing it);
+* import:   `seeu import pixelsplat` with the default policy (all of the above, then write + sha256
+            the Arrow files, atomic renames, manifest; no fsync);
+* import --fsync: the same with the opt-in fsync policy (every file fsynced before its rename).
 
-Prints wall time, MB/s, frames/s and CPU time of both, the ratio import/baseline (target >= 0.8)
-and each child's peak RSS, also as growth over the RSS after the library imports: torch.load holds
-a whole chunk in memory; the import reads chunks memory-mapped and holds a few scenes' images.
-The import's floor is writing and sha256-hashing its output (manifest checksums); it overlaps the
-two with reading in separate threads, so it needs the 2 cores free to reach the target: on a
-contended machine, read the CPU-time column too.
+Prints wall time, MB/s, frames/s and CPU time of each, the ratios against torch.load (target: import
+>= 0.8x) and each child's peak RSS, also as growth over the RSS after the library imports: torch.load
+holds a whole chunk in memory; the import reads chunks memory-mapped and holds a few scenes' images.
+The import overlaps reading (a prefetch thread), writing and sha256 hashing (a hashing thread), so it
+needs the 2 cores free to reach the target: on a contended machine, read the CPU-time column too.
 
 Usage: .venv/bin/python benchmarks/import.py [--chunks 4] [--chunk-mb 25] [--repeats 3]
 """
@@ -80,7 +81,7 @@ def child(mode: str, data: Path, out: Path) -> None:
     t_imports = time.perf_counter()
     import torch  # noqa: F401
 
-    if mode in ("import", "read"):
+    if mode in ("import", "import_fsync", "read"):
         import pyarrow as pa
 
         from seeu_data.importers import ImportReport, write_import
@@ -99,7 +100,7 @@ def child(mode: str, data: Path, out: Path) -> None:
             chunk = torch.load(path, map_location="cpu", weights_only=True)
             del chunk
         seconds = time.perf_counter() - t0
-    elif mode == "write":  # the output floor: write the chunks' byte count to a new file and fsync it
+    elif mode in ("write", "write_fsync"):  # the output floor: write the chunks' byte count to a new file
         nbytes = sum(p.stat().st_size for p in (data / "test").glob("*.torch"))
         block = memoryview(bytes(range(256)) * (4 << 12))  # 4 MB
         t0 = time.perf_counter()
@@ -107,17 +108,21 @@ def child(mode: str, data: Path, out: Path) -> None:
         with open(out / "floor.bin", "wb", buffering=0) as fh:
             for _ in range(0, nbytes, len(block)):
                 fh.write(block)
-            os.fsync(fh.fileno())
+            if mode == "write_fsync":
+                os.fsync(fh.fileno())
         seconds = time.perf_counter() - t0
     elif mode == "read":  # the importer's input side alone: read chunks, convert, probe, build columns
         t0 = time.perf_counter()
         for _ in ps.iter_scenes(ps.PixelSplatImportConfig(root=data, stage="test")):
             pass
         seconds = time.perf_counter() - t0
-    else:
+    else:  # what `seeu import pixelsplat [--fsync]` runs
+        from seeu_data.arrow_io import set_fsync
+
+        set_fsync(mode == "import_fsync")
         t0 = time.perf_counter()
         cfg = ps.PixelSplatImportConfig(root=data, stage="test")
-        write_import(ps.iter_scenes(cfg), out, ImportReport("pixelsplat"), params={}, provenance={})
+        write_import(ps.import_plan(cfg), out, ImportReport("pixelsplat"), params={}, provenance={})
         seconds = time.perf_counter() - t0
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(json.dumps({"seconds": seconds, "cpu_s": time.process_time() - c0, "imports_s": t_imports,
@@ -143,7 +148,7 @@ def main() -> None:
     ap.add_argument("--chunks", type=int, default=4)
     ap.add_argument("--chunk-mb", type=float, default=25.0)
     ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--child", choices=["load", "read", "write", "import"])
+    ap.add_argument("--child", choices=["load", "read", "write", "write_fsync", "import", "import_fsync"])
     ap.add_argument("--data", type=Path)
     ap.add_argument("--out", type=Path)
     args = ap.parse_args()
@@ -156,34 +161,31 @@ def main() -> None:
         nbytes, frames = make_dataset(tmp / "chunks", args.chunks, args.chunk_mb)
         print(f"dataset: {args.chunks} chunks, {nbytes / 1e6:.1f} MB of JPEG, {frames} frames (360x640)")
         run_child("load", tmp / "chunks", tmp / "warm")  # warm the page cache for both
-        loads, reads, writes, imports = [], [], [], []
+        modes = ("load", "read", "write", "write_fsync", "import", "import_fsync")
+        runs: dict[str, list[dict]] = {m: [] for m in modes}
         for r in range(args.repeats):
-            loads.append(run_child("load", tmp / "chunks", tmp / f"x{r}"))
-            reads.append(run_child("read", tmp / "chunks", tmp / f"x{r}"))
-            writes.append(run_child("write", tmp / "chunks", tmp / f"w{r}"))
-            shutil.rmtree(tmp / f"w{r}")
-            imports.append(run_child("import", tmp / "chunks", tmp / f"out{r}"))
-            shutil.rmtree(tmp / f"out{r}")
-        t_load = statistics.median(x["seconds"] for x in loads)
-        t_read = statistics.median(x["seconds"] for x in reads)
-        t_imp = statistics.median(x["seconds"] for x in imports)
-        c_load = statistics.median(x["cpu_s"] for x in loads)
-        c_imp = statistics.median(x["cpu_s"] for x in imports)
-        for name, t, c, runs in (("torch.load alone", t_load, c_load, loads),
-                                 ("import, input side only", t_read, statistics.median(x["cpu_s"] for x in reads), reads),
-                                 ("floor: write+fsync bytes", statistics.median(x["seconds"] for x in writes),
-                                  statistics.median(x["cpu_s"] for x in writes), writes),
-                                 ("seeu import pixelsplat", t_imp, c_imp, imports)):
-            print(f"{name:24s} {t:7.3f} s  {nbytes / 1e6 / t:8.1f} MB/s  {frames / t:8.0f} frames/s  "
-                  f"CPU {c:6.3f} s  peak RSS {max(x['maxrss_mb'] for x in runs):6.0f} MB "
-                  f"(+{max(x['growth_mb'] for x in runs):5.1f} MB over the libraries)  "
-                  f"(library imports {statistics.median(x['imports_s'] for x in runs):.2f} s, untimed)")
-        t_floor = statistics.median(x["seconds"] for x in writes)
-        print(f"ratio input side / torch.load: {t_load / t_read:.2f}x (reading, converting, probing images)")
-        print(f"ratio floor (write+fsync alone) / torch.load: {t_load / t_floor:.2f}x; import / floor: "
-              f"{t_floor / t_imp:.2f}x (the import also sha256-hashes what it writes)")
-        print(f"ratio import / torch.load throughput (wall, median of {args.repeats}): {t_load / t_imp:.2f}x "
-              f"(target >= 0.8x); CPU-time ratio {c_load / c_imp:.2f}x; largest chunk {args.chunk_mb:.0f} MB")
+            for mode in (modes if r % 2 == 0 else modes[::-1]):  # interleaved, alternating order
+                out = tmp / f"{mode}{r}"
+                runs[mode].append(run_child(mode, tmp / "chunks", out))
+                shutil.rmtree(out, ignore_errors=True)
+        t = {m: statistics.median(x["seconds"] for x in runs[m]) for m in modes}
+        c = {m: statistics.median(x["cpu_s"] for x in runs[m]) for m in modes}
+        names = {"load": "torch.load alone", "read": "import, input side only", "write": "write bytes alone",
+                 "write_fsync": "write+fsync bytes", "import": "seeu import pixelsplat",
+                 "import_fsync": "seeu import --fsync"}
+        for m in modes:
+            print(f"{names[m]:24s} {t[m]:7.3f} s  {nbytes / 1e6 / t[m]:8.1f} MB/s  {frames / t[m]:8.0f} frames/s  "
+                  f"CPU {c[m]:6.3f} s  peak RSS {max(x['maxrss_mb'] for x in runs[m]):6.0f} MB "
+                  f"(+{max(x['growth_mb'] for x in runs[m]):5.1f} MB over the libraries)  "
+                  "runs " + ", ".join(f"{x['seconds']:.3f}" for x in runs[m]))
+        print(f"library imports per child: {statistics.median(x['imports_s'] for x in runs['import']):.2f} s (untimed)")
+        print(f"ratio input side / torch.load: {t['load'] / t['read']:.2f}x (reading, converting, probing images)")
+        print(f"ratio write alone / torch.load: {t['load'] / t['write']:.2f}x; write+fsync / torch.load: "
+              f"{t['load'] / t['write_fsync']:.2f}x")
+        print(f"ratio import / torch.load throughput (wall, median of {args.repeats}): {t['load'] / t['import']:.2f}x "
+              f"(target >= 0.8x); CPU-time ratio {c['load'] / c['import']:.2f}x; largest chunk {args.chunk_mb:.0f} MB")
+        print(f"ratio import --fsync / torch.load: {t['load'] / t['import_fsync']:.2f}x (for reference; "
+              f"import --fsync / write+fsync alone: {t['write_fsync'] / t['import_fsync']:.2f}x)")
         print(f"machine load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
               f"(contended runs understate both, the import's threads more)")
 

@@ -19,6 +19,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
+from concurrent.futures import Future
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator
@@ -133,6 +134,7 @@ class _HashingFile:
         self._queued: deque = deque()  # (future, nbytes) in submission order
         self._queued_bytes = 0
         self._small = bytearray()
+        self._digest_requested = False
         self.size = 0
         self.closed = False
 
@@ -165,13 +167,20 @@ class _HashingFile:
         self.size += nbytes
         return nbytes
 
-    def hexdigest(self) -> str:
-        """sha256 of every byte written (waits for the hasher)."""
+    def digest_future(self) -> Future:
+        """The sha256 (hex) of every byte written, as a future: queued after the pending updates, so
+        the caller can go on (the next shard) while the hasher finishes. No writes after this."""
         self._flush_small()
-        while self._queued:
-            self._queued.popleft()[0].result()
+        future = self._pool.submit(self._sha256.hexdigest)
+        self._queued.clear()  # the pool's work items keep the queued buffers alive until hashed
         self._queued_bytes = 0
-        return self._sha256.hexdigest()
+        self._pool.shutdown(wait=False)
+        self._digest_requested = True
+        return future
+
+    def hexdigest(self) -> str:
+        """sha256 of every byte written (waits for the hasher). No writes after this."""
+        return self.digest_future().result()
 
     def flush(self) -> None:
         pass
@@ -193,7 +202,8 @@ class _HashingFile:
             try:
                 self._fh.close()
             finally:
-                self._pool.shutdown(wait=True, cancel_futures=True)
+                if not self._digest_requested:  # abandoned: stop hashing
+                    self._pool.shutdown(wait=True, cancel_futures=True)
                 self.closed = True
 
 
@@ -232,9 +242,16 @@ class AtomicIpcWriter:
 
     def close(self) -> tuple[int, str]:
         """Finish the file and put it in place (or leave it pending); return (bytes, sha256)."""
+        size, digest = self.close_async()
+        self.sha256 = digest.result()
+        return size, self.sha256
+
+    def close_async(self) -> tuple[int, Future]:
+        """`close` without waiting for the hasher: (bytes, future of the sha256). The file is complete
+        (and in place unless `commit=False`) when this returns; the digest follows."""
         try:
             self._writer.close()
-            digest = self._raw.hexdigest()
+            digest = self._raw.digest_future()
             if self.commit and _FSYNC:
                 self._raw.fsync()
             self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
@@ -243,8 +260,8 @@ class AtomicIpcWriter:
         except BaseException:
             self.abort()
             raise
-        self.size, self.sha256 = self._raw.size, digest
-        return self.size, self.sha256
+        self.size = self._raw.size
+        return self.size, digest
 
     def abort(self) -> None:
         """Abandon the unfinished file: close it and remove it."""
@@ -272,6 +289,19 @@ def write_table(path: str | Path, table: pa.Table, max_chunksize: int | None = N
     with AtomicIpcWriter(path, table.schema, commit=commit) as writer:
         writer.write_table(table, max_chunksize=max_chunksize)
     return writer.size, writer.sha256
+
+
+def write_table_async(path: str | Path, table: pa.Table, max_chunksize: int | None = None,
+                      commit: bool = True) -> tuple[int, Future]:
+    """`write_table` returning (bytes, future of the sha256) as soon as the file is written: the
+    hashing of its last buffers overlaps whatever the caller does next."""
+    writer = AtomicIpcWriter(path, table.schema, commit=commit)
+    try:
+        writer.write_table(table, max_chunksize=max_chunksize)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close_async()
 
 
 def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:

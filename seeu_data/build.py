@@ -34,7 +34,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from .arrow_io import (atomic_write_text, commit_pending, fsync_enabled, open_ipc_file, set_fsync, sha256_file,
-                       write_table)
+                       write_table_async)
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
@@ -257,23 +257,28 @@ def resumable_shard(out: Path, spec: dict, known: dict[str, dict]) -> FileEntry 
     return FileEntry(spec["file"], rec["rows"], rec["bytes"], rec["sha256"])
 
 
-def materialise(spec: dict, out_dir: str, commit: bool = True) -> dict:
+def materialise(spec: dict, out_dir: str, commit: bool = True, wait_hash: bool = True) -> dict:
     """Write one shard; return its manifest entry, or {"error": message}.
 
-    The shard's sha256 is computed while it is written (`arrow_io.write_table`). With `commit=False`
-    the shard is left at `pending_path` (`"pending": True`): the caller calls `commit_pending`.
-    (Which shards a re-run keeps is decided before, on the driver: `resumable_shard`.)
+    The shard's sha256 is computed while it is written (`arrow_io.write_table_async`). With
+    `commit=False` the shard is left at `pending_path` (`"pending": True`): the caller calls
+    `commit_pending`. With `wait_hash=False` (in-process callers only) the entry's sha256 is None and
+    `"sha256_future"` gives it once the hasher has caught up. (Which shards a re-run keeps is
+    decided before, on the driver: `resumable_shard`.)
     """
     out = Path(out_dir)
     path = out / spec["file"]
     try:
         table = build_shard_table(spec)
-        size, digest = write_table(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
-        entry = FileEntry(path.name, table.num_rows, size, digest)
+        size, digest = write_table_async(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
+        entry = FileEntry(path.name, table.num_rows, size, digest.result() if wait_hash else None)
     except SeeUError as exc:
         return {"index": spec["index"], "error": str(exc)}
-    return {"index": spec["index"], "entry": asdict(entry), "resumed": False, "pending": not commit,
-            "plan_sha256": spec["plan_sha256"]}
+    result = {"index": spec["index"], "entry": asdict(entry), "resumed": False, "pending": not commit,
+              "plan_sha256": spec["plan_sha256"]}
+    if not wait_hash:
+        result["sha256_future"] = digest
+    return result
 
 
 def _materialise_json(args: tuple[str, str, bool]) -> dict:
@@ -317,9 +322,9 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
               ) -> list[dict]:
     """Materialise the specs in this process (workers <= 1) or in a process pool.
 
-    Shards are written pending; one background thread commits them (rename; fsync first with the
-    fsync policy on) while the next shards are built, and records each in the journal; every commit
-    has finished when this returns (before the manifest).
+    Shards are written pending; one background thread commits them (waits for the shard's sha256,
+    renames it, fsyncs first with the fsync policy on) while the next shards are built, and records
+    each in the journal; every commit has finished when this returns (before the manifest).
     """
     from concurrent.futures import ThreadPoolExecutor
 
@@ -327,6 +332,8 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
     out = Path(out_dir)
 
     def commit(result: dict) -> None:
+        if "sha256_future" in result:
+            result["entry"]["sha256"] = result.pop("sha256_future").result()
         commit_pending(out / result["entry"]["path"])
         if journal is not None:
             journal.add(result)
@@ -338,11 +345,13 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
             results.append(result)
             if result.get("pending"):
                 commits.append(committer.submit(commit, result))
+                if len(commits) >= 2:
+                    commits[-2].result()  # at most one shard waiting for its hash: bounded memory
             bar.update(1)
 
         if workers <= 1 or len(specs) <= 1:
-            for spec in specs:
-                collect(materialise(spec, out_dir, commit=False))
+            for spec in specs:  # the next shard is built while the hasher finishes the last one
+                collect(materialise(spec, out_dir, commit=False, wait_hash=False))
         else:
             import multiprocessing as mp
             from concurrent.futures import ProcessPoolExecutor, as_completed
