@@ -3,10 +3,12 @@
 Example:
     seeu model-info                                   # the paper's model (DINOv3 ViT-B/16, CGT, CEA)
     seeu model-info --preset cpu_small --refiner unet --condition cls
+    seeu model-info --condition blip2                 # BLIP-2 condition (needs pip install -e '.[blip2]')
     seeu model-info --json counts.json
 
 Counting needs no pretrained weights: the frozen semantic encoder is built with random weights
-(same architecture, same parameter count). Add --shapes to run one CPU forward pass on random
+(same architecture, same parameter count); BLIP-2's ~1.1 B frozen parameters are counted on the meta
+device (no memory) unless --shapes needs them. Add --shapes to run one CPU forward pass on random
 2-view inputs and print the tensor shapes of the intermediate results.
 """
 
@@ -34,8 +36,16 @@ def _fmt(n: int) -> str:
     return f"{n / 1e6:8.3f} M"
 
 
+def _encoder_name(cfg) -> str:
+    """The frozen encoder behind the condition: DINOv3 (cls / cea), CLIP or BLIP-2."""
+    return {"clip": cfg.clip_backbone, "blip2": f"{cfg.blip2_model} (ViT-g + Q-Former)"}.get(cfg.condition,
+                                                                                          cfg.semantic_backbone)
+
+
 def run(args: argparse.Namespace) -> int:
     import torch
+
+    from contextlib import nullcontext
 
     from seeu_model.config import SeeUConfig
     from seeu_model.seeu import SeeU, parameter_counts
@@ -51,12 +61,16 @@ def run(args: argparse.Namespace) -> int:
         overrides["num_depth_candidates"] = args.depth_candidates
     cfg = SeeUConfig.preset(args.preset, **overrides)
     torch.manual_seed(0)
-    model = SeeU(cfg)
+    meta = cfg.condition == "blip2" and not args.shapes  # count BLIP-2's ~1.1 B frozen parameters unallocated
+    if meta:
+        from seeu_model.semantic import blip2_random_init_on_meta
+    with blip2_random_init_on_meta() if meta else nullcontext():
+        model = SeeU(cfg)
     counts = parameter_counts(model)
 
     print(f"SeeU ({args.preset}): refiner={cfg.refiner} condition={cfg.condition} D={cfg.num_depth_candidates} "
           f"s={cfg.downsample} SH degree {cfg.sh_degree}"
-          + (f" semantic={cfg.semantic_backbone}" if cfg.needs_semantic else ""))
+          + (f" semantic={_encoder_name(cfg)}" if cfg.needs_semantic else ""))
     print(f"{'module':<22}{'trainable':>12}{'frozen':>12}")
     for name, (trainable, frozen) in counts.items():
         print(f"{name:<22}{_fmt(trainable):>12}{_fmt(frozen):>12}")

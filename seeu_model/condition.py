@@ -4,7 +4,9 @@ ends in the same token space (B, L, condition_dim) and feeds the same cross-atte
 * ``cea``:  Cross-view Entropy-Aware embedding from the frozen DINOv3 (the full model), L = latent queries.
 * ``cls``:  the frozen DINOv3 class embedding of each view, linearly projected; L = V.
 * ``clip``: the frozen CLIP image embedding of each view (timm image tower), linearly projected; L = V.
-* ``blip2``: not available in this build (needs the ``transformers`` extra and BLIP-2 weights); raises.
+* ``blip2``: the frozen BLIP-2 image features of each view (ViT-g + Q-Former through ``transformers``, the
+  optional ``blip2`` extra): the Q query tokens per view, linearly projected; L = V * Q (Q = 32 for
+  Salesforce/blip2-opt-2.7b).
 """
 
 from __future__ import annotations
@@ -12,11 +14,9 @@ from __future__ import annotations
 import torch
 from torch import nn
 
-from seeu_data.errors import SeeUError
-
 from .cea import CEAEmbedding
 from .config import SeeUConfig
-from .semantic import FrozenCLIPImageEncoder, FrozenViTEncoder
+from .semantic import FrozenBLIP2ImageEncoder, FrozenCLIPImageEncoder, FrozenViTEncoder
 
 
 class ConditionEncoder(nn.Module):
@@ -28,15 +28,13 @@ class ConditionEncoder(nn.Module):
     def __init__(self, cfg: SeeUConfig):
         super().__init__()
         self.mode = cfg.condition
-        if cfg.condition == "blip2":
-            raise SeeUError(
-                "condition 'blip2' is not available in this build: the BLIP-2 pseudo-caption embedding needs the "
-                "optional 'transformers' package and BLIP-2 weights (e.g. Salesforce/blip2-opt-2.7b, ~15 GB), "
-                "which this toolkit does not wire up; use condition 'cea' (the paper's model), 'cls' or 'clip'"
-            )
         if cfg.condition == "clip":
             self.semantic: nn.Module = FrozenCLIPImageEncoder(cfg.clip_backbone, cfg.clip_weights, cfg.semantic_pretrained,
                                                               cfg.clip_model_kwargs)
+            self.project = nn.Linear(self.semantic.embed_dim, cfg.condition_dim)
+        elif cfg.condition == "blip2":
+            self.semantic = FrozenBLIP2ImageEncoder(cfg.blip2_model, cfg.blip2_weights, cfg.semantic_pretrained,
+                                                    cfg.blip2_model_kwargs)
             self.project = nn.Linear(self.semantic.embed_dim, cfg.condition_dim)
         else:
             self.semantic = FrozenViTEncoder(cfg.semantic_backbone, cfg.semantic_weights, cfg.semantic_pretrained,
@@ -46,10 +44,10 @@ class ConditionEncoder(nn.Module):
             else:
                 self.cea = CEAEmbedding(self.semantic.embed_dim, cfg.condition_dim, cfg.condition_heads,
                                         cfg.num_latent_queries)
-        self.norm = nn.LayerNorm(cfg.condition_dim) if cfg.condition in ("cls", "clip") else nn.Identity()
+        self.norm = nn.LayerNorm(cfg.condition_dim) if cfg.condition in ("cls", "clip", "blip2") else nn.Identity()
 
     def forward(self, images: torch.Tensor, entropy: torch.Tensor) -> torch.Tensor:
-        if self.mode == "clip":
+        if self.mode in ("clip", "blip2"):  # (B, V, D_clip) / (B, V * Q, D_q) -> (B, L, condition_dim)
             return self.norm(self.project(self.semantic(images)))
         cls, patches = self.semantic(images)
         if self.mode == "cls":

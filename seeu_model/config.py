@@ -12,7 +12,9 @@ Ablation switches (paper tables 4 and 5):
   directly).
 * ``condition``: ``"cea"`` (Cross-view Entropy-Aware embedding, full model), ``"cls"`` (DINOv3 class
   embeddings only), ``"clip"`` (a frozen CLIP image tower through timm; needs its own weights), ``"blip2"``
-  (not available in this build: raises a clear error).
+  (BLIP-2's frozen image side, ViT-g + Q-Former query tokens, through Hugging Face ``transformers``: the
+  optional extra ``pip install -e '.[blip2]'``; weights from the hub repo ``blip2_model`` or the local
+  directory ``blip2_weights``).
 """
 
 from __future__ import annotations
@@ -59,6 +61,9 @@ class SeeUConfig:
     clip_backbone: str = "vit_base_patch16_clip_224.openai"
     clip_weights: str | None = None
     clip_model_kwargs: dict[str, Any] = field(default_factory=dict)
+    blip2_model: str = "Salesforce/blip2-opt-2.7b"  # hub repo; only its image side (ViT-g + Q-Former) is loaded
+    blip2_weights: str | None = None  # local directory (config.json + *.safetensors) for offline use
+    blip2_model_kwargs: dict[str, Any] = field(default_factory=dict)  # Blip2Config fields, random init (tests)
 
     # ---- condition ---------------------------------------------------------------------------
     condition: Condition = "cea"
