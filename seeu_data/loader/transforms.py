@@ -35,8 +35,9 @@ from .shard_reader import RawSample
 class ViewsSample:
     """A transformed sample, V views at H x W.
 
-    images: (V, 3, H, W) uint8 RGB (planar); cam_to_world: (V, 4, 4) float32; intrinsics: (V, 3, 3)
-    float32 normalised; near, far: (V,) float32; frame_index: (V,) int64.
+    images: (V, 3, H, W) uint8 RGB (planar); cam_to_world: (V, 4, 4) float64; intrinsics_norm: (V, 4)
+    float64 (fx/W, fy/H, cx/W, cy/H of the output image; `collate_views` makes the 3x3 matrices of a whole
+    batch at once); near, far: (V,) float32; frame_index: (V,) int64.
     """
 
     sample_id: str
@@ -44,7 +45,7 @@ class ViewsSample:
     num_context: int
     images: np.ndarray
     cam_to_world: np.ndarray
-    intrinsics: np.ndarray
+    intrinsics_norm: np.ndarray
     near: np.ndarray
     far: np.ndarray
     frame_index: np.ndarray
@@ -121,18 +122,21 @@ def transform_sample(raw: RawSample, out_hw: tuple[int, int], flip: bool = False
         if flip:
             crop = cv2.flip(crop, 1)
         cv2.mixChannels([crop], [images[v, 0], images[v, 1], images[v, 2]], _BGR_TO_PLANAR_RGB)
-    intrinsics = np.empty((num_views, 4), dtype=np.float64)
-    for size in set(sizes):  # usually one size for all views
-        scaled, offset = cameras.cover_crop_geometry(size, out_hw)
-        idx = [v for v in range(num_views) if sizes[v] == size]
-        intrinsics[idx] = cameras.crop_intrinsics_norm(raw.intrinsics_norm[idx], scaled, offset, out_hw)
+    if len(set(sizes)) == 1:  # the usual case: one size for all views
+        scaled, offset = cameras.cover_crop_geometry(sizes[0], out_hw)
+        intrinsics = cameras.crop_intrinsics_norm(raw.intrinsics_norm, scaled, offset, out_hw)
+    else:
+        intrinsics = np.empty((num_views, 4), dtype=np.float64)
+        for size in set(sizes):
+            scaled, offset = cameras.cover_crop_geometry(size, out_hw)
+            idx = [v for v in range(num_views) if sizes[v] == size]
+            intrinsics[idx] = cameras.crop_intrinsics_norm(raw.intrinsics_norm[idx], scaled, offset, out_hw)
     cam_to_world = np.asarray(raw.cam_to_world, dtype=np.float64)
     if flip:
         cam_to_world, intrinsics = cameras.flip_horizontal(cam_to_world, intrinsics)
     return ViewsSample(
         sample_id=raw.sample_id, scene_id=raw.scene_id, num_context=raw.num_context, images=images,
-        cam_to_world=cam_to_world.astype(np.float32),
-        intrinsics=cameras.intrinsics_norm_matrix(intrinsics).astype(np.float32),
+        cam_to_world=cam_to_world, intrinsics_norm=intrinsics,
         near=np.asarray(raw.near, np.float32), far=np.asarray(raw.far, np.float32),
         frame_index=np.asarray(raw.frame_index, np.int64), gap=raw.gap,
     )
