@@ -72,6 +72,16 @@ def test_batch_layout_and_values(dataset, tmp_path):
         assert r["context"]["image"].dtype == torch.uint8 and isinstance(r["context"]["near"], torch.Tensor)
         assert torch.equal((a["target"]["image"] * 255).round().to(torch.uint8), r["target"]["image"])
         assert torch.equal(r["is_padding"], a["is_padding"]) and r["sample_id"] == a["sample_id"]
+    # The training/evaluation loops' batch_to_device makes uint8 batches float32 on the device: the same values.
+    from seeu_data.loader import batch_to_device
+
+    for a, r in zip(batches, raw):
+        moved = batch_to_device(r, "cpu")
+        for part in ("context", "target"):
+            assert moved[part]["image"].dtype == torch.float32 and torch.equal(moved[part]["image"], a[part]["image"])
+            assert torch.equal(moved[part]["intrinsics"], a[part]["intrinsics"])
+        assert r["target"]["image"].dtype == torch.uint8  # the loader's batch itself is left as it was
+        assert batch_to_device(a, "cpu")["target"]["image"] is a["target"]["image"]  # float32 just moves
 
 
 def test_worker_images_cross_through_a_reused_shared_ring(dataset, tmp_path):

@@ -383,7 +383,7 @@ class StreamingLoader:
                 batch = pin_memory(batch)
             cursor = batch.pop("_cursor")
             self.stats["skipped_corrupt"] += batch.pop("_skipped")
-            self.stats["padding"] += int(batch["is_padding"].sum())
+            self.stats["padding"] += int(batch["is_padding"].numpy().sum())
             before = ds.position.samples_seen
             self.stats["skipped_curriculum"] += int(np.searchsorted(skipped, cursor) - np.searchsorted(skipped, before))
             ds.position = _Position(ds.position.epoch, cursor, ds.position.step + 1)

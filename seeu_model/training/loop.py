@@ -25,6 +25,7 @@ import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
+from seeu_data.loader.collate import batch_to_device
 from seeu_model.training import checkpoint as ckpt_io
 from seeu_model.training.config import TrainConfig, save_config
 from seeu_model.training.factory import load_model_state, model_state_for_checkpoint
@@ -48,14 +49,9 @@ class TrainResult:
 
 
 def batch_to(batch: Any, device: torch.device) -> Any:
-    """Move every tensor of a (nested) loader batch to `device`."""
-    if isinstance(batch, torch.Tensor):
-        return batch.to(device, non_blocking=True)
-    if isinstance(batch, dict):
-        return {k: batch_to(v, device) for k, v in batch.items()}
-    if isinstance(batch, (list, tuple)) and batch and isinstance(batch[0], torch.Tensor):
-        return type(batch)(batch_to(v, device) for v in batch)
-    return batch
+    """Move every tensor of a (nested) loader batch to `device`; uint8 loader images become float32 in
+    [0, 1] on the device (the loader's one helper for this: `seeu_data.loader.batch_to_device`)."""
+    return batch_to_device(batch, device)
 
 
 def autocast_context(precision: str, device: torch.device):
