@@ -48,7 +48,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
     p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
     p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
-    p.add_argument("--threads", type=int, default=-1, help="COLMAP threads per scene (default: all cores / workers)")
+    p.add_argument("--threads", type=int, default=-1,
+                   help="COLMAP threads per scene (default: all cores / workers); 1 gives bit-identical poses "
+                        "run after run (multi-threaded bundle adjustment is not deterministic)")
     p.add_argument("--force", action="store_true", help="redo every stage instead of resuming")
     p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
     p.add_argument("--fsync", action="store_true",
@@ -194,7 +196,9 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                         f"need at least {need}", source.path)
 
     names = [f["name"] for f in frames]
-    sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "num_threads"}  # threads don't change results
+    # the thread count changes results only through determinism: one thread gives bit-identical poses
+    sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "num_threads"}
+    sfm_params["deterministic"] = sfm_cfg.num_threads == 1
     sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
     sfm_result, _ = cache.run("sfm", sfm_key, lambda d: run_sfm(cache.stage_dir("decode") / "frames", names, d,
                                                                  sfm_cfg, source.path, progress))
