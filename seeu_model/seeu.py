@@ -6,7 +6,7 @@ residual refinement -> upsampling decoder -> rasterised target views.
       MultiViewTransformer           -> F (B, V, C, h, w)
       plane_sweep_cost               -> cost (B, V, D, h, w) -> P, coarse depth (B, V, h, w), entropy (B, V, h, w)
       CoarseGaussianHead             -> Θ_l (B, V, h, w, C_l)      latent Gaussian tokens
-      ConditionEncoder (frozen ViT)  -> E (B, L, condition_dim)   CEA / CLS / CLIP
+      ConditionEncoder (frozen ViT)  -> E (B, L, condition_dim)   CEA / CLS / CLIP / BLIP-2
       refiner (CGT | UNet | none)    -> Θ^_l = Θ_l + f(Θ_l, E)
       UpsamplingDecoder              -> Gaussians, N = V*H*W (refined) and the same for Θ_l (coarse)
       rasterize                      -> target renders (B, T, 3, H, W)

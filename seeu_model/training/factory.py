@@ -58,7 +58,7 @@ def _frozen_is_random(model_config: dict) -> bool:
     """True when the frozen encoders were randomly initialised (tests / CPU demo): their weights
     cannot be re-created from a file, so checkpoints must carry them."""
     return (model_config.get("semantic_pretrained") is False and not model_config.get("semantic_weights")
-            and not model_config.get("clip_weights"))
+            and not model_config.get("clip_weights") and not model_config.get("blip2_weights"))
 
 
 def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str, torch.Tensor]:
