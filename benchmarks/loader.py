@@ -7,13 +7,16 @@ images list of uint8 tensors, key; one example per triple, so the peer loader re
 frames), then measures side by side, interleaved, with DataLoader num_workers 1 and 2, batch 4,
 output 256x256:
 
-* seeu:       `seeu_data.loader.make_loader` (mmap Arrow, OpenCV decode, INTER_AREA cover resize +
-              centre crop with intrinsics, float32 (B, V, 3, 256, 256) batches);
+* seeu:       `seeu_data.loader.make_loader` as it comes (mmap Arrow, OpenCV decode, bilinear cover
+              resize of the kept span + centre crop with intrinsics, workers decode into a reused
+              shared-memory ring; uint8 (B, V, 3, 256, 256) batches, made float32 on the device by
+              `batch_to_device` in the training/evaluation loops);
 * pixelsplat: the peers' dataset code path -- `torch.load` the chunk, PIL decode + `ToTensor`,
               back to uint8 + PIL Lanczos resize to 256x455, centre crop, w2c -> c2w, default collate;
 * raw:        `cv2.imdecode` of the same JPEG bytes (held in memory) and nothing else;
-* references: seeu with `image_dtype="uint8"` (convert on the GPU), and raw decode + bilinear
-              resize/crop (the least work any loader at this size must do).
+* references: seeu with `image_dtype="float32"` (the conversion to [0, 1] in the loader's main
+              process), and raw decode + bilinear resize/crop (the least work any loader at this
+              size must do).
 
 Prints samples/s (median of `--repeats` interleaved runs) and the ratios seeu/pixelsplat (target
 >= 2) and seeu/raw (target >= 0.7). On a shared machine, re-measure when it is quiet.
@@ -180,9 +183,8 @@ class RawDecode(IterableDataset):
 def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, triples, cache: Path) -> float:
     """samples/s of one full pass."""
     if name.startswith("seeu"):
-        dtype = "uint8" if name == "seeu-uint8" else "float32"
-        loader = make_loader(shards, batch, num_workers=workers, image_hw=OUT, seed=0, cache_dir=str(cache),
-                             image_dtype=dtype)
+        dtype = {"image_dtype": "float32"} if name == "seeu-float32" else {}  # "seeu": the defaults
+        loader = make_loader(shards, batch, num_workers=workers, image_hw=OUT, seed=0, cache_dir=str(cache), **dtype)
     elif name == "pixelsplat":
         loader = DataLoader(PixelSplatStyle(chunks), batch_size=batch, num_workers=workers)
     else:
@@ -206,7 +208,7 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     ap.add_argument("--variants", nargs="+", default=None,
-                    help="measure only these (of seeu, seeu-uint8, pixelsplat, raw, raw+resize); for quick checks")
+                    help="measure only these (of seeu, seeu-float32, pixelsplat, raw, raw+resize); for quick checks")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--write", action="store_true", help="write the loader section of benchmarks/RESULTS.md")
     args = ap.parse_args()
@@ -225,7 +227,7 @@ def main() -> int:
                  f"- machine: {os.cpu_count()} CPUs, torch {torch.__version__}, OpenCV {cv2.__version__}; "
                  f"{args.samples} triples, median of {args.repeats} interleaved runs (samples/s)"]
         for workers in args.workers:
-            runs = {"seeu": [], "seeu-uint8": [], "pixelsplat": [], "raw": [], "raw+resize": []}
+            runs = {"seeu": [], "seeu-float32": [], "pixelsplat": [], "raw": [], "raw+resize": []}
             if args.variants:
                 runs = {k: [] for k in args.variants}
             for _ in range(args.repeats):
@@ -238,18 +240,18 @@ def main() -> int:
                     for k, m in med.items()) + "   runs: " + json.dumps({k: [round(x) for x in v] for k, v in runs.items()}))
                 continue
             results[workers] = {**med, "seeu/pixelsplat": med["seeu"] / med["pixelsplat"],
-                                "seeu/raw": med["seeu"] / med["raw"], "seeu-uint8/raw": med["seeu-uint8"] / med["raw"],
+                                "seeu/raw": med["seeu"] / med["raw"], "seeu-float32/raw": med["seeu-float32"] / med["raw"],
                                 "runs": runs}
-            print(f"workers={workers}: samples/s  seeu {med['seeu']:.1f} (uint8 out: {med['seeu-uint8']:.1f}) | "
+            print(f"workers={workers}: samples/s  seeu {med['seeu']:.1f} (float32 out: {med['seeu-float32']:.1f}) | "
                   f"pixelsplat-style {med['pixelsplat']:.1f} | raw decode {med['raw']:.1f} "
                   f"(decode+resize {med['raw+resize']:.1f})")
             print(f"    seeu/pixelsplat {med['seeu'] / med['pixelsplat']:.2f}x (target >= 2); seeu/raw decode "
-                  f"{100 * med['seeu'] / med['raw']:.0f} % (uint8 out {100 * med['seeu-uint8'] / med['raw']:.0f} %; "
+                  f"{100 * med['seeu'] / med['raw']:.0f} % (float32 out {100 * med['seeu-float32'] / med['raw']:.0f} %; "
                   f"target >= 70 %); seeu/(decode+resize) {100 * med['seeu'] / med['raw+resize']:.0f} %")
-            lines.append(f"- workers={workers}: seeu {med['seeu']:.1f} (uint8 out {med['seeu-uint8']:.1f}), "
+            lines.append(f"- workers={workers}: seeu {med['seeu']:.1f} (float32 out {med['seeu-float32']:.1f}), "
                          f"pixelSplat-style {med['pixelsplat']:.1f}, raw decode {med['raw']:.1f}, decode+resize "
                          f"{med['raw+resize']:.1f}; seeu/pixelSplat {med['seeu'] / med['pixelsplat']:.2f}x, "
-                         f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (uint8 {100 * med['seeu-uint8'] / med['raw']:.0f} %)")
+                         f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (float32 {100 * med['seeu-float32'] / med['raw']:.0f} %)")
         if args.write:
             write_section("loader", "\n".join(lines))
         if args.json:

@@ -19,7 +19,6 @@ from seeu_data.image_ops import resize_cover_crop
 from seeu_data.errors import SeeUError
 from seeu_data.loader import GapCurriculum, LoaderConfig, TripleStream, make_loader
 from seeu_data.loader import source as source_mod
-from seeu_data.loader.transforms import cover_crop_linear
 from tests.loader_fixtures import all_sample_ids, row_dict, write_triples
 
 ROWS = [7, 5, 9]
@@ -44,7 +43,7 @@ def ids_of(batches):
 # ------------------------------------------------------------------------------- batch layout
 
 def test_batch_layout_and_values(dataset, tmp_path):
-    ld = loader(dataset, tmp_path, batch_size=3, seed=1)
+    ld = loader(dataset, tmp_path, batch_size=3, seed=1, image_dtype="float32")
     batches = list(ld)
     b = batches[0]
     for part, v in (("context", 2), ("target", 3)):
@@ -66,8 +65,8 @@ def test_batch_layout_and_values(dataset, tmp_path):
         assert b["context"]["far"][i, 0] == 10.0 + shard
     assert len(batches) == 7 and ld.state_dict()["epoch"] == 1 and ld.stats["padding"] == 0
     assert sorted(ids_of(batches)) == sorted(all_sample_ids(ROWS))
-    # uint8 images (convert on the GPU), also handed over from a worker: the same pixels.
-    raw = list(loader(dataset, tmp_path, batch_size=3, seed=1, image_dtype="uint8", num_workers=1))
+    # uint8 images (the default; converted on the device), also handed over from a worker: the same pixels.
+    raw = list(loader(dataset, tmp_path, batch_size=3, seed=1, num_workers=1))
     for a, r in zip(batches, raw):
         assert r["context"]["image"].dtype == torch.uint8 and isinstance(r["context"]["near"], torch.Tensor)
         assert torch.equal((a["target"]["image"] * 255).round().to(torch.uint8), r["target"]["image"])
@@ -235,7 +234,7 @@ def test_known_frame_pixels_and_cameras_match_the_crop_math(tmp_path, interpolat
         row = row_dict(0, j, 2, 3, src_hw, gap=3)
         for v in range(5):
             part, k = ("context", v) if v < 2 else ("target", v - 2)
-            img = plain[part]["image"][i, k].numpy() * 255  # (3, H, W) RGB
+            img = plain[part]["image"][i, k].numpy().astype(np.float64)  # (3, H, W) RGB, uint8 values
             # Pixels: area or bilinear resampling of a linear ramp is the ramp at the output pixel's centre.
             x_src = (np.arange(32) + ox + 0.5) * 100 / sw - 0.5
             y_src = (np.arange(32) + oy + 0.5) * 60 / sh - 0.5
@@ -256,7 +255,7 @@ def test_known_frame_pixels_and_cameras_match_the_crop_math(tmp_path, interpolat
             (uv,), _ = cameras.project_points(point[None], c2w, intr_out, 32, 32)
             assert np.allclose(centroid, uv, atol=0.25), (centroid, uv)
             # Flip: the image is mirrored; the mirrored world point projects onto the mirrored blob.
-            mimg = mirrored[part]["image"][i, k].numpy() * 255
+            mimg = mirrored[part]["image"][i, k].numpy().astype(np.float64)
             assert np.array_equal(mimg, img[:, :, ::-1])
             mc2w = mirrored[part]["cam_to_world"][i, k].numpy().astype(np.float64)
             assert np.allclose(mc2w, np.diag([-1, 1, 1, 1]) @ c2w @ np.diag([-1, 1, 1, 1]), atol=1e-6)
@@ -401,14 +400,25 @@ def test_workers_do_not_deadlock_after_the_parent_used_opencv_threads(dataset, t
 
 
 @settings(max_examples=80, deadline=None)
-@given(h=st.integers(6, 160), w=st.integers(6, 160), oh=st.integers(2, 96), ow=st.integers(2, 96), seed=st.integers(0, 99))
-def test_span_resize_equals_full_resize_then_crop(h, w, oh, ow, seed):
+@given(h=st.integers(6, 160), w=st.integers(6, 160), oh=st.integers(2, 96), ow=st.integers(2, 96), seed=st.integers(0, 99),
+       interpolation=st.sampled_from(["area", "linear", "cubic", "lanczos"]))
+def test_span_resize_equals_full_resize_then_crop(h, w, oh, ow, seed, interpolation):
+    # resize_cover_crop resizes only the block-aligned span it keeps; the reference resizes the whole frame.
     img = np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
-    fast = cover_crop_linear(img, (oh, ow))
-    full = resize_cover_crop(img, (oh, ow), "linear")
-    assert fast.shape == full.shape == (oh, ow, 3)
+    fast = resize_cover_crop(img, (oh, ow), interpolation)
+    (sh, sw), (oy, ox) = cameras.cover_crop_geometry((h, w), (oh, ow))
+    flag = {"area": cv2.INTER_AREA, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC,
+            "lanczos": cv2.INTER_LANCZOS4}[interpolation]
+    if interpolation == "area" and (sh > h or sw > w):
+        flag = cv2.INTER_CUBIC  # enlarging
+    full = img if (sh, sw) == (h, w) else cv2.resize(img, (sw, sh), interpolation=flag)
+    full = full[oy:oy + oh, ox:ox + ow]
+    assert fast.shape == full.shape == (oh, ow, 3) and fast.flags.c_contiguous
     diff = np.abs(fast.astype(int) - full)
-    assert diff.max() <= 1 and (diff > 0).mean() < 0.01  # fixed-point weights may round differently
+    if interpolation in ("area", "cubic"):
+        assert diff.max() == 0
+    else:  # fixed-point weights may round differently
+        assert diff.max() <= 1 and (diff > 0).mean() < 0.01
 
 
 def test_reads_what_seeu_build_writes(tmp_path):
@@ -435,7 +445,7 @@ def test_reads_what_seeu_build_writes(tmp_path):
             assert np.allclose(c2w, r.cam_to_world, atol=1e-6)
             k = torch.cat([b["context"]["intrinsics"][i], b["target"]["intrinsics"][i]]).numpy()
             assert np.allclose(k, cameras.intrinsics_norm_matrix(r.intrinsics_norm), atol=1e-6)  # same size: unchanged
-            img = b["context"]["image"][i, 0].numpy() * 255
+            img = b["context"]["image"][i, 0].numpy().astype(np.float64)
             want = cv2.cvtColor(cv2.imdecode(np.frombuffer(r.images[0], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
             assert np.abs(img - want.transpose(2, 0, 1)).max() < 0.01
             assert b["target"]["frame_index"][i].tolist() == r.target

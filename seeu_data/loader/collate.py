@@ -1,12 +1,15 @@
 """Collate transformed samples into the model's batch (docs/ARCHITECTURE.md, "Loader batch").
 
 ```
-{"context": {"image": (B, Vc, 3, H, W) float32 in [0, 1] (or uint8 with image_dtype="uint8"),
+{"context": {"image": (B, Vc, 3, H, W) uint8 RGB (default; or float32 in [0, 1] with image_dtype="float32"),
              "cam_to_world": (B, Vc, 4, 4) float32, "intrinsics": (B, Vc, 3, 3) float32 normalised,
              "near": (B, Vc) float32, "far": (B, Vc) float32, "frame_index": (B, Vc) int64},
  "target": {same keys, Vt views},
  "scene_id": list[str] (B), "sample_id": list[str] (B), "is_padding": (B,) bool}
 ```
+Images leave the loader as uint8 by default (a quarter of the bytes through shared memory, pinned
+memory and the host-to-device copy); `batch_to_device` moves a batch and makes them float32 in
+[0, 1] on the device -- the training and evaluation loops call it.
 """
 
 from __future__ import annotations
@@ -91,7 +94,7 @@ def images_to_tensor(images: np.ndarray, dtype: str = "float32") -> torch.Tensor
     return torch.from_numpy(out_np)
 
 
-def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool], image_dtype: str = "float32",
+def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool], image_dtype: str = "uint8",
                   images: np.ndarray | None = None, where: str = "", ship: bool = False,
                   ticket: dict | None = None) -> dict:
     """Stack samples into the batch dict. `images`: the (B, V, 3, H, W) uint8 buffer the samples' images live in.
@@ -152,8 +155,8 @@ def image_to_float(image: torch.Tensor) -> torch.Tensor:
 def batch_to_device(batch: Any, device: torch.device | str, non_blocking: bool = True) -> Any:
     """Move every tensor of a (nested) loader batch to `device`; uint8 images become float32 in [0, 1] there.
 
-    With `image_dtype="uint8"` the loader hands over a quarter of the bytes and the conversion runs on the
-    device (a GPU does it for free); float32 batches just move. The training and evaluation loops call this.
+    The loader's default uint8 images thus cost a quarter of the bytes up to the device and are converted
+    there (a GPU does it for free); float32 batches just move. The training and evaluation loops call this.
     """
     if isinstance(batch, torch.Tensor):
         return batch.to(device, non_blocking=non_blocking)
@@ -251,7 +254,7 @@ class ImageRingHost:
             self._released[ticket["worker"]] = ticket["seq"] + 1
 
 
-def finish_shipped_batch(batch: dict, image_dtype: str = "float32", ring: ImageRingHost | None = None,
+def finish_shipped_batch(batch: dict, image_dtype: str = "uint8", ring: ImageRingHost | None = None,
                          pin: bool = False) -> dict:
     """Main-process half of `collate_views(..., ship=True)`: the images out of shared memory (uint8 copied,
     or converted to float32 in [0, 1]), numpy -> tensors. `pin`: the images go straight into pinned memory."""

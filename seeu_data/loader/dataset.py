@@ -4,7 +4,8 @@
 loader = make_loader("s3://bucket/re10k-triples", batch_size=14, num_workers=4, seed=0, flip_p=0.5)
 for epoch in range(start_epoch, epochs):
     loader.set_epoch(epoch)
-    for batch in loader:          # docs/ARCHITECTURE.md "Loader batch" (+ "is_padding")
+    for batch in loader:          # docs/ARCHITECTURE.md "Loader batch" (+ "is_padding"); images uint8
+        batch = batch_to_device(batch, "cuda")   # images -> float32 in [0, 1] on the GPU
         ...
         ckpt["loader"] = loader.state_dict()   # {"epoch", "samples_seen", "step", ...} integers
 loader.load_state_dict(ckpt["loader"])           # also with other num_workers / world_size / batch size
@@ -55,7 +56,7 @@ class LoaderConfig:
     remainder: str = "pad"  # last partial global batch: "pad" (flagged is_padding) or "drop"
     flip_p: float = 0.0  # probability of mirroring a sample (deterministic per (seed, epoch, position))
     interpolation: str = "linear"  # "linear" (crop-only warp, fast) | "area" (anti-aliased) | "lanczos" | "cubic"
-    image_dtype: str = "float32"  # "float32" in [0, 1] or "uint8"
+    image_dtype: str = "uint8"  # "uint8" (convert on the device: collate.batch_to_device) or "float32" in [0, 1]
     on_error: str = "raise"  # unreadable shard / image: "raise" a SeeUError, or "skip" (warn, count, replace)
     verify: str = "sha256"  # local shards: "sha256" on first read, or "size" only
     cache_dir: str | None = None  # object-storage download cache and verification stamps
