@@ -6,6 +6,7 @@ The crop geometry and the intrinsics update come from `seeu_data.cameras` (`cove
 
 from __future__ import annotations
 
+import math
 from contextlib import contextmanager
 from typing import Iterator
 
@@ -27,19 +28,52 @@ def decode_rgb(data: bytes) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
-def resize_cover_crop(img: np.ndarray, out_hw: tuple[int, int], interpolation: str = "area") -> np.ndarray:
+# Source-pixel radius of each filter's footprint (INTER_AREA when shrinking: at most one pixel past the box).
+_TAP_RADIUS = {cv2.INTER_AREA: 1, cv2.INTER_LINEAR: 1, cv2.INTER_CUBIC: 2, cv2.INTER_LANCZOS4: 4}
+
+
+def aligned_span(size_in: int, size_scaled: int, start: int, length: int, radius: int = 1) -> tuple[int, int, int, int]:
+    """Source span `[s0, s1)` and scaled span `[d0, d1)` to resize instead of the whole axis.
+
+    `cv2.resize` maps output pixel centres by the ratio `size_in / size_scaled` = p / q (reduced): a
+    run of q output pixels starting at a multiple of q reads exactly p input pixels starting at the
+    same multiple of p, with the same interpolation weights as in the full resize (the ratio of the
+    spans is the same double). The span covers the kept `[start, start + length)` plus a margin wider
+    than the filter's footprint (`radius` source pixels), so the span's edge clamping never reaches a
+    kept pixel.
+    """
+    g = math.gcd(size_in, size_scaled)
+    p, q = size_in // g, size_scaled // g
+    margin = 2 + -(-radius * q // p)  # output pixels whose taps can fall outside the span
+    a = max(0, (start - margin) // q)
+    b = min(size_scaled // q, -(-(start + length + margin) // q))
+    return a * p, b * p, a * q, b * q
+
+
+def resize_cover_crop(img: np.ndarray, out_hw: tuple[int, int], interpolation: str = "area",
+                      copy: bool = True) -> np.ndarray:
     """(H, W, 3) -> (out_h, out_w, 3): scale to cover `out_hw`, then crop the centre (the peers' crop).
 
     `interpolation` 'area' (default) uses INTER_AREA when shrinking and INTER_CUBIC when enlarging;
-    'lanczos', 'linear', 'cubic' force that filter.
+    'lanczos', 'linear', 'cubic' force that filter. Only the block-aligned span of the source that
+    holds the crop is resized (`aligned_span`; 360x640 -> 256x256 resizes 384 of 640 columns): the
+    same pixels as resizing the whole frame and cropping (bit-identical for 'area', up to the last
+    bit of OpenCV's fixed-point weights for the others; tested). `copy=False` may return a view.
     """
-    (sh, sw), (oy, ox) = cover_crop_geometry(img.shape[:2], out_hw)
-    if (sh, sw) != img.shape[:2]:
+    h, w = img.shape[:2]
+    (sh, sw), (oy, ox) = cover_crop_geometry((h, w), out_hw)
+    oh, ow = out_hw
+    if (sh, sw) != (h, w):
         flag = INTERPOLATIONS[interpolation]
-        if interpolation == "area" and (sh > img.shape[0] or sw > img.shape[1]):
+        if interpolation == "area" and (sh > h or sw > w):
             flag = cv2.INTER_CUBIC
-        img = cv2.resize(img, (sw, sh), interpolation=flag)
-    return np.ascontiguousarray(img[oy:oy + out_hw[0], ox:ox + out_hw[1]])
+        r = _TAP_RADIUS[flag]
+        y0, y1, dy0, dy1 = aligned_span(h, sh, oy, oh, r)
+        x0, x1, dx0, dx1 = aligned_span(w, sw, ox, ow, r)
+        img = cv2.resize(img[y0:y1, x0:x1], (dx1 - dx0, dy1 - dy0), interpolation=flag)
+        oy, ox = oy - dy0, ox - dx0
+    crop = img[oy:oy + oh, ox:ox + ow]
+    return np.ascontiguousarray(crop) if copy else crop
 
 
 def resized_intrinsics(intrinsics_norm: np.ndarray, in_hw: tuple[int, int], out_hw: tuple[int, int]) -> np.ndarray:

@@ -4,21 +4,21 @@ Geometry comes from `seeu_data.cameras` (`cover_crop_geometry`, `crop_intrinsics
 `flip_horizontal`): the image is resized so it covers the training size, then the middle is cut out
 (360x640 -> 256x455 -> 256x256, as the peers do). Filters (`interpolation`):
 
-* `"linear"` (default): bilinear `cv2.INTER_LINEAR`, ~0.2 ms per 360x640 view, so the loader runs
-  near the JPEG-decode limit. Not anti-aliased: at the usual 1.4x reduction every source pixel still
-  contributes, but fine texture can alias slightly.
-* `"area"`: exact pixel-area averaging (`cv2.INTER_AREA`, anti-aliased); ~1 ms per view at 1.4x
-  (OpenCV's non-integer area path is not vectorised), i.e. about 1.6x the cost of the JPEG decode.
-* `"lanczos"` / `"cubic"`: Lanczos is the peers' (PIL) filter, ~2 ms per view.
+* `"linear"` (default): bilinear `cv2.INTER_LINEAR`, ~0.1 ms per 360x640 view (~0.6 ms to decode
+  it), so the loader runs near the JPEG-decode limit. Not anti-aliased: at the usual 1.4x reduction
+  every source pixel still contributes, but fine texture can alias slightly.
+* `"area"`: exact pixel-area averaging (`cv2.INTER_AREA`, anti-aliased); ~0.8 ms per view at 1.4x
+  (OpenCV's non-integer area path is not vectorised), i.e. about 1.3x the cost of the JPEG decode.
+* `"lanczos"` / `"cubic"`: Lanczos is the peers' (PIL) filter, ~1.2 ms per view.
 
-Pixels are moved by `seeu_data.image_ops.resize_cover_crop` (shared with `seeu build`).
+Pixels are moved by `seeu_data.image_ops.resize_cover_crop` (shared with `seeu build`), which
+resizes only the block-aligned source span that holds the crop (384 of 640 columns here).
 Images are decoded to BGR and written as planar RGB (V, 3, H, W) uint8 with one `cv2.mixChannels`.
 A flip mirrors every view of a sample (the whole scene is mirrored in world x).
 """
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 
 import cv2
@@ -63,36 +63,6 @@ def decode_bgr(buf: np.ndarray, where: str) -> np.ndarray:
 _BGR_TO_PLANAR_RGB = [2, 0, 1, 1, 0, 2]
 
 
-def _aligned_span(size_in: int, size_scaled: int, start: int, length: int) -> tuple[int, int, int, int]:
-    """Source span `[s0, s1)` and scaled span `[d0, d1)` to resize instead of the whole axis.
-
-    `cv2.resize` maps output pixel centres by the ratio `size_in / size_scaled` = p / q (reduced): a
-    run of q output pixels starting at a multiple of q reads exactly p input pixels starting at the
-    same multiple of p, with the same interpolation weights as in the full resize. The span covers
-    the kept `[start, start + length)` plus a margin wider than the bilinear footprint, so the ROI's
-    edge clamping never reaches a kept pixel.
-    """
-    g = math.gcd(size_in, size_scaled)
-    p, q = size_in // g, size_scaled // g
-    margin = 2 + -(-q // (2 * p))  # output pixels whose taps can fall outside the span
-    a = max(0, (start - margin) // q)
-    b = min(size_scaled // q, -(-(start + length + margin) // q))
-    return a * p, b * p, a * q, b * q
-
-
-def cover_crop_linear(img: np.ndarray, out_hw: tuple[int, int]) -> np.ndarray:
-    """`image_ops.resize_cover_crop(img, out_hw, "linear")`, resizing only the block-aligned span that
-    holds the crop (360x640 -> 256x256 resizes 384 of 640 columns). Same pixels up to the last bit of
-    OpenCV's fixed-point weights (tested); (H, W, 3) -> (out_h, out_w, 3)."""
-    h, w = img.shape[:2]
-    (sh, sw), (oy, ox) = cameras.cover_crop_geometry((h, w), out_hw)
-    oh, ow = out_hw
-    y0, y1, dy0, dy1 = _aligned_span(h, sh, oy, oh)
-    x0, x1, dx0, dx1 = _aligned_span(w, sw, ox, ow)
-    part = cv2.resize(img[y0:y1, x0:x1], (dx1 - dx0, dy1 - dy0), interpolation=cv2.INTER_LINEAR)
-    return part[oy - dy0:oy - dy0 + oh, ox - dx0:ox - dx0 + ow]
-
-
 def transform_sample(raw: RawSample, out_hw: tuple[int, int], flip: bool = False, interpolation: str = "linear",
                      where: str = "", out: np.ndarray | None = None) -> ViewsSample:
     """Decode, resize/crop (and optionally mirror) every view of a stored sample.
@@ -115,10 +85,7 @@ def transform_sample(raw: RawSample, out_hw: tuple[int, int], flip: bool = False
         if h != raw.height[v] or w != raw.width[v]:
             raise SeeUError(f"view {v} decodes to {w}x{h}, the row says {raw.width[v]}x{raw.height[v]}", name)
         sizes.append((h, w))
-        if interpolation == "linear":
-            crop = cover_crop_linear(bgr, out_hw)
-        else:
-            crop = resize_cover_crop(bgr, out_hw, interpolation)
+        crop = resize_cover_crop(bgr, out_hw, interpolation, copy=False)  # resizes only the span that is kept
         if flip:
             crop = cv2.flip(crop, 1)
         cv2.mixChannels([crop], [images[v, 0], images[v, 1], images[v, 2]], _BGR_TO_PLANAR_RGB)
