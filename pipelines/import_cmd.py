@@ -10,8 +10,9 @@ Formats:
 Scenes with bad input (an image that fails to decode, missing frames, frame/camera count mismatch,
 non-finite or non-orthonormal poses) are skipped, counted and named in the manifest's report.
 
-A re-run of a pixelsplat import resumes: output files already complete for the same chunks and
-options (recorded size and sha256 still matching) are kept, only the other chunks are read.
+A re-run resumes: output files already complete for the same options and unchanged inputs
+(pixelsplat chunks, re10k camera files with their frames, dtu scans, the colmap or nerfstudio
+scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
 Writes are atomic (temporary name, rename, manifest last); --fsync (or SEEU_FSYNC=1) also fsyncs
 every file before its rename, for durability across a power loss.
 
@@ -139,7 +140,7 @@ def _re10k(args):
     params = {"format": "re10k", "cameras": str(args.cameras), "frames": str(args.frames), "dataset": args.dataset,
               "near": args.near, "far": args.far, "allow_missing_frames": args.allow_missing_frames,
               "verify_decode": args.verify_decode}
-    return m.iter_scenes(cfg, files), params, len(files), [str(args.cameras), str(args.frames)]
+    return m.import_plan(cfg, files), params, len(files), [str(args.cameras), str(args.frames)]
 
 
 def _dtu(args):
@@ -151,7 +152,7 @@ def _dtu(args):
     found = m.scan_list(cfg)
     params = {"format": "dtu", "root": str(args.root), "scans": found, "lighting": args.lighting,
               "scale": args.scale, "near": args.near, "far": args.far, "verify_decode": args.verify_decode}
-    return m.iter_scenes(cfg, found), params, len(found), [str(args.root)]
+    return m.import_plan(cfg, found), params, len(found), [str(args.root)]
 
 
 def _colmap(args):
@@ -161,8 +162,9 @@ def _colmap(args):
                                undistort=not args.no_undistort, near=args.near, far=args.far,
                                verify_decode=args.verify_decode)
     params = {"format": "colmap", "model": str(args.model), "images": str(args.images),
-              "undistort": not args.no_undistort, "near": args.near, "far": args.far}
-    return m.iter_scenes(cfg), params, 1, [str(args.model), str(args.images)]
+              "undistort": not args.no_undistort, "near": args.near, "far": args.far,
+              "scene_id": args.scene_id, "verify_decode": args.verify_decode}
+    return m.import_plan(cfg), params, 1, [str(args.model), str(args.images)]
 
 
 def _nerfstudio(args):
@@ -172,8 +174,9 @@ def _nerfstudio(args):
                                    undo_applied_transform=not args.keep_applied_transform,
                                    near=args.near, far=args.far, verify_decode=args.verify_decode)
     params = {"format": "nerfstudio", "transforms": str(args.transforms),
-              "undo_applied_transform": not args.keep_applied_transform, "near": args.near, "far": args.far}
-    return m.iter_scenes(cfg), params, 1, [str(args.transforms)]
+              "undo_applied_transform": not args.keep_applied_transform, "near": args.near, "far": args.far,
+              "scene_id": args.scene_id, "verify_decode": args.verify_decode}
+    return m.import_plan(cfg), params, 1, [str(args.transforms)]
 
 
 def run(args: argparse.Namespace) -> int:

@@ -5,6 +5,7 @@ it) landing on the same pixel after import."""
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -14,6 +15,7 @@ import pycolmap
 import pytest
 
 from pipelines.cli import main as cli_main
+from pipelines.validate import validate_dataset
 from seeu_data import cameras as cam
 from seeu_data.errors import SeeUError
 from seeu_data.importers import ImportReport, write_import
@@ -346,3 +348,187 @@ def test_nerfstudio_refuses_distortion_and_unknown_models(tmp_path, capsys):
     next((tmp_path / "ns" / "images").iterdir()).unlink()
     assert cli_main(["import", "nerfstudio", str(tj), "--out", str(tmp_path / "o")]) == 2
     assert "missing" in capsys.readouterr().err and not (tmp_path / "o" / "manifest.json").exists()
+
+
+# ------------------------------------------------------------------------------------------ resume
+
+def _files(out: Path) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(out.glob("posed-*.arrow"))}
+
+
+def _mtimes(out: Path) -> dict[str, int]:
+    return {p.name: p.stat().st_mtime_ns for p in sorted(out.glob("posed-*.arrow"))}
+
+
+def _touch(path: Path) -> None:
+    st = path.stat()
+    os.utime(path, ns=(st.st_atime_ns, st.st_mtime_ns + 10**9))
+
+
+def _counting(monkeypatch, module, name: str, key) -> list:
+    """Replace `module.name` with a wrapper that records `key(*args)` of every call."""
+    calls: list = []
+    real = getattr(module, name)
+
+    def wrapper(*args, **kw):
+        calls.append(key(*args))
+        return real(*args, **kw)
+
+    monkeypatch.setattr(module, name, wrapper)
+    return calls
+
+
+def _re10k_plan_import(cams, frames, out, near=1.0, **kw) -> ImportReport:
+    """Every camera file closes its own output file (target size 1 byte), as the pixelsplat resume test does."""
+    cfg = re10k_imp.Re10kTextImportConfig(cameras_dir=cams, frames_dir=frames, near=near, **kw)
+    return write_import(re10k_imp.import_plan(cfg), out, ImportReport("re10k"), params={"near": near},
+                        provenance={}, target_file_bytes=1)
+
+
+def test_re10k_rerun_resumes_scene_by_scene(tmp_path, monkeypatch):
+    rng = np.random.default_rng(20)
+    cams, frames, lines = _re10k_fixture(tmp_path, rng, n_extra=1)
+    src = cams / "0000cf2ea3c0f0c1.txt"
+    for sid in ("s0", "s1", "s2"):
+        shutil.copy(src, cams / f"{sid}.txt")
+        shutil.copytree(frames / src.stem, frames / sid)
+    src.unlink()
+    (cams / "broken.txt").write_text("https://youtu.be/z\n" + " ".join(lines[0].split()[:18]) + "\n")
+    scenes = frozenset({"s0", "s1", "s2", "broken", "nope"})
+    out = tmp_path / "out"
+    first = _re10k_plan_import(cams, frames, out, scenes=scenes)
+    expected, mtimes = _files(out), _mtimes(out)
+    assert len(expected) == 3 and {s.scene_id for s in first.skipped} == {"broken", "nope"}
+    read = _counting(monkeypatch, re10k_imp, "scene_from_files", lambda f, cfg: f.stem)
+
+    # a complete output: nothing read, nothing rewritten, the same skips reported
+    report = _re10k_plan_import(cams, frames, out, scenes=scenes)
+    assert read == [] and report.notes["resumed_files"] == 3 and report.scenes == 3
+    assert _files(out) == expected and _mtimes(out) == mtimes
+    assert sorted(s.scene_id for s in report.skipped) == ["broken", "nope"]
+    assert {s.reason for s in report.skipped} == {s.reason for s in first.skipped}
+    assert "(3 scenes in 3 files kept from a previous run)" in report.summary_line(out)
+    assert validate_dataset(out)["unlisted_files"] == []
+
+    # one frame of s1 touched: s1 and the scenes after it are read again, with the same bytes
+    _touch(frames / "s1" / f"{lines[0].split()[0]}.png")
+    report = _re10k_plan_import(cams, frames, out, scenes=scenes)
+    assert read == ["s1", "s2"] and report.notes["resumed_files"] == 1 and _files(out) == expected
+    # the last scene's camera file replaced: only it is read
+    read.clear()
+    (cams / "s2.txt").write_text((cams / "s2.txt").read_text())
+    _touch(cams / "s2.txt")
+    _re10k_plan_import(cams, frames, out, scenes=scenes)
+    assert read == ["s2"] and _files(out) == expected
+    # a frame added to s0 (the scene now has a frame without a camera line): s0 redone, and skipped
+    # (broken, a scene skipped before s0, is recorded with s0's file and so is read again too)
+    read.clear()
+    (frames / "s0" / "99999999.png").write_bytes(_img(rng, 45, 80))
+    report = _re10k_plan_import(cams, frames, out, scenes=scenes)
+    assert read == ["broken", "s0", "s1", "s2"] and "s0" in {s.scene_id for s in report.skipped}
+    (frames / "s0" / "99999999.png").unlink()
+    # other options: everything read again
+    _re10k_plan_import(cams, frames, out, scenes=scenes)
+    read.clear()
+    report = _re10k_plan_import(cams, frames, out, near=0.5, scenes=scenes)
+    assert read == ["broken", "s0", "s1", "s2"] and "resumed_files" not in report.notes
+    assert validate_dataset(out)["unlisted_files"] == []
+
+
+def test_dtu_rerun_resumes_scan_by_scan(tmp_path, monkeypatch):
+    rng = np.random.default_rng(21)
+    root = tmp_path / "dtu"
+    _dtu_fixture(root, rng, scans=(1, 8, 21))
+
+    def run(out, **kw):
+        cfg = dtu_imp.DtuImportConfig(root=root, scans=[1, 8, 9, 21], **kw)
+        return write_import(dtu_imp.import_plan(cfg), out, ImportReport("dtu"), params={"lighting": cfg.lighting},
+                            provenance={}, target_file_bytes=1)
+
+    out = tmp_path / "out"
+    first = run(out)
+    expected, mtimes = _files(out), _mtimes(out)
+    assert len(expected) == 3 and [s.scene_id for s in first.skipped] == ["scan9"]
+    read = _counting(monkeypatch, dtu_imp, "scene_for_scan", lambda scan, cams, cfg: scan)
+    cams_read = _counting(monkeypatch, dtu_imp, "read_cameras", lambda r: 1)
+    report = run(out)
+    assert read == [] and cams_read == [] and report.notes["resumed_files"] == 3
+    assert _files(out) == expected and _mtimes(out) == mtimes and report.scenes == 3
+    assert [(s.scene_id, s.reason) for s in report.skipped] == [(s.scene_id, s.reason) for s in first.skipped]
+    assert validate_dataset(out)["unlisted_files"] == []
+
+    _touch(root / "Rectified" / "scan8_train" / "rect_002_3_r5000.png")  # an image of scan8
+    run(out)
+    assert read == [8, 9, 21] and cams_read == [1] and _files(out) == expected
+    read.clear()
+    _touch(root / "Rectified" / "scan1_train" / "rect_002_6_r5000.png")  # another lighting: not read, kept
+    run(out)
+    assert read == []
+    (root / "Points" / "stl").mkdir(parents=True)  # ground truth for scan21 (skipped scan9 shares its file)
+    (root / "Points" / "stl" / "stl021_total.ply").write_bytes(b"ply\n")
+    run(out)
+    assert read == [9, 21] and PosedDataset(out).load_scene("scan21").meta["gt_points"].endswith("stl021_total.ply")
+    read.clear()
+    _touch(root / "Cameras" / "train" / "00000001_cam.txt")  # shared by every scan
+    run(out)
+    assert read == [1, 8, 9, 21]
+    read.clear()
+    report = run(out, lighting=6)  # other options
+    assert read == [1, 8, 9, 21] and "resumed_files" not in report.notes
+    assert validate_dataset(out)["unlisted_files"] == []
+
+
+def test_cli_rerun_of_dtu_and_re10k_keeps_everything(tmp_path, capsys):
+    rng = np.random.default_rng(22)
+    _dtu_fixture(tmp_path / "dtu", rng)
+    cams, frames, _ = _re10k_fixture(tmp_path, rng, n_extra=1)
+    for cmd in (["import", "dtu", str(tmp_path / "dtu"), "--scans", "1,8,9"],
+                ["import", "re10k", "--cameras", str(cams), "--frames", str(frames), "--scenes",
+                 "0000cf2ea3c0f0c1,nope"]):
+        out = tmp_path / f"out-{cmd[1]}"
+        assert cli_main([*cmd, "--out", str(out)]) == 0
+        first = capsys.readouterr().out
+        doc1, files1 = json.loads((out / "manifest.json").read_text()), _files(out)
+        assert cli_main([*cmd, "--out", str(out)]) == 0
+        second = capsys.readouterr().out
+        doc2 = json.loads((out / "manifest.json").read_text())
+        assert "kept from a previous run" not in first and "kept from a previous run" in second
+        assert "skipped 1 scenes" in first and "skipped 1 scenes" in second
+        assert doc2["report"]["resumed_files"] == 1 and _files(out) == files1
+        assert doc1["files"] == doc2["files"] and doc1["scenes"] == doc2["scenes"]
+        assert doc1["report"]["skipped"] == doc2["report"]["skipped"]
+        assert validate_dataset(out)["unlisted_files"] == []
+
+
+@pytest.mark.parametrize("fmt", ["colmap", "nerfstudio"])
+def test_single_scene_formats_resume_until_an_input_changes(tmp_path, capsys, fmt):
+    rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    if fmt == "colmap":
+        cmd = ["import", "colmap", str(tmp_path / "scene" / "sparse" / "0"), "--images", str(tmp_path / "scene" / "images")]
+        images, model_file = tmp_path / "scene" / "images", tmp_path / "scene" / "sparse" / "0" / "images.bin"
+    else:
+        tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
+        cmd = ["import", "nerfstudio", str(tj)]
+        images, model_file = tmp_path / "ns" / "images", tj
+    out = tmp_path / "out"
+    cmd += ["--out", str(out)]
+
+    def run(*extra) -> tuple[str, dict]:
+        assert cli_main([*cmd, *extra]) == 0
+        return capsys.readouterr().out, json.loads((out / "manifest.json").read_text())
+
+    line, doc = run()
+    files, mtimes = _files(out), _mtimes(out)
+    assert "kept" not in line and len(files) == 1
+    line, doc2 = run()
+    assert "(1 scenes in 1 files kept from a previous run)" in line and doc2["report"]["resumed_files"] == 1
+    assert _files(out) == files and _mtimes(out) == mtimes and doc2["scenes"] == doc["scenes"]
+    assert validate_dataset(out)["unlisted_files"] == []
+    for changed in (sorted(images.iterdir())[1], model_file):  # a referenced image, the model / transforms.json
+        _touch(changed)
+        line, doc3 = run()
+        assert "kept" not in line and "resumed_files" not in doc3["report"] and _files(out) == files
+        assert "kept" in run()[0]
+    line, doc4 = run("--near", "0.01")  # other options
+    assert "kept" not in line and doc4["scenes"][0]["near"] == 0.01
+    assert validate_dataset(out)["unlisted_files"] == []

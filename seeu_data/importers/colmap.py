@@ -164,13 +164,32 @@ def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict)
                       timestamp_us=np.zeros(len(ids), dtype=np.int64), source_name=names, meta=meta)
 
 
-def iter_scenes(cfg: ColmapImportConfig) -> Iterator[PosedScene | SkippedScene]:
-    """One scene (or a SkippedScene when its images are unusable); model-level problems raise."""
-    import pycolmap
-
+def _check_and_read(cfg: ColmapImportConfig):
     if not Path(cfg.images_dir).is_dir():
         raise SeeUError("image directory not found", cfg.images_dir)
-    rec = read_model(cfg.model_dir)
+    return read_model(cfg.model_dir)
+
+
+def iter_scenes(cfg: ColmapImportConfig) -> Iterator[PosedScene | SkippedScene]:
+    """One scene (or a SkippedScene when its images are unusable); model-level problems raise."""
+    yield from _scene_items(cfg, _check_and_read(cfg))
+
+
+def import_plan(cfg: ColmapImportConfig):
+    """The import as one resumable unit (`importers.common.ImportPlan`) whose fingerprint covers the
+    model's files and the registered images it names. Reads the model (SeeUError when unusable)."""
+    from .common import ImportPlan, ImportUnit, files_fingerprint
+
+    rec = _check_and_read(cfg)
+    model_files = sorted(p for p in Path(cfg.model_dir).iterdir() if p.is_file())
+    images = [Path(cfg.images_dir) / n for n in sorted(rec.image(i).name for i in rec.reg_image_ids())]
+    scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
+    return ImportPlan([ImportUnit(scene_id, files_fingerprint(model_files + images), lambda: _scene_items(cfg, rec))])
+
+
+def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedScene]:
+    import pycolmap
+
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
     meta = {"dataset": "colmap", "model": str(Path(cfg.model_dir).resolve()),
             "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()})}

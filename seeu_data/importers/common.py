@@ -86,12 +86,13 @@ def probe_images(images: Sequence[bytes], names: Sequence[str], verify_decode: b
 
 @dataclass(frozen=True)
 class ImportUnit:
-    """A piece of the input a re-run can skip when its output is already complete (a pixelSplat chunk).
+    """A piece of the input a re-run can skip when its output is already complete (a pixelSplat chunk,
+    a RE10K camera file, a DTU scan, a whole COLMAP / nerfstudio scene).
 
     `key` names it (a chunk file name), `fingerprint` changes when its content may have (size and
-    mtime, `file_fingerprint`), `read()` yields its scenes and skips. A unit with key None is read on
-    every run (bookkeeping such as scenes asked for but not found); when it yields scenes, the file
-    holding them is not resumable.
+    mtime of every file it reads, `file_fingerprint` / `files_fingerprint`), `read()` yields its
+    scenes and skips. A unit with key None is read on every run (bookkeeping such as scenes asked
+    for but not found); when it yields scenes, the file holding them is not resumable.
     """
 
     key: str | None
@@ -120,6 +121,15 @@ def file_fingerprint(path: str | Path) -> str:
     except OSError:
         return "missing"
     return f"{st.st_size}:{st.st_mtime_ns}"
+
+
+def files_fingerprint(paths: Iterable[str | Path]) -> str:
+    """One fingerprint for the files a unit reads (`file_fingerprint` of each, with its path, in
+    order): changes when any of them is replaced, edited, appears, disappears or the list changes."""
+    h = hashlib.sha256()
+    for p in paths:
+        h.update(f"{p}={file_fingerprint(p)}\n".encode())
+    return h.hexdigest()
 
 
 def resume_key(params: dict, fingerprint: str = "") -> str:

@@ -182,11 +182,49 @@ def scene_for_scan(scan: int, cams: dict[int, DtuCamera], cfg: DtuImportConfig) 
                       source_name=[p.name for p in paths], meta=meta)
 
 
-def iter_scenes(cfg: DtuImportConfig, scans: list[int] | None = None) -> Iterator[PosedScene | SkippedScene]:
+def camera_paths(root: Path) -> list[Path]:
+    """Cameras/train/NNNNNNNN_cam.txt files (sorted), the ones `read_cameras` parses."""
+    return [p for p in sorted((Path(root) / "Cameras" / "train").glob("*_cam.txt"))
+            if re.fullmatch(r"\d{8}_cam\.txt", p.name)]
+
+
+def _scan_inputs(root: Path, scan: int, views: list[int], lighting: int) -> list[Path]:
+    """What a scan's import reads or records: its images and the ground truth it looks for."""
+    scan_dir = _scan_dir(root, scan)
+    names = (f"scan{scan}_train", f"scan{scan}")
+    paths = ([root / "Rectified" / n for n in names] if scan_dir is None
+             else [scan_dir / f"rect_{v + 1:03d}_{lighting}_r5000.png" for v in views])
+    paths += [root / "Depths" / n for n in names]  # a directory's mtime changes as depth maps come and go
+    paths += [root / "Points" / "stl" / f"stl{scan:03d}_total.ply", root / "ObsMask" / f"ObsMask{scan}_10.mat",
+              root / "ObsMask" / f"Plane{scan}.mat"]
+    return paths
+
+
+def import_plan(cfg: DtuImportConfig, scans: list[int] | None = None):
+    """The import as resumable units (`importers.common.ImportPlan`): one unit per scan (fingerprint:
+    its images and ground-truth files); the camera files, shared by every scan, are the plan's
+    fingerprint and are read once, by the first scan not resumed."""
+    from .common import ImportPlan, ImportUnit, files_fingerprint
+
     scans = scans if scans is not None else scan_list(cfg)
-    cams = read_cameras(cfg.root)
-    for scan in scans:
+    root = Path(cfg.root)
+    cam_paths = camera_paths(root)
+    views = [int(p.name[:8]) for p in cam_paths]
+    cams: dict[int, DtuCamera] = {}
+
+    def read(scan: int) -> Iterator[PosedScene | SkippedScene]:
+        if not cams:
+            cams.update(read_cameras(root))
         try:
             yield scene_for_scan(scan, cams, cfg)
         except SeeUError as exc:
             yield SkippedScene(f"scan{scan}", str(exc))
+
+    units = [ImportUnit(f"scan{scan}", files_fingerprint(_scan_inputs(root, scan, views, cfg.lighting)),
+                        lambda scan=scan: read(scan)) for scan in scans]
+    return ImportPlan(units, fingerprint=files_fingerprint(cam_paths))
+
+
+def iter_scenes(cfg: DtuImportConfig, scans: list[int] | None = None) -> Iterator[PosedScene | SkippedScene]:
+    for unit in import_plan(cfg, scans).units:
+        yield from unit.read()

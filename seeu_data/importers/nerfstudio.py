@@ -114,6 +114,18 @@ def _camera(doc: dict, frame: dict, path: Path, image_size: tuple[int, int] | No
     return K, int(w), int(h)
 
 
+def import_plan(cfg: NerfstudioImportConfig):
+    """The import as one resumable unit (`importers.common.ImportPlan`) whose fingerprint covers
+    transforms.json and the frame images it names."""
+    from .common import ImportPlan, ImportUnit, files_fingerprint
+
+    path = Path(cfg.transforms)
+    doc = load_transforms(path)
+    images = [_resolve_image(path.parent, str(f["file_path"])) for f in doc["frames"]
+              if isinstance(f, dict) and "file_path" in f]
+    return ImportPlan([ImportUnit(path.name, files_fingerprint([path, *sorted(images)]), lambda: iter_scenes(cfg))])
+
+
 def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedScene]:
     path = Path(cfg.transforms)
     doc = load_transforms(path)

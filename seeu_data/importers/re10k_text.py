@@ -145,12 +145,38 @@ def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
                       timestamp_us=cams.timestamps_us[idx], source_name=[p.name for p in paths], meta=meta)
 
 
-def iter_scenes(cfg: Re10kTextImportConfig, files: list[Path] | None = None) -> Iterator[PosedScene | SkippedScene]:
+def _scene_items(cam_file: Path, cfg: Re10kTextImportConfig) -> Iterator[PosedScene | SkippedScene]:
+    try:
+        yield scene_from_files(cam_file, cfg)
+    except SeeUError as exc:
+        yield SkippedScene(cam_file.stem, str(exc))
+
+
+def _scene_inputs(cam_file: Path, cfg: Re10kTextImportConfig) -> list[Path]:
+    """The files a scene's import reads: its camera file and every frame file in its frame directory."""
+    scene_dir = Path(cfg.frames_dir) / cam_file.stem
+    frames = sorted(p for p in scene_dir.iterdir() if p.suffix.lower() in FRAME_EXTENSIONS and p.stem.isdigit()
+                    ) if scene_dir.is_dir() else []
+    return [cam_file, *frames]
+
+
+def import_plan(cfg: Re10kTextImportConfig, files: list[Path] | None = None):
+    """The import as resumable units (`importers.common.ImportPlan`): one unit per camera file (its
+    fingerprint covers the camera file and the scene's frame files), after the scenes asked for that
+    have no camera file (reported on every run)."""
+    from functools import partial
+
+    from .common import ImportPlan, ImportUnit, files_fingerprint
+
     files = files if files is not None else camera_files(cfg)
-    for scene_id in sorted(set(cfg.scenes or ()) - {f.stem for f in files}):
-        yield SkippedScene(scene_id, f"no {scene_id}.txt camera file in {cfg.cameras_dir}")
-    for cam_file in files:
-        try:
-            yield scene_from_files(cam_file, cfg)
-        except SeeUError as exc:
-            yield SkippedScene(cam_file.stem, str(exc))
+    missing = [SkippedScene(scene_id, f"no {scene_id}.txt camera file in {cfg.cameras_dir}")
+               for scene_id in sorted(set(cfg.scenes or ()) - {f.stem for f in files})]
+    units = [ImportUnit(None, "", lambda: iter(missing))] if missing else []
+    units += [ImportUnit(f.name, files_fingerprint(_scene_inputs(f, cfg)), partial(_scene_items, f, cfg))
+              for f in files]
+    return ImportPlan(units)
+
+
+def iter_scenes(cfg: Re10kTextImportConfig, files: list[Path] | None = None) -> Iterator[PosedScene | SkippedScene]:
+    for unit in import_plan(cfg, files).units:
+        yield from unit.read()
