@@ -166,10 +166,14 @@ class PosedDatasetWriter:
 
     def add(self, scene: PosedScene) -> None:
         scene.check()
+        self.add_batch(scene, scene.to_record_batch())
+
+    def add_batch(self, scene: PosedScene, batch: pa.RecordBatch, may_close: bool = True) -> None:
+        """`add` for a scene already `check()`ed, with its `to_record_batch()` made. `may_close=False`
+        keeps the file open past the target size (importers close files only at unit ends)."""
         if scene.scene_id in self._seen:
             raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
         self._seen.add(scene.scene_id)
-        batch = scene.to_record_batch()
         if self._writer is None:
             self._open()
         assert self._path is not None
@@ -181,7 +185,7 @@ class PosedDatasetWriter:
         self.scenes.append(entry)
         self._rows += batch.num_rows
         self._bytes += batch.nbytes
-        if self._bytes >= self.target_file_bytes:
+        if may_close and self._bytes >= self.target_file_bytes:
             self._finish_file()
 
     def _open(self) -> None:

@@ -11,7 +11,6 @@ from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
-import pyarrow as pa
 
 from ..arrow_io import atomic_write_text, sha256_file
 from ..errors import SeeUError
@@ -144,25 +143,6 @@ class _ImportWriter(PosedDatasetWriter):
     Files close when they reach the target size at a scene boundary (`at_units=False`) or, for
     resumable units, only at the end of a unit, so that every file covers whole units.
     """
-
-    def add_prepared(self, scene: PosedScene, batch: pa.RecordBatch, may_close: bool) -> None:
-        """`add` for a scene already `check()`ed with its `to_record_batch()` made."""
-        if scene.scene_id in self._seen:
-            raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
-        self._seen.add(scene.scene_id)
-        if self._writer is None:
-            self._open()
-        assert self._path is not None
-        self._writer.write_batch(batch)
-        entry = {"scene_id": scene.scene_id, "file": self._path.name, "row_start": self._rows,
-                 "num_frames": len(scene), "near": float(scene.near), "far": float(scene.far)}
-        if scene.meta:
-            entry["meta"] = scene.meta
-        self.scenes.append(entry)
-        self._rows += batch.num_rows
-        self._bytes += batch.nbytes
-        if may_close and self._bytes >= self.target_file_bytes:
-            self._finish_file()
 
     def finish_file(self, force: bool) -> FileEntry | None:
         """Close the open file when it reached the target size (or `force`); its entry, else None."""
@@ -345,7 +325,7 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
             bar.update(1)
             if isinstance(item, PosedScene):
                 try:
-                    writer.add_prepared(item, batch, may_close=not resumable or unit.key is None)
+                    writer.add_batch(item, batch, may_close=not resumable or unit.key is None)
                 except SeeUError as exc:
                     item = SkippedScene(item.scene_id, str(exc))
                 else:
