@@ -185,10 +185,6 @@ class _HashingFile:
         self._digest_requested = True
         return future
 
-    def hexdigest(self) -> str:
-        """sha256 of every byte written (waits for the hasher). No writes after this."""
-        return self.digest_future().result()
-
     def flush(self) -> None:
         pass
 
