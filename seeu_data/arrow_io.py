@@ -12,17 +12,31 @@ environment variable `SEEU_FSYNC=1`) every file is fsynced before its rename.
 Every IPC file written here is hashed while it is written: `AtomicIpcWriter` feeds the bytes it
 writes to a sha256 on a helper thread, in order, overlapping the writes (hashlib and file writes
 both release the GIL), so the manifest's (bytes, sha256) come without reading the file back.
+
+Encoded images are written without being copied into Arrow buffers first: `deferred_binary(pieces)`
+makes a binary column whose data buffer is a placeholder (untouched anonymous memory) standing for
+the concatenation of `pieces` (bytes, or read-only views into memory-mapped input files). When
+pyarrow's IPC writer hands that buffer, or a slice of it, to `AtomicIpcWriter`'s sink, the sink
+writes the pieces themselves (`os.writev`, one system call for up to 1024 images) and hashes them.
+The file's bytes are exactly those pyarrow writes for the same column with its data copied into
+one buffer (tested), in one copy of the image bytes instead of two.
 """
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
+import mmap
 import os
+import threading
+import weakref
 from concurrent.futures import Future
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator
+from typing import Iterator, Sequence
+
+import numpy as np
 
 import pyarrow as pa
 
@@ -110,6 +124,98 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise
 
 
+class _Placeholder(mmap.mmap):
+    """Anonymous memory, never read or written, standing for the concatenation of `pieces`
+    (`offsets[i]` = where piece i starts; `offsets[-1]` = total bytes)."""
+
+    pieces: list[memoryview]
+    offsets: list[int]
+
+
+_PLACEHOLDERS: dict[int, weakref.ref] = {}  # base address -> placeholder, while an array still uses it
+_PLACEHOLDERS_LOCK = threading.Lock()
+
+
+def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
+    """A binary array of `len(pieces)` values whose bytes are not copied: they are written straight
+    from `pieces` when the array is written by `AtomicIpcWriter` (or `write_table`).
+
+    `pieces`: bytes-like objects (bytes, numpy uint8 views into a memory-mapped file, pyarrow
+    buffers) that must not change until the file is closed. The array is for writing only: its
+    values read as zeros anywhere else (`deferred` arrays never leave the write paths that make them).
+    """
+    views = [memoryview(p).cast("B") for p in pieces]
+    offsets = np.zeros(len(views) + 1, dtype=np.int64)
+    np.cumsum([v.nbytes for v in views], out=offsets[1:])
+    total = int(offsets[-1])
+    if total >= 2**31:
+        raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
+    placeholder = _Placeholder(-1, max(total, 1))
+    placeholder.pieces, placeholder.offsets = views, offsets.tolist()
+    data = pa.py_buffer(placeholder)[:total]
+    base = data.address
+    with _PLACEHOLDERS_LOCK:
+        _PLACEHOLDERS[base] = weakref.ref(placeholder)
+    weakref.finalize(placeholder, _forget_placeholder, base)
+    return pa.BinaryArray.from_buffers(pa.binary(), len(views), [None, pa.py_buffer(offsets.astype(np.int32)), data])
+
+
+def _forget_placeholder(base: int) -> None:
+    with _PLACEHOLDERS_LOCK:
+        _PLACEHOLDERS.pop(base, None)
+
+
+def _deferred_pieces(address: int, size: int) -> list[memoryview] | None:
+    """The pieces (sliced at the ends) a buffer at `address` of `size` bytes stands for, or None
+    when it is not (a slice of) a `deferred_binary` placeholder."""
+    with _PLACEHOLDERS_LOCK:
+        if not _PLACEHOLDERS:
+            return None
+        found = None
+        for base, ref in _PLACEHOLDERS.items():
+            ph = ref()
+            if ph is not None and base <= address < base + len(ph):
+                found = (base, ph)
+                break
+    if found is None:
+        return None
+    base, ph = found
+    start, end = address - base, address - base + size
+    if end > ph.offsets[-1]:
+        raise AssertionError("a write reaches past the end of a deferred binary column")
+    out = []
+    i = bisect.bisect_right(ph.offsets, start) - 1
+    while start < end:
+        piece, lo = ph.pieces[i], ph.offsets[i]
+        a, b = start - lo, min(end - lo, piece.nbytes)
+        if b > a:
+            out.append(piece[a:b] if (a, b) != (0, piece.nbytes) else piece)
+        start = lo + b
+        i += 1
+    return out
+
+
+def _writev_all(fd: int, views: list[memoryview]) -> None:
+    """Write every view in order (os.writev in groups of 1024, retrying short writes)."""
+    if not hasattr(os, "writev"):  # not POSIX
+        for v in views:
+            written = 0
+            while written < v.nbytes:
+                written += os.write(fd, v[written:])
+        return
+    i = 0
+    while i < len(views):
+        group = views[i:i + 1024]
+        written = os.writev(fd, group)
+        for v in group:
+            if written < v.nbytes:  # a short write: go on from inside this view
+                views = [v[written:]] + views[i + 1:]
+                i = 0
+                break
+            written -= v.nbytes
+            i += 1
+
+
 class _HashingFile:
     """Raw write-only file object that feeds every written buffer to a sha256 (used through pa.PythonFile).
 
@@ -141,8 +247,15 @@ class _HashingFile:
         self.closed = False
 
     def _submit(self, view) -> None:
-        self._queued.append((self._pool.submit(self._sha256.update, view), view.nbytes))
-        self._queued_bytes += view.nbytes
+        self._submit_many([view])
+
+    def _submit_many(self, views: list) -> None:
+        nbytes = sum(v.nbytes for v in views)
+        update = self._sha256.update
+        fut = self._pool.submit(update, views[0]) if len(views) == 1 else \
+            self._pool.submit(lambda: [update(v) for v in views])
+        self._queued.append((fut, nbytes))
+        self._queued_bytes += nbytes
         while self._queued and (self._queued[0][0].done() or self._queued_bytes > _MAX_QUEUED):
             fut, nbytes = self._queued.popleft()
             fut.result()
@@ -161,6 +274,12 @@ class _HashingFile:
             self._write_all(staged)
 
     def write(self, data) -> int:
+        if isinstance(data, pa.Buffer) and (pieces := _deferred_pieces(data.address, data.size)) is not None:
+            self._flush_small()  # a deferred_binary column: write (and hash) the pieces it stands for
+            self._submit_many(pieces)
+            _writev_all(self._fh.fileno(), pieces)
+            self.size += data.size
+            return data.size
         view = memoryview(data).cast("B")
         nbytes = view.nbytes
         if nbytes < _BIG_WRITE:  # staged: one write (and one GIL hand-off) for many small buffers
@@ -305,6 +424,32 @@ def write_table_async(path: str | Path, table: pa.Table, max_chunksize: int | No
         writer.abort()
         raise
     return writer.close_async()
+
+
+_MADV_POPULATE_READ = 22  # Linux >= 5.14 (not yet a constant in Python 3.11's mmap module)
+
+
+def map_readonly(path: str | Path, populate: bool = False) -> mmap.mmap:
+    """A read-only shared memory map of the whole file. `populate=True` fills its page tables at once
+    (MAP_POPULATE on Linux): for a file that will be read whole, one call instead of a page fault
+    per 64 KB, several times faster on a VM (writing 100 MB from a mapped file: 0.03 s vs 0.08 s)."""
+    with open(path, "rb") as fh:
+        if populate and hasattr(mmap, "MAP_POPULATE"):
+            return mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_SHARED | mmap.MAP_POPULATE, prot=mmap.PROT_READ)
+        return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+
+
+def populate(mapping: mmap.mmap, start: int, length: int) -> None:
+    """Fill the page tables of `mapping[start:start + length]` now (MADV_POPULATE_READ), for a part of
+    a mapped file about to be read whole. Best effort: a no-op where the kernel lacks it."""
+    page = mmap.PAGESIZE
+    lo = start // page * page
+    hi = min(len(mapping), start + length)
+    if hi > lo and hasattr(mapping, "madvise"):
+        try:
+            mapping.madvise(_MADV_POPULATE_READ, lo, hi - lo)
+        except OSError:
+            pass
 
 
 def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:

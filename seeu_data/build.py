@@ -269,7 +269,7 @@ def materialise(spec: dict, out_dir: str, commit: bool = True, wait_hash: bool =
     out = Path(out_dir)
     path = out / spec["file"]
     try:
-        table = build_shard_table(spec)
+        table = build_shard_table(spec, deferred_images=True)
         size, digest = write_table_async(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
         entry = FileEntry(path.name, table.num_rows, size, digest.result() if wait_hash else None)
     except SeeUError as exc:

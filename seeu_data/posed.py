@@ -18,7 +18,7 @@ from typing import Iterable, Iterator
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import AtomicIpcWriter, open_ipc_file
+from .arrow_io import AtomicIpcWriter, deferred_binary, open_ipc_file
 from .errors import SeeUError
 from .manifest import FileEntry, read_manifest, write_manifest
 from .schema import arrow_schema, schema_version
@@ -30,7 +30,8 @@ SCHEMA = "seeu.posed_frames"
 class PosedScene:
     """All frames of one scene (posed chunk), in frame_index order. N = number of frames.
 
-    images: N encoded images (bytes); width/height: (N,) int; intrinsics_norm: (N, 4);
+    images: N encoded images (bytes, or read-only bytes-like views such as numpy uint8 arrays into a
+    memory-mapped input file); width/height: (N,) int; intrinsics_norm: (N, 4);
     cam_to_world: (N, 4, 4) OpenCV camera-to-world; source_frame/timestamp_us: (N,) int64;
     source_name: N strings; meta: scene-level metadata kept in the manifest (url, near/far method ...).
     """
@@ -77,7 +78,9 @@ class PosedScene:
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
 
-    def to_record_batch(self) -> pa.RecordBatch:
+    def to_record_batch(self, deferred: bool = False) -> pa.RecordBatch:
+        """The scene's rows. `deferred=True`: the image column is `arrow_io.deferred_binary` (written
+        straight from `images`, no copy), for a batch that goes only to `PosedDatasetWriter.add_batch`."""
         n = len(self)
         schema = arrow_schema(SCHEMA)
         names = self.source_name or [""] * n
@@ -87,7 +90,8 @@ class PosedScene:
             "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
             "source_name": pa.array(names, pa.string()),
             "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
-            "image": pa.array(self.images, pa.binary()),
+            "image": deferred_binary(self.images) if deferred else
+            pa.array([b if isinstance(b, bytes) else bytes(memoryview(b)) for b in self.images], pa.binary()),
             "image_format": pa.array([self.image_format] * n, pa.string()),
             "width": pa.array(np.asarray(self.width, dtype=np.int32)),
             "height": pa.array(np.asarray(self.height, dtype=np.int32)),
@@ -166,10 +170,11 @@ class PosedDatasetWriter:
 
     def add(self, scene: PosedScene) -> None:
         scene.check()
-        self.add_batch(scene, scene.to_record_batch())
+        self.add_batch(scene, scene.to_record_batch(deferred=True))
 
     def add_batch(self, scene: PosedScene, batch: pa.RecordBatch, may_close: bool = True) -> None:
-        """`add` for a scene already `check()`ed, with its `to_record_batch()` made. `may_close=False`
+        """`add` for a scene already `check()`ed, with its `to_record_batch(deferred=True)` made (written
+        here at once, so the images it points at stay valid). `may_close=False`
         keeps the file open past the target size (importers close files only at unit ends)."""
         if scene.scene_id in self._seen:
             raise SeeUError(f"duplicate scene id {scene.scene_id!r}")

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import mmap
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -26,7 +27,7 @@ from typing import Iterator
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import open_ipc_file
+from .arrow_io import deferred_binary, map_readonly, open_ipc_file, populate
 from .errors import SeeUError
 from .manifest import read_manifest
 from .schema import arrow_schema
@@ -73,18 +74,27 @@ def plan_sha256(spec: dict) -> str:
 
 
 class _SceneTables:
-    """Memory-mapped posed rows per scene for one shard (files opened once)."""
+    """Posed rows per scene for one shard: files memory-mapped once (zero-copy Arrow reads)."""
 
     def __init__(self, sources: dict[str, dict]):
         self.sources = sources
-        self._files: dict[str, pa.Table] = {}
+        self._files: dict[str, tuple[mmap.mmap, int, pa.Table]] = {}
 
     def table(self, scene_id: str) -> pa.Table:
         src = self.sources[scene_id]
         path = src["path"]
         if path not in self._files:
-            self._files[path] = open_ipc_file(path).read_all()
-        full = self._files[path]
+            if not Path(path).exists():
+                raise SeeUError("file not found", path)
+            mapping = map_readonly(path)
+            buf = pa.py_buffer(mapping)
+            try:
+                table = pa.ipc.open_file(pa.BufferReader(buf)).read_all()
+            except (pa.ArrowInvalid, OSError) as exc:
+                raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0],
+                                path) from None
+            self._files[path] = (mapping, buf.address, table)
+        full = self._files[path][2]
         if src["row_start"] + src["num_frames"] > full.num_rows:
             raise SeeUError(f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
                             f"exceed the file's {full.num_rows} rows", path)
@@ -93,6 +103,19 @@ class _SceneTables:
         if first != scene_id:
             raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", path)
         return rows.select(_POSED_COLUMNS)
+
+    def image_views(self, scene_id: str, rows: pa.Table) -> list[memoryview]:
+        """The scene's encoded images as views into the mapped file (no copy), their pages mapped at once."""
+        mapping, base, _ = self._files[self.sources[scene_id]["path"]]
+        views: list[memoryview] = []
+        for chunk in rows.column("image").chunks:
+            _, offsets_buf, data_buf = chunk.buffers()
+            offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset:chunk.offset + len(chunk) + 1]
+            if len(chunk):
+                populate(mapping, data_buf.address - base + int(offsets[0]), int(offsets[-1] - offsets[0]))
+            data = memoryview(data_buf)
+            views.extend(data[a:b] for a, b in zip(offsets[:-1].tolist(), offsets[1:].tolist()))
+        return views
 
 
 def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.DataType) -> pa.Array:
@@ -134,8 +157,12 @@ def _resize_views(taken: pa.Table, view_scene: list[str], view_frame: np.ndarray
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
 
 
-def build_shard_table(spec: dict) -> pa.Table:
+def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
     """Rows of one shard from its spec.
+
+    `deferred_images=True` (copy path only, i.e. no resize): the image column is an
+    `arrow_io.deferred_binary` over views into the mapped posed files, for a table that is only
+    written with `arrow_io.write_table*` (the bytes go from the posed files to the shard in one copy).
 
     spec = {"samples": [{"scene_id", "mode", "k", "context": [...], "target": [...]}, ...],
             "sources": {scene_id: {"path", "row_start", "num_frames", ...}},
@@ -166,11 +193,17 @@ def build_shard_table(spec: dict) -> pa.Table:
     view_scene = [s.scene_id for s in samples for _ in s.views]
     view_frame = np.array([v for s in samples for v in s.views], dtype=np.int64)
     flat = np.array([base[s.scene_id] + v for s in samples for v in s.views], dtype=np.int64)
-    taken = posed.take(pa.array(flat))
+    deferred = deferred_images and opts.resize is None
+    taken = posed.drop_columns(["image"]).take(pa.array(flat)) if deferred else posed.take(pa.array(flat))
     counts = np.array([len(s.views) for s in samples], dtype=np.int32)
     offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
 
-    if opts.resize is None:
+    if deferred:
+        scene_views = {sid: tables.image_views(sid, part) for sid, part in zip(scene_order, parts)}
+        images = deferred_binary([scene_views[sid][int(f)] for sid, f in zip(view_scene, view_frame)])
+        width, height = taken.column("width"), taken.column("height")
+        intr = taken.column("intrinsics_norm")
+    elif opts.resize is None:
         images = taken.column("image")
         width, height = taken.column("width"), taken.column("height")
         intr = taken.column("intrinsics_norm")

@@ -289,10 +289,10 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
 
     real = build_mod.build_shard_table
 
-    def interrupted(spec):
+    def interrupted(spec, **kwargs):
         if spec["index"] == 3:
             raise KeyboardInterrupt
-        return real(spec)
+        return real(spec, **kwargs)
 
     monkeypatch.setattr(build_mod, "build_shard_table", interrupted)
     assert _build(posed, out, "--workers", "1") == 130
@@ -321,3 +321,25 @@ def test_undecodable_image_names_file_scene_and_frame(tmp_path, capsys):
     assert "scene 'bad' frame 3: image bytes cannot be decoded" in err and str(next(posed.glob("*.arrow"))) in err
     assert not (out / "manifest.json").exists() and not list(out.glob("shard-*"))
     assert cli_main(args) == 0  # without --resize the bytes are copied as they are (validated by the loader)
+
+
+def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
+    """What `materialise` writes (images straight from the mapped posed files) equals the shard
+    written from the table with its images taken into Arrow buffers, shard by shard, several
+    scenes per shard and several batches per shard."""
+    from seeu_data.arrow_io import write_table
+    from seeu_data.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
+    from seeu_data.sampling import SamplingConfig
+    from seeu_data.triples import build_shard_table
+
+    cfg = BuildConfig(inputs=(str(posed),), out=str(tmp_path / "o"), rows_per_batch=3, shard_bytes=60_000,
+                      sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9))
+    scenes = scan_inputs(cfg.inputs)
+    specs = shard_specs(cfg, plan_sampled(cfg, scenes), scenes)
+    assert len(specs) > 1 and max(len(s["sources"]) for s in specs) > 1
+    for spec in specs:
+        plain = write_table(tmp_path / "plain.arrow", build_shard_table(spec), max_chunksize=3)
+        deferred = write_table(tmp_path / "deferred.arrow", build_shard_table(spec, deferred_images=True),
+                               max_chunksize=3)
+        assert plain == deferred
+        assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "deferred.arrow").read_bytes()

@@ -8,7 +8,7 @@ holding the encoded JPEG, or PNG for DTU, bytes).
 
 Conversion: intrinsics are kept (already normalised); world-to-camera -> OpenCV camera-to-world with
 `cameras.cam_to_world_from_world_to_cam` (what the MVSplat loader's `w2c.inverse()` does); image
-bytes are kept as they are; width/height come from the image headers. Scene id = key; the url,
+bytes are kept as they are (written from the mapped chunk straight into the posed file); width/height come from the image headers. Scene id = key; the url,
 dataset name, stage and chunk name go into the scene's meta. `source_frame` is the frame's position
 in the example. Chunks are read one at a time, memory-mapped (`torch_chunk.load_plain`, a restricted
 reader that is several times faster than `torch.load` and copies nothing; `torch.load(weights_only
@@ -28,7 +28,6 @@ from pathlib import Path
 from typing import Iterator
 
 import numpy as np
-import pyarrow as pa
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from ..arrow_io import read_json
@@ -144,8 +143,8 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
                        ) -> PosedScene:
     """One chunk example -> PosedScene (SeeUError when the example is malformed).
 
-    The scene's `images` is a pyarrow BinaryArray over one contiguous copy of the encoded bytes
-    (what `PosedScene.to_record_batch` passes through without another copy), not a list of bytes.
+    The scene's `images` are read-only numpy views into the memory-mapped chunk, not copies: the
+    writer writes them straight into the posed file (`arrow_io.deferred_binary`).
     """
     key = example["key"]
     where = f"{chunk_name}:{key}"
@@ -166,9 +165,9 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
     if len(images) != n or len(timestamps) != n:
         raise SeeUError(f"{len(images)} images, {n} cameras and {len(timestamps)} timestamps disagree", where)
     cam_to_world = cam_to_world_from_world_to_cam(homogeneous_from_3x4(cams[:, 6:].reshape(n, 3, 4)))
-    data, views = image_column(images)
+    data = image_views(images)
     names = [f"{where}#{i}" for i in range(n)]
-    fmt, width, height = probe_images(views, names, cfg.verify_decode)
+    fmt, width, height = probe_images([memoryview(a) for a in data], names, cfg.verify_decode)
     near, far = cfg.near_far()
     meta = {"url": str(example["url"]), "dataset": cfg.dataset, "stage": cfg.stage, "chunk": chunk_name}
     source_frame = np.arange(n, dtype=np.int64)
@@ -187,24 +186,17 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
                       source_frame=source_frame, timestamp_us=timestamps, source_name=source_name, meta=meta)
 
 
-def image_column(images: list) -> tuple[pa.BinaryArray, list[memoryview]]:
-    """N encoded images (uint8 tensors or arrays) -> one Arrow binary column (a single copy of the
-    bytes into one contiguous buffer) and a memoryview per image into that buffer."""
+def image_views(images: list) -> list[np.ndarray]:
+    """N encoded images (uint8 1-D tensors or arrays) -> numpy uint8 views of them (no copy)."""
     arrays = []
     for t in images:
         a = np.asarray(t)
         if a.dtype != np.uint8 or a.ndim != 1:
             raise SeeUError(f"images must be uint8 1-D tensors of encoded bytes, got {a.dtype} {a.shape}")
-        arrays.append(a)
-    offsets = np.zeros(len(arrays) + 1, dtype=np.int64)
-    np.cumsum([a.size for a in arrays], out=offsets[1:])
-    if offsets[-1] >= 2**31:
-        raise SeeUError(f"the scene's images total {offsets[-1] / 1e9:.1f} GB, over the 2 GB a scene may hold")
-    buf = np.concatenate(arrays) if arrays else np.zeros(0, dtype=np.uint8)
-    column = pa.BinaryArray.from_buffers(pa.binary(), len(arrays),
-                                         [None, pa.py_buffer(offsets.astype(np.int32)), pa.py_buffer(buf)])
-    mv = memoryview(buf)
-    return column, [mv[offsets[i]:offsets[i + 1]] for i in range(len(arrays))]
+        arrays.append(a if a.flags.c_contiguous else np.ascontiguousarray(a))
+    if sum(a.size for a in arrays) >= 2**31:
+        raise SeeUError("the scene's images total over the 2 GB a scene may hold")
+    return arrays
 
 
 def read_sidecar(directory: Path) -> dict | None:

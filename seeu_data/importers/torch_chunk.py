@@ -15,7 +15,6 @@ data, another global) raises `UnsupportedChunk` and the caller falls back to `to
 
 from __future__ import annotations
 
-import mmap
 import pickle
 import struct
 import zipfile
@@ -23,6 +22,8 @@ from collections import OrderedDict
 from pathlib import Path
 
 import numpy as np
+
+from ..arrow_io import map_readonly
 
 _STORAGE_DTYPES = {
     "ByteStorage": np.uint8, "CharStorage": np.int8, "ShortStorage": np.int16, "IntStorage": np.int32,
@@ -49,6 +50,8 @@ def _rebuild_tensor(storage: np.ndarray, offset: int, size, stride, *_ignored) -
     end = offset + 1 + sum((n - 1) * s for n, s in zip(size, stride))
     if offset < 0 or end > storage.size or any(s < 0 for s in stride):
         raise UnsupportedChunk("tensor outside its storage")
+    if stride == (1,):  # the common case (1-D contiguous: encoded images, timestamps): a plain slice
+        return storage[offset:end]
     base = storage[offset:]
     return np.lib.stride_tricks.as_strided(base, shape=size, strides=[s * storage.itemsize for s in stride],
                                            writeable=False)
@@ -93,8 +96,7 @@ def load_plain(path: str | Path):
         if order is not None and zf.read(order).strip() != b"little":
             raise UnsupportedChunk("big-endian storages")
         data_pkl = zf.read(pkl[0])
-    with open(path, "rb") as fh:
-        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    mm = map_readonly(path, populate=True)  # the whole chunk is read: page tables filled in one call
     cache: dict[str, np.ndarray] = {}
 
     def storage(key: str, dtype: np.dtype, numel: int) -> np.ndarray:
