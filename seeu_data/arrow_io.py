@@ -161,8 +161,12 @@ def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
 
 
 def _forget_placeholder(base: int) -> None:
+    # Only a dead entry: the memory is unmapped before this runs, and a placeholder made meanwhile on
+    # another thread may already be registered at the same address.
     with _PLACEHOLDERS_LOCK:
-        _PLACEHOLDERS.pop(base, None)
+        ref = _PLACEHOLDERS.get(base)
+        if ref is not None and ref() is None:
+            del _PLACEHOLDERS[base]
 
 
 def _deferred_pieces(address: int, size: int) -> list[memoryview] | None:

@@ -141,7 +141,10 @@ def test_deferred_binary_placeholders_are_released_and_short_writes_resume(tmp_p
     import gc
 
     arr = arrow_io.deferred_binary([b"abc", b"", b"defgh"])
-    assert len(arrow_io._PLACEHOLDERS) >= 1
+    base = arr.buffers()[2].address
+    # the finalizer of a dead placeholder that had the same address never drops a live one
+    arrow_io._forget_placeholder(base)
+    assert [bytes(v) for v in arrow_io._deferred_pieces(base, 8)] == [b"abc", b"defgh"]
     real = os.writev
     monkeypatch.setattr(os, "writev", lambda fd, views: real(fd, [bytes(memoryview(views[0]))[:2]]))  # 2 bytes a call
     size, digest = write_table(tmp_path / "s.arrow", pa.table({"x": arr}))
