@@ -111,6 +111,7 @@ class ImportPlan:
     units: list[ImportUnit]
     seen: set[str] = field(default_factory=set)
     fingerprint: str = ""
+    prefetch: bool = True  # read units on a background thread (False: reading is cheaper than the hand-off)
 
 
 def file_fingerprint(path: str | Path) -> str:
@@ -315,7 +316,7 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
         cur_units, cur_skipped = [], []
 
     try:
-        for i, item, batch in prefetch(stream()):
+        for i, item, batch in (prefetch(stream()) if plan.prefetch else stream()):
             unit = units[i]
             if item is _UNIT_END:
                 if unit.key is not None:
