@@ -21,6 +21,12 @@ core is free: on a machine loaded by other work the ratio drops towards bare / (
 `--resize 256x256` the seeu build decodes, resizes, crops and re-encodes (reported for information;
 the bare baseline stays the copy). On a shared machine, re-measure when it is quiet.
 
+Fresh memory on a VM (as in `benchmarks/import.py`): where the balloon driver reports free pages to
+the host, writing 400 MB into page-cache pages the hypervisor took back costs ~2.5 ms per MB more, in
+whichever run happens to get them (runs of the same build then vary 0.2-0.8 s). Every run therefore
+starts after `os.sync()` and after touching and freeing twice the shards' size of memory (untimed);
+`--prefault-mb 0` turns that off.
+
 Usage: .venv/bin/python benchmarks/build.py [--scenes 12] [--frames 120] [--samples-per-scene 100]
                                             [--repeats 3] [--workers 1] [--resize 256x256] [--posed DIR]
 """
@@ -107,6 +113,8 @@ def main() -> int:
     p.add_argument("--tmp", default=None, help="working directory (default: a temporary one)")
     p.add_argument("--posed", default=None, help="keep / reuse the generated posed data in this directory")
     p.add_argument("--workers", type=int, default=1, help="seeu local engine workers (default 1: in-process)")
+    p.add_argument("--prefault-mb", type=int, default=None,
+                   help="MB of memory touched and freed before each run (default: 2x the shards' size; 0: off)")
     args = p.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="seeu-bench-build-", dir=args.tmp))
@@ -128,6 +136,10 @@ def main() -> int:
         scenes = scan_inputs(cfg.inputs)
         specs = shard_specs(cfg, plan_sampled(cfg, scenes), scenes)
         n = sum(len(s["samples"]) for s in specs)
+        est_mb = n * 5 * posed_mb / (args.scenes * args.frames)  # the shards: 5 views per triple
+        prefault_mb = int(2 * est_mb) if args.prefault_mb is None else args.prefault_mb
+        print(f"each run starts after touching and freeing {prefault_mb} MB" if prefault_mb else
+              "no prefault: runs pay the hypervisor's cost of fresh memory")
         names = ("bare", "seeu", "bare+fsync", "seeu+fsync")
         times: dict[str, list[float]] = {k: [] for k in names}
         cpu: dict[str, list[float]] = {k: [] for k in names}
@@ -136,6 +148,9 @@ def main() -> int:
             for name in names if r % 2 == 0 else names[::-1]:
                 out = tmp / name
                 shutil.rmtree(out, ignore_errors=True)
+                os.sync()  # untimed: no run pays for the previous run's write-back
+                if prefault_mb:  # untimed: hot free memory for every run (see the module docstring)
+                    np.ones(prefault_mb << 20, dtype=np.uint8)
                 t, c = time.perf_counter(), time.process_time()
                 if name.startswith("seeu"):
                     set_fsync(name == "seeu+fsync")

@@ -20,6 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import mmap
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -73,28 +74,56 @@ def plan_sha256(spec: dict) -> str:
 # ---------------------------------------------------------------------------------------------
 
 
+class _MappedFile:
+    """A posed Arrow file mapped once per process: the table (zero-copy over the mapping) and which
+    scenes' image pages are already populated."""
+
+    def __init__(self, path: str):
+        if not Path(path).exists():
+            raise SeeUError("file not found", path)
+        st = os.stat(path)
+        self.key = (st.st_size, st.st_mtime_ns)
+        self.mapping = map_readonly(path)
+        buf = pa.py_buffer(self.mapping)
+        self.base = buf.address
+        try:
+            self.table = pa.ipc.open_file(pa.BufferReader(buf)).read_all()
+        except (pa.ArrowInvalid, OSError) as exc:
+            raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0],
+                            path) from None
+        self.populated: set[str] = set()
+
+
+_MAPPED: dict[str, _MappedFile] = {}  # path -> mapping, kept across shards: no map/unmap per shard
+_MAX_MAPPED = 64
+
+
+def _mapped(path: str) -> _MappedFile:
+    entry = _MAPPED.get(path)
+    try:
+        st = os.stat(path)
+        fresh = entry is not None and entry.key == (st.st_size, st.st_mtime_ns)
+    except OSError:
+        fresh = False
+    if not fresh:
+        _MAPPED.pop(path, None)
+        entry = _MappedFile(path)
+        if len(_MAPPED) >= _MAX_MAPPED:
+            _MAPPED.pop(next(iter(_MAPPED)))
+        _MAPPED[path] = entry
+    return entry
+
+
 class _SceneTables:
-    """Posed rows per scene for one shard: files memory-mapped once (zero-copy Arrow reads)."""
+    """Posed rows per scene for one shard, from the process's mapped posed files (zero-copy reads)."""
 
     def __init__(self, sources: dict[str, dict]):
         self.sources = sources
-        self._files: dict[str, tuple[mmap.mmap, int, pa.Table]] = {}
 
     def table(self, scene_id: str) -> pa.Table:
         src = self.sources[scene_id]
         path = src["path"]
-        if path not in self._files:
-            if not Path(path).exists():
-                raise SeeUError("file not found", path)
-            mapping = map_readonly(path)
-            buf = pa.py_buffer(mapping)
-            try:
-                table = pa.ipc.open_file(pa.BufferReader(buf)).read_all()
-            except (pa.ArrowInvalid, OSError) as exc:
-                raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0],
-                                path) from None
-            self._files[path] = (mapping, buf.address, table)
-        full = self._files[path][2]
+        full = _mapped(path).table
         if src["row_start"] + src["num_frames"] > full.num_rows:
             raise SeeUError(f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
                             f"exceed the file's {full.num_rows} rows", path)
@@ -106,15 +135,17 @@ class _SceneTables:
 
     def image_views(self, scene_id: str, rows: pa.Table) -> list[memoryview]:
         """The scene's encoded images as views into the mapped file (no copy), their pages mapped at once."""
-        mapping, base, _ = self._files[self.sources[scene_id]["path"]]
+        mapped = _mapped(self.sources[scene_id]["path"])
         views: list[memoryview] = []
         for chunk in rows.column("image").chunks:
             _, offsets_buf, data_buf = chunk.buffers()
             offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset:chunk.offset + len(chunk) + 1]
-            if len(chunk):
-                populate(mapping, data_buf.address - base + int(offsets[0]), int(offsets[-1] - offsets[0]))
+            if len(chunk) and scene_id not in mapped.populated:
+                populate(mapped.mapping, data_buf.address - mapped.base + int(offsets[0]),
+                         int(offsets[-1] - offsets[0]))
             data = memoryview(data_buf)
             views.extend(data[a:b] for a, b in zip(offsets[:-1].tolist(), offsets[1:].tolist()))
+        mapped.populated.add(scene_id)
         return views
 
 
