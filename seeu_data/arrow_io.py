@@ -125,7 +125,7 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 class _Placeholder(mmap.mmap):
-    """Anonymous memory, never read or written, standing for the concatenation of `pieces`
+    """Anonymous memory without access rights, never read or written, standing for the concatenation of `pieces`
     (`offsets[i]` = where piece i starts; `offsets[-1]` = total bytes)."""
 
     pieces: list[memoryview]
@@ -141,8 +141,8 @@ def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
     from `pieces` when the array is written by `AtomicIpcWriter` (or `write_table`).
 
     `pieces`: bytes-like objects (bytes, numpy uint8 views into a memory-mapped file, pyarrow
-    buffers) that must not change until the file is closed. The array is for writing only: its
-    values read as zeros anywhere else (`deferred` arrays never leave the write paths that make them).
+    buffers) that must not change until the file is closed. The array is for writing only: reading
+    its values anywhere else faults (`deferred` arrays never leave the write paths that make them).
     """
     views = [memoryview(p).cast("B") for p in pieces]
     offsets = np.zeros(len(views) + 1, dtype=np.int64)
@@ -150,7 +150,10 @@ def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
     total = int(offsets[-1])
     if total >= 2**31:
         raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
-    placeholder = _Placeholder(-1, max(total, 1))
+    # No access rights (where the platform has them): a read of the placeholder by anything but the
+    # writer's sink crashes loudly instead of writing zeros.
+    placeholder = _Placeholder(-1, max(total, 1), prot=0) if hasattr(mmap, "PROT_READ") else \
+        _Placeholder(-1, max(total, 1))
     placeholder.pieces, placeholder.offsets = views, offsets.tolist()
     data = pa.py_buffer(placeholder)[:total]
     base = data.address

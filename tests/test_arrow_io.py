@@ -155,3 +155,12 @@ def test_deferred_binary_placeholders_are_released_and_short_writes_resume(tmp_p
     gc.collect()
     assert not arrow_io._PLACEHOLDERS
     assert arrow_io._deferred_pieces(12345, 10) is None
+
+
+def test_reading_a_deferred_column_outside_the_writer_faults():
+    """A deferred column read anywhere but the writer's sink must fail loudly, never give zeros."""
+    code = ("from seeu_data.arrow_io import deferred_binary\n"
+            "print(deferred_binary([b'abc', b'de']).to_pylist())\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=os.getcwd()))
+    assert res.returncode != 0 and "abc" not in res.stdout and "\\x00" not in res.stdout

@@ -8,12 +8,12 @@ holding the encoded JPEG, or PNG for DTU, bytes).
 
 Conversion: intrinsics are kept (already normalised); world-to-camera -> OpenCV camera-to-world with
 `cameras.cam_to_world_from_world_to_cam` (what the MVSplat loader's `w2c.inverse()` does); image
-bytes are kept as they are (written from the mapped chunk straight into the posed file); width/height come from the image headers. Scene id = key; the url,
+bytes are kept as they are; width/height come from the image headers. Scene id = key; the url,
 dataset name, stage and chunk name go into the scene's meta. `source_frame` is the frame's position
 in the example. Chunks are read one at a time, memory-mapped (`torch_chunk.load_plain`, a restricted
 reader that is several times faster than `torch.load` and copies nothing; `torch.load(weights_only
-=True)` is the fallback), so the process holds about one scene's images, plus one chunk in the page
-cache.
+=True)` is the fallback), and the images are written from the mapping straight into the posed file
+(`arrow_io.deferred_binary`), so the process holds one chunk in the page cache and no image copies.
 
 A `seeu_posed.json` next to `index.json` (written by `seeu export pixelsplat`) restores what the
 chunk format cannot carry (near/far, source frame numbers and names, meta); peer loaders ignore it.
