@@ -81,8 +81,7 @@ class _MappedFile:
     def __init__(self, path: str):
         if not Path(path).exists():
             raise SeeUError("file not found", path)
-        st = os.stat(path)
-        self.key = (st.st_size, st.st_mtime_ns)
+        self.key = _file_key(path)
         self.mapping = map_readonly(path)
         buf = pa.py_buffer(self.mapping)
         self.base = buf.address
@@ -98,11 +97,17 @@ _MAPPED: dict[str, _MappedFile] = {}  # path -> mapping, kept across shards: no 
 _MAX_MAPPED = 64
 
 
+def _file_key(path: str) -> tuple[int, ...]:
+    """Identity of a file's content for the mapping cache: a rewrite (a new inode: our writes rename
+    a new file into place), a size or a modification time change maps it again."""
+    st = os.stat(path)
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
 def _mapped(path: str) -> _MappedFile:
     entry = _MAPPED.get(path)
     try:
-        st = os.stat(path)
-        fresh = entry is not None and entry.key == (st.st_size, st.st_mtime_ns)
+        fresh = entry is not None and entry.key == _file_key(path)
     except OSError:
         fresh = False
     if not fresh:

@@ -343,3 +343,20 @@ def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
                                max_chunksize=3)
         assert plain == deferred
         assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "deferred.arrow").read_bytes()
+
+
+def test_rewritten_posed_data_is_mapped_again(tmp_path):
+    """Posed files are mapped once per process and kept across builds; a rewritten posed directory
+    (same paths, other images) must be read afresh, never served from the old mapping."""
+    def write(seed: int) -> None:
+        with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
+            w.add(make_posed_scene("alpha", n=30, height=24, width=32, seed=seed))
+
+    write(1)
+    assert _build(tmp_path / "posed", tmp_path / "a", "--workers", "1") == 0
+    write(2)  # same file names, sizes may even match
+    assert _build(tmp_path / "posed", tmp_path / "b", "--workers", "1") == 0
+    scene = PosedDataset(tmp_path / "posed").load_scene("alpha")
+    rows = TripleShards(tmp_path / "b").rows()
+    assert [r.images for r in rows] == [[scene.images[f] for f in r.frame_index] for r in rows]
+    assert _shard_bytes(tmp_path / "a") != _shard_bytes(tmp_path / "b")
