@@ -152,8 +152,9 @@ def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
         raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
     # No access rights (where the platform has them): a read of the placeholder by anything but the
     # writer's sink crashes loudly instead of writing zeros.
-    placeholder = _Placeholder(-1, max(total, 1), prot=0) if hasattr(mmap, "PROT_READ") else \
-        _Placeholder(-1, max(total, 1))
+    # Private and inaccessible, so it is never backed by memory nor counted against the commit limit.
+    placeholder = _Placeholder(-1, max(total, 1), flags=mmap.MAP_PRIVATE | getattr(mmap, "MAP_NORESERVE", 0),
+                               prot=0) if hasattr(mmap, "MAP_PRIVATE") else _Placeholder(-1, max(total, 1))
     placeholder.pieces, placeholder.offsets = views, offsets.tolist()
     data = pa.py_buffer(placeholder)[:total]
     base = data.address
