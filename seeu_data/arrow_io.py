@@ -125,8 +125,8 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
 
 
 class _Placeholder(mmap.mmap):
-    """Anonymous memory without access rights, never read or written, standing for the concatenation of `pieces`
-    (`offsets[i]` = where piece i starts; `offsets[-1]` = total bytes)."""
+    """Anonymous memory without access rights, never read or written, standing for the
+    concatenation of `pieces` (`offsets[i]`: where piece i starts; `offsets[-1]`: total bytes)."""
 
     pieces: list[memoryview]
     offsets: list[int]
@@ -150,9 +150,8 @@ def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
     total = int(offsets[-1])
     if total >= 2**31:
         raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
-    # No access rights (where the platform has them): a read of the placeholder by anything but the
-    # writer's sink crashes loudly instead of writing zeros.
-    # Private and inaccessible, so it is never backed by memory nor counted against the commit limit.
+    # Private and without access rights (where the platform has them): never backed by memory nor
+    # charged to the commit limit, and a read by anything but the writer's sink faults loudly.
     placeholder = _Placeholder(-1, max(total, 1), flags=mmap.MAP_PRIVATE | getattr(mmap, "MAP_NORESERVE", 0),
                                prot=0) if hasattr(mmap, "MAP_PRIVATE") else _Placeholder(-1, max(total, 1))
     placeholder.pieces, placeholder.offsets = views, offsets.tolist()

@@ -124,11 +124,18 @@ class _SceneTables:
 
     def __init__(self, sources: dict[str, dict]):
         self.sources = sources
+        self._files: dict[str, _MappedFile] = {}  # the same mapping for every scene of the shard
+
+    def _file(self, scene_id: str) -> _MappedFile:
+        path = self.sources[scene_id]["path"]
+        if path not in self._files:
+            self._files[path] = _mapped(path)
+        return self._files[path]
 
     def table(self, scene_id: str) -> pa.Table:
         src = self.sources[scene_id]
         path = src["path"]
-        full = _mapped(path).table
+        full = self._file(scene_id).table
         if src["row_start"] + src["num_frames"] > full.num_rows:
             raise SeeUError(f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
                             f"exceed the file's {full.num_rows} rows", path)
@@ -140,7 +147,7 @@ class _SceneTables:
 
     def image_views(self, scene_id: str, rows: pa.Table) -> list[memoryview]:
         """The scene's encoded images as views into the mapped file (no copy), their pages mapped at once."""
-        mapped = _mapped(self.sources[scene_id]["path"])
+        mapped = self._file(scene_id)
         views: list[memoryview] = []
         for chunk in rows.column("image").chunks:
             _, offsets_buf, data_buf = chunk.buffers()
