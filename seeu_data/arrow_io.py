@@ -255,10 +255,8 @@ class _HashingFile:
         self.size = 0
         self.closed = False
 
-    def _submit(self, view) -> None:
-        self._submit_many([view])
-
-    def _submit_many(self, views: list) -> None:
+    def _submit(self, views: list) -> None:
+        """Queue `views` (immutable, kept by reference) for hashing, in order."""
         nbytes = sum(v.nbytes for v in views)
         update = self._sha256.update
         fut = self._pool.submit(update, views[0]) if len(views) == 1 else \
@@ -279,13 +277,13 @@ class _HashingFile:
         if self._small:
             staged = memoryview(bytes(self._small))
             self._small = bytearray()
-            self._submit(staged)
+            self._submit([staged])
             self._write_all(staged)
 
     def write(self, data) -> int:
         if isinstance(data, pa.Buffer) and (pieces := _deferred_pieces(data.address, data.size)) is not None:
             self._flush_small()  # a deferred_binary column: write (and hash) the pieces it stands for
-            self._submit_many(pieces)
+            self._submit(pieces)
             _writev_all(self._fh.fileno(), pieces)
             self.size += data.size
             return data.size
@@ -297,7 +295,7 @@ class _HashingFile:
                 self._flush_small()
         else:
             self._flush_small()
-            self._submit(view if isinstance(data, (bytes, pa.Buffer)) else memoryview(bytes(view)))
+            self._submit([view if isinstance(data, (bytes, pa.Buffer)) else memoryview(bytes(view))])
             self._write_all(view)
         self.size += nbytes
         return nbytes
