@@ -1,7 +1,9 @@
 """pixelSplat-chunk import throughput against `torch.load` of the same chunks alone.
 
-Generates realistic chunks in a temporary directory (default 4 chunks of ~25 MB: RE10K-like scenes of
-360x640 JPEGs, ~50 KB each), then measures, side by side and interleaved, in fresh child processes:
+Generates realistic chunks in a temporary directory (RE10K-like scenes of 360x640 JPEGs, ~50 KB each;
+default 4 chunks of ~100 MB, the peers' chunk size per `../shared/REFERENCE.md`; `--chunk-mb 25` gives
+a quicker run in which fixed start and end costs weigh more), then measures, side by side and
+interleaved, in fresh child processes:
 
 * baseline: `torch.load(chunk, weights_only=True)` of every chunk, nothing else;
 * input side: the importer's reading alone (chunks, cameras, image headers, Arrow columns), no output;
@@ -27,7 +29,7 @@ not the import's, so every child first touches and frees 2x the dataset's size o
 then starts the clock on equal terms; `--prefault-mb 0` shows the raw behaviour. Before each child,
 `os.sync()` flushes the previous child's writes, so no run pays for another's write-back.
 
-Usage: .venv/bin/python benchmarks/import.py [--chunks 4] [--chunk-mb 25] [--repeats 3] [--prefault-mb N]
+Usage: .venv/bin/python benchmarks/import.py [--chunks 4] [--chunk-mb 100] [--repeats 3] [--prefault-mb N]
 """
 
 from __future__ import annotations
@@ -181,7 +183,7 @@ def run_child(mode: str, data: Path, out: Path, prefault_mb: int) -> dict:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--chunks", type=int, default=4)
-    ap.add_argument("--chunk-mb", type=float, default=25.0)
+    ap.add_argument("--chunk-mb", type=float, default=100.0)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--child", choices=["load", "read", "write", "write_fsync", "sha256", "import", "import_fsync"])
     ap.add_argument("--data", type=Path)
