@@ -240,13 +240,12 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
     counts = np.array([len(s.views) for s in samples], dtype=np.int32)
     offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
 
-    if deferred:
-        scene_views = {sid: tables.image_views(sid, part) for sid, part in zip(scene_order, parts)}
-        images = deferred_binary([scene_views[sid][int(f)] for sid, f in zip(view_scene, view_frame)])
-        width, height = taken.column("width"), taken.column("height")
-        intr = taken.column("intrinsics_norm")
-    elif opts.resize is None:
-        images = taken.column("image")
+    if opts.resize is None:
+        if deferred:
+            scene_views = {sid: tables.image_views(sid, part) for sid, part in zip(scene_order, parts)}
+            images = deferred_binary([scene_views[sid][int(f)] for sid, f in zip(view_scene, view_frame)])
+        else:
+            images = taken.column("image")
         width, height = taken.column("width"), taken.column("height")
         intr = taken.column("intrinsics_norm")
     else:
