@@ -102,7 +102,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e = p.add_argument_group("execution")
     e.add_argument("--engine", choices=["local", "ray"], default="local",
                    help="local process pool (default) or Ray Data; identical shards")
-    e.add_argument("--workers", type=int, default=None, help="local engine processes (default: CPU count, max 8)")
+    e.add_argument("--workers", type=int, default=None,
+                   help="local engine processes (default: a quarter of the cores when copying, whose hashing "
+                        "runs on threads; the CPU count with --resize; at most 8)")
     e.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local instance)")
     e.add_argument("--verify-inputs", action="store_true", help="check the posed files' sha256 first")
     e.add_argument("--progress", action="store_true", help="show the progress bar even when stderr is not a TTY")
@@ -132,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         index_format=args.index_format, seed=args.seed,
         image=ImageOptions(resize=args.resize, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
         shard_bytes=args.shard_size, rows_per_batch=args.rows_per_batch, engine=args.engine,
-        workers=args.workers if args.workers is not None else default_workers(),
+        workers=args.workers if args.workers is not None else default_workers(args.resize is not None),
         ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs)
     with fsync_policy(True if args.fsync else None):
         manifest = build(cfg, "seeu build")

@@ -44,8 +44,8 @@ from .errors import SeeUError
 
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
-_BIG_WRITE = 1 << 20  # buffers at least this large are queued for hashing by reference, smaller ones copied
-_MAX_QUEUED = 256 << 20  # bytes at most waiting for the hashing thread
+_BIG_WRITE = 1 << 20  # smaller writes are staged and written together
+_HASH_BLOCK = 8 << 20  # the hasher takes the written bytes in ranges of about this size
 
 
 _FSYNC = os.environ.get("SEEU_FSYNC", "").strip().lower() in ("1", "true", "yes", "on")
@@ -224,49 +224,65 @@ def _writev_all(fd: int, views: list[memoryview]) -> None:
 
 
 class _HashingFile:
-    """Raw write-only file object that feeds every written buffer to a sha256 (used through pa.PythonFile).
+    """Raw write-only file object that hashes (sha256) every byte it writes (used through pa.PythonFile).
 
-    Hashing runs on one helper thread, in write order, decoupled from the writes: a large buffer is
-    queued (a reference to it, no copy) and `write` returns at once, so hashing overlaps writing and
-    building the next batch (hashlib and file writes release the GIL). Small buffers (IPC metadata,
-    padding, small columns) are copied into a staging buffer that is written and hashed in one piece
-    when it grows large, before the next large buffer and at the end: far fewer system calls, and
-    fewer GIL hand-offs with the threads that read the input. At most
-    `_MAX_QUEUED` bytes wait for the hasher (bounded memory). Large buffers are kept by reference
-    only when immutable (`bytes`, Arrow buffers: pyarrow's IPC writer hands its body buffers over as
-    `pyarrow.Buffer`); anything else is copied first. (Starting write-back early with
-    sync_file_range was measured and made the import slower: it moves the kernel's write-back work
-    into this thread. So did hashing the file read back from the page cache in 4 MB blocks, which
-    needs the GIL far less often: half of the imports took twice as long, from reads racing the
-    appends to the same file.)
+    The hash is computed on one helper thread, from the file itself: once every `_HASH_BLOCK` bytes
+    written, that range is memory-mapped (from the page cache the writes just filled) and hashed in
+    one `update`, so hashing overlaps the writes and building the next batch without holding on to
+    any written buffer. One `update` per block matters: hashlib releases the GIL only inside each
+    call, and hashing the written buffers one image at a time (~50 KB) made the hasher wait for the
+    GIL once per image while the writer's thread held it (measured: up to 5 ms, the switch interval,
+    per call under a busy thread). Small writes (IPC metadata, padding, small columns) are staged
+    and written in one piece when they grow large, before the next large write and at the end: far
+    fewer system calls. (Starting write-back early with sync_file_range was measured and made the
+    import slower: it moves the kernel's write-back work into this thread.)
     """
 
     def __init__(self, path: Path):
-        from collections import deque
         from concurrent.futures import ThreadPoolExecutor
 
         self._fh = open(path, "wb", buffering=0)
+        self._read_fd = os.open(path, os.O_RDONLY)  # the hasher's: stays valid across the rename
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seeu-sha256")
         self._sha256 = hashlib.sha256()
-        self._queued: deque = deque()  # (future, nbytes) in submission order
-        self._queued_bytes = 0
         self._small = bytearray()
+        self._hash_submitted = 0  # bytes handed to the hasher so far
+        self._hash_error: BaseException | None = None
         self._digest_requested = False
         self.size = 0
         self.closed = False
 
-    def _submit(self, views: list) -> None:
-        """Queue `views` (immutable, kept by reference) for hashing, in order."""
-        nbytes = sum(v.nbytes for v in views)
-        update = self._sha256.update
-        fut = self._pool.submit(update, views[0]) if len(views) == 1 else \
-            self._pool.submit(lambda: [update(v) for v in views])
-        self._queued.append((fut, nbytes))
-        self._queued_bytes += nbytes
-        while self._queued and (self._queued[0][0].done() or self._queued_bytes > _MAX_QUEUED):
-            fut, nbytes = self._queued.popleft()
-            fut.result()
-            self._queued_bytes -= nbytes
+    def _hash_range(self, start: int, length: int) -> None:
+        """Hash file bytes [start, start + length) (runs on the hasher's thread, in order)."""
+        if self._hash_error is not None:
+            return
+        aligned = start - start % mmap.ALLOCATIONGRANULARITY
+        try:
+            try:
+                m = mmap.mmap(self._read_fd, start + length - aligned, access=mmap.ACCESS_READ, offset=aligned)
+            except (OSError, ValueError):  # a file system that can't map files: read the range back
+                for pos in range(start, start + length, _HASH_BLOCK):
+                    self._sha256.update(os.pread(self._read_fd, min(_HASH_BLOCK, start + length - pos), pos))
+                return
+            with m, memoryview(m) as view:
+                self._sha256.update(view[start - aligned:])
+        except BaseException as exc:  # reported by the digest, never a digest of part of the file
+            self._hash_error = exc
+
+    def _digest(self) -> str:
+        try:
+            if self._hash_error is not None:
+                raise SeeUError(f"could not hash {self._fh.name} as it was written: {self._hash_error}")
+            return self._sha256.hexdigest()
+        finally:
+            os.close(self._read_fd)
+
+    def _submit_written(self, final: bool = False) -> None:
+        """Queue the written bytes not yet hashed, once they fill a block (or all of them, `final`)."""
+        pending = self.size - self._hash_submitted
+        if pending >= _HASH_BLOCK or (final and pending):
+            self._pool.submit(self._hash_range, self._hash_submitted, pending)
+            self._hash_submitted = self.size
 
     def _write_all(self, view: memoryview) -> None:
         written = 0
@@ -275,47 +291,45 @@ class _HashingFile:
 
     def _flush_small(self) -> None:
         if self._small:
-            staged = memoryview(bytes(self._small))
+            self._write_all(memoryview(self._small))
+            self.size += len(self._small)
             self._small = bytearray()
-            self._submit([staged])
-            self._write_all(staged)
 
     def write(self, data) -> int:
         if isinstance(data, pa.Buffer) and (pieces := _deferred_pieces(data.address, data.size)) is not None:
-            self._flush_small()  # a deferred_binary column: write (and hash) the pieces it stands for
-            self._submit(pieces)
+            self._flush_small()  # a deferred_binary column: write the pieces it stands for
             _writev_all(self._fh.fileno(), pieces)
-            self.size += data.size
-            return data.size
-        view = memoryview(data).cast("B")
-        nbytes = view.nbytes
-        if nbytes < _BIG_WRITE:  # staged: one write (and one GIL hand-off) for many small buffers
-            self._small += view
-            if len(self._small) >= _BIG_WRITE:
-                self._flush_small()
+            nbytes = data.size
         else:
+            view = memoryview(data).cast("B")
+            nbytes = view.nbytes
+            if nbytes < _BIG_WRITE:  # staged: one system call for many small buffers
+                self._small += view
+                if len(self._small) >= _BIG_WRITE:
+                    self._flush_small()
+                    self._submit_written()
+                return nbytes
             self._flush_small()
-            self._submit([view if isinstance(data, (bytes, pa.Buffer)) else memoryview(bytes(view))])
             self._write_all(view)
         self.size += nbytes
+        self._submit_written()
         return nbytes
 
+    def tell(self) -> int:
+        return self.size + len(self._small)
+
     def digest_future(self) -> Future:
-        """The sha256 (hex) of every byte written, as a future: queued after the pending updates, so
+        """The sha256 (hex) of every byte written, as a future: queued after the pending ranges, so
         the caller can go on (the next shard) while the hasher finishes. No writes after this."""
         self._flush_small()
-        future = self._pool.submit(self._sha256.hexdigest)
-        self._queued.clear()  # the pool's work items keep the queued buffers alive until hashed
-        self._queued_bytes = 0
+        self._submit_written(final=True)
+        future = self._pool.submit(self._digest)
         self._pool.shutdown(wait=False)
         self._digest_requested = True
         return future
 
     def flush(self) -> None:
         pass
-
-    def tell(self) -> int:
-        return self.size
 
     def writable(self) -> bool:
         return True
@@ -333,6 +347,7 @@ class _HashingFile:
             finally:
                 if not self._digest_requested:  # abandoned: stop hashing
                     self._pool.shutdown(wait=True, cancel_futures=True)
+                    os.close(self._read_fd)
                 self.closed = True
 
 
@@ -372,7 +387,11 @@ class AtomicIpcWriter:
     def close(self) -> tuple[int, str]:
         """Finish the file and put it in place (or leave it pending); return (bytes, sha256)."""
         size, digest = self.close_async()
-        self.sha256 = digest.result()
+        try:
+            self.sha256 = digest.result()
+        except BaseException:
+            (self.path if self.commit else self.tmp).unlink(missing_ok=True)  # never a file without its hash
+            raise
         return size, self.sha256
 
     def close_async(self) -> tuple[int, Future]:

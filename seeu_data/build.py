@@ -318,6 +318,11 @@ class ProgressJournal:
         self.path.unlink(missing_ok=True)
 
 
+# Shards written whose sha256 is still being computed (one hashing thread each, reading the shard
+# back from the page cache: they hold no memory) before the writer waits for the oldest.
+_PENDING_SHARDS = 4
+
+
 def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
               ) -> list[dict]:
     """Materialise the specs in this process (workers <= 1) or in a process pool.
@@ -345,8 +350,8 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
             results.append(result)
             if result.get("pending"):
                 commits.append(committer.submit(commit, result))
-                if len(commits) >= 2:
-                    commits[-2].result()  # at most one shard waiting for its hash: bounded memory
+                if len(commits) > _PENDING_SHARDS:
+                    commits[-_PENDING_SHARDS - 1].result()
             bar.update(1)
 
         if workers <= 1 or len(specs) <= 1:
@@ -484,5 +489,10 @@ def _combined_hash(specs: list[dict]) -> str:
     return hashlib.sha256("".join(s["plan_sha256"] for s in specs).encode()).hexdigest()
 
 
-def default_workers() -> int:
-    return max(1, min(8, os.cpu_count() or 1))
+def default_workers(resize: bool = False) -> int:
+    """Local engine processes for this machine. Copying images (no resize), one process already
+    keeps about four cores busy: it writes, and the shards written are hashed on threads of their
+    own (sha256 costs about three times the write). Resizing decodes and encodes every view: one
+    process per core (at most 8)."""
+    cores = os.cpu_count() or 1
+    return max(1, min(8, cores if resize else -(-cores // 4)))

@@ -79,6 +79,35 @@ def test_failed_write_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
+@pytest.mark.parametrize("block", [10_007, 1 << 20])
+def test_hash_in_ranges_of_the_written_file(tmp_path, monkeypatch, block):
+    """The hasher takes the file in ranges at any (unaligned) offsets: the digest is the file's."""
+    monkeypatch.setattr(arrow_io, "_HASH_BLOCK", block)
+    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=77)
+    assert (size, digest) == ((tmp_path / "x.arrow").stat().st_size, sha256_file(tmp_path / "x.arrow"))
+
+
+def test_hash_reads_back_where_files_cannot_be_mapped(tmp_path, monkeypatch):
+    def no_mmap(*args, **kwargs):
+        raise OSError(19, "No such device")
+
+    monkeypatch.setattr(arrow_io, "_HASH_BLOCK", 100_003)
+    monkeypatch.setattr(arrow_io.mmap, "mmap", no_mmap)
+    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=500)
+    assert digest == sha256_file(tmp_path / "x.arrow")
+
+
+def test_a_failed_hash_is_an_error_and_leaves_no_file(tmp_path, monkeypatch):
+    def fail(*args, **kwargs):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(arrow_io.mmap, "mmap", fail)
+    monkeypatch.setattr(os, "pread", fail)
+    with pytest.raises(arrow_io.SeeUError, match="could not hash .*Input/output error"):
+        write_table(tmp_path / "x.arrow", _table())
+    assert list(tmp_path.iterdir()) == []
+
+
 def test_build_and_import_fsync_flag(tmp_path, fsyncs):
     posed = tmp_path / "posed"
     with PosedDatasetWriter(posed, params={}, provenance={}, target_file_bytes=30_000) as w:
