@@ -134,7 +134,7 @@ def main() -> int:
                                                   samples_per_scene=args.samples_per_scene),
                           image=ImageOptions(resize=resize), shard_bytes=args.shard_size, workers=args.workers)
         scenes = scan_inputs(cfg.inputs)
-        specs = shard_specs(cfg, plan_sampled(cfg, scenes), scenes)
+        specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
         n = sum(len(s["samples"]) for s in specs)
         est_mb = n * 5 * posed_mb / (args.scenes * args.frames)  # the shards: 5 views per triple
         prefault_mb = int(2 * est_mb) if args.prefault_mb is None else args.prefault_mb

@@ -9,15 +9,16 @@ reaches the page cache and a file torn by a power loss is caught by its manifest
 with it on (`set_fsync(True)`, set by the `--fsync` flag of `seeu import/build/ingest`, or the
 environment variable `SEEU_FSYNC=1`) every file is fsynced before its rename.
 
-Every IPC file written here is hashed while it is written: `AtomicIpcWriter` feeds the bytes it
-writes to a sha256 on a helper thread, in order, overlapping the writes (hashlib and file writes
-both release the GIL), so the manifest's (bytes, sha256) come without reading the file back.
+Every IPC file written here is hashed while it is written: `AtomicIpcWriter` hands each 8 MB the
+file grows by to a sha256 on a helper thread, which maps that range of the file (the page-cache
+pages just written) and hashes it in one call, overlapping the writes (hashlib and file writes both
+release the GIL), so the manifest's (bytes, sha256) come without a second pass over the file.
 
 Encoded images are written without being copied into Arrow buffers first: `deferred_binary(pieces)`
 makes a binary column whose data buffer is a placeholder (untouched anonymous memory) standing for
 the concatenation of `pieces` (bytes, or read-only views into memory-mapped input files). When
 pyarrow's IPC writer hands that buffer, or a slice of it, to `AtomicIpcWriter`'s sink, the sink
-writes the pieces themselves (`os.writev`, one system call for up to 1024 images) and hashes them.
+writes the pieces themselves (`os.writev`, one system call for up to 1024 images).
 The file's bytes are exactly those pyarrow writes for the same column with its data copied into
 one buffer (tested), in one copy of the image bytes instead of two.
 """

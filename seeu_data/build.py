@@ -5,12 +5,15 @@ Stages:
 1. Scan the posed-frames directories (manifests checked, files present with the listed size and
    rows; sha256 too with `verify_inputs`). Scene ids must be unique across inputs.
 2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.sampling`,
-   scenes in sorted order), or the entries of an evaluation index (file order; entries naming a
-   missing scene or frame are reported and not written).
+   scenes in sorted order, drawn lazily so that the first shards are written while the rest is
+   planned), or the entries of an evaluation index (file order; entries naming a missing scene or
+   frame are reported and not written).
 3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
-   (scaled by the pixel ratio when resizing); each shard spec is a JSON-able dict.
+   (scaled by the pixel ratio when resizing); each shard spec is a JSON-able dict, handed on as
+   soon as it is complete.
 4. Materialise every spec with `triples.build_shard_table` and write `shard-XXXXX.arrow` atomically
-   (the local process pool and Ray run the same function: byte-identical shards). Resume: a shard
+   (the local process pool and Ray run the same function: byte-identical shards); each shard's
+   sha256 is computed on a thread of its own while the next shards are written. Resume: a shard
    already on disk is kept when a previous run recorded it (its manifest, or the progress journal
    `.build-progress.jsonl` of an interrupted run) and it still has the recorded size and sha256,
    the spec's plan hash in its metadata and the planned row count (`resumable_shard`).
@@ -28,6 +31,7 @@ import sys
 import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Iterable, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -121,24 +125,24 @@ def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> di
 
 @dataclass
 class Plan:
-    samples: list[Sample]
+    samples: Iterable[Sample]  # in order; drawn as they are consumed (sampled modes)
+    total: int  # how many `samples` yields
     report: dict
 
 
 def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
-    """interp / extrap: `samples_per_scene` samples of every long-enough scene, scenes sorted by id."""
+    """interp / extrap: `samples_per_scene` samples of every long-enough scene, scenes sorted by id.
+    The samples are drawn lazily, scene by scene, so the first shards are written while the rest of
+    the plan is drawn (its counts are known up front: a scene gives all its samples or none)."""
     s = cfg.sampling
-    samples: list[Sample] = []
-    short: list[str] = []
-    for sid in sorted(scenes):
-        got = sample_scene(s, scenes[sid].num_frames, sid, cfg.seed)
-        if not got:
-            short.append(sid)
-        samples.extend(got)
-    report = {"scenes": len(scenes), "scenes_used": len(scenes) - len(short),
+    need = min_scene_length(s)
+    used = [sid for sid in sorted(scenes) if scenes[sid].num_frames >= need]
+    short = sorted(set(scenes) - set(used))
+    report = {"scenes": len(scenes), "scenes_used": len(used),
               "scenes_skipped_too_short": len(short), "skipped_scene_examples": short[:20],
-              "min_scene_frames": min_scene_length(s), "samples": len(samples)}
-    return Plan(samples, report)
+              "min_scene_frames": need, "samples": len(used) * s.samples_per_scene}
+    draws = (sample for sid in used for sample in sample_scene(s, scenes[sid].num_frames, sid, cfg.seed))
+    return Plan(draws, report["samples"], report)
 
 
 def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
@@ -173,48 +177,58 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
         raise SeeUError(f"none of the {len(index.entries)} index entries match the posed data "
                         f"(first problem: {problems[0]['key']}: {problems[0]['problem']})" if problems
                         else "the index lists no entries", cfg.index_path)
-    return Plan(samples, report)
+    return Plan(samples, len(samples), report)
 
 
-def _view_bytes(scenes: dict[str, SceneSource], ids: set[str], resize: tuple[int, int] | None) -> dict[str, np.ndarray]:
-    """Estimated stored bytes per frame of each scene: its image size (pixel-scaled when resizing)."""
-    tables: dict[str, pa.Table] = {}
-    out = {}
-    for sid in sorted(ids):
-        src = scenes[sid]
-        if src.path not in tables:
-            tables[src.path] = open_ipc_file(src.path).read_all().select(["image", "width", "height"])
-        rows = tables[src.path].slice(src.row_start, src.num_frames)
+class _ViewBytes:
+    """Estimated stored bytes per frame of a scene (read once per scene from its posed file): the
+    image size, pixel-scaled when resizing, plus the row's other columns."""
+
+    def __init__(self, scenes: dict[str, SceneSource], resize: tuple[int, int] | None):
+        self.scenes, self.resize = scenes, resize
+        self._tables: dict[str, pa.Table] = {}
+        self._sizes: dict[str, np.ndarray] = {}
+
+    def __call__(self, sample: Sample) -> float:
+        sizes = self._sizes.get(sample.scene_id)
+        if sizes is None:
+            sizes = self._sizes[sample.scene_id] = self._scene(self.scenes[sample.scene_id])
+        return float(sizes[list(sample.views)].sum())
+
+    def _scene(self, src: SceneSource) -> np.ndarray:
+        if src.path not in self._tables:
+            self._tables[src.path] = open_ipc_file(src.path).read_all().select(["image", "width", "height"])
+        rows = self._tables[src.path].slice(src.row_start, src.num_frames)
         nbytes = pc.binary_length(rows.column("image")).to_numpy().astype(np.float64)
-        if resize is not None:
+        if self.resize is not None:
             pix = rows.column("width").to_numpy().astype(np.float64) * rows.column("height").to_numpy()
-            nbytes = nbytes * (resize[0] * resize[1]) / np.maximum(pix, 1)
-        out[sid] = nbytes + _VIEW_OVERHEAD_BYTES
-    return out
+            nbytes = nbytes * (self.resize[0] * self.resize[1]) / np.maximum(pix, 1)
+        return nbytes + _VIEW_OVERHEAD_BYTES
 
 
-def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) -> list[dict]:
-    """Cut the plan (in order) into shards of about `shard_bytes` each; JSON-able specs."""
-    sizes = _view_bytes(scenes, {s.scene_id for s in plan.samples}, cfg.image.resize)
-    groups: list[list[Sample]] = [[]]
+def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) -> Iterator[dict]:
+    """Cut the plan (in order) into shards of about `shard_bytes` each; JSON-able specs, yielded as
+    soon as each shard is complete."""
+    view_bytes = _ViewBytes(scenes, cfg.image.resize)
+
+    def spec(index: int, group: list[Sample]) -> dict:
+        out = {"index": index, "file": SHARD_PATTERN.format(index), "samples": [s.as_dict() for s in group],
+               "sources": {sid: scenes[sid].as_spec() for sid in sorted({s.scene_id for s in group})},
+               "image": cfg.image.as_dict(), "rows_per_batch": cfg.rows_per_batch}
+        out["plan_sha256"] = plan_sha256(out)
+        return out
+
+    group: list[Sample] = []
     acc = 0.0
+    index = 0
     for s in plan.samples:
-        est = float(sizes[s.scene_id][list(s.views)].sum())
-        if groups[-1] and acc + est > cfg.shard_bytes:
-            groups.append([])
-            acc = 0.0
-        groups[-1].append(s)
+        est = view_bytes(s)
+        if group and acc + est > cfg.shard_bytes:
+            yield spec(index, group)
+            index, group, acc = index + 1, [], 0.0
+        group.append(s)
         acc += est
-    specs = []
-    for i, group in enumerate(groups):
-        ids = sorted({s.scene_id for s in group})
-        spec = {"index": i, "file": SHARD_PATTERN.format(i),
-                "samples": [s.as_dict() for s in group],
-                "sources": {sid: scenes[sid].as_spec() for sid in ids},
-                "image": cfg.image.as_dict(), "rows_per_batch": cfg.rows_per_batch}
-        spec["plan_sha256"] = plan_sha256(spec)
-        specs.append(spec)
-    return specs
+    yield spec(index, group)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -323,9 +337,10 @@ class ProgressJournal:
 _PENDING_SHARDS = 4
 
 
-def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
+def run_local(specs: Iterable[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
               ) -> list[dict]:
-    """Materialise the specs in this process (workers <= 1) or in a process pool.
+    """Materialise the specs (taken from `specs` as they are needed) in this process (workers <= 1)
+    or in a process pool.
 
     Shards are written pending; one background thread commits them (waits for the shard's sha256,
     renames it, fsyncs first with the fsync policy on) while the next shards are built, and records
@@ -352,9 +367,9 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
                 commits.append(committer.submit(commit, result))
                 if len(commits) > _PENDING_SHARDS:
                     commits[-_PENDING_SHARDS - 1].result()
-            bar.update(1)
+            bar.update(result["entry"]["rows"] if "entry" in result else 0)
 
-        if workers <= 1 or len(specs) <= 1:
+        if workers <= 1:
             for spec in specs:  # the next shard is built while the hasher finishes the last one
                 collect(materialise(spec, out_dir, commit=False, wait_hash=False))
         else:
@@ -367,8 +382,7 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
             from .image_ops import single_threaded_cv2
 
             # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
-            with single_threaded_cv2(), ProcessPoolExecutor(max_workers=min(workers, len(specs)),
-                                                            mp_context=ctx) as pool:
+            with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
                 futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir, fsync_enabled())) for s in specs]
                 for fut in as_completed(futures):
                     collect(fut.result())
@@ -385,7 +399,7 @@ def run_local(specs: list[dict], out_dir: str, workers: int, bar, journal: Progr
 def _progress_bar(total: int, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="shard", desc="seeu build", file=sys.stderr,
+    return tqdm(total=total, unit="triple", desc="seeu build", file=sys.stderr,
                 disable=not (enabled or sys.stderr.isatty()))
 
 
@@ -402,14 +416,18 @@ def known_shards(out: Path) -> dict[str, dict]:
     return known
 
 
-def prepare_output(out: Path, num_shards: int) -> list[str]:
-    """Mark the output incomplete (manifest removed) and drop leftovers of other builds."""
+def prepare_output(out: Path) -> None:
+    """Mark the output incomplete (manifest removed) and drop the partial writes of an interrupted run."""
     out.mkdir(parents=True, exist_ok=True)
     (out / MANIFEST_NAME).unlink(missing_ok=True)
-    removed = []
-    for pattern in (".shard-*.tmp", ".shard-*.pending"):  # partial writes of an interrupted run
+    for pattern in (".shard-*.tmp", ".shard-*.pending"):
         for p in out.glob(pattern):
             p.unlink(missing_ok=True)
+
+
+def remove_stale_shards(out: Path, num_shards: int) -> list[str]:
+    """Remove the shards of an earlier, larger build (index >= `num_shards`); their names."""
+    removed = []
     for p in sorted(out.glob("shard-*.arrow")):
         try:
             idx = int(p.stem.split("-")[1])
@@ -439,37 +457,43 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     if not scenes:
         raise SeeUError("the inputs hold no scenes", cfg.inputs[0])
     plan = plan_eval(cfg, scenes) if cfg.mode == "eval" else plan_sampled(cfg, scenes)
-    if not plan.samples:
+    if not plan.total:
         raise SeeUError(f"no scene is long enough: all {len(scenes)} scenes have fewer than "
                         f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)", cfg.inputs[0])
     if cfg.engine not in ("local", "ray"):
         raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
-    specs = shard_specs(cfg, plan, scenes)
     out.mkdir(parents=True, exist_ok=True)
     known = known_shards(out)
     journal = ProgressJournal(out)
-    results, todo, kept = [], [], []
-    for spec in specs:
-        entry = resumable_shard(out, spec, known)
-        if entry is None:
-            todo.append(spec)
-        else:
-            results.append({"index": spec["index"], "entry": asdict(entry), "resumed": True})
-            kept.append(dict(asdict(entry), plan_sha256=spec["plan_sha256"]))
-    journal.reset(kept)  # before the manifest goes: what this run keeps stays known if it is interrupted
-    removed = prepare_output(out, len(specs))
-    for spec in todo:  # not resumable: never served from a stale file
-        (out / spec["file"]).unlink(missing_ok=True)
-    with _progress_bar(len(specs), cfg.progress) as bar:
-        bar.update(len(results))
-        if not todo:
-            pass
-        elif cfg.engine == "ray":
+    # Before the manifest goes: what a previous run completed stays known if this one is interrupted
+    # (every record is verified again before a shard is kept: `resumable_shard`).
+    journal.reset(list(known.values()))
+    prepare_output(out)
+    results: list[dict] = []
+    plan_hashes: list[str] = []
+
+    def todo(bar) -> Iterator[dict]:
+        """The shard specs, planned as they are taken; the shards a previous run completed are kept."""
+        for spec in shard_specs(cfg, plan, scenes):
+            plan_hashes.append(spec["plan_sha256"])
+            entry = resumable_shard(out, spec, known)
+            if entry is None:
+                (out / spec["file"]).unlink(missing_ok=True)  # not resumable: never served from a stale file
+                yield spec
+            else:
+                results.append({"index": spec["index"], "entry": asdict(entry), "resumed": True})
+                bar.update(entry.rows)
+
+    with _progress_bar(plan.total, cfg.progress) as bar:
+        if cfg.engine == "ray":
             from .ray_build import run_ray
 
-            results += run_ray(todo, str(out), cfg.ray_address, bar, journal)
+            specs = list(todo(bar))
+            if specs:
+                results += run_ray(specs, str(out), cfg.ray_address, bar, journal)
         else:
-            results += run_local(todo, str(out), cfg.workers, bar, journal)
+            results += run_local(todo(bar), str(out), cfg.workers, bar, journal)
+    removed = remove_stale_shards(out, len(plan_hashes))
     results.sort(key=lambda r: r["index"])
     errors = [r["error"] for r in results if "error" in r]
     if errors:
@@ -478,15 +502,11 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     report = dict(plan.report)
     report.update(shards=len(files), shards_resumed=sum(1 for r in results if r["resumed"]),
                   stale_files_removed=removed,
-                  plan_sha256=_combined_hash(specs))
+                  plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest())
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)
     doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report)
     journal.remove()
     return doc
-
-
-def _combined_hash(specs: list[dict]) -> str:
-    return hashlib.sha256("".join(s["plan_sha256"] for s in specs).encode()).hexdigest()
 
 
 def default_workers(resize: bool = False) -> int:

@@ -64,5 +64,5 @@ def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=N
         results.append(result)
         if journal is not None and "entry" in result:
             journal.add(result)
-        bar.update(1)
+        bar.update(result["entry"]["rows"] if "entry" in result else 0)
     return sorted(results, key=lambda r: r["index"])

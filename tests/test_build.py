@@ -255,7 +255,32 @@ def test_inspect_statistics_and_sheet(posed, tmp_path, capsys):
 
 def test_progress_bar_on_request(posed, tmp_path, capsys):
     assert _build(posed, tmp_path / "p", "--progress") == 0
-    assert "seeu build" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    rows = json.loads((tmp_path / "p" / "manifest.json").read_text())["total_rows"]
+    assert "seeu build" in err and f"{rows}/{rows} [" in err and "triple/s" in err
+
+
+def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeypatch):
+    """Shards are planned and checked as the build goes: a re-run interrupted before it reached some
+    shards of the complete build it resumes still knows them (journal), and the next run keeps all."""
+    import seeu_data.build as build_mod
+
+    out = tmp_path / "r"
+    assert _build(posed, out) == 0
+    good = _shard_bytes(out)
+    real = build_mod.resumable_shard
+
+    def interrupted(out_dir, spec, known):
+        if spec["index"] == 2:
+            raise KeyboardInterrupt
+        return real(out_dir, spec, known)
+
+    monkeypatch.setattr(build_mod, "resumable_shard", interrupted)
+    assert _build(posed, out) == 130 and not (out / "manifest.json").exists()
+    monkeypatch.setattr(build_mod, "resumable_shard", real)
+    assert _build(posed, out) == 0
+    assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == len(good) > 3
+    assert _shard_bytes(out) == good
 
 
 def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed, tmp_path, monkeypatch):
@@ -335,7 +360,7 @@ def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
     cfg = BuildConfig(inputs=(str(posed),), out=str(tmp_path / "o"), rows_per_batch=3, shard_bytes=60_000,
                       sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9))
     scenes = scan_inputs(cfg.inputs)
-    specs = shard_specs(cfg, plan_sampled(cfg, scenes), scenes)
+    specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
     assert len(specs) > 1 and max(len(s["sources"]) for s in specs) > 1
     for spec in specs:
         plain = write_table(tmp_path / "plain.arrow", build_shard_table(spec), max_chunksize=3)
