@@ -5,8 +5,9 @@ Creates a posed-frames dataset in a temporary directory (`--scenes` scenes x `--
 360x640 JPEGs, ~40-60 KB each), plans an interp build (2 context + 3 target views,
 `--samples-per-scene`, ~400 MB of shards by default), then measures side by side, interleaved, `--repeats` times, one process each:
 
-* seeu: `seeu_data.build.build` with the local engine, workers 1 (plan, shard specs, rows with
-        cameras and metadata, atomic IPC writes, sha256 per shard, manifest);
+* seeu: `seeu_data.build.build` with the local engine, workers 1, `seeu build`'s default on up to 4
+        cores (plan, shard specs, rows with cameras and metadata, atomic IPC writes, sha256 per shard,
+        manifest);
 * bare: for the very same sample plan, memory-map the posed Arrow files, take the five views'
         encoded images and write them as a `list<binary>` column with `pyarrow.ipc.new_file`,
         cut into the same number of files -- no cameras, no hashing, no manifest, no atomic rename.
@@ -16,8 +17,8 @@ Creates a posed-frames dataset in a temporary directory (`--scenes` scenes x `--
 
 Prints triples/s and MB/s (median run), the process CPU time, and the ratios seeu/bare (target
 >= 0.8; seeu's default policy: atomic renames, no fsync) and seeu+fsync/bare+fsync. seeu also
-hashes every shard (sha256 for the manifest) -- on a second thread, so it is hidden only when a
-core is free: on a machine loaded by other work the ratio drops towards bare / (bare + sha256). With
+hashes every shard (sha256 for the manifest) -- on threads beside the writer, so it is hidden only
+when a core is free: on a machine loaded by other work the ratio drops towards bare / (bare + sha256). With
 `--resize 256x256` the seeu build decodes, resizes, crops and re-encodes (reported for information;
 the bare baseline stays the copy). On a shared machine, re-measure when it is quiet.
 
