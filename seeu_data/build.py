@@ -125,7 +125,7 @@ def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> di
 
 @dataclass
 class Plan:
-    samples: Iterable[Sample]  # in order; drawn as they are consumed (sampled modes)
+    samples: Iterable[Sample]  # in order; for the sampled modes drawn as consumed (iterate once)
     total: int  # how many `samples` yields
     report: dict
 
