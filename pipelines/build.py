@@ -140,8 +140,9 @@ def run(args: argparse.Namespace) -> int:
         manifest = build(cfg, "seeu build")
     rep = manifest["report"]
     size = sum(f["bytes"] for f in manifest["files"]) / 1e6
-    print(f"wrote {manifest['total_rows']} triples in {len(manifest['files'])} shards ({size:.1f} MB) to {args.out}"
-          + (f"; {rep['shards_resumed']} shards kept from a previous run" if rep.get("shards_resumed") else ""))
+    shards = len(manifest["files"])
+    print(f"wrote {manifest['total_rows']} triples in {shards} shard{'s' * (shards != 1)} ({size:.1f} MB) to {args.out}"
+          + (f"; {rep['shards_resumed']} kept from a previous run" if rep.get("shards_resumed") else ""))
     if args.mode == "eval":
         print(f"index {rep['index_format']}: {rep['index_keys']} keys, {rep['index_null_skipped']} null skipped, "
               f"{rep['index_entries']} entries, {rep['written']} written, {rep['not_written']} not written")

@@ -11,6 +11,7 @@ the posed inputs must be on a file system every node sees (or the same path on e
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 from .errors import SeeUError
@@ -50,10 +51,11 @@ def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=N
 
     from .arrow_io import fsync_enabled
 
-    import logging
-
     ensure_ray(address)
-    logging.getLogger("ray.data").setLevel(logging.WARNING)
+    # Ray Data re-reads its logging level whenever a dataset runs; its INFO and WARNING lines (one
+    # per dataset, and a notice that its own progress bars are off) would interleave with ours.
+    # Failures still raise. RAY_DATA_LOG_LEVEL set by the user wins.
+    os.environ.setdefault("RAY_DATA_LOG_LEVEL", "ERROR")
     ctx = ray.data.DataContext.get_current()
     ctx.enable_progress_bars = False
     items = [{"spec": json.dumps(s), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync_enabled()} for s in specs]
