@@ -112,7 +112,8 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
             rows.extend(TripleRow.from_pydict(d) for d in table.to_pylist())
         start = stop
     cols = max(len(r.frame_index) for r in rows)
-    fig = Figure(figsize=(2.2 * cols, 2.4 * len(rows)), dpi=80)
+    aspect = float(np.median(np.concatenate([r.height / np.maximum(r.width, 1) for r in rows])))  # h / w
+    fig = Figure(figsize=(2.2 * cols, (2.2 * min(max(aspect, 0.3), 3.0) + 0.5) * len(rows)), dpi=80)
     axes = np.atleast_2d(fig.subplots(len(rows), cols, squeeze=False))
     for r_i, row in enumerate(rows):
         v = row.num_context
