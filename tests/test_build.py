@@ -247,7 +247,8 @@ def test_inspect_statistics_and_sheet(posed, tmp_path, capsys):
     printed = json.loads(capsys.readouterr().out)
     assert printed["rows"] == 9 and len(printed["sheet"]["samples"]) == 4
     img = cv2.imread(str(sheet))
-    assert img is not None and img.shape == (4 * 192, 5 * 176, 3)  # 4 examples x 5 views at 2.4 x 2.2 in, 80 dpi
+    # 4 examples x 5 views, 2.2 in wide and 2.2 in x the aspect 24/32 + 0.5 in of title high, at 80 dpi
+    assert img is not None and img.shape == (4 * 172, 5 * 176, 3)
     assert cli_main(["inspect", str(out)]) == 0
     text = capsys.readouterr().out
     assert "9 triples" in text and "modes: extrap 9" in text and "inside the pair" in text
