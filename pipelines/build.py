@@ -103,8 +103,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--engine", choices=["local", "ray"], default="local",
                    help="local process pool (default) or Ray Data; identical shards")
     e.add_argument("--workers", type=int, default=None,
-                   help="local engine processes (default: a quarter of the cores when copying, whose hashing "
-                        "runs on threads; the CPU count with --resize; at most 8)")
+                   help="local engine processes (default: the CPU count, at most 8; 1 when copying images "
+                        "on up to 4 cores, where one process hashes on threads while it writes)")
     e.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local instance)")
     e.add_argument("--verify-inputs", action="store_true", help="check the posed files' sha256 first")
     e.add_argument("--progress", action="store_true", help="show the progress bar even when stderr is not a TTY")

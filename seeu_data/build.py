@@ -510,9 +510,10 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 
 
 def default_workers(resize: bool = False) -> int:
-    """Local engine processes for this machine. Copying images (no resize), one process already
-    keeps about four cores busy: it writes, and the shards written are hashed on threads of their
-    own (sha256 costs about three times the write). Resizing decodes and encodes every view: one
-    process per core (at most 8)."""
+    """Local engine processes for this machine: one per core, at most 8, except when copying images
+    (no resize) on up to 4 cores. There one process is faster: it writes the next shard while the
+    shards it wrote are hashed on threads of their own (sha256 costs about three times the write),
+    where a process pool's workers each wait for their shard's hash (measured on 2 cores: 0.8-0.9x
+    the bare copy in one process, 0.6x with two)."""
     cores = os.cpu_count() or 1
-    return max(1, min(8, cores if resize else -(-cores // 4)))
+    return 1 if not resize and cores <= 4 else max(1, min(8, cores))

@@ -4,6 +4,7 @@ re-builds, resume, resize + crop geometry, skipped scenes, bad input, validate, 
 from __future__ import annotations
 
 import json
+import os
 import shutil
 from pathlib import Path
 
@@ -386,3 +387,11 @@ def test_rewritten_posed_data_is_mapped_again(tmp_path):
     rows = TripleShards(tmp_path / "b").rows()
     assert [r.images for r in rows] == [[scene.images[f] for f in r.frame_index] for r in rows]
     assert _shard_bytes(tmp_path / "a") != _shard_bytes(tmp_path / "b")
+
+
+@pytest.mark.parametrize("cores, copy, resize", [(1, 1, 1), (2, 1, 2), (4, 1, 4), (6, 6, 6), (32, 8, 8)])
+def test_default_workers(monkeypatch, cores, copy, resize):
+    from seeu_data.build import default_workers
+
+    monkeypatch.setattr(os, "cpu_count", lambda: cores)
+    assert (default_workers(), default_workers(resize=True)) == (copy, resize)
