@@ -243,7 +243,7 @@ class _HashingFile:
         from concurrent.futures import ThreadPoolExecutor
 
         self._fh = open(path, "wb", buffering=0)
-        self._read_fd = os.open(path, os.O_RDONLY)  # the hasher's: stays valid across the rename
+        self._reader = open(path, "rb", buffering=0)  # the hasher's: stays valid across the rename
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seeu-sha256")
         self._sha256 = hashlib.sha256()
         self._small = bytearray()
@@ -260,10 +260,16 @@ class _HashingFile:
         aligned = start - start % mmap.ALLOCATIONGRANULARITY
         try:
             try:
-                m = mmap.mmap(self._read_fd, start + length - aligned, access=mmap.ACCESS_READ, offset=aligned)
+                m = mmap.mmap(self._reader.fileno(), start + length - aligned, access=mmap.ACCESS_READ, offset=aligned)
             except (OSError, ValueError):  # a file system that can't map files: read the range back
-                for pos in range(start, start + length, _HASH_BLOCK):
-                    self._sha256.update(os.pread(self._read_fd, min(_HASH_BLOCK, start + length - pos), pos))
+                self._reader.seek(start)
+                left = length
+                while left:
+                    block = self._reader.read(min(_HASH_BLOCK, left))
+                    if not block:
+                        raise OSError(f"the file ends {left} bytes before what was written")
+                    self._sha256.update(block)
+                    left -= len(block)
                 return
             with m, memoryview(m) as view:
                 self._sha256.update(view[start - aligned:])
@@ -276,7 +282,7 @@ class _HashingFile:
                 raise SeeUError(f"could not hash {self._fh.name} as it was written: {self._hash_error}")
             return self._sha256.hexdigest()
         finally:
-            os.close(self._read_fd)
+            self._reader.close()
 
     def _submit_written(self, final: bool = False) -> None:
         """Queue the written bytes not yet hashed, once they fill a block (or all of them, `final`)."""
@@ -348,7 +354,7 @@ class _HashingFile:
             finally:
                 if not self._digest_requested:  # abandoned: stop hashing
                     self._pool.shutdown(wait=True, cancel_futures=True)
-                    os.close(self._read_fd)
+                    self._reader.close()
                 self.closed = True
 
 

@@ -102,7 +102,20 @@ def test_a_failed_hash_is_an_error_and_leaves_no_file(tmp_path, monkeypatch):
         raise OSError(5, "Input/output error")
 
     monkeypatch.setattr(arrow_io.mmap, "mmap", fail)
-    monkeypatch.setattr(os, "pread", fail)
+    real_open = open
+
+    class FailingReads:
+        def __init__(self, fh):
+            self.fileno, self.seek, self.close = fh.fileno, fh.seek, fh.close
+
+        def read(self, n):
+            raise OSError(5, "Input/output error")
+
+    def open_failing_reads(path, mode="r", **kwargs):
+        fh = real_open(path, mode, **kwargs)
+        return FailingReads(fh) if mode == "rb" else fh
+
+    monkeypatch.setattr(arrow_io, "open", open_failing_reads, raising=False)
     with pytest.raises(arrow_io.SeeUError, match="could not hash .*Input/output error"):
         write_table(tmp_path / "x.arrow", _table())
     assert list(tmp_path.iterdir()) == []
