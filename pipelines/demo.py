@@ -572,7 +572,7 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
     for k, v in bd.items():
         mode = v["mode"] + (" (half the targets inside the pair: interp + extrap)" if v["interp_ratio"] else "")
         L.append(f"| [{k}]({_rel(v['path'], out)}) | {Path(v['source']).name} | {mode} | {v['rows']} | {v['shards']} |")
-    L += ["", f"Contact sheet of the training triples (contexts, then targets with their offset outside the pair):", "",
+    L += ["", "Contact sheet of the training triples (contexts, then targets with their offset outside the pair):", "",
           f"![contact sheet]({_rel(bd['train']['sheet'], out)})", "",
           f"Held-out sheets: [interp]({_rel(bd['eval_interp']['sheet'], out)}), "
           f"[extrap]({_rel(bd['eval_extrap']['sheet'], out)}).", ""]

@@ -18,7 +18,6 @@ dataparser does); image bytes are kept as they are.
 
 from __future__ import annotations
 
-import json
 import math
 import re
 from dataclasses import dataclass

@@ -21,7 +21,6 @@ chunk format cannot carry (near/far, source frame numbers and names, meta); peer
 
 from __future__ import annotations
 
-import json
 import struct
 from dataclasses import dataclass
 from pathlib import Path
