@@ -290,7 +290,7 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
 
     from seeu_data.arrow_io import commit_pending, pending_path, sha256_file, write_table
 
-    # large values too, so that some buffers take the helper-thread hashing path
+    # large values too, so that the file spans several of the hasher's ranges and the big-write path
     table = pa.table({"a": np.arange(5000), "b": [bytes([i % 251]) * (i % 300) for i in range(5000)],
                       "c": [bytes([i % 251]) * ((2 << 20) if i % 1000 == 0 else 10) for i in range(5000)]})
     size, digest = write_table(tmp_path / "x.arrow", table, max_chunksize=64)
