@@ -47,6 +47,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="vocabulary-tree file: enables loop detection (off without one)")
     p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
     p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
+    p.add_argument("--sfm-attempts", type=int, default=3,
+                   help="re-run incremental mapping with the next seed while it registers < 80%% of the frames, "
+                        "keeping the run that registers most (default 3 runs at most)")
     p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
     p.add_argument("--threads", type=int, default=-1,
                    help="COLMAP threads per scene (default: all cores / workers); 1 gives bit-identical poses "
@@ -72,6 +75,7 @@ class IngestConfig:
     min_chunk_frames: int = 10
     max_features: int = 8192
     threads: int = -1
+    sfm_attempts: int = 3
     jpeg_quality: int = 95
     extra: dict = field(default_factory=dict)
 
@@ -175,7 +179,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     sfm_cfg = SfmConfig(camera_model=cfg.camera_model, overlap=cfg.overlap,
                         vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
                         min_model_size=max(3, min(cfg.min_chunk_frames, 10)), max_num_features=cfg.max_features,
-                        num_threads=cfg.threads)
+                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts)
     sfm_cfg.check()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
@@ -229,7 +233,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                             "mean_reprojection_error_px": m["mean_reprojection_error"], "camera": m["camera"],
                             "undistorted": m["undistorted"], "distortion_max_px": m.get("distortion_max_px")}
                            for m in sfm_result["models"]],
-                "discarded_models": sfm_result.get("discarded_models", [])},
+                "discarded_models": sfm_result.get("discarded_models", []),
+                "mapping_attempts": sfm_result.get("mapping_attempts", [])},
         "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
                     "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],
                     "near": c.near, "far": c.far, "sfm_model": c.model_index} for c in chunks],
@@ -308,7 +313,8 @@ def _run(args: argparse.Namespace) -> int:
     cfg = IngestConfig(stride=args.stride, target_frames=args.target_frames, sharpness_window=args.sharpness_window,
                        max_size=args.max_size, camera_model=args.camera_model, overlap=args.overlap,
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
-                       min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads)
+                       min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
+                       sfm_attempts=args.sfm_attempts)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
         report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress)

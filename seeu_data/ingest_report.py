@@ -2,7 +2,8 @@
 
 report.json keys: scene, input, frames_decoded (frames in the source), frames_candidates (after --stride),
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
-mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, models: [...]},
+mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, models: [...], discarded_models: [...],
+mapping_attempts: [{seed, registered, models}]},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model}],
 dropped_frames [{source_frame, reason}], timings_s {stage: seconds}, reused {stage: bool},
 ground_truth (only when the input has a synthetic ground-truth JSON beside it), output.

@@ -4,7 +4,8 @@ COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop dete
 vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
 into a SeeUError. The child runs: SIFT extraction (one shared camera, `camera_model`) ->
 sequential matching (`overlap`; loop detection only with a vocabulary-tree file) -> incremental
-mapping (possibly several models) -> undistortion of every model whose camera has distortion of
+mapping (possibly several models; re-run with the next seed while it registers too few frames, see
+`map_with_retries`) -> undistortion of every model whose camera has distortion of
 at least `max_negligible_distortion_px` at the image border (sizes read back from the undistorted
 model; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
 
@@ -18,7 +19,7 @@ Output directory layout::
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
 "world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
-"num_verified_pairs", "timings": {...}} or {"error": "..."}.
+"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models"}], "timings": {...}} or {"error": "..."}.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 import json
 import os
 import re
+import shutil
 import signal
 import subprocess
 import sys
@@ -51,6 +53,10 @@ class SfmConfig:
     max_num_features: int = 8192
     num_threads: int = -1
     random_seed: int = 0
+    # Incremental mapping is re-run with the next seed (up to this many runs in all) while its usable
+    # models register fewer than `retry_below` of the frames; the run registering most is kept.
+    mapping_attempts: int = 3
+    retry_below: float = 0.8
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
@@ -58,6 +64,8 @@ class SfmConfig:
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
             raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
+        if self.mapping_attempts < 1:
+            raise SeeUError(f"--sfm-attempts must be >= 1, got {self.mapping_attempts}")
         if self.overlap < 1:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
@@ -127,6 +135,45 @@ def _last_log_line(path: Path) -> str:
     pick = re.sub(r"^[IWEF]\d{8} [\d:.]+ +\d+ [\w.]+:\d+\] ", "", pick)  # glog prefix
     return pick if len(pick) <= 200 else pick[:197] + "..."
 
+
+
+def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, list[dict], list[dict]]:
+    """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
+    cfg.random_seed, +1, ... until its usable models register at least `cfg.retry_below` of the
+    `num_frames` frames, at most `cfg.mapping_attempts` times.
+
+    Usable: at least `min_model_size` registered frames and a camera that passes COLMAP's own
+    plausibility test (focal length within 0.1-10x the image size, |extra params| <= 1; a poor initial
+    pair can drive a shared radial camera to k = 1.7 and stall registration). A different seed changes
+    COLMAP's RANSAC samples and so which initial pair succeeds. Returns the usable models of the run
+    that registers most frames (the first on ties), every run's {seed, registered, models}, and the
+    kept run's rejected models as {index, registered, reason}.
+    """
+    best: tuple[int, dict, list] | None = None
+    attempts = []
+    for i in range(cfg.mapping_attempts):
+        seed = cfg.random_seed + i
+        if i:
+            _emit("stage", f"map-retry-{i}")
+        usable, rejected = {}, []
+        for k, rec in map_once(seed).items():
+            n = rec.num_reg_images()
+            camera = next(iter(rec.cameras.values()))
+            if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
+                continue
+            if camera.has_bogus_params(0.1, 10.0, 1.0):
+                rejected.append({"index": int(k), "registered": n, "reason": "implausible camera parameters "
+                                 + ", ".join(f"{p:.3g}" for p in camera.params)})
+                continue
+            usable[k] = rec
+        registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
+        attempts.append({"seed": seed, "registered": registered, "models": len(usable)})
+        if best is None or registered > best[0]:
+            best = (registered, usable, rejected)
+        if registered >= cfg.retry_below * num_frames:
+            break
+    assert best is not None
+    return best[1], attempts, best[2]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -235,24 +282,30 @@ def _child(job_path: str) -> int:
 
     _emit("stage", "map")
     t0 = time.perf_counter()
-    options = pycolmap.IncrementalPipelineOptions()
-    options.min_model_size = cfg.min_model_size
-    options.num_threads = cfg.num_threads
-    options.random_seed = cfg.random_seed
     sparse = out / "sparse"
-    sparse.mkdir(exist_ok=True)
-    recs = pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
-                                        next_image_callback=lambda: _emit("step"))
+
+    def map_once(seed: int) -> dict:
+        shutil.rmtree(sparse, ignore_errors=True)
+        sparse.mkdir()
+        options = pycolmap.IncrementalPipelineOptions()
+        options.min_model_size = cfg.min_model_size
+        options.num_threads = cfg.num_threads
+        options.random_seed = seed
+        return pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
+                                            next_image_callback=lambda: _emit("step"))
+
+    recs, attempts, rejected = map_with_retries(map_once, len(names), cfg)
     timings["map_s"] = time.perf_counter() - t0
-    # COLMAP can return tiny leftover models (a pair that failed to grow): drop them here
-    recs = {k: r for k, r in recs.items() if r.num_reg_images() >= cfg.min_model_size}
     if not recs:
         return fail("SfM found no model: no frame pair with enough parallax "
-                    "(static camera, blank frames, or too few overlapping frames)")
+                    "(static camera, blank frames, or too few overlapping frames)"
+                    + (f"; {len(attempts)} mapping attempts" if len(attempts) > 1 else ""))
+    shutil.rmtree(sparse)  # the models kept are written again below, under their own index
+    sparse.mkdir()
 
     # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
     # poor initial pair, with an implausible focal length): keep only models adding new frames.
-    kept, discarded, seen = [], [], set()
+    kept, discarded, seen = [], list(rejected), set()
     for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
         names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
         if len(names_k & seen) > 0.5 * len(names_k):
@@ -290,7 +343,8 @@ def _child(job_path: str) -> int:
     timings["export_s"] = time.perf_counter() - t0
     (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
                                                  "num_keypoints": num_kp,
-                                                 "num_verified_pairs": num_pairs, "timings": timings}))
+                                                 "num_verified_pairs": num_pairs, "mapping_attempts": attempts,
+                                                 "timings": timings}))
     return 0
 
 

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import shutil
+import tempfile
 import time
 from pathlib import Path
 
@@ -346,6 +347,52 @@ def test_split_clip_gives_two_chunks_and_reports_dropped_frames(tmp_path):
         s = ds.load_scene(sid)
         acc = pose_accuracy(s.cam_to_world, poses[s.source_frame])
         assert acc.centre_rmse_pct_path < 0.5 and acc.rel_rot_err_mean_deg < 0.2, (sid, acc)
+
+
+def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejected(ingested, tmp_path):
+    """A first mapping run whose shared camera ends implausible (k = 1.7, as a poor initial pair can
+    leave it) registers nothing usable: the next seed is mapped and kept; a run that registers every
+    frame ends the retries; when every run fails, nothing is returned."""
+    import pycolmap
+
+    from seeu_data.sfm import SfmConfig, map_with_retries
+
+    sfm_dir = ingested["out"] / ".work" / "walk" / "sfm"
+    job = json.loads((sfm_dir / "job.json").read_text())
+    seeds = []
+
+    def map_once(seed):
+        seeds.append(seed)
+        options = pycolmap.IncrementalPipelineOptions()
+        options.num_threads, options.random_seed, options.min_model_size = 1, seed, 10
+        out = Path(tempfile.mkdtemp(dir=tmp_path))
+        recs = pycolmap.incremental_mapping(sfm_dir / "database.db", job["image_dir"], out, options=options)
+        if seed == 5:
+            for rec in recs.values():
+                camera = rec.camera(next(iter(rec.cameras)))
+                params = camera.params.copy()
+                params[3] = 1.7
+                camera.params = params
+        return recs
+
+    n = len(job["image_names"])
+    models, attempts, rejected = map_with_retries(map_once, n, SfmConfig(random_seed=5, num_threads=1))
+    assert seeds == [5, 6]
+    assert attempts[0] == {"seed": 5, "registered": 0, "models": 0}
+    assert attempts[1] == {"seed": 6, "registered": n, "models": 1}
+    assert all("implausible camera parameters" in r["reason"] for r in rejected)
+    assert sum(rec.num_reg_images() for rec in models.values()) == n
+
+    seeds.clear()
+    models, attempts, rejected = map_with_retries(map_once, n, SfmConfig(random_seed=5, mapping_attempts=1))
+    assert seeds == [5] and models == {} and len(attempts) == 1
+    assert max(r["registered"] for r in rejected) == n
+    assert all("implausible camera parameters" in r["reason"] and ", 1.7" in r["reason"] for r in rejected)
+
+    calls = []
+    models, attempts, _ = map_with_retries(lambda seed: calls.append(seed) or {}, n, SfmConfig(random_seed=0))
+    assert calls == [0, 1, 2] and models == {} and [a["registered"] for a in attempts] == [0, 0, 0]
+    assert ingested["report1"]["sfm"]["mapping_attempts"] == [{"seed": 0, "registered": N, "models": 1}]
 
 
 def test_lens_distortion_is_estimated_and_undistorted(tmp_path):
