@@ -73,7 +73,9 @@ def plot_trajectory(path: str | Path, chunks: list, title: str) -> None:
 def summary_line(report: dict) -> str:
     """One line for the terminal."""
     rate = 100 * report["registration_rate"]
-    line = (f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%), "
+    attempts = len(report["sfm"].get("mapping_attempts", []))
+    line = (f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
+            + (f" after {attempts} mapping runs" if attempts > 1 else "") + "), "
             f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
             f"reprojection {report['mean_reprojection_error_px']:.2f} px, "
             f"{report['timings_s']['total']:.1f} s -> {report['output']}")

@@ -18,6 +18,7 @@ from pipelines.validate import validate_dataset
 from seeu_data import cameras as cam
 from seeu_data.chunks import ChunkConfig, plan_chunks
 from seeu_data.frame_select import SelectConfig, drop_blurriest_per_window, evenly_spaced, select_frames
+from seeu_data.ingest_report import summary_line
 from seeu_data.pose_eval import pose_accuracy, umeyama
 from seeu_data.posed import PosedDataset
 from seeu_data.synthetic import (camera_path, default_intrinsics_norm, load_ground_truth, make_scene, render_view,
@@ -260,7 +261,7 @@ def test_static_camera_no_model(tmp_path, capsys):
     rgb, _ = render_view(scene, camera_path(30)[10], default_intrinsics_norm(W, H), W, H)
     _write_video(tmp_path / "static.mp4", [rgb] * 12)
     _expect_failure(["ingest", str(tmp_path / "static.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "static.mp4", "no model")
+                    "static.mp4", "no model", "3 mapping attempts")
     _no_complete_output(tmp_path / "out")
 
 
@@ -392,7 +393,11 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
     calls = []
     models, attempts, _ = map_with_retries(lambda seed: calls.append(seed) or {}, n, SfmConfig(random_seed=0))
     assert calls == [0, 1, 2] and models == {} and [a["registered"] for a in attempts] == [0, 0, 0]
-    assert ingested["report1"]["sfm"]["mapping_attempts"] == [{"seed": 0, "registered": N, "models": 1}]
+    report = ingested["report1"]
+    assert report["sfm"]["mapping_attempts"] == [{"seed": 0, "registered": N, "models": 1}]
+    assert "mapping runs" not in summary_line(report)
+    retried = {**report, "sfm": {**report["sfm"], "mapping_attempts": attempts[:2]}}
+    assert f"{N}/{N} frames registered (100.0% after 2 mapping runs)" in summary_line(retried)
 
 
 def test_lens_distortion_is_estimated_and_undistorted(tmp_path):
