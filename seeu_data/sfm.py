@@ -40,6 +40,8 @@ from .errors import SeeUError
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 _UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _PROGRESS = "@@seeu"
+# COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
+_PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 
 
 @dataclass(frozen=True)
@@ -161,7 +163,7 @@ def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, l
             camera = next(iter(rec.cameras.values()))
             if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
                 continue
-            if camera.has_bogus_params(0.1, 10.0, 1.0):
+            if camera.has_bogus_params(*_PLAUSIBLE_CAMERA):
                 rejected.append({"index": int(k), "registered": n, "reason": "implausible camera parameters "
                                  + ", ".join(f"{p:.3g}" for p in camera.params)})
                 continue
@@ -299,7 +301,7 @@ def _child(job_path: str) -> int:
     if not recs:
         return fail("SfM found no model: no frame pair with enough parallax "
                     "(static camera, blank frames, or too few overlapping frames)"
-                    + (f"; {len(attempts)} mapping attempts" if len(attempts) > 1 else ""))
+                    + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else ""))
     shutil.rmtree(sparse)  # the models kept are written again below, under their own index
     sparse.mkdir()
 

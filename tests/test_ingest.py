@@ -261,7 +261,7 @@ def test_static_camera_no_model(tmp_path, capsys):
     rgb, _ = render_view(scene, camera_path(30)[10], default_intrinsics_norm(W, H), W, H)
     _write_video(tmp_path / "static.mp4", [rgb] * 12)
     _expect_failure(["ingest", str(tmp_path / "static.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "static.mp4", "no model", "3 mapping attempts")
+                    "static.mp4", "no model", "after 3 mapping runs")
     _no_complete_output(tmp_path / "out")
 
 
