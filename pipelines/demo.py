@@ -37,7 +37,6 @@ import time
 from pathlib import Path
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
-DEMO_CONFIG = Path(__file__).resolve().parents[1] / "configs" / "demo.json"
 STAMP_FORMAT = 1
 
 
@@ -56,7 +55,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="training triples drawn per posed chunk (default 256)")
     g.add_argument("--eval-samples", type=int, default=8,
                    help="held-out triples per evaluation set, interp and extrap (default 8)")
-    g.add_argument("--config", type=Path, default=DEMO_CONFIG, help="training preset (default configs/demo.json)")
+    g.add_argument("--config", default="demo",
+                   help="training preset: a shipped preset's name or a config file (default demo = configs/demo.json)")
     g.add_argument("--steps", type=int, default=None,
                    help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)")
     g.add_argument("--lpips-weights", default=None, metavar="PATH",
@@ -636,8 +636,9 @@ def run(args: argparse.Namespace) -> int:
         raise SeeUError("--train-samples and --eval-samples must be >= 1")
     if args.render_frames < 2:
         raise SeeUError("--render-frames must be >= 2")
-    if not args.config.is_file():
-        raise SeeUError("training preset not found", args.config)
+    from seeu_model.training.config import resolve_config
+
+    args.config = resolve_config(args.config)
     heldout_seed = args.seed + 100 if args.heldout_seed is None else args.heldout_seed
     if heldout_seed == args.seed:
         raise SeeUError("--heldout-seed must differ from --seed (the held-out scene must be unseen)")

@@ -26,7 +26,7 @@ from typing import Any, Callable, Sequence
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, help="training triple shards (directory or object-storage URL)")
     parser.add_argument("--val", default=None, help="validation triple shards (evaluated every log.val_every steps)")
-    parser.add_argument("--config", default=None, help="config preset file (configs/re10k_paper.json, configs/cpu_small.json)")
+    parser.add_argument("--config", default=None, help="config file, or a shipped preset by name: re10k_paper, cpu_small, cpu_tiny, demo (configs/*.json)")
     parser.add_argument("--out", required=True, help="run directory (checkpoints, TensorBoard, config)")
     parser.add_argument("--resume", nargs="?", const=True, default=None, metavar="CKPT",
                         help="continue from the newest checkpoint in OUT (or from CKPT)")

@@ -1,5 +1,9 @@
 """Table schemas: read from the versioned JSON files in `schemas/` (the single source of truth).
 
+`seeu_data/schemas` is a symbolic link to the repository's `schemas/`, so the same files are package
+data in the wheel and are read through `importlib.resources` from a checkout, an editable install
+or an installed wheel alike.
+
 A schema file lists columns with a small type language:
 `string | binary | int32 | int64 | float32 | float64 | list<T> | fixed_size_list<T>[n]`.
 """
@@ -9,13 +13,14 @@ from __future__ import annotations
 import json
 import re
 from functools import lru_cache
+from importlib.resources import files
 from pathlib import Path
 
 import pyarrow as pa
 
 from .errors import SeeUError
 
-SCHEMAS_DIR = Path(__file__).resolve().parent.parent / "schemas"
+SCHEMAS_DIR = files("seeu_data") / "schemas"
 
 # Schema name -> file stem prefix in schemas/.
 _SCHEMA_FILES = {
@@ -55,8 +60,8 @@ def load_schema_doc(name: str, major: int = 1) -> dict:
     if stem is None:
         raise SeeUError(f"unknown table schema {name!r} (known: {', '.join(sorted(_SCHEMA_FILES))})")
     path = SCHEMAS_DIR / f"{stem}.v{major}.json"
-    if not path.exists():
-        raise SeeUError(f"schema {name} major version {major} is not supported by this seeu version", path)
+    if not path.is_file():
+        raise SeeUError(f"schema {name} major version {major} is not supported by this seeu version", str(path))
     return json.loads(path.read_text())
 
 

@@ -1,6 +1,7 @@
 """Typed training configuration, preset files and ``key=value`` overrides.
 
-A config file is JSON (``configs/*.json``; YAML too when PyYAML is installed) holding any subset
+A config file is JSON (``configs/*.json``, shipped in the wheel as ``seeu_model/presets/``, a symbolic
+link to it, and usable by name: ``--config re10k_paper``; YAML too when PyYAML is installed) holding any subset
 of the sections below; missing keys keep their defaults. Overrides address fields with dots:
 ``optim.lr=1e-4 data.batch_size=4 model.refiner=unet loss.lpips_weight=0``. The ``model`` section
 is passed through to ``SeeUConfig`` (its fields are the model's, checked when the model is built).
@@ -16,10 +17,13 @@ import dataclasses
 import json
 import typing
 from dataclasses import asdict, dataclass, field, fields
+from importlib.resources import files
 from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
+
+PRESETS_DIR = files("seeu_model") / "presets"
 
 
 @dataclass
@@ -202,10 +206,24 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
     return data
 
 
+def preset_names() -> list[str]:
+    """Names of the shipped presets (`configs/*.json`, package data `seeu_model/presets/`)."""
+    return sorted(p.name[: -len(".json")] for p in PRESETS_DIR.iterdir() if p.name.endswith(".json"))
+
+
+def resolve_config(path_or_preset: str | Path) -> Path:
+    """A config file path as given, or a shipped preset by name (``re10k_paper`` or ``re10k_paper.json``)."""
+    path = Path(path_or_preset)
+    if path.is_file():
+        return path
+    name = path.name[: -len(".json")] if path.name.endswith(".json") else path.name
+    if path.parent == Path(".") and name in preset_names():
+        return Path(str(PRESETS_DIR / f"{name}.json"))
+    raise SeeUError(f"config file not found, and not a preset name ({', '.join(preset_names())})", path)
+
+
 def read_config_file(path: str | Path) -> dict:
-    path = Path(path)
-    if not path.is_file():
-        raise SeeUError("config file not found", path)
+    path = resolve_config(path)
     text = path.read_text()
     if path.suffix in (".yaml", ".yml"):
         try:
