@@ -267,7 +267,7 @@ class _HashingFile:
                 while left:
                     block = self._reader.read(min(_HASH_BLOCK, left))
                     if not block:
-                        raise OSError(f"the file ends {left} bytes before what was written")
+                        raise OSError(f"the file ends {left} bytes before what was written") from None
                     self._sha256.update(block)
                     left -= len(block)
                 return

@@ -34,7 +34,7 @@ def test_extrapolation_range_shards(tmp_path):
     like = synthetic_triples(tmp_path, n_frames=16, hw=(32, 32), samples_per_scene=6)
     paths = build_ext_shards(str(posed), tmp_path / "abl", [0, 3], like=str(like))
     offsets = {}
-    for n, p in paths.items():
+    for n in paths:
         vals = []
         for f in sorted((tmp_path / "abl" / f"shards_ext{n}").glob("*.arrow")):
             t = ipc.open_file(str(f)).read_all()

@@ -10,7 +10,6 @@ from pathlib import Path
 import cv2
 import numpy as np
 import pytest
-import torch
 from skimage.metrics import structural_similarity
 
 from pipelines.cli import main

@@ -142,7 +142,7 @@ def test_decode_stride_keeps_source_frames(clip):
     frames = list(iter_frames(src, stride=4))
     assert [f.source_frame for f in frames] == list(range(0, N, 4))
     cap = cv2.VideoCapture(str(clip))
-    for i in range(9):
+    for _ in range(9):
         ok, bgr = cap.read()
         assert ok
     assert np.array_equal(frames[2].rgb, cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB))  # frame 8
