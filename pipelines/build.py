@@ -134,7 +134,7 @@ def run(args: argparse.Namespace) -> int:
         index_format=args.index_format, seed=args.seed,
         image=ImageOptions(resize=args.resize, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
         shard_bytes=args.shard_size, rows_per_batch=args.rows_per_batch, engine=args.engine,
-        workers=args.workers if args.workers is not None else default_workers(args.resize is not None),
+        workers=args.workers if args.workers is not None else default_workers(),
         ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs)
     with fsync_policy(True if args.fsync else None):
         manifest = build(cfg, "seeu build")
