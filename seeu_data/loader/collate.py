@@ -24,6 +24,7 @@ from torch.utils.data import get_worker_info
 from .. import cameras
 from ..errors import SeeUError
 from .transforms import ViewsSample
+from .types import Batch
 
 
 _STAGING: dict[tuple, np.ndarray] = {}  # per-process reusable staging buffers (shape, dtype) -> array
@@ -255,7 +256,7 @@ class ImageRingHost:
 
 
 def finish_shipped_batch(batch: dict, image_dtype: str = "uint8", ring: ImageRingHost | None = None,
-                         pin: bool = False) -> dict:
+                         pin: bool = False) -> Batch:
     """Main-process half of `collate_views(..., ship=True)`: the images out of shared memory (uint8 copied,
     or converted to float32 in [0, 1]), numpy -> tensors. `pin`: the images go straight into pinned memory."""
     ticket = batch.pop("_images")
@@ -279,4 +280,4 @@ def finish_shipped_batch(batch: dict, image_dtype: str = "uint8", ring: ImageRin
     if ring is not None:
         ring.release(ticket)
     batch["is_padding"] = torch.from_numpy(batch["is_padding"])
-    return batch
+    return batch  # type: ignore[return-value]  # filled in place into the Batch layout

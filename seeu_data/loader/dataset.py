@@ -36,6 +36,7 @@ from torch.utils.data._utils.pin_memory import pin_memory
 from ..errors import SeeUError
 from ..image_ops import single_threaded_cv2
 from .collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
+from .types import Batch
 from .curriculum import GapCurriculum
 from .order import (GlobalPlan, epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
                     shard_offsets)
@@ -258,7 +259,7 @@ class TripleStream(IterableDataset):
         batch["_skipped"] = skipped
         return batch
 
-    def __iter__(self) -> Iterator[dict]:
+    def __iter__(self) -> Iterator[Batch]:
         info = get_worker_info()
         worker, num_workers = (info.id, info.num_workers) if info is not None else (0, 0)
         plan = self.plan()
@@ -353,7 +354,7 @@ class StreamingLoader:
         return self.dataset.num_batches()
 
     # ------------------------------------------------------------------ iteration
-    def __iter__(self) -> Iterator[dict]:
+    def __iter__(self) -> Iterator[Batch]:
         ds = self.dataset
         plan = ds.plan()  # computed here once; forked workers inherit it
         pin = self.pin_memory and torch.cuda.is_available()
