@@ -71,14 +71,14 @@ def triple_statistics(root: Path, verify: bool = False) -> dict:
         "shards": len(shards.files),
         "bytes": int(sum(e["bytes"] for e in shards.manifest["files"])),
         "scenes": int(len(set(table.column("scene_id").to_pylist()))),
-        "modes": {str(m): int(c) for m, c in zip(modes, mode_counts)},
+        "modes": {str(m): int(c) for m, c in zip(modes, mode_counts)},  # type: ignore[call-overload]
         "num_context": {str(int(k)): int(c) for k, c in zip(*np.unique(nctx, return_counts=True))},
         "num_target": {str(int(k)): int(c) for k, c in zip(*np.unique(views - nctx, return_counts=True))},
         "gap": _summary(gaps),
         "target_offset": {"inside": int((offsets == 0).sum()), "before": int((offsets < 0).sum()),
                           "after": int((offsets > 0).sum()), "outside": _summary(outside),
                           "max_abs": int(np.abs(offsets).max()) if offsets.size else 0},
-        "image_sizes": {f"{int(w)}x{int(h)}": int(c) for (w, h), c in zip(sizes, size_counts)},
+        "image_sizes": {f"{int(w)}x{int(h)}": int(c) for (w, h), c in zip(sizes, size_counts)},  # type: ignore[call-overload]
         "image_bytes_per_view_mean": round(float(img_bytes.mean()), 1) if img_bytes.size else 0.0,
         "params": shards.manifest.get("params", {}),
         "report": shards.manifest.get("report", {}),

@@ -216,6 +216,7 @@ def write_table(path: str | Path, table: pa.Table, max_chunksize: int | None = N
     """Write a whole table atomically as an Arrow IPC file; return (bytes, sha256) of the file."""
     with AtomicIpcWriter(path, table.schema) as writer:
         writer.write_table(table, max_chunksize=max_chunksize)
+    assert writer.sha256 is not None
     return writer.size, writer.sha256
 
 

@@ -141,7 +141,7 @@ def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
               "scenes_skipped_too_short": len(short), "skipped_scene_examples": short[:20],
               "min_scene_frames": need, "samples": len(used) * s.samples_per_scene}
     draws = (sample for sid in used for sample in sample_scene(s, scenes[sid].num_frames, sid, cfg.seed))
-    return Plan(draws, report["samples"], report)
+    return Plan(draws, len(used) * s.samples_per_scene, report)
 
 
 def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:

@@ -177,8 +177,8 @@ def quat_wxyz_from_rotmat(rot: np.ndarray) -> np.ndarray:
         else:
             s = 2.0 * np.sqrt(1.0 + m[2, 2] - m[0, 0] - m[1, 1])
             q = [(m[1, 0] - m[0, 1]) / s, (m[0, 2] + m[2, 0]) / s, (m[1, 2] + m[2, 1]) / s, 0.25 * s]
-        q = np.asarray(q)
-        out[i] = q * (1.0 if q[0] >= 0 else -1.0) / np.linalg.norm(q)
+        qa = np.asarray(q)
+        out[i] = qa * (1.0 if qa[0] >= 0 else -1.0) / np.linalg.norm(qa)
     return out.reshape(rot.shape[:-2] + (4,))
 
 

@@ -69,5 +69,5 @@ def select_frames(sharpness: list[float] | np.ndarray, source_frames: list[int] 
     pick = evenly_spaced(len(kept), config.target_frames)
     not_picked = np.setdiff1d(np.arange(len(kept)), pick)
     dropped += [{"source_frame": int(source_frames[kept[i]]), "reason": "thinned to --target-frames"} for i in not_picked]
-    dropped.sort(key=lambda d: d["source_frame"])
+    dropped.sort(key=lambda d: int(d["source_frame"]))  # type: ignore[call-overload]
     return kept[pick], dropped

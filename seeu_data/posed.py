@@ -178,7 +178,7 @@ class PosedDatasetWriter:
         self._seen.add(scene.scene_id)
         if self._writer is None:
             self._open()
-        assert self._path is not None
+        assert self._path is not None and self._writer is not None
         self._writer.write_batch(batch)
         entry = {"scene_id": scene.scene_id, "file": self._path.name, "row_start": self._rows,
                  "num_frames": len(scene), "near": float(scene.near), "far": float(scene.far)}

@@ -11,6 +11,7 @@ the posed inputs must be on a file system every node sees (or the same path on e
 from __future__ import annotations
 
 import json
+import logging
 import os
 from pathlib import Path
 
@@ -38,7 +39,7 @@ def ensure_ray(address: str | None = None) -> None:
         return
     repo_root = str(Path(__file__).resolve().parent.parent)
     try:
-        ray.init(address=address, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
+        ray.init(address=address, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
                  runtime_env={"env_vars": {"PYTHONPATH": repo_root}})
     except (ConnectionError, ValueError, RuntimeError) as exc:
         raise SeeUError(f"cannot start or reach Ray ({str(exc).splitlines()[0]})", address or "local") from None

@@ -140,7 +140,7 @@ def sample_one(rng: np.random.Generator, cfg: SamplingConfig, num_frames: int, s
     gap = int(rng.integers(cfg.gap_min, hi_gap + 1))
     left = int(rng.integers(0, num_frames - gap))
     right = left + gap
-    inner = ()
+    inner: tuple[int, ...] = ()
     if cfg.num_context > 2:
         inner = tuple(int(x) for x in rng.choice(np.arange(left + 1, right), cfg.num_context - 2, replace=False))
     context = tuple(sorted((left, right) + inner))

@@ -148,7 +148,7 @@ def build_shard_table(spec: dict) -> pa.Table:
                         interpolation=spec["image"]["interpolation"], jpeg_quality=spec["image"]["jpeg_quality"])
     tables = _SceneTables(spec["sources"])
     base: dict[str, int] = {}
-    parts = []
+    parts: list[pa.Table] = []
     for s in samples:
         if s.scene_id not in base:
             t = tables.table(s.scene_id)

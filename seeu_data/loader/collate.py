@@ -54,7 +54,7 @@ def _shared_tensor_from(array: np.ndarray) -> torch.Tensor | None:
         return None
     fd = os.memfd_create("seeu-batch", os.MFD_CLOEXEC)
     try:
-        view = memoryview(array).cast("B")
+        view = memoryview(array).cast("B")  # type: ignore[arg-type]  # numpy arrays are buffers
         written = 0
         while written < array.nbytes:
             written += os.pwrite(fd, view[written:], written)
@@ -62,7 +62,7 @@ def _shared_tensor_from(array: np.ndarray) -> torch.Tensor | None:
     finally:
         os.close(fd)
     dtype = torch.from_numpy(array[:0].reshape(-1)).dtype
-    return torch.empty(0, dtype=dtype).set_(storage, 0, array.shape)
+    return torch.empty(0, dtype=dtype).set_(storage, 0, array.shape)  # type: ignore[call-overload]
 
 
 def to_unit_float(images: np.ndarray, out: np.ndarray) -> np.ndarray:
@@ -95,7 +95,7 @@ def images_to_tensor(images: np.ndarray, dtype: str = "float32") -> torch.Tensor
     return torch.from_numpy(out_np)
 
 
-def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool], image_dtype: str = "uint8",
+def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool] | np.ndarray, image_dtype: str = "uint8",
                   images: np.ndarray | None = None, where: str = "", ship: bool = False,
                   ticket: dict | None = None) -> dict:
     """Stack samples into the batch dict. `images`: the (B, V, 3, H, W) uint8 buffer the samples' images live in.

@@ -26,7 +26,7 @@ import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 import torch
@@ -259,7 +259,7 @@ class TripleStream(IterableDataset):
         batch["_skipped"] = skipped
         return batch
 
-    def __iter__(self) -> Iterator[Batch]:
+    def __iter__(self) -> Iterator[dict]:
         info = get_worker_info()
         worker, num_workers = (info.id, info.num_workers) if info is not None else (0, 0)
         plan = self.plan()
@@ -290,7 +290,7 @@ def _error_parts(exc: SeeUError) -> tuple[str, str | None]:
     return text, None
 
 
-def _as_is(batch: dict) -> dict:
+def _as_is(batch: Any) -> Any:
     """The DataLoader's per-item collate: batches are collated already (keep numpy as numpy)."""
     return batch
 
