@@ -455,3 +455,19 @@ def test_gsplat_agrees_with_torch_backend(antialiased):
     cpu = rasterize(g.map(lambda t: t.cpu()), c2w.cpu(), k.cpu(), 96, 64, background=bg.cpu(), backend="torch",
                     antialiased=antialiased)
     assert max(_diff(cpu, type(ref)(ref.color.cpu(), ref.depth.cpu(), ref.alpha.cpu()))) <= 1e-4
+
+
+def test_covariance_rotation_is_the_quaternions():
+    """The 3-D covariance R diag(s^2) R^T takes R from the wxyz quaternion as scipy does (kornia's
+    conversion, normalising first), and agrees with the toolkit's own numpy conversion."""
+    from scipy.spatial.transform import Rotation
+
+    from seeu_data import cameras as cam
+    from seeu_model.rasterizer.projection import covariance_3d
+
+    q = torch.randn(64, 4, dtype=torch.float64) * torch.rand(64, 1, dtype=torch.float64) * 3
+    s = torch.rand(64, 3, dtype=torch.float64) + 0.1
+    rot = Rotation.from_quat(q.numpy()[:, [1, 2, 3, 0]]).as_matrix()  # scipy: xyzw, normalises too
+    expected = rot @ np.stack([np.diag(v) for v in s.numpy() ** 2]) @ rot.transpose(0, 2, 1)
+    assert np.allclose(covariance_3d(s, q).numpy(), expected, atol=1e-12)
+    assert np.allclose(cam.rotmat_from_quat_wxyz(q.numpy()), rot, atol=1e-12)

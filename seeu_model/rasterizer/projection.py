@@ -18,7 +18,9 @@ from dataclasses import dataclass
 
 import torch
 
-from seeu_data.cameras import intrinsics_pixels, rotmat_from_quat_wxyz, world_to_cam_from_cam_to_world
+from kornia.geometry.conversions import quaternion_to_rotation_matrix
+
+from seeu_data.cameras import intrinsics_pixels, world_to_cam_from_cam_to_world
 from seeu_model.gaussians import Gaussians
 from seeu_model.rasterizer.sh import sh_to_color
 
@@ -60,7 +62,7 @@ class Projected:
 
 def covariance_3d(scales: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:
     """World covariance `R diag(s^2) R^T`: scales (..., 3) linear, rotations (..., 4) wxyz -> (..., 3, 3)."""
-    rot = rotmat_from_quat_wxyz(rotations)
+    rot = quaternion_to_rotation_matrix(rotations)  # kornia: wxyz, normalised first
     m = rot * scales[..., None, :]
     return m @ m.transpose(-1, -2)
 
