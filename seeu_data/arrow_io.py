@@ -108,6 +108,18 @@ def commit_pending(path: Path) -> None:
 
 
 @contextmanager
+def naming_os_errors(path: str | Path) -> Iterator[None]:
+    """Within the block, an OSError that names no file (a failed `write`: ENOSPC, EIO, ...) is
+    re-raised naming `path`, so the one-line error says which file could not be written."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
+        raise
+
+
+@contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that takes a file name (torch.save, ...).
 
@@ -118,8 +130,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = tmp_path_for(path)
     try:
-        yield tmp
-        _fsync_replace(tmp, path)
+        with naming_os_errors(path):
+            yield tmp
+            _fsync_replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -379,17 +392,20 @@ class AtomicIpcWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._raw = _HashingFile(self.tmp)
         try:
-            self._sink = pa.PythonFile(self._raw, mode="w")
-            self._writer = pa.ipc.new_file(self._sink, schema, options=_WRITE_OPTIONS)
+            with naming_os_errors(self.path):
+                self._sink = pa.PythonFile(self._raw, mode="w")
+                self._writer = pa.ipc.new_file(self._sink, schema, options=_WRITE_OPTIONS)
         except BaseException:
             self.abort()
             raise
 
     def write_batch(self, batch: pa.RecordBatch) -> None:
-        self._writer.write_batch(batch)
+        with naming_os_errors(self.path):
+            self._writer.write_batch(batch)
 
     def write_table(self, table: pa.Table, max_chunksize: int | None = None) -> None:
-        self._writer.write_table(table, max_chunksize=max_chunksize)
+        with naming_os_errors(self.path):
+            self._writer.write_table(table, max_chunksize=max_chunksize)
 
     def close(self) -> tuple[int, str]:
         """Finish the file and put it in place (or leave it pending); return (bytes, sha256)."""
@@ -405,13 +421,14 @@ class AtomicIpcWriter:
         """`close` without waiting for the hasher: (bytes, future of the sha256). The file is complete
         (and in place unless `commit=False`) when this returns; the digest follows."""
         try:
-            self._writer.close()
-            digest = self._raw.digest_future()
-            if self.commit and _FSYNC:
-                self._raw.fsync()
-            self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
-            if self.commit:
-                os.replace(self.tmp, self.path)
+            with naming_os_errors(self.path):
+                self._writer.close()
+                digest = self._raw.digest_future()
+                if self.commit and _FSYNC:
+                    self._raw.fsync()
+                self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
+                if self.commit:
+                    os.replace(self.tmp, self.path)
         except BaseException:
             self.abort()
             raise
