@@ -509,8 +509,10 @@ def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBat
         raise SeeUError("file not found", path)
     try:
         source = pa.memory_map(str(path), "r") if memory_map else pa.OSFile(str(path), "rb")
-        return pa.ipc.open_file(source)
-    except (pa.ArrowInvalid, OSError) as exc:
+        reader = pa.ipc.open_file(source)
+        _ = reader.schema.names  # every name decodes (a flipped byte there is a UnicodeDecodeError later)
+        return reader
+    except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
         raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0], path) from None
 
 
