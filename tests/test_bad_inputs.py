@@ -19,7 +19,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-import cv2  # before pycolmap: the other import order breaks OpenCV's PNG encoder  # noqa: F401
+import cv2  # noqa: F401  (before pycolmap: the other import order breaks OpenCV's PNG encoder)
 import numpy as np
 import pycolmap
 import pytest

@@ -11,7 +11,7 @@ import json
 import shutil
 from pathlib import Path
 
-import cv2  # before pycolmap: the other import order breaks OpenCV's PNG encoder
+import cv2  # noqa: F401  (before pycolmap: the other import order breaks OpenCV's PNG encoder)
 import numpy as np
 import pyarrow.fs as pafs
 import pycolmap

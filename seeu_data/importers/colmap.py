@@ -226,8 +226,6 @@ def import_plan(cfg: ColmapImportConfig):
 
 
 def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedScene]:
-    import pycolmap
-
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
     meta = {"dataset": "colmap", "model": str(Path(cfg.model_dir).resolve()),
             "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()})}
