@@ -314,6 +314,9 @@ case("eval-missing-data")(lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"
 case("eval-image-size-zero", xfail=I20A)(
     lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]), "--no-lpips",
                      "--image-size", "0x0", "--out", str(tmp / "e")])
+case("eval-out-is-a-file", text="is a file")(
+    lambda ws, tmp: _put(tmp / "f", "") or ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
+                                            "--no-lpips", "--max-samples", "1", "--out", str(tmp / "f")])
 case("eval-checkpoint-runs-code", xfail=I20A)(
     lambda ws, tmp: (["eval", "--checkpoint", str(_ckpt_with(tmp, _Call(os.system, f"touch {tmp / 'PWNED'}"))),
                       "--data", str(ws["triples"]), "--no-lpips"], _sentinel_check(tmp / "PWNED")))
@@ -323,6 +326,9 @@ case("render-missing-checkpoint")(lambda ws, tmp: ["render", "--checkpoint", str
                                                    str(ws["triples"]), "--out", str(tmp / "r")])
 case("render-sample-out-of-range")(lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
                                                     "--sample", "999", "--out", str(tmp / "r"), "--frames", "2"])
+case("render-out-is-a-file", text="is a file")(
+    lambda ws, tmp: _put(tmp / "f", "") or ["render", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
+                                            "--out", str(tmp / "f"), "--frames", "2"])
 case("render-cameras-not-json")(
     lambda ws, tmp: _put(tmp / "c.json", "{") or
     ["render", "--checkpoint", str(ws["ckpt"]), "--cameras", str(tmp / "c.json"), "--out", str(tmp / "r")])
