@@ -7,6 +7,7 @@ Errors the user can fix (SeeUError) print one line and exit 2; `--debug` shows t
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
 import importlib.util
 import os
@@ -55,6 +56,43 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+# What an OSError's errno means for the user (the system's own text follows in parentheses).
+_OS_PROBLEMS = {
+    errno.ENOSPC: "cannot write: no space left on the device",
+    errno.EDQUOT: "cannot write: disk quota exceeded",
+    errno.EROFS: "cannot write: the file system is read-only",
+    errno.EACCES: "permission denied",
+    errno.EPERM: "operation not permitted",
+    errno.EISDIR: "is a directory, a file is needed here",
+    errno.ENOENT: "not found",
+    errno.ENAMETOOLONG: "name too long",
+    errno.EMFILE: "too many open files",
+    errno.EIO: "input/output error (failing disk or network file system?)",
+}
+
+
+def os_error_line(exc: OSError) -> str:
+    """`PATH: <what> (errno text)` for an OSError (the path left out when the error names none).
+
+    An existing file where a directory is needed (`--out` naming a file, a file in the way of a
+    sub-directory: EEXIST / ENOTDIR) is reported at that file.
+    """
+    text = exc.strerror or str(exc)
+    path = exc.filename
+    what = _OS_PROBLEMS.get(exc.errno, "operating-system error")
+    if exc.errno in (errno.EEXIST, errno.ENOTDIR) and path is not None:
+        from pathlib import Path
+
+        p = Path(os.fsdecode(path))
+        for candidate in (p, *p.parents):
+            if candidate.is_file():
+                path, what = candidate, "is a file, a directory is needed here"
+                break
+        else:
+            what = "already exists" if exc.errno == errno.EEXIST else "a path component is not a directory"
+    return f"{os.fsdecode(path)}: {what} ({text})" if path is not None else f"{what} ({text})"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     args = parser.parse_args(argv)
@@ -68,6 +106,11 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         print(f"seeu {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the environment (disk full, read-only, permissions, a file in the way)
+        if debug:
+            raise
+        print(f"seeu {args.command}: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"seeu {args.command}: interrupted; re-run the same command to resume", file=sys.stderr)

@@ -23,6 +23,11 @@ Examples:
   seeu import dtu datasets/dtu_training --scans 1,8,21 --out data/posed/dtu
   seeu import colmap scene/sparse/0 --images scene/images --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --out data/posed/scene
+  seeu import nerfstudio scene/transforms.json --skip-missing --out data/posed/scene
+
+Paths read from input files (index.json chunk names, COLMAP image names, nerfstudio file_paths)
+must stay inside their dataset folder: an entry leading outside (../x, an absolute path, a link) is
+skipped and counted; colmap and nerfstudio take --allow-outside-paths where that is intended.
 """
 
 from __future__ import annotations
@@ -101,6 +106,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("--scene-id", help="scene id (default: derived from the model path)")
     f.add_argument("--no-undistort", action="store_true",
                    help="refuse distorted camera models instead of undistorting with pycolmap")
+    f.add_argument("--allow-outside-paths", action="store_true",
+                   help="read image names that lead outside --images (../x.jpg, absolute, links); "
+                        "default: such images are dropped and counted")
     f.add_argument("--near", type=float, help="near plane (default: from the 3D points' depths)")
     f.add_argument("--far", type=float, help="far plane (default: from the 3D points' depths)")
     f.set_defaults(_import=_colmap)
@@ -110,6 +118,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("--scene-id", help="scene id (default: the folder name)")
     f.add_argument("--keep-applied-transform", action="store_true",
                    help="keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)")
+    f.add_argument("--skip-missing", action="store_true",
+                   help="drop frames whose image is missing (counted in the report) instead of skipping the scene")
+    f.add_argument("--no-undistort", action="store_true",
+                   help="refuse frames with lens distortion (k1, k2, k3, k4, p1, p2) instead of undistorting them")
+    f.add_argument("--allow-outside-paths", action="store_true",
+                   help="read file_paths that lead outside the JSON's folder (../x.png, absolute, links); "
+                        "default: such frames are dropped and counted")
     f.add_argument("--near", type=float, help="near plane (default: from a seeu export, else 0.1)")
     f.add_argument("--far", type=float, help="far plane (default: from a seeu export, else 100)")
     f.set_defaults(_import=_nerfstudio)
@@ -160,10 +175,11 @@ def _colmap(args):
 
     cfg = m.ColmapImportConfig(model_dir=args.model, images_dir=args.images, scene_id=args.scene_id,
                                undistort=not args.no_undistort, near=args.near, far=args.far,
-                               verify_decode=args.verify_decode)
+                               verify_decode=args.verify_decode, allow_outside_paths=args.allow_outside_paths)
     params = {"format": "colmap", "model": str(args.model), "images": str(args.images),
               "undistort": not args.no_undistort, "near": args.near, "far": args.far,
-              "scene_id": args.scene_id, "verify_decode": args.verify_decode}
+              "scene_id": args.scene_id, "verify_decode": args.verify_decode,
+              "allow_outside_paths": args.allow_outside_paths}
     return m.import_plan(cfg), params, 1, [str(args.model), str(args.images)]
 
 
@@ -172,10 +188,13 @@ def _nerfstudio(args):
 
     cfg = m.NerfstudioImportConfig(transforms=args.transforms, scene_id=args.scene_id,
                                    undo_applied_transform=not args.keep_applied_transform,
-                                   near=args.near, far=args.far, verify_decode=args.verify_decode)
+                                   near=args.near, far=args.far, verify_decode=args.verify_decode,
+                                   undistort=not args.no_undistort, skip_missing=args.skip_missing,
+                                   allow_outside_paths=args.allow_outside_paths)
     params = {"format": "nerfstudio", "transforms": str(args.transforms),
               "undo_applied_transform": not args.keep_applied_transform, "near": args.near, "far": args.far,
-              "scene_id": args.scene_id, "verify_decode": args.verify_decode}
+              "scene_id": args.scene_id, "verify_decode": args.verify_decode, "undistort": not args.no_undistort,
+              "skip_missing": args.skip_missing, "allow_outside_paths": args.allow_outside_paths}
     return m.import_plan(cfg), params, 1, [str(args.transforms)]
 
 

@@ -95,6 +95,7 @@ def _decode_stage(source, cfg: IngestConfig, progress: bool):
     """Stage function: decode every stride-th frame, resize, write JPEGs + per-frame metadata."""
     from tqdm import tqdm
 
+    from seeu_data.arrow_io import atomic_write_bytes
     from seeu_data.errors import SeeUError
     from seeu_data.video import iter_frames, probe_video, resize_max_side, sharpness
 
@@ -114,7 +115,7 @@ def _decode_stage(source, cfg: IngestConfig, progress: bool):
                 raise SeeUError(f"frame size {rgb.shape[1]}x{rgb.shape[0]} differs from the first frame's "
                                 f"{size[1]}x{size[0]} (one shared camera needs one size)", where)
             name = f"{fr.source_frame:06d}.jpg"
-            (frames_dir / name).write_bytes(_encode_jpeg(rgb, cfg.jpeg_quality))
+            atomic_write_bytes(frames_dir / name, _encode_jpeg(rgb, cfg.jpeg_quality))  # OS errors name the file
             frames.append({"name": name, "source_frame": fr.source_frame, "timestamp_us": fr.timestamp_us,
                            "source_name": fr.source_name, "sharpness": sharpness(rgb)})
         if not frames:

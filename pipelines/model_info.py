@@ -100,7 +100,9 @@ def run(args: argparse.Namespace) -> int:
             print(f"  {k:<18} {s}")
 
     if args.json:
-        with open(args.json, "w") as fh:
+        from seeu_data.arrow_io import naming_os_errors
+
+        with naming_os_errors(args.json), open(args.json, "w") as fh:
             json.dump({"preset": args.preset, "config": cfg.to_dict(),
                        "modules": {k: {"trainable": t, "frozen": f} for k, (t, f) in counts.items()},
                        "total_trainable": total_t, "total_frozen": total_f, "mvsplat_total": MVSPLAT_PARAMS,

@@ -72,9 +72,13 @@ def validate_dataset(root: Path, check_sha: bool = True) -> dict:
     expected = arrow_schema(manifest["schema"], int(manifest["schema_version"].split(".")[0]))
     rows_by_file: dict[str, int] = {}
     for entry in manifest["files"]:
-        verify_file(root, entry, check_sha=check_sha)
-        table = open_ipc_file(root / entry["path"]).read_all()
-        check_table(table, expected, root / entry["path"])
+        try:
+            verify_file(root, entry, check_sha=check_sha)
+            table = open_ipc_file(root / entry["path"]).read_all()
+            check_table(table, expected, root / entry["path"])
+        except (pa.ArrowException, UnicodeDecodeError, ValueError) as exc:  # corrupt bytes (seen with --no-sha)
+            raise SeeUError(f"unreadable (corrupt?): {type(exc).__name__}: {str(exc).splitlines()[0][:160]}",
+                            root / entry["path"]) from None
         rows_by_file[entry["path"]] = table.num_rows
     for scene in manifest.get("scenes", []):
         where = root / scene["file"]

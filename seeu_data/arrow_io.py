@@ -81,6 +81,18 @@ def _fsync_replace(src: Path, dst: Path) -> None:
 
 
 @contextmanager
+def naming_os_errors(path: str | Path) -> Iterator[None]:
+    """Within the block, an OSError that names no file (a failed `write`: ENOSPC, EIO, ...) is
+    re-raised naming `path`, so the one-line error says which file could not be written."""
+    try:
+        yield
+    except OSError as exc:
+        if exc.filename is None and exc.errno is not None:
+            raise OSError(exc.errno, exc.strerror or os.strerror(exc.errno), str(path)) from exc
+        raise
+
+
+@contextmanager
 def atomic_path(path: str | Path) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that takes a file name (torch.save, ...).
 
@@ -91,8 +103,9 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = tmp_path_for(path)
     try:
-        yield tmp
-        _fsync_replace(tmp, path)
+        with naming_os_errors(path):
+            yield tmp
+            _fsync_replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -169,26 +182,30 @@ class AtomicIpcWriter:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         self._raw = _HashingSink(self.tmp)
         try:
-            self._sink = pa.PythonFile(self._raw, mode="w")
-            self._writer = pa.ipc.new_file(self._sink, schema, options=_WRITE_OPTIONS)
+            with naming_os_errors(self.path):
+                self._sink = pa.PythonFile(self._raw, mode="w")
+                self._writer = pa.ipc.new_file(self._sink, schema, options=_WRITE_OPTIONS)
         except BaseException:
             self.abort()
             raise
 
     def write_batch(self, batch: pa.RecordBatch) -> None:
-        self._writer.write_batch(batch)
+        with naming_os_errors(self.path):
+            self._writer.write_batch(batch)
 
     def write_table(self, table: pa.Table, max_chunksize: int | None = None) -> None:
-        self._writer.write_table(table, max_chunksize=max_chunksize)
+        with naming_os_errors(self.path):
+            self._writer.write_table(table, max_chunksize=max_chunksize)
 
     def close(self) -> tuple[int, str]:
         """Finish the file and put it in place; return (bytes, sha256)."""
         try:
-            self._writer.close()
-            if _FSYNC:
-                self._raw.fsync()
-            self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
-            os.replace(self.tmp, self.path)
+            with naming_os_errors(self.path):
+                self._writer.close()
+                if _FSYNC:
+                    self._raw.fsync()
+                self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
+                os.replace(self.tmp, self.path)
         except BaseException:
             self.abort()
             raise
@@ -227,8 +244,10 @@ def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBat
         raise SeeUError("file not found", path)
     try:
         source = pa.memory_map(str(path), "r") if memory_map else pa.OSFile(str(path), "rb")
-        return pa.ipc.open_file(source)
-    except (pa.ArrowInvalid, OSError) as exc:
+        reader = pa.ipc.open_file(source)
+        _ = reader.schema.names  # every name decodes (a flipped byte there is a UnicodeDecodeError later)
+        return reader
+    except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
         raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0], path) from None
 
 

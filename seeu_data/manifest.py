@@ -19,6 +19,7 @@ import jsonschema
 from . import __version__
 from .arrow_io import atomic_write_text, open_ipc_file, read_json, sha256_file
 from .errors import SeeUError
+from .paths import contained_key, contained_path
 from .schema import MANIFEST_VERSION, check_version, manifest_json_schema
 
 MANIFEST_NAME = "manifest.json"
@@ -124,10 +125,25 @@ def read_manifest(root: str | Path, expect_schema: str | None = None, verify: bo
     check_version(doc["schema"], doc["schema_version"], path)
     if expect_schema is not None and doc["schema"] != expect_schema:
         raise SeeUError(f"expected a {expect_schema} dataset, found {doc['schema']}", root)
+    check_entries(root, doc, path)
     if verify:
         for entry in doc["files"]:
             verify_file(root, entry)
     return doc
+
+
+def check_entries(root: Path, doc: dict, where: Path) -> None:
+    """Every file a manifest names stays inside its dataset directory (`paths.contained_path`, and
+    `paths.contained_key` for object-storage copies), and `total_rows` is the sum of the files' rows."""
+    for entry in doc["files"]:
+        contained_key(entry["path"], "manifest entry", where)
+        contained_path(root, entry["path"], "manifest entry", where)
+    for scene in doc.get("scenes", []):
+        contained_key(scene["file"], f"scene {scene.get('scene_id')!r} file", where)
+        contained_path(root, scene["file"], f"scene {scene.get('scene_id')!r} file", where)
+    rows = sum(int(e["rows"]) for e in doc["files"])
+    if int(doc["total_rows"]) != rows:
+        raise SeeUError(f"total_rows {doc['total_rows']} disagrees with the {rows} rows its files list", where)
 
 
 def verify_file(root: str | Path, entry: dict, check_sha: bool = True) -> None:

@@ -7,7 +7,7 @@ A stage is reused when `<work_dir>/<name>/stamp.json` exists and its key hash eq
 (the key holds the input fingerprint, the parameters and the upstream stage's hash, so a change
 upstream invalidates everything downstream). Otherwise the directory is emptied, `fn(dir)` runs,
 and the stamp (holding fn's JSON result) is written last and atomically, so an interrupted stage
-is redone on the next run. `force=True` redoes every stage.
+is redone on the next run; a stage failing with an OSError (disk full, read-only) is removed. `force=True` redoes every stage.
 """
 
 from __future__ import annotations
@@ -61,7 +61,11 @@ class StageCache:
         if d.exists():
             shutil.rmtree(d)
         d.mkdir(parents=True)
-        result = fn(d)
+        try:
+            result = fn(d)
+        except OSError:  # disk full, read-only, ...: no half-written stage left taking space
+            shutil.rmtree(d, ignore_errors=True)
+            raise
         elapsed = time.perf_counter() - t0
         atomic_write_text(d / STAMP, json.dumps({"stage": name, "key_hash": key_hash(key), "key": key,
                                                  "elapsed_s": elapsed, "result": result}, default=str))

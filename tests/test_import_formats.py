@@ -334,20 +334,104 @@ def test_nerfstudio_projects_like_nerfstudio_and_matches_colmap(tmp_path):
         assert np.allclose(uv[0], expected, atol=1e-6) and np.allclose(uv_kept[0], expected, atol=1e-6)
 
 
-def test_nerfstudio_refuses_distortion_and_unknown_models(tmp_path, capsys):
+def test_nerfstudio_refuses_unknown_models_and_names_missing_frames(tmp_path, capsys):
     rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
     doc = json.loads(tj.read_text())
-    for change, message in (({"k1": 0.1}, "distortion"), ({"camera_model": "EQUIRECTANGULAR"}, "camera_model")):
+    for change, extra, message in (({"k1": 0.1}, ["--no-undistort"], "distortion"),
+                                   ({"k4": 0.01}, [], "k4"),
+                                   ({"camera_model": "EQUIRECTANGULAR"}, [], "camera_model")):
         (tmp_path / "ns" / "transforms.json").write_text(json.dumps({**doc, **change}))
-        rc = cli_main(["import", "nerfstudio", str(tj), "--out", str(tmp_path / "o")])
+        rc = cli_main(["import", "nerfstudio", str(tj), "--out", str(tmp_path / "o")] + extra)
         err = capsys.readouterr().err
         assert rc == 2 and message in err and len(err.strip().splitlines()) == 1
-    # A missing frame file skips the (only) scene: nothing usable -> exit 2, no manifest.
+    # A missing frame file skips the (only) scene: nothing usable -> exit 2, no manifest; the error
+    # names the file and the flag. With --skip-missing the frame is dropped and counted.
     (tmp_path / "ns" / "transforms.json").write_text(json.dumps(doc))
-    next((tmp_path / "ns" / "images").iterdir()).unlink()
+    gone = sorted((tmp_path / "ns" / "images").iterdir())[1]
+    gone.unlink()
     assert cli_main(["import", "nerfstudio", str(tj), "--out", str(tmp_path / "o")]) == 2
-    assert "missing" in capsys.readouterr().err and not (tmp_path / "o" / "manifest.json").exists()
+    err = capsys.readouterr().err
+    assert gone.name in err and "--skip-missing" in err and not (tmp_path / "o" / "manifest.json").exists()
+    assert cli_main(["import", "nerfstudio", str(tj), "--skip-missing", "--out", str(tmp_path / "o")]) == 0
+    out = capsys.readouterr().out
+    assert "dropped 1 frames" in out
+    manifest = json.loads((tmp_path / "o" / "manifest.json").read_text())
+    assert manifest["report"]["skipped_frames"] == 1
+    scene = PosedDataset(tmp_path / "o").load_scene("ns")
+    assert len(scene) == len(doc["frames"]) - 1 and f"./images/{gone.name}" not in scene.source_name
+    assert [d["frame"] for d in scene.meta["skipped_frames"]] == [f"./images/{gone.name}"]
+
+
+def _blob_image(h: int, w: int, centres: list[np.ndarray], sigma: float = 1.2) -> np.ndarray:
+    """Grey image with a bright Gaussian blob centred on each continuous pixel position (pixel
+    (i, j) covers [i, i + 1) x [j, j + 1), the COLMAP / nerfstudio convention)."""
+    ys, xs = np.mgrid[0:h, 0:w] + 0.5
+    img = np.zeros((h, w))
+    for u, v in centres:
+        img += np.exp(-((xs - u) ** 2 + (ys - v) ** 2) / (2 * sigma**2))
+    return np.clip(20 + 235 * img, 0, 255).astype(np.uint8)
+
+
+def _blob_centre(img: np.ndarray, near: np.ndarray, radius: int = 5) -> np.ndarray:
+    """Intensity-weighted centre (continuous pixel coordinates) of the blob around `near`."""
+    x0, y0 = int(near[0]), int(near[1])
+    patch = img[max(y0 - radius, 0):y0 + radius + 1, max(x0 - radius, 0):x0 + radius + 1].astype(np.float64) - 20
+    patch = np.clip(patch, 0, None)
+    ys, xs = np.mgrid[max(y0 - radius, 0):max(y0 - radius, 0) + patch.shape[0],
+                      max(x0 - radius, 0):max(x0 - radius, 0) + patch.shape[1]] + 0.5
+    return np.array([(xs * patch).sum(), (ys * patch).sum()]) / patch.sum()
+
+
+@pytest.mark.parametrize("model,dist", [
+    ("OPENCV", {"k1": -0.3, "k2": 0.08, "p1": 0.003, "p2": -0.002}),
+    ("OPENCV", {"k1": -0.25, "k2": 0.05, "k3": 0.02, "p1": 0.0, "p2": 0.001}),
+    ("OPENCV_FISHEYE", {"k1": 0.05, "k2": -0.01, "k3": 0.004, "k4": -0.001}),
+])
+def test_nerfstudio_distorted_frames_are_undistorted_like_opencv_projects(tmp_path, model, dist):
+    """A 3-D point projected with OpenCV's distortion model (cv2.projectPoints / cv2.fisheye) marks
+    the distorted frame; after import, the same point through the imported pinhole camera lands on
+    that mark in the undistorted frame."""
+    w, h, fx, fy, cx, cy = 160, 120, 110.0, 108.0, 81.3, 58.6
+    K = np.array([[fx, 0, cx], [0, fy, cy], [0, 0, 1.0]])
+    rng = np.random.default_rng(5)
+    points = np.array([[1.2, 0.8, 3.0], [-1.1, -0.75, 3.0], [0.05, -0.02, 2.5]])
+    (tmp_path / "ns" / "images").mkdir(parents=True)
+    frames, expected_shift = [], 0.0
+    for k in range(3):
+        c2w = look_at_cam_to_world(np.array([0.05 * k, 0.02 * k, 0.0]), np.array([0.05 * k, 0.0, 3.0]))
+        w2c = np.linalg.inv(c2w)
+        rvec, _ = cv2.Rodrigues(w2c[:3, :3])
+        if model == "OPENCV_FISHEYE":
+            d = np.array([dist["k1"], dist["k2"], dist["k3"], dist["k4"]])
+            uv, _ = cv2.fisheye.projectPoints(points[None], rvec, w2c[:3, 3], K, d)
+        else:
+            d = np.array([dist["k1"], dist["k2"], dist["p1"], dist["p2"], dist.get("k3", 0.0)])
+            uv, _ = cv2.projectPoints(points, rvec, w2c[:3, 3], K, d)
+        uv = uv.reshape(-1, 2)
+        pinhole, _ = cv2.projectPoints(points, rvec, w2c[:3, 3], K, None)
+        expected_shift = max(expected_shift, float(np.abs(uv - pinhole.reshape(-1, 2)).max()))
+        img = _blob_image(h, w, list(uv)) + rng.integers(0, 3, (h, w), dtype=np.uint8)
+        ok, buf = cv2.imencode(".png", img)
+        (tmp_path / "ns" / "images" / f"f{k}.png").write_bytes(buf.tobytes())
+        frames.append({"file_path": f"images/f{k}.png",
+                       "transform_matrix": cam.opengl_from_opencv(c2w).tolist()})
+    assert expected_shift > 2.0  # the distortion matters: without undistortion the test fails
+    doc = {"camera_model": model, "w": w, "h": h, "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, **dist,
+           "frames": frames}
+    (tmp_path / "ns" / "transforms.json").write_text(json.dumps(doc))
+    assert cli_main(["import", "nerfstudio", str(tmp_path / "ns" / "transforms.json"),
+                     "--out", str(tmp_path / "out")]) == 0
+    scene = PosedDataset(tmp_path / "out").load_scene("ns")
+    assert scene.meta["undistorted"].startswith("pycolmap.undistort_images")
+    for k in range(3):
+        img = cv2.imdecode(np.frombuffer(scene.images[k], np.uint8), cv2.IMREAD_GRAYSCALE)
+        sw, sh = int(scene.width[k]), int(scene.height[k])
+        assert img.shape == (sh, sw)
+        uv, depth = cam.project_points(points, scene.cam_to_world[k], scene.intrinsics_norm[k], sw, sh)
+        for p in range(len(points)):
+            assert depth[p] > 0 and 6 <= uv[p, 0] < sw - 6 and 6 <= uv[p, 1] < sh - 6
+            assert np.allclose(_blob_centre(img, uv[p]), uv[p], atol=0.25), (k, p)
 
 
 # ------------------------------------------------------------------------------------------ resume

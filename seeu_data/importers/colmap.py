@@ -28,6 +28,7 @@ import numpy as np
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intrinsics_norm_from_pixels
 from ..errors import SeeUError
+from ..paths import contained_path
 from ..posed import PosedScene
 from .common import SkippedScene, probe_images
 
@@ -46,6 +47,7 @@ class ColmapImportConfig:
     near: float | None = None
     far: float | None = None
     verify_decode: bool = False
+    allow_outside_paths: bool = False  # image names may lead outside images_dir (`../x.jpg`, absolute, links)
 
 
 def default_scene_id(model_dir: Path) -> str:
@@ -124,11 +126,32 @@ def _near_far_from_points(rec, image_ids: list[int]) -> tuple[float, float] | No
     return 0.5 * float(np.percentile(d, 1)), 1.5 * float(np.percentile(d, 99))
 
 
-def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict) -> PosedScene:
+def outside_images(rec, cfg: ColmapImportConfig) -> dict[str, str]:
+    """Registered image names that lead outside `cfg.images_dir` -> the one-line reason (none with
+    `allow_outside_paths`). Such images are dropped, never read."""
+    if cfg.allow_outside_paths:
+        return {}
+    out = {}
+    for i in rec.reg_image_ids():
+        name = rec.image(i).name
+        try:
+            contained_path(cfg.images_dir, name, "image name", cfg.model_dir)
+        except SeeUError as exc:
+            out[name] = str(exc)
+    return out
+
+
+def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict,
+                     skip: dict[str, str] | None = None) -> PosedScene:
+    """`skip`: image names to leave out -> reason (kept in `meta["skipped_frames"]`)."""
     images_dir = Path(images_dir)
-    ids = sorted(rec.reg_image_ids(), key=lambda i: rec.image(i).name)
+    skip = skip or {}
+    ids = sorted((i for i in rec.reg_image_ids() if rec.image(i).name not in skip), key=lambda i: rec.image(i).name)
+    if skip:
+        meta["skipped_frames"] = [{"frame": n, "reason": r} for n, r in sorted(skip.items())]
     if not ids:
-        raise SeeUError("the model has no registered images", cfg.model_dir)
+        raise SeeUError("the model has no registered images" + (" inside the image directory" if skip else ""),
+                        cfg.model_dir)
     names = [rec.image(i).name for i in ids]
     paths = [images_dir / n for n in names]
     missing = [n for n, p in zip(names, paths) if not p.is_file()]
@@ -164,6 +187,19 @@ def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict)
                       timestamp_us=np.zeros(len(ids), dtype=np.int64), source_name=names, meta=meta)
 
 
+def undistort_model(model_dir: Path, images_dir: Path, out_dir: Path, image_names: list[str] | None = None):
+    """`pycolmap.undistort_images`: the model's images (`image_names` only, when given) undistorted
+    into `out_dir/images`, their PINHOLE model returned (a pycolmap.Reconstruction, also written
+    to `out_dir/sparse`). SeeUError naming `model_dir` when COLMAP fails."""
+    import pycolmap
+
+    try:
+        pycolmap.undistort_images(str(out_dir), str(model_dir), str(images_dir), image_names=list(image_names or []))
+        return pycolmap.Reconstruction(str(Path(out_dir) / "sparse"))
+    except Exception as exc:
+        raise SeeUError(f"undistortion failed ({str(exc).splitlines()[0][:160]})", model_dir) from None
+
+
 def _check_and_read(cfg: ColmapImportConfig):
     if not Path(cfg.images_dir).is_dir():
         raise SeeUError("image directory not found", cfg.images_dir)
@@ -182,14 +218,14 @@ def import_plan(cfg: ColmapImportConfig):
 
     rec = _check_and_read(cfg)
     model_files = sorted(p for p in Path(cfg.model_dir).iterdir() if p.is_file())
-    images = [Path(cfg.images_dir) / n for n in sorted(rec.image(i).name for i in rec.reg_image_ids())]
+    outside = outside_images(rec, cfg)
+    images = [Path(cfg.images_dir) / n for n in sorted(rec.image(i).name for i in rec.reg_image_ids())
+              if n not in outside]
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
     return ImportPlan([ImportUnit(scene_id, files_fingerprint(model_files + images), lambda: _scene_items(cfg, rec))])
 
 
 def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedScene]:
-    import pycolmap
-
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
     meta = {"dataset": "colmap", "model": str(Path(cfg.model_dir).resolve()),
             "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()})}
@@ -197,18 +233,18 @@ def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedS
     if need and not cfg.undistort:
         raise SeeUError(f"camera models {meta['camera_models']} have lens distortion; undistort first "
                         f"(COLMAP image_undistorter) or drop --no-undistort", cfg.model_dir)
+    outside = outside_images(rec, cfg)
+    kept = sorted(n for n in (rec.image(i).name for i in rec.reg_image_ids()) if n not in outside)
     try:
         if need:
             with tempfile.TemporaryDirectory(prefix="seeu-undistort-") as tmp:
-                try:
-                    pycolmap.undistort_images(tmp, str(cfg.model_dir), str(cfg.images_dir))
-                    und = pycolmap.Reconstruction(str(Path(tmp) / "sparse"))
-                except Exception as exc:
-                    raise SeeUError(f"undistortion failed ({str(exc).splitlines()[0][:160]})", cfg.model_dir) from None
+                if not kept:
+                    raise SeeUError("the model has no registered images inside the image directory", cfg.model_dir)
+                und = undistort_model(cfg.model_dir, cfg.images_dir, Path(tmp), image_names=kept if outside else None)
                 meta["undistorted"] = "pycolmap.undistort_images"
-                scene = scene_from_model(und, Path(tmp) / "images", cfg, meta)
+                scene = scene_from_model(und, Path(tmp) / "images", cfg, meta, skip=outside)
         else:
-            scene = scene_from_model(rec, cfg.images_dir, cfg, meta)
+            scene = scene_from_model(rec, cfg.images_dir, cfg, meta, skip=outside)
     except SeeUError as exc:
         yield SkippedScene(scene_id, str(exc))
         return

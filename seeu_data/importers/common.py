@@ -47,8 +47,17 @@ class ImportReport:
                 "skipped": [{"scene_id": s.scene_id, "reason": s.reason} for s in self.skipped],
                 **self.notes}
 
+    def count_dropped_frames(self, scene_meta: dict | None) -> None:
+        """Add the frames an importer dropped from an imported scene (`meta["skipped_frames"]`: a
+        list of {"frame", "reason"}, e.g. a missing image or a path leading outside the dataset)."""
+        dropped = len((scene_meta or {}).get("skipped_frames") or [])
+        if dropped:
+            self.notes["skipped_frames"] = self.notes.get("skipped_frames", 0) + dropped
+
     def summary_line(self, out_dir: Path | str) -> str:
         line = f"imported {self.scenes} scenes ({self.frames} frames) from {self.format} into {out_dir}"
+        if self.notes.get("skipped_frames"):
+            line += f"; dropped {self.notes['skipped_frames']} frames (named in each scene's meta.skipped_frames)"
         if self.notes.get("resumed_files"):
             line += (f" ({self.notes['resumed_scenes']} scenes in {self.notes['resumed_files']} files kept "
                      "from a previous run)")
@@ -272,6 +281,8 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
         writer.restore(rec)
         report.scenes += len(rec["scenes"])
         report.frames += sum(s["num_frames"] for s in rec["scenes"])
+        for s in rec["scenes"]:
+            report.count_dropped_frames(s.get("meta"))
         report.skipped.extend(SkippedScene(sid, reason) for sid, reason in rec["skipped"])
         plan.seen.update(s["scene_id"] for s in rec["scenes"])
         plan.seen.update(sid for sid, _ in rec["skipped"])
@@ -332,6 +343,7 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
                 else:
                     report.scenes += 1
                     report.frames += len(item)
+                    report.count_dropped_frames(item.meta)
                     if unit.key is None:
                         recordable = False  # files from here on are not resumable
                     continue

@@ -31,6 +31,7 @@ import numpy as np
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from ..arrow_io import read_json
 from ..errors import SeeUError
+from ..paths import contained_path
 from ..posed import PosedScene
 from .common import SkippedScene, probe_images
 
@@ -96,7 +97,13 @@ def plan(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[SkippedSce
     for key in wanted:
         if key not in index:
             missing.append(SkippedScene(key, "not in index.json"))
-        elif index[key] not in names:
+            continue
+        try:  # a chunk name leading out of the stage directory is never read
+            contained_path(directory, index[key], "index.json entry", directory / "index.json")
+        except SeeUError as exc:
+            missing.append(SkippedScene(key, str(exc)))
+            continue
+        if index[key] not in names:
             names.append(index[key])
     names.sort()
     return directory, [directory / n for n in names], missing, len(wanted)
@@ -117,7 +124,10 @@ def load_chunk(path: Path) -> list:
         chunk = load_plain(path)
     except UnsupportedChunk:
         chunk = _torch_load(path)
-    except (OSError, EOFError, ValueError, zipfile.BadZipFile, pickle.UnpicklingError, struct.error) as exc:
+    except (OSError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError, RecursionError,
+            zipfile.BadZipFile, pickle.UnpicklingError, struct.error) as exc:
+        # TypeError & co.: a pickle calling an allowed global with arguments it does not take
+        # (`torch.FloatStorage()`, `OrderedDict(5)`): never code, only an unusable chunk.
         raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
                         path) from None
     if not isinstance(chunk, list):
