@@ -204,10 +204,12 @@ class Trainer:
         start_step = self.step
         t_log, s_log = t_start, self.step
         try:
+            empty_passes = 0
             while self.step < target:
                 got_batch = False
                 for batch in loader:
                     got_batch = True
+                    empty_passes = 0
                     parts, gnorm = self.train_step(batch)
                     if bar is not None:
                         bar.update(1)
@@ -237,7 +239,10 @@ class Trainer:
                         self._validate(writer)
                     if self.step >= target:
                         break
-                if not got_batch:
+                # one empty pass is the end of an epoch (a loader resumed right after an epoch's last
+                # batch); two in a row mean the data yields nothing
+                empty_passes += 0 if got_batch else 1
+                if empty_passes >= 2:
                     raise SeeUError("the training data yielded no batch (empty dataset, or batch larger than "
                                     "the dataset with remainder='drop')", self.out_dir)
             if self.eval_fn is not None:

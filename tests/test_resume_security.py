@@ -1,0 +1,65 @@
+"""Issue 20: resume at any step (epoch boundaries included), no code runs from a file we read, and
+config / CLI values refused with one line (exit 2) where they are parsed."""
+
+from __future__ import annotations
+
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+
+from seeu_model.training import checkpoint as ckpt_io
+from tests.training_fixtures import synthetic_triples, tiny_model_factory
+
+# 8 samples, batch 2: 4 steps per epoch, 2 epochs = 8 steps (the stand-in model keeps it fast)
+FAST = ["data.num_workers=0", "data.image_size=[16,16]", "data.batch_size=2", "data.flip=true",
+        "optim.warmup_steps=2", "optim.lr=2e-3", "optim.max_steps=8", "loss.lpips_weight=0", "log.every=1",
+        "log.image_every=1000", "precision=fp32", "rasterizer=torch", "checkpoint.every=1", "checkpoint.keep=8"]
+
+
+@pytest.fixture(scope="module")
+def shards(tmp_path_factory) -> Path:
+    return synthetic_triples(tmp_path_factory.mktemp("resume_data"), n_frames=16, hw=(16, 16), samples_per_scene=8)
+
+
+def _final(run: Path) -> dict[str, torch.Tensor]:
+    return ckpt_io.load_checkpoint(run / "checkpoints")["model"]
+
+
+def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(shards, tmp_path):
+    """A run killed after any step k (its newest checkpoint is ckpt-k, epoch boundaries k = 4, 8
+    included) and resumed with --resume ends with the parameters of the uninterrupted run."""
+    from pipelines.train import train
+
+    full = train(str(shards), tmp_path / "full", overrides=FAST, model_factory=tiny_model_factory)
+    assert full["step"] == 8
+    saved = ckpt_io.list_checkpoints(tmp_path / "full" / "checkpoints")
+    assert [int(p.stem.split("-")[1]) for p in saved] == list(range(1, 9))
+    ref = ckpt_io.load_checkpoint(saved[-1])["model"]
+    init = tiny_model_factory({})[0].state_dict()
+    assert any(not torch.allclose(init[k], ref[k]) for k in ref)  # training moved the parameters
+    for k in range(1, 8):
+        # the state a kill after step k leaves: only ckpt-k in OUT/checkpoints
+        loader_state = ckpt_io.load_checkpoint(saved[k - 1])["loader"]
+        assert (loader_state["epoch"], loader_state["samples_seen"]) == ((k - 1) // 4, 2 * ((k - 1) % 4 + 1))
+        run = tmp_path / f"killed{k}"
+        (run / "checkpoints").mkdir(parents=True)
+        shutil.copy(saved[k - 1], run / "checkpoints")
+        rest = train(str(shards), run, overrides=FAST, resume=True, model_factory=tiny_model_factory)
+        assert rest["step"] == 8, k
+        got = _final(run)
+        for name in ref:
+            assert torch.allclose(got[name], ref[name], atol=1e-6, rtol=0), (k, name)
+
+
+def test_stop_at_epoch_end_then_resume(shards, tmp_path):
+    """The issue's repro: --max-steps 4 (the end of epoch 0), then --resume to step 6."""
+    from pipelines.train import train
+
+    ov = [o for o in FAST if not o.startswith("optim.max_steps")]
+    train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=4"], model_factory=tiny_model_factory)
+    rest = train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=6"], resume=True,
+                 model_factory=tiny_model_factory)
+    assert rest["step"] == 6
+    assert ckpt_io.load_checkpoint(tmp_path / "r" / "checkpoints")["loader"]["epoch"] == 1
