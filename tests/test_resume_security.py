@@ -3,6 +3,7 @@ config / CLI values refused with one line (exit 2) where they are parsed."""
 
 from __future__ import annotations
 
+import os
 import shutil
 from pathlib import Path
 
@@ -63,3 +64,31 @@ def test_stop_at_epoch_end_then_resume(shards, tmp_path):
                  model_factory=tiny_model_factory)
     assert rest["step"] == 6
     assert ckpt_io.load_checkpoint(tmp_path / "r" / "checkpoints")["loader"]["epoch"] == 1
+
+
+def test_verified_stamp_is_kept_in_the_chosen_cache_and_a_rewrite_is_hashed_again(shards, tmp_path, monkeypatch):
+    from seeu_data.errors import SeeUError
+    from seeu_data.loader import make_loader
+    from seeu_data.manifest import read_manifest
+
+    data, other = tmp_path / "data", tmp_path / "other"
+    shutil.copytree(shards, data)
+    shutil.copytree(shards, other)
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.delenv("SEEU_CACHE_DIR", raising=False)
+    assert len(list(make_loader(other, 2, image_hw=(16, 16)))) == 4
+    assert not (tmp_path / "home").exists()  # no cache dir chosen: nothing written to the home directory
+    cache = tmp_path / "cache"
+    assert len(list(make_loader(data, 2, image_hw=(16, 16), cache_dir=str(cache)))) == 4
+    entry = read_manifest(data)["files"][0]
+    assert (cache / "verified" / entry["sha256"]).is_file()
+    # rewrite the shard in place: same size, one byte flipped, mtime set back
+    shard = data / entry["path"]
+    st = shard.stat()
+    raw = bytearray(shard.read_bytes())
+    raw[len(raw) // 2] ^= 0xFF
+    shard.write_bytes(bytes(raw))
+    os.utime(shard, ns=(st.st_atime_ns, st.st_mtime_ns))
+    assert shard.stat().st_size == st.st_size and shard.stat().st_mtime_ns == st.st_mtime_ns
+    with pytest.raises(SeeUError, match="sha256 differs"):
+        list(make_loader(data, 2, image_hw=(16, 16), cache_dir=str(cache)))
