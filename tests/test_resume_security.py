@@ -92,3 +92,115 @@ def test_verified_stamp_is_kept_in_the_chosen_cache_and_a_rewrite_is_hashed_agai
     assert shard.stat().st_size == st.st_size and shard.stat().st_mtime_ns == st.st_mtime_ns
     with pytest.raises(SeeUError, match="sha256 differs"):
         list(make_loader(data, 2, image_hw=(16, 16), cache_dir=str(cache)))
+
+
+# ------------------------------------------------------------------------------------------------
+# Part 1: no code runs from a file we read
+# ------------------------------------------------------------------------------------------------
+
+
+class _RunsCommand:
+    """Unpickling this calls os.system (a sentinel file appears if the loader runs it)."""
+
+    def __init__(self, sentinel: Path):
+        self.sentinel = sentinel
+
+    def __reduce__(self):
+        return (os.system, (f"touch {self.sentinel}",))
+
+
+class _OpensFile:
+    """Unpickling this calls open(sentinel, "w"), which creates the file."""
+
+    def __init__(self, sentinel: Path):
+        self.sentinel = sentinel
+
+    def __reduce__(self):
+        return (open, (str(self.sentinel), "w"))
+
+
+def _malicious(tmp_path: Path, kind: str, name: str = "evil.pt") -> tuple[Path, Path]:
+    """A file whose pickle creates a sentinel file when loaded with plain pickle / torch.load(weights_only=False)."""
+    import pickle
+
+    sentinel = tmp_path / f"sentinel-{kind}"
+    path = tmp_path / name
+    if kind == "pickle":  # a non-SeeU pickle, not even a torch file
+        path.write_bytes(pickle.dumps(_RunsCommand(sentinel), protocol=2))
+    else:
+        payload = _RunsCommand(sentinel) if kind == "system" else _OpensFile(sentinel)
+        torch.save({"format": "seeu-train-checkpoint", "version": 2, "step": 1, "config": {}, "model": {},
+                    "rng": payload}, path)
+    return path, sentinel
+
+
+def test_the_malicious_files_would_run_code_with_an_unsafe_load(tmp_path):
+    """The fixture is a real attack: an unrestricted load creates the sentinel."""
+    for kind in ("system", "open"):
+        path, sentinel = _malicious(tmp_path, kind, f"{kind}.pt")
+        torch.load(path, weights_only=False)
+        assert sentinel.exists(), kind
+
+
+def _cli(argv: list[str], capsys) -> tuple[int, str]:
+    from pipelines.cli import main
+
+    code = main(argv)
+    err = capsys.readouterr().err.strip()
+    return code, err
+
+
+@pytest.mark.parametrize("kind", ["system", "open", "pickle"])
+@pytest.mark.parametrize("entry", ["eval", "render", "train-resume-file", "train-resume-dropped", "lpips-weights",
+                                   "semantic-weights"])
+def test_a_malicious_file_is_refused_before_it_runs(shards, tmp_path, capsys, entry, kind):
+    evil, sentinel = _malicious(tmp_path, kind)
+    out = tmp_path / "out"
+    if entry == "eval":
+        argv = ["eval", "--checkpoint", str(evil), "--data", str(shards), "--out", str(out), "--no-lpips"]
+    elif entry == "render":
+        argv = ["render", "--checkpoint", str(evil), "--data", str(shards), "--out", str(out)]
+    elif entry == "train-resume-file":
+        argv = ["train", "--data", str(shards), "--out", str(out), "--resume", str(evil)] + FAST
+    elif entry == "train-resume-dropped":
+        (out / "checkpoints").mkdir(parents=True)
+        shutil.copy(evil, out / "checkpoints" / "ckpt-00000005.pt")
+        argv = ["train", "--data", str(shards), "--out", str(out)] + FAST + ["--resume"]
+    elif entry == "lpips-weights":
+        argv = ["train", "--data", str(shards), "--out", str(out), "--lpips-weights", str(evil)] + \
+            [o for o in FAST if not o.startswith("loss.")] + ["loss.lpips_weight=0.05"]
+    else:
+        argv = ["train", "--data", str(shards), "--out", str(out), "--no-lpips"] + FAST + \
+            ["model.preset=tiny", "model.semantic_pretrained=true", f"model.semantic_weights={evil}"]
+    code, err = _cli(argv, capsys)
+    assert not sentinel.exists()
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "internal error" not in err
+    assert str(evil.name) in err or "ckpt-00000005.pt" in err
+    assert ("refused" in err and ("posix.system" in err or "io.open" in err)) or \
+        (kind == "pickle" and "not a readable" in err), err
+
+
+def test_rng_state_round_trips_through_v2_and_v1_checkpoints(tmp_path):
+    """v2 stores numpy's RNG state as plain values; a v1 file (numpy array) is still read, safely."""
+    import random
+
+    import numpy as np
+
+    np.random.seed(7)
+    random.seed(7)
+    torch.manual_seed(7)
+    v1 = {"format": ckpt_io.FORMAT, "version": 1, "step": 3, "config": {}, "model": {"w": torch.ones(2)},
+          "rng": {"torch": torch.get_rng_state(), "cuda": [], "numpy": np.random.get_state(),
+                  "python": random.getstate()}}
+    torch.save(v1, tmp_path / "ckpt-00000003.pt")
+    v2_path = ckpt_io.save_checkpoint(tmp_path / "v2", 3, {"config": {}, "model": {"w": torch.ones(2)},
+                                                           "rng": ckpt_io.rng_state()}, keep=1)
+    expected = (np.random.rand(3), random.random(), torch.rand(3))
+    for path in (tmp_path / "ckpt-00000003.pt", v2_path):
+        ck = ckpt_io.load_checkpoint(path)
+        np.random.seed(0), random.seed(0), torch.manual_seed(0)
+        ckpt_io.set_rng_state(ck["rng"])
+        got = (np.random.rand(3), random.random(), torch.rand(3))
+        assert np.array_equal(got[0], expected[0]) and got[1] == expected[1] and torch.equal(got[2], expected[2])
+    assert ckpt_io.load_checkpoint(v2_path)["version"] == 2
