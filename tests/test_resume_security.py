@@ -204,3 +204,127 @@ def test_rng_state_round_trips_through_v2_and_v1_checkpoints(tmp_path):
         got = (np.random.rand(3), random.random(), torch.rand(3))
         assert np.array_equal(got[0], expected[0]) and got[1] == expected[1] and torch.equal(got[2], expected[2])
     assert ckpt_io.load_checkpoint(v2_path)["version"] == 2
+
+
+# ------------------------------------------------------------------------------------------------
+# Part 4: config / CLI values and render cameras: one line, exit 2
+# ------------------------------------------------------------------------------------------------
+
+SEEU_OV = ["model.preset=tiny", "data.batch_size=2", "data.num_workers=0", "data.image_size=[32,32]",
+           "optim.max_steps=1", "loss.lpips_weight=0", "precision=fp32", "rasterizer=torch", "log.every=1"]
+
+
+@pytest.fixture(scope="module")
+def seeu_run(shards, tmp_path_factory) -> Path:
+    """A real (tiny) SeeU checkpoint after one step."""
+    from pipelines.train import train
+
+    run = tmp_path_factory.mktemp("seeu_run") / "run"
+    train(str(shards), run, overrides=SEEU_OV)
+    return run
+
+
+def _one_line_exit_2(argv, capsys) -> str:
+    code, err = _cli(argv, capsys)
+    assert code == 2, err
+    assert len(err.splitlines()) == 1 and "internal error" not in err and err.startswith(f"seeu {argv[0]}: error:"), err
+    return err
+
+
+@pytest.mark.parametrize("override, says", [
+    ("log.every=0", "log.every must be > 0"),
+    ("log.image_every=-5", "log.image_every must be > 0"),
+    ("data.num_workers=-1", "data.num_workers must be >= 0"),
+    ("optim.lr=NaN", "finite"),
+    ("optim.lr=Infinity", "finite"),
+    ("optim.lr=-1e-4", "optim.lr must be > 0"),
+    ("optim.max_steps=NaN", "integer"),
+    ("optim.max_steps=0", "optim.max_steps must be > 0"),
+    ("optim.betas=[0.9,1.5]", "optim.betas"),
+    ("checkpoint.every=0", "checkpoint.every must be > 0"),
+    ("data.image_size=0x0", "data.image_size must be positive"),
+    ("loss.lpips_weight=-0.1", "loss.lpips_weight must be >= 0"),
+])
+def test_bad_config_values_are_one_line(shards, tmp_path, capsys, override, says):
+    err = _one_line_exit_2(["train", "--data", str(shards), "--out", str(tmp_path / "o")] + FAST + [override], capsys)
+    assert says in err
+    assert not (tmp_path / "o" / "checkpoints").exists()
+
+
+def test_checkpoint_whose_model_config_disagrees_with_its_weights(seeu_run, shards, tmp_path, capsys):
+    ck = torch.load(ckpt_io.latest_checkpoint(seeu_run / "checkpoints"), weights_only=True)
+    ck["model_config"]["head_hidden"] = ck["model_config"]["head_hidden"] * 2  # the weights stay as they were
+    bad = tmp_path / "ckpt-00000001.pt"
+    torch.save(ck, bad)
+    for argv in (["eval", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "e"), "--no-lpips"],
+                 ["render", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "r")]):
+        err = _one_line_exit_2(argv, capsys)
+        assert str(bad) in err and "do not match its model config" in err
+
+
+def _camera_files(tmp_path: Path) -> dict:
+    import cv2
+    import numpy as np
+
+    for i in (0, 1):
+        cv2.imwrite(str(tmp_path / f"v{i}.png"), np.full((32, 32, 3), 60 * (i + 1), np.uint8))
+    pose = np.eye(4)
+    return {"near": 0.5, "far": 20.0,
+            "frames": [{"image": f"v{i}.png", "cam_to_world": pose.tolist(), "intrinsics_norm": [1.0, 1.0, 0.5, 0.5]}
+                       for i in (0, 1)]}
+
+
+def _bad_cameras(case: str, doc: dict) -> dict:
+    f = doc["frames"][1]
+    if case == "frames-strings":
+        doc["frames"] = ["v0.png", "v1.png"]
+    elif case == "nan-pose":
+        f["cam_to_world"][0][3] = float("nan")
+    elif case == "not-orthonormal":
+        f["cam_to_world"][0][0] = 2.0
+    elif case == "reflection":
+        f["cam_to_world"][0][0] = -1.0
+    elif case == "zero-focal":
+        f["intrinsics_norm"] = [0.0, 1.0, 0.5, 0.5]
+    elif case == "negative-focal-K":
+        del f["intrinsics_norm"]
+        f["K"] = [[-32.0, 0, 16], [0, 32.0, 16], [0, 0, 1]]
+    elif case == "nan-far":
+        doc["far"] = float("nan")
+    return doc
+
+
+@pytest.mark.parametrize("case, says", [("frames-strings", "must be an object"), ("nan-pose", "non-finite"),
+                                        ("not-orthonormal", "not orthonormal"), ("reflection", "not orthonormal"),
+                                        ("zero-focal", "focal lengths must be positive"),
+                                        ("negative-focal-K", "focal lengths must be positive"),
+                                        ("nan-far", "near < far")])
+def test_render_refuses_bad_cameras(seeu_run, tmp_path, capsys, case, says):
+    import json
+
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps(_bad_cameras(case, _camera_files(tmp_path))))
+    out = tmp_path / "r"
+    err = _one_line_exit_2(["render", "--checkpoint", str(seeu_run / "checkpoints"), "--cameras", str(cams),
+                            "--out", str(out), "--frames", "2"], capsys)
+    assert says in err and not (out / "render.json").exists()
+
+
+def test_image_size_and_other_flags_are_checked(seeu_run, shards, tmp_path, capsys):
+    import json
+
+    ck = str(seeu_run / "checkpoints")
+    cams = tmp_path / "cams.json"
+    cams.write_text(json.dumps(_camera_files(tmp_path)))
+    render = ["render", "--checkpoint", ck, "--cameras", str(cams), "--out", str(tmp_path / "r"), "--frames", "2"]
+    evaluate = ["eval", "--checkpoint", ck, "--data", str(shards), "--out", str(tmp_path / "e"), "--no-lpips"]
+    assert "must be positive" in _one_line_exit_2(evaluate + ["--image-size", "0x0"], capsys)
+    assert "must be positive" in _one_line_exit_2(render + ["--image-size", "0x0"], capsys)
+    assert "divisible by 16" in _one_line_exit_2(render + ["--image-size", "24x24"], capsys)
+    assert "divisible by 16" in _one_line_exit_2(evaluate + ["--image-size", "40x32"], capsys)
+    assert "--fps" in _one_line_exit_2(render + ["--fps", "0"], capsys)
+    assert "--extrapolate" in _one_line_exit_2(render + ["--extrapolate", "nan"], capsys)
+    assert "--num-workers" in _one_line_exit_2(evaluate + ["--num-workers", "-1"], capsys)
+    assert not (tmp_path / "r" / "render.json").exists() and not (tmp_path / "e" / "summary.json").exists()
+    # a size the model takes still renders
+    assert _cli(render + ["--image-size", "48x32"], capsys)[0] == 0
