@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
+from seeu_model.safe_load import safe_torch_load
 
 VGG16_FILENAME = "vgg16-397923af.pth"
 
@@ -62,8 +63,6 @@ def load_vgg16_features(path: Path) -> nn.Sequential:
     from torchvision.models.vgg import cfgs, make_layers
 
     features = make_layers(cfgs["D"], batch_norm=False)
-    from seeu_model.safe_load import safe_torch_load
-
     state = safe_torch_load(path, "VGG-16 weights file")   # refuses a file that needs more than weights
     try:
         if not isinstance(state, dict):

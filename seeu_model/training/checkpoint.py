@@ -37,7 +37,9 @@ from seeu_model.safe_load import safe_torch_load
 FORMAT = "seeu-train-checkpoint"
 VERSION = 2
 # what a v1 checkpoint's numpy RNG state (a uint32 array) needs beyond tensors and plain containers
-_V1_NUMPY_GLOBALS = [np._core.multiarray._reconstruct, np.ndarray, np.dtype, np.dtypes.UInt32DType]
+_reconstruct = (getattr(np, "_core", None) or np.core).multiarray._reconstruct
+_V1_NUMPY_GLOBALS = [_reconstruct, (_reconstruct, "numpy.core.multiarray._reconstruct"),  # numpy 2 / 1 name
+                     np.ndarray, np.dtype, np.dtypes.UInt32DType]
 _NAME = re.compile(r"^ckpt-(\d{8})\.pt$")
 
 
