@@ -3,6 +3,7 @@ config / CLI values refused with one line (exit 2) where they are parsed."""
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 from pathlib import Path
@@ -152,7 +153,7 @@ def _cli(argv: list[str], capsys) -> tuple[int, str]:
 
 @pytest.mark.parametrize("kind", ["system", "open", "pickle"])
 @pytest.mark.parametrize("entry", ["eval", "render", "train-resume-file", "train-resume-dropped", "lpips-weights",
-                                   "semantic-weights"])
+                                   "semantic-weights", "ablate"])
 def test_a_malicious_file_is_refused_before_it_runs(shards, tmp_path, capsys, entry, kind):
     evil, sentinel = _malicious(tmp_path, kind)
     out = tmp_path / "out"
@@ -169,6 +170,13 @@ def test_a_malicious_file_is_refused_before_it_runs(shards, tmp_path, capsys, en
     elif entry == "lpips-weights":
         argv = ["train", "--data", str(shards), "--out", str(out), "--lpips-weights", str(evil)] + \
             [o for o in FAST if not o.startswith("loss.")] + ["loss.lpips_weight=0.05"]
+    elif entry == "ablate":  # a finished variant whose summary names the malicious checkpoint
+        (out / "full" / "eval").mkdir(parents=True)
+        (out / "full" / "train_summary.json").write_text(json.dumps({"step": 1, "checkpoint": str(evil)}))
+        (out / "full" / "eval" / "summary.json").write_text("{}")
+        configs = Path(__file__).resolve().parents[1] / "configs"
+        argv = ["ablate", "--config", str(configs / "cpu_small.json"), "--data", str(shards), "--eval", str(shards),
+                "--out", str(out), "--variants", "full", "--no-lpips", "model.preset=tiny", "optim.max_steps=1"]
     else:
         argv = ["train", "--data", str(shards), "--out", str(out), "--no-lpips"] + FAST + \
             ["model.preset=tiny", "model.semantic_pretrained=true", f"model.semantic_weights={evil}"]
@@ -300,8 +308,6 @@ def _bad_cameras(case: str, doc: dict) -> dict:
                                         ("negative-focal-K", "focal lengths must be positive"),
                                         ("nan-far", "near < far")])
 def test_render_refuses_bad_cameras(seeu_run, tmp_path, capsys, case, says):
-    import json
-
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps(_bad_cameras(case, _camera_files(tmp_path))))
     out = tmp_path / "r"
@@ -311,8 +317,6 @@ def test_render_refuses_bad_cameras(seeu_run, tmp_path, capsys, case, says):
 
 
 def test_image_size_and_other_flags_are_checked(seeu_run, shards, tmp_path, capsys):
-    import json
-
     ck = str(seeu_run / "checkpoints")
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps(_camera_files(tmp_path)))
