@@ -332,3 +332,20 @@ def test_image_size_and_other_flags_are_checked(seeu_run, shards, tmp_path, caps
     assert not (tmp_path / "r" / "render.json").exists() and not (tmp_path / "e" / "summary.json").exists()
     # a size the model takes still renders
     assert _cli(render + ["--image-size", "48x32"], capsys)[0] == 0
+
+
+@pytest.mark.parametrize("damage", ["optimizer", "loader", "rng"])
+def test_resume_from_a_checkpoint_with_unfit_state_is_one_line(seeu_run, shards, tmp_path, capsys, damage):
+    ck = torch.load(ckpt_io.latest_checkpoint(seeu_run / "checkpoints"), weights_only=True)
+    if damage == "optimizer":
+        ck["optimizer"]["param_groups"] = ck["optimizer"]["param_groups"][:1]  # AdamW has two groups here
+    elif damage == "loader":
+        ck["loader"]["samples_seen"] = "many"
+    else:
+        ck["rng"]["numpy"] = [1, 2]
+        ck.pop("rng_per_rank", None)
+    bad = tmp_path / "ckpt-00000001.pt"
+    torch.save(ck, bad)
+    err = _one_line_exit_2(["train", "--data", str(shards), "--out", str(tmp_path / "o"), "--resume", str(bad)]
+                           + SEEU_OV + ["optim.max_steps=2"], capsys)
+    assert str(bad) in err and "does not fit this run" in err

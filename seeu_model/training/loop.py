@@ -143,12 +143,17 @@ class Trainer:
         ck = source if isinstance(source, dict) else ckpt_io.load_checkpoint(source)
         where = ck.get("path")
         load_model_state(self.model, ck["model"], where)
-        self.optimizer.load_state_dict(ck["optimizer"])
-        self.scheduler.load_state_dict(ck["scheduler"])
-        if ck.get("loader") is not None and hasattr(loader, "load_state_dict"):
-            loader.load_state_dict(ck["loader"])
-        per_rank = ck.get("rng_per_rank") or [ck["rng"]]
-        ckpt_io.set_rng_state(per_rank[self.dist.rank] if len(per_rank) == self.dist.world_size else per_rank[0])
+        try:
+            self.optimizer.load_state_dict(ck["optimizer"])
+            self.scheduler.load_state_dict(ck["scheduler"])
+            if ck.get("loader") is not None and hasattr(loader, "load_state_dict"):
+                loader.load_state_dict(ck["loader"])
+            per_rank = ck.get("rng_per_rank") or [ck["rng"]]
+            ckpt_io.set_rng_state(per_rank[self.dist.rank] if len(per_rank) == self.dist.world_size else per_rank[0])
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+            msg = str(exc).splitlines()[0][:160] if str(exc) else ""
+            raise SeeUError(f"checkpoint optimizer/scheduler/loader/RNG state does not fit this run "
+                            f"({type(exc).__name__}: {msg})", where) from None
         self.step = int(ck["step"])
         self.history = list(ck.get("history_tail", []))
         return self.step
