@@ -201,6 +201,7 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     import numpy as np
     import torch
 
+    from pipelines.evaluate import check_image_size
     from seeu_data.arrow_io import atomic_write_text
     from seeu_data.errors import SeeUError
     from seeu_model.camera_path import camera_path, path_parameters
@@ -209,7 +210,6 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     from seeu_model.training.config import config_from_dict
     from seeu_model.training.factory import model_from_checkpoint
     from seeu_model.training.loop import batch_to
-    from pipelines.evaluate import check_image_size
 
     if frames < 2:
         raise SeeUError("--frames must be >= 2")
