@@ -11,13 +11,34 @@ from pathlib import Path
 import pytest
 import torch
 
+from torch import nn
+
 from seeu_model.training import checkpoint as ckpt_io
-from tests.training_fixtures import synthetic_triples, tiny_model_factory
+from tests.training_fixtures import synthetic_triples
 
 # 8 samples, batch 2: 4 steps per epoch, 2 epochs = 8 steps (the stand-in model keeps it fast)
 FAST = ["data.num_workers=0", "data.image_size=[16,16]", "data.batch_size=2", "data.flip=true",
         "optim.warmup_steps=2", "optim.lr=2e-3", "optim.max_steps=8", "loss.lpips_weight=0", "log.every=1",
         "log.image_every=1000", "precision=fp32", "rasterizer=torch", "checkpoint.every=1", "checkpoint.keep=8"]
+
+
+class _ConvStandIn(nn.Module):
+    """The loop's view of a model, without a rasterizer (fast): the first two context images ->
+    one image for every target, (B, T, 3, H, W)."""
+
+    def __init__(self):
+        super().__init__()
+        self.net = nn.Sequential(nn.Conv2d(6, 8, 3, padding=1), nn.ReLU(), nn.Conv2d(8, 3, 3, padding=1))
+
+    def forward(self, batch: dict) -> torch.Tensor:
+        ctx, t = batch["context"]["image"], batch["target"]["image"].shape[1]
+        out = torch.sigmoid(self.net(ctx[:, :2].flatten(1, 2)))        # (B, 3, H, W)
+        return out[:, None].expand(-1, t, -1, -1, -1)
+
+
+def stand_in_factory(section: dict):
+    torch.manual_seed(0)
+    return _ConvStandIn(), {}
 
 
 @pytest.fixture(scope="module")
@@ -34,12 +55,12 @@ def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(s
     included) and resumed with --resume ends with the parameters of the uninterrupted run."""
     from pipelines.train import train
 
-    full = train(str(shards), tmp_path / "full", overrides=FAST, model_factory=tiny_model_factory)
+    full = train(str(shards), tmp_path / "full", overrides=FAST, model_factory=stand_in_factory)
     assert full["step"] == 8
     saved = ckpt_io.list_checkpoints(tmp_path / "full" / "checkpoints")
     assert [int(p.stem.split("-")[1]) for p in saved] == list(range(1, 9))
     ref = ckpt_io.load_checkpoint(saved[-1])["model"]
-    init = tiny_model_factory({})[0].state_dict()
+    init = stand_in_factory({})[0].state_dict()
     assert any(not torch.allclose(init[k], ref[k]) for k in ref)  # training moved the parameters
     for k in range(1, 8):
         # the state a kill after step k leaves: only ckpt-k in OUT/checkpoints
@@ -48,7 +69,7 @@ def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(s
         run = tmp_path / f"killed{k}"
         (run / "checkpoints").mkdir(parents=True)
         shutil.copy(saved[k - 1], run / "checkpoints")
-        rest = train(str(shards), run, overrides=FAST, resume=True, model_factory=tiny_model_factory)
+        rest = train(str(shards), run, overrides=FAST, resume=True, model_factory=stand_in_factory)
         assert rest["step"] == 8, k
         got = _final(run)
         for name in ref:
@@ -60,9 +81,9 @@ def test_stop_at_epoch_end_then_resume(shards, tmp_path):
     from pipelines.train import train
 
     ov = [o for o in FAST if not o.startswith("optim.max_steps")]
-    train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=4"], model_factory=tiny_model_factory)
+    train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=4"], model_factory=stand_in_factory)
     rest = train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=6"], resume=True,
-                 model_factory=tiny_model_factory)
+                 model_factory=stand_in_factory)
     assert rest["step"] == 6
     assert ckpt_io.load_checkpoint(tmp_path / "r" / "checkpoints")["loader"]["epoch"] == 1
 
