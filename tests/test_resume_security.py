@@ -10,7 +10,6 @@ from pathlib import Path
 
 import pytest
 import torch
-
 from torch import nn
 
 from seeu_model.training import checkpoint as ckpt_io
