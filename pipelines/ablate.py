@@ -135,11 +135,10 @@ def ablate(config: str, data: str, eval_data: str, out: str | Path, *, variants=
            max_eval_samples: int = 0, lpips: bool = True, lpips_weights: str | None = None,
            device: str | None = None, progress: bool | None = None) -> list[dict]:
     """Python API of `seeu ablate`; returns the table rows."""
-    import torch
-
     from pipelines.evaluate import evaluate
     from pipelines.train import train
     from seeu_data.errors import SeeUError
+    from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import load_config
 
     out = Path(out)
@@ -173,7 +172,7 @@ def ablate(config: str, data: str, eval_data: str, out: str | Path, *, variants=
             print(f"[ablate] {name}: evaluating on {eval_data}", flush=True)
             es = evaluate(ts["checkpoint"], eval_data, vdir / "eval", max_samples=max_eval_samples,
                           lpips=lpips, lpips_weights=lpips_weights, device=device, progress=progress)
-        ck = torch.load(ts["checkpoint"], map_location="cpu", weights_only=False)
+        ck = ckpt_io.load_checkpoint(ts["checkpoint"])
         from seeu_model.training.factory import model_from_checkpoint
 
         model = model_from_checkpoint(ck)

@@ -70,7 +70,19 @@ def _parse_hw(text: str) -> tuple[int, int]:
         h, w = (int(v) for v in text.lower().replace(",", "x").split("x"))
     except ValueError:
         raise SeeUError(f"--image-size {text!r} is not HxW (e.g. 256x256)") from None
+    if h <= 0 or w <= 0:
+        raise SeeUError(f"--image-size {text!r}: height and width must be positive (e.g. 256x256)")
     return h, w
+
+
+def check_image_size(model, hw: tuple[int, int]) -> None:
+    """Usage error (one line) when the model cannot take images of size `hw` (H, W)."""
+    from seeu_data.errors import SeeUError
+
+    unit = getattr(model, "size_unit", 1)
+    if hw[0] % unit or hw[1] % unit:
+        raise SeeUError(f"--image-size {hw[0]}x{hw[1]}: this model needs height and width divisible by {unit} "
+                        f"(e.g. {max(unit, hw[0] // unit * unit)}x{max(unit, hw[1] // unit * unit)})")
 
 
 def _csv_text(rows: list[dict]) -> str:
@@ -171,6 +183,10 @@ def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     if batch_size < 1:
         raise SeeUError("--batch-size must be >= 1")
+    if max_samples < 0 or warmup < 0 or num_workers < 0:
+        raise SeeUError("--max-samples, --warmup and --num-workers must be >= 0")
+    if not (math.isfinite(geometry_scale) and geometry_scale > 0):
+        raise SeeUError(f"--geometry-scale must be a finite number > 0, got {geometry_scale}")
     model = model_from_checkpoint(ck, dev)
     lpips_fn = None
     lpips_kind = "off"
@@ -178,6 +194,7 @@ def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *
         lpips_fn = LPIPS(weights=lpips_weights or cfg.loss.lpips_weights).to(dev)
         lpips_kind = "vgg"
     hw = tuple(image_hw or cfg.data.image_size)
+    check_image_size(model, hw)
     if out is None:
         run_dir = Path(ck["path"]).parent.parent
         out = run_dir / "eval" / Path(str(data).rstrip("/")).name

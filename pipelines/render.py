@@ -78,12 +78,15 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
         near, far = float(doc["near"]), float(doc["far"])
     except (KeyError, TypeError, ValueError):
         raise SeeUError("need numeric 'near' and 'far' (scene depth range in the cameras' units)", path) from None
-    if not 0 < near < far:
-        raise SeeUError(f"need 0 < near < far, got near={near}, far={far}", path)
+    if not (np.isfinite(near) and np.isfinite(far) and 0 < near < far):
+        raise SeeUError(f"need finite 0 < near < far, got near={near}, far={far}", path)
     images, poses, intrs = [], [], []
     for i, f in enumerate(frames):
         where = f"{path} frame {i}"
-        img_path = (path.parent / str(f.get("image", ""))).resolve()
+        if not isinstance(f, dict) or not isinstance(f.get("image"), str):
+            raise SeeUError(f"frame {i}: must be an object with an 'image' path, 'cam_to_world' and intrinsics, "
+                            f"got {type(f).__name__}", path)
+        img_path = (path.parent / f["image"]).resolve()
         if not img_path.is_file():
             raise SeeUError(f"frame {i}: image not found", img_path)
         try:
@@ -94,8 +97,12 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
             pose = np.asarray(f["cam_to_world"], dtype=np.float64).reshape(4, 4)
         except (KeyError, ValueError, TypeError):
             raise SeeUError(f"frame {i}: 'cam_to_world' must be a 4x4 matrix", path) from None
-        if rotation_orthonormality_error(pose) > 1e-3:
-            raise SeeUError(f"frame {i}: 'cam_to_world' rotation is not orthonormal", path)
+        if not np.isfinite(pose).all():
+            raise SeeUError(f"frame {i}: 'cam_to_world' has non-finite values (NaN or inf)", path)
+        if not np.allclose(pose[3], [0, 0, 0, 1], atol=1e-6):
+            raise SeeUError(f"frame {i}: 'cam_to_world' last row must be [0, 0, 0, 1]", path)
+        if not rotation_orthonormality_error(pose) <= 1e-3:
+            raise SeeUError(f"frame {i}: 'cam_to_world' rotation is not orthonormal (R^T R = I, det R = 1)", path)
         h, w = img.shape[:2]
         try:
             if "intrinsics_norm" in f:
@@ -105,6 +112,10 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
         except (KeyError, ValueError, TypeError):
             raise SeeUError(f"frame {i}: give 'intrinsics_norm' [fx/W, fy/H, cx/W, cy/H] or a pixel 'K' 3x3",
                             where) from None
+        if not np.isfinite(k).all():
+            raise SeeUError(f"frame {i}: intrinsics have non-finite values (NaN or inf)", path)
+        if not (k[0] > 0 and k[1] > 0):
+            raise SeeUError(f"frame {i}: focal lengths must be positive, got fx/W={k[0]:g}, fy/H={k[1]:g}", path)
         images.append(resize_cover_crop(img, image_hw))
         poses.append(pose)
         intrs.append(intrinsics_norm_matrix(resized_intrinsics(k, (h, w), image_hw)))
@@ -190,6 +201,7 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     import numpy as np
     import torch
 
+    from pipelines.evaluate import check_image_size
     from seeu_data.arrow_io import atomic_write_text
     from seeu_data.errors import SeeUError
     from seeu_model.camera_path import camera_path, path_parameters
@@ -201,8 +213,10 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
 
     if frames < 2:
         raise SeeUError("--frames must be >= 2")
-    if extrapolate < 0:
-        raise SeeUError("--extrapolate must be >= 0")
+    if not (np.isfinite(extrapolate) and extrapolate >= 0):
+        raise SeeUError(f"--extrapolate must be a finite number >= 0, got {extrapolate}")
+    if not (np.isfinite(fps) and fps > 0):
+        raise SeeUError(f"--fps must be a finite number > 0, got {fps}")
     if (data is None) == (cameras is None):
         raise SeeUError("give exactly one of --data (a shard example) or --cameras (your own views)")
     ck = ckpt_io.load_checkpoint(checkpoint)
@@ -211,10 +225,11 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     backend = rasterizer or cfg.rasterizer
     dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
     model = model_from_checkpoint(ck, dev)
+    check_image_size(model, hw)
+    batch = _shard_sample(data, str(sample), hw) if data is not None else {"context": load_user_views(cameras, hw)}
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "render.json").unlink(missing_ok=True)
-    batch = _shard_sample(data, str(sample), hw) if data is not None else {"context": load_user_views(cameras, hw)}
     batch = batch_to(batch, dev)
     ctx = batch["context"]
     c2w = ctx["cam_to_world"][0].double().cpu().numpy()

@@ -9,7 +9,8 @@ Examples:
 
 Overrides are `section.key=value` after the options (optim.lr=1e-4 data.batch_size=4 model.refiner=unet
 loss.lpips_weight=0). Writes OUT/config.json, OUT/checkpoints/ckpt-*.pt (atomic, last K kept),
-OUT/tb (TensorBoard: losses, PSNR, lr, rendered vs ground-truth images, validation) and OUT/train_summary.json.
+OUT/tb (TensorBoard: losses, PSNR, lr, rendered vs ground-truth images, validation), OUT/train_summary.json
+and OUT/cache (the loader's shard verification stamps and object-storage downloads; $SEEU_CACHE_DIR instead when set).
 LPIPS(VGG) needs torchvision's vgg16-397923af.pth in $TORCH_HOME/hub/checkpoints or --lpips-weights PATH;
 --no-lpips trains with MSE only.
 """
@@ -62,20 +63,29 @@ def _seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def make_train_loader(data: str, cfg, dist) -> Any:
+def make_train_loader(data: str, cfg, dist, cache_dir: str | None = None) -> Any:
+    """`cache_dir`: shard verification stamps and object-storage downloads (None: $SEEU_CACHE_DIR)."""
     from seeu_data.loader import make_loader
 
     return make_loader(data, cfg.data.batch_size, num_workers=cfg.data.num_workers, rank=dist.rank,
                        world_size=dist.world_size, seed=cfg.data.seed, image_hw=tuple(cfg.data.image_size),
-                       flip_p=0.5 if cfg.data.flip else 0.0, pin_memory=dist.device.type == "cuda")
+                       flip_p=0.5 if cfg.data.flip else 0.0, pin_memory=dist.device.type == "cuda",
+                       cache_dir=cache_dir)
 
 
-def make_eval_loader(data: str, image_hw, batch_size: int, num_workers: int = 0) -> Any:
+def make_eval_loader(data: str, image_hw, batch_size: int, num_workers: int = 0, cache_dir: str | None = None) -> Any:
     """Every sample once, in manifest order, on this process alone (no flip, padded last batch)."""
     from seeu_data.loader import make_loader
 
     return make_loader(data, batch_size, num_workers=num_workers, rank=0, world_size=1, seed=0,
-                       image_hw=tuple(image_hw), flip_p=0.0, shuffle=False, remainder="pad")
+                       image_hw=tuple(image_hw), flip_p=0.0, shuffle=False, remainder="pad", cache_dir=cache_dir)
+
+
+def run_cache_dir(out: Path) -> str | None:
+    """The loader cache of a run: $SEEU_CACHE_DIR/loader when set (shared), else OUT/cache."""
+    import os
+
+    return None if os.environ.get("SEEU_CACHE_DIR") else str(Path(out) / "cache")
 
 
 def make_lpips(cfg, lpips_weights: str | None = None):
@@ -133,7 +143,7 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         if dist.device.type == "cuda" and cfg.precision == "bf16" and not torch.cuda.is_bf16_supported():
             raise SeeUError("precision=bf16 but this GPU does not support bfloat16 (use precision=fp32)")
         lpips_fn = make_lpips(cfg, lpips_weights)       # fail early: missing VGG weights, bad data
-        loader = make_train_loader(data, cfg, dist)
+        loader = make_train_loader(data, cfg, dist, run_cache_dir(out))
         _seed_everything(cfg.seed)
         factory = model_factory or build_model
         model, model_cfg = factory(cfg.model)
@@ -144,7 +154,8 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
             from seeu_model.evaluation import evaluate_model, summarize
 
             def eval_fn(m):  # noqa: F811 - closure over the validation data
-                vl = make_eval_loader(val, cfg.data.image_size, cfg.data.val_batch_size)
+                vl = make_eval_loader(val, cfg.data.image_size, cfg.data.val_batch_size,
+                                      cache_dir=run_cache_dir(out))
                 res = evaluate_model(m, vl, dist.device, encode_context,
                                      lambda g, t: render_gaussians(g, t, cfg.rasterizer),
                                      lpips_fn=lpips_fn, max_samples=cfg.data.val_max_samples, warmup=0,

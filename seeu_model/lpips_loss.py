@@ -26,6 +26,7 @@ import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
+from seeu_model.safe_load import safe_torch_load
 
 VGG16_FILENAME = "vgg16-397923af.pth"
 
@@ -62,8 +63,10 @@ def load_vgg16_features(path: Path) -> nn.Sequential:
     from torchvision.models.vgg import cfgs, make_layers
 
     features = make_layers(cfgs["D"], batch_norm=False)
+    state = safe_torch_load(path, "VGG-16 weights file")   # refuses a file that needs more than weights
     try:
-        state = torch.load(path, map_location="cpu", weights_only=True)
+        if not isinstance(state, dict):
+            raise TypeError(f"a {type(state).__name__}, not a state dict")
         sub = {k[len("features."):]: v for k, v in state.items() if k.startswith("features.")}
         features.load_state_dict(sub)
     except Exception as exc:  # noqa: BLE001 - any failure here means a bad weights file

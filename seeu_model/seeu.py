@@ -19,6 +19,7 @@ and is left out of `trainable_state_dict()`.
 
 from __future__ import annotations
 
+import math
 from collections import OrderedDict
 from dataclasses import dataclass
 
@@ -170,10 +171,20 @@ class SeeU(nn.Module):
         b, v, _, h, w = img.shape
         if v < 2:
             raise ValueError("SeeU needs at least two context views (plane-sweep matching)")
-        unit = self.cfg.downsample * self.cfg.mv_windows * 2
+        unit = self.size_unit
         if h % unit or w % unit:
             raise ValueError(f"context images must have H and W divisible by {unit} "
-                             f"(s={self.cfg.downsample}, {self.cfg.mv_windows} shifted windows); got {h}x{w}")
+                             f"(s={self.cfg.downsample}, {self.cfg.mv_windows} shifted windows"
+                             f"{', UNet levels' if self.cfg.refiner == 'unet' else ''}); got {h}x{w}")
+
+    @property
+    def size_unit(self) -> int:
+        """Image H and W must be multiples of this: s x 2 x windows per side (shifted windows on the
+        latent grid), and s x 2^(levels - 1) for the UNet refiner."""
+        unit = self.cfg.downsample * self.cfg.mv_windows * 2
+        if self.cfg.refiner == "unet":
+            unit = math.lcm(unit, self.cfg.downsample * 2 ** (len(self.cfg.unet_channels) - 1))
+        return unit
 
     def encode_all(self, context: dict, decode_coarse: bool = True) -> SeeUEncoding:
         """context: image (B, V, 3, H, W) in [0, 1], cam_to_world (B, V, 4, 4), intrinsics (B, V, 3, 3)

@@ -21,6 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seeu_data.errors import SeeUError
+from seeu_model.safe_load import safe_torch_load
 
 
 def create_timm_model(name: str, weights: str | None, pretrained: bool, what: str, flag: str,
@@ -38,6 +39,8 @@ def create_timm_model(name: str, weights: str | None, pretrained: bool, what: st
         path = Path(weights)
         if not path.is_file():
             raise SeeUError(f"{what} weights file not found (given by {flag})", path)
+        if path.suffix != ".safetensors":
+            safe_torch_load(path, f"{what} weights file")  # refused here if it needs more than weights
         try:
             return timm.create_model(name, pretrained=True, pretrained_cfg_overlay=dict(file=str(path)), **kwargs)
         except Exception as exc:
@@ -243,8 +246,10 @@ def load_blip2_image_state(model: str = BLIP2_DEFAULT_MODEL, weights: str | None
                         if key.startswith(BLIP2_PREFIXES):
                             state[key] = fh.get_tensor(key)
             else:
-                shard = torch.load(f, map_location="cpu", weights_only=True, mmap=True)
+                shard = safe_torch_load(f, "BLIP-2 weights file", mmap=True)
                 state.update({k: v for k, v in shard.items() if k.startswith(BLIP2_PREFIXES)})
+        except SeeUError:
+            raise
         except Exception as exc:
             raise SeeUError(f"cannot read BLIP-2 weights ({_first_line(exc)})", f) from None
     return config, state

@@ -301,7 +301,8 @@ class StreamingLoader:
     State: `epoch`, `samples_seen` (global samples of the epoch consumed, all ranks together), `step`
     (global batches consumed since the start of training; drives the curriculum), plus the seed and
     the dataset fingerprint to refuse a checkpoint of another dataset. A finished epoch advances
-    `epoch` by itself; `set_epoch(e)` jumps to the start of epoch e (no-op if already in e).
+    `epoch` by itself, and so does iterating from a state taken after an epoch's last batch
+    (`samples_seen` == the epoch size); `set_epoch(e)` jumps to the start of epoch e (no-op if already in e).
     """
 
     def __init__(self, dataset: TripleStream, num_workers: int = 0, pin_memory: bool = False,
@@ -356,6 +357,10 @@ class StreamingLoader:
     # ------------------------------------------------------------------ iteration
     def __iter__(self) -> Iterator[Batch]:
         ds = self.dataset
+        if ds.position.samples_seen > 0 and ds.num_batches() == 0:
+            # a state saved after the last batch of an epoch (samples_seen == epoch size, or only a
+            # dropped remainder left) means the start of the next epoch
+            ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
         plan = ds.plan()  # computed here once; forked workers inherit it
         pin = self.pin_memory and torch.cuda.is_available()
         loader = DataLoader(ds, batch_size=None, collate_fn=_as_is, num_workers=self.num_workers, pin_memory=False,

@@ -4,9 +4,12 @@
 out local, verified paths of its shard files (`local_path(k)`), which the reader memory-maps.
 
 * Local directory (`/data/re10k-triples` or `file:///...`): the files are used in place. Each shard's
-  size is checked on every open and its sha256 on the first read; a verified (path, size, mtime)
-  is remembered in this process and in `cache_dir/verified/`, so other workers, later epochs and
-  other ranks on the machine do not hash it again.
+  size is checked on every open and its sha256 on the first read. A verified file is remembered in
+  this process and, when there is a cache directory (`cache_dir`, else `$SEEU_CACHE_DIR/loader`;
+  `seeu train` uses OUT/cache), in `cache_dir/verified/<manifest sha256>`, keyed by the file's path,
+  size, inode, mtime and ctime: a rewrite in place or a replacement changes the inode or the ctime
+  (which no user call can set back), so it is hashed again. Without a cache directory the stamps
+  live only in this process.
 * Object storage (`s3://bucket/prefix`, `gs://...`, anything `pyarrow.fs.FileSystem.from_uri` opens;
   S3 options such as `?endpoint_override=host:port&scheme=http` go in the URL, credentials come from
   the usual environment): whole shards are downloaded into `cache_dir/objects/<sha256>.arrow`
@@ -34,13 +37,21 @@ from ..manifest import MANIFEST_NAME, read_manifest
 
 SCHEMA = "seeu.triples"
 DEFAULT_CACHE_LIMIT = 64 << 30  # 64 GiB
-_VERIFIED: set[tuple[str, int, int]] = set()  # (absolute path, size, mtime_ns) hashed in this process
+_VERIFIED: set[tuple] = set()  # (sha256, path, size, inode, mtime_ns, ctime_ns) hashed in this process
 
 
 def default_cache_dir() -> Path:
-    """`$SEEU_CACHE_DIR/loader`, else `~/.cache/seeu/loader`."""
+    """`$SEEU_CACHE_DIR/loader`, else `~/.cache/seeu/loader` (object-storage downloads only)."""
     base = os.environ.get("SEEU_CACHE_DIR")
     return (Path(base) if base else Path.home() / ".cache" / "seeu") / "loader"
+
+
+def _stamp_dir(cache_dir: str | Path | None) -> Path | None:
+    """Where verification stamps of local shards go: the cache dir the user chose, else none."""
+    if cache_dir is not None:
+        return Path(cache_dir) / "verified"
+    base = os.environ.get("SEEU_CACHE_DIR")
+    return Path(base) / "loader" / "verified" if base else None
 
 
 @dataclass(frozen=True)
@@ -79,6 +90,7 @@ class ShardSource:
         self.uri = str(url)  # as given (object-storage options may follow '?')
         self.url = self.uri.split("?", 1)[0].rstrip("/")  # for messages and cache keys
         self.cache_dir = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+        self.stamp_dir = _stamp_dir(cache_dir)
         self.cache_limit_bytes = int(cache_limit_bytes)
         self.verify = verify
         self.remote = filesystem is not None or _is_remote(self.url)
@@ -122,24 +134,25 @@ class ShardSource:
         if st.st_size != info.bytes:
             raise SeeUError(f"size {st.st_size} bytes differs from the manifest's {info.bytes} (truncated or replaced?)", path)
         if self.verify == "sha256":
-            key = (str(path), st.st_size, st.st_mtime_ns)
+            key = (info.sha256, str(path), st.st_size, st.st_dev, st.st_ino, st.st_mtime_ns, st.st_ctime_ns)
             if key not in _VERIFIED:
-                marker = self.cache_dir / "verified" / info.sha256
-                stamp = f"{key[0]}\t{key[1]}\t{key[2]}"
+                marker = self.stamp_dir / info.sha256 if self.stamp_dir is not None else None
+                stamp = "\t".join(str(v) for v in key)
                 try:
-                    known = marker.read_text() == stamp
+                    known = marker is not None and marker.read_text() == stamp
                 except OSError:
                     known = False
                 if not known:
                     if sha256_file(path) != info.sha256:
                         raise SeeUError("sha256 differs from the manifest (corrupt or replaced)", path)
-                    try:
-                        marker.parent.mkdir(parents=True, exist_ok=True)
-                        tmp = marker.with_name(f".{marker.name}.{os.getpid()}.tmp")
-                        tmp.write_text(stamp)
-                        os.replace(tmp, marker)
-                    except OSError:
-                        pass  # a read-only cache only costs re-hashing
+                    if marker is not None:
+                        try:
+                            marker.parent.mkdir(parents=True, exist_ok=True)
+                            tmp = marker.with_name(f".{marker.name}.{os.getpid()}.tmp")
+                            tmp.write_text(stamp)
+                            os.replace(tmp, marker)
+                        except OSError:
+                            pass  # a read-only cache only costs re-hashing
                 _VERIFIED.add(key)
         return path
 

@@ -1,14 +1,21 @@
 """Training checkpoints: atomic writes (temp + rename), every N steps, the last K kept.
 
-A checkpoint ``ckpt-{step:08d}.pt`` is one ``torch.save`` dict:
+A checkpoint ``ckpt-{step:08d}.pt`` is one ``torch.save`` dict of tensors and plain containers only
+(dict, list, tuple, str, int, float, bool, None), so it is read with ``torch.load(weights_only=True)``
+(`seeu_model.safe_load`): a file that needs any other object is refused before anything is built.
 
 ```
-{"format": "seeu-train-checkpoint", "version": 1, "step": int, "epoch": int,
+{"format": "seeu-train-checkpoint", "version": 2, "step": int,
  "config": TrainConfig as dict, "model_config": dict (SeeUConfig fields),
  "model": trainable state dict (frozen sub-modules, e.g. DINOv3, are not stored),
- "optimizer": ..., "scheduler": ..., "loader": loader.state_dict(),
- "rng": {"torch": ..., "cuda": [...], "numpy": ..., "python": ...}, "metrics": {...}}
+ "optimizer": ..., "scheduler": ..., "loader": loader.state_dict() (integers),
+ "rng": {"torch": ByteTensor, "cuda": [ByteTensor], "numpy": [name, int64 tensor (624,), pos, has_gauss,
+         cached_gaussian], "python": random.getstate()}, ...}
 ```
+
+Version 1 stored numpy's RNG state as a numpy array; v1 files are still read, with exactly the numpy
+globals that array needs allow-listed (array reconstruction and the uint32 dtype, nothing callable
+beyond them).
 """
 
 from __future__ import annotations
@@ -25,9 +32,14 @@ import torch
 
 from seeu_data.arrow_io import atomic_write_bytes
 from seeu_data.errors import SeeUError
+from seeu_model.safe_load import safe_torch_load
 
 FORMAT = "seeu-train-checkpoint"
-VERSION = 1
+VERSION = 2
+# what a v1 checkpoint's numpy RNG state (a uint32 array) needs beyond tensors and plain containers
+_reconstruct = (getattr(np, "_core", None) or np.core).multiarray._reconstruct
+_V1_NUMPY_GLOBALS = [_reconstruct, (_reconstruct, "numpy.core.multiarray._reconstruct"),  # numpy 2 / 1 name
+                     np.ndarray, np.dtype, np.dtypes.UInt32DType]
 _NAME = re.compile(r"^ckpt-(\d{8})\.pt$")
 
 
@@ -52,7 +64,7 @@ def rng_state() -> dict:
     return {
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
-        "numpy": np.random.get_state(),
+        "numpy": _numpy_state_plain(np.random.get_state()),
         "python": random.getstate(),
     }
 
@@ -61,8 +73,17 @@ def set_rng_state(state: dict) -> None:
     torch.set_rng_state(state["torch"])
     if state.get("cuda") and torch.cuda.is_available() and len(state["cuda"]) == torch.cuda.device_count():
         torch.cuda.set_rng_state_all(state["cuda"])
-    np.random.set_state(state["numpy"])
-    random.setstate(state["python"])
+    name, keys, pos, has_gauss, cached = state["numpy"]
+    np.random.set_state((str(name), np.asarray(keys, dtype=np.int64).astype(np.uint32), int(pos), int(has_gauss),
+                         float(cached)))
+    py = state["python"]
+    random.setstate((py[0], tuple(py[1]), py[2]))
+
+
+def _numpy_state_plain(state: tuple) -> list:
+    """numpy's legacy RNG state as a list of plain values and an int64 tensor (weights-only loadable)."""
+    name, keys, pos, has_gauss, cached = state
+    return [str(name), torch.from_numpy(np.asarray(keys, dtype=np.int64)), int(pos), int(has_gauss), float(cached)]
 
 
 def trainable_state_dict(model: torch.nn.Module) -> dict[str, torch.Tensor]:
@@ -90,14 +111,15 @@ def load_checkpoint(path: str | Path) -> dict:
         if latest is None:
             raise SeeUError("no checkpoint (ckpt-*.pt) in this directory", p)
         p = latest
-    if not p.is_file():
-        raise SeeUError("checkpoint not found", p)
-    try:
-        ckpt = torch.load(p, map_location="cpu", weights_only=False)
-    except Exception as exc:  # noqa: BLE001 - a truncated/corrupt file
-        raise SeeUError(f"not a readable checkpoint ({type(exc).__name__})", p) from None
+    ckpt = safe_torch_load(p, "checkpoint", allow=_V1_NUMPY_GLOBALS)
     if not isinstance(ckpt, dict) or ckpt.get("format") != FORMAT:
         raise SeeUError("not a SeeU training checkpoint", p)
+    for key in ("step", "config", "model"):
+        if key not in ckpt:
+            raise SeeUError(f"not a complete SeeU training checkpoint (no {key!r})", p)
+    if not isinstance(ckpt.get("version", 0), int) or not isinstance(ckpt["step"], int) \
+            or not isinstance(ckpt["config"], dict) or not isinstance(ckpt["model"], dict):
+        raise SeeUError("not a valid SeeU training checkpoint (version, step, config or model of the wrong type)", p)
     if int(ckpt.get("version", 0)) > VERSION:
         raise SeeUError(f"checkpoint version {ckpt.get('version')} is newer than this toolkit reads ({VERSION})", p)
     ckpt["path"] = str(p)

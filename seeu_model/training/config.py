@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import typing
 from dataclasses import asdict, dataclass, field, fields
 from importlib.resources import files
@@ -139,14 +140,19 @@ def _coerce(value: Any, tp: Any, where: str) -> Any:
             f = float(value)
         except (TypeError, ValueError):
             raise SeeUError(f"config {where}: expected an integer, got {value!r}") from None
-        if f != int(f):
+        if not math.isfinite(f) or f != int(f):
             raise SeeUError(f"config {where}: expected an integer, got {value!r}")
         return int(f)
     if tp is float:
+        if isinstance(value, bool):
+            raise SeeUError(f"config {where}: expected a number, got {value!r}")
         try:
-            return float(value)
+            f = float(value)
         except (TypeError, ValueError):
             raise SeeUError(f"config {where}: expected a number, got {value!r}") from None
+        if not math.isfinite(f):
+            raise SeeUError(f"config {where}: expected a finite number, got {value!r}")
+        return f
     if tp is str:
         if not isinstance(value, (str, int, float)):
             raise SeeUError(f"config {where}: expected a string, got {value!r}")
@@ -257,19 +263,38 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
 
 
 def validate(cfg: TrainConfig) -> None:
-    o = cfg.optim
-    if o.lr <= 0 or o.max_steps <= 0 or o.warmup_steps < 0 or not 0 <= o.min_lr_ratio <= 1:
-        raise SeeUError("config optim: need lr > 0, max_steps > 0, warmup_steps >= 0, 0 <= min_lr_ratio <= 1")
-    if cfg.data.batch_size <= 0 or min(cfg.data.image_size) <= 0:
-        raise SeeUError("config data: batch_size and image_size must be positive")
-    if cfg.checkpoint.every <= 0 or cfg.checkpoint.keep <= 0:
-        raise SeeUError("config checkpoint: every and keep must be positive")
+    """Value checks of a built config (types and finiteness are checked by `_coerce`); one line each."""
+    o, d, c, lg = cfg.optim, cfg.data, cfg.checkpoint, cfg.log
+    checks = [
+        (o.lr > 0, "optim.lr must be > 0"),
+        (o.max_steps > 0, "optim.max_steps must be > 0"),
+        (o.warmup_steps >= 0, "optim.warmup_steps must be >= 0"),
+        (0 <= o.min_lr_ratio <= 1, "optim.min_lr_ratio must be in [0, 1]"),
+        (all(0 <= b < 1 for b in o.betas), "optim.betas must be in [0, 1)"),
+        (o.eps > 0, "optim.eps must be > 0"),
+        (o.weight_decay >= 0, "optim.weight_decay must be >= 0"),
+        (o.grad_clip >= 0, "optim.grad_clip must be >= 0 (0 = off)"),
+        (d.batch_size > 0, "data.batch_size must be > 0"),
+        (min(d.image_size) > 0, "data.image_size must be positive"),
+        (d.num_workers >= 0, "data.num_workers must be >= 0"),
+        (d.seed >= 0, "data.seed must be >= 0"),
+        (d.val_batch_size > 0, "data.val_batch_size must be > 0"),
+        (d.val_max_samples >= 0, "data.val_max_samples must be >= 0 (0 = all)"),
+        (c.every > 0, "checkpoint.every must be > 0"),
+        (c.keep > 0, "checkpoint.keep must be > 0"),
+        (lg.every > 0, "log.every must be > 0"),
+        (lg.image_every > 0, "log.image_every must be > 0"),
+        (lg.val_every >= 0, "log.val_every must be >= 0 (0 = only at the end)"),
+        (cfg.loss.lpips_weight >= 0, "loss.lpips_weight must be >= 0"),
+        (cfg.seed >= 0, "seed must be >= 0"),
+    ]
+    for ok, message in checks:
+        if not ok:
+            raise SeeUError(f"config {message}")
     if cfg.precision not in ("auto", "bf16", "fp32"):
         raise SeeUError(f"config precision: {cfg.precision!r} is not auto, bf16 or fp32")
     if cfg.rasterizer not in ("auto", "torch", "gsplat", "dense"):
         raise SeeUError(f"config rasterizer: {cfg.rasterizer!r} is not auto, torch, gsplat or dense")
-    if cfg.loss.lpips_weight < 0:
-        raise SeeUError("config loss.lpips_weight must be >= 0")
 
 
 def save_config(cfg: TrainConfig, path: str | Path) -> None:

@@ -41,15 +41,18 @@ def model_from_checkpoint(ckpt: dict, device: torch.device | str = "cpu", **mode
     their own weights, as in training) and load its trained state. Puts it in eval mode."""
     from seeu_model.config import SeeUConfig
 
+    if not isinstance(ckpt.get("model_config") or {}, dict):
+        raise SeeUError("checkpoint model_config is not a mapping", ckpt.get("path"))
     cfg_dict = dict(ckpt.get("model_config") or {})
     cfg_dict.update(model_overrides)
-    try:
-        mcfg = SeeUConfig(**cfg_dict)
-    except (TypeError, ValueError) as exc:
-        raise SeeUError(f"checkpoint model config is not valid for this toolkit: {exc}", ckpt.get("path")) from None
     from seeu_model.seeu import SeeU
 
-    model = SeeU(mcfg)
+    try:
+        mcfg = SeeUConfig(**cfg_dict)
+        model = SeeU(mcfg)
+    except (TypeError, ValueError, KeyError, AttributeError) as exc:
+        msg = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+        raise SeeUError(f"checkpoint model config is not valid for this toolkit: {msg}", ckpt.get("path")) from None
     load_model_state(model, ckpt["model"], ckpt.get("path"))
     return model.to(device).eval()
 
@@ -75,7 +78,18 @@ def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str
 
 def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: str | None = None) -> None:
     """Load a `model_state_for_checkpoint` dict; parameters of frozen modules may be absent."""
-    missing, unexpected = model.load_state_dict(state, strict=False)
+    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
+        raise SeeUError("checkpoint 'model' is not a state dict of tensors", where)
+    own = model.state_dict()
+    wrong = [f"{k} {tuple(v.shape)} vs the config's {tuple(own[k].shape)}" for k, v in state.items()
+             if k in own and tuple(v.shape) != tuple(own[k].shape)]
+    if wrong:
+        raise SeeUError(f"checkpoint weights do not match its model config ({len(wrong)} tensor(s) of another shape, "
+                        f"e.g. {wrong[0]}): was the config edited, or the weights of another model?", where)
+    try:
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself
+        raise SeeUError(f"checkpoint weights do not fit the model ({str(exc).splitlines()[0][:200]})", where) from None
     frozen_prefixes = tuple(model.frozen_prefixes()) if hasattr(model, "frozen_prefixes") else ()
     frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
     missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]

@@ -143,12 +143,17 @@ class Trainer:
         ck = source if isinstance(source, dict) else ckpt_io.load_checkpoint(source)
         where = ck.get("path")
         load_model_state(self.model, ck["model"], where)
-        self.optimizer.load_state_dict(ck["optimizer"])
-        self.scheduler.load_state_dict(ck["scheduler"])
-        if ck.get("loader") is not None and hasattr(loader, "load_state_dict"):
-            loader.load_state_dict(ck["loader"])
-        per_rank = ck.get("rng_per_rank") or [ck["rng"]]
-        ckpt_io.set_rng_state(per_rank[self.dist.rank] if len(per_rank) == self.dist.world_size else per_rank[0])
+        try:
+            self.optimizer.load_state_dict(ck["optimizer"])
+            self.scheduler.load_state_dict(ck["scheduler"])
+            if ck.get("loader") is not None and hasattr(loader, "load_state_dict"):
+                loader.load_state_dict(ck["loader"])
+            per_rank = ck.get("rng_per_rank") or [ck["rng"]]
+            ckpt_io.set_rng_state(per_rank[self.dist.rank] if len(per_rank) == self.dist.world_size else per_rank[0])
+        except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
+            msg = str(exc).splitlines()[0][:160] if str(exc) else ""
+            raise SeeUError(f"checkpoint optimizer/scheduler/loader/RNG state does not fit this run "
+                            f"({type(exc).__name__}: {msg})", where) from None
         self.step = int(ck["step"])
         self.history = list(ck.get("history_tail", []))
         return self.step
@@ -204,10 +209,12 @@ class Trainer:
         start_step = self.step
         t_log, s_log = t_start, self.step
         try:
+            empty_passes = 0
             while self.step < target:
                 got_batch = False
                 for batch in loader:
                     got_batch = True
+                    empty_passes = 0
                     parts, gnorm = self.train_step(batch)
                     if bar is not None:
                         bar.update(1)
@@ -237,7 +244,10 @@ class Trainer:
                         self._validate(writer)
                     if self.step >= target:
                         break
-                if not got_batch:
+                # one empty pass is the end of an epoch (a loader resumed right after an epoch's last
+                # batch); two in a row mean the data yields nothing
+                empty_passes += 0 if got_batch else 1
+                if empty_passes >= 2:
                     raise SeeUError("the training data yielded no batch (empty dataset, or batch larger than "
                                     "the dataset with remainder='drop')", self.out_dir)
             if self.eval_fn is not None:
