@@ -4,9 +4,7 @@ it fails, one line `seeu CMD: error: ...`; never "internal error", never a trace
 Most cases call `pipelines.cli.main(argv)` in this process (fast); a few run the real `seeu`
 process where the process boundary matters (a real EPERM from /sys, a real ENOSPC from /dev/full,
 argparse's own exit). Files that would run code if unpickled carelessly create a sentinel file:
-the case asserts it does not exist. Cases of issue 20 parts 1 and 4 (branch i20a: checkpoint
-loading, config and render-camera validation) are marked xfail(strict=False) until that branch is
-merged.
+the case asserts it does not exist.
 """
 
 from __future__ import annotations
@@ -29,15 +27,13 @@ from pipelines.cli import main as cli_main
 from tests.test_import_formats import _colmap_fixture
 from tests.training_fixtures import synthetic_posed, synthetic_triples
 
-I20A = "issue 20 parts 1/4, branch i20a"
 CASES: list = []
 
 
-def case(name: str, rc: int | None = 2, text: str | None = None, xfail: str | None = None):
+def case(name: str, rc: int | None = 2, text: str | None = None):
     """Register `fn(ws, tmp) -> argv` (or `(argv, check)` where `check()` runs after the command)."""
     def deco(fn):
-        marks = [pytest.mark.xfail(strict=False, reason=xfail)] if xfail else []
-        CASES.append(pytest.param(fn, rc, text, id=name, marks=marks))
+        CASES.append(pytest.param(fn, rc, text, id=name))
         return fn
     return deco
 
@@ -288,16 +284,16 @@ case("train-missing-config")(lambda ws, tmp: ["train", "--data", str(ws["triples
 case("train-unknown-override")(lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")]
                                + TRAIN + ["optim.nonsense=1"])
 case("train-data-is-posed-frames")(lambda ws, tmp: ["train", "--data", str(ws["posed"]), "--out", str(tmp / "r")] + TRAIN)
-case("train-log-every-zero", xfail=I20A)(
+case("train-log-every-zero")(
     lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["log.every=0"])
-case("train-num-workers-negative", xfail=I20A)(
+case("train-num-workers-negative")(
     lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["data.num_workers=-1"])
-case("train-lr-nan", xfail=I20A)(
+case("train-lr-nan")(
     lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["optim.lr=nan"])
 case("train-resume-garbage")(
     lambda ws, tmp: _put(tmp / "c.pt", b"\x80\x04garbage") or
     ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), "--resume", str(tmp / "c.pt")] + TRAIN)
-case("train-resume-runs-code", xfail=I20A)(
+case("train-resume-runs-code")(
     lambda ws, tmp: (["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), "--resume",
                       str(_ckpt_with(tmp, {"step": 1, "x": _Call(os.system, f"touch {tmp / 'PWNED'}")}))] + TRAIN,
                      _sentinel_check(tmp / "PWNED")))
@@ -311,13 +307,13 @@ case("eval-garbage-checkpoint")(
     lambda ws, tmp: _put(tmp / "c.pt", os.urandom(300)) or
     ["eval", "--checkpoint", str(tmp / "c.pt"), "--data", str(ws["triples"]), "--no-lpips"])
 case("eval-missing-data")(lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(tmp / "no"), "--no-lpips"])
-case("eval-image-size-zero", xfail=I20A)(
+case("eval-image-size-zero")(
     lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]), "--no-lpips",
                      "--image-size", "0x0", "--out", str(tmp / "e")])
 case("eval-out-is-a-file", text="is a file")(
     lambda ws, tmp: _put(tmp / "f", "") or ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
                                             "--no-lpips", "--max-samples", "1", "--out", str(tmp / "f")])
-case("eval-checkpoint-runs-code", xfail=I20A)(
+case("eval-checkpoint-runs-code")(
     lambda ws, tmp: (["eval", "--checkpoint", str(_ckpt_with(tmp, _Call(os.system, f"touch {tmp / 'PWNED'}"))),
                       "--data", str(ws["triples"]), "--no-lpips"], _sentinel_check(tmp / "PWNED")))
 
@@ -332,13 +328,13 @@ case("render-out-is-a-file", text="is a file")(
 case("render-cameras-not-json")(
     lambda ws, tmp: _put(tmp / "c.json", "{") or
     ["render", "--checkpoint", str(ws["ckpt"]), "--cameras", str(tmp / "c.json"), "--out", str(tmp / "r")])
-case("render-camera-frames-strings", xfail=I20A)(
+case("render-camera-frames-strings")(
     lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--cameras", str(_cameras(tmp, ["a", "b"])),
                      "--out", str(tmp / "r"), "--frames", "2"])
-case("render-camera-nan-pose", xfail=I20A)(
+case("render-camera-nan-pose")(
     lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--out", str(tmp / "r"), "--frames", "2", "--cameras",
                      str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png", cam_to_world=[[float("nan")] * 4] * 4)]))])
-case("render-camera-negative-focal", xfail=I20A)(
+case("render-camera-negative-focal")(
     lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--out", str(tmp / "r"), "--frames", "2", "--cameras",
                      str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png", intrinsics_norm=[-1, 1, 0.5, 0.5])]))])
 
