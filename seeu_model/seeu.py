@@ -11,6 +11,9 @@ residual refinement -> upsampling decoder -> rasterised target views.
       UpsamplingDecoder              -> Gaussians, N = V*H*W (refined) and the same for Θ_l (coarse)
       rasterize                      -> target renders (B, T, 3, H, W)
 
+With ``encoder: "mvsplat"`` the coarse stage is MVSplat's encoder exactly (seeu_model/mvsplat/), one
+Gaussian per pixel and view, and no refiner ("SeeU w/o refinement": what MVSplat renders).
+
 `SeeU.encode(context)` returns the refined Gaussians only (timed separately from rendering by the
 evaluator); `SeeU.encode_all(context)` returns every intermediate; `SeeU.forward(batch)` encodes and
 renders the batch's target views. The frozen semantic encoder stays in eval mode, has no gradients,
@@ -103,6 +106,13 @@ class SeeU(nn.Module):
         super().__init__()
         cfg = cfg or SeeUConfig()
         self.cfg = cfg
+        self.condition: ConditionEncoder | None = None
+        self.refiner: nn.Module | None = None
+        if cfg.encoder == "mvsplat":
+            from .mvsplat.encoder import MVSplatEncoder
+
+            self.mvsplat = MVSplatEncoder(cfg.mvsplat_shape())
+            return
         c = cfg.feature_dim
         self.layout = LatentLayout(cfg.sh_coeffs, cfg.latent_feature_dim)
         self.backbone = ResNetBackbone(cfg.backbone_channels, cfg.downsample)
@@ -111,8 +121,6 @@ class SeeU(nn.Module):
         unit = (1.5 - cfg.scale_min) / (cfg.scale_max - cfg.scale_min)
         init_scale = float(torch.logit(torch.tensor(unit).clamp(1e-3, 1 - 1e-3)))
         self.heads = CoarseGaussianHead(c, cfg.num_depth_candidates, self.layout, cfg.head_hidden, init_scale)
-        self.condition: ConditionEncoder | None = None
-        self.refiner: nn.Module | None = None
         if cfg.refiner != "none":
             self.condition = ConditionEncoder(cfg)
             if cfg.refiner == "transformer":
@@ -180,6 +188,8 @@ class SeeU(nn.Module):
         normalised, near/far (B, V)  ->  SeeUEncoding. With ``decode_coarse=False`` the unrefined tokens
         are not decoded (``coarse_gaussians`` is then None; `encode` uses this)."""
         self._check_context(context)
+        if self.cfg.encoder == "mvsplat":
+            return self._encode_mvsplat(context)
         images = context["image"]
         c2w, intr = context["cam_to_world"], context["intrinsics"]
         near, far = context["near"].to(images.dtype), context["far"].to(images.dtype)
@@ -213,6 +223,18 @@ class SeeU(nn.Module):
                                                     self.cfg.scale_min, self.cfg.scale_max)
         return SeeUEncoding(gaussians, coarse_gaussians, latent_gaussians, depth, coarse_depth, entropy, cost, depths,
                             latent, residual, condition)
+
+    def _encode_mvsplat(self, context: dict) -> SeeUEncoding:
+        """MVSplat's encoder: its Gaussians are both the coarse and the final ones (no refiner); the latent
+        grid carries no tokens (C_l = 0); ``cost`` holds MVSplat's depth probabilities (B, V, D, h, w)."""
+        images = context["image"]
+        out = self.mvsplat(images, context["cam_to_world"], context["intrinsics"],
+                           context["near"].to(images.dtype), context["far"].to(images.dtype))
+        g = Gaussians(means=out.means, scales=out.scales, rotations=out.rotations, opacities=out.opacities, sh=out.sh)
+        b, v, _, h, w = out.probabilities.shape
+        latent = images.new_zeros(b, v, h, w, 0)
+        return SeeUEncoding(g, g, g, out.depth, 1.0 / out.coarse_disparity, matching_entropy(out.probabilities),
+                            out.probabilities, 1.0 / out.disparities, latent, latent, None)
 
     def encode(self, context: dict) -> Gaussians:
         """context (as in `encode_all`) -> refined Gaussians (B, V*H*W, ...)."""

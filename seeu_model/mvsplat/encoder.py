@@ -27,6 +27,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from seeu_data.cameras import rotmat_from_quat_xyzw
+
 from .backbone import MVSplatBackbone
 from .sh_rotation import rotate_sh
 from .unet import RefineUNet
@@ -75,17 +77,6 @@ class MVSplatOutput:
     coarse_disparity: torch.Tensor
     probabilities: torch.Tensor
     disparities: torch.Tensor
-
-
-def quaternion_xyzw_to_matrix(q: torch.Tensor, eps: float = 1e-8) -> torch.Tensor:
-    """(..., 4) quaternion (x, y, z, w) -> (..., 3, 3) rotation (of the normalised quaternion)."""
-    x, y, z, w = q.unbind(-1)
-    s = 2 / ((q * q).sum(-1) + eps)
-    return torch.stack([
-        1 - s * (y * y + z * z), s * (x * y - z * w), s * (x * z + y * w),
-        s * (x * y + z * w), 1 - s * (x * x + z * z), s * (y * z - x * w),
-        s * (x * z - y * w), s * (y * z + x * w), 1 - s * (x * x + y * y),
-    ], -1).reshape(*q.shape[:-1], 3, 3)
 
 
 def matrix_to_quaternion_wxyz(r: torch.Tensor) -> torch.Tensor:
@@ -230,7 +221,7 @@ class MVSplatEncoder(nn.Module):
         footprint = 0.1 * (torch.linalg.inv(k3[..., :2, :2]) @ pixel).sum(-1)  # (B, V)
         scales = scales * depth_px[..., None] * footprint[:, :, None, None]
         quat = quat / (quat.norm(dim=-1, keepdim=True) + 1e-8)  # (x, y, z, w), camera space
-        rot_cam = quaternion_xyzw_to_matrix(quat)
+        rot_cam = rotmat_from_quat_xyzw(quat)
         r_c2w = c2w[..., :3, :3][:, :, None]  # (B, V, 1, 3, 3)
         cov_cam = rot_cam @ torch.diag_embed(scales) @ torch.diag_embed(scales) @ rot_cam.transpose(-1, -2)
         cov = r_c2w @ cov_cam @ r_c2w.transpose(-1, -2)
