@@ -9,9 +9,6 @@ The weights go through the same conversion as a real checkpoint (`convert_state_
 from __future__ import annotations
 
 import json
-import pickle
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -95,9 +92,8 @@ def test_converter_reads_only_tensors_and_never_runs_pickled_code(fixture, tmp_p
     written, report = convert_checkpoint(ckpt, tmp_path / "converted")
     assert not sentinel.exists() and written.name == "ckpt-00000000.pt"
     assert not report.missing and not report.unexpected
-    # the file really is malicious: a plain (unsafe) load creates the sentinel
-    subprocess.run([sys.executable, "-c", f"import torch; torch.load({str(ckpt)!r}, weights_only=False)"],
-                   check=False, capture_output=True)
+    # the file really is malicious: a plain (unsafe) load runs its code and creates the sentinel
+    torch.load(ckpt, weights_only=False)
     assert sentinel.exists()
 
 
