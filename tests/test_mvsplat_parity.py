@@ -111,3 +111,26 @@ def test_converter_refuses_what_is_not_an_mvsplat_checkpoint(tmp_path):
     with pytest.raises(SeeUError, match="not a PyTorch checkpoint"):
         read_lightning_state_dict(text)
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
+
+
+def test_train_init_from_a_converted_checkpoint_starts_from_its_weights(fixture, tmp_path):
+    from pipelines.train import train
+    from seeu_model.training import checkpoint as ckpt_io
+    from tests.training_fixtures import synthetic_triples
+
+    state = {k: t.float() for k, t in fixture["state_dict"].items()}
+    ckpt = tmp_path / "mvsplat.ckpt"
+    torch.save({"state_dict": state}, ckpt)
+    convert_checkpoint(ckpt, tmp_path / "converted")
+    init = ckpt_io.load_checkpoint(tmp_path / "converted")["model"]
+    shards = synthetic_triples(tmp_path / "data", n_frames=12, hw=(32, 32), samples_per_scene=2)
+    ov = ["data.num_workers=0", "data.batch_size=1", "data.image_size=[32,32]", "optim.warmup_steps=0",
+          "optim.lr=1e-4", "optim.max_steps=1", "loss.lpips_weight=0", "log.every=1", "log.image_every=1000",
+          "precision=fp32", "rasterizer=torch"]
+    train(str(shards), tmp_path / "run", overrides=ov, init_from=tmp_path / "converted")
+    after = ckpt_io.load_checkpoint(tmp_path / "run" / "checkpoints")
+    assert after["model_config"]["encoder"] == "mvsplat" and after["step"] == 1
+    assert after["model"].keys() == init.keys()
+    # one AdamW step of lr 1e-4 moves each weight by about 1e-4; a fresh initialisation would be far away
+    moved = max(float((after["model"][k] - init[k]).abs().max()) for k in init)
+    assert 0 < moved < 1e-3
