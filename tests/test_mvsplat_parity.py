@@ -15,7 +15,11 @@ import pytest
 import torch
 
 from seeu_data.errors import SeeUError
-from seeu_model.mvsplat.convert import convert_checkpoint, convert_state_dict, read_lightning_state_dict
+from seeu_model.mvsplat.convert import (
+    convert_checkpoint,
+    convert_state_dict,
+    read_lightning_state_dict,
+)
 from seeu_model.rasterizer.projection import covariance_3d
 from seeu_model.seeu import SeeU
 
