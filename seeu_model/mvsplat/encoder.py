@@ -173,9 +173,18 @@ class MVSplatEncoder(nn.Module):
         corr = torch.stack(corr_sum, 0).mean(0)
         return corr.reshape(b, v, d, h, w), disp
 
-    def forward(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
-                far: torch.Tensor) -> MVSplatOutput:
-        """images (B, V, 3, H, W) in [0, 1]; c2w (B, V, 4, 4); intrinsics (B, V, 3, 3) normalised; near/far (B, V)."""
+    @property
+    def raw_channels(self) -> int:
+        """Per-pixel raw parameters: sub-pixel offset (2), scale (3), rotation (4), SH (3K), disparity residual
+        (1), opacity logit (1)."""
+        return 2 + 7 + 3 * self.sh_coeffs + 2
+
+    def predict(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
+                far: torch.Tensor) -> dict:
+        """Everything before the Gaussian adapter. images (B, V, 3, H, W) in [0, 1]; c2w (B, V, 4, 4);
+        intrinsics (B, V, 3, 3) normalised; near/far (B, V) -> dict: raw (B, V, raw_channels, H, W),
+        coarse_disparity_full (B, V, 1, H, W), coarse_disparity (B, V, h, w), probabilities (B, V, D, h, w),
+        disparities (B, V, D), features (B, V, C, h, w)."""
         s = self.shape
         b, v, _, hh, ww = images.shape
         if v != s.num_views and (s.cost_unet_attention or s.depth_unet_attention):
@@ -198,8 +207,20 @@ class MVSplatEncoder(nn.Module):
         img = images.reshape(bv, 3, hh, ww)
         refine = torch.cat([img, self.feature_proj(up), coarse_full, conf], 1)
         refined = self.refine_unet(F.gelu(self.refine_in_norm(self.refine_in(refine))))
-        raw = self.gaussian_head(torch.cat([refined, img, up], 1))  # (BV, 2+7+3K, H, W)
-        delta, density = self.disparity_head(refined).split(1, 1)
+        raw = torch.cat([self.gaussian_head(torch.cat([refined, img, up], 1)), self.disparity_head(refined)], 1)
+        return {"raw": raw.reshape(b, v, -1, hh, ww), "coarse_disparity_full": coarse_full.reshape(b, v, 1, hh, ww),
+                "coarse_disparity": coarse.reshape(b, v, h, w), "probabilities": prob.reshape(b, v, -1, h, w),
+                "disparities": disp, "features": feats}
+
+    def adapt(self, pred: dict, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
+              far: torch.Tensor) -> MVSplatOutput:
+        """`predict`'s output (its ``raw`` possibly refined) -> Gaussians, MVSplat's activations."""
+        s = self.shape
+        raw_all = pred["raw"]
+        b, v, _, hh, ww = raw_all.shape
+        bv = b * v
+        raw, delta, density = raw_all.reshape(bv, -1, hh, ww).split((self.raw_channels - 2, 1, 1), 1)
+        coarse_full = pred["coarse_disparity_full"].reshape(bv, 1, hh, ww)
         lo = (1.0 / far).reshape(bv, 1, 1, 1)
         hi = (1.0 / near).reshape(bv, 1, 1, 1)
         depth = 1.0 / (coarse_full + delta).clamp(lo, hi)  # (BV, 1, H, W)
@@ -211,9 +232,9 @@ class MVSplatEncoder(nn.Module):
         raw = raw.reshape(b, v, -1, n).transpose(2, 3)  # (B, V, HW, R)
         depth_px = depth.reshape(b, v, n)
         k3 = intr[..., :3, :3]
-        ys, xs = torch.meshgrid(torch.arange(hh, device=images.device), torch.arange(ww, device=images.device),
+        ys, xs = torch.meshgrid(torch.arange(hh, device=raw_all.device), torch.arange(ww, device=raw_all.device),
                                 indexing="ij")
-        pixel = torch.tensor((1 / ww, 1 / hh), dtype=torch.float32, device=images.device)
+        pixel = torch.tensor((1 / ww, 1 / hh), dtype=torch.float32, device=raw_all.device)
         xy = torch.stack([(xs + 0.5) / ww, (ys + 0.5) / hh], -1).reshape(n, 2)
         xy = xy + (raw[..., :2].sigmoid() - 0.5) * pixel  # (B, V, HW, 2)
         scale_raw, quat, sh = raw[..., 2:].split((3, 4, 3 * self.sh_coeffs), -1)
@@ -240,6 +261,11 @@ class MVSplatEncoder(nn.Module):
         return MVSplatOutput(
             means=flat(means), scales=flat(scales), rotations=flat(rotations), covariances=flat(cov),
             opacities=opacity.reshape(b, v * n), sh=flat(sh).transpose(-1, -2),
-            depth=depth.reshape(b, v, hh, ww), coarse_disparity=coarse.reshape(b, v, h, w),
-            probabilities=prob.reshape(b, v, -1, h, w), disparities=disp,
+            depth=depth.reshape(b, v, hh, ww), coarse_disparity=pred["coarse_disparity"],
+            probabilities=pred["probabilities"], disparities=pred["disparities"],
         )
+
+    def forward(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
+                far: torch.Tensor) -> MVSplatOutput:
+        """images (B, V, 3, H, W) in [0, 1]; c2w (B, V, 4, 4); intrinsics (B, V, 3, 3) normalised; near/far (B, V)."""
+        return self.adapt(self.predict(images, c2w, intr, near, far), c2w, intr, near, far)
