@@ -151,9 +151,7 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         factory = model_factory or build_model
         model, model_cfg = factory(cfg.model)
         if init_ckpt is not None:
-            from seeu_model.training.factory import load_model_state
-
-            load_model_state(model, init_ckpt["model"], init_ckpt.get("path"))
+            _load_init_state(model, init_ckpt)
         _seed_everything(cfg.seed + 1000 * dist.rank)
 
         eval_fn = None
@@ -180,6 +178,20 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         return summary
     finally:
         cleanup_distributed(dist)
+
+
+def _load_init_state(model, ckpt: dict) -> None:
+    """Load `ckpt`'s weights into a new run's model. Only a refiner (and its condition encoder) may be
+    absent from the checkpoint: they keep their initialisation (the refiner's residual starts at zero, so
+    step 0 renders what the checkpoint's model renders)."""
+    from seeu_data.errors import SeeUError
+
+    missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)
+    frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
+    missing = [k for k in missing if k not in frozen and not k.startswith(("refiner.", "condition."))]
+    if missing or unexpected:
+        raise SeeUError(f"--init-from: checkpoint does not match the model (missing {missing[:3]}, unexpected "
+                        f"{list(unexpected)[:3]})", ckpt.get("path"))
 
 
 def _strip_none(d: dict) -> dict:

@@ -103,9 +103,6 @@ class SeeUConfig:
         for name in ("mvsplat_cnn_channels", "mvsplat_cost_unet_attention", "mvsplat_depth_unet_attention"):
             setattr(self, name, tuple(getattr(self, name)))
         if self.encoder == "mvsplat":
-            if self.refiner != "none":
-                raise ValueError('encoder "mvsplat" runs with refiner "none" ("SeeU w/o refinement"); '
-                                 "a refiner on top of it is not implemented yet")
             if self.downsample != 4 or self.mv_heads != 1:
                 raise ValueError('encoder "mvsplat" needs downsample 4 and mv_heads 1 (MVSplat\'s structure)')
         if self.refiner not in REFINERS:
@@ -158,7 +155,8 @@ class SeeUConfig:
     @classmethod
     def mvsplat(cls, **overrides: Any) -> "SeeUConfig":
         """MVSplat's encoder as released for RE10K / ACID (128 disparity candidates, SH degree 4), without a
-        refiner: what a converted MVSplat checkpoint runs as ("SeeU w/o refinement")."""
+        refiner: what a converted MVSplat checkpoint runs as ("SeeU w/o refinement"). With
+        ``refiner="transformer"`` (and the paper's condition) SeeU's refiner sits on MVSplat's latent tokens."""
         base = dict(encoder="mvsplat", refiner="none", num_depth_candidates=128, sh_degree=4, mv_layers=6,
                     mv_heads=1, mv_ffn_ratio=4, mv_windows=2, downsample=4, scale_min=0.5, scale_max=15.0)
         base.update(overrides)
