@@ -22,8 +22,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("checkpoint", help="the checkpoint file to convert (e.g. MVSplat's re10k.ckpt)")
     parser.add_argument("--out", required=True,
                         help="a new directory for the SeeU checkpoint (ckpt-00000000.pt + conversion-report.txt)")
-    parser.add_argument("--views", type=int, default=2,
-                        help="context views the model will run with (MVSplat's UNet attention spans them; default 2)")
     parser.add_argument("--allow-incomplete", action="store_true",
                         help="write the checkpoint even with missing or unexpected keys (they are listed)")
 
@@ -32,13 +30,9 @@ def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
     from seeu_data.arrow_io import atomic_write_bytes
-    from seeu_data.errors import SeeUError
     from seeu_model.mvsplat.convert import convert_checkpoint
 
-    if args.views < 2:
-        raise SeeUError("--views must be >= 2")
-    written, report = convert_checkpoint(args.checkpoint, args.out, num_views=args.views,
-                                         allow_incomplete=args.allow_incomplete)
+    written, report = convert_checkpoint(args.checkpoint, args.out, allow_incomplete=args.allow_incomplete)
     report_path = Path(args.out) / "conversion-report.txt"
     atomic_write_bytes(report_path, ("\n".join(report.lines()) + "\n").encode())
     for line in report.lines():

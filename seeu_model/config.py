@@ -51,7 +51,6 @@ class SeeUConfig:
     mvsplat_depth_unet_channels: int = 32
     mvsplat_depth_unet_levels: int = 5
     mvsplat_depth_unet_attention: tuple[int, ...] = (16,)
-    mvsplat_num_views: int = 2  # context views the UNets' attention is built for
 
     # ---- multi-view encoder ------------------------------------------------------------------
     backbone_channels: tuple[int, ...] = (64, 96, 128)  # ResNet stages; last = feature dim C (MVSplat)
@@ -191,7 +190,7 @@ class SeeUConfig:
             depth_unet_channels=self.mvsplat_depth_unet_channels,
             depth_unet_mult=(1,) * self.mvsplat_depth_unet_levels,
             depth_unet_attention=self.mvsplat_depth_unet_attention, sh_degree=self.sh_degree,
-            scale_min=self.scale_min, scale_max=self.scale_max, num_views=self.mvsplat_num_views)
+            scale_min=self.scale_min, scale_max=self.scale_max)
 
     @property
     def needs_semantic(self) -> bool:

@@ -43,7 +43,7 @@ def test_depths_and_gaussians_match_mvsplat(fixture, case_index):
     inp = case["input"]
     b, v = inp["extrinsics"].shape[:2]
     state = {k: t.float() for k, t in fixture["state_dict"].items()}
-    cfg, seeu_state, report = convert_state_dict(state, num_views=v)
+    cfg, seeu_state, report = convert_state_dict(state)
     assert not report.missing and not report.unexpected and len(report.mapped) == len(state)
     model = SeeU(cfg).eval()
     model.load_state_dict(seeu_state, strict=True)

@@ -12,7 +12,6 @@ key as mapped, missing, unexpected or ignored; a file without MVSplat's encoder 
 
 from __future__ import annotations
 
-import pickle
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -53,7 +52,7 @@ def read_lightning_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         stand_ins = [(_stand_in(name), name) for name in unsafe]
         with torch.serialization.safe_globals(stand_ins):
             ckpt = torch.load(p, map_location="cpu", weights_only=True)
-    except (pickle.UnpicklingError, RuntimeError, EOFError, ValueError, zipfile.BadZipFile, KeyError) as exc:
+    except Exception as exc:  # noqa: BLE001 - any unreadable / refused file: one line, no traceback
         raise SeeUError(f"not a readable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
                         p) from None
     state = ckpt.get("state_dict") if isinstance(ckpt, dict) else None
@@ -86,7 +85,7 @@ class ConversionReport:
                 f"{len(self.ignored)} ignored (training losses)")
 
 
-def convert_state_dict(state: dict[str, torch.Tensor], num_views: int = 2, where=None):
+def convert_state_dict(state: dict[str, torch.Tensor], where=None):
     """MVSplat's Lightning ``state_dict`` -> (SeeUConfig, SeeU state dict, ConversionReport).
 
     The encoder structure is read off the weights' shapes (`keymap.shape_from_state`); the SeeU state dict
@@ -99,7 +98,7 @@ def convert_state_dict(state: dict[str, torch.Tensor], num_views: int = 2, where
         raise SeeUError("not an MVSplat checkpoint: no MVSplat encoder weights (encoder.backbone.*, "
                         "encoder.depth_predictor.*) in its state_dict", where)
     try:
-        shape = shape_from_state(encoder, num_views)
+        shape = shape_from_state(encoder)
     except (KeyError, IndexError, ValueError) as exc:
         raise SeeUError(f"not an MVSplat checkpoint of a known structure (no {exc})", where) from None
     cfg = SeeUConfig.mvsplat(
@@ -107,8 +106,7 @@ def convert_state_dict(state: dict[str, torch.Tensor], num_views: int = 2, where
         mv_ffn_ratio=shape.ffn_ratio, mvsplat_cnn_channels=shape.cnn_channels, mvsplat_feature_dim=shape.feature_dim,
         mvsplat_cost_unet_channels=shape.cost_unet_channels, mvsplat_cost_unet_levels=len(shape.cost_unet_mult),
         mvsplat_cost_unet_attention=shape.cost_unet_attention, mvsplat_depth_unet_channels=shape.depth_unet_channels,
-        mvsplat_depth_unet_levels=len(shape.depth_unet_mult), mvsplat_depth_unet_attention=shape.depth_unet_attention,
-        mvsplat_num_views=num_views)
+        mvsplat_depth_unet_levels=len(shape.depth_unet_mult), mvsplat_depth_unet_attention=shape.depth_unet_attention)
     expected = {k: tuple(v.shape) for k, v in SeeU(cfg).state_dict().items()}
     report = ConversionReport()
     out: dict[str, torch.Tensor] = {}
@@ -127,8 +125,7 @@ def convert_state_dict(state: dict[str, torch.Tensor], num_views: int = 2, where
     return cfg, out, report
 
 
-def convert_checkpoint(path: str | Path, out_dir: str | Path, num_views: int = 2,
-                       allow_incomplete: bool = False) -> tuple[Path, ConversionReport]:
+def convert_checkpoint(path: str | Path, out_dir: str | Path, allow_incomplete: bool = False) -> tuple[Path, ConversionReport]:
     """Read an MVSplat checkpoint safely, convert it and write ``out_dir/ckpt-00000000.pt`` (a SeeU
     checkpoint that `seeu eval` / `seeu render` run and `seeu train --init-from` starts from)."""
     from seeu_model.training.checkpoint import list_checkpoints, save_checkpoint
@@ -137,7 +134,7 @@ def convert_checkpoint(path: str | Path, out_dir: str | Path, num_views: int = 2
     if list_checkpoints(out_dir):
         raise SeeUError("already holds SeeU checkpoints (ckpt-*.pt); choose a new directory", out_dir)
     state = read_lightning_state_dict(path)
-    cfg, model_state, report = convert_state_dict(state, num_views, where=path)
+    cfg, model_state, report = convert_state_dict(state, where=path)
     if (report.missing or report.unexpected) and not allow_incomplete:
         raise SeeUError(f"not converted: {report.summary()} (first: "
                         f"{(report.missing + report.unexpected)[0]}); --allow-incomplete writes it anyway", path)

@@ -54,7 +54,6 @@ class MVSplatShape:
     sh_degree: int = 4
     scale_min: float = 0.5
     scale_max: float = 15.0
-    num_views: int = 2  # the UNets' cross-view attention is built for this many context views
 
 
 @dataclass
@@ -112,7 +111,7 @@ class MVSplatEncoder(nn.Module):
         cc = s.cost_unet_channels
         self.cost_in = nn.Conv2d(d + c, cc, 3, 1, 1)
         self.cost_in_norm = nn.GroupNorm(8, cc)
-        self.cost_unet = RefineUNet(cc, s.cost_unet_mult, s.cost_unet_attention, s.num_views)
+        self.cost_unet = RefineUNet(cc, s.cost_unet_mult, s.cost_unet_attention)
         self.cost_out = nn.Conv2d(cc, d, 3, 1, 1)
         self.cost_skip = nn.Conv2d(d + c, d, 1)
         self.depth_head = nn.Sequential(nn.Conv2d(d, 2 * d, 3, 1, 1), nn.GELU(), nn.Conv2d(2 * d, d, 3, 1, 1))
@@ -122,7 +121,7 @@ class MVSplatEncoder(nn.Module):
         self.feature_proj = nn.Conv2d(c, dc, 3, 1, 1)
         self.refine_in = nn.Conv2d(3 + dc + 2, dc, 3, 1, 1)
         self.refine_in_norm = nn.GroupNorm(4, dc)
-        self.refine_unet = RefineUNet(dc, s.depth_unet_mult, s.depth_unet_attention, s.num_views)
+        self.refine_unet = RefineUNet(dc, s.depth_unet_mult, s.depth_unet_attention)
         # heads
         self.sh_coeffs = (s.sh_degree + 1) ** 2
         raw = 2 + 7 + 3 * self.sh_coeffs
@@ -187,14 +186,12 @@ class MVSplatEncoder(nn.Module):
         disparities (B, V, D), features (B, V, C, h, w)."""
         s = self.shape
         b, v, _, hh, ww = images.shape
-        if v != s.num_views and (s.cost_unet_attention or s.depth_unet_attention):
-            raise ValueError(f"this MVSplat encoder was built for {s.num_views} context views, got {v}")
         feats, cnn = self.backbone(images)
         _, _, c, h, w = feats.shape
         corr, disp = self._cost_volume(feats, c2w, intr, near, far)
         bv = b * v
         x = torch.cat([corr, feats], 2).reshape(bv, -1, h, w)
-        cost = self.cost_out(self.cost_unet(F.gelu(self.cost_in_norm(self.cost_in(x))))) + self.cost_skip(x)
+        cost = self.cost_out(self.cost_unet(F.gelu(self.cost_in_norm(self.cost_in(x))), v)) + self.cost_skip(x)
         prob = torch.softmax(self.depth_head(cost), 1)  # (BV, D, h, w)
         disp_flat = disp.reshape(bv, -1, 1, 1)
         coarse = (disp_flat * prob).sum(1, keepdim=True)  # (BV, 1, h, w)
@@ -206,7 +203,7 @@ class MVSplatEncoder(nn.Module):
         up = F.gelu(up)  # (BV, C, H, W)
         img = images.reshape(bv, 3, hh, ww)
         refine = torch.cat([img, self.feature_proj(up), coarse_full, conf], 1)
-        refined = self.refine_unet(F.gelu(self.refine_in_norm(self.refine_in(refine))))
+        refined = self.refine_unet(F.gelu(self.refine_in_norm(self.refine_in(refine))), v)
         raw = torch.cat([self.gaussian_head(torch.cat([refined, img, up], 1)), self.disparity_head(refined)], 1)
         return {"raw": raw.reshape(b, v, -1, hh, ww), "coarse_disparity_full": coarse_full.reshape(b, v, 1, hh, ww),
                 "coarse_disparity": coarse.reshape(b, v, h, w), "probabilities": prob.reshape(b, v, -1, h, w),

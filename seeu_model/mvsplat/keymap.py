@@ -109,7 +109,7 @@ def _levels(keys: set[str], prefix: str) -> tuple[int, tuple[int, ...]]:
     return levels, tuple(rates)
 
 
-def shape_from_state(state: dict, num_views: int = 2) -> MVSplatShape:
+def shape_from_state(state: dict) -> MVSplatShape:
     """The encoder structure a (prefix-free) MVSplat encoder state dict was trained with.
 
     Channel multipliers other than 1 are not used by MVSplat's released models and not supported."""
@@ -131,4 +131,4 @@ def shape_from_state(state: dict, num_views: int = 2) -> MVSplatShape:
     return MVSplatShape(cnn_channels=cnn, feature_dim=c, transformer_layers=layers, ffn_ratio=ffn_hidden // (2 * c),
                         num_depth_candidates=d, cost_unet_channels=cc, cost_unet_mult=(1,) * cost_levels,
                         cost_unet_attention=cost_attn, depth_unet_channels=dc, depth_unet_mult=(1,) * depth_levels,
-                        depth_unet_attention=depth_attn, sh_degree=sh_degree, num_views=num_views)
+                        depth_unet_attention=depth_attn, sh_degree=sh_degree)

@@ -3,7 +3,8 @@ blocks (conv -> GroupNorm -> SiLU, twice, plus the skip), strided-conv down / ne
 and at the chosen downsampling rates a post-norm self-attention block whose tokens span every view of
 a sample (cross-view attention), 32 channels per head.
 
-Shapes: x (B*V, C_in, h, w) with the V views of each sample adjacent (b-major) -> (B*V, C_out, h, w);
+Shapes: x (B*V, C_in, h, w) with the V views of each sample adjacent (b-major), V given at call time
+(MVSplat fixes it when building the model; with that V both are the same) -> (B*V, C_out, h, w);
 h and w divisible by 2^(levels - 1).
 """
 
@@ -36,19 +37,18 @@ class ResBlock(nn.Module):
 class CrossViewAttention(nn.Module):
     """Multi-head attention over all pixels of all views of a sample; post-norm residual."""
 
-    def __init__(self, channels: int, views: int, head_channels: int = 32):
+    def __init__(self, channels: int, head_channels: int = 32):
         super().__init__()
         if channels % head_channels:
             raise ValueError(f"attention needs channels divisible by {head_channels}, got {channels}")
         self.heads = channels // head_channels
-        self.views = views
         self.qkv = nn.Conv1d(channels, 3 * channels, 1)
         self.proj = nn.Conv1d(channels, channels, 1)
         self.norm = group_norm(channels)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, v: int) -> torch.Tensor:
+        """x (B*V, C, h, w), v = V -> (B*V, C, h, w)."""
         n, c, h, w = x.shape
-        v = self.views
         flat = x.reshape(n, c, h * w)
         qkv = self.qkv(flat)  # (B*V, 3C, T)
         b = n // v
@@ -84,7 +84,7 @@ class Up(nn.Module):
 class RefineUNet(nn.Module):
     """One residual block per level, attention where the downsampling rate is in ``attention_at``."""
 
-    def __init__(self, channels: int, mult: tuple[int, ...], attention_at: tuple[int, ...], views: int):
+    def __init__(self, channels: int, mult: tuple[int, ...], attention_at: tuple[int, ...]):
         super().__init__()
         c0 = channels
         self.enc = nn.ModuleList([nn.Sequential(nn.Conv2d(c0, c0, 3, 1, 1))])
@@ -94,7 +94,7 @@ class RefineUNet(nn.Module):
             layers: list[nn.Module] = [ResBlock(ch, m * c0)]
             ch = m * c0
             if rate in attention_at:
-                layers.append(CrossViewAttention(ch, views))
+                layers.append(CrossViewAttention(ch))
             self.enc.append(nn.Sequential(*layers))
             skips.append(ch)
             if level != len(mult) - 1:
@@ -108,7 +108,7 @@ class RefineUNet(nn.Module):
                 layers = [ResBlock(ch + skips.pop(), c0 * m)]
                 ch = c0 * m
                 if rate in attention_at:
-                    layers.append(CrossViewAttention(ch, views))
+                    layers.append(CrossViewAttention(ch))
                 if level and i == 1:
                     layers.append(Up(ch))
                     rate //= 2
@@ -116,12 +116,19 @@ class RefineUNet(nn.Module):
         self.head_conv = nn.Conv2d(c0, c0, 3, 1, 1)
         self.head_norm = group_norm(c0)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
+    @staticmethod
+    def _run(block: nn.Sequential, x: torch.Tensor, views: int) -> torch.Tensor:
+        for layer in block:
+            x = layer(x, views) if isinstance(layer, CrossViewAttention) else layer(x)
+        return x
+
+    def forward(self, x: torch.Tensor, views: int) -> torch.Tensor:
+        """x (B*V, C, h, w), views = V -> (B*V, C, h, w)."""
         skips = []
         for block in self.enc:
-            x = block(x)
+            x = self._run(block, x, views)
             skips.append(x)
         x = self.mid(x)
         for block in self.dec:
-            x = block(torch.cat([x, skips.pop()], 1))
+            x = self._run(block, torch.cat([x, skips.pop()], 1), views)
         return F.silu(self.head_norm(self.head_conv(x)))
