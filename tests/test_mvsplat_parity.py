@@ -101,7 +101,9 @@ def test_converter_reads_only_tensors_and_never_runs_pickled_code(fixture, tmp_p
     assert sentinel.exists()
 
 
-def test_converter_refuses_what_is_not_an_mvsplat_checkpoint(tmp_path):
+def test_converter_refuses_what_is_not_an_mvsplat_checkpoint(tmp_path, capsys):
+    from pipelines.cli import main as cli_main
+
     other = tmp_path / "other.ckpt"
     torch.save({"state_dict": {"encoder.backbone.weight": torch.zeros(3)}}, other)
     with pytest.raises(SeeUError, match="not an MVSplat checkpoint"):
@@ -114,6 +116,9 @@ def test_converter_refuses_what_is_not_an_mvsplat_checkpoint(tmp_path):
     text.write_text("hello")
     with pytest.raises(SeeUError, match="not a PyTorch checkpoint"):
         read_lightning_state_dict(text)
+    assert cli_main(["convert-checkpoint", "mvsplat", str(other), "--out", str(tmp_path / "out")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("seeu convert-checkpoint: error: ") and "not an MVSplat checkpoint" in err and "\n" not in err
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
 
 
