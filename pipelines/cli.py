@@ -32,6 +32,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "render": ("pipelines.render", "render novel views and export a .ply from a checkpoint"),
     "ablate": ("pipelines.ablate", "run the paper's ablation configurations with equal budgets"),
     "model-info": ("pipelines.model_info", "parameter counts per module of the SeeU model"),
+    "convert-checkpoint": ("pipelines.convert_checkpoint", "convert an MVSplat checkpoint into a SeeU checkpoint"),
 }
 
 

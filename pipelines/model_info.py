@@ -19,7 +19,7 @@ import json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", default="paper", choices=["paper", "cpu_small", "tiny"], help="model preset")
+    parser.add_argument("--preset", default="paper", choices=["paper", "cpu_small", "tiny", "mvsplat"], help="model preset")
     parser.add_argument("--refiner", choices=["none", "unet", "transformer"], help="override the refiner (ablation)")
     parser.add_argument("--condition", choices=["cls", "cea", "clip", "blip2"], help="override the condition (ablation)")
     parser.add_argument("--sh-degree", type=int, help="override the SH degree")

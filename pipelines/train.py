@@ -4,6 +4,7 @@ Examples:
   seeu train --data data/re10k/train --val data/re10k/test --config configs/re10k_paper.json --out runs/re10k
   seeu train --data out/shards/interp --config configs/cpu_small.json --out runs/cpu optim.max_steps=200
   seeu train --data ... --config ... --out runs/re10k --resume          # continue from the newest checkpoint
+  seeu train --data ... --config configs/re10k_paper.json --out runs/ft --init-from runs/mvsplat/checkpoints
   torchrun --nproc_per_node=8 -m pipelines.cli train --data ... --config configs/re10k_paper.json --out runs/ddp
   (multi-node: torchrun --nnodes=N --node_rank=R --rdzv_endpoint=HOST:PORT --nproc_per_node=G -m pipelines.cli train ...)
 
@@ -31,6 +32,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", required=True, help="run directory (checkpoints, TensorBoard, config)")
     parser.add_argument("--resume", nargs="?", const=True, default=None, metavar="CKPT",
                         help="continue from the newest checkpoint in OUT (or from CKPT)")
+    parser.add_argument("--init-from", default=None, metavar="CKPT",
+                        help="start from the weights (and model config) of a SeeU checkpoint, e.g. one written by "
+                             "`seeu convert-checkpoint mvsplat`; step, optimizer and schedule start afresh")
     parser.add_argument("--lpips-weights", default=None, metavar="PATH", help="torchvision's vgg16-397923af.pth")
     parser.add_argument("--no-lpips", action="store_true", help="train with MSE only (loss.lpips_weight=0)")
     parser.add_argument("--device", default=None, help="cpu, cuda, cuda:1 (default: this rank's GPU, else CPU)")
@@ -46,7 +50,7 @@ def run(args: argparse.Namespace) -> int:
         overrides.append(f"optim.max_steps={args.max_steps}")
     result = train(args.data, args.out, config=args.config, overrides=overrides, val=args.val, resume=args.resume,
                    lpips_weights=args.lpips_weights, no_lpips=args.no_lpips, device=args.device,
-                   progress=args.progress)
+                   progress=args.progress, init_from=args.init_from)
     if result.get("rank", 0) == 0:
         print(json.dumps({k: result[k] for k in ("step", "checkpoint", "steps_per_s", "final")}, indent=2))
     return 0
@@ -100,12 +104,15 @@ def make_lpips(cfg, lpips_weights: str | None = None):
 def train(data: str, out: str | Path, config: str | Path | None = None, overrides: Sequence[str] = (),
           val: str | None = None, resume: bool | str | None = None, lpips_weights: str | None = None,
           no_lpips: bool = False, device: str | None = None, progress: bool | None = None,
-          stop_after: int | None = None, model_factory: Callable | None = None) -> dict:
+          stop_after: int | None = None, model_factory: Callable | None = None,
+          init_from: str | Path | None = None) -> dict:
     """Train and return a summary dict: step, checkpoint, steps_per_s, final (last logged scalars), history, val.
 
     Python API of `seeu train` (used by `seeu demo` and `seeu ablate`). `stop_after`: stop (with a
     checkpoint) at that step although the schedule runs to optim.max_steps, as an interrupted run
     would. `model_factory(model_section) -> (module, model_config_dict)` replaces the SeeU model (tests).
+    `init_from`: a SeeU checkpoint whose model section (``model.*`` overrides still apply) and weights the
+    run starts from; ignored when the run resumes from its own checkpoint.
     """
     import torch
 
@@ -137,6 +144,12 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         cfg = load_config(config, overrides)
     if progress is not None:
         cfg.log.progress = progress
+    init_ckpt = None
+    if init_from is not None and resume_ckpt is None:
+        init_ckpt = ckpt_io.load_checkpoint(init_from)
+        model_overrides = [o for o in overrides if o.strip().startswith("model.")]
+        section = apply_overrides({"model": _strip_none(init_ckpt["config"]["model"])}, model_overrides)["model"]
+        cfg.model = section
 
     dist = setup_distributed(device)
     try:
@@ -147,6 +160,8 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         _seed_everything(cfg.seed)
         factory = model_factory or build_model
         model, model_cfg = factory(cfg.model)
+        if init_ckpt is not None:
+            _load_init_state(model, init_ckpt)
         _seed_everything(cfg.seed + 1000 * dist.rank)
 
         eval_fn = None
@@ -174,6 +189,20 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
         return summary
     finally:
         cleanup_distributed(dist)
+
+
+def _load_init_state(model, ckpt: dict) -> None:
+    """Load `ckpt`'s weights into a new run's model. Only a refiner (and its condition encoder) may be
+    absent from the checkpoint: they keep their initialisation (the refiner's residual starts at zero, so
+    step 0 renders what the checkpoint's model renders)."""
+    from seeu_data.errors import SeeUError
+
+    missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)
+    frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
+    missing = [k for k in missing if k not in frozen and not k.startswith(("refiner.", "condition."))]
+    if missing or unexpected:
+        raise SeeUError(f"--init-from: checkpoint does not match the model (missing {missing[:3]}, unexpected "
+                        f"{list(unexpected)[:3]})", ckpt.get("path"))
 
 
 def _strip_none(d: dict) -> dict:

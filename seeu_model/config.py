@@ -22,9 +22,11 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field, replace
 from typing import Any, Literal
 
+Encoder = Literal["seeu", "mvsplat"]
 Refiner = Literal["none", "unet", "transformer"]
 Condition = Literal["cls", "cea", "clip", "blip2"]
 
+ENCODERS = ("seeu", "mvsplat")
 REFINERS = ("none", "unet", "transformer")
 CONDITIONS = ("cls", "cea", "clip", "blip2")
 
@@ -34,6 +36,21 @@ class SeeUConfig:
     # ---- input / latent grid ----------------------------------------------------------------
     image_size: int = 256  # nominal H = W (informational: the model accepts any size divisible by s * windows)
     downsample: int = 4  # s: latent grid is (H/s, W/s)
+
+    # ---- coarse encoder ----------------------------------------------------------------------
+    # "seeu": this toolkit's encoder (below); "mvsplat": MVSplat's encoder exactly (seeu_model/mvsplat/),
+    # whose released checkpoints `seeu convert-checkpoint mvsplat` converts. The mvsplat_* fields give its
+    # structure (MVSplat's RE10K/ACID release by default); it also uses mv_layers, mv_ffn_ratio,
+    # mv_windows, num_depth_candidates, sh_degree, scale_min and scale_max.
+    encoder: Encoder = "seeu"
+    mvsplat_cnn_channels: tuple[int, ...] = (64, 96, 128)
+    mvsplat_feature_dim: int = 128
+    mvsplat_cost_unet_channels: int = 128
+    mvsplat_cost_unet_levels: int = 3
+    mvsplat_cost_unet_attention: tuple[int, ...] = (4,)  # downsampling rates with cross-view attention
+    mvsplat_depth_unet_channels: int = 32
+    mvsplat_depth_unet_levels: int = 5
+    mvsplat_depth_unet_attention: tuple[int, ...] = (16,)
 
     # ---- multi-view encoder ------------------------------------------------------------------
     backbone_channels: tuple[int, ...] = (64, 96, 128)  # ResNet stages; last = feature dim C (MVSplat)
@@ -80,6 +97,13 @@ class SeeUConfig:
     unet_channels: tuple[int, ...] = (128, 256)  # UNet refiner ablation
 
     def __post_init__(self) -> None:
+        if self.encoder not in ENCODERS:
+            raise ValueError(f"encoder must be one of {ENCODERS}, got {self.encoder!r}")
+        for name in ("mvsplat_cnn_channels", "mvsplat_cost_unet_attention", "mvsplat_depth_unet_attention"):
+            setattr(self, name, tuple(getattr(self, name)))
+        if self.encoder == "mvsplat":
+            if self.downsample != 4 or self.mv_heads != 1:
+                raise ValueError('encoder "mvsplat" needs downsample 4 and mv_heads 1 (MVSplat\'s structure)')
         if self.refiner not in REFINERS:
             raise ValueError(f"refiner must be one of {REFINERS}, got {self.refiner!r}")
         if self.condition not in CONDITIONS:
@@ -128,8 +152,18 @@ class SeeUConfig:
         return cls(**base)
 
     @classmethod
+    def mvsplat(cls, **overrides: Any) -> "SeeUConfig":
+        """MVSplat's encoder as released for RE10K / ACID (128 disparity candidates, SH degree 4), without a
+        refiner: what a converted MVSplat checkpoint runs as ("SeeU w/o refinement"). With
+        ``refiner="transformer"`` (and the paper's condition) SeeU's refiner sits on MVSplat's latent tokens."""
+        base = dict(encoder="mvsplat", refiner="none", num_depth_candidates=128, sh_degree=4, mv_layers=6,
+                    mv_heads=1, mv_ffn_ratio=4, mv_windows=2, downsample=4, scale_min=0.5, scale_max=15.0)
+        base.update(overrides)
+        return cls(**base)
+
+    @classmethod
     def preset(cls, name: str, **overrides: Any) -> "SeeUConfig":
-        presets = {"paper": cls.paper, "cpu_small": cls.cpu_small, "tiny": cls.tiny}
+        presets = {"paper": cls.paper, "cpu_small": cls.cpu_small, "tiny": cls.tiny, "mvsplat": cls.mvsplat}
         if name not in presets:
             raise ValueError(f"unknown preset {name!r}; choose one of {sorted(presets)}")
         return presets[name](**overrides)
@@ -142,6 +176,21 @@ class SeeUConfig:
     @property
     def sh_coeffs(self) -> int:
         return (self.sh_degree + 1) ** 2
+
+    def mvsplat_shape(self):
+        """The `MVSplatShape` of ``encoder: "mvsplat"``."""
+        from .mvsplat.encoder import MVSplatShape
+
+        return MVSplatShape(
+            cnn_channels=tuple(self.mvsplat_cnn_channels), feature_dim=self.mvsplat_feature_dim,
+            transformer_layers=self.mv_layers, ffn_ratio=self.mv_ffn_ratio, windows=self.mv_windows,
+            downsample=self.downsample, num_depth_candidates=self.num_depth_candidates,
+            cost_unet_channels=self.mvsplat_cost_unet_channels, cost_unet_mult=(1,) * self.mvsplat_cost_unet_levels,
+            cost_unet_attention=self.mvsplat_cost_unet_attention,
+            depth_unet_channels=self.mvsplat_depth_unet_channels,
+            depth_unet_mult=(1,) * self.mvsplat_depth_unet_levels,
+            depth_unet_attention=self.mvsplat_depth_unet_attention, sh_degree=self.sh_degree,
+            scale_min=self.scale_min, scale_max=self.scale_max)
 
     @property
     def needs_semantic(self) -> bool:

@@ -11,6 +11,10 @@ residual refinement -> upsampling decoder -> rasterised target views.
       UpsamplingDecoder              -> Gaussians, N = V*H*W (refined) and the same for Θ_l (coarse)
       rasterize                      -> target renders (B, T, 3, H, W)
 
+With ``encoder: "mvsplat"`` the coarse stage is MVSplat's encoder exactly (seeu_model/mvsplat/), one
+Gaussian per pixel and view; without a refiner it is "SeeU w/o refinement" (what MVSplat renders), with
+one the refiner's zero-initialised residual corrects MVSplat's raw parameters (`_encode_mvsplat`).
+
 `SeeU.encode(context)` returns the refined Gaussians only (timed separately from rendering by the
 evaluator); `SeeU.encode_all(context)` returns every intermediate; `SeeU.forward(batch)` encodes and
 renders the batch's target views. The frozen semantic encoder stays in eval mode, has no gradients,
@@ -104,6 +108,15 @@ class SeeU(nn.Module):
         super().__init__()
         cfg = cfg or SeeUConfig()
         self.cfg = cfg
+        self.condition: ConditionEncoder | None = None
+        self.refiner: nn.Module | None = None
+        if cfg.encoder == "mvsplat":
+            from .mvsplat.encoder import MVSplatEncoder
+
+            self.mvsplat = MVSplatEncoder(cfg.mvsplat_shape())
+            if cfg.refiner != "none":  # on MVSplat's latent tokens: pooled raw parameters + matched features
+                self._build_refiner(cfg, self.mvsplat.raw_channels + cfg.mvsplat_feature_dim)
+            return
         c = cfg.feature_dim
         self.layout = LatentLayout(cfg.sh_coeffs, cfg.latent_feature_dim)
         self.backbone = ResNetBackbone(cfg.backbone_channels, cfg.downsample)
@@ -112,16 +125,17 @@ class SeeU(nn.Module):
         unit = (1.5 - cfg.scale_min) / (cfg.scale_max - cfg.scale_min)
         init_scale = float(torch.logit(torch.tensor(unit).clamp(1e-3, 1 - 1e-3)))
         self.heads = CoarseGaussianHead(c, cfg.num_depth_candidates, self.layout, cfg.head_hidden, init_scale)
-        self.condition: ConditionEncoder | None = None
-        self.refiner: nn.Module | None = None
         if cfg.refiner != "none":
-            self.condition = ConditionEncoder(cfg)
-            if cfg.refiner == "transformer":
-                self.refiner = ConditionalGaussianTransformer(self.layout.channels, cfg.condition_dim, cfg.cgt_hidden,
-                                                              cfg.cgt_layers, cfg.cgt_heads, cfg.cgt_mlp_ratio)
-            else:
-                self.refiner = UNetRefiner(self.layout.channels, cfg.condition_dim, cfg.unet_channels, cfg.cgt_heads)
+            self._build_refiner(cfg, self.layout.channels)
         self.decoder = UpsamplingDecoder(self.layout, cfg.decoder_hidden, cfg.scale_min, cfg.scale_max)
+
+    def _build_refiner(self, cfg: SeeUConfig, channels: int) -> None:
+        self.condition = ConditionEncoder(cfg)
+        if cfg.refiner == "transformer":
+            self.refiner = ConditionalGaussianTransformer(channels, cfg.condition_dim, cfg.cgt_hidden,
+                                                          cfg.cgt_layers, cfg.cgt_heads, cfg.cgt_mlp_ratio)
+        else:
+            self.refiner = UNetRefiner(channels, cfg.condition_dim, cfg.unet_channels, cfg.cgt_heads)
 
     # ------------------------------------------------------------------------------------------
     # Frozen parts
@@ -191,6 +205,8 @@ class SeeU(nn.Module):
         normalised, near/far (B, V)  ->  SeeUEncoding. With ``decode_coarse=False`` the unrefined tokens
         are not decoded (``coarse_gaussians`` is then None; `encode` uses this)."""
         self._check_context(context)
+        if self.cfg.encoder == "mvsplat":
+            return self._encode_mvsplat(context, decode_coarse)
         images = context["image"]
         c2w, intr = context["cam_to_world"], context["intrinsics"]
         near, far = context["near"].to(images.dtype), context["far"].to(images.dtype)
@@ -223,6 +239,49 @@ class SeeU(nn.Module):
         latent_gaussians, _ = gaussians_from_params(latent.permute(0, 1, 4, 2, 3), c2w, intr, near, far, self.layout,
                                                     self.cfg.scale_min, self.cfg.scale_max)
         return SeeUEncoding(gaussians, coarse_gaussians, latent_gaussians, depth, coarse_depth, entropy, cost, depths,
+                            latent, residual, condition)
+
+    def _encode_mvsplat(self, context: dict, decode_coarse: bool) -> SeeUEncoding:
+        """MVSplat's encoder, with SeeU's refiner (when configured) on its latent tokens.
+
+        Latent token Θ_l (B, V, h, w, R + C): MVSplat's raw per-pixel parameters (R: offset, scale, rotation,
+        SH, disparity residual, opacity logit) averaged over each s x s cell, and its matched features F.
+        The refiner's residual on the first R channels is upsampled bilinearly and added to the raw
+        parameters before MVSplat's activations, so a zero residual (the refiner at initialisation)
+        gives exactly MVSplat's Gaussians. ``cost`` holds MVSplat's depth probabilities (B, V, D, h, w)."""
+        images = context["image"]
+        c2w, intr = context["cam_to_world"], context["intrinsics"]
+        near, far = context["near"].to(images.dtype), context["far"].to(images.dtype)
+        enc = self.mvsplat
+        pred = enc.predict(images, c2w, intr, near, far)
+        raw = pred["raw"]  # (B, V, R, H, W)
+        b, v, r, hh, ww = raw.shape
+        h, w = pred["features"].shape[-2:]
+        s = self.cfg.downsample
+        pooled = F.avg_pool2d(raw.reshape(b * v, r, hh, ww), s).reshape(b, v, r, h, w)
+        latent = torch.cat([pooled, pred["features"]], 2).permute(0, 1, 3, 4, 2)  # (B, V, h, w, R + C)
+        entropy = matching_entropy(pred["probabilities"])
+        condition = None
+        coarse = None
+        if self.refiner is not None:
+            condition = self.condition(images, entropy)
+            residual = self.refiner(latent, condition)
+            delta = F.interpolate(residual[..., :r].permute(0, 1, 4, 2, 3).reshape(b * v, r, h, w), size=(hh, ww),
+                                  mode="bilinear", align_corners=False).reshape(b, v, r, hh, ww)
+            out = enc.adapt(dict(pred, raw=raw + delta), c2w, intr, near, far)
+            if decode_coarse:
+                coarse = enc.adapt(pred, c2w, intr, near, far)
+        else:
+            residual = torch.zeros_like(latent)
+            out = enc.adapt(pred, c2w, intr, near, far)
+
+        def gaussians(o) -> Gaussians:
+            return Gaussians(means=o.means, scales=o.scales, rotations=o.rotations, opacities=o.opacities, sh=o.sh)
+
+        g = gaussians(out)
+        coarse_g = g if self.refiner is None else (gaussians(coarse) if coarse is not None else None)
+        return SeeUEncoding(g, coarse_g, coarse_g if coarse_g is not None else g, out.depth,
+                            1.0 / pred["coarse_disparity"], entropy, pred["probabilities"], 1.0 / pred["disparities"],
                             latent, residual, condition)
 
     def encode(self, context: dict) -> Gaussians:
