@@ -15,7 +15,9 @@ views, photo-like 360x640 JPEGs (`benchmarks/loader.py`'s generator), the same J
 Both give uint8 (4, 5, 3, 256, 256) image batches, shuffled with seed 0, at 0/1/2 workers, measured
 interleaved in this one process (alternating which goes first): samples/s of one full pass (from
 making the loader to the last batch), time to first batch, peak memory of the process tree (the sum of
-RSS, and of PSS, which counts pages shared by forked workers once; sampled every 20 ms), build time
+RSS, and of PSS, which counts pages shared by forked workers once; sampled every 50 ms in a separate
+pass, as the sampling itself costs CPU), CPU time per sample (the process tree's user + system time: less
+sensitive to the machine's load than samples/s), build time
 and bytes on disk. Local disk (page cache warm, a pass of each beforehand) and a local moto S3
 server (`moto_server` in a subprocess) with a cold cache (an empty cache directory for every pass).
 LitData reaches moto through `storage_options={"endpoint_url": ...}` (boto3 / obstore); ours through
@@ -163,7 +165,7 @@ def _rss_pss(pids: list[int]) -> tuple[int, int]:
 class PeakMemory:
     """Peak RSS and PSS (bytes) of this process and its children while active, `exclude`d pids left out."""
 
-    def __init__(self, exclude: set[int], interval: float = 0.02):
+    def __init__(self, exclude: set[int], interval: float = 0.05):
         self.exclude, self.interval = exclude, interval
         self.rss = self.pss = 0
         self._stop = threading.Event()
@@ -205,10 +207,30 @@ def make(name: str, where: dict, workers: int, batch: int, cache: Path):
     return lit_loader(where["litdata"], workers, batch, cache, where.get("storage_options"))
 
 
-def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samples: int, exclude: set[int]) -> dict:
-    """A full epoch: samples/s, time to first batch, peak memory; checks every sample came exactly once."""
+class _NoSampling:
+    rss = pss = 0
+
+    def __enter__(self) -> _NoSampling:
+        return self
+
+    def __exit__(self, *exc) -> None:
+        pass
+
+
+def cpu_seconds() -> float:
+    """User + system CPU time of this process and its reaped children (the loader workers)."""
+    t = os.times()
+    return t.user + t.system + t.children_user + t.children_system
+
+
+def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samples: int,
+             memory: set[int] | None = None) -> dict:
+    """A full epoch: samples/s, time to first batch, CPU ms per sample of the process tree; checks that
+    every sample came exactly once. `memory`: sample the peak memory, these pids left out (costly:
+    reading smaps_rollup about doubles the CPU per sample, so throughput passes run without it)."""
     seen: list[int] = []
-    with PeakMemory(exclude) as mem:
+    with (PeakMemory(memory) if memory is not None else _NoSampling()) as mem:
+        c0 = cpu_seconds()
         t0 = time.perf_counter()
         first = None
         for b in make(name, where, workers, batch, cache):
@@ -217,8 +239,9 @@ def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samp
                 assert images_of(name, b).shape[1:] == (VIEWS, 3) + OUT and images_of(name, b).dtype == torch.uint8
             seen += ids_of(name, b)
         dt = time.perf_counter() - t0
+        cpu = cpu_seconds() - c0
     assert sorted(seen) == list(range(samples)), (name, workers, len(seen), len(set(seen)))
-    return {"samples_s": samples / dt, "first_s": first, "rss": mem.rss, "pss": mem.pss}
+    return {"samples_s": samples / dt, "first_s": first, "cpu_ms": 1000 * cpu / samples, "rss": mem.rss, "pss": mem.pss}
 
 
 def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int, stop_after: int,
@@ -311,6 +334,8 @@ def main() -> int:
         kb = np.mean([len(b) for t in triples for b in t]) / 1024
         print(f"data: {args.samples} triples x {VIEWS} views of {H}x{W} JPEG (mean {kb:.0f} KB) -> {OUT[0]}x{OUT[1]}, "
               f"batch {args.batch}; {args.repeats} interleaved repeats, median")
+        write_seeu_shards(root / "warm-seeu", triples[:2], SHARD_ROWS)  # imports (pyarrow's pandas, ...) paid
+        build_litdata(root / "warm-litdata", triples[:2])                # before the timed builds
         t = time.perf_counter()
         write_seeu_shards(root / "seeu", triples, SHARD_ROWS)
         build = {"seeu": time.perf_counter() - t}
@@ -335,18 +360,27 @@ def main() -> int:
         try:
             warm = root / "cache-warm"  # local: sha256 stamps + page cache, for both
             for name in ("seeu", "litdata"):
-                one_pass(name, storages["local"], 0, 16, warm, args.samples, exclude)
+                one_pass(name, storages["local"], 0, 16, warm, args.samples)
             runs: dict[tuple, list[dict]] = {}
             for r in range(args.repeats):
                 for storage, where in storages.items():
                     for workers in args.workers:
                         for name in (("seeu", "litdata") if r % 2 == 0 else ("litdata", "seeu")):
                             cache = warm if storage == "local" else root / f"cache-{name}-{storage}-{workers}-{r}"
-                            res = one_pass(name, where, workers, args.batch, cache, args.samples, exclude)
+                            res = one_pass(name, where, workers, args.batch, cache, args.samples)
                             runs.setdefault((storage, workers, name), []).append(res)
                             if storage != "local":
                                 shutil.rmtree(cache, ignore_errors=True)
                 print(f"repeat {r + 1}/{args.repeats} done, load {loadavg()}", flush=True)
+            peak = {}  # one pass each with the memory sampler
+            for storage, where in storages.items():
+                for workers in args.workers:
+                    for name in ("seeu", "litdata"):
+                        cache = warm if storage == "local" else root / f"cache-{name}-{storage}-{workers}-mem"
+                        peak[(storage, workers, name)] = one_pass(name, where, workers, args.batch, cache,
+                                                                  args.samples, memory=exclude)
+                        if storage != "local":
+                            shutil.rmtree(cache, ignore_errors=True)
             resume = {}
             for before, after in ((2, 1), (1, 2), (0, 2)):
                 for name in ("seeu", "litdata"):
@@ -362,6 +396,8 @@ def main() -> int:
     load_after = loadavg()
 
     med = {k: {m: statistics.median(x[m] for x in v) for m in v[0]} for k, v in runs.items()}
+    for k, v in med.items():
+        v["rss"], v["pss"] = peak[k]["rss"], peak[k]["pss"]
     lines = [f"## Streaming loader vs LitData (`benchmarks/peers.py --repeats {args.repeats}`): the same "
              f"{args.samples} triples x {VIEWS} views, 360x640 JPEG ({kb:.0f} KB) -> 256x256, batch {args.batch}", "",
              f"- machine: {os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), "
@@ -374,11 +410,11 @@ def main() -> int:
              "cold cache (empty cache directory per pass)",
              f"- build: seeu {build['seeu']:.2f} s, {disk['seeu'] / 1e6:.2f} MB on disk; litdata `optimize()` "
              f"(1 worker) {build['litdata']:.2f} s, {disk['litdata'] / 1e6:.2f} MB (the JPEGs: {raw / 1e6:.2f} MB)", "",
-             "| storage | workers | seeu samples/s | litdata samples/s | seeu/litdata | first batch s (seeu / litdata) "
-             "| peak RSS MB (seeu / litdata) | peak PSS MB (seeu / litdata) |",
-             "|---|---|---|---|---|---|---|---|"]
+             "| storage | workers | seeu samples/s | litdata samples/s | seeu/litdata | CPU ms/sample (seeu / litdata) "
+             "| first batch s (seeu / litdata) | peak RSS MB (seeu / litdata) | peak PSS MB (seeu / litdata) |",
+             "|---|---|---|---|---|---|---|---|---|"]
     print(f"\n{'storage':8} {'workers':>7} {'seeu/s':>8} {'lit/s':>8} {'ratio':>6} {'first(s/l)':>12} "
-          f"{'RSS MB (s/l)':>14} {'PSS MB (s/l)':>14}")
+          f"{'RSS MB (s/l)':>14} {'PSS MB (s/l)':>14} {'CPU ms/sample (s/l)':>20}")
     ratios = {}
     for storage in storages:
         for workers in args.workers:
@@ -387,8 +423,9 @@ def main() -> int:
             ratios[(storage, workers)] = ratio
             print(f"{storage:8} {workers:7d} {s['samples_s']:8.1f} {li['samples_s']:8.1f} {ratio:5.2f}x "
                   f"{s['first_s']:5.2f}/{li['first_s']:5.2f} {s['rss'] / 2**20:6.0f}/{li['rss'] / 2**20:6.0f} "
-                  f"{s['pss'] / 2**20:6.0f}/{li['pss'] / 2**20:6.0f}")
+                  f"{s['pss'] / 2**20:6.0f}/{li['pss'] / 2**20:6.0f} {s['cpu_ms']:9.1f}/{li['cpu_ms']:5.1f}")
             lines.append(f"| {storage} | {workers} | {s['samples_s']:.1f} | {li['samples_s']:.1f} | {ratio:.2f}x | "
+                         f"{s['cpu_ms']:.1f} / {li['cpu_ms']:.1f} | "
                          f"{s['first_s']:.2f} / {li['first_s']:.2f} | {s['rss'] / 2**20:.0f} / {li['rss'] / 2**20:.0f} | "
                          f"{s['pss'] / 2**20:.0f} / {li['pss'] / 2**20:.0f} |")
     targets = []
@@ -412,6 +449,7 @@ def main() -> int:
     if args.json:
         args.json.write_text(json.dumps({"build_s": build, "disk_bytes": disk, "load": [load_before, load_after],
                                          "runs": {"/".join(map(str, k)): v for k, v in runs.items()},
+                                         "peak_memory": {"/".join(map(str, k)): v for k, v in peak.items()},
                                          "resume": {"/".join(map(str, k)): v for k, v in resume.items()}}, indent=1))
     return 0
 
