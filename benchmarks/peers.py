@@ -245,8 +245,10 @@ def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samp
 
 
 def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int, stop_after: int,
-                  workers_before: int, workers_after: int) -> dict:
-    """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses."""
+                  workers_before: int, workers_after: int, edit_state=None) -> dict:
+    """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses.
+
+    `edit_state(state) -> state`, if given, alters the saved state (the tests use it to check the counting)."""
     loader = make(name, where, workers_before, batch, cache)
     seen: list[int] = []
     for k, b in enumerate(loader):
@@ -256,6 +258,8 @@ def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int,
             break
     del loader
     state = json.loads(json.dumps(state))  # as a checkpoint would carry it
+    if edit_state is not None:
+        state = edit_state(state)
     resumed = make(name, where, workers_after, batch, cache)
     resumed.load_state_dict(state)
     after = [i for b in resumed for i in ids_of(name, b)]
