@@ -246,7 +246,8 @@ def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samp
 
 def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int, stop_after: int,
                   workers_before: int, workers_after: int, edit_state=None) -> dict:
-    """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses.
+    """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses,
+    and whether the epoch came in the order of an uninterrupted one (with `workers_before`).
 
     `edit_state(state) -> state`, if given, alters the saved state (the tests use it to check the counting)."""
     loader = make(name, where, workers_before, batch, cache)
@@ -264,8 +265,9 @@ def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int,
     resumed.load_state_dict(state)
     after = [i for b in resumed for i in ids_of(name, b)]
     got = seen + after
+    uninterrupted = [i for b in make(name, where, workers_before, batch, cache) for i in ids_of(name, b)]
     return {"before": len(seen), "after": len(after), "duplicates": len(got) - len(set(got)),
-            "losses": samples - len(set(got) & set(range(samples)))}
+            "losses": samples - len(set(got) & set(range(samples))), "same_order": got == uninterrupted}
 
 
 # ------------------------------------------------------------------------------------ S3 (moto)
@@ -320,7 +322,8 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--no-s3", action="store_true", help="local disk only")
-    ap.add_argument("--stop-after", type=int, default=7, help="resume test: batches before the stop")
+    ap.add_argument("--stop-after", type=int, nargs="+", default=[7, 37],
+                    help="resume test: batches before the stop (one test each)")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--write", action="store_true", help="write the peers section of benchmarks/RESULTS.md")
     args = ap.parse_args()
@@ -386,13 +389,14 @@ def main() -> int:
                         if storage != "local":
                             shutil.rmtree(cache, ignore_errors=True)
             resume = {}
-            for before, after in ((2, 1), (1, 2), (0, 2)):
-                for name in ("seeu", "litdata"):
-                    try:
-                        resume[(name, before, after)] = resume_counts(
-                            name, storages["local"], args.batch, warm, args.samples, args.stop_after, before, after)
-                    except Exception as exc:  # noqa: BLE001 - a peer's failure is a result to record
-                        resume[(name, before, after)] = {"error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+            for stop in args.stop_after:
+                for before, after in ((2, 1), (1, 2), (0, 2)):
+                    for name in ("seeu", "litdata"):
+                        try:
+                            resume[(name, stop, before, after)] = resume_counts(
+                                name, storages["local"], args.batch, warm, args.samples, stop, before, after)
+                        except Exception as exc:  # noqa: BLE001 - a peer's failure is a result to record
+                            resume[(name, stop, before, after)] = {"error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
         finally:
             if moto is not None:
                 moto.terminate()
@@ -438,15 +442,16 @@ def main() -> int:
     if ("s3", 2) in ratios:
         targets.append(f"S3, 2 workers: {ratios[('s3', 2)]:.2f}x (target >= 1.0)")
     print("seeu/litdata samples/s: " + "; ".join(targets))
-    lines += ["", "Resume: stop after "
-              f"{args.stop_after} batches, `state_dict()` through JSON, a new loader with other workers resumes the epoch:", ""]
-    lines += ["| loader | workers before -> after | samples before + after | duplicates | losses |", "|---|---|---|---|---|"]
-    print("\nresume (stop, save, resume with other workers):")
-    for (name, before, after), r in resume.items():
-        text = (f"{r['before']} + {r['after']} | {r['duplicates']} | {r['losses']}" if "error" not in r
-                else f"fails: {r['error']} | - | -")
-        print(f"  {name:8} {before} -> {after} workers: " + text.replace(" | ", ", "))
-        lines.append(f"| {name} | {before} -> {after} | {text} |")
+    lines += ["", "Resume (local disk): stop after k batches, `state_dict()` through JSON, a new loader with another "
+              "number of workers resumes the epoch; samples seen twice (duplicates) and never (losses):", ""]
+    lines += ["| loader | stop after k batches | workers before -> after | samples before + after | duplicates | losses "
+              "| order = uninterrupted epoch's |", "|---|---|---|---|---|---|---|"]
+    print("\nresume (stop, save, resume with other workers): samples before + after, duplicates, losses, same order")
+    for (name, stop, before, after), r in resume.items():
+        text = (f"{r['before']} + {r['after']} | {r['duplicates']} | {r['losses']} | {'yes' if r['same_order'] else 'no'}"
+                if "error" not in r else f"fails: {r['error']} | - | - | -")
+        print(f"  {name:8} k={stop} {before} -> {after} workers: " + text.replace(" | ", ", "))
+        lines.append(f"| {name} | {stop} | {before} -> {after} | {text} |")
     print(f"load average after: {load_after}")
     if args.write:
         write_section("peers", "\n".join(lines))
