@@ -14,7 +14,7 @@ views, photo-like 360x640 JPEGs (`benchmarks/loader.py`'s generator), the same J
 
 Both give uint8 (4, 5, 3, 256, 256) image batches, shuffled with seed 0, at 0/1/2 workers, measured
 interleaved in this one process (alternating which goes first): samples/s of one full pass (from
-making the loader to the last batch), time to first batch, peak memory of the process tree (the sum of
+making the loader to the last batch; each pass in a fresh forked process), time to first batch, peak memory of the process tree (the sum of
 RSS, and of PSS, which counts pages shared by forked workers once; sampled every 50 ms in a separate
 pass, as the sampling itself costs CPU), CPU time per sample (the process tree's user + system time: less
 sensitive to the machine's load than samples/s), build time
@@ -244,6 +244,31 @@ def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samp
     return {"samples_s": samples / dt, "first_s": first, "cpu_ms": 1000 * cpu / samples, "rss": mem.rss, "pss": mem.pss}
 
 
+def in_child(fn, *args, **kwargs):
+    """`fn(*args, **kwargs)` run in a forked child process, its result returned: every pass starts from
+    the same state (nothing carries over from the passes before it: heap, open shards, and LitData's
+    obstore runtime, which its forked workers cannot use once the parent has started it)."""
+    import multiprocessing as mp
+
+    ctx = mp.get_context("fork")
+    recv, send = ctx.Pipe(duplex=False)
+
+    def run() -> None:
+        try:
+            send.send(("ok", fn(*args, **kwargs)))
+        except BaseException as exc:  # noqa: BLE001 - reported to the parent
+            send.send(("error", f"{type(exc).__name__}: {exc}"))
+
+    proc = ctx.Process(target=run)
+    proc.start()
+    send.close()
+    status, value = recv.recv()
+    proc.join()
+    if status != "ok":
+        raise RuntimeError(value)
+    return value
+
+
 def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int, stop_after: int,
                   workers_before: int, workers_after: int, edit_state=None) -> dict:
     """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses,
@@ -374,7 +399,7 @@ def main() -> int:
                     for workers in args.workers:
                         for name in (("seeu", "litdata") if r % 2 == 0 else ("litdata", "seeu")):
                             cache = warm if storage == "local" else root / f"cache-{name}-{storage}-{workers}-{r}"
-                            res = one_pass(name, where, workers, args.batch, cache, args.samples)
+                            res = in_child(one_pass, name, where, workers, args.batch, cache, args.samples)
                             runs.setdefault((storage, workers, name), []).append(res)
                             if storage != "local":
                                 shutil.rmtree(cache, ignore_errors=True)
@@ -384,7 +409,7 @@ def main() -> int:
                 for workers in args.workers:
                     for name in ("seeu", "litdata"):
                         cache = warm if storage == "local" else root / f"cache-{name}-{storage}-{workers}-mem"
-                        peak[(storage, workers, name)] = one_pass(name, where, workers, args.batch, cache,
+                        peak[(storage, workers, name)] = in_child(one_pass, name, where, workers, args.batch, cache,
                                                                   args.samples, memory=exclude)
                         if storage != "local":
                             shutil.rmtree(cache, ignore_errors=True)
