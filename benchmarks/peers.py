@@ -433,17 +433,19 @@ def main() -> int:
         v["rss"], v["pss"] = peak[k]["rss"], peak[k]["pss"]
     lines = [f"## Streaming loader vs LitData (`benchmarks/peers.py --repeats {args.repeats}`): the same "
              f"{args.samples} triples x {VIEWS} views, 360x640 JPEG ({kb:.0f} KB) -> 256x256, batch {args.batch}", "",
-             f"- machine: {os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), "
+             f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine: {os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), "
              f"torch {torch.__version__}, OpenCV {cv2.__version__}, litdata {litdata.__version__}; "
              f"load average (1/5/15 min) {load_before} before, {load_after} after "
              "(a shared machine: compare the ratios, measured interleaved under the same load)",
              f"- both: shuffled (seed 0), the same decode + bilinear cover resize/crop (`transform_sample`), uint8 out; "
-             f"samples/s of one full pass (median of {args.repeats}), time to first batch, peak memory of the process "
-             "tree (sum of RSS; PSS counts pages shared by forked workers once); S3 = a local moto server, "
-             "cold cache (empty cache directory per pass)",
+             f"samples/s of one full pass (median of {args.repeats}; the ratio is the median of the ratios of the "
+             "pairs run back to back; each pass in a fresh forked process), CPU time per sample of the process "
+             "tree (user + system), time to first batch, peak memory of the process tree in a separate pass "
+             "(sum of RSS; PSS counts pages shared by forked workers once); S3 = a local moto server on the "
+             "same machine, cold cache (an empty cache directory per pass)",
              f"- build: seeu {build['seeu']:.2f} s, {disk['seeu'] / 1e6:.2f} MB on disk; litdata `optimize()` "
              f"(1 worker) {build['litdata']:.2f} s, {disk['litdata'] / 1e6:.2f} MB (the JPEGs: {raw / 1e6:.2f} MB)", "",
-             "| storage | workers | seeu samples/s | litdata samples/s | seeu/litdata | CPU ms/sample (seeu / litdata) "
+             "| storage | workers | seeu samples/s | litdata samples/s | seeu/litdata (paired) | CPU ms/sample (seeu / litdata) "
              "| first batch s (seeu / litdata) | peak RSS MB (seeu / litdata) | peak PSS MB (seeu / litdata) |",
              "|---|---|---|---|---|---|---|---|---|"]
     print(f"\n{'storage':8} {'workers':>7} {'seeu/s':>8} {'lit/s':>8} {'ratio':>6} {'first(s/l)':>12} "
@@ -452,7 +454,9 @@ def main() -> int:
     for storage in storages:
         for workers in args.workers:
             s, li = med[(storage, workers, "seeu")], med[(storage, workers, "litdata")]
-            ratio = s["samples_s"] / li["samples_s"]
+            # the median of the ratios of the pairs run back to back (the load drifts between repeats)
+            ratio = statistics.median(a["samples_s"] / b["samples_s"] for a, b in
+                                      zip(runs[(storage, workers, "seeu")], runs[(storage, workers, "litdata")]))
             ratios[(storage, workers)] = ratio
             print(f"{storage:8} {workers:7d} {s['samples_s']:8.1f} {li['samples_s']:8.1f} {ratio:5.2f}x "
                   f"{s['first_s']:5.2f}/{li['first_s']:5.2f} {s['rss'] / 2**20:6.0f}/{li['rss'] / 2**20:6.0f} "
@@ -467,6 +471,8 @@ def main() -> int:
     if ("s3", 2) in ratios:
         targets.append(f"S3, 2 workers: {ratios[('s3', 2)]:.2f}x (target >= 1.0)")
     print("seeu/litdata samples/s: " + "; ".join(targets))
+    lines.insert(next(i for i, x in enumerate(lines) if x.startswith("- build")) + 1,
+                 "- seeu/litdata samples/s: " + "; ".join(targets))
     lines += ["", "Resume (local disk): stop after k batches, `state_dict()` through JSON, a new loader with another "
               "number of workers resumes the epoch; samples seen twice (duplicates) and never (losses):", ""]
     lines += ["| loader | stop after k batches | workers before -> after | samples before + after | duplicates | losses "
