@@ -13,21 +13,23 @@ views, photo-like 360x640 JPEGs (`benchmarks/loader.py`'s generator), the same J
            OpenCV decode, bilinear cover resize + centre crop, intrinsics updated) and the default collate.
 
 Both give uint8 (4, 5, 3, 256, 256) image batches, shuffled with seed 0, at 0/1/2 workers, measured
-interleaved in this one process (alternating which goes first): samples/s of one full pass (from
-making the loader to the last batch; each pass in a fresh forked process), time to first batch, peak memory of the process tree (the sum of
-RSS, and of PSS, which counts pages shared by forked workers once; sampled every 50 ms in a separate
-pass, as the sampling itself costs CPU), CPU time per sample (the process tree's user + system time: less
-sensitive to the machine's load than samples/s), build time
-and bytes on disk. Local disk (page cache warm, a pass of each beforehand) and a local moto S3
-server (`moto_server` in a subprocess) with a cold cache (an empty cache directory for every pass).
-LitData reaches moto through `storage_options={"endpoint_url": ...}` (boto3 / obstore); ours through
-`s3://bucket/prefix?endpoint_override=host:port&scheme=http`.
+interleaved by this one script (alternating which goes first; each pass in a fresh forked process):
+samples/s of one full pass (from making the loader to the last batch), CPU time per sample (the
+process tree's user + system time: less sensitive to the machine's load than samples/s), time to
+first batch, peak memory of the process tree (the sum of RSS, and of PSS, which counts pages shared
+by forked workers once; sampled every 50 ms in a separate pass, as the sampling itself costs CPU),
+build time and bytes on disk. Local disk (page cache warm, a pass of each beforehand) and a local
+moto S3 server (`moto_server` in a subprocess) with a cold cache (an empty cache directory for every
+pass). LitData reaches moto through `storage_options={"endpoint_url": ...}` plus one patch for plain
+http (`allow_plain_http_in_litdata`); ours through `s3://bucket/prefix?endpoint_override=host:port&scheme=http`.
 
 Resume: each loader is stopped after `--stop-after` batches, its state saved (`state_dict()`), and a
 new loader with another number of workers resumes the epoch from it; the script counts the samples
-seen twice (duplicates) and never (losses) over that epoch.
+seen twice (duplicates) and never (losses) over that epoch, and checks the order against an
+uninterrupted epoch.
 
-Prints the medians of `--repeats` and the ratios seeu/litdata; `--write` records them as the
+Prints the medians of `--repeats` and the ratios seeu/litdata (targets: >= 1.5 from local disk and
+>= 1.0 from S3, 2 workers); `--write` records them as the
 `peers` section of benchmarks/RESULTS.md. The machine may be shared: the ratios come from runs
 interleaved under the same load; the load average is printed before and after.
 
