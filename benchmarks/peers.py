@@ -104,8 +104,18 @@ def lit_transform(item: dict) -> dict:
 def build_litdata(out: Path, triples: list[list[bytes]]) -> None:
     from litdata import optimize
 
-    optimize(fn=LitItem(triples), inputs=list(range(len(triples))), output_dir=str(out), chunk_size=SHARD_ROWS,
-             num_workers=1, start_method="fork", verbose=False)
+    # optimize() stages chunks under $TMPDIR/chunks unless told otherwise: keep its scratch beside `out`.
+    scratch = out.parent / f".{out.name}-scratch"
+    env = {"DATA_OPTIMIZER_CACHE_FOLDER": str(scratch / "chunks"), "DATA_OPTIMIZER_DATA_CACHE_FOLDER": str(scratch / "data")}
+    saved = {k: os.environ.get(k) for k in env}
+    os.environ.update(env)
+    try:
+        optimize(fn=LitItem(triples), inputs=list(range(len(triples))), output_dir=str(out), chunk_size=SHARD_ROWS,
+                 num_workers=1, start_method="fork", verbose=False)
+    finally:
+        for k, v in saved.items():
+            os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
+        shutil.rmtree(scratch, ignore_errors=True)
 
 
 def allow_plain_http_in_litdata() -> None:
