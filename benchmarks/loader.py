@@ -76,18 +76,30 @@ def photo_like_frames(n: int, seed: int = 0) -> list[bytes]:
     return out
 
 
-def make_data(root: Path, samples: int, shard_rows: int = 60) -> tuple[Path, Path, list[list[bytes]]]:
+INTRINSICS = [0.86, 1.53, 0.5, 0.5]  # RE10K-like normalised intrinsics
+
+
+def make_triples(samples: int) -> list[list[bytes]]:
+    """`samples` rows of VIEWS distinct JPEGs each (drawn from 64 photo-like frames, fixed seeds)."""
     frames = photo_like_frames(64)
     rng = np.random.default_rng(1)
-    triples = [[frames[i] for i in rng.choice(len(frames), VIEWS, replace=False)] for _ in range(samples)]
-    intr = [0.86, 1.53, 0.5, 0.5]  # RE10K-like normalised intrinsics
+    return [[frames[i] for i in rng.choice(len(frames), VIEWS, replace=False)] for _ in range(samples)]
+
+
+def camera_poses() -> list[np.ndarray]:
+    """VIEWS camera-to-world 4x4 matrices, 0.1 apart along x."""
     poses = [np.eye(4) for _ in range(VIEWS)]
     for v, p in enumerate(poses):
         p[0, 3] = 0.1 * v
-    # SeeU triple shards.
-    shards = root / "triples"
+    return poses
+
+
+def write_seeu_shards(shards: Path, triples: list[list[bytes]], shard_rows: int = 60) -> Path:
+    """The triples as a SeeU triples dataset (Arrow shards of `shard_rows` rows + manifest) in `shards`."""
+    intr, poses = INTRINSICS, camera_poses()
     schema = arrow_schema("seeu.triples")
     entries = []
+    samples = len(triples)
     for k, start in enumerate(range(0, samples, shard_rows)):
         rows = [{"sample_id": f"scene{i}/interp/0", "scene_id": f"scene{i}", "mode": "interp", "num_context": CONTEXT,
                  "frame_index": list(range(VIEWS)), "source_frame": list(range(VIEWS)), "image": triples[i],
@@ -100,16 +112,28 @@ def make_data(root: Path, samples: int, shard_rows: int = 60) -> tuple[Path, Pat
         entries.append(FileEntry.for_file(shards, path, len(rows)))
     write_manifest(shards, "seeu.triples", schema_version("seeu.triples"), entries, params={"benchmark": True},
                    provenance=provenance("benchmarks/loader.py"))
-    # pixelSplat chunks: world-to-camera 3x4 after fx fy cx cy 0 0.
-    chunks = root / "chunks"
+    return shards
+
+
+def write_pixelsplat_chunks(chunks: Path, triples: list[list[bytes]], shard_rows: int = 60) -> Path:
+    """The triples as pixelSplat `.torch` chunks: world-to-camera 3x4 after fx fy cx cy 0 0."""
+    intr, poses = INTRINSICS, camera_poses()
     chunks.mkdir()
     w2c = [cameras.world_to_cam_from_cam_to_world(p)[:3].reshape(-1) for p in poses]
     cams = torch.tensor(np.stack([np.concatenate([intr, [0, 0], m]) for m in w2c]), dtype=torch.float32)
+    samples = len(triples)
     for k, start in enumerate(range(0, samples, shard_rows)):
         examples = [{"url": f"https://example.com/{i}", "timestamps": torch.arange(VIEWS, dtype=torch.int64) * 33_000,
                      "cameras": cams.clone(), "images": [torch.frombuffer(bytearray(b), dtype=torch.uint8) for b in triples[i]],
                      "key": f"scene{i}"} for i in range(start, min(samples, start + shard_rows))]
         torch.save(examples, chunks / f"{k:06d}.torch")
+    return chunks
+
+
+def make_data(root: Path, samples: int, shard_rows: int = 60) -> tuple[Path, Path, list[list[bytes]]]:
+    triples = make_triples(samples)
+    shards = write_seeu_shards(root / "triples", triples, shard_rows)
+    chunks = write_pixelsplat_chunks(root / "chunks", triples, shard_rows)
     return shards, chunks, triples
 
 
