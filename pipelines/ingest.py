@@ -27,7 +27,7 @@ from pathlib import Path
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
-SFM_STAGE_FORMAT = 4
+SFM_STAGE_FORMAT = 5
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

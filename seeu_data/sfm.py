@@ -6,15 +6,16 @@ into a SeeUError. The child runs: SIFT extraction (one shared camera, `camera_mo
 sequential matching (`overlap`; loop detection only with a vocabulary-tree file) -> incremental
 mapping (possibly several models; re-run with the next seed while it registers too few frames, see
 `map_with_retries`) -> undistortion of every model whose camera has distortion of
-at least `max_negligible_distortion_px` at the image border (sizes read back from the undistorted
-model; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
+at least `max_negligible_distortion_px` at the image border (to a pinhole camera of the same W x H,
+`seeu_data.undistort`; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
 
 Output directory layout::
 
     database.db  sfm.log  result.json
     sparse/<k>/             COLMAP binary model k (as mapped)
-    undistorted/<k>/        images/ + sparse/ (PINHOLE) when the camera model has distortion
+    undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
+    points3d_<k>.npy        (P, 6) the 3D points of model k: world x y z, colour R G B (0-255)
 
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
@@ -228,6 +229,10 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
             depths.append(xyz @ np.asarray(w2c)[:, :3].T[:, 2] + np.asarray(w2c)[2, 3])
     depth = np.concatenate(depths) if depths else np.zeros(0)
     np.save(out / f"points_depth_{index}.npy", depth.astype(np.float64))
+    ids = sorted(points)
+    xyz = np.array([points[p] for p in ids], np.float64).reshape(-1, 3)
+    rgb = np.array([rec.points3D[p].color for p in ids], np.float64).reshape(-1, 3)
+    np.save(out / f"points3d_{index}.npy", np.concatenate([xyz, rgb], 1))  # (M, 6) world xyz + RGB 0-255
     return {"index": index, "camera": next(iter(cams.values())), "undistorted": undistorted,
             "image_dir": image_dir, "images": images, "num_points3D": int(rec.num_points3D()),
             "mean_reprojection_error": float(rec.compute_mean_reprojection_error())}
@@ -235,6 +240,8 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
 
 def _child(job_path: str) -> int:
     import pycolmap
+
+    from seeu_data.undistort import undistort_files
 
     job = json.loads(Path(job_path).read_text())
     cfg = SfmConfig(**job["config"])
@@ -333,15 +340,15 @@ def _child(job_path: str) -> int:
             models.append(_export_model(rec, k, image_dir, out, undistorted=False))
             models[-1]["distortion_max_px"] = distortion
             continue
-        und = out / "undistorted" / str(k)
-        und.mkdir(parents=True, exist_ok=True)
-        reg_names = [rec.image(i).name for i in rec.reg_image_ids()]
-        pycolmap.undistort_images(und, model_dir, image_dir, image_names=reg_names, jpeg_quality=95,
-                                  num_threads=cfg.num_threads)
-        und_rec = pycolmap.Reconstruction(und / "sparse")  # sizes can change by a pixel: read them back
-        models.append(_export_model(und_rec, k, str(und / "images"), out, undistorted=True))
+        # Same-size undistortion (seeu_data.undistort): the frames keep W x H, only the focal changes.
+        und = out / "undistorted" / str(k) / "images"
+        reg_names = sorted(rec.image(i).name for i in rec.reg_image_ids())
+        pinhole = undistort_files(camera, image_dir, reg_names, und, jpeg_quality=95)
+        models.append(_export_model(rec, k, str(und), out, undistorted=True))
+        models[-1]["camera"] = pinhole.as_dict()
         models[-1]["camera_distorted"] = _camera_dict(camera)
         models[-1]["distortion_max_px"] = distortion
+        models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
     timings["export_s"] = time.perf_counter() - t0
     (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
                                                  "num_keypoints": num_kp,

@@ -425,13 +425,16 @@ def test_lens_distortion_is_estimated_and_undistorted(tmp_path):
     assert s.meta["camera_as_mapped"]["params"][0] == pytest.approx(K[0, 0], rel=0.02)
     acc = pose_accuracy(s.cam_to_world, poses[s.source_frame])
     assert acc.centre_rmse_pct_path < 0.5 and acc.rel_rot_err_mean_deg < 0.2, acc
-    w2, h2 = int(s.width[0]), int(s.height[0])
+    # The undistorted frames keep the original size (what the peers' loaders need); the focal changes.
+    assert (s.width == W).all() and (s.height == H).all()
+    assert model["camera"]["model"] == "PINHOLE" and (model["camera"]["width"], model["camera"]["height"]) == (W, H)
+    w2, h2 = W, H
     i = len(s) // 2
     stored = cv2.cvtColor(cv2.imdecode(np.frombuffer(s.images[i], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     assert stored.shape == (h2, w2, 3)
     truth, _ = render_view(scene, poses[s.source_frame[i]], s.intrinsics_norm[i], w2, h2)
-    distorted = cv2.resize(frames[s.source_frame[i]], (w2, h2))
-    m = 12  # ignore the border, where undistortion has no source pixels
+    distorted = frames[s.source_frame[i]]
+    m = 2  # same-size undistortion leaves no blank border
 
     def psnr(a, b):  # on slightly blurred crops: geometry, not mp4/JPEG noise
         return cv2.PSNR(cv2.GaussianBlur(a[m:-m, m:-m], (0, 0), 1.5), cv2.GaussianBlur(b[m:-m, m:-m], (0, 0), 1.5))
