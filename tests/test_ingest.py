@@ -21,6 +21,7 @@ from seeu_data.frame_select import SelectConfig, drop_blurriest_per_window, even
 from seeu_data.ingest_report import summary_line
 from seeu_data.pose_eval import pose_accuracy, umeyama
 from seeu_data.posed import PosedDataset
+from seeu_data.scale import ScaleConfig
 from seeu_data.synthetic import (camera_path, default_intrinsics_norm, load_ground_truth, make_scene, render_view,
                                  write_clip)
 from seeu_data.video import discover_sources, iter_frames, sharpness
@@ -192,7 +193,8 @@ def test_chunks_split_runs_claim_frames_and_normalise_scale(tmp_path):
     m1 = list(range(20, 30))
     res = {"models": [_fake_model(0, [names[i] for i in m0], poses_scaled[m0], 3.0, tmp_path),
                       _fake_model(1, [names[i] for i in m1], poses[m1], 1.0, tmp_path)]}
-    chunks, dropped = plan_chunks("s", names, res, tmp_path, ChunkConfig(min_chunk_frames=15))
+    chunks, dropped = plan_chunks("s", names, res, tmp_path,
+                                  ChunkConfig(min_chunk_frames=15, scale=ScaleConfig("median-depth")))
     # run 0-13 (14 frames) is too short; 15-29 kept from the larger model; model 1's frames are claimed
     assert [c.scene_id for c in chunks] == ["s_c0"] and chunks[0].frame_positions == list(range(15, 30))
     assert {d["position"] for d in dropped} == set(range(15))
