@@ -186,6 +186,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     from seeu_data.frame_select import SelectConfig, select_frames
     from seeu_data.ingest_report import mean_reprojection_error, plot_trajectory, summary_line, write_report
     from seeu_data.manifest import MANIFEST_NAME, provenance
+    from seeu_data.points import write_chunk_points
     from seeu_data.posed import PosedDatasetWriter, PosedScene
     from seeu_data.scale import ScaleConfig, distance_frame_names
     from seeu_data.sfm import SfmConfig, run_sfm
@@ -286,7 +287,9 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 source_frame=np.array([f["source_frame"] for f in fr], np.int64),
                 timestamp_us=np.array([f["timestamp_us"] for f in fr], np.int64),
                 source_name=[f["source_name"] for f in fr],
-                meta={**c.meta, "source": str(source.path)},
+                meta={**c.meta, "source": str(source.path),
+                      **write_chunk_points(cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir,
+                                           c.scene_id)},
             ))
         cache.timings["write"] = time.perf_counter() - t0
         report["timings_s"] = {**cache.timings, "total": time.perf_counter() - t_start}

@@ -134,8 +134,10 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
         scale, near, far = choice.factor, choice.near, choice.far
         positions = list(range(start, end))
         c2w = cam_to_world_from_world_to_cam(np.stack([w2c[p] for p in positions]))
-        c2w = invert_rigid(c2w[0]) @ c2w  # first camera of the chunk = identity
+        first_w2c = invert_rigid(c2w[0])
+        c2w = first_w2c @ c2w  # first camera of the chunk = identity
         c2w[:, :3, 3] *= scale
+        sfm_to_chunk = np.diag([scale, scale, scale, 1.0]) @ first_w2c  # SfM world point -> chunk frame
         w, h = int(cam["width"]), int(cam["height"])
         intr = np.array([cam["fx"] / w, cam["fy"] / h, cam["cx"] / w, cam["cy"] / h])
         chunks.append(Chunk(
@@ -144,7 +146,7 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
             cam_to_world=c2w, intrinsics_norm=intr, width=w, height=h, near=near, far=far,
             meta={"sfm_model": int(model["index"]), "camera_model": cam["model"], "camera_params": cam["params"],
                   "undistorted": bool(model["undistorted"]), "distortion_max_px": model.get("distortion_max_px"),
-                  "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, **choice.meta, "frame_method": FRAME_METHOD,
+                  "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, **choice.meta, "sfm_to_chunk": sfm_to_chunk.tolist(), "frame_method": FRAME_METHOD,
                   "near_far_method": choice.meta.get("near_far_method", NEAR_FAR_METHOD),
                   "mean_reprojection_error_px": model["mean_reprojection_error"]},
         ))
