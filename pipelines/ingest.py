@@ -46,6 +46,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--overlap", type=int, default=10, help="sequential matching overlap in frames (default 10)")
     p.add_argument("--vocab-tree", type=Path, default=None,
                    help="vocabulary-tree file: enables loop detection (off without one)")
+    p.add_argument("--mapper", choices=["incremental", "global", "auto"], default="incremental",
+                   help="COLMAP incremental mapping (default), GLOMAP global mapping, or auto: incremental when "
+                        ">= 90%% of consecutive frames match (a video), else global (recorded in report.json)")
+    p.add_argument("--features", choices=["sift", "aliked"], default="sift",
+                   help="feature type (default sift; aliked needs a pycolmap built with ONNX, checked up front)")
     p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
     p.add_argument("--scale", choices=["re10k", "median-depth", "metric"], default="re10k",
                    help="scale convention, recorded in each chunk's meta: re10k (default; 5th-percentile point depth "
@@ -96,6 +101,8 @@ class IngestConfig:
     sfm_attempts: int = 3
     jpeg_quality: int = 95
     scale: str = "re10k"
+    mapper: str = "incremental"
+    features: str = "sift"
     known_distance: float | None = None
     distance_frames: tuple[int, int] | None = None
     extra: dict = field(default_factory=dict)
@@ -203,7 +210,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     sfm_cfg = SfmConfig(camera_model=cfg.camera_model, overlap=cfg.overlap,
                         vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
                         min_model_size=max(3, min(cfg.min_chunk_frames, 10)), max_num_features=cfg.max_features,
-                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts)
+                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts, mapper=cfg.mapper,
+                        features=cfg.features)
     sfm_cfg.check()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
@@ -259,7 +267,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                             "undistorted": m["undistorted"], "distortion_max_px": m.get("distortion_max_px")}
                            for m in sfm_result["models"]],
                 "discarded_models": sfm_result.get("discarded_models", []),
-                "mapping_attempts": sfm_result.get("mapping_attempts", [])},
+                "mapping_attempts": sfm_result.get("mapping_attempts", []),
+                "mapper": sfm_result.get("mapper")},
         "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
                     "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],
                     "near": c.near, "far": c.far, "sfm_model": c.model_index} for c in chunks],
@@ -330,12 +339,14 @@ def _run(args: argparse.Namespace) -> int:
 
     from seeu_data.errors import SeeUError
     from seeu_data.scale import ScaleConfig
+    from seeu_data.sfm import SfmConfig
     from seeu_data.video import discover_sources
 
     progress = args.progress or sys.stderr.isatty()
     if args.workers < 1:
         raise SeeUError(f"--workers must be >= 1, got {args.workers}")
     ScaleConfig(args.scale, args.known_distance, args.distance_frames).check()  # before any scene starts
+    SfmConfig(mapper=args.mapper, features=args.features).check()  # e.g. ALIKED without ONNX: one line, now
     sources = discover_sources(args.inputs)
     workers = min(args.workers, len(sources))
     threads = args.threads if args.threads != -1 else max(1, (os.cpu_count() or 1) // workers)
@@ -344,7 +355,7 @@ def _run(args: argparse.Namespace) -> int:
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
                        min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
                        sfm_attempts=args.sfm_attempts, scale=args.scale, known_distance=args.known_distance,
-                       distance_frames=args.distance_frames)
+                       distance_frames=args.distance_frames, mapper=args.mapper, features=args.features)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
         report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress)

@@ -39,6 +39,9 @@ from pathlib import Path
 from .errors import SeeUError
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+MAPPERS = ("incremental", "global", "auto")
+# --features: (pycolmap FeatureExtractorType, FeatureMatcherType) names; only SIFT needs no ONNX runtime
+FEATURES = {"sift": ("SIFT", "SIFT_BRUTEFORCE"), "aliked": ("ALIKED_N16ROT", "ALIKED_LIGHTGLUE")}
 _UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _PROGRESS = "@@seeu"
 # COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
@@ -63,6 +66,9 @@ class SfmConfig:
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
+    # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.match_graph)
+    mapper: str = "incremental"
+    features: str = "sift"
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -73,6 +79,26 @@ class SfmConfig:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
             raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
+        if self.mapper not in MAPPERS:
+            raise SeeUError(f"--mapper must be one of {', '.join(MAPPERS)}, got {self.mapper!r}")
+        if self.features not in FEATURES:
+            raise SeeUError(f"--features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if self.features != "sift":
+            _check_features_available(self.features)
+
+
+def _check_features_available(features: str) -> None:
+    """COLMAP aborts the whole process when it cannot run a feature type (ALIKED without its ONNX
+    runtime): ask pycolmap here, where that is a Python exception, before any child starts."""
+    import pycolmap
+
+    options = pycolmap.FeatureExtractionOptions()
+    options.type = getattr(pycolmap.FeatureExtractorType, FEATURES[features][0])
+    try:
+        pycolmap.FeatureExtractor.create(options)
+    except RuntimeError as exc:  # e.g. "ALIKED feature extraction requires ONNX support."
+        raise SeeUError(f"--features {features} cannot run with this pycolmap ({str(exc).rstrip('.')}); "
+                        "use --features sift") from None
 
 
 def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, config: SfmConfig,
@@ -241,6 +267,7 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
 def _child(job_path: str) -> int:
     import pycolmap
 
+    from seeu_data.match_graph import choose_mapper, match_graph_stats
     from seeu_data.undistort import undistort_files
 
     job = json.loads(Path(job_path).read_text())
@@ -263,6 +290,7 @@ def _child(job_path: str) -> int:
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = cfg.max_num_features
     extraction.num_threads = cfg.num_threads
+    extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
     pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction)
     timings["extract_s"] = time.perf_counter() - t0
@@ -281,11 +309,16 @@ def _child(job_path: str) -> int:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = cfg.num_threads
+    if cfg.features != "sift":
+        matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
     pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing)
     timings["match_s"] = time.perf_counter() - t0
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
+    graph = match_graph_stats(db, names)
     db.close()
+    mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(graph)
+    mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": graph}
     if num_pairs == 0:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
@@ -296,6 +329,12 @@ def _child(job_path: str) -> int:
     def map_once(seed: int) -> dict:
         shutil.rmtree(sparse, ignore_errors=True)
         sparse.mkdir()
+        if mapper == "global":
+            options = pycolmap.GlobalPipelineOptions()
+            options.min_model_size = cfg.min_model_size
+            options.num_threads = cfg.num_threads
+            options.random_seed = seed
+            return pycolmap.global_mapping(db_path, image_dir, sparse, options=options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.num_threads
@@ -353,6 +392,7 @@ def _child(job_path: str) -> int:
     (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
                                                  "num_keypoints": num_kp,
                                                  "num_verified_pairs": num_pairs, "mapping_attempts": attempts,
+                                                 "mapper": mapper_info,
                                                  "timings": timings}))
     return 0
 
