@@ -75,10 +75,10 @@ def _align(est_c2w: np.ndarray, gt_c2w: np.ndarray):
 def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(exported):
     """Default options end to end. The frames are exactly what the loaders accept; ground-truth points
     through the exported 18 numbers land within the SfM's own accuracy of where the ground-truth camera
-    puts them (measured over five runs of this clip: median 0.12-0.26 px, p95 0.31-0.56 px, multi-threaded
-    SfM differs from run to run; its focal length is 0.08-0.14 % off, which alone moves a border pixel
-    by 0.26-0.45 px, so 0.05 px is out of reach of SfM here; the layout itself is exact to 0.05 px: the
-    next test)."""
+    puts them (measured in three runs of this clip: median 0.12-0.26 px, p95 0.31-0.34 px where printed;
+    multi-threaded SfM differs from run to run). SfM's focal length is 0.08 % off here (0.14 % with 90
+    frames), which alone moves a border pixel by 0.26 px, so 0.05 px is out of reach of SfM on this
+    clip; the layout itself is exact to 0.05 px: the next test."""
     root = exported
     index = json.loads((root / "ps" / "test" / "index.json").read_text())
     sidecar = json.loads((root / "ps" / "test" / "seeu_posed.json").read_text())
