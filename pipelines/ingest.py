@@ -40,6 +40,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sharpness-window", type=int, default=0,
                    help="drop the blurriest frame in each window of N candidates (0 = off)")
     p.add_argument("--max-size", type=int, default=None, help="downscale so the longer side is at most N pixels")
+    p.add_argument("--size", type=_hw, default=None, metavar="HxW",
+                   help="make the posed frames exactly HxW: resize to cover + centre crop after SfM (intrinsics "
+                        "updated), e.g. 360x640 for the peers' RE10K loaders; default: the (undistorted) frame size")
     p.add_argument("--camera-model", default="SIMPLE_RADIAL",
                    choices=["PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
                    help="shared camera model; models with distortion are undistorted (default SIMPLE_RADIAL)")
@@ -76,6 +79,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "Default: atomic renames only, a torn file is caught by the manifest sha256; also SEEU_FSYNC=1")
 
 
+def _hw(text: str) -> tuple[int, int]:
+    from pipelines.build import parse_hw
+
+    return parse_hw(text)
+
+
 def _frame_pair(text: str) -> tuple[int, int]:
     try:
         a, b = (int(v) for v in text.split(","))
@@ -105,6 +114,7 @@ class IngestConfig:
     features: str = "sift"
     known_distance: float | None = None
     distance_frames: tuple[int, int] | None = None
+    size: tuple[int, int] | None = None
     extra: dict = field(default_factory=dict)
 
 
@@ -194,6 +204,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     from seeu_data.ingest_report import mean_reprojection_error, plot_trajectory, summary_line, write_report
     from seeu_data.manifest import MANIFEST_NAME, provenance
     from seeu_data.points import write_chunk_points
+    from seeu_data.resize import resize_scene
     from seeu_data.posed import PosedDatasetWriter, PosedScene
     from seeu_data.scale import ScaleConfig, distance_frame_names
     from seeu_data.sfm import SfmConfig, run_sfm
@@ -288,7 +299,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 imgs.append(path.read_bytes())
             fr = [frames[p] for p in c.frame_positions]
             n = len(fr)
-            writer.add(PosedScene(
+            scene = PosedScene(
                 scene_id=c.scene_id, images=imgs, image_format="jpeg",
                 width=np.full(n, c.width), height=np.full(n, c.height),
                 intrinsics_norm=np.tile(c.intrinsics_norm, (n, 1)), cam_to_world=c.cam_to_world,
@@ -299,7 +310,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 meta={**c.meta, "source": str(source.path),
                       **write_chunk_points(cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir,
                                            c.scene_id)},
-            ))
+            )
+            writer.add(scene if cfg.size is None else resize_scene(scene, cfg.size, cfg.jpeg_quality))
         cache.timings["write"] = time.perf_counter() - t0
         report["timings_s"] = {**cache.timings, "total": time.perf_counter() - t_start}
         report["reused"] = dict(cache.reused)
@@ -355,7 +367,7 @@ def _run(args: argparse.Namespace) -> int:
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
                        min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
                        sfm_attempts=args.sfm_attempts, scale=args.scale, known_distance=args.known_distance,
-                       distance_frames=args.distance_frames, mapper=args.mapper, features=args.features)
+                       distance_frames=args.distance_frames, size=args.size, mapper=args.mapper, features=args.features)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
         report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress)

@@ -22,7 +22,7 @@ def global_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("mapper")
     write_clip(root / "walk.mp4", n_frames=N, width=W, height=H, seed=0)
     assert cli_main(["ingest", str(root / "walk.mp4"), "--out", str(root / "posed"), "--mapper", "global",
-                     "--threads", "1"]) == 0
+                     "--threads", "1", "--size", "120x160"]) == 0
     return root
 
 
@@ -58,3 +58,21 @@ def test_features_without_runtime_are_refused_before_sfm(tmp_path, capsys):
     err = capsys.readouterr().err.strip()
     assert "--features aliked" in err and "ONNX" in err and "\n" not in err
     assert not (tmp_path / "o").exists()  # refused before anything was started or written
+
+
+def test_ingest_size_resizes_and_crops_with_intrinsics(global_run):
+    """--size 120x160 on a 320x180 clip: scale 2/3 (to cover 120 rows), then 53 columns cropped
+    from each side; the stored focal length is the true one (SfM-accurate) times 2/3."""
+    import cv2
+
+    from seeu_data.posed import PosedDataset
+    from seeu_data.synthetic import load_ground_truth
+
+    s = PosedDataset(global_run / "posed" / "walk").load_scene("walk_c0")
+    assert (s.width == 160).all() and (s.height == 120).all() and s.meta["resized"]["to_hw"] == [120, 160]
+    img = cv2.imdecode(np.frombuffer(s.images[0], np.uint8), cv2.IMREAD_COLOR)
+    assert img.shape == (120, 160, 3)
+    gt = load_ground_truth(global_run / "walk.mp4")
+    fx_true = gt["intrinsics_norm"][0, 0] * W * (120 / H)
+    assert s.intrinsics_norm[0, 0] * 160 == pytest.approx(fx_true, rel=0.01)
+    assert s.intrinsics_norm[0, 2] == pytest.approx(0.5, abs=0.01) and s.intrinsics_norm[0, 3] == pytest.approx(0.5, abs=0.01)
