@@ -46,14 +46,15 @@ def test_median_depth_scale(tmp_path):
     assert c.near == pytest.approx(0.4 * np.percentile(DEPTHS, 0.1) / 3.5)
 
 
-def test_re10k_scale_puts_p5_depth_at_twice_near(tmp_path):
+def test_re10k_scale_puts_the_near_bound_at_the_peers_near(tmp_path):
     c = _chunk(tmp_path, ScaleConfig("re10k"))
-    p5 = 0.5 + 0.05 * 6.0  # 5th percentile of a uniform grid on [0.5, 6.5]
-    assert c.meta["scale_factor"] == pytest.approx(2.0 / p5)
+    p01 = 0.5 + 0.001 * 6.0  # 0.1th percentile of a uniform grid on [0.5, 6.5]
+    s = 1.0 / (0.4 * p01)
+    assert c.meta["scale_factor"] == pytest.approx(s)
     assert (c.near, c.far) == (1.0, 100.0) and c.meta["scale_convention"] == "re10k"
-    # depths below 0.5 * p5 (i.e. < near after scaling): none here, since the smallest is 0.5 = 0.625 p5
-    assert c.meta["points_nearer_than_near_pct"] == 0.0
-    assert c.cam_to_world[-1, 0, 3] == pytest.approx(0.25 * (N - 1) * 2.0 / p5)
+    assert c.meta["points_nearer_than_near_pct"] == 0.0 and c.meta["points_farther_than_far_pct"] == 0.0
+    assert c.meta["near_far_from_depths"][0] == pytest.approx(1.0)
+    assert c.cam_to_world[-1, 0, 3] == pytest.approx(0.25 * (N - 1) * s)
 
 
 def test_metric_scale_from_known_distance(tmp_path):
