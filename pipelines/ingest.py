@@ -4,7 +4,8 @@ Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parame
 the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
 (--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
 process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
-detection only with --vocab-tree, incremental mapping, undistortion when the model has distortion)
+detection only with --vocab-tree, --mapper incremental/global/auto, undistortion to a pinhole camera
+of the same size when the model has distortion; --size HxW crops/resizes afterwards)
 -> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
 re10k, median-depth or metric, seeu_data/scale.py) -> OUT/<scene>/ posed-frames dataset
 (scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
