@@ -443,3 +443,9 @@ def test_lens_distortion_is_estimated_and_undistorted(tmp_path):
 
     assert psnr(stored, truth) > 28  # measured ~31.7
     assert psnr(stored, truth) > psnr(distorted, truth) + 4  # measured ~25.4 for the distorted frame
+    # ... and the pixelSplat export of it keeps the original frame size too
+    assert cli_main(["export", "pixelsplat", str(tmp_path / "out" / "lens"), "--out", str(tmp_path / "ps")]) == 0
+    import torch
+
+    (ex,) = torch.load(tmp_path / "ps" / "test" / "000000.torch", weights_only=True)
+    assert {cv2.imdecode(im.numpy(), cv2.IMREAD_COLOR).shape for im in ex["images"]} == {(H, W, 3)}
