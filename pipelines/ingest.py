@@ -205,8 +205,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     from seeu_data.ingest_report import mean_reprojection_error, plot_trajectory, summary_line, write_report
     from seeu_data.manifest import MANIFEST_NAME, provenance
     from seeu_data.points import write_chunk_points
-    from seeu_data.resize import resize_scene
     from seeu_data.posed import PosedDatasetWriter, PosedScene
+    from seeu_data.resize import resize_scene
     from seeu_data.scale import ScaleConfig, distance_frame_names
     from seeu_data.sfm import SfmConfig, run_sfm
     from seeu_data.stages import StageCache, key_hash

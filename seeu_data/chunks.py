@@ -37,7 +37,7 @@ class ChunkConfig:
     far_percentile: float = 99.9
     near_margin: float = 0.4
     far_margin: float = 1.5
-    scale: ScaleConfig = ScaleConfig()
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
 
     def check(self) -> None:
         if self.min_chunk_frames < 2:

@@ -66,4 +66,4 @@ def write_chunk_points(sfm_dir: str | Path, model_index: int, sfm_to_chunk: np.n
     xyz = pts[:, :3] @ m[:3, :3].T + m[:3, 3]
     rel = f"{POINTS_DIR}/{scene_id}.ply"
     write_points_ply(Path(dataset_dir) / rel, xyz, pts[:, 3:6])
-    return {"points3d": rel, "points3d_count": int(len(pts))}
+    return {"points3d": rel, "points3d_count": len(pts)}

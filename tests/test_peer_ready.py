@@ -6,7 +6,6 @@ from __future__ import annotations
 
 import io
 import json
-from pathlib import Path
 
 import cv2
 import numpy as np
@@ -137,7 +136,7 @@ def test_pixelsplat_layout_projects_ground_truth_within_005_px(tmp_path):
     gt = {"config": {"seed": 0}, "cam_to_world": scene.cam_to_world, "intrinsics_norm": scene.intrinsics_norm}
     pts = _gt_points(gt, [0, 2])
     for i in range(3):
-        uv, d = cam.project_points(pts, c2w[i], intr[i], W, H)
+        uv, _ = cam.project_points(pts, c2w[i], intr[i], W, H)
         uv_gt, d_gt = cam.project_points(pts, scene.cam_to_world[i], scene.intrinsics_norm[i], W, H)
         front = d_gt > 0.1
         assert front.sum() > 50 and np.abs(uv - uv_gt)[front].max() < 0.05
@@ -178,7 +177,7 @@ def test_export_resize_makes_frames_peer_size_with_ground_truth_intrinsics(tmp_p
         assert got.shape == (360, 640, 3)
         # Ground truth: the synthetic room rendered directly at 360x640 with the exported intrinsics.
         truth, _ = render_view(make_scene(1), scene.cam_to_world[i], cams[i, :4], 640, 360)
-        blur = lambda a: cv2.GaussianBlur(a, (0, 0), 1.0)  # noqa: E731 - geometry, not JPEG/filter noise
+        blur = lambda a: cv2.GaussianBlur(a, (0, 0), 1.0)  # geometry, not JPEG/filter noise
         assert cv2.PSNR(blur(got), blur(truth)) > 30
     # 600x800 covers 360x640 at 0.8 (480x640), then 60 rows are cropped top and bottom
     assert np.allclose(cams[:, :4], [[scene.intrinsics_norm[0, 0], scene.intrinsics_norm[0, 1] * 480 / 360, 0.5, 0.5]],

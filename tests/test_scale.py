@@ -3,7 +3,6 @@ model (cameras on a line, known point depths), the recorded meta, and the bad-in
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
