@@ -96,6 +96,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--interpolation", choices=["area", "lanczos", "linear", "cubic"], default="area",
                    help="resize filter (default area: INTER_AREA when shrinking)")
     g.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of resized images (default 95)")
+    g.add_argument("--near", type=float, default=None,
+                   help="near plane for every view instead of the posed data's (e.g. 1 with --far 100: the "
+                        "peers' RealEstate10K values); default: the data's")
+    g.add_argument("--far", type=float, default=None, help="far plane for every view (with --near)")
     g.add_argument("--shard-size", type=parse_size, default=parse_size("128MB"),
                    help="target shard size (default 128MB)")
     g.add_argument("--rows-per-batch", type=int, default=64, help="rows per Arrow record batch (default 64)")
@@ -128,6 +132,13 @@ def run(args: argparse.Namespace) -> int:
         raise SeeUError("--jpeg-quality must be in 1..100")
     if args.rows_per_batch < 1:
         raise SeeUError("--rows-per-batch must be >= 1")
+    near_far = None
+    if (args.near is None) != (args.far is None):
+        raise SeeUError("--near and --far go together")
+    if args.near is not None:
+        if not (0 < args.near < args.far < float("inf")):
+            raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {args.near} / {args.far}")
+        near_far = (args.near, args.far)
     sampling = sampling_config(args, args.mode) if args.mode != "eval" else SamplingConfig()
     cfg = BuildConfig(
         inputs=tuple(args.inputs), out=args.out, mode=args.mode, sampling=sampling, index_path=args.index,
@@ -135,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
         image=ImageOptions(resize=args.resize, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
         shard_bytes=args.shard_size, rows_per_batch=args.rows_per_batch, engine=args.engine,
         workers=args.workers if args.workers is not None else default_workers(),
-        ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs)
+        ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs, near_far=near_far)
     with fsync_policy(True if args.fsync else None):
         manifest = build(cfg, "seeu build")
     rep = manifest["report"]

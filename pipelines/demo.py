@@ -182,7 +182,7 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     # bit-identical poses run after run; with more threads, bundle adjustment is not deterministic and
     # about one run in four settled on a solution with ~5% camera-centre error. On 2 cores one thread
     # costs little (measured: 57-71 s vs 51-81 s per 72-frame clip), so the demo is reproducible.
-    cfg = IngestConfig(camera_model="SIMPLE_PINHOLE", threads=1)
+    cfg = IngestConfig(camera_model="SIMPLE_PINHOLE", threads=1, scale="median-depth")  # the demo model's tight near/far
 
     def fn() -> dict:
         out = {}

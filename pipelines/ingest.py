@@ -4,14 +4,16 @@ Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parame
 the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
 (--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
 process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
-detection only with --vocab-tree, incremental mapping, undistortion when the model has distortion)
--> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale: median SfM
-point depth = 1; near/far from point-depth percentiles) -> OUT/<scene>/ posed-frames dataset
+detection only with --vocab-tree, --mapper incremental/global/auto, undistortion to a pinhole camera
+of the same size when the model has distortion; --size HxW crops/resizes afterwards)
+-> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
+re10k, median-depth or metric, seeu_data/scale.py) -> OUT/<scene>/ posed-frames dataset
 (scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
 
 Example:
   seeu ingest clip.mp4 --out data/posed --target-frames 120
   seeu ingest videos/ photos/ --out data/posed --workers 2 --camera-model OPENCV
+  seeu ingest walk.mp4 --out data/posed --scale metric --known-distance 4.2     # first-to-last camera: 4.2 m
   seeu validate data/posed/clip
 """
 
@@ -27,7 +29,7 @@ from pathlib import Path
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
-SFM_STAGE_FORMAT = 4
+SFM_STAGE_FORMAT = 5
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -39,13 +41,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sharpness-window", type=int, default=0,
                    help="drop the blurriest frame in each window of N candidates (0 = off)")
     p.add_argument("--max-size", type=int, default=None, help="downscale so the longer side is at most N pixels")
+    p.add_argument("--size", type=_hw, default=None, metavar="HxW",
+                   help="make the posed frames exactly HxW: resize to cover + centre crop after SfM (intrinsics "
+                        "updated), e.g. 360x640 for the peers' RE10K loaders; default: the (undistorted) frame size")
     p.add_argument("--camera-model", default="SIMPLE_RADIAL",
                    choices=["PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
                    help="shared camera model; models with distortion are undistorted (default SIMPLE_RADIAL)")
     p.add_argument("--overlap", type=int, default=10, help="sequential matching overlap in frames (default 10)")
     p.add_argument("--vocab-tree", type=Path, default=None,
                    help="vocabulary-tree file: enables loop detection (off without one)")
+    p.add_argument("--mapper", choices=["incremental", "global", "auto"], default="incremental",
+                   help="COLMAP incremental mapping (default), GLOMAP global mapping, or auto: incremental when "
+                        ">= 90%% of consecutive frames match (a video), else global (recorded in report.json)")
+    p.add_argument("--features", choices=["sift", "aliked"], default="sift",
+                   help="feature type (default sift; aliked needs a pycolmap built with ONNX, checked up front)")
     p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
+    p.add_argument("--scale", choices=["re10k", "median-depth", "metric"], default="re10k",
+                   help="scale convention, recorded in each chunk's meta: re10k (default; 5th-percentile point depth "
+                        "= 2, near/far 1/100 as the pixelSplat/MVSplat RealEstate10K setup), median-depth (median "
+                        "point depth = 1, near/far from the points), metric (metres, needs --known-distance)")
+    p.add_argument("--known-distance", type=float, default=None, metavar="METRES",
+                   help="--scale metric: real distance between the cameras of the first and last frame "
+                        "(or of --distance-frames)")
+    p.add_argument("--distance-frames", type=_frame_pair, default=None, metavar="A,B",
+                   help="--scale metric: the two source frame numbers --known-distance is measured between")
     p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
     p.add_argument("--sfm-attempts", type=int, default=3,
                    help="re-run incremental mapping with the next seed while it registers < 80%% of the frames, "
@@ -59,6 +78,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--fsync", action="store_true",
                    help="fsync every output file before its rename (durable across a power loss; slower). "
                         "Default: atomic renames only, a torn file is caught by the manifest sha256; also SEEU_FSYNC=1")
+
+
+def _hw(text: str) -> tuple[int, int]:
+    from pipelines.build import parse_hw
+
+    return parse_hw(text)
+
+
+def _frame_pair(text: str) -> tuple[int, int]:
+    try:
+        a, b = (int(v) for v in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"not two frame numbers A,B: {text!r}") from None
+    return a, b
 
 
 @dataclass(frozen=True)
@@ -77,6 +110,12 @@ class IngestConfig:
     threads: int = -1
     sfm_attempts: int = 3
     jpeg_quality: int = 95
+    scale: str = "re10k"
+    mapper: str = "incremental"
+    features: str = "sift"
+    known_distance: float | None = None
+    distance_frames: tuple[int, int] | None = None
+    size: tuple[int, int] | None = None
     extra: dict = field(default_factory=dict)
 
 
@@ -166,7 +205,10 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     from seeu_data.frame_select import SelectConfig, select_frames
     from seeu_data.ingest_report import mean_reprojection_error, plot_trajectory, summary_line, write_report
     from seeu_data.manifest import MANIFEST_NAME, provenance
+    from seeu_data.points import write_chunk_points
     from seeu_data.posed import PosedDatasetWriter, PosedScene
+    from seeu_data.resize import resize_scene
+    from seeu_data.scale import ScaleConfig, distance_frame_names
     from seeu_data.sfm import SfmConfig, run_sfm
     from seeu_data.stages import StageCache, key_hash
 
@@ -175,12 +217,14 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     (out_dir / MANIFEST_NAME).unlink(missing_ok=True)  # being redone: must not look complete meanwhile
     select_cfg = SelectConfig(cfg.stride, cfg.sharpness_window, cfg.target_frames)
     select_cfg.check()
-    chunk_cfg = ChunkConfig(min_chunk_frames=cfg.min_chunk_frames)
+    chunk_cfg = ChunkConfig(min_chunk_frames=cfg.min_chunk_frames,
+                            scale=ScaleConfig(cfg.scale, cfg.known_distance, cfg.distance_frames))
     chunk_cfg.check()
     sfm_cfg = SfmConfig(camera_model=cfg.camera_model, overlap=cfg.overlap,
                         vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
                         min_model_size=max(3, min(cfg.min_chunk_frames, 10)), max_num_features=cfg.max_features,
-                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts)
+                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts, mapper=cfg.mapper,
+                        features=cfg.features)
     sfm_cfg.check()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
@@ -209,7 +253,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                                                                  sfm_cfg, source.path, progress))
 
     t0 = time.perf_counter()
-    chunks, dropped_chunk = plan_chunks(source.name, names, sfm_result, cache.stage_dir("sfm"), chunk_cfg)
+    chunks, dropped_chunk = plan_chunks(source.name, names, sfm_result, cache.stage_dir("sfm"), chunk_cfg,
+                                        distance_frame_names(frames, cfg.distance_frames, source.path))
     registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
     if not chunks:
         raise SeeUError(f"SfM registered {registered}/{len(frames)} frames but no contiguous run reaches "
@@ -235,7 +280,8 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                             "undistorted": m["undistorted"], "distortion_max_px": m.get("distortion_max_px")}
                            for m in sfm_result["models"]],
                 "discarded_models": sfm_result.get("discarded_models", []),
-                "mapping_attempts": sfm_result.get("mapping_attempts", [])},
+                "mapping_attempts": sfm_result.get("mapping_attempts", []),
+                "mapper": sfm_result.get("mapper")},
         "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
                     "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],
                     "near": c.near, "far": c.far, "sfm_model": c.model_index} for c in chunks],
@@ -255,7 +301,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 imgs.append(path.read_bytes())
             fr = [frames[p] for p in c.frame_positions]
             n = len(fr)
-            writer.add(PosedScene(
+            scene = PosedScene(
                 scene_id=c.scene_id, images=imgs, image_format="jpeg",
                 width=np.full(n, c.width), height=np.full(n, c.height),
                 intrinsics_norm=np.tile(c.intrinsics_norm, (n, 1)), cam_to_world=c.cam_to_world,
@@ -263,8 +309,11 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                 source_frame=np.array([f["source_frame"] for f in fr], np.int64),
                 timestamp_us=np.array([f["timestamp_us"] for f in fr], np.int64),
                 source_name=[f["source_name"] for f in fr],
-                meta={**c.meta, "source": str(source.path)},
-            ))
+                meta={**c.meta, "source": str(source.path),
+                      **write_chunk_points(cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir,
+                                           c.scene_id)},
+            )
+            writer.add(scene if cfg.size is None else resize_scene(scene, cfg.size, cfg.jpeg_quality))
         cache.timings["write"] = time.perf_counter() - t0
         report["timings_s"] = {**cache.timings, "total": time.perf_counter() - t_start}
         report["reused"] = dict(cache.reused)
@@ -303,11 +352,15 @@ def _run(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from seeu_data.errors import SeeUError
+    from seeu_data.scale import ScaleConfig
+    from seeu_data.sfm import SfmConfig
     from seeu_data.video import discover_sources
 
     progress = args.progress or sys.stderr.isatty()
     if args.workers < 1:
         raise SeeUError(f"--workers must be >= 1, got {args.workers}")
+    ScaleConfig(args.scale, args.known_distance, args.distance_frames).check()  # before any scene starts
+    SfmConfig(mapper=args.mapper, features=args.features).check()  # e.g. ALIKED without ONNX: one line, now
     sources = discover_sources(args.inputs)
     workers = min(args.workers, len(sources))
     threads = args.threads if args.threads != -1 else max(1, (os.cpu_count() or 1) // workers)
@@ -315,7 +368,8 @@ def _run(args: argparse.Namespace) -> int:
                        max_size=args.max_size, camera_model=args.camera_model, overlap=args.overlap,
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
                        min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
-                       sfm_attempts=args.sfm_attempts)
+                       sfm_attempts=args.sfm_attempts, scale=args.scale, known_distance=args.known_distance,
+                       distance_frames=args.distance_frames, size=args.size, mapper=args.mapper, features=args.features)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
         report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress)

@@ -16,7 +16,8 @@ relative to the JSON file.) Images are resized and centre-cropped to the model's
 the intrinsics updated. The camera path goes from the first to the last context camera (rotation
 along the geodesic, centre on the line): `interp` covers t in [0, 1], `extrap` t in
 [-e, 1 + e] with e = --extrapolate. Writes OUT/frames/{interp,extrap}_NNN.png, OUT/interp.mp4,
-OUT/extrap.mp4, OUT/gaussians.ply (standard 3DGS layout), OUT/context.png, OUT/targets.png
+OUT/extrap.mp4, OUT/gaussians.ply (standard 3DGS layout) with OUT/cameras.json (the 3DGS viewers'
+camera layout) and OUT/gaussians.json (SH degree, count), OUT/context.png, OUT/targets.png
 (shard examples: ground truth over rendering) and OUT/render.json (written last).
 """
 
@@ -193,6 +194,25 @@ def render_views(model, context: dict, cam_to_world, intrinsics, image_hw, raste
     return frames, g
 
 
+def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
+    """OUT/gaussians.ply + cameras.json (3DGS viewers' layout: the context cameras, then the sample's
+    targets) + gaussians.json (SH degree, count). Returns the report entries."""
+    import numpy as np
+
+    from seeu_model.ply import save_ply_bundle
+
+    c2w, intr, names = [], [], []
+    for part in ("context", "target"):
+        if part in batch:
+            views = batch[part]
+            c2w.append(views["cam_to_world"][0].double().cpu().numpy())
+            intr.append(views["intrinsics"][0].double().cpu().numpy())
+            names += [f"{part}_{i}" for i in range(len(c2w[-1]))]
+    side = save_ply_bundle(g.map(lambda t: t.detach().float().cpu()), out, np.concatenate(c2w),
+                           np.concatenate(intr), image_hw[1], image_hw[0], names)
+    return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
+
+
 def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, sample: str = "0",
            cameras: str | Path | None = None, frames: int = 30, extrapolate: float = 0.5, fps: float = 10.0,
            image_hw: tuple[int, int] | None = None, device: str | None = None,
@@ -205,7 +225,6 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     from seeu_data.arrow_io import atomic_write_text
     from seeu_data.errors import SeeUError
     from seeu_model.camera_path import camera_path, path_parameters
-    from seeu_model.ply import save_ply
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import config_from_dict
     from seeu_model.training.factory import model_from_checkpoint
@@ -252,8 +271,7 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
                                   tgt["intrinsics"][0].cpu().numpy(), hw, backend, g)
         top = np.concatenate([_to_uint8(v) for v in tgt["image"][0]], axis=1)
         write_png(out / "targets.png", np.concatenate([top, np.concatenate(renders, axis=1)], axis=0))
-    ply = save_ply(g.map(lambda t: t.detach().float().cpu()), out / "gaussians.ply")
-    report["ply"] = str(ply)
+    report.update(_export_gaussians(out, g, batch, hw))
     report["num_gaussians"] = int(g.means.shape[1])
     atomic_write_text(out / "render.json", json.dumps(report, indent=2) + "\n")
     return report

@@ -70,11 +70,14 @@ class BuildConfig:
     ray_address: str | None = None
     progress: bool = False
     verify_inputs: bool = False
+    near_far: tuple[float, float] | None = None  # override the posed data's near/far (None: the data's)
 
     def params(self) -> dict:
         """The build parameters recorded in the manifest (engine and workers are not: they do not change bytes)."""
         out = {"inputs": [str(Path(p).resolve()) for p in self.inputs], "mode": self.mode, "seed": self.seed,
                "image": self.image.as_dict(), "shard_bytes": self.shard_bytes, "rows_per_batch": self.rows_per_batch}
+        if self.near_far is not None:
+            out["near_far"] = list(self.near_far)
         if self.mode == "eval":
             out.update(index=str(Path(self.index_path).resolve()) if self.index_path else None,
                        index_format=self.index_format)
@@ -214,6 +217,8 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
         out = {"index": index, "file": SHARD_PATTERN.format(index), "samples": [s.as_dict() for s in group],
                "sources": {sid: scenes[sid].as_spec() for sid in sorted({s.scene_id for s in group})},
                "image": cfg.image.as_dict(), "rows_per_batch": cfg.rows_per_batch}
+        if cfg.near_far is not None:
+            out["near_far"] = list(cfg.near_far)
         out["plan_sha256"] = plan_sha256(out)
         return out
 

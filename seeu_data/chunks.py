@@ -6,9 +6,10 @@ in several overlapping models belongs to the largest one only. Runs shorter than
 `min_chunk_frames` are dropped (and reported).
 
 Scale and frame of each chunk (recorded in the chunk's meta): poses are expressed relative to the
-chunk's first camera (identity) and scaled so that the median depth of the SfM points seen by the
-model's cameras is 1; near/far are the 0.1th / 99.9th percentiles of those depths times 0.4 / 1.5
-(SfM triangulates few points on the nearest, most foreshortened surfaces, hence the margins).
+chunk's first camera (identity) and scaled by the convention `config.scale` (`seeu_data.scale`:
+re10k, median-depth, metric); near/far (median-depth, metric) are the 0.1th / 99.9th percentiles of
+the depths of the SfM points seen by the model's cameras times 0.4 / 1.5 (SfM triangulates few
+points on the nearest, most foreshortened surfaces, hence the margins); re10k records the peers' 1 / 100.
 
     chunks, dropped = plan_chunks(scene_name, frames, sfm_result, sfm_dir, ChunkConfig(min_chunk_frames=10))
 """
@@ -22,10 +23,11 @@ import numpy as np
 
 from .cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, invert_rigid
 from .errors import SeeUError
+from .scale import ScaleConfig, chunk_scale
 
 NEAR_FAR_METHOD = ("sfm_point_depth_percentiles: near = 0.4 * p0.1, far = 1.5 * p99.9 of the depths of SfM point "
                    "observations in the model's cameras")
-SCALE_METHOD = "median SfM point depth = 1; world frame = first camera of the chunk"
+FRAME_METHOD = "world frame = first camera of the chunk"
 
 
 @dataclass(frozen=True)
@@ -35,10 +37,12 @@ class ChunkConfig:
     far_percentile: float = 99.9
     near_margin: float = 0.4
     far_margin: float = 1.5
+    scale: ScaleConfig = field(default_factory=ScaleConfig)
 
     def check(self) -> None:
         if self.min_chunk_frames < 2:
             raise SeeUError(f"--min-chunk-frames must be >= 2, got {self.min_chunk_frames}")
+        self.scale.check()
 
 
 @dataclass
@@ -71,8 +75,10 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
 
 
 def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_dir: str | Path,
-                config: ChunkConfig) -> tuple[list[Chunk], list[dict]]:
-    """Turn SfM models into chunks. `frame_names`: the selected frames' image names, in order.
+                config: ChunkConfig, distance_names: tuple[str, str] | None = None) -> tuple[list[Chunk], list[dict]]:
+    """Turn SfM models into chunks. `frame_names`: the selected frames' image names, in order;
+    `distance_names`: the two frames `config.scale.known_distance` apart (metric scale; default the
+    first and the last frame).
 
     Returns the chunks (ordered by first frame) and dropped frames as
     {"position", "reason"} (position into `frame_names`).
@@ -114,13 +120,24 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
         depths = depths[np.isfinite(depths) & (depths > 0)]
         if len(depths) < 10:
             raise SeeUError(f"SfM model {model['index']} has only {len(depths)} usable 3D points")
-        scale = 1.0 / float(np.median(depths))
-        near = config.near_margin * float(np.percentile(depths, config.near_percentile)) * scale
-        far = config.far_margin * float(np.percentile(depths, config.far_percentile)) * scale
+        near_far_unit = (config.near_margin * float(np.percentile(depths, config.near_percentile)),
+                         config.far_margin * float(np.percentile(depths, config.far_percentile)))
+        centres = None
+        if config.scale.scale == "metric":
+            names = distance_names or (frame_names[0], frame_names[-1])
+            missing = [n for n in names if pos_of.get(n) not in w2c]
+            if missing:
+                raise SeeUError(f"--scale metric: frame {missing[0]} is not registered in SfM model {model['index']}, "
+                                "so its distance is unknown (name registered frames with --distance-frames)")
+            centres = tuple(invert_rigid(w2c[pos_of[n]])[:3, 3] for n in names)
+        choice = chunk_scale(config.scale, depths, near_far_unit, centres)
+        scale, near, far = choice.factor, choice.near, choice.far
         positions = list(range(start, end))
         c2w = cam_to_world_from_world_to_cam(np.stack([w2c[p] for p in positions]))
-        c2w = invert_rigid(c2w[0]) @ c2w  # first camera of the chunk = identity
+        first_w2c = invert_rigid(c2w[0])
+        c2w = first_w2c @ c2w  # first camera of the chunk = identity
         c2w[:, :3, 3] *= scale
+        sfm_to_chunk = np.diag([scale, scale, scale, 1.0]) @ first_w2c  # SfM world point -> chunk frame
         w, h = int(cam["width"]), int(cam["height"])
         intr = np.array([cam["fx"] / w, cam["fy"] / h, cam["cx"] / w, cam["cy"] / h])
         chunks.append(Chunk(
@@ -129,8 +146,8 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
             cam_to_world=c2w, intrinsics_norm=intr, width=w, height=h, near=near, far=far,
             meta={"sfm_model": int(model["index"]), "camera_model": cam["model"], "camera_params": cam["params"],
                   "undistorted": bool(model["undistorted"]), "distortion_max_px": model.get("distortion_max_px"),
-                  "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, "scale_method": SCALE_METHOD,
-                  "near_far_method": NEAR_FAR_METHOD,
+                  "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, **choice.meta, "sfm_to_chunk": sfm_to_chunk.tolist(), "frame_method": FRAME_METHOD,
+                  "near_far_method": choice.meta.get("near_far_method", NEAR_FAR_METHOD),
                   "mean_reprojection_error_px": model["mean_reprojection_error"]},
         ))
     return chunks, dropped

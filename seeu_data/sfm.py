@@ -6,15 +6,16 @@ into a SeeUError. The child runs: SIFT extraction (one shared camera, `camera_mo
 sequential matching (`overlap`; loop detection only with a vocabulary-tree file) -> incremental
 mapping (possibly several models; re-run with the next seed while it registers too few frames, see
 `map_with_retries`) -> undistortion of every model whose camera has distortion of
-at least `max_negligible_distortion_px` at the image border (sizes read back from the undistorted
-model; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
+at least `max_negligible_distortion_px` at the image border (to a pinhole camera of the same W x H,
+`seeu_data.undistort`; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
 
 Output directory layout::
 
     database.db  sfm.log  result.json
     sparse/<k>/             COLMAP binary model k (as mapped)
-    undistorted/<k>/        images/ + sparse/ (PINHOLE) when the camera model has distortion
+    undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
+    points3d_<k>.npy        (P, 6) the 3D points of model k: world x y z, colour R G B (0-255)
 
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
@@ -38,6 +39,9 @@ from pathlib import Path
 from .errors import SeeUError
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
+MAPPERS = ("incremental", "global", "auto")
+# --features: (pycolmap FeatureExtractorType, FeatureMatcherType) names; only SIFT needs no ONNX runtime
+FEATURES = {"sift": ("SIFT", "SIFT_BRUTEFORCE"), "aliked": ("ALIKED_N16ROT", "ALIKED_LIGHTGLUE")}
 _UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _PROGRESS = "@@seeu"
 # COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
@@ -62,6 +66,9 @@ class SfmConfig:
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
+    # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.match_graph)
+    mapper: str = "incremental"
+    features: str = "sift"
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -72,6 +79,26 @@ class SfmConfig:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
             raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
+        if self.mapper not in MAPPERS:
+            raise SeeUError(f"--mapper must be one of {', '.join(MAPPERS)}, got {self.mapper!r}")
+        if self.features not in FEATURES:
+            raise SeeUError(f"--features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if self.features != "sift":
+            _check_features_available(self.features)
+
+
+def _check_features_available(features: str) -> None:
+    """COLMAP aborts the whole process when it cannot run a feature type (ALIKED without its ONNX
+    runtime): ask pycolmap here, where that is a Python exception, before any child starts."""
+    import pycolmap
+
+    options = pycolmap.FeatureExtractionOptions()
+    options.type = getattr(pycolmap.FeatureExtractorType, FEATURES[features][0])
+    try:
+        pycolmap.FeatureExtractor.create(options)
+    except RuntimeError as exc:  # e.g. "ALIKED feature extraction requires ONNX support."
+        raise SeeUError(f"--features {features} cannot run with this pycolmap ({str(exc).rstrip('.')}); "
+                        "use --features sift") from None
 
 
 def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, config: SfmConfig,
@@ -228,6 +255,10 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
             depths.append(xyz @ np.asarray(w2c)[:, :3].T[:, 2] + np.asarray(w2c)[2, 3])
     depth = np.concatenate(depths) if depths else np.zeros(0)
     np.save(out / f"points_depth_{index}.npy", depth.astype(np.float64))
+    ids = sorted(points)
+    xyz = np.array([points[p] for p in ids], np.float64).reshape(-1, 3)
+    rgb = np.array([rec.points3D[p].color for p in ids], np.float64).reshape(-1, 3)
+    np.save(out / f"points3d_{index}.npy", np.concatenate([xyz, rgb], 1))  # (M, 6) world xyz + RGB 0-255
     return {"index": index, "camera": next(iter(cams.values())), "undistorted": undistorted,
             "image_dir": image_dir, "images": images, "num_points3D": int(rec.num_points3D()),
             "mean_reprojection_error": float(rec.compute_mean_reprojection_error())}
@@ -235,6 +266,9 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
 
 def _child(job_path: str) -> int:
     import pycolmap
+
+    from seeu_data.match_graph import choose_mapper, match_graph_stats
+    from seeu_data.undistort import undistort_files
 
     job = json.loads(Path(job_path).read_text())
     cfg = SfmConfig(**job["config"])
@@ -256,6 +290,7 @@ def _child(job_path: str) -> int:
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = cfg.max_num_features
     extraction.num_threads = cfg.num_threads
+    extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
     pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
                               reader_options=reader, extraction_options=extraction)
     timings["extract_s"] = time.perf_counter() - t0
@@ -274,11 +309,16 @@ def _child(job_path: str) -> int:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = cfg.num_threads
+    if cfg.features != "sift":
+        matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
     pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing)
     timings["match_s"] = time.perf_counter() - t0
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
+    graph = match_graph_stats(db, names)
     db.close()
+    mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(graph)
+    mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": graph}
     if num_pairs == 0:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
@@ -289,6 +329,12 @@ def _child(job_path: str) -> int:
     def map_once(seed: int) -> dict:
         shutil.rmtree(sparse, ignore_errors=True)
         sparse.mkdir()
+        if mapper == "global":
+            options = pycolmap.GlobalPipelineOptions()
+            options.min_model_size = cfg.min_model_size
+            options.num_threads = cfg.num_threads
+            options.random_seed = seed
+            return pycolmap.global_mapping(db_path, image_dir, sparse, options=options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.num_threads
@@ -333,19 +379,20 @@ def _child(job_path: str) -> int:
             models.append(_export_model(rec, k, image_dir, out, undistorted=False))
             models[-1]["distortion_max_px"] = distortion
             continue
-        und = out / "undistorted" / str(k)
-        und.mkdir(parents=True, exist_ok=True)
-        reg_names = [rec.image(i).name for i in rec.reg_image_ids()]
-        pycolmap.undistort_images(und, model_dir, image_dir, image_names=reg_names, jpeg_quality=95,
-                                  num_threads=cfg.num_threads)
-        und_rec = pycolmap.Reconstruction(und / "sparse")  # sizes can change by a pixel: read them back
-        models.append(_export_model(und_rec, k, str(und / "images"), out, undistorted=True))
+        # Same-size undistortion (seeu_data.undistort): the frames keep W x H, only the focal changes.
+        und = out / "undistorted" / str(k) / "images"
+        reg_names = sorted(rec.image(i).name for i in rec.reg_image_ids())
+        pinhole = undistort_files(camera, image_dir, reg_names, und, jpeg_quality=95)
+        models.append(_export_model(rec, k, str(und), out, undistorted=True))
+        models[-1]["camera"] = pinhole.as_dict()
         models[-1]["camera_distorted"] = _camera_dict(camera)
         models[-1]["distortion_max_px"] = distortion
+        models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
     timings["export_s"] = time.perf_counter() - t0
     (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
                                                  "num_keypoints": num_kp,
                                                  "num_verified_pairs": num_pairs, "mapping_attempts": attempts,
+                                                 "mapper": mapper_info,
                                                  "timings": timings}))
     return 0
 

@@ -62,6 +62,8 @@ def shard_schema(plan_sha256: str) -> pa.Schema:
 def plan_sha256(spec: dict) -> str:
     """Hash of everything a shard's bytes depend on (samples, inputs' fingerprints, image options)."""
     content = {k: spec[k] for k in ("samples", "image", "rows_per_batch")}
+    if spec.get("near_far") is not None:  # absent unless overridden: older plans keep their hashes
+        content["near_far"] = list(spec["near_far"])
     # inputs by content (file sha256 + rows), not by path: moving the posed data does not invalidate shards
     content["sources"] = {sid: {k: v for k, v in src.items() if k != "path"} for sid, src in spec["sources"].items()}
     return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
@@ -184,6 +186,9 @@ def build_shard_table(spec: dict) -> pa.Table:
         "cam_to_world": taken.column("cam_to_world"),
         "near": taken.column("near"), "far": taken.column("far"),
     }
+    if spec.get("near_far") is not None:  # `seeu build --near/--far`: the user's bounds instead of the data's
+        for key, value in zip(("near", "far"), spec["near_far"]):
+            per_view[key] = pa.array(np.full(len(flat), value), per_view[key].type)
     fmt_col = taken.column("image_format")
     first_view = np.concatenate([[0], np.cumsum(counts)[:-1]])
     row_fmt = [fmt_col[int(i)].as_py() for i in first_view]

@@ -13,6 +13,7 @@ rot_0 rot_1 rot_2 rot_3`, where
 
 from __future__ import annotations
 
+import json
 import os
 from pathlib import Path
 
@@ -57,6 +58,37 @@ def save_ply(gaussians: Gaussians, path: str | Path, batch_index: int = 0) -> Pa
     PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<").write(str(tmp))
     os.replace(tmp, path)
     return path
+
+
+def cameras_json(cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, width: int, height: int,
+                 names: list[str]) -> list[dict]:
+    """Cameras in the layout the 3DGS viewers read (`cameras.json` of the INRIA code): per camera
+    `id, img_name, width, height, position` (camera centre), `rotation` (3x3 camera-to-world rotation,
+    rows; OpenCV axes as in COLMAP), `fx, fy` (pixels). The layout has no principal point: viewers
+    assume the image centre. cam_to_world: (N, 4, 4); intrinsics_norm: (N, 4) or (N, 3, 3)."""
+    c2w = np.asarray(cam_to_world, np.float64).reshape(-1, 4, 4)
+    k = np.asarray(intrinsics_norm, np.float64)
+    k = k.reshape(-1, 3, 3)[:, [0, 1, 0, 1], [0, 1, 2, 2]] if k.shape[-2:] == (3, 3) else k.reshape(-1, 4)
+    return [{"id": i, "img_name": names[i], "width": int(width), "height": int(height),
+             "position": c2w[i, :3, 3].tolist(), "rotation": c2w[i, :3, :3].tolist(),
+             "fy": float(k[i, 1] * height), "fx": float(k[i, 0] * width)} for i in range(len(c2w))]
+
+
+def save_ply_bundle(gaussians: Gaussians, out_dir: str | Path, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray,
+                    width: int, height: int, names: list[str], batch_index: int = 0) -> dict:
+    """`out_dir/gaussians.ply` (3DGS layout) + `cameras.json` (`cameras_json`) + `gaussians.json`, a
+    sidecar saying the SH degree, the Gaussian count and the conventions. Returns the sidecar."""
+    from seeu_data.arrow_io import atomic_write_text
+
+    out_dir = Path(out_dir)
+    ply = save_ply(gaussians, out_dir / "gaussians.ply", batch_index)
+    cams = cameras_json(cam_to_world, intrinsics_norm, width, height, names)
+    atomic_write_text(out_dir / "cameras.json", json.dumps(cams, indent=1))
+    sidecar = {"ply": ply.name, "cameras": "cameras.json", "sh_degree": sh_degree_from_bases(gaussians.sh.shape[2]),
+               "num_gaussians": int(gaussians.means.shape[1]), "layout": "3DGS (INRIA) binary little-endian",
+               "axes": "OpenCV (x right, y down, z forward), the world of the context cameras"}
+    atomic_write_text(out_dir / "gaussians.json", json.dumps(sidecar, indent=1))
+    return sidecar
 
 
 def load_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> Gaussians:

@@ -133,6 +133,10 @@ def test_render_shard_sample_and_user_cameras(run, tmp_path):
     assert _read_mp4_frames(out / "extrap.mp4") == 3
     g = load_ply(out / "gaussians.ply")
     assert g.means.shape == (1, 2 * 32 * 32, 3) and rep["num_gaussians"] == 2048
+    # beside it: the 3DGS viewers' cameras.json (contexts, then targets) and the SH-degree sidecar
+    cams_json = json.loads((out / "cameras.json").read_text())
+    assert [c["img_name"] for c in cams_json][:2] == ["context_0", "context_1"] and len(cams_json) == 5
+    assert json.loads((out / "gaussians.json").read_text())["sh_degree"] == rep["sh_degree"] == int(g.sh.shape[2] ** 0.5) - 1
     assert cv2.imread(str(out / "targets.png")).shape == (64, 96, 3)
 
     # your own images + cameras (pixel K of 48x64 images: resized and centre-cropped to 32x32)

@@ -21,6 +21,7 @@ from seeu_data.frame_select import SelectConfig, drop_blurriest_per_window, even
 from seeu_data.ingest_report import summary_line
 from seeu_data.pose_eval import pose_accuracy, umeyama
 from seeu_data.posed import PosedDataset
+from seeu_data.scale import ScaleConfig
 from seeu_data.synthetic import (camera_path, default_intrinsics_norm, load_ground_truth, make_scene, render_view,
                                  write_clip)
 from seeu_data.video import discover_sources, iter_frames, sharpness
@@ -192,7 +193,8 @@ def test_chunks_split_runs_claim_frames_and_normalise_scale(tmp_path):
     m1 = list(range(20, 30))
     res = {"models": [_fake_model(0, [names[i] for i in m0], poses_scaled[m0], 3.0, tmp_path),
                       _fake_model(1, [names[i] for i in m1], poses[m1], 1.0, tmp_path)]}
-    chunks, dropped = plan_chunks("s", names, res, tmp_path, ChunkConfig(min_chunk_frames=15))
+    chunks, dropped = plan_chunks("s", names, res, tmp_path,
+                                  ChunkConfig(min_chunk_frames=15, scale=ScaleConfig("median-depth")))
     # run 0-13 (14 frames) is too short; 15-29 kept from the larger model; model 1's frames are claimed
     assert [c.scene_id for c in chunks] == ["s_c0"] and chunks[0].frame_positions == list(range(15, 30))
     assert {d["position"] for d in dropped} == set(range(15))
@@ -425,16 +427,25 @@ def test_lens_distortion_is_estimated_and_undistorted(tmp_path):
     assert s.meta["camera_as_mapped"]["params"][0] == pytest.approx(K[0, 0], rel=0.02)
     acc = pose_accuracy(s.cam_to_world, poses[s.source_frame])
     assert acc.centre_rmse_pct_path < 0.5 and acc.rel_rot_err_mean_deg < 0.2, acc
-    w2, h2 = int(s.width[0]), int(s.height[0])
+    # The undistorted frames keep the original size (what the peers' loaders need); the focal changes.
+    assert (s.width == W).all() and (s.height == H).all()
+    assert model["camera"]["model"] == "PINHOLE" and (model["camera"]["width"], model["camera"]["height"]) == (W, H)
+    w2, h2 = W, H
     i = len(s) // 2
     stored = cv2.cvtColor(cv2.imdecode(np.frombuffer(s.images[i], np.uint8), cv2.IMREAD_COLOR), cv2.COLOR_BGR2RGB)
     assert stored.shape == (h2, w2, 3)
     truth, _ = render_view(scene, poses[s.source_frame[i]], s.intrinsics_norm[i], w2, h2)
-    distorted = cv2.resize(frames[s.source_frame[i]], (w2, h2))
-    m = 12  # ignore the border, where undistortion has no source pixels
+    distorted = frames[s.source_frame[i]]
+    m = 2  # same-size undistortion leaves no blank border
 
     def psnr(a, b):  # on slightly blurred crops: geometry, not mp4/JPEG noise
         return cv2.PSNR(cv2.GaussianBlur(a[m:-m, m:-m], (0, 0), 1.5), cv2.GaussianBlur(b[m:-m, m:-m], (0, 0), 1.5))
 
     assert psnr(stored, truth) > 28  # measured ~31.7
     assert psnr(stored, truth) > psnr(distorted, truth) + 4  # measured ~25.4 for the distorted frame
+    # ... and the pixelSplat export of it keeps the original frame size too
+    assert cli_main(["export", "pixelsplat", str(tmp_path / "out" / "lens"), "--out", str(tmp_path / "ps")]) == 0
+    import torch
+
+    (ex,) = torch.load(tmp_path / "ps" / "test" / "000000.torch", weights_only=True)
+    assert {cv2.imdecode(im.numpy(), cv2.IMREAD_COLOR).shape for im in ex["images"]} == {(H, W, 3)}

@@ -7,6 +7,9 @@ dataparser accepts), with `camera_model` "OPENCV" and zero distortion. No `appli
 written: the world frame is the posed dataset's. A `seeu` block (scene id, near/far, meta) and per-
 frame `seeu_*` keys (source frame, name, timestamp) make `seeu import nerfstudio` lossless; nerfstudio
 ignores unknown keys. Each transforms.json is written atomically after its images.
+When the posed scene carries SfM points (`meta["points3d"]`, written by `seeu ingest`), they are
+copied to `sparse_pc.ply` (x y z + red green blue, in the transforms' world frame) and named in
+`ply_file_path`, the key nerfstudio's dataparser reads the splatfacto initial point cloud from.
 """
 
 from __future__ import annotations
@@ -23,6 +26,9 @@ from ..cameras import intrinsics_pixels, opengl_from_opencv
 from ..errors import SeeUError
 from ..image_header import extension_for
 from ..posed import PosedDataset, PosedScene
+
+
+SPARSE_PLY = "sparse_pc.ply"  # the name nerfstudio's own ns-process-data gives the initial point cloud
 
 
 @dataclass
@@ -56,6 +62,17 @@ def transforms_for_scene(scene: PosedScene) -> tuple[dict, list[str]]:
     return doc, names
 
 
+def _points_file(root: Path, rel) -> Path | None:
+    """The scene's SfM point file when its meta names one that lies inside the dataset directory (a
+    scene imported from elsewhere may name a file that did not come with it: then None)."""
+    if not isinstance(rel, str) or not rel:
+        return None
+    src = (Path(root) / rel).resolve()
+    if not src.is_relative_to(Path(root).resolve()):
+        raise SeeUError(f"SfM point file {rel!r} named in the scene meta lies outside the dataset", root)
+    return src if src.is_file() else None
+
+
 def export_nerfstudio(dataset: PosedDataset, cfg: NerfstudioExportConfig, progress: bool = False) -> dict:
     from tqdm import tqdm
 
@@ -74,6 +91,10 @@ def export_nerfstudio(dataset: PosedDataset, cfg: NerfstudioExportConfig, progre
         doc, names = transforms_for_scene(scene)
         for name, data in zip(names, scene.images):
             atomic_write_bytes(folder / name, data)
+        points = _points_file(dataset.root, scene.meta.get("points3d"))
+        if points is not None:
+            atomic_write_bytes(folder / SPARSE_PLY, points.read_bytes())
+            doc["ply_file_path"] = SPARSE_PLY
         atomic_write_text(folder / "transforms.json", json.dumps(doc, indent=1))
         frames += len(scene)
     return {"scenes": len(scene_ids), "frames": frames}

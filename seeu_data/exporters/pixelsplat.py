@@ -5,6 +5,14 @@ Each chunk is `torch.save(list_of_examples)` with exactly the peer's keys and dt
 3x4 world-to-camera row-major), `images` (N uint8 1-D tensors of the encoded bytes, unchanged),
 `key` (str). Chunks are filled to about `chunk_bytes` of image data (the peers use 100 MB).
 
+The peers' RE10K loaders (pixelSplat, MVSplat: `src/dataset/dataset_re10k.py`) skip an example
+whose frames are not 360x640 (H x W) or whose field of view exceeds `max_fov` = 100 degrees on either
+axis (the angle between the rays through the middles of opposite frame edges). `peer_skip_reason`
+applies that rule; `resize` (H, W) resizes + centre-crops every frame like the peers (JPEG re-encoded
+at `jpeg_quality`, intrinsics updated) so any posed data can be made loader-ready; `size_check`
+"warn" (default: count the scenes the loaders would skip, the CLI prints one line) or "refuse"
+(raise SeeUError at the first such scene, before index.json is written).
+
 What the format cannot hold (near/far, source frame numbers and names, scene meta) goes into a
 sidecar `seeu_posed.json` beside index.json, which `seeu import pixelsplat` reads back and the peer
 loaders ignore (they only list `*.torch` and read `index.json`). Files are written atomically;
@@ -25,19 +33,67 @@ from ..arrow_io import atomic_path, atomic_write_text
 from ..cameras import world_to_cam_from_cam_to_world
 from ..errors import SeeUError
 from ..posed import PosedDataset, PosedScene
+from ..resize import resize_scene
 
 SIDECAR_NAME = "seeu_posed.json"
 _CHUNK_NAME = re.compile(r"^\d{6}\.torch$")
 
 
+PEER_HW = (360, 640)
+PEER_MAX_FOV_DEG = 100.0
+SIZE_CHECKS = ("warn", "refuse")
+
+
 @dataclass
 class PixelSplatExportConfig:
-    """`out`: dataset root (chunks go to `out/stage/`); `scenes`: ids to export (None = all)."""
+    """`out`: dataset root (chunks go to `out/stage/`); `scenes`: ids to export (None = all);
+    `resize`: (H, W) to resize + centre-crop every frame to (None = as stored); `size_check`: what to
+    do with a scene the peers' loaders would skip ("warn" | "refuse")."""
 
     out: Path
     stage: str = "test"
     chunk_bytes: int = 100_000_000
     scenes: list[str] | None = None
+    resize: tuple[int, int] | None = None
+    size_check: str = "warn"
+    jpeg_quality: int = 95
+
+    def check(self) -> None:
+        if self.size_check not in SIZE_CHECKS:
+            raise SeeUError(f"--size-check must be one of {', '.join(SIZE_CHECKS)}, got {self.size_check!r}")
+        if self.resize is not None and min(self.resize) < 1:
+            raise SeeUError(f"--resize must be positive, got {self.resize[0]}x{self.resize[1]}")
+
+
+def peer_fov_deg(intrinsics_norm: np.ndarray) -> np.ndarray:
+    """(N, 4) normalised fx, fy, cx, cy -> (N, 2) horizontal and vertical field of view in degrees, as
+    the peers measure it: the angle between the rays through the normalised points (0, 0.5) and
+    (1, 0.5), and through (0.5, 0) and (0.5, 1)."""
+    k = np.asarray(intrinsics_norm, np.float64).reshape(-1, 4)
+    fx, fy, cx, cy = k.T
+
+    def ray(x, y):
+        r = np.stack([(x - cx) / fx, (y - cy) / fy, np.ones_like(fx)], -1)
+        return r / np.linalg.norm(r, axis=-1, keepdims=True)
+
+    def angle(a, b):
+        return np.degrees(np.arccos(np.clip((a * b).sum(-1), -1.0, 1.0)))
+
+    zero, half, one = np.zeros_like(fx), np.full_like(fx, 0.5), np.ones_like(fx)
+    return np.stack([angle(ray(zero, half), ray(one, half)), angle(ray(half, zero), ray(half, one))], -1)
+
+
+def peer_skip_reason(width: np.ndarray, height: np.ndarray, intrinsics_norm: np.ndarray) -> str | None:
+    """Why the peers' RE10K loaders would skip a scene with these (N,) frame sizes and (N, 4)
+    intrinsics, or None when they accept it."""
+    w, h = np.asarray(width), np.asarray(height)
+    if not ((h == PEER_HW[0]).all() and (w == PEER_HW[1]).all()):
+        bad = int(np.nonzero((h != PEER_HW[0]) | (w != PEER_HW[1]))[0][0])
+        return f"frames are {int(w[bad])}x{int(h[bad])}, the RE10K loaders need 640x360 (try --resize 360x640)"
+    fov = peer_fov_deg(intrinsics_norm)
+    if (fov > PEER_MAX_FOV_DEG).any():
+        return (f"field of view {fov.max():.1f} deg > {PEER_MAX_FOV_DEG:.0f} deg, which the RE10K loaders skip")
+    return None
 
 
 def example_from_scene(scene: PosedScene) -> dict:
@@ -69,6 +125,7 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
     """Write the chunks, then index.json and the sidecar. Returns a summary dict."""
     from tqdm import tqdm
 
+    cfg.check()
     scene_ids = cfg.scenes if cfg.scenes is not None else dataset.scene_ids
     unknown = [s for s in scene_ids if s not in set(dataset.scene_ids)]
     if unknown:
@@ -83,7 +140,7 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
     written: list[str] = []
     chunk: list[dict] = []
     size = 0
-    not_peer_size = 0
+    skipped_by_peers: list[str] = []
 
     def flush() -> None:
         nonlocal chunk, size
@@ -96,13 +153,19 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
 
     for scene in tqdm(dataset.iter_scenes(scene_ids), total=len(scene_ids), unit="scene",
                       desc="export pixelsplat", file=sys.stderr, disable=not progress):
+        if cfg.resize is not None:
+            scene = resize_scene(scene, cfg.resize, cfg.jpeg_quality)
+        reason = peer_skip_reason(scene.width, scene.height, scene.intrinsics_norm)
+        if reason is not None:
+            if cfg.size_check == "refuse":
+                raise SeeUError(f"scene {scene.scene_id!r}: {reason}; nothing exported (index.json not written)",
+                                dataset.root)
+            skipped_by_peers.append(f"{scene.scene_id}: {reason}")
         chunk.append(example_from_scene(scene))
         size += sum(len(b) for b in scene.images)
         sidecar[scene.scene_id] = {"near": scene.near, "far": scene.far,
                                    "source_frame": np.asarray(scene.source_frame).tolist(),
                                    "source_name": list(scene.source_name), "meta": scene.meta}
-        if not ((np.asarray(scene.width) == 640).all() and (np.asarray(scene.height) == 360).all()):
-            not_peer_size += 1
         if size >= cfg.chunk_bytes:
             flush()
     if chunk:
@@ -113,4 +176,4 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
     atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar))
     atomic_write_text(directory / "index.json", json.dumps(index))
     return {"directory": str(directory), "chunks": len(written), "scenes": len(index),
-            "scenes_not_360x640": not_peer_size}
+            "scenes_peers_skip": len(skipped_by_peers), "peers_skip": skipped_by_peers}

@@ -1,0 +1,69 @@
+"""Sparse SfM points as a coloured point-cloud `.ply` (x y z float32, red green blue uint8): what
+nerfstudio's `ply_file_path` (the splatfacto initial point cloud) and 3DGS tools read.
+
+`seeu ingest` keeps each chunk's SfM points, in the chunk's own frame and scale, as
+`OUT/<scene>/points3d/<scene_id>.ply` and names that file in the chunk's meta (`points3d`, relative
+to the dataset root); `seeu export nerfstudio` copies it beside transforms.json.
+
+    write_points_ply(path, xyz (P, 3), rgb (P, 3) uint8);  xyz, rgb = read_points_ply(path)
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from .errors import SeeUError
+
+POINTS_DIR = "points3d"
+
+
+def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
+    """Write (P, 3) points with (P, 3) 0-255 colours as a binary little-endian .ply (atomic)."""
+    from plyfile import PlyData, PlyElement
+
+    from .arrow_io import atomic_path
+
+    xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
+    rgb = np.clip(np.round(np.asarray(rgb, np.float64).reshape(-1, 3)), 0, 255).astype(np.uint8)
+    vertex = np.empty(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                       ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    for i, k in enumerate("xyz"):
+        vertex[k] = xyz[:, i]
+    for i, k in enumerate(("red", "green", "blue")):
+        vertex[k] = rgb[:, i]
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with atomic_path(path) as tmp:
+        PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<").write(str(tmp))
+    return path
+
+
+def read_points_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
+    """(P, 3) float64 points and (P, 3) uint8 colours of a point-cloud .ply."""
+    from plyfile import PlyData, PlyParseError
+
+    try:
+        v = PlyData.read(str(path))["vertex"]
+        xyz = np.stack([np.asarray(v[k], np.float64) for k in "xyz"], 1)
+        rgb = np.stack([np.asarray(v[k], np.uint8) for k in ("red", "green", "blue")], 1)
+    except (OSError, KeyError, ValueError, IndexError, PlyParseError) as exc:
+        raise SeeUError(f"not a readable point-cloud .ply ({exc})", path) from exc
+    return xyz, rgb
+
+
+def write_chunk_points(sfm_dir: str | Path, model_index: int, sfm_to_chunk: np.ndarray, dataset_dir: str | Path,
+                       scene_id: str) -> dict:
+    """Write the SfM points of model `model_index` (`points3d_<k>.npy` in `sfm_dir`), moved into a
+    chunk's frame by the (4, 4) similarity `sfm_to_chunk`, to `dataset_dir/points3d/<scene_id>.ply`.
+    Returns the meta entries to record ({} when the model has no point file)."""
+    src = Path(sfm_dir) / f"points3d_{model_index}.npy"
+    if not src.exists():
+        return {}
+    pts = np.load(src)
+    m = np.asarray(sfm_to_chunk, np.float64)
+    xyz = pts[:, :3] @ m[:3, :3].T + m[:3, 3]
+    rel = f"{POINTS_DIR}/{scene_id}.ply"
+    write_points_ply(Path(dataset_dir) / rel, xyz, pts[:, 3:6])
+    return {"points3d": rel, "points3d_count": len(pts)}
