@@ -40,6 +40,8 @@ from .errors import SeeUError
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 _UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _PROGRESS = "@@seeu"
+# COLMAP's log lines for one image done: "Processed file [k/N]" (extraction), "Processing image [k/N]" (matching)
+_COLMAP_PROGRESS = re.compile(r"\] Process(?:ed file|ing image) \[(\d+)/\d+\]")
 # COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
 _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 
@@ -75,13 +77,15 @@ class SfmConfig:
 
 
 def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, config: SfmConfig,
-            source: str | Path, progress: bool = False) -> dict:
+            source: str | Path, progress=False) -> dict:
     """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
 
-    `source` names the user's input in error messages. Raises SeeUError when the child aborts,
-    crashes, or reports that no model could be built.
+    `source` names the user's input in error messages. `progress`: a `StageProgress` (or True for bars
+    only) that follows the child: stages `sfm extract` (images), `sfm match` (images), `sfm map`
+    (registered images), read from the child's own lines and COLMAP's log lines as they come.
+    Raises SeeUError when the child aborts, crashes, or reports that no model could be built.
     """
-    from tqdm import tqdm
+    from .progress import StageProgress
 
     config.check()
     out_dir = Path(out_dir)
@@ -91,23 +95,32 @@ def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, 
     (out_dir / "job.json").write_text(json.dumps(job, indent=1))
     log_path = out_dir / "sfm.log"
     env = dict(os.environ, GLOG_minloglevel=os.environ.get("GLOG_minloglevel", "0"))
-    bar = tqdm(total=len(image_names), desc="sfm extract", unit="img", disable=not progress, leave=False)
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
-                                stdout=subprocess.PIPE, stderr=log, env=env)
-        assert proc.stdout is not None
-        for raw in proc.stdout:
-            line = raw.decode(errors="replace").strip()
-            if not line.startswith(_PROGRESS):
-                continue
-            parts = line.split()
-            if parts[1] == "stage":
-                bar.set_description(f"sfm {parts[2]}")
-                bar.reset(total=len(image_names))
-            elif parts[1] == "step":
-                bar.update(1)
-        rc = proc.wait()
-    bar.close()
+    own = not isinstance(progress, StageProgress)
+    prog = StageProgress("sfm", bar=bool(progress)) if own else progress
+    try:
+        with open(log_path, "wb") as log:
+            # COLMAP's log (stderr) comes through the same pipe: it goes to sfm.log, and its
+            # "Processed file [k/N]" / "Processing image [k/N]" lines move the extract and match stages.
+            proc = subprocess.Popen([sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
+                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+            assert proc.stdout is not None
+            for raw in proc.stdout:
+                line = raw.decode(errors="replace").strip()
+                if not line.startswith(_PROGRESS):
+                    log.write(raw)
+                    m = _COLMAP_PROGRESS.search(line)
+                    if m and prog.name in ("sfm extract", "sfm match"):
+                        prog.set(int(m.group(1)))
+                    continue
+                parts = line.split()
+                if parts[1] == "stage":
+                    prog.stage(f"sfm {parts[2]}", int(parts[3]) if len(parts) > 3 else None)
+                elif parts[1] == "step":
+                    prog.advance()
+            rc = proc.wait()
+    finally:
+        if own:
+            prog.close()
     result_path = out_dir / "result.json"
     if rc != 0:
         if rc < 0:
@@ -139,6 +152,44 @@ def _last_log_line(path: Path) -> str:
 
 
 
+def sequential_pair_count(n: int, overlap: int, quadratic: bool) -> int:
+    """Image pairs COLMAP's sequential matching forms for `n` frames: (i, i+k) for k = 1..overlap and,
+    with quadratic overlap, (i, i+2^k) for k < overlap (duplicates counted once); loop detection adds more."""
+    steps = set(range(1, overlap + 1)) | ({2 ** k for k in range(overlap)} if quadratic else set())
+    return sum(max(0, n - s) for s in steps)
+
+
+def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: SfmConfig) -> None:
+    """Write the shared camera, its rig, and one frame + image per name, in frame order, before extraction.
+
+    COLMAP's parallel extractor otherwise assigns image ids in completion order, which changes with the
+    thread count and the machine's load; the ids fix the pair ids, the matching order and the mapper's
+    tie-breaks. The camera is the one the extractor would create (`default_focal_length_factor` x the
+    longer side, principal point at the centre); the extractor then adds the features of these images.
+    """
+    import pycolmap
+
+    from .image_header import image_info
+
+    info = image_info(first_image.read_bytes(), str(first_image))
+    focal = pycolmap.ImageReaderOptions().default_focal_length_factor * max(info.width, info.height)
+    db = pycolmap.Database.open(db_path)
+    try:
+        camera = pycolmap.Camera.create_from_model_name(1, cfg.camera_model, focal, info.width, info.height)
+        camera.camera_id = db.write_camera(camera)
+        rig = pycolmap.Rig()
+        rig.add_ref_sensor(camera.sensor_id)
+        rig_id = db.write_rig(rig)
+        for name in names:
+            image = db.read_image(db.write_image(pycolmap.Image(name=name, camera_id=camera.camera_id)))
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(image.data_id)
+            db.write_frame(frame)
+    finally:
+        db.close()
+
+
 def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, list[dict], list[dict]]:
     """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
     cfg.random_seed, +1, ... until its usable models register at least `cfg.retry_below` of the
@@ -156,7 +207,7 @@ def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, l
     for i in range(cfg.mapping_attempts):
         seed = cfg.random_seed + i
         if i:
-            _emit("stage", f"map-retry-{i}")
+            _emit("stage", f"map-retry-{i}", num_frames)
         usable, rejected = {}, []
         for k, rec in map_once(seed).items():
             n = rec.num_reg_images()
@@ -249,8 +300,9 @@ def _child(job_path: str) -> int:
         (out / "result.json").write_text(json.dumps({"error": msg, "timings": timings}))
         return 0
 
-    _emit("stage", "extract")
+    _emit("stage", "extract", len(names))
     t0 = time.perf_counter()
+    _create_database(db_path, Path(image_dir) / names[0], names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
@@ -265,16 +317,21 @@ def _child(job_path: str) -> int:
     if num_kp < 50:
         return fail(f"SfM found only {num_kp} image features in {len(names)} frames (blank or textureless video?)")
 
-    _emit("stage", "match")
-    t0 = time.perf_counter()
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = cfg.overlap
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
+    _emit("stage", "match", sequential_pair_count(len(names), cfg.overlap, pairing.quadratic_overlap))
+    t0 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = cfg.num_threads
-    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing)
+    verification = pycolmap.TwoViewGeometryOptions()
+    # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
+    # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
+    verification.ransac.random_seed = cfg.random_seed
+    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                              verification_options=verification)
     timings["match_s"] = time.perf_counter() - t0
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
@@ -282,7 +339,7 @@ def _child(job_path: str) -> int:
     if num_pairs == 0:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
-    _emit("stage", "map")
+    _emit("stage", "map", len(names))
     t0 = time.perf_counter()
     sparse = out / "sparse"
 
