@@ -61,6 +61,10 @@ class SfmConfig:
     # models register fewer than `retry_below` of the frames; the run registering most is kept.
     mapping_attempts: int = 3
     retry_below: float = 0.8
+    # The solution check: map again from the next seed and require two runs whose camera centres agree
+    # (Sim(3)-aligned) within this % of the path; see `map_with_retries`. Needs mapping_attempts >= 2.
+    solution_check: bool = True
+    max_disagreement_pct: float = 1.0
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
@@ -152,13 +156,6 @@ def _last_log_line(path: Path) -> str:
 
 
 
-def sequential_pair_count(n: int, overlap: int, quadratic: bool) -> int:
-    """Image pairs COLMAP's sequential matching forms for `n` frames: (i, i+k) for k = 1..overlap and,
-    with quadratic overlap, (i, i+2^k) for k < overlap (duplicates counted once); loop detection adds more."""
-    steps = set(range(1, overlap + 1)) | ({2 ** k for k in range(overlap)} if quadratic else set())
-    return sum(max(0, n - s) for s in steps)
-
-
 def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: SfmConfig) -> None:
     """Write the shared camera, its rig, and one frame + image per name, in frame order, before extraction.
 
@@ -190,20 +187,32 @@ def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: Sf
         db.close()
 
 
-def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, list[dict], list[dict]]:
+def map_with_retries(map_once, num_frames: int, cfg: SfmConfig,
+                     check: bool = False) -> tuple[dict, list[dict], list[dict], dict]:
     """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
-    cfg.random_seed, +1, ... until its usable models register at least `cfg.retry_below` of the
-    `num_frames` frames, at most `cfg.mapping_attempts` times.
+    cfg.random_seed, +1, ... at most `cfg.mapping_attempts` times, until a run registers enough frames
+    and, with `check`, agrees with an earlier such run.
 
+    Registers enough: its usable models register at least `cfg.retry_below` of the `num_frames` frames.
     Usable: at least `min_model_size` registered frames and a camera that passes COLMAP's own
     plausibility test (focal length within 0.1-10x the image size, |extra params| <= 1; a poor initial
     pair can drive a shared radial camera to k = 1.7 and stall registration). A different seed changes
-    COLMAP's RANSAC samples and so which initial pair succeeds. Returns the usable models of the run
-    that registers most frames (the first on ties), every run's {seed, registered, models}, and the
-    kept run's rejected models as {index, registered, reason}.
+    COLMAP's RANSAC samples and so which initial pair succeeds.
+
+    The solution check (`check`): a wrong model can look clean (every frame registered, sub-pixel
+    reprojection) when one plane dominates the scene; a second run from another seed then usually lands
+    elsewhere. Two runs agree when their largest models' camera centres, Sim(3)-aligned, differ by at
+    most `cfg.max_disagreement_pct` of the path length (`model_disagreement_pct`). The first run of the
+    first agreeing pair is kept; when no two runs agree, the run registering most is kept and the check
+    fails. Returns (usable models of the kept run, every run's {seed, registered, models[,
+    disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
+    {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"}).
     """
-    best: tuple[int, dict, list] | None = None
-    attempts = []
+    runs: list[tuple[int, dict, list]] = []  # (registered, usable, rejected)
+    attempts: list[dict] = []
+    good: list[int] = []  # indices of runs registering enough
+    agreed: int | None = None
+    smallest = None
     for i in range(cfg.mapping_attempts):
         seed = cfg.random_seed + i
         if i:
@@ -220,13 +229,83 @@ def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, l
                 continue
             usable[k] = rec
         registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
+        runs.append((registered, usable, rejected))
         attempts.append({"seed": seed, "registered": registered, "models": len(usable)})
-        if best is None or registered > best[0]:
-            best = (registered, usable, rejected)
-        if registered >= cfg.retry_below * num_frames:
+        if registered < cfg.retry_below * num_frames:
+            continue
+        if not check:
             break
-    assert best is not None
-    return best[1], attempts, best[2]
+        for j in good:
+            d = model_disagreement_pct(runs[j][1], usable)
+            smallest = d if smallest is None else min(smallest, d)
+            attempts[-1].setdefault("disagreement_pct", {})[str(attempts[j]["seed"])] = d
+            if d <= cfg.max_disagreement_pct:
+                agreed = j
+                break
+        good.append(i)
+        if agreed is not None:
+            break
+    if agreed is not None:
+        keep = agreed
+    else:  # the run registering most, the first on ties
+        keep = max(range(len(runs)), key=lambda i: (runs[i][0], -i))
+    result = {"ran": check, "passed": (agreed is not None) if check else None,
+              "disagreement_pct": smallest, "kept_seed": attempts[keep]["seed"]}
+    return runs[keep][1], attempts, runs[keep][2], result
+
+
+def _centres_by_name(recs: dict):
+    """Camera-to-world poses `{name: (4, 4)}` of the largest model in `recs` ({} when there is none)."""
+    import numpy as np
+
+    if not recs:
+        return {}
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    out = {}
+    for i in rec.reg_image_ids():
+        img = rec.image(i)
+        w2c = np.eye(4)
+        w2c[:3] = np.asarray(img.cam_from_world().matrix())
+        out[img.name] = np.linalg.inv(w2c)
+    return out
+
+
+def model_disagreement_pct(recs_a: dict, recs_b: dict) -> float:
+    """How far two mappings of the same frames disagree: centre RMSE of the largest model of `recs_b`,
+    Sim(3)-aligned onto the largest of `recs_a` over their common frames (frame-name order), in % of
+    the path length of `recs_a`'s centres (`pose_eval.pose_accuracy`). inf when fewer than half of
+    either model's frames (or fewer than 3) are common."""
+    import numpy as np
+
+    from .pose_eval import pose_accuracy
+
+    a, b = _centres_by_name(recs_a), _centres_by_name(recs_b)
+    common = sorted(set(a) & set(b))
+    if len(common) < 3 or len(common) < 0.5 * max(len(a), len(b)):
+        return float("inf")
+    acc = pose_accuracy(np.stack([b[n] for n in common]), np.stack([a[n] for n in common]))
+    return float(acc.centre_rmse_pct_path)
+
+
+def geometry_counts(db_path: str | Path) -> dict:
+    """Verified image pairs in a COLMAP database by two-view geometry: {"verified", "planar_or_panoramic"}.
+
+    Planar / panoramic pairs (a homography explains the matches: one dominant plane, or a rotation
+    without translation) constrain the relative pose weakly; their fraction is what decides whether
+    the solution check maps twice (`SfmConfig.check_planar_fraction`)."""
+    import pycolmap
+
+    cfg = pycolmap.TwoViewGeometryConfiguration
+    verified = {int(c) for c in (cfg.CALIBRATED, cfg.UNCALIBRATED, cfg.PLANAR, cfg.PANORAMIC,
+                                 cfg.PLANAR_OR_PANORAMIC, cfg.MULTIPLE)}
+    planar = {int(c) for c in (cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC)}
+    db = pycolmap.Database.open(db_path)
+    try:
+        _, geometries = db.read_two_view_geometries()
+    finally:
+        db.close()
+    configs = [int(g.config) for g in geometries]
+    return {"verified": sum(c in verified for c in configs), "planar_or_panoramic": sum(c in planar for c in configs)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -322,7 +401,7 @@ def _child(job_path: str) -> int:
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
-    _emit("stage", "match", sequential_pair_count(len(names), cfg.overlap, pairing.quadratic_overlap))
+    _emit("stage", "match", len(names))
     t0 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = cfg.num_threads
@@ -353,7 +432,11 @@ def _child(job_path: str) -> int:
         return pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
                                             next_image_callback=lambda: _emit("step"))
 
-    recs, attempts, rejected = map_with_retries(map_once, len(names), cfg)
+    pairs = geometry_counts(db_path)
+    recs, attempts, rejected, check = map_with_retries(map_once, len(names), cfg,
+                                                       check=cfg.solution_check and cfg.mapping_attempts >= 2)
+    check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
+    check["verified_pairs"] = pairs["verified"]
     timings["map_s"] = time.perf_counter() - t0
     if not recs:
         return fail("SfM found no model: no frame pair with enough parallax "
@@ -403,6 +486,7 @@ def _child(job_path: str) -> int:
     (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
                                                  "num_keypoints": num_kp,
                                                  "num_verified_pairs": num_pairs, "mapping_attempts": attempts,
+                                                 "solution_check": check,
                                                  "timings": timings}))
     return 0
 
