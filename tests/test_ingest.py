@@ -113,6 +113,10 @@ def test_end_to_end_registration_and_accuracy(ingested, clip, capsys):
     png = cv2.imread(str(out / "trajectory.png"))
     assert png is not None and png.shape[0] > 200
     assert ds.manifest["report"]["registered"] == report["registered"]
+    # the solution check passed and is recorded with the chunk; a walk of 7 m has ample parallax
+    assert scene.meta["sfm_solution_check"] == "passed" and report["warnings"] == []
+    assert report["chunks"][0]["baseline_over_depth"] == pytest.approx(scene.meta["baseline_over_depth"])
+    assert scene.meta["baseline_over_depth"] > 0.1
 
 
 def test_resume_reuses_stages_and_force_redoes(ingested, capsys):
