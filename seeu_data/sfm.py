@@ -27,9 +27,9 @@ Output directory layout::
 Determinism: the same frames give the same database and the same poses whatever `num_threads`
 (tested with 2 threads x 3 runs). COLMAP's parallel extractor would number images in completion
 order and each matching thread's RANSAC state would carry over between the pairs it happens to
-verify; both are fixed here (`_create_database`, `ransac.random_seed`). Do not read the database
-while COLMAP writes it: a concurrent SQLite reader made COLMAP lose rows silently (seen in testing);
-progress comes from COLMAP's log lines instead.
+verify; both are fixed here (`_create_database`, `ransac.random_seed`). Progress comes from COLMAP's
+log lines, not from polling the database: in testing, a second SQLite connection counting rows while
+COLMAP wrote coincided with one image's keypoints missing, silently.
 """
 
 from __future__ import annotations
