@@ -382,7 +382,8 @@ def _child(job_path: str) -> int:
     image_dir = job["image_dir"]
     names = job["image_names"]
     db_path = out / "database.db"
-    db_path.unlink(missing_ok=True)
+    for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
+        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
     timings: dict[str, float] = {}
 
     def fail(msg: str) -> int:
