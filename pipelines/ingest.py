@@ -4,14 +4,18 @@ Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parame
 the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
 (--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
 process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
-detection only with --vocab-tree, incremental mapping, undistortion when the model has distortion)
+detection only with --vocab-tree, incremental mapping twice from different seeds for the solution
+check, undistortion when the model has distortion; the same poses whatever --threads)
 -> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale: median SfM
 point depth = 1; near/far from point-depth percentiles) -> OUT/<scene>/ posed-frames dataset
 (scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
+<scene> is the input's name or --name; OUT/<scene> holding another input's scene is an error
+unless --force. Warnings (failed solution check, low parallax) end the summary line.
 
 Example:
   seeu ingest clip.mp4 --out data/posed --target-frames 120
   seeu ingest videos/ photos/ --out data/posed --workers 2 --camera-model OPENCV
+  seeu ingest trip2/images --out data/posed --name trip2
   seeu validate data/posed/clip
 """
 
@@ -241,7 +245,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     sfm_cfg.check()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
-    decode_key = {"input": str(source.path.resolve()), "fingerprint": source.fingerprint(), "kind": source.kind,
+    decode_key = {"input": identity["path"], "fingerprint": identity["fingerprint"], "kind": source.kind,
                   "stride": cfg.stride, "max_size": cfg.max_size, "jpeg_quality": cfg.jpeg_quality,
                   "format": DECODE_STAGE_FORMAT}
     decoded, _ = cache.run("decode", decode_key, _decode_stage(source, cfg, prog))
@@ -283,7 +287,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         c.meta["baseline_over_depth"] = baseline_over_depth(c.cam_to_world)
         c.meta["sfm_solution_check"] = check_state
     params = {**asdict(cfg), "inputs": [str(source.path)], "sfm": asdict(sfm_cfg)}
-    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=source.fingerprint())
+    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=identity["fingerprint"])
     report = {
         "scene": source.name, "input": str(source.path), "input_kind": source.kind, "input_identity": identity,
         "frames_decoded": decoded["frames_in_source"], "frames_candidates": len(frames_all), "frames_selected": len(frames),
