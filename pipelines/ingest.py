@@ -64,7 +64,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "agree within 1%% of the path; mapping takes about twice as long with it)")
     p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
     p.add_argument("--threads", type=int, default=-1,
-                   help="COLMAP threads per scene (default: all cores / workers); results do not depend on it")
+                   help="COLMAP threads per scene for feature extraction and matching (default: all cores / "
+                        "workers); results do not depend on it")
+    p.add_argument("--map-threads", type=int, default=1,
+                   help="threads for incremental mapping (default 1: poses identical run after run; more speeds up "
+                        "bundle adjustment of large models, but its sums then depend on thread timing; -1 = all cores)")
     p.add_argument("--force", action="store_true",
                    help="redo every stage instead of resuming, and replace OUT/<scene> even when it holds another input's scene")
     p.add_argument("--heartbeat", type=float, default=None, metavar="SECONDS",
@@ -91,6 +95,7 @@ class IngestConfig:
     threads: int = -1
     sfm_attempts: int = 3
     sfm_check: bool = True
+    map_threads: int = 1
     jpeg_quality: int = 95
     extra: dict = field(default_factory=dict)
 
@@ -241,7 +246,8 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     sfm_cfg = SfmConfig(camera_model=cfg.camera_model, overlap=cfg.overlap,
                         vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
                         min_model_size=max(3, min(cfg.min_chunk_frames, 10)), max_num_features=cfg.max_features,
-                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts, solution_check=cfg.sfm_check)
+                        num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts, solution_check=cfg.sfm_check,
+                        mapping_threads=cfg.map_threads)
     sfm_cfg.check()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
@@ -394,7 +400,8 @@ def _run(args: argparse.Namespace) -> int:
                        max_size=args.max_size, camera_model=args.camera_model, overlap=args.overlap,
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
                        min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
-                       sfm_attempts=args.sfm_attempts, sfm_check=not args.no_sfm_check)
+                       sfm_attempts=args.sfm_attempts, sfm_check=not args.no_sfm_check,
+                       map_threads=args.map_threads)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
         report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress,

@@ -25,7 +25,7 @@ Output directory layout::
 "verified_pairs"}, "timings": {...}} or {"error": "..."}.
 
 Determinism: the same frames give the same database and the same poses whatever `num_threads`
-(tested with 2 threads x 3 runs). COLMAP's parallel extractor would number images in completion
+(tested with 2 threads x 3 runs and 1 thread), with mapping on `mapping_threads` = 1. COLMAP's parallel extractor would number images in completion
 order and each matching thread's RANSAC state would carry over between the pairs it happens to
 verify; both are fixed here (`_create_database`, `ransac.random_seed`). Progress comes from COLMAP's
 log lines, not from polling the database: in testing, a second SQLite connection counting rows while
@@ -66,6 +66,10 @@ class SfmConfig:
     min_model_size: int = 10
     max_num_features: int = 8192
     num_threads: int = -1
+    # Incremental mapping's threads (bundle adjustment of models above 50,000 residuals, and more):
+    # with more than one, re-mapping the same database differed in 1 of 15 runs (2 threads, 20-frame
+    # clip); with one, never. Extraction and matching use `num_threads` and stay deterministic.
+    mapping_threads: int = 1
     random_seed: int = 0
     # Incremental mapping is re-run with the next seed (up to this many runs in all) while its usable
     # models register fewer than `retry_below` of the frames; the run registering most is kept.
@@ -84,6 +88,8 @@ class SfmConfig:
             raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
         if self.mapping_attempts < 1:
             raise SeeUError(f"--sfm-attempts must be >= 1, got {self.mapping_attempts}")
+        if self.mapping_threads == 0 or self.mapping_threads < -1:
+            raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.mapping_threads}")
         if self.overlap < 1:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
@@ -438,7 +444,7 @@ def _child(job_path: str) -> int:
         sparse.mkdir()
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
-        options.num_threads = cfg.num_threads
+        options.num_threads = cfg.mapping_threads
         options.random_seed = seed
         return pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
                                             next_image_callback=lambda: _emit("step"))
