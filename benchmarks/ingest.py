@@ -92,7 +92,8 @@ def main() -> int:
     write_clip(video, ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed))
     print(f"rendered {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s -> {video}", flush=True)
 
-    cfg = IngestConfig(camera_model=args.camera_model)
+    # like for like with the bare calls (one mapping): without the solution check's second mapping
+    cfg = IngestConfig(camera_model=args.camera_model, sfm_check=False)
     (source,) = discover_sources([video])
     frames_dir = args.out / "posed" / ".work" / source.name / "decode" / "frames"
     seeu_wall, seeu_cpu, bare_wall, bare_cpu = [], [], [], []

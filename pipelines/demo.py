@@ -178,10 +178,10 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     from seeu_data.video import discover_sources
 
     # The synthetic clips are rendered with an ideal pinhole camera (square pixels, centred principal
-    # point), so SIMPLE_PINHOLE is the matching model. COLMAP with one thread and a fixed seed gives
-    # bit-identical poses run after run; with more threads, bundle adjustment is not deterministic and
-    # about one run in four settled on a solution with ~5% camera-centre error. On 2 cores one thread
-    # costs little (measured: 57-71 s vs 51-81 s per 72-frame clip), so the demo is reproducible.
+    # point), so SIMPLE_PINHOLE is the matching model. Ingest's SfM gives the same poses whatever the
+    # thread count (image ids and RANSAC seeds are fixed by the frames; earlier multi-threaded runs
+    # differed, about one in four with ~5% camera-centre error); on 2 cores one thread costs little
+    # (measured: 57-71 s vs 51-81 s per 72-frame clip).
     cfg = IngestConfig(camera_model="SIMPLE_PINHOLE", threads=1, scale="median-depth")  # the demo model's tight near/far
 
     def fn() -> dict:

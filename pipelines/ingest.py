@@ -4,15 +4,19 @@ Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parame
 the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
 (--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
 process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
-detection only with --vocab-tree, --mapper incremental/global/auto, undistortion to a pinhole camera
-of the same size when the model has distortion; --size HxW crops/resizes afterwards)
+detection only with --vocab-tree, --mapper incremental/global/auto, mapping twice from different
+seeds for the solution check, undistortion to a pinhole camera of the same size when the model has
+distortion; the same poses whatever --threads; --size HxW crops/resizes afterwards)
 -> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
 re10k, median-depth or metric, seeu_data/scale.py) -> OUT/<scene>/ posed-frames dataset
 (scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
+<scene> is the input's name or --name; OUT/<scene> holding another input's scene is an error
+unless --force. Warnings (failed solution check, low parallax) end the summary line.
 
 Example:
   seeu ingest clip.mp4 --out data/posed --target-frames 120
   seeu ingest videos/ photos/ --out data/posed --workers 2 --camera-model OPENCV
+  seeu ingest trip2/images --out data/posed --name trip2
   seeu ingest walk.mp4 --out data/posed --scale metric --known-distance 4.2     # first-to-last camera: 4.2 m
   seeu validate data/posed/clip
 """
@@ -20,10 +24,12 @@ Example:
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import re
 import sys
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 
@@ -35,6 +41,9 @@ SFM_STAGE_FORMAT = 5
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", metavar="INPUT", help="video file, folder of images, or folder of videos")
     p.add_argument("--out", required=True, type=Path, help="output directory; one dataset per scene: OUT/<scene>/")
+    p.add_argument("--name", default=None,
+                   help="scene name for a single input (default: the file's or folder's name; inputs sharing a "
+                        "name get their parent folder's name in front: a/images, b/images -> a-images, b-images)")
     p.add_argument("--stride", type=int, default=1, help="keep every N-th decoded frame (default 1)")
     p.add_argument("--target-frames", type=int, default=None,
                    help="then keep this many frames, evenly spaced (default: all)")
@@ -69,11 +78,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sfm-attempts", type=int, default=3,
                    help="re-run incremental mapping with the next seed while it registers < 80%% of the frames, "
                         "keeping the run that registers most (default 3 runs at most)")
+    p.add_argument("--no-sfm-check", action="store_true",
+                   help="skip the solution check (a second mapping from the next seed whose camera centres must "
+                        "agree within 1%% of the path; mapping takes about twice as long with it)")
     p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
     p.add_argument("--threads", type=int, default=-1,
-                   help="COLMAP threads per scene (default: all cores / workers); 1 gives bit-identical poses "
-                        "run after run (multi-threaded bundle adjustment is not deterministic)")
-    p.add_argument("--force", action="store_true", help="redo every stage instead of resuming")
+                   help="COLMAP threads per scene for feature extraction and matching (default: all cores / "
+                        "workers); results do not depend on it")
+    p.add_argument("--map-threads", type=int, default=1,
+                   help="threads for incremental mapping (default 1: poses identical run after run; more speeds up "
+                        "bundle adjustment of large models, but its sums then depend on thread timing; -1 = all cores)")
+    p.add_argument("--force", action="store_true",
+                   help="redo every stage instead of resuming, and replace OUT/<scene> even when it holds another input's scene")
+    p.add_argument("--heartbeat", type=float, default=None, metavar="SECONDS",
+                   help="when stderr is not a terminal, print a status line every SECONDS (default 10; 0 = off)")
     p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
     p.add_argument("--fsync", action="store_true",
                    help="fsync every output file before its rename (durable across a power loss; slower). "
@@ -109,6 +127,8 @@ class IngestConfig:
     max_features: int = 8192
     threads: int = -1
     sfm_attempts: int = 3
+    sfm_check: bool = True
+    map_threads: int = 1
     jpeg_quality: int = 95
     scale: str = "re10k"
     mapper: str = "incremental"
@@ -130,9 +150,8 @@ def _encode_jpeg(rgb, quality: int) -> bytes:
     return buf.tobytes()
 
 
-def _decode_stage(source, cfg: IngestConfig, progress: bool):
+def _decode_stage(source, cfg: IngestConfig, prog):
     """Stage function: decode every stride-th frame, resize, write JPEGs + per-frame metadata."""
-    from tqdm import tqdm
 
     from seeu_data.arrow_io import atomic_write_bytes
     from seeu_data.errors import SeeUError
@@ -144,8 +163,9 @@ def _decode_stage(source, cfg: IngestConfig, progress: bool):
         in_source = probe_video(source.path).frame_count if source.kind == "video" else len(source.image_files)
         total = -(-in_source // cfg.stride)
         frames, size = [], None
-        for fr in tqdm(iter_frames(source, cfg.stride), total=total, desc=f"{source.name} decode", unit="frame",
-                       disable=not progress, leave=False):
+        prog.stage("decode", total)
+        for fr in iter_frames(source, cfg.stride):
+            prog.advance()
             rgb = resize_max_side(fr.rgb, cfg.max_size)
             if size is None:
                 size = rgb.shape[:2]
@@ -196,14 +216,62 @@ def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, 
     return out
 
 
-def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False, progress: bool = False) -> dict:
-    """Run every stage for one scene; returns its report (also written to OUT/<scene>/report.json)."""
+def input_identity(source) -> dict:
+    """What makes an input the same input: its resolved path and its content fingerprint."""
+    return {"path": str(source.path.resolve()), "fingerprint": source.fingerprint()}
+
+
+def check_scene_owner(out_dir: Path, identity: dict, force: bool) -> None:
+    """Refuse to overwrite OUT/<scene> when it holds another input's scene (unless `force`).
+
+    The same input: the same resolved path, or the same content fingerprint (a moved folder); the
+    identity is read from the scene's report.json (`input_identity`, or `input` for older reports).
+    A dataset without an ingest report counts as another input's.
+    """
+    from seeu_data.errors import SeeUError
+
+    if force or not out_dir.exists():
+        return
+    report_path = out_dir / "report.json"
+    recorded = None
+    if report_path.exists():
+        try:
+            doc = json.loads(report_path.read_text())
+            recorded = doc.get("input_identity") or {"path": str(Path(doc["input"]).resolve())}
+        except (OSError, ValueError, KeyError, TypeError):
+            recorded = None
+    elif not (out_dir / "manifest.json").exists():
+        return  # nothing finished there (an interrupted run): nothing to lose
+    if recorded and (recorded.get("path") == identity["path"] or recorded.get("fingerprint") == identity["fingerprint"]):
+        return
+    what = f"scene of another input ({recorded['path']})" if recorded else "dataset not written by seeu ingest"
+    raise SeeUError(f"already holds a {what}; choose another --name or --out, or --force to replace it", out_dir)
+
+
+def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False, progress: bool = False,
+                 heartbeat_s: float = 0.0) -> dict:
+    """Run every stage for one scene; returns its report (also written to OUT/<scene>/report.json).
+
+    `progress`: tqdm bars; `heartbeat_s` > 0: a status line on stderr that often (`StageProgress`).
+    Raises SeeUError when OUT/<scene> holds another input's scene and not `force`.
+    """
+    from seeu_data.progress import StageProgress
+
+    out_dir = out_root / source.name
+    identity = input_identity(source)
+    check_scene_owner(out_dir, identity, force)
+    with StageProgress(f"seeu ingest: {source.name}", bar=progress, heartbeat_s=heartbeat_s) as prog:
+        return _ingest_scene(source, out_root, cfg, force, prog, identity)
+
+
+def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
     import numpy as np
 
     from seeu_data.chunks import ChunkConfig, plan_chunks
     from seeu_data.errors import SeeUError
     from seeu_data.frame_select import SelectConfig, select_frames
-    from seeu_data.ingest_report import mean_reprojection_error, plot_trajectory, summary_line, write_report
+    from seeu_data.ingest_report import (baseline_over_depth, mean_reprojection_error, plot_trajectory,
+                                         scene_warnings, summary_line, write_report)
     from seeu_data.manifest import MANIFEST_NAME, provenance
     from seeu_data.points import write_chunk_points
     from seeu_data.posed import PosedDatasetWriter, PosedScene
@@ -224,14 +292,14 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                         vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
                         min_model_size=max(3, min(cfg.min_chunk_frames, 10)), max_num_features=cfg.max_features,
                         num_threads=cfg.threads, mapping_attempts=cfg.sfm_attempts, mapper=cfg.mapper,
-                        features=cfg.features)
+                        features=cfg.features, solution_check=cfg.sfm_check, mapping_threads=cfg.map_threads)
     sfm_cfg.check()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
-    decode_key = {"input": str(source.path.resolve()), "fingerprint": source.fingerprint(), "kind": source.kind,
+    decode_key = {"input": identity["path"], "fingerprint": identity["fingerprint"], "kind": source.kind,
                   "stride": cfg.stride, "max_size": cfg.max_size, "jpeg_quality": cfg.jpeg_quality,
                   "format": DECODE_STAGE_FORMAT}
-    decoded, _ = cache.run("decode", decode_key, _decode_stage(source, cfg, progress))
+    decoded, _ = cache.run("decode", decode_key, _decode_stage(source, cfg, prog))
     frames_all = decoded["frames"]
 
     t0 = time.perf_counter()
@@ -245,12 +313,12 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                         f"need at least {need}", source.path)
 
     names = [f["name"] for f in frames]
-    # the thread count changes results only through determinism: one thread gives bit-identical poses
+    # the thread count does not change the results (image ids and RANSAC seeds are fixed by the frames)
     sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "num_threads"}
-    sfm_params["deterministic"] = sfm_cfg.num_threads == 1
     sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
     sfm_result, _ = cache.run("sfm", sfm_key, lambda d: run_sfm(cache.stage_dir("decode") / "frames", names, d,
-                                                                 sfm_cfg, source.path, progress))
+                                                                 sfm_cfg, source.path, prog))
+    prog.stage("write")
 
     t0 = time.perf_counter()
     chunks, dropped_chunk = plan_chunks(source.name, names, sfm_result, cache.stage_dir("sfm"), chunk_cfg,
@@ -265,10 +333,15 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
     dropped = dropped_sel + [{"source_frame": frames[d["position"]]["source_frame"], "reason": d["reason"]}
                              for d in dropped_chunk]
     dropped.sort(key=lambda d: d["source_frame"])
+    check = sfm_result.get("solution_check", {})
+    check_state = "not run" if not check.get("ran") else ("passed" if check.get("passed") else "failed")
+    for c in chunks:
+        c.meta["baseline_over_depth"] = baseline_over_depth(c.cam_to_world)
+        c.meta["sfm_solution_check"] = check_state
     params = {**asdict(cfg), "inputs": [str(source.path)], "sfm": asdict(sfm_cfg)}
-    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=source.fingerprint())
+    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=identity["fingerprint"])
     report = {
-        "scene": source.name, "input": str(source.path), "input_kind": source.kind,
+        "scene": source.name, "input": str(source.path), "input_kind": source.kind, "input_identity": identity,
         "frames_decoded": decoded["frames_in_source"], "frames_candidates": len(frames_all), "frames_selected": len(frames),
         "registered": registered, "registration_rate": registered / len(frames),
         "frames_in_chunks": sum(len(c.frame_positions) for c in chunks),
@@ -281,13 +354,16 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
                            for m in sfm_result["models"]],
                 "discarded_models": sfm_result.get("discarded_models", []),
                 "mapping_attempts": sfm_result.get("mapping_attempts", []),
-                "mapper": sfm_result.get("mapper")},
+                "mapper": sfm_result.get("mapper"),
+                "solution_check": {**check, "state": check_state}},
         "chunks": [{"scene_id": c.scene_id, "num_frames": len(c.frame_positions),
                     "source_frames": [frames[c.frame_positions[0]]["source_frame"], frames[c.frame_positions[-1]]["source_frame"]],
-                    "near": c.near, "far": c.far, "sfm_model": c.model_index} for c in chunks],
+                    "near": c.near, "far": c.far, "sfm_model": c.model_index,
+                    "baseline_over_depth": c.meta["baseline_over_depth"]} for c in chunks],
         "dropped_frames": dropped,
         "output": str(out_dir),
     }
+    report["warnings"] = scene_warnings(report)
     gt = _ground_truth_accuracy(source, frames, chunks, registered, len(frames))
     if gt is not None:
         report["ground_truth"] = gt
@@ -320,6 +396,7 @@ def ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool = False,
         writer.report = {k: report[k] for k in ("frames_selected", "registered", "registration_rate",
                                                 "frames_in_chunks", "mean_reprojection_error_px")}
         writer.report["dropped_frames"] = len(dropped)
+        writer.report["warnings"] = report["warnings"]
         write_report(out_dir / "report.json", report)
         plot_trajectory(out_dir / "trajectory.png", chunks,
                         f"{source.name}: {registered}/{len(frames)} registered, {len(chunks)} chunk(s)")
@@ -331,9 +408,9 @@ def _scene_worker(payload: tuple) -> tuple[str, dict | None, str | None]:
     """Process-pool entry: (name, report, error line)."""
     from seeu_data.errors import SeeUError
 
-    source, out_root, cfg, force = payload
+    source, out_root, cfg, force, heartbeat_s = payload
     try:
-        return source.name, ingest_scene(source, out_root, cfg, force=force, progress=False), None
+        return source.name, ingest_scene(source, out_root, cfg, force=force, heartbeat_s=heartbeat_s), None
     except SeeUError as exc:
         return source.name, None, str(exc)
 
@@ -356,12 +433,21 @@ def _run(args: argparse.Namespace) -> int:
     from seeu_data.sfm import SfmConfig
     from seeu_data.video import discover_sources
 
-    progress = args.progress or sys.stderr.isatty()
     if args.workers < 1:
         raise SeeUError(f"--workers must be >= 1, got {args.workers}")
     ScaleConfig(args.scale, args.known_distance, args.distance_frames).check()  # before any scene starts
     SfmConfig(mapper=args.mapper, features=args.features).check()  # e.g. ALIKED without ONNX: one line, now
     sources = discover_sources(args.inputs)
+    if args.name is not None:
+        if len(sources) != 1:
+            raise SeeUError(f"--name names one scene, but the inputs hold {len(sources)}")
+        if not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", args.name):
+            raise SeeUError(f"--name must be letters, digits, '_', '-', '.' (not first), got {args.name!r}")
+        sources = [replace(sources[0], name=args.name)]
+    progress = args.progress or sys.stderr.isatty()
+    # a status line every few seconds when no terminal shows bars (CI, logs); SEEU_HEARTBEAT_S sets the default
+    heartbeat = args.heartbeat if args.heartbeat is not None else float(os.environ.get("SEEU_HEARTBEAT_S", "10"))
+    heartbeat = 0.0 if progress else heartbeat
     workers = min(args.workers, len(sources))
     threads = args.threads if args.threads != -1 else max(1, (os.cpu_count() or 1) // workers)
     cfg = IngestConfig(stride=args.stride, target_frames=args.target_frames, sharpness_window=args.sharpness_window,
@@ -369,10 +455,12 @@ def _run(args: argparse.Namespace) -> int:
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
                        min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
                        sfm_attempts=args.sfm_attempts, scale=args.scale, known_distance=args.known_distance,
-                       distance_frames=args.distance_frames, size=args.size, mapper=args.mapper, features=args.features)
+                       distance_frames=args.distance_frames, size=args.size, mapper=args.mapper, features=args.features,
+                       sfm_check=not args.no_sfm_check, map_threads=args.map_threads)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
-        report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress)
+        report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress,
+                              heartbeat_s=heartbeat)
         print(report["summary"])
         return 0
     failures = 0
@@ -380,7 +468,8 @@ def _run(args: argparse.Namespace) -> int:
         results = []
         for s in sources:
             try:
-                results.append((s.name, ingest_scene(s, args.out, cfg, force=args.force, progress=progress), None))
+                results.append((s.name, ingest_scene(s, args.out, cfg, force=args.force, progress=progress,
+                                                            heartbeat_s=heartbeat), None))
             except SeeUError as exc:
                 results.append((s.name, None, str(exc)))
             _print_result(*results[-1])
@@ -388,7 +477,7 @@ def _run(args: argparse.Namespace) -> int:
     else:
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            futures = pool.map(_scene_worker, [(s, args.out, cfg, args.force) for s in sources])
+            futures = pool.map(_scene_worker, [(s, args.out, cfg, args.force, heartbeat) for s in sources])
             for name, report, err in tqdm(futures, total=len(sources), desc="scenes", disable=not progress):
                 _print_result(name, report, err)
                 failures += err is not None

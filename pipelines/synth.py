@@ -8,6 +8,7 @@ pose accuracy against it to its report.
 
 Example:
   seeu synth --out data/synth --frames 90 --size 640x360 --seed 0
+  seeu synth --out data/wall --frames 30 --size 320x180 --scene planar
 """
 
 from __future__ import annotations
@@ -35,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--frames", type=int, default=90, help="number of frames (default 90)")
     p.add_argument("--size", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
     p.add_argument("--seed", type=int, default=0, help="scene seed: textures and box layout (default 0)")
+    p.add_argument("--scene", choices=["corridor", "planar"], default="corridor",
+                   help="corridor (default) or planar: one large textured wall with three small boxes, seen by "
+                        "a camera walking along it at 4 m (a scene dominated by one plane)")
     p.add_argument("--fps", type=float, default=30.0, help="frame rate written to the video (default 30)")
     p.add_argument("--name", default="clip", help="file stem (default clip)")
     p.add_argument("--progress", action="store_true", help="show progress even when stderr is not a terminal")
@@ -44,7 +48,8 @@ def run(args: argparse.Namespace) -> int:
     from seeu_data.synthetic import ClipConfig, write_clip
 
     width, height = parse_size(args.size)
-    cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps)
+    cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps,
+                     scene=args.scene)
     video = args.out / f"{args.name}.mp4"
     doc = write_clip(video, cfg, progress=args.progress or sys.stderr.isatty())
     print(f"wrote {video} ({cfg.n_frames} frames, {width}x{height}, path {doc['path_length']:.2f} m) "

@@ -3,8 +3,11 @@
 report.json keys: scene, input, frames_decoded (frames in the source), frames_candidates (after --stride),
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
 mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, models: [...], discarded_models: [...],
-mapping_attempts: [{seed, registered, models}]},
-chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model}],
+mapping_attempts: [{seed, registered, models, disagreement_pct}],
+solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
+planar_or_panoramic_pairs, verified_pairs}}, input_identity {path, fingerprint},
+chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth}],
+warnings [str] (a failed solution check, low parallax; also in the summary line),
 dropped_frames [{source_frame, reason}], timings_s {stage: seconds}, reused {stage: bool},
 ground_truth (only when the input has a synthetic ground-truth JSON beside it), output.
 """
@@ -70,18 +73,58 @@ def plot_trajectory(path: str | Path, chunks: list, title: str) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+# Low parallax: the widest baseline b of a chunk over the median scene depth d. Two views b apart see a
+# point at depth d under an angle of about b/d radians, and depth from triangulation is uncertain by about
+# d * (pixel error / focal) / (b/d), i.e. relative error ~ (1/f) / (b/d). COLMAP drops points seen under
+# less than 1.5 deg (b/d ~ 0.026); at b/d = 0.1 (5.7 deg, four times that) even the widest pair only
+# reaches ~1.4 % depth error per pixel of noise at a 700 px focal, and the chunk's neighbouring frames far
+# less, so its geometry (and the scale, near/far derived from it) is weakly constrained. A pan in place
+# or a few centimetres of sway in front of a scene metres away is below it.
+LOW_PARALLAX = 0.1
+
+
+def baseline_over_depth(cam_to_world: np.ndarray) -> float:
+    """Largest distance between two camera centres of a chunk `(N, 4, 4)` over its median scene depth.
+
+    Chunk poses are scaled so that the median SfM point depth is 1, so this is the largest pairwise
+    centre distance itself."""
+    c = np.asarray(cam_to_world, np.float64)[:, :3, 3]
+    return float(np.sqrt(((c[:, None] - c[None]) ** 2).sum(-1)).max()) if len(c) > 1 else 0.0
+
+
+def scene_warnings(report: dict) -> list[str]:
+    """What the user must know before trusting the scene: a failed solution check, low-parallax chunks."""
+    out = []
+    check = report["sfm"].get("solution_check", {})
+    if check.get("state") == "failed":
+        d = check.get("disagreement_pct")
+        out.append("SfM solution check failed: no two mapping runs agree"
+                   + (f" (closest {d:.2g}% of the path apart)" if d is not None and np.isfinite(d) else "")
+                   + "; the poses may be wrong")
+    low = [c for c in report["chunks"] if c.get("baseline_over_depth", np.inf) < LOW_PARALLAX]
+    if low:
+        out.append(f"low parallax: baseline/depth {min(c['baseline_over_depth'] for c in low):.3f} < {LOW_PARALLAX} in "
+                   + ", ".join(c["scene_id"] for c in low) + " (geometry weakly constrained)")
+    return out
+
+
 def summary_line(report: dict) -> str:
     """One line for the terminal."""
     rate = 100 * report["registration_rate"]
     attempts = len(report["sfm"].get("mapping_attempts", []))
+    check = report["sfm"].get("solution_check", {})
+    expected = 2 if check.get("ran") else 1  # the solution check maps twice
     line = (f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
-            + (f" after {attempts} mapping runs" if attempts > 1 else "") + "), "
+            + (f" after {attempts} mapping runs" if attempts > expected else "") + "), "
             f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
             f"reprojection {report['mean_reprojection_error_px']:.2f} px, "
-            f"{report['timings_s']['total']:.1f} s -> {report['output']}")
+            + (f"solution check passed ({check['disagreement_pct']:.2g}% apart), " if check.get("state") == "passed" else "")
+            + f"{report['timings_s']['total']:.1f} s -> {report['output']}")
     gt = report.get("ground_truth")
     if gt and gt.get("chunks"):
         best = max(gt["chunks"], key=lambda c: c["num_frames"])
         line += (f" | vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
                  f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%")
+    for w in report.get("warnings", []):
+        line += f" | WARNING: {w}"
     return line

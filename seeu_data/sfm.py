@@ -2,12 +2,14 @@
 
 COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop detection without a
 vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
-into a SeeUError. The child runs: SIFT extraction (one shared camera, `camera_model`) ->
-sequential matching (`overlap`; loop detection only with a vocabulary-tree file) -> incremental
-mapping (possibly several models; re-run with the next seed while it registers too few frames, see
-`map_with_retries`) -> undistortion of every model whose camera has distortion of
-at least `max_negligible_distortion_px` at the image border (to a pinhole camera of the same W x H,
-`seeu_data.undistort`; below that the frames are used as they are with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
+into a SeeUError. The child runs: the database's camera and images written in frame order ->
+SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`; loop detection
+only with a vocabulary-tree file; verification RANSAC seeded per pair) -> mapping (`mapper`:
+incremental, or global; possibly several models; re-run with the next seed while it registers too few
+frames, and mapped twice for the solution check, see `map_with_retries`) -> undistortion of every model
+whose camera has distortion of at least `max_negligible_distortion_px` at the image border (to a
+pinhole camera of the same W x H, `seeu_data.undistort`; below that the frames are used as they are
+with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
 
 Output directory layout::
 
@@ -20,7 +22,16 @@ Output directory layout::
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
 "world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
-"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models"}], "timings": {...}} or {"error": "..."}.
+"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models"[, "disagreement_pct"]}],
+"solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
+"verified_pairs"}, "timings": {...}} or {"error": "..."}.
+
+Determinism: the same frames give the same database and the same poses whatever `num_threads`
+(tested with 2 threads x 3 runs and 1 thread), with mapping on `mapping_threads` = 1. COLMAP's parallel extractor would number images in completion
+order and each matching thread's RANSAC state would carry over between the pairs it happens to
+verify; both are fixed here (`_create_database`, `ransac.random_seed`). Progress comes from COLMAP's
+log lines, not from polling the database: in testing, a second SQLite connection counting rows while
+COLMAP wrote coincided with one image's keypoints missing, silently.
 """
 
 from __future__ import annotations
@@ -44,6 +55,8 @@ MAPPERS = ("incremental", "global", "auto")
 FEATURES = {"sift": ("SIFT", "SIFT_BRUTEFORCE"), "aliked": ("ALIKED_N16ROT", "ALIKED_LIGHTGLUE")}
 _UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
 _PROGRESS = "@@seeu"
+# COLMAP's log lines for one image done: "Processed file [k/N]" (extraction), "Processing image [k/N]" (matching)
+_COLMAP_PROGRESS = re.compile(r"\] Process(?:ed file|ing image) \[(\d+)/\d+\]")
 # COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
 _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 
@@ -58,11 +71,19 @@ class SfmConfig:
     min_model_size: int = 10
     max_num_features: int = 8192
     num_threads: int = -1
+    # Incremental mapping's threads (bundle adjustment of models above 50,000 residuals, and more):
+    # with more than one, re-mapping the same database differed in 1 of 15 runs (2 threads, 20-frame
+    # clip); with one, never. Extraction and matching use `num_threads` and stay deterministic.
+    mapping_threads: int = 1
     random_seed: int = 0
     # Incremental mapping is re-run with the next seed (up to this many runs in all) while its usable
     # models register fewer than `retry_below` of the frames; the run registering most is kept.
     mapping_attempts: int = 3
     retry_below: float = 0.8
+    # The solution check: map again from the next seed and require two runs whose camera centres agree
+    # (Sim(3)-aligned) within this % of the path; see `map_with_retries`. Needs mapping_attempts >= 2.
+    solution_check: bool = True
+    max_disagreement_pct: float = 1.0
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
@@ -75,6 +96,8 @@ class SfmConfig:
             raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
         if self.mapping_attempts < 1:
             raise SeeUError(f"--sfm-attempts must be >= 1, got {self.mapping_attempts}")
+        if self.mapping_threads == 0 or self.mapping_threads < -1:
+            raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.mapping_threads}")
         if self.overlap < 1:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
@@ -102,13 +125,15 @@ def _check_features_available(features: str) -> None:
 
 
 def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, config: SfmConfig,
-            source: str | Path, progress: bool = False) -> dict:
+            source: str | Path, progress=False) -> dict:
     """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
 
-    `source` names the user's input in error messages. Raises SeeUError when the child aborts,
-    crashes, or reports that no model could be built.
+    `source` names the user's input in error messages. `progress`: a `StageProgress` (or True for bars
+    only) that follows the child: stages `sfm extract` (images), `sfm match` (images), `sfm map`
+    (registered images), read from the child's own lines and COLMAP's log lines as they come.
+    Raises SeeUError when the child aborts, crashes, or reports that no model could be built.
     """
-    from tqdm import tqdm
+    from .progress import StageProgress
 
     config.check()
     out_dir = Path(out_dir)
@@ -118,23 +143,32 @@ def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, 
     (out_dir / "job.json").write_text(json.dumps(job, indent=1))
     log_path = out_dir / "sfm.log"
     env = dict(os.environ, GLOG_minloglevel=os.environ.get("GLOG_minloglevel", "0"))
-    bar = tqdm(total=len(image_names), desc="sfm extract", unit="img", disable=not progress, leave=False)
-    with open(log_path, "wb") as log:
-        proc = subprocess.Popen([sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
-                                stdout=subprocess.PIPE, stderr=log, env=env)
-        assert proc.stdout is not None
-        for raw in proc.stdout:
-            line = raw.decode(errors="replace").strip()
-            if not line.startswith(_PROGRESS):
-                continue
-            parts = line.split()
-            if parts[1] == "stage":
-                bar.set_description(f"sfm {parts[2]}")
-                bar.reset(total=len(image_names))
-            elif parts[1] == "step":
-                bar.update(1)
-        rc = proc.wait()
-    bar.close()
+    own = not isinstance(progress, StageProgress)
+    prog = StageProgress("sfm", bar=bool(progress)) if own else progress
+    try:
+        with open(log_path, "wb") as log:
+            # COLMAP's log (stderr) comes through the same pipe: it goes to sfm.log, and its
+            # "Processed file [k/N]" / "Processing image [k/N]" lines move the extract and match stages.
+            proc = subprocess.Popen([sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
+                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+            assert proc.stdout is not None
+            for raw in proc.stdout:
+                line = raw.decode(errors="replace").strip()
+                if not line.startswith(_PROGRESS):
+                    log.write(raw)
+                    m = _COLMAP_PROGRESS.search(line)
+                    if m and prog.name in ("sfm extract", "sfm match"):
+                        prog.set(int(m.group(1)))
+                    continue
+                parts = line.split()
+                if parts[1] == "stage":
+                    prog.stage(f"sfm {parts[2]}", int(parts[3]) if len(parts) > 3 else None)
+                elif parts[1] == "step":
+                    prog.advance()
+            rc = proc.wait()
+    finally:
+        if own:
+            prog.close()
     result_path = out_dir / "result.json"
     if rc != 0:
         if rc < 0:
@@ -166,24 +200,67 @@ def _last_log_line(path: Path) -> str:
 
 
 
-def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, list[dict], list[dict]]:
-    """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
-    cfg.random_seed, +1, ... until its usable models register at least `cfg.retry_below` of the
-    `num_frames` frames, at most `cfg.mapping_attempts` times.
+def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: SfmConfig) -> None:
+    """Write the shared camera, its rig, and one frame + image per name, in frame order, before extraction.
 
+    COLMAP's parallel extractor otherwise assigns image ids in completion order, which changes with the
+    thread count and the machine's load; the ids fix the pair ids, the matching order and the mapper's
+    tie-breaks. The camera is the one the extractor would create (`default_focal_length_factor` x the
+    longer side, principal point at the centre); the extractor then adds the features of these images.
+    """
+    import pycolmap
+
+    from .image_header import image_info
+
+    info = image_info(first_image.read_bytes(), str(first_image))
+    focal = pycolmap.ImageReaderOptions().default_focal_length_factor * max(info.width, info.height)
+    db = pycolmap.Database.open(db_path)
+    try:
+        camera = pycolmap.Camera.create_from_model_name(1, cfg.camera_model, focal, info.width, info.height)
+        camera.camera_id = db.write_camera(camera)
+        rig = pycolmap.Rig()
+        rig.add_ref_sensor(camera.sensor_id)
+        rig_id = db.write_rig(rig)
+        for name in names:
+            image = db.read_image(db.write_image(pycolmap.Image(name=name, camera_id=camera.camera_id)))
+            frame = pycolmap.Frame()
+            frame.rig_id = rig_id
+            frame.add_data_id(image.data_id)
+            db.write_frame(frame)
+    finally:
+        db.close()
+
+
+def map_with_retries(map_once, num_frames: int, cfg: SfmConfig,
+                     check: bool = False) -> tuple[dict, list[dict], list[dict], dict]:
+    """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
+    cfg.random_seed, +1, ... at most `cfg.mapping_attempts` times, until a run registers enough frames
+    and, with `check`, agrees with an earlier such run.
+
+    Registers enough: its usable models register at least `cfg.retry_below` of the `num_frames` frames.
     Usable: at least `min_model_size` registered frames and a camera that passes COLMAP's own
     plausibility test (focal length within 0.1-10x the image size, |extra params| <= 1; a poor initial
     pair can drive a shared radial camera to k = 1.7 and stall registration). A different seed changes
-    COLMAP's RANSAC samples and so which initial pair succeeds. Returns the usable models of the run
-    that registers most frames (the first on ties), every run's {seed, registered, models}, and the
-    kept run's rejected models as {index, registered, reason}.
+    COLMAP's RANSAC samples and so which initial pair succeeds.
+
+    The solution check (`check`): a wrong model can look clean (every frame registered, sub-pixel
+    reprojection) when one plane dominates the scene; a second run from another seed then usually lands
+    elsewhere. Two runs agree when their largest models' camera centres, Sim(3)-aligned, differ by at
+    most `cfg.max_disagreement_pct` of the path length (`model_disagreement_pct`). The first run of the
+    first agreeing pair is kept; when no two runs agree, the run registering most is kept and the check
+    fails. Returns (usable models of the kept run, every run's {seed, registered, models[,
+    disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
+    {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"}).
     """
-    best: tuple[int, dict, list] | None = None
-    attempts = []
+    runs: list[tuple[int, dict, list]] = []  # (registered, usable, rejected)
+    attempts: list[dict] = []
+    good: list[int] = []  # indices of runs registering enough
+    agreed: int | None = None
+    smallest = None
     for i in range(cfg.mapping_attempts):
         seed = cfg.random_seed + i
         if i:
-            _emit("stage", f"map-retry-{i}")
+            _emit("stage", f"map-retry-{i}", num_frames)
         usable, rejected = {}, []
         for k, rec in map_once(seed).items():
             n = rec.num_reg_images()
@@ -196,13 +273,83 @@ def map_with_retries(map_once, num_frames: int, cfg: SfmConfig) -> tuple[dict, l
                 continue
             usable[k] = rec
         registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
+        runs.append((registered, usable, rejected))
         attempts.append({"seed": seed, "registered": registered, "models": len(usable)})
-        if best is None or registered > best[0]:
-            best = (registered, usable, rejected)
-        if registered >= cfg.retry_below * num_frames:
+        if registered < cfg.retry_below * num_frames:
+            continue
+        if not check:
             break
-    assert best is not None
-    return best[1], attempts, best[2]
+        for j in good:
+            d = model_disagreement_pct(runs[j][1], usable)
+            smallest = d if smallest is None else min(smallest, d)
+            attempts[-1].setdefault("disagreement_pct", {})[str(attempts[j]["seed"])] = d
+            if d <= cfg.max_disagreement_pct:
+                agreed = j
+                break
+        good.append(i)
+        if agreed is not None:
+            break
+    if agreed is not None:
+        keep = agreed
+    else:  # the run registering most, the first on ties
+        keep = max(range(len(runs)), key=lambda i: (runs[i][0], -i))
+    result = {"ran": check, "passed": (agreed is not None) if check else None,
+              "disagreement_pct": smallest, "kept_seed": attempts[keep]["seed"]}
+    return runs[keep][1], attempts, runs[keep][2], result
+
+
+def _centres_by_name(recs: dict):
+    """Camera-to-world poses `{name: (4, 4)}` of the largest model in `recs` ({} when there is none)."""
+    import numpy as np
+
+    if not recs:
+        return {}
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    out = {}
+    for i in rec.reg_image_ids():
+        img = rec.image(i)
+        w2c = np.eye(4)
+        w2c[:3] = np.asarray(img.cam_from_world().matrix())
+        out[img.name] = np.linalg.inv(w2c)
+    return out
+
+
+def model_disagreement_pct(recs_a: dict, recs_b: dict) -> float:
+    """How far two mappings of the same frames disagree: centre RMSE of the largest model of `recs_b`,
+    Sim(3)-aligned onto the largest of `recs_a` over their common frames (frame-name order), in % of
+    the path length of `recs_a`'s centres (`pose_eval.pose_accuracy`). inf when fewer than half of
+    either model's frames (or fewer than 3) are common."""
+    import numpy as np
+
+    from .pose_eval import pose_accuracy
+
+    a, b = _centres_by_name(recs_a), _centres_by_name(recs_b)
+    common = sorted(set(a) & set(b))
+    if len(common) < 3 or len(common) < 0.5 * max(len(a), len(b)):
+        return float("inf")
+    acc = pose_accuracy(np.stack([b[n] for n in common]), np.stack([a[n] for n in common]))
+    return float(acc.centre_rmse_pct_path)
+
+
+def geometry_counts(db_path: str | Path) -> dict:
+    """Verified image pairs in a COLMAP database by two-view geometry: {"verified", "planar_or_panoramic"}.
+
+    Planar / panoramic pairs (a homography explains the matches: one dominant plane, or a rotation
+    without translation) constrain the relative pose weakly; their fraction is what decides whether
+    the solution check maps twice (`SfmConfig.check_planar_fraction`)."""
+    import pycolmap
+
+    cfg = pycolmap.TwoViewGeometryConfiguration
+    verified = {int(c) for c in (cfg.CALIBRATED, cfg.UNCALIBRATED, cfg.PLANAR, cfg.PANORAMIC,
+                                 cfg.PLANAR_OR_PANORAMIC, cfg.MULTIPLE)}
+    planar = {int(c) for c in (cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC)}
+    db = pycolmap.Database.open(db_path)
+    try:
+        _, geometries = db.read_two_view_geometries()
+    finally:
+        db.close()
+    configs = [int(g.config) for g in geometries]
+    return {"verified": sum(c in verified for c in configs), "planar_or_panoramic": sum(c in planar for c in configs)}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -276,15 +423,17 @@ def _child(job_path: str) -> int:
     image_dir = job["image_dir"]
     names = job["image_names"]
     db_path = out / "database.db"
-    db_path.unlink(missing_ok=True)
+    for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
+        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
     timings: dict[str, float] = {}
 
     def fail(msg: str) -> int:
         (out / "result.json").write_text(json.dumps({"error": msg, "timings": timings}))
         return 0
 
-    _emit("stage", "extract")
+    _emit("stage", "extract", len(names))
     t0 = time.perf_counter()
+    _create_database(db_path, Path(image_dir) / names[0], names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
@@ -300,18 +449,23 @@ def _child(job_path: str) -> int:
     if num_kp < 50:
         return fail(f"SfM found only {num_kp} image features in {len(names)} frames (blank or textureless video?)")
 
-    _emit("stage", "match")
-    t0 = time.perf_counter()
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = cfg.overlap
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
+    _emit("stage", "match", len(names))
+    t0 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
     matching.num_threads = cfg.num_threads
     if cfg.features != "sift":
         matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
-    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing)
+    verification = pycolmap.TwoViewGeometryOptions()
+    # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
+    # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
+    verification.ransac.random_seed = cfg.random_seed
+    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
+                              verification_options=verification)
     timings["match_s"] = time.perf_counter() - t0
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
@@ -322,7 +476,7 @@ def _child(job_path: str) -> int:
     if num_pairs == 0:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
-    _emit("stage", "map")
+    _emit("stage", "map", len(names))
     t0 = time.perf_counter()
     sparse = out / "sparse"
 
@@ -332,17 +486,21 @@ def _child(job_path: str) -> int:
         if mapper == "global":
             options = pycolmap.GlobalPipelineOptions()
             options.min_model_size = cfg.min_model_size
-            options.num_threads = cfg.num_threads
+            options.num_threads = cfg.mapping_threads
             options.random_seed = seed
             return pycolmap.global_mapping(db_path, image_dir, sparse, options=options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
-        options.num_threads = cfg.num_threads
+        options.num_threads = cfg.mapping_threads
         options.random_seed = seed
         return pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
                                             next_image_callback=lambda: _emit("step"))
 
-    recs, attempts, rejected = map_with_retries(map_once, len(names), cfg)
+    pairs = geometry_counts(db_path)
+    recs, attempts, rejected, check = map_with_retries(map_once, len(names), cfg,
+                                                       check=cfg.solution_check and cfg.mapping_attempts >= 2)
+    check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
+    check["verified_pairs"] = pairs["verified"]
     timings["map_s"] = time.perf_counter() - t0
     if not recs:
         return fail("SfM found no model: no frame pair with enough parallax "
@@ -393,6 +551,7 @@ def _child(job_path: str) -> int:
                                                  "num_keypoints": num_kp,
                                                  "num_verified_pairs": num_pairs, "mapping_attempts": attempts,
                                                  "mapper": mapper_info,
+                                                 "solution_check": check,
                                                  "timings": timings}))
     return 0
 

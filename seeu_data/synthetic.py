@@ -15,6 +15,7 @@ Lambertian with a fixed light, constant per face (view-independent, as SfM assum
     intr = default_intrinsics_norm(640, 360)      # (4,) fx/W, fy/H, cx/W, cy/H
     rgb, depth = render_view(scene, poses[0], intr, 640, 360)   # (360, 640, 3) uint8, (360, 640) float32
     write_clip("clip.mp4", n_frames=90, width=640, height=360, seed=0)   # + clip.json ground truth
+    write_clip("wall.mp4", n_frames=30, width=320, height=180, scene="planar")  # one dominant plane
     posed = synthetic_posed_scene(24, 90, 160, seed=0)                    # PosedScene, no SfM
 """
 
@@ -31,6 +32,7 @@ from .cameras import intrinsics_pixels, project_points
 from .errors import SeeUError
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
+SCENES = ("corridor", "planar")
 TEXELS_PER_METRE = 128.0
 
 
@@ -166,6 +168,33 @@ def make_scene(seed: int = 0, config: SceneConfig | None = None) -> Scene:
     )
 
 
+def make_planar_scene(seed: int = 0, width_m: float = 7.0) -> Scene:
+    """A scene dominated by one plane: a large textured wall (z = 4 m, 4 x 4 m margin beyond a path
+    `width_m` wide) with three small boxes (0.3-0.5 m) floating 0.4-1 m in front of it. Most image
+    pairs of a walk along the wall are explained by a homography, the case where SfM can settle on a
+    wrong but clean-looking model. Viewed by `planar_camera_path`."""
+    rng = np.random.default_rng(seed)
+    light = np.array([0.3, -0.5, -0.8])
+    light /= np.linalg.norm(light)
+    half = width_m / 2 + 4.0
+    rects: list = []
+    _add_rect(rects, rng, 2, 4.0, (-half, -3.5), (half, 3.5), -1, light)  # the wall, facing the camera (-z)
+    boxes = []
+    for i in range(3):
+        size = rng.uniform(0.3, 0.5, size=3)
+        x0 = -width_m / 3 + i * width_m / 3 + rng.uniform(-0.3, 0.3)
+        y0, z0 = rng.uniform(-0.8, 0.4), rng.uniform(3.0, 3.6 - size[2])
+        boxes.append((np.array([x0, y0, z0]), np.array([x0, y0, z0]) + size))
+    for bmin, bmax in boxes:
+        _add_box(rects, rng, bmin, bmax, light)
+    return Scene(
+        axis=np.array([r[0] for r in rects], np.int64), coord=np.array([r[1] for r in rects]),
+        lo=np.stack([r[2] for r in rects]), hi=np.stack([r[3] for r in rects]),
+        facing=np.array([r[4] for r in rects], np.int64), shade=np.array([r[5] for r in rects]),
+        textures=[r[6] for r in rects], boxes=boxes, seed=seed,
+    )
+
+
 # ---------------------------------------------------------------------------------------------
 # Cameras
 # ---------------------------------------------------------------------------------------------
@@ -202,6 +231,21 @@ def camera_path(n_frames: int, length: float = 7.0) -> np.ndarray:
         eye = np.array([0.6 * np.sin(1.5 * np.pi * ti), 0.04 * np.sin(6 * np.pi * ti), length * ti])
         yaw = np.radians(22.0) * np.sin(2 * np.pi * ti + 0.4)
         pitch = np.radians(6.0) * np.sin(3 * np.pi * ti)
+        forward = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+        poses.append(_look_along(eye, forward))
+    return np.stack(poses)
+
+
+def planar_camera_path(n_frames: int, length: float = 7.0) -> np.ndarray:
+    """Walk along the wall of `make_planar_scene`: `(n_frames, 4, 4)` OpenCV camera-to-world, `length`
+    metres along +x at 4 m from the wall, with a slight bob, turning +-12 degrees and pitching +-5."""
+    if n_frames < 1:
+        raise SeeUError(f"n_frames must be >= 1, got {n_frames}")
+    poses = []
+    for ti in np.linspace(0.0, 1.0, n_frames):
+        eye = np.array([length * (ti - 0.5), 0.05 * np.sin(5 * np.pi * ti), 0.3 * np.sin(np.pi * ti)])
+        yaw = np.radians(12.0) * np.sin(2 * np.pi * ti + 0.3)
+        pitch = np.radians(5.0) * np.sin(3 * np.pi * ti)
         forward = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
         poses.append(_look_along(eye, forward))
     return np.stack(poses)
@@ -330,6 +374,7 @@ class ClipConfig:
     fps: float = 30.0
     hfov_deg: float = 70.0
     path_length_m: float = 7.0
+    scene: str = "corridor"  # or "planar": make_planar_scene + planar_camera_path
 
 
 def ground_truth_path(video_path: str | Path) -> Path:
@@ -354,8 +399,12 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
         raise SeeUError(f"invalid clip size {cfg.n_frames} frames of {cfg.width}x{cfg.height}")
     video_path = Path(video_path)
     video_path.parent.mkdir(parents=True, exist_ok=True)
-    scene = make_scene(cfg.seed)
-    poses = camera_path(cfg.n_frames, cfg.path_length_m)
+    if cfg.scene not in SCENES:
+        raise SeeUError(f"scene must be one of {', '.join(SCENES)}, got {cfg.scene!r}")
+    if cfg.scene == "planar":
+        scene, poses = make_planar_scene(cfg.seed, cfg.path_length_m), planar_camera_path(cfg.n_frames, cfg.path_length_m)
+    else:
+        scene, poses = make_scene(cfg.seed), camera_path(cfg.n_frames, cfg.path_length_m)
     intr = default_intrinsics_norm(cfg.width, cfg.height, cfg.hfov_deg)
     tmp = tmp_path_for(video_path).with_suffix(".tmp.mp4")
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), cfg.fps, (cfg.width, cfg.height))

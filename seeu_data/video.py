@@ -14,7 +14,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
 
@@ -107,11 +107,31 @@ def discover_sources(inputs: list[str | Path]) -> list[SceneSource]:
             sources.extend(SceneSource(_scene_name(v), v, "video") for v in videos)
         else:
             raise SeeUError("folder holds neither images nor videos", path)
+    return unique_scene_names(sources)
+
+
+def unique_scene_names(sources: list[SceneSource]) -> list[SceneSource]:
+    """Give inputs that share a scene name distinct names, so no scene overwrites another.
+
+    Rule: a name held by one input stays (`clip.mp4` -> `clip`); inputs sharing a name are qualified by
+    their parent folder (`a/images`, `b/images` -> `a-images`, `b-images`); any name still shared gets
+    `-2`, `-3`, ... in input order. The same input path given twice is an error.
+    """
+    paths = [s.path.resolve() for s in sources]
+    for i, p in enumerate(paths):
+        if p in paths[:i]:
+            raise SeeUError("the same input is given twice", sources[i].path)
     names = [s.name for s in sources]
-    dupes = sorted({n for n in names if names.count(n) > 1})
-    if dupes:
-        raise SeeUError(f"two inputs would both be written as scene {dupes[0]!r}; rename one")
-    return sources
+    names = [f"{_scene_name(s.path.resolve().parent)}-{n}" if names.count(n) > 1 else n
+             for s, n in zip(sources, names)]
+    final: list[str] = []
+    for n in names:
+        k, cand = 1, n
+        while cand in final:
+            k += 1
+            cand = f"{n}-{k}"
+        final.append(cand)
+    return [s if s.name == n else replace(s, name=n) for s, n in zip(sources, final)]
 
 
 def probe_video(path: str | Path) -> VideoInfo:

@@ -29,6 +29,12 @@ from seeu_data.video import discover_sources, iter_frames, sharpness
 W, H, N = 320, 180, 36
 
 
+@pytest.fixture(autouse=True)
+def _no_heartbeat(monkeypatch):
+    """Heartbeat lines (stderr is not a terminal under pytest) would break the one-line error checks."""
+    monkeypatch.setenv("SEEU_HEARTBEAT_S", "0")
+
+
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("clip")
@@ -39,7 +45,7 @@ def clip(tmp_path_factory) -> Path:
 @pytest.fixture(scope="module")
 def ingested(clip, tmp_path_factory):
     """One ingest shared by the tests: first run, then the same command again (resume). One COLMAP
-    thread: deterministic, so the --force re-run below must give bit-identical poses."""
+    thread (results do not depend on it; the --force re-run below must give bit-identical poses)."""
     out = tmp_path_factory.mktemp("posed")
     argv = ["ingest", str(clip), "--out", str(out), "--threads", "1"]
     t0 = time.perf_counter()
@@ -108,6 +114,10 @@ def test_end_to_end_registration_and_accuracy(ingested, clip, capsys):
     png = cv2.imread(str(out / "trajectory.png"))
     assert png is not None and png.shape[0] > 200
     assert ds.manifest["report"]["registered"] == report["registered"]
+    # the solution check passed and is recorded with the chunk; a walk of 7 m has ample parallax
+    assert scene.meta["sfm_solution_check"] == "passed" and report["warnings"] == []
+    assert report["chunks"][0]["baseline_over_depth"] == pytest.approx(scene.meta["baseline_over_depth"])
+    assert scene.meta["baseline_over_depth"] > 0.1
 
 
 def test_resume_reuses_stages_and_force_redoes(ingested, capsys):
@@ -284,13 +294,16 @@ def test_blank_clip_and_workers(tmp_path, capsys):
 
 
 def test_failed_rerun_invalidates_previous_output(ingested, tmp_path, capsys):
-    """A scene whose re-run fails must not keep an old manifest that looks like this run's result."""
+    """A scene whose re-run fails must not keep an old manifest that looks like this run's result (the
+    re-run's input is another file, so it takes --force to replace the scene)."""
     out = tmp_path / "out"
     shutil.copytree(ingested["out"] / "walk", out / "walk")
     assert (out / "walk" / "manifest.json").exists()
     vid = tmp_path / "walk.mp4"
     _write_video(vid, [np.full((96, 160, 3), 128, np.uint8)] * 12)
-    _expect_failure(["ingest", str(vid), "--out", str(out)], capsys, "walk.mp4")
+    _expect_failure(["ingest", str(vid), "--out", str(out)], capsys, "another input")
+    assert (out / "walk" / "manifest.json").exists()
+    _expect_failure(["ingest", str(vid), "--out", str(out), "--force"], capsys, "walk.mp4")
     _no_complete_output(out)
 
 
@@ -379,7 +392,7 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
         return recs
 
     n = len(job["image_names"])
-    models, attempts, rejected = map_with_retries(map_once, n, SfmConfig(random_seed=5, num_threads=1))
+    models, attempts, rejected, _ = map_with_retries(map_once, n, SfmConfig(random_seed=5, num_threads=1))
     assert seeds == [5, 6]
     assert attempts[0] == {"seed": 5, "registered": 0, "models": 0}
     assert attempts[1] == {"seed": 6, "registered": n, "models": 1}
@@ -387,18 +400,22 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
     assert sum(rec.num_reg_images() for rec in models.values()) == n
 
     seeds.clear()
-    models, attempts, rejected = map_with_retries(map_once, n, SfmConfig(random_seed=5, mapping_attempts=1))
+    models, attempts, rejected, _ = map_with_retries(map_once, n, SfmConfig(random_seed=5, mapping_attempts=1))
     assert seeds == [5] and models == {} and len(attempts) == 1
     assert max(r["registered"] for r in rejected) == n
     assert all("implausible camera parameters" in r["reason"] and ", 1.7" in r["reason"] for r in rejected)
 
     calls = []
-    models, attempts, _ = map_with_retries(lambda seed: calls.append(seed) or {}, n, SfmConfig(random_seed=0))
+    models, attempts, _, _ = map_with_retries(lambda seed: calls.append(seed) or {}, n, SfmConfig(random_seed=0))
     assert calls == [0, 1, 2] and models == {} and [a["registered"] for a in attempts] == [0, 0, 0]
     report = ingested["report1"]
-    assert report["sfm"]["mapping_attempts"] == [{"seed": 0, "registered": N, "models": 1}]
+    # the solution check maps twice; two agreeing runs are no retry
+    first, second = report["sfm"]["mapping_attempts"]
+    assert first == {"seed": 0, "registered": N, "models": 1}
+    assert second["seed"] == 1 and second["registered"] == N and second["disagreement_pct"]["0"] < 1.0
+    assert report["sfm"]["solution_check"]["state"] == "passed"
     assert "mapping runs" not in summary_line(report)
-    retried = {**report, "sfm": {**report["sfm"], "mapping_attempts": attempts[:2]}}
+    retried = {**report, "sfm": {**report["sfm"], "mapping_attempts": attempts[:2], "solution_check": {"ran": False}}}
     assert f"{N}/{N} frames registered (100.0% after 2 mapping runs)" in summary_line(retried)
 
 
