@@ -82,11 +82,11 @@ def main() -> int:
     args = ap.parse_args()
 
     from pipelines.ingest import IngestConfig, ingest_scene
-    from pipelines.synth import parse_size
+    from pipelines.options import parse_dims
     from seeu_data.synthetic import ClipConfig, write_clip
     from seeu_data.video import discover_sources
 
-    width, height = parse_size(args.size)
+    width, height = parse_dims(args.size, "--size", minimum=16)
     video = args.out / "clip" / "clip.mp4"
     t0 = time.perf_counter()
     write_clip(video, ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed))

@@ -65,10 +65,10 @@ def main() -> int:
     args = ap.parse_args()
 
     from pipelines.ingest import IngestConfig
-    from pipelines.synth import parse_size
+    from pipelines.options import parse_dims
     from seeu_data.synthetic import write_clip
 
-    width, height = parse_size(args.size)
+    width, height = parse_dims(args.size, "--size", minimum=16)
     cfg = IngestConfig(threads=os.cpu_count() or 1)  # what `seeu ingest` uses by default with one worker
     print(f"{os.cpu_count()} cores; COLMAP threads {cfg.threads}; {args.frames} frames {width}x{height}", flush=True)
 

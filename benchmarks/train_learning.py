@@ -62,7 +62,7 @@ def main() -> int:
     import torch
 
     from pipelines.evaluate import evaluate, evaluate_on_data
-    from pipelines.train import _seed_everything, train
+    from pipelines.train import seed_everything, train
     from seeu_model.evaluation import summarize
     from seeu_model.training.config import load_config
     from seeu_model.training.factory import build_model
@@ -73,7 +73,7 @@ def main() -> int:
     if a.steps:
         ov.append(f"optim.max_steps={a.steps}")
     cfg = load_config(a.config, ov)
-    _seed_everything(cfg.seed)
+    seed_everything(cfg.seed)
     model, _ = build_model(cfg.model)
     t0 = time.perf_counter()
     init = summarize(evaluate_on_data(model, test_data, tuple(cfg.data.image_size), device="cpu",

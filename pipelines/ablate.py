@@ -109,7 +109,7 @@ def _fmt(v, nd=3) -> str:
 
 def write_table(out: Path, rows: list[dict], budget: dict) -> None:
     from seeu_data.arrow_io import atomic_write_text
-    from pipelines.evaluate import _csv_text
+    from pipelines.evaluate import csv_text
 
     ref = next((r for r in rows if r["variant"] == "full"), None)
     for r in rows:
@@ -125,7 +125,7 @@ def write_table(out: Path, rows: list[dict], budget: dict) -> None:
         lines.append(f"| {r['variant']} | {r['label']} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | "
                      f"{_fmt(r['d_psnr'], 2)} | {_fmt(r['d_ssim'])} | {_fmt(r['d_lpips'])} | "
                      f"{r['trainable_params']:,} | {r['train_seconds']:.0f} |")
-    atomic_write_text(out / "ablation.csv", _csv_text([{k: (math.nan if v is None else v) for k, v in r.items()}
+    atomic_write_text(out / "ablation.csv", csv_text([{k: (math.nan if v is None else v) for k, v in r.items()}
                                                        for r in rows]))
     atomic_write_text(out / "ablation.md", "\n".join(lines) + "\n")
 

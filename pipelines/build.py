@@ -25,35 +25,9 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import re
 
 from seeu_data.errors import SeeUError
-
-_SIZE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "kib": 1 << 10, "mib": 1 << 20, "gib": 1 << 30}
-
-
-def parse_size(text: str) -> int:
-    """'128MB', '64MiB', '1e6' -> bytes."""
-    m = re.fullmatch(r"\s*([0-9.eE+]+)\s*([a-zA-Z]*)\s*", text)
-    if not m or m.group(2).lower() not in _SIZE_UNITS:
-        raise argparse.ArgumentTypeError(f"not a size: {text!r} (e.g. 128MB, 64MiB)")
-    value = int(float(m.group(1)) * _SIZE_UNITS[m.group(2).lower()])
-    if value <= 0:
-        raise argparse.ArgumentTypeError("size must be positive")
-    return value
-
-
-def parse_hw(text: str) -> tuple[int, int]:
-    """'256x256' or '256' -> (H, W)."""
-    m = re.fullmatch(r"\s*(\d+)\s*(?:[xX]\s*(\d+))?\s*", text)
-    if not m:
-        raise argparse.ArgumentTypeError(f"not a size HxW: {text!r} (e.g. 256x256)")
-    h = int(m.group(1))
-    w = int(m.group(2) or h)
-    if h <= 0 or w <= 0:
-        raise argparse.ArgumentTypeError("resize dimensions must be positive")
-    return h, w
-
+from pipelines.options import parse_bytes, parse_dims
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     """Sampler options shared by `seeu build` and `seeu index`."""
@@ -90,7 +64,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="eval: format of --index (default: detected)")
     add_sampling_arguments(p)
     g = p.add_argument_group("images and shards")
-    g.add_argument("--resize", type=parse_hw, metavar="HxW",
+    g.add_argument("--resize", metavar="HxW",
                    help="resize + centre-crop at build time (intrinsics updated), e.g. 256x256; "
                         "default: copy the encoded images as they are")
     g.add_argument("--interpolation", choices=["area", "lanczos", "linear", "cubic"], default="area",
@@ -100,7 +74,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="near plane for every view instead of the posed data's (e.g. 1 with --far 100: the "
                         "peers' RealEstate10K values); default: the data's")
     g.add_argument("--far", type=float, default=None, help="far plane for every view (with --near)")
-    g.add_argument("--shard-size", type=parse_size, default=parse_size("128MB"),
+    g.add_argument("--shard-size", default="128MB",
                    help="target shard size (default 128MB)")
     g.add_argument("--rows-per-batch", type=int, default=64, help="rows per Arrow record batch (default 64)")
     e = p.add_argument_group("execution")
@@ -143,8 +117,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = BuildConfig(
         inputs=tuple(args.inputs), out=args.out, mode=args.mode, sampling=sampling, index_path=args.index,
         index_format=args.index_format, seed=args.seed,
-        image=ImageOptions(resize=args.resize, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
-        shard_bytes=args.shard_size, rows_per_batch=args.rows_per_batch, engine=args.engine,
+        image=ImageOptions(resize=parse_dims(args.resize, "--resize") if args.resize else None, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
+        shard_bytes=parse_bytes(args.shard_size, "--shard-size"), rows_per_batch=args.rows_per_batch, engine=args.engine,
         workers=args.workers if args.workers is not None else default_workers(),
         ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs, near_far=near_far)
     with fsync_policy(True if args.fsync else None):

@@ -35,6 +35,7 @@ import shutil
 import sys
 import time
 from pathlib import Path
+from pipelines.options import parse_dims
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
 STAMP_FORMAT = 1
@@ -124,16 +125,7 @@ def _remove(path: Path) -> None:
         path.unlink()
 
 
-def _parse_hw(text: str) -> tuple[int, int]:
-    from seeu_data.errors import SeeUError
 
-    try:
-        parts = [int(v) for v in str(text).lower().split("x")]
-    except ValueError:
-        parts = []
-    if len(parts) not in (1, 2) or min(parts) < 16:
-        raise SeeUError(f"--image-size must look like 64 or 64x96 (at least 16), got {text!r}")
-    return (parts[0], parts[-1])
 
 
 def sampling_for(frames: int) -> dict:
@@ -149,10 +141,9 @@ def sampling_for(frames: int) -> dict:
 
 
 def stage_synth(ctx: dict, stages: Stages) -> dict:
-    from pipelines.synth import parse_size
     from seeu_data.synthetic import ClipConfig, write_clip
 
-    width, height = parse_size(ctx["args"].size)
+    width, height = parse_dims(ctx["args"].size, "--size", minimum=16)
     clips = {"clip": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["args"].seed),
              "heldout": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["heldout_seed"])}
 
@@ -320,7 +311,7 @@ def stage_eval(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
         import torch
 
         from pipelines.evaluate import evaluate_on_data, write_results
-        from pipelines.train import _seed_everything
+        from pipelines.train import seed_everything
         from seeu_model.training import checkpoint as ckpt_io
         from seeu_model.training.config import config_from_dict, load_config
         from seeu_model.training.factory import build_model, model_from_checkpoint
@@ -329,7 +320,7 @@ def stage_eval(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
         print(f"      {lpips_note}", flush=True)
         # The initial model: exactly the weights `train` starts from (same config, same seeding).
         cfg = load_config(a.config, trained["overrides"])
-        _seed_everything(cfg.seed)
+        seed_everything(cfg.seed)
         init_model, _ = build_model(cfg.model)
         init_model.eval()
         ck = ckpt_io.load_checkpoint(trained["checkpoint"])
@@ -647,7 +638,7 @@ def run(args: argparse.Namespace) -> int:
     except OSError as exc:
         raise SeeUError(f"cannot create the output directory ({exc.strerror})", args.out) from None
     ctx = {"args": args, "out": args.out, "progress": args.progress or sys.stderr.isatty(),
-           "image_hw": _parse_hw(args.image_size), "heldout_seed": heldout_seed}
+           "image_hw": parse_dims(args.image_size, "--image-size", minimum=16), "heldout_seed": heldout_seed}
     stages = Stages(args.out, args.force)
     r: dict = {}
     r["synth"] = stage_synth(ctx, stages)

@@ -28,6 +28,7 @@ import json
 import math
 from pathlib import Path
 from typing import Any
+from pipelines.options import parse_dims
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -53,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    hw = _parse_hw(args.image_size) if args.image_size else None
+    hw = parse_dims(args.image_size, "--image-size") if args.image_size else None
     summary = evaluate(args.checkpoint, args.data, args.out, batch_size=args.batch_size, image_hw=hw,
                        max_samples=args.max_samples, warmup=args.warmup, lpips=not args.no_lpips,
                        lpips_weights=args.lpips_weights, device=args.device, rasterizer=args.rasterizer,
@@ -63,16 +64,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _parse_hw(text: str) -> tuple[int, int]:
-    from seeu_data.errors import SeeUError
 
-    try:
-        h, w = (int(v) for v in text.lower().replace(",", "x").split("x"))
-    except ValueError:
-        raise SeeUError(f"--image-size {text!r} is not HxW (e.g. 256x256)") from None
-    if h <= 0 or w <= 0:
-        raise SeeUError(f"--image-size {text!r}: height and width must be positive (e.g. 256x256)")
-    return h, w
 
 
 def check_image_size(model, hw: tuple[int, int]) -> None:
@@ -85,7 +77,7 @@ def check_image_size(model, hw: tuple[int, int]) -> None:
                         f"(e.g. {max(unit, hw[0] // unit * unit)}x{max(unit, hw[1] // unit * unit)})")
 
 
-def _csv_text(rows: list[dict]) -> str:
+def csv_text(rows: list[dict]) -> str:
     buf = io.StringIO()
     if rows:
         w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
@@ -141,12 +133,12 @@ def write_results(out: Path, res, extra: dict) -> dict:
 
     out.mkdir(parents=True, exist_ok=True)
     (out / "summary.json").unlink(missing_ok=True)  # being rewritten: not complete
-    atomic_write_text(out / "per_target.csv", _csv_text([asdict(r) for r in res.records]))
+    atomic_write_text(out / "per_target.csv", csv_text([asdict(r) for r in res.records]))
     scenes = [{"scene_id": s, **row} for s, row in per_scene(res.records).items()]
-    atomic_write_text(out / "per_scene.csv", _csv_text(scenes))
+    atomic_write_text(out / "per_scene.csv", csv_text(scenes))
     metrics = summarize(res.records)
     if res.geometry:
-        atomic_write_text(out / "chamfer.csv", _csv_text(res.geometry))
+        atomic_write_text(out / "chamfer.csv", csv_text(res.geometry))
         by_scene: dict[str, list[dict]] = {}
         for g in res.geometry:
             by_scene.setdefault(g["scene_id"], []).append(g)

@@ -28,7 +28,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("pixelsplat", parents=[common], help="pixelSplat / MVSplat chunks + index.json")
     f.add_argument("--stage", choices=["train", "test"], default="test")
     f.add_argument("--chunk-mb", type=float, default=100.0, help="image megabytes per chunk (peers: 100)")
-    f.add_argument("--resize", type=_hw, metavar="HxW", default=None,
+    f.add_argument("--resize", metavar="HxW", default=None,
                    help="resize + centre-crop every frame (the peers' crop, intrinsics updated, JPEG re-encoded); "
                         "360x640 makes any posed data RE10K-loader ready")
     f.add_argument("--size-check", choices=["warn", "refuse"], default="warn",
@@ -37,25 +37,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("nerfstudio", parents=[common], help="nerfstudio transforms.json + image files")
 
 
-def _hw(text: str) -> tuple[int, int]:
-    from pipelines.build import parse_hw
 
-    return parse_hw(text)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.import_cmd import _scene_list
+    from pipelines.options import parse_dims, parse_scene_list
     from seeu_data.posed import PosedDataset
 
     dataset = PosedDataset(args.dataset)
-    scenes = _scene_list(args.scenes)
+    scenes = parse_scene_list(args.scenes)
     scene_ids = None if scenes is None else sorted(scenes)
     progress = args.progress or sys.stderr.isatty()
     if args.format == "pixelsplat":
         from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
 
         cfg = PixelSplatExportConfig(out=args.out, stage=args.stage, chunk_bytes=int(args.chunk_mb * 1e6),
-                                     scenes=scene_ids, resize=args.resize, size_check=args.size_check)
+                                     scenes=scene_ids, resize=parse_dims(args.resize, "--resize") if args.resize else None, size_check=args.size_check)
         s = export_pixelsplat(dataset, cfg, progress=progress)
         print(f"exported {s['scenes']} scenes in {s['chunks']} chunks to {s['directory']}")
         if s["scenes_peers_skip"]:

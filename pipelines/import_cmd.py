@@ -35,25 +35,11 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from pipelines.options import parse_scene_list
 
-from seeu_data.errors import SeeUError
 
 
-def _scene_list(text: str | None) -> frozenset[str] | None:
-    """`a,b,c` or `@file` (one id per line) -> set of ids."""
-    if text is None:
-        return None
-    if text.startswith("@"):
-        path = Path(text[1:])
-        if not path.exists():
-            raise SeeUError("scene list file not found", path)
-        items = [line.strip() for line in path.read_text().splitlines()]
-    else:
-        items = [s.strip() for s in text.split(",")]
-    items = [s for s in items if s]
-    if not items:
-        raise SeeUError(f"empty scene list {text!r}")
-    return frozenset(items)
+
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -133,7 +119,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _pixelsplat(args):
     from seeu_data.importers import pixelsplat as m
 
-    cfg = m.PixelSplatImportConfig(root=args.root, stage=args.stage, scenes=_scene_list(args.scenes),
+    cfg = m.PixelSplatImportConfig(root=args.root, stage=args.stage, scenes=parse_scene_list(args.scenes),
                                    dataset=args.dataset, near=args.near, far=args.far,
                                    verify_decode=args.verify_decode)
     directory, chunks, missing, total = m.plan(cfg)
@@ -148,7 +134,7 @@ def _pixelsplat(args):
 def _re10k(args):
     from seeu_data.importers import re10k_text as m
 
-    cfg = m.Re10kTextImportConfig(cameras_dir=args.cameras, frames_dir=args.frames, scenes=_scene_list(args.scenes),
+    cfg = m.Re10kTextImportConfig(cameras_dir=args.cameras, frames_dir=args.frames, scenes=parse_scene_list(args.scenes),
                                   dataset=args.dataset, near=args.near, far=args.far,
                                   allow_missing_frames=args.allow_missing_frames, verify_decode=args.verify_decode)
     files = m.camera_files(cfg)

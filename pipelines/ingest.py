@@ -31,11 +31,12 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
+from pipelines.options import parse_dims
 
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
-SFM_STAGE_FORMAT = 5
+SFM_STAGE_FORMAT = 6
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -50,7 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sharpness-window", type=int, default=0,
                    help="drop the blurriest frame in each window of N candidates (0 = off)")
     p.add_argument("--max-size", type=int, default=None, help="downscale so the longer side is at most N pixels")
-    p.add_argument("--size", type=_hw, default=None, metavar="HxW",
+    p.add_argument("--size", default=None, metavar="HxW",
                    help="make the posed frames exactly HxW: resize to cover + centre crop after SfM (intrinsics "
                         "updated), e.g. 360x640 for the peers' RE10K loaders; default: the (undistorted) frame size")
     p.add_argument("--camera-model", default="SIMPLE_RADIAL",
@@ -98,10 +99,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "Default: atomic renames only, a torn file is caught by the manifest sha256; also SEEU_FSYNC=1")
 
 
-def _hw(text: str) -> tuple[int, int]:
-    from pipelines.build import parse_hw
 
-    return parse_hw(text)
 
 
 def _frame_pair(text: str) -> tuple[int, int]:
@@ -455,7 +453,7 @@ def _run(args: argparse.Namespace) -> int:
                        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
                        min_chunk_frames=args.min_chunk_frames, max_features=args.max_features, threads=threads,
                        sfm_attempts=args.sfm_attempts, scale=args.scale, known_distance=args.known_distance,
-                       distance_frames=args.distance_frames, size=args.size, mapper=args.mapper, features=args.features,
+                       distance_frames=args.distance_frames, size=parse_dims(args.size, "--size") if args.size else None, mapper=args.mapper, features=args.features,
                        sfm_check=not args.no_sfm_check, map_threads=args.map_threads)
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:

@@ -46,9 +46,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.evaluate import _parse_hw
+    from pipelines.options import parse_dims
 
-    hw = _parse_hw(args.image_size) if args.image_size else None
+    hw = parse_dims(args.image_size, "--image-size") if args.image_size else None
     report = render(args.checkpoint, args.out, data=args.data, sample=args.sample, cameras=args.cameras,
                     frames=args.frames, extrapolate=args.extrapolate, fps=args.fps, image_hw=hw,
                     device=args.device, rasterizer=args.rasterizer)

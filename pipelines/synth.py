@@ -16,19 +16,10 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
+from pipelines.options import parse_dims
 
 
-def parse_size(text: str) -> tuple[int, int]:
-    """'640x360' -> (640, 360) (width, height)."""
-    from seeu_data.errors import SeeUError
 
-    try:
-        w, h = (int(v) for v in text.lower().split("x"))
-    except ValueError:
-        raise SeeUError(f"--size must look like 640x360, got {text!r}") from None
-    if w < 16 or h < 16:
-        raise SeeUError(f"--size must be at least 16x16, got {text!r}")
-    return w, h
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -47,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from seeu_data.synthetic import ClipConfig, write_clip
 
-    width, height = parse_size(args.size)
+    width, height = parse_dims(args.size, "--size", minimum=16)  # WIDTHxHEIGHT, as video sizes are written
     cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps,
                      scene=args.scene)
     video = args.out / f"{args.name}.mp4"

@@ -56,7 +56,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _seed_everything(seed: int) -> None:
+def seed_everything(seed: int) -> None:
     import random
 
     import numpy as np
@@ -157,12 +157,12 @@ def train(data: str, out: str | Path, config: str | Path | None = None, override
             raise SeeUError("precision=bf16 but this GPU does not support bfloat16 (use precision=fp32)")
         lpips_fn = make_lpips(cfg, lpips_weights)       # fail early: missing VGG weights, bad data
         loader = make_train_loader(data, cfg, dist, run_cache_dir(out))
-        _seed_everything(cfg.seed)
+        seed_everything(cfg.seed)
         factory = model_factory or build_model
         model, model_cfg = factory(cfg.model)
         if init_ckpt is not None:
             _load_init_state(model, init_ckpt)
-        _seed_everything(cfg.seed + 1000 * dist.rank)
+        seed_everything(cfg.seed + 1000 * dist.rank)
 
         eval_fn = None
         if val is not None and dist.is_main:

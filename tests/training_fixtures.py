@@ -105,8 +105,8 @@ def tiny_model_factory(section: dict):
 
 def initial_state(model_section: dict, seed: int = 0) -> dict:
     """The state dict `seeu train` starts from for this model section and config seed."""
-    from pipelines.train import _seed_everything
+    from pipelines.train import seed_everything
     from seeu_model.training.factory import build_model
 
-    _seed_everything(seed)
+    seed_everything(seed)
     return build_model(model_section)[0].state_dict()
