@@ -80,7 +80,7 @@ def os_error_line(exc: OSError) -> str:
     """
     text = exc.strerror or str(exc)
     path = exc.filename
-    what = _OS_PROBLEMS.get(exc.errno, "operating-system error")
+    what = _OS_PROBLEMS.get(exc.errno or 0, "operating-system error")
     if exc.errno in (errno.EEXIST, errno.ENOTDIR) and path is not None:
         from pathlib import Path
 

@@ -463,7 +463,7 @@ def _run(args: argparse.Namespace) -> int:
         return 0
     failures = 0
     if workers == 1:
-        results = []
+        results: list[tuple[str, dict | None, str | None]] = []
         for s in sources:
             try:
                 results.append((s.name, ingest_scene(s, args.out, cfg, force=args.force, progress=progress,
@@ -486,5 +486,5 @@ def _run(args: argparse.Namespace) -> int:
 def _print_result(name: str, report: dict | None, err: str | None) -> None:
     if err is not None:
         print(f"seeu ingest: error: {err}", file=sys.stderr)
-    else:
+    elif report is not None:
         print(report["summary"])

@@ -23,7 +23,8 @@ class StageProgress:
         self.bar_enabled = bar
         self.heartbeat_s = float(heartbeat_s)
         self.stream = stream
-        self.name, self.total, self.done = "", None, 0
+        self.name, self.done = "", 0
+        self.total: int | None = None
         self.t0 = time.monotonic()
         self._bar = None
         self._lock = threading.Lock()

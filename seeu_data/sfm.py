@@ -484,11 +484,11 @@ def _child(job_path: str) -> int:
         shutil.rmtree(sparse, ignore_errors=True)
         sparse.mkdir()
         if mapper == "global":
-            options = pycolmap.GlobalPipelineOptions()
-            options.min_model_size = cfg.min_model_size
-            options.num_threads = cfg.mapping_threads
-            options.random_seed = seed
-            return pycolmap.global_mapping(db_path, image_dir, sparse, options=options)
+            global_options = pycolmap.GlobalPipelineOptions()
+            global_options.min_model_size = cfg.min_model_size
+            global_options.num_threads = cfg.mapping_threads
+            global_options.random_seed = seed
+            return pycolmap.global_mapping(db_path, image_dir, sparse, options=global_options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.mapping_threads
@@ -511,7 +511,7 @@ def _child(job_path: str) -> int:
 
     # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
     # poor initial pair, with an implausible focal length): keep only models adding new frames.
-    kept, discarded, seen = [], list(rejected), set()
+    kept, discarded, seen = [], list(rejected), set[str]()
     for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
         names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
         if len(names_k & seen) > 0.5 * len(names_k):

@@ -175,6 +175,7 @@ class TripleStream(IterableDataset):
                                            gaps=self.row_gaps()[order], max_gap=c.curriculum.max_gap,
                                            start_step=p.step)
             self._plan_key, self._plan = key, plan
+        assert self._plan is not None
         return self._plan
 
     def num_batches(self) -> int:
@@ -218,8 +219,9 @@ class TripleStream(IterableDataset):
                     self._scratch_own = np.empty(shape, dtype=np.uint8)  # reused: no fresh pages per batch
                 self._scratch = self._scratch_own
         elif self._scratch is None or self._scratch.shape != shape:
+            have = "?" if self._scratch is None else self._scratch.shape[1]
             raise SeeUError(f"sample {raw.sample_id} has {len(raw.images)} views, the batch "
-                            f"{self._scratch.shape[1]}: batches need equal view counts", self.source.name(k))
+                            f"{have}: batches need equal view counts", self.source.name(k))
         return transform_sample(raw, self.config.image_hw, flip, self.config.interpolation,
                                 where=self.source.name(k), out=self._scratch[slot])
 
@@ -384,8 +386,9 @@ class StreamingLoader:
                 raise SeeUError(*batch["_error"])
             if ds.ship:
                 batch = finish_shipped_batch(batch, ds.config.image_dtype, ring, pin)
-                self.stats["handoff_copies"] += ring.misses
-                ring.misses = 0
+                if ring is not None:
+                    self.stats["handoff_copies"] += ring.misses
+                    ring.misses = 0
             if pin:  # the images are pinned already (pin_memory keeps a pinned tensor as it is)
                 batch = pin_memory(batch)
             cursor = batch.pop("_cursor")
