@@ -74,5 +74,5 @@ def test_ingest_size_resizes_and_crops_with_intrinsics(global_run):
     assert img.shape == (120, 160, 3)
     gt = load_ground_truth(global_run / "walk.mp4")
     fx_true = gt["intrinsics_norm"][0, 0] * W * (120 / H)
-    assert s.intrinsics_norm[0, 0] * 160 == pytest.approx(fx_true, rel=0.01)
+    assert s.intrinsics_norm[0, 0] * 160 == pytest.approx(fx_true, rel=0.02)  # SfM focal ~1%; unscaled: 50% off
     assert s.intrinsics_norm[0, 2] == pytest.approx(0.5, abs=0.01) and s.intrinsics_norm[0, 3] == pytest.approx(0.5, abs=0.01)
