@@ -119,7 +119,7 @@ def run(args: argparse.Namespace) -> int:
         index_format=args.index_format, seed=args.seed,
         image=ImageOptions(resize=parse_dims(args.resize, "--resize") if args.resize else None, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
         shard_bytes=parse_bytes(args.shard_size, "--shard-size"), rows_per_batch=args.rows_per_batch, engine=args.engine,
-        workers=args.workers if args.workers is not None else default_workers(),
+        workers=args.workers if args.workers is not None else default_workers(args.resize is not None),
         ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs, near_far=near_far)
     with fsync_policy(True if args.fsync else None):
         manifest = build(cfg, "seeu build")

@@ -220,7 +220,7 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
             sampling = SamplingConfig(mode=mode, gap_min=s["gap_min"], gap_max=s["gap_max"],
                                       extrap_frames=s["extrap_frames"], interp_ratio=ratio, samples_per_scene=n)
             manifest = build(BuildConfig(inputs=(posed,), out=str(d), mode=mode, sampling=sampling, seed=seed,
-                                         image=ImageOptions(resize=hw), workers=min(2, default_workers()),
+                                         image=ImageOptions(resize=hw), workers=min(2, default_workers(hw is not None)),
                                          progress=ctx["progress"]), "seeu demo")
             if manifest["total_rows"] == 0:
                 from seeu_data.errors import SeeUError

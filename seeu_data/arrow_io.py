@@ -9,15 +9,30 @@ reaches the page cache and a file torn by a power loss is caught by its manifest
 with it on (`set_fsync(True)`, set by the `--fsync` flag of `seeu import/build/ingest`, or the
 environment variable `SEEU_FSYNC=1`) every file is fsynced before its rename.
 
-IPC files are written by pyarrow's own writer through a sink that hashes every buffer as it writes
-it (`AtomicIpcWriter`), so the manifest's (bytes, sha256) need no second pass over the file.
+Every IPC file written here is hashed while it is written: `AtomicIpcWriter` hands each 8 MB the
+file grows by to a sha256 on a helper thread, which maps that range of the file (the page-cache
+pages just written) and hashes it in one call, overlapping the writes (hashlib and file writes both
+release the GIL), so the manifest's (bytes, sha256) come without a second pass over the file.
+
+Encoded images are written without being copied into Arrow buffers first: `deferred_binary(pieces)`
+makes a binary column whose data buffer is a placeholder (untouched anonymous memory) standing for
+the concatenation of `pieces` (bytes, or read-only views into memory-mapped input files). When
+pyarrow's IPC writer hands that buffer, or a slice of it, to `AtomicIpcWriter`'s sink, the sink
+writes the pieces themselves (`os.writev`, one system call for up to 1024 images).
+The file's bytes are exactly those pyarrow writes for the same column with its data copied into
+one buffer (tested), in one copy of the image bytes instead of two.
 """
 
 from __future__ import annotations
 
+import bisect
 import hashlib
 import json
+import mmap
 import os
+import threading
+import weakref
+from concurrent.futures import Future
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Iterator, Sequence
@@ -30,6 +45,8 @@ from .errors import SeeUError
 
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
+_BIG_WRITE = 1 << 20  # smaller writes are staged and written together
+_HASH_BLOCK = 8 << 20  # the hasher takes the written bytes in ranges of about this size
 
 
 _FSYNC = os.environ.get("SEEU_FSYNC", "").strip().lower() in ("1", "true", "yes", "on")
@@ -72,12 +89,22 @@ def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 
+def pending_path(path: Path) -> Path:
+    """Where a file written with `commit=False` waits, complete but not yet in place, until `commit_pending`."""
+    return path.with_name(f".{path.name}.pending")
+
+
 def _fsync_replace(src: Path, dst: Path) -> None:
     """Make the written file `src` durable when the fsync policy is on, then rename it to `dst` (the atomic step)."""
     if _FSYNC:
         with open(src, "rb") as fh:
             os.fsync(fh.fileno())
     os.replace(src, dst)
+
+
+def commit_pending(path: Path) -> None:
+    """Rename the pending file of `path` into place (fsynced first when the fsync policy is on)."""
+    _fsync_replace(pending_path(path), path)
 
 
 @contextmanager
@@ -111,43 +138,218 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
         raise
 
 
-def binary_array(values: Sequence) -> pa.BinaryArray:
-    """A binary array of bytes-like `values` (bytes, memoryviews or numpy views into mapped files),
-    with their bytes copied once into one buffer."""
-    views = [memoryview(v).cast("B") for v in values]
+class _Placeholder(mmap.mmap):
+    """Anonymous memory without access rights, never read or written, standing for the
+    concatenation of `pieces` (`offsets[i]`: where piece i starts; `offsets[-1]`: total bytes)."""
+
+    pieces: list[memoryview]
+    offsets: list[int]
+
+
+_PLACEHOLDERS: dict[int, weakref.ref] = {}  # base address -> placeholder, while an array still uses it
+_PLACEHOLDERS_LOCK = threading.Lock()
+
+
+def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
+    """A binary array of `len(pieces)` values whose bytes are not copied: they are written straight
+    from `pieces` when the array is written by `AtomicIpcWriter` (or `write_table`).
+
+    `pieces`: bytes-like objects (bytes, numpy uint8 views into a memory-mapped file, pyarrow
+    buffers) that must not change until the file is closed. The array is for writing only: reading
+    its values anywhere else faults (`deferred` arrays never leave the write paths that make them).
+    """
+    views = [memoryview(p).cast("B") for p in pieces]
     offsets = np.zeros(len(views) + 1, dtype=np.int64)
     np.cumsum([v.nbytes for v in views], out=offsets[1:])
-    if offsets[-1] >= 2**31:
-        raise SeeUError(f"{offsets[-1] / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
-    data = pa.py_buffer(b"".join(views))
+    total = int(offsets[-1])
+    if total >= 2**31:
+        raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
+    # Private and without access rights (where the platform has them): never backed by memory nor
+    # charged to the commit limit, and a read by anything but the writer's sink faults loudly.
+    placeholder = _Placeholder(-1, max(total, 1), flags=mmap.MAP_PRIVATE | getattr(mmap, "MAP_NORESERVE", 0),
+                               prot=0) if hasattr(mmap, "MAP_PRIVATE") else _Placeholder(-1, max(total, 1))
+    placeholder.pieces, placeholder.offsets = views, offsets.tolist()
+    data = pa.py_buffer(placeholder)[:total]
+    base = data.address
+    with _PLACEHOLDERS_LOCK:
+        _PLACEHOLDERS[base] = weakref.ref(placeholder)
+    weakref.finalize(placeholder, _forget_placeholder, base)
     return pa.BinaryArray.from_buffers(pa.binary(), len(views), [None, pa.py_buffer(offsets.astype(np.int32)), data])
 
 
-class _HashingSink:
-    """Write-only file object (for `pa.PythonFile`) that hashes each buffer as it writes it: the
-    manifest's (bytes, sha256) come in the same pass as the write, with no read-back."""
+def _forget_placeholder(base: int) -> None:
+    # Only a dead entry: the memory is unmapped before this runs, and a placeholder made meanwhile on
+    # another thread may already be registered at the same address.
+    with _PLACEHOLDERS_LOCK:
+        ref = _PLACEHOLDERS.get(base)
+        if ref is not None and ref() is None:
+            del _PLACEHOLDERS[base]
+
+
+def _deferred_pieces(address: int, size: int) -> list[memoryview] | None:
+    """The pieces (sliced at the ends) a buffer at `address` of `size` bytes stands for, or None
+    when it is not (a slice of) a `deferred_binary` placeholder."""
+    with _PLACEHOLDERS_LOCK:
+        if not _PLACEHOLDERS:
+            return None
+        found = None
+        for base, ref in _PLACEHOLDERS.items():
+            ph = ref()
+            if ph is not None and base <= address < base + len(ph):
+                found = (base, ph)
+                break
+    if found is None:
+        return None
+    base, ph = found
+    start, end = address - base, address - base + size
+    if end > ph.offsets[-1]:
+        raise AssertionError("a write reaches past the end of a deferred binary column")
+    out = []
+    i = bisect.bisect_right(ph.offsets, start) - 1
+    while start < end:
+        piece, lo = ph.pieces[i], ph.offsets[i]
+        a, b = start - lo, min(end - lo, piece.nbytes)
+        if b > a:
+            out.append(piece[a:b] if (a, b) != (0, piece.nbytes) else piece)
+        start = lo + b
+        i += 1
+    return out
+
+
+def _writev_all(fd: int, views: list[memoryview]) -> None:
+    """Write every view in order (os.writev in groups of 1024, retrying short writes)."""
+    if not hasattr(os, "writev"):  # not POSIX
+        for v in views:
+            written = 0
+            while written < v.nbytes:
+                written += os.write(fd, v[written:])
+        return
+    i = 0
+    while i < len(views):
+        group = views[i:i + 1024]
+        written = os.writev(fd, group)
+        for v in group:
+            if written < v.nbytes:  # a short write: go on from inside this view
+                views = [v[written:]] + views[i + 1:]
+                i = 0
+                break
+            written -= v.nbytes
+            i += 1
+
+
+class _HashingFile:
+    """Raw write-only file object that hashes (sha256) every byte it writes (used through pa.PythonFile).
+
+    The hash is computed on one helper thread, from the file itself: once every `_HASH_BLOCK` bytes
+    written, that range is memory-mapped (from the page cache the writes just filled) and hashed in
+    one `update`, so hashing overlaps the writes and building the next batch without holding on to
+    any written buffer. One `update` per block matters: hashlib releases the GIL only inside each
+    call, and hashing the written buffers one image at a time (~50 KB) made the hasher wait for the
+    GIL once per image while the writer's thread held it (measured: up to 5 ms, the switch interval,
+    per call under a busy thread). Small writes (IPC metadata, padding, small columns) are staged
+    and written in one piece when they grow large, before the next large write and at the end: far
+    fewer system calls. (Starting write-back early with sync_file_range was measured and made the
+    import slower: it moves the kernel's write-back work into this thread.)
+    """
 
     def __init__(self, path: Path):
-        self._fh = open(path, "wb")
+        from concurrent.futures import ThreadPoolExecutor
+
+        self._fh = open(path, "wb", buffering=0)
+        self._reader = open(path, "rb", buffering=0)  # the hasher's: stays valid across the rename
+        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seeu-sha256")
         self._sha256 = hashlib.sha256()
+        self._small = bytearray()
+        self._hash_submitted = 0  # bytes handed to the hasher so far
+        self._hash_error: BaseException | None = None
+        self._digest_requested = False
         self.size = 0
         self.closed = False
 
-    def write(self, data) -> int:
-        view = memoryview(data).cast("B")
-        self._sha256.update(view)
-        self._fh.write(view)
-        self.size += view.nbytes
-        return view.nbytes
+    def _hash_range(self, start: int, length: int) -> None:
+        """Hash file bytes [start, start + length) (runs on the hasher's thread, in order)."""
+        if self._hash_error is not None:
+            return
+        aligned = start - start % mmap.ALLOCATIONGRANULARITY
+        try:
+            try:
+                m = mmap.mmap(self._reader.fileno(), start + length - aligned, access=mmap.ACCESS_READ, offset=aligned)
+            except (OSError, ValueError):  # a file system that can't map files: read the range back
+                self._reader.seek(start)
+                left = length
+                while left:
+                    block = self._reader.read(min(_HASH_BLOCK, left))
+                    if not block:
+                        raise OSError(f"the file ends {left} bytes before what was written") from None
+                    self._sha256.update(block)
+                    left -= len(block)
+                return
+            with m, memoryview(m) as view:
+                self._sha256.update(view[start - aligned:])
+        except BaseException as exc:  # reported by the digest, never a digest of part of the file
+            self._hash_error = exc
 
-    def hexdigest(self) -> str:
-        return self._sha256.hexdigest()
+    def _digest(self) -> str:
+        try:
+            if self._hash_error is not None:
+                raise SeeUError(f"could not hash {self._fh.name} as it was written: {self._hash_error}")
+            return self._sha256.hexdigest()
+        finally:
+            self._reader.close()
+
+    def _submit_written(self, final: bool = False) -> None:
+        """Queue the written bytes not yet hashed, once they fill a block (or all of them, `final`)."""
+        pending = self.size - self._hash_submitted
+        if pending >= _HASH_BLOCK or (final and pending):
+            self._pool.submit(self._hash_range, self._hash_submitted, pending)
+            self._hash_submitted = self.size
+
+    def _write_all(self, view: memoryview) -> None:
+        written = 0
+        while written < view.nbytes:
+            written += self._fh.write(view[written:])
+
+    def _flush_small(self) -> None:
+        if self._small:
+            self._write_all(memoryview(self._small))
+            self.size += len(self._small)
+            self._small = bytearray()
+
+    def write(self, data) -> int:
+        if isinstance(data, pa.Buffer) and (pieces := _deferred_pieces(data.address, data.size)) is not None:
+            self._flush_small()  # a deferred_binary column: write the pieces it stands for
+            _writev_all(self._fh.fileno(), pieces)
+            nbytes = data.size
+        else:
+            view = memoryview(data).cast("B")
+            nbytes = view.nbytes
+            if nbytes < _BIG_WRITE:  # staged: one system call for many small buffers
+                self._small += view
+                if len(self._small) >= _BIG_WRITE:
+                    self._flush_small()
+                    self._submit_written()
+                return nbytes
+            self._flush_small()
+            self._write_all(view)
+        self.size += nbytes
+        self._submit_written()
+        return nbytes
 
     def tell(self) -> int:
-        return self.size
+        return self.size + len(self._small)
+
+    def digest_future(self) -> Future:
+        """The sha256 (hex) of every byte written, as a future: queued after the pending ranges, so
+        the caller can go on (the next shard) while the hasher finishes. No writes after this."""
+        self._flush_small()
+        self._submit_written(final=True)
+        future = self._pool.submit(self._digest)
+        self._pool.shutdown(wait=False)
+        self._digest_requested = True
+        return future
 
     def flush(self) -> None:
-        self._fh.flush()
+        pass
 
     def writable(self) -> bool:
         return True
@@ -156,31 +358,39 @@ class _HashingSink:
         return False
 
     def fsync(self) -> None:
-        self._fh.flush()
         os.fsync(self._fh.fileno())
 
     def close(self) -> None:
         if not self.closed:
-            self._fh.close()
-            self.closed = True
+            try:
+                self._fh.close()
+            finally:
+                if not self._digest_requested:  # abandoned: stop hashing
+                    self._pool.shutdown(wait=True, cancel_futures=True)
+                    self._reader.close()
+                self.closed = True
 
 
 class AtomicIpcWriter:
     """An Arrow IPC *file* writer (uncompressed) on a temporary name, hashing the bytes as it writes.
 
     `write_batch` / `write_table` as pyarrow's writer; `close()` finishes the file, fsyncs it when the
-    fsync policy is on (`set_fsync`), renames it to `path` and returns `(bytes, sha256)` (also kept as
-    `.size` / `.sha256`). `abort()` removes the partial file. As a context manager: the file is closed
-    when the block succeeds and removed when it raises. The bytes are pyarrow's own IPC file writer's.
+    fsync policy is on (`set_fsync`), renames it to `path` and returns `(bytes, sha256)` (also kept as `.size` / `.sha256`). With
+    `commit=False` the finished file is left at `pending_path(path)` and the caller calls
+    `commit_pending(path)` later (`seeu build` does that on a background thread, so a disk flush
+    overlaps building the next shard). `abort()` removes the partial file. As a context manager: the
+    file is closed when the block succeeds and removed when it raises. The bytes equal those of any
+    pyarrow IPC file writer with the same options.
     """
 
-    def __init__(self, path: str | Path, schema: pa.Schema):
+    def __init__(self, path: str | Path, schema: pa.Schema, commit: bool = True):
         self.path = Path(path)
-        self.tmp = tmp_path_for(self.path)
+        self.commit = commit
+        self.tmp = tmp_path_for(self.path) if commit else pending_path(self.path)
         self.size = 0
         self.sha256: str | None = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._raw = _HashingSink(self.tmp)
+        self._raw = _HashingFile(self.tmp)
         try:
             with naming_os_errors(self.path):
                 self._sink = pa.PythonFile(self._raw, mode="w")
@@ -198,19 +408,32 @@ class AtomicIpcWriter:
             self._writer.write_table(table, max_chunksize=max_chunksize)
 
     def close(self) -> tuple[int, str]:
-        """Finish the file and put it in place; return (bytes, sha256)."""
+        """Finish the file and put it in place (or leave it pending); return (bytes, sha256)."""
+        size, digest = self.close_async()
+        try:
+            self.sha256 = digest.result()
+        except BaseException:
+            (self.path if self.commit else self.tmp).unlink(missing_ok=True)  # never a file without its hash
+            raise
+        return size, self.sha256
+
+    def close_async(self) -> tuple[int, Future]:
+        """`close` without waiting for the hasher: (bytes, future of the sha256). The file is complete
+        (and in place unless `commit=False`) when this returns; the digest follows."""
         try:
             with naming_os_errors(self.path):
                 self._writer.close()
-                if _FSYNC:
+                digest = self._raw.digest_future()
+                if self.commit and _FSYNC:
                     self._raw.fsync()
                 self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
-                os.replace(self.tmp, self.path)
+                if self.commit:
+                    os.replace(self.tmp, self.path)
         except BaseException:
             self.abort()
             raise
-        self.size, self.sha256 = self._raw.size, self._raw.hexdigest()
-        return self.size, self.sha256
+        self.size = self._raw.size
+        return self.size, digest
 
     def abort(self) -> None:
         """Abandon the unfinished file: close it and remove it."""
@@ -219,7 +442,7 @@ class AtomicIpcWriter:
         finally:
             self.tmp.unlink(missing_ok=True)
 
-    def __enter__(self) -> AtomicIpcWriter:
+    def __enter__(self) -> "AtomicIpcWriter":
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:
@@ -229,12 +452,55 @@ class AtomicIpcWriter:
             self.abort()
 
 
-def write_table(path: str | Path, table: pa.Table, max_chunksize: int | None = None) -> tuple[int, str]:
+atomic_ipc_writer = AtomicIpcWriter  # `with atomic_ipc_writer(path, schema) as w: w.write_table(...)`
+
+
+def write_table(path: str | Path, table: pa.Table, max_chunksize: int | None = None,
+                commit: bool = True) -> tuple[int, str]:
     """Write a whole table atomically as an Arrow IPC file; return (bytes, sha256) of the file."""
-    with AtomicIpcWriter(path, table.schema) as writer:
+    with AtomicIpcWriter(path, table.schema, commit=commit) as writer:
         writer.write_table(table, max_chunksize=max_chunksize)
     assert writer.sha256 is not None
     return writer.size, writer.sha256
+
+
+def write_table_async(path: str | Path, table: pa.Table, max_chunksize: int | None = None,
+                      commit: bool = True) -> tuple[int, Future]:
+    """`write_table` returning (bytes, future of the sha256) as soon as the file is written: the
+    hashing of its last buffers overlaps whatever the caller does next."""
+    writer = AtomicIpcWriter(path, table.schema, commit=commit)
+    try:
+        writer.write_table(table, max_chunksize=max_chunksize)
+    except BaseException:
+        writer.abort()
+        raise
+    return writer.close_async()
+
+
+_MADV_POPULATE_READ = 22  # Linux >= 5.14 (not yet a constant in Python 3.11's mmap module)
+
+
+def map_readonly(path: str | Path, populate: bool = False) -> mmap.mmap:
+    """A read-only shared memory map of the whole file. `populate=True` fills its page tables at once
+    (MAP_POPULATE on Linux): for a file that will be read whole, one call instead of a page fault
+    per 64 KB, several times faster on a VM (writing 100 MB from a mapped file: 0.03 s vs 0.08 s)."""
+    with open(path, "rb") as fh:
+        if populate and hasattr(mmap, "MAP_POPULATE"):
+            return mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_SHARED | mmap.MAP_POPULATE, prot=mmap.PROT_READ)
+        return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+
+
+def populate(mapping: mmap.mmap, start: int, length: int) -> None:
+    """Fill the page tables of `mapping[start:start + length]` now (MADV_POPULATE_READ), for a part of
+    a mapped file about to be read whole. Best effort: a no-op where the kernel lacks it."""
+    page = mmap.PAGESIZE
+    lo = start // page * page
+    hi = min(len(mapping), start + length)
+    if hi > lo and hasattr(mapping, "madvise"):
+        try:
+            mapping.madvise(_MADV_POPULATE_READ, lo, hi - lo)
+        except OSError:
+            pass
 
 
 def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:
@@ -255,9 +521,12 @@ def read_table(path: str | Path, memory_map: bool = True) -> pa.Table:
     return open_ipc_file(path, memory_map).read_all()
 
 
-def sha256_file(path: str | Path) -> str:
+def sha256_file(path: str | Path, chunk: int = 1 << 22) -> str:
+    digest = hashlib.sha256()
     with open(path, "rb") as fh:
-        return hashlib.file_digest(fh, "sha256").hexdigest()
+        while block := fh.read(chunk):
+            digest.update(block)
+    return digest.hexdigest()
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

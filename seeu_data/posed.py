@@ -18,7 +18,7 @@ from typing import Iterable, Iterator
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import AtomicIpcWriter, binary_array, open_ipc_file
+from .arrow_io import AtomicIpcWriter, deferred_binary, open_ipc_file
 from .errors import SeeUError
 from .manifest import FileEntry, read_manifest, write_manifest
 from .schema import arrow_schema, schema_version
@@ -78,8 +78,9 @@ class PosedScene:
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
 
-    def to_record_batch(self) -> pa.RecordBatch:
-        """The scene's rows (the image bytes copied once, into the batch)."""
+    def to_record_batch(self, deferred: bool = False) -> pa.RecordBatch:
+        """The scene's rows. `deferred=True`: the image column is `arrow_io.deferred_binary` (written
+        straight from `images`, no copy), for a batch that goes only to `PosedDatasetWriter.add_batch`."""
         n = len(self)
         schema = arrow_schema(SCHEMA)
         names = self.source_name or [""] * n
@@ -89,7 +90,8 @@ class PosedScene:
             "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
             "source_name": pa.array(names, pa.string()),
             "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
-            "image": binary_array(self.images),
+            "image": deferred_binary(self.images) if deferred else
+            pa.array([b if isinstance(b, bytes) else bytes(memoryview(b)) for b in self.images], pa.binary()),
             "image_format": pa.array([self.image_format] * n, pa.string()),
             "width": pa.array(np.asarray(self.width, dtype=np.int32)),
             "height": pa.array(np.asarray(self.height, dtype=np.int32)),
@@ -168,10 +170,11 @@ class PosedDatasetWriter:
 
     def add(self, scene: PosedScene) -> None:
         scene.check()
-        self.add_batch(scene, scene.to_record_batch())
+        self.add_batch(scene, scene.to_record_batch(deferred=True))
 
     def add_batch(self, scene: PosedScene, batch: pa.RecordBatch, may_close: bool = True) -> None:
-        """`add` for a scene already `check()`ed, with its `to_record_batch()` made. `may_close=False`
+        """`add` for a scene already `check()`ed, with its `to_record_batch(deferred=True)` made (written
+        here at once, so the images it points at stay valid). `may_close=False`
         keeps the file open past the target size (importers close files only at unit ends)."""
         if scene.scene_id in self._seen:
             raise SeeUError(f"duplicate scene id {scene.scene_id!r}")

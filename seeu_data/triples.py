@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -26,7 +27,7 @@ from typing import Iterator
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import open_ipc_file
+from .arrow_io import deferred_binary, map_readonly, open_ipc_file, populate
 from .errors import SeeUError
 from .manifest import read_manifest
 from .schema import arrow_schema
@@ -74,19 +75,69 @@ def plan_sha256(spec: dict) -> str:
 # ---------------------------------------------------------------------------------------------
 
 
+class _MappedFile:
+    """A posed Arrow file mapped once per process: the table (zero-copy over the mapping) and which
+    scenes' image pages are already populated."""
+
+    def __init__(self, path: str):
+        if not Path(path).exists():
+            raise SeeUError("file not found", path)
+        self.key = _file_key(path)
+        self.mapping = map_readonly(path)
+        buf = pa.py_buffer(self.mapping)
+        self.base = buf.address
+        try:
+            self.table = pa.ipc.open_file(pa.BufferReader(buf)).read_all()
+        except (pa.ArrowInvalid, OSError) as exc:
+            raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0],
+                            path) from None
+        self.populated: set[str] = set()
+
+
+_MAPPED: dict[str, _MappedFile] = {}  # path -> mapping, kept across shards: no map/unmap per shard
+_MAX_MAPPED = 64
+
+
+def _file_key(path: str) -> tuple[int, ...]:
+    """Identity of a file's content for the mapping cache: a rewrite (a new inode: our writes rename
+    a new file into place), a size or a modification time change maps it again."""
+    st = os.stat(path)
+    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
+
+
+def _mapped(path: str) -> _MappedFile:
+    entry = _MAPPED.get(path)
+    try:
+        fresh = entry is not None and entry.key == _file_key(path)
+    except OSError:
+        fresh = False
+    if not fresh:
+        _MAPPED.pop(path, None)
+        entry = _MappedFile(path)
+        if len(_MAPPED) >= _MAX_MAPPED:
+            _MAPPED.pop(next(iter(_MAPPED)))
+        _MAPPED[path] = entry
+    assert entry is not None
+    return entry
+
+
 class _SceneTables:
-    """Posed rows per scene for one shard, each posed file opened once (memory-mapped, zero-copy reads)."""
+    """Posed rows per scene for one shard, from the process's mapped posed files (zero-copy reads)."""
 
     def __init__(self, sources: dict[str, dict]):
         self.sources = sources
-        self._files: dict[str, pa.Table] = {}
+        self._files: dict[str, _MappedFile] = {}  # the same mapping for every scene of the shard
+
+    def _file(self, scene_id: str) -> _MappedFile:
+        path = self.sources[scene_id]["path"]
+        if path not in self._files:
+            self._files[path] = _mapped(path)
+        return self._files[path]
 
     def table(self, scene_id: str) -> pa.Table:
         src = self.sources[scene_id]
         path = src["path"]
-        if path not in self._files:
-            self._files[path] = open_ipc_file(path).read_all()
-        full = self._files[path]
+        full = self._file(scene_id).table
         if src["row_start"] + src["num_frames"] > full.num_rows:
             raise SeeUError(f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
                             f"exceed the file's {full.num_rows} rows", path)
@@ -95,6 +146,21 @@ class _SceneTables:
         if first != scene_id:
             raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", path)
         return rows.select(_POSED_COLUMNS)
+
+    def image_views(self, scene_id: str, rows: pa.Table) -> list[memoryview]:
+        """The scene's encoded images as views into the mapped file (no copy), their pages mapped at once."""
+        mapped = self._file(scene_id)
+        views: list[memoryview] = []
+        for chunk in rows.column("image").chunks:
+            _, offsets_buf, data_buf = chunk.buffers()
+            offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset:chunk.offset + len(chunk) + 1]
+            if len(chunk) and scene_id not in mapped.populated:
+                populate(mapped.mapping, data_buf.address - mapped.base + int(offsets[0]),
+                         int(offsets[-1] - offsets[0]))
+            data = memoryview(data_buf)
+            views.extend(data[a:b] for a, b in zip(offsets[:-1].tolist(), offsets[1:].tolist()))
+        mapped.populated.add(scene_id)
+        return views
 
 
 def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.DataType) -> pa.Array:
@@ -136,8 +202,12 @@ def _resize_views(taken: pa.Table, view_scene: list[str], view_frame: np.ndarray
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
 
 
-def build_shard_table(spec: dict) -> pa.Table:
+def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
     """Rows of one shard from its spec.
+
+    `deferred_images=True` (copy path only, i.e. no resize): the image column is an
+    `arrow_io.deferred_binary` over views into the mapped posed files, for a table that is only
+    written with `arrow_io.write_table*` (the bytes go from the posed files to the shard in one copy).
 
     spec = {"samples": [{"scene_id", "mode", "k", "context": [...], "target": [...]}, ...],
             "sources": {scene_id: {"path", "row_start", "num_frames", ...}},
@@ -149,6 +219,7 @@ def build_shard_table(spec: dict) -> pa.Table:
     opts = ImageOptions(resize=tuple(spec["image"]["resize"]) if spec["image"]["resize"] else None,
                         interpolation=spec["image"]["interpolation"], jpeg_quality=spec["image"]["jpeg_quality"])
     tables = _SceneTables(spec["sources"])
+    scene_order: list[str] = []
     base: dict[str, int] = {}
     parts: list[pa.Table] = []
     for s in samples:
@@ -156,6 +227,7 @@ def build_shard_table(spec: dict) -> pa.Table:
             t = tables.table(s.scene_id)
             base[s.scene_id] = sum(p.num_rows for p in parts)
             parts.append(t)
+            scene_order.append(s.scene_id)
         n = spec["sources"][s.scene_id]["num_frames"]
         if any(not 0 <= v < n for v in s.views):
             raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec["sources"][s.scene_id]["path"])
@@ -166,12 +238,17 @@ def build_shard_table(spec: dict) -> pa.Table:
     view_scene = [s.scene_id for s in samples for _ in s.views]
     view_frame = np.array([v for s in samples for v in s.views], dtype=np.int64)
     flat = np.array([base[s.scene_id] + v for s in samples for v in s.views], dtype=np.int64)
-    taken = posed.take(pa.array(flat))
+    deferred = deferred_images and opts.resize is None
+    taken = posed.drop_columns(["image"]).take(pa.array(flat)) if deferred else posed.take(pa.array(flat))
     counts = np.array([len(s.views) for s in samples], dtype=np.int32)
     offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
 
     if opts.resize is None:
-        images = taken.column("image")
+        if deferred:
+            scene_views = {sid: tables.image_views(sid, part) for sid, part in zip(scene_order, parts)}
+            images = deferred_binary([scene_views[sid][int(f)] for sid, f in zip(view_scene, view_frame)])
+        else:
+            images = taken.column("image")
         width, height = taken.column("width"), taken.column("height")
         intr = taken.column("intrinsics_norm")
     else:

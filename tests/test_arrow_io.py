@@ -15,7 +15,8 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data import arrow_io
-from seeu_data.arrow_io import atomic_write_text, binary_array, fsync_enabled, fsync_policy, sha256_file, write_table
+from seeu_data.arrow_io import (atomic_write_text, commit_pending, fsync_enabled, fsync_policy, sha256_file,
+                                write_table)
 from seeu_data.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
@@ -42,9 +43,11 @@ def test_default_is_atomic_without_fsync(tmp_path, fsyncs):
     assert not fsync_enabled()
     size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
     atomic_write_text(tmp_path / "m.json", "{}")
+    write_table(tmp_path / "p.arrow", _table(), commit=False)
+    commit_pending(tmp_path / "p.arrow")
     assert fsyncs == []
     assert digest == sha256_file(tmp_path / "x.arrow") and size == (tmp_path / "x.arrow").stat().st_size
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "x.arrow"]  # no temporary left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "p.arrow", "x.arrow"]  # no temporary left
 
 
 def test_fsync_policy_fsyncs_every_file_before_its_rename(tmp_path, fsyncs):
@@ -52,7 +55,10 @@ def test_fsync_policy_fsyncs_every_file_before_its_rename(tmp_path, fsyncs):
         assert fsync_enabled() and os.environ["SEEU_FSYNC"] == "1"
         size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
         atomic_write_text(tmp_path / "m.json", "{}")
-    assert len(fsyncs) == 2 and not fsync_enabled() and "SEEU_FSYNC" not in os.environ
+        write_table(tmp_path / "p.arrow", _table(), commit=False)  # pending: fsynced at commit
+        assert len(fsyncs) == 2
+        commit_pending(tmp_path / "p.arrow")
+    assert len(fsyncs) == 3 and not fsync_enabled() and "SEEU_FSYNC" not in os.environ
     assert digest == sha256_file(tmp_path / "x.arrow")
     with fsync_policy(None):  # unchanged
         assert not fsync_enabled()
@@ -73,22 +79,45 @@ def test_failed_write_leaves_nothing(tmp_path):
     assert list(tmp_path.iterdir()) == []
 
 
-def test_a_failed_write_is_an_error_and_leaves_no_file(tmp_path, monkeypatch):
-    """A write that fails half-way (a full disk) raises and leaves neither the file nor its temporary."""
-    import errno
+@pytest.mark.parametrize("block", [10_007, 1 << 20])
+def test_hash_in_ranges_of_the_written_file(tmp_path, monkeypatch, block):
+    """The hasher takes the file in ranges at any (unaligned) offsets: the digest is the file's."""
+    monkeypatch.setattr(arrow_io, "_HASH_BLOCK", block)
+    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=77)
+    assert (size, digest) == ((tmp_path / "x.arrow").stat().st_size, sha256_file(tmp_path / "x.arrow"))
 
-    real_write = arrow_io._HashingSink.write
-    written = []
 
-    def write_then_fail(self, data):
-        if written:
-            raise OSError(errno.ENOSPC, "No space left on device")
-        written.append(len(memoryview(data)))
-        return real_write(self, data)
+def test_hash_reads_back_where_files_cannot_be_mapped(tmp_path, monkeypatch):
+    def no_mmap(*args, **kwargs):
+        raise OSError(19, "No such device")
 
-    monkeypatch.setattr(arrow_io._HashingSink, "write", write_then_fail)
-    with pytest.raises(OSError, match="No space left"):
-        write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
+    monkeypatch.setattr(arrow_io, "_HASH_BLOCK", 100_003)
+    monkeypatch.setattr(arrow_io.mmap, "mmap", no_mmap)
+    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=500)
+    assert digest == sha256_file(tmp_path / "x.arrow")
+
+
+def test_a_failed_hash_is_an_error_and_leaves_no_file(tmp_path, monkeypatch):
+    def fail(*args, **kwargs):
+        raise OSError(5, "Input/output error")
+
+    monkeypatch.setattr(arrow_io.mmap, "mmap", fail)
+    real_open = open
+
+    class FailingReads:
+        def __init__(self, fh):
+            self.fileno, self.seek, self.close = fh.fileno, fh.seek, fh.close
+
+        def read(self, n):
+            raise OSError(5, "Input/output error")
+
+    def open_failing_reads(path, mode="r", **kwargs):
+        fh = real_open(path, mode, **kwargs)
+        return FailingReads(fh) if mode == "rb" else fh
+
+    monkeypatch.setattr(arrow_io, "open", open_failing_reads, raising=False)
+    with pytest.raises(arrow_io.SeeUError, match="could not hash .*Input/output error"):
+        write_table(tmp_path / "x.arrow", _table())
     assert list(tmp_path.iterdir()) == []
 
 
@@ -120,18 +149,14 @@ def _plain_ipc_bytes(table: pa.Table, max_chunksize: int) -> bytes:
 
 
 @pytest.mark.parametrize("max_chunksize", [1, 7, 64, 10_000])
-def test_written_file_and_its_hash_are_pyarrows(tmp_path, max_chunksize):
-    """`binary_array` over mixed bytes-likes (numpy views into a mapped file, bytes, memoryviews,
-    empty values), as a plain and a list<binary> column cut into batches at any row: the file is
-    exactly what pyarrow's own writer gives for the same values, and the recorded (bytes, sha256)
-    are those of that file (hashlib over the whole independent copy)."""
-    import mmap
-
+def test_deferred_binary_writes_the_bytes_pyarrow_writes(tmp_path, max_chunksize):
+    """A deferred column (pieces: numpy views into a mapped file, bytes, memoryviews, empty values;
+    as a plain and as a list<binary> column, cut into batches at any row) gives exactly the file
+    pyarrow writes for the same values copied into one buffer, and the sha256 of that file."""
     rng = np.random.default_rng(1)
     blob = rng.integers(0, 256, 3 << 20, dtype=np.uint8)
     (tmp_path / "src.bin").write_bytes(blob.tobytes())
-    with open(tmp_path / "src.bin", "rb") as fh:
-        mapped = np.frombuffer(mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ), dtype=np.uint8)
+    mapped = np.frombuffer(arrow_io.map_readonly(tmp_path / "src.bin", populate=True), dtype=np.uint8)
     cuts = np.sort(rng.integers(0, blob.size, 600))
     pieces = []
     for i, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
@@ -147,8 +172,37 @@ def test_written_file_and_its_hash_are_pyarrows(tmp_path, max_chunksize):
                          "i": np.arange(n_rows)})
 
     expected = _plain_ipc_bytes(table(pa.array(values, pa.binary())), max_chunksize)
-    size, digest = write_table(tmp_path / "d.arrow", table(binary_array(pieces)), max_chunksize=max_chunksize)
+    size, digest = write_table(tmp_path / "d.arrow", table(arrow_io.deferred_binary(pieces)), max_chunksize=max_chunksize)
     assert (tmp_path / "d.arrow").read_bytes() == expected
     assert (size, digest) == (len(expected), hashlib.sha256(expected).hexdigest())
     assert pa.ipc.open_file(str(tmp_path / "d.arrow")).read_all().column("views").to_pylist() == \
         [values[i:i + 3] for i in range(0, 3 * n_rows, 3)]
+
+
+def test_deferred_binary_placeholders_are_released_and_short_writes_resume(tmp_path, monkeypatch):
+    import gc
+
+    arr = arrow_io.deferred_binary([b"abc", b"", b"defgh"])
+    base = arr.buffers()[2].address
+    # the finalizer of a dead placeholder that had the same address never drops a live one
+    arrow_io._forget_placeholder(base)
+    assert [bytes(v) for v in arrow_io._deferred_pieces(base, 8)] == [b"abc", b"defgh"]
+    real = os.writev
+    monkeypatch.setattr(os, "writev", lambda fd, views: real(fd, [bytes(memoryview(views[0]))[:2]]))  # 2 bytes a call
+    size, digest = write_table(tmp_path / "s.arrow", pa.table({"x": arr}))
+    monkeypatch.undo()
+    plain = _plain_ipc_bytes(pa.table({"x": pa.array([b"abc", b"", b"defgh"])}), 10_000)
+    assert (tmp_path / "s.arrow").read_bytes() == plain and digest == hashlib.sha256(plain).hexdigest()
+    del arr
+    gc.collect()
+    assert not arrow_io._PLACEHOLDERS
+    assert arrow_io._deferred_pieces(12345, 10) is None
+
+
+def test_reading_a_deferred_column_outside_the_writer_faults():
+    """A deferred column read anywhere but the writer's sink must fail loudly, never give zeros."""
+    code = ("from seeu_data.arrow_io import deferred_binary\n"
+            "print(deferred_binary([b'abc', b'de']).to_pylist())\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                         env=dict(os.environ, PYTHONPATH=os.getcwd()))
+    assert res.returncode != 0 and "abc" not in res.stdout and "\\x00" not in res.stdout

@@ -285,9 +285,29 @@ def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeyp
     assert _shard_bytes(out) == good
 
 
-def test_interrupted_build_resumes_from_its_journal(posed, tmp_path, monkeypatch):
+def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed, tmp_path, monkeypatch):
+    import pyarrow as pa
+
+    from seeu_data.arrow_io import commit_pending, pending_path, sha256_file, write_table
+
+    # large values too, so that the file spans several of the hasher's ranges and the big-write path
+    table = pa.table({"a": np.arange(5000), "b": [bytes([i % 251]) * (i % 300) for i in range(5000)],
+                      "c": [bytes([i % 251]) * ((2 << 20) if i % 1000 == 0 else 10) for i in range(5000)]})
+    size, digest = write_table(tmp_path / "x.arrow", table, max_chunksize=64)
+    with pa.OSFile(str(tmp_path / "y.arrow"), "wb") as sink:
+        with pa.ipc.new_file(sink, table.schema, options=pa.ipc.IpcWriteOptions(compression=None)) as w:
+            w.write_table(table, max_chunksize=64)
+    assert (tmp_path / "x.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
+    assert size == (tmp_path / "x.arrow").stat().st_size and digest == sha256_file(tmp_path / "x.arrow")
+    assert not pending_path(tmp_path / "x.arrow").exists() and not list(tmp_path.glob(".*"))
+    # deferred commit: complete but pending until commit_pending, then the same bytes in place
+    assert write_table(tmp_path / "z.arrow", table, max_chunksize=64, commit=False) == (size, digest)
+    assert not (tmp_path / "z.arrow").exists() and pending_path(tmp_path / "z.arrow").exists()
+    commit_pending(tmp_path / "z.arrow")
+    assert (tmp_path / "z.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
+    assert not list(tmp_path.glob(".*"))
     # an interrupted run leaves no manifest, a progress journal of the shards in place (and maybe a
-    # temporary); the re-run keeps the recorded shards, clears the leftovers and completes
+    # pending shard); the re-run keeps the recorded shards, clears the leftovers and completes
     out = tmp_path / "b"
     assert _build(posed, out) == 0
     good = _shard_bytes(out)
@@ -306,7 +326,7 @@ def test_interrupted_build_resumes_from_its_journal(posed, tmp_path, monkeypatch
     assert not (out / "manifest.json").exists()
     assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == \
         ["shard-00000.arrow", "shard-00001.arrow", "shard-00002.arrow"]
-    (out / "shard-00002.arrow").rename(out / ".shard-00002.arrow.99999.tmp")  # caught before its rename
+    (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))  # caught before its rename
     monkeypatch.setattr(build_mod, "build_shard_table", real)
     assert _build(posed, out) == 0
     assert _shard_bytes(out) == good and not list(out.glob(".*"))
@@ -330,8 +350,31 @@ def test_undecodable_image_names_file_scene_and_frame(tmp_path, capsys):
     assert cli_main(args) == 0  # without --resize the bytes are copied as they are (validated by the loader)
 
 
+def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
+    """What `materialise` writes (images straight from the mapped posed files) equals the shard
+    written from the table with its images taken into Arrow buffers, shard by shard, several
+    scenes per shard and several batches per shard."""
+    from seeu_data.arrow_io import write_table
+    from seeu_data.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
+    from seeu_data.sampling import SamplingConfig
+    from seeu_data.triples import build_shard_table
+
+    cfg = BuildConfig(inputs=(str(posed),), out=str(tmp_path / "o"), rows_per_batch=3, shard_bytes=60_000,
+                      sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9))
+    scenes = scan_inputs(cfg.inputs)
+    specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
+    assert len(specs) > 1 and max(len(s["sources"]) for s in specs) > 1
+    for spec in specs:
+        plain = write_table(tmp_path / "plain.arrow", build_shard_table(spec), max_chunksize=3)
+        deferred = write_table(tmp_path / "deferred.arrow", build_shard_table(spec, deferred_images=True),
+                               max_chunksize=3)
+        assert plain == deferred
+        assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "deferred.arrow").read_bytes()
+
+
 def test_rewritten_posed_data_is_mapped_again(tmp_path):
-    """A rewritten posed directory (same paths, other images) is read afresh by the next build."""
+    """Posed files are mapped once per process and kept across builds; a rewritten posed directory
+    (same paths, other images) must be read afresh, never served from the old mapping."""
     def write(seed: int) -> None:
         with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
             w.add(make_posed_scene("alpha", n=30, height=24, width=32, seed=seed))
@@ -346,9 +389,9 @@ def test_rewritten_posed_data_is_mapped_again(tmp_path):
     assert _shard_bytes(tmp_path / "a") != _shard_bytes(tmp_path / "b")
 
 
-@pytest.mark.parametrize("cores, workers", [(1, 1), (2, 2), (6, 6), (32, 8)])
-def test_default_workers(monkeypatch, cores, workers):
+@pytest.mark.parametrize("cores, copy, resize", [(1, 1, 1), (2, 1, 2), (4, 1, 4), (6, 6, 6), (32, 8, 8)])
+def test_default_workers(monkeypatch, cores, copy, resize):
     from seeu_data.build import default_workers
 
     monkeypatch.setattr(os, "cpu_count", lambda: cores)
-    assert default_workers() == workers
+    assert (default_workers(), default_workers(resize=True)) == (copy, resize)

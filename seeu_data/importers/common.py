@@ -173,7 +173,7 @@ def _prepare(item: PosedScene | SkippedScene):
     if isinstance(item, PosedScene):
         try:
             item.check()
-            return item, item.to_record_batch()
+            return item, item.to_record_batch(deferred=True)
         except SeeUError as exc:
             return SkippedScene(item.scene_id, str(exc)), None
     return item, None

@@ -12,8 +12,8 @@ bytes are kept as they are; width/height come from the image headers. Scene id =
 dataset name, stage and chunk name go into the scene's meta. `source_frame` is the frame's position
 in the example. Chunks are read one at a time, memory-mapped (`torch_chunk.load_plain`, a restricted
 reader that is several times faster than `torch.load` and copies nothing; `torch.load(weights_only
-=True)` is the fallback); the image bytes are copied once, from the mapping into the posed file's
-record batch, so the process holds about one chunk.
+=True)` is the fallback), and the images are written from the mapping straight into the posed file
+(`arrow_io.deferred_binary`), so the process holds one chunk in the page cache and no image copies.
 
 A `seeu_posed.json` next to `index.json` (written by `seeu export pixelsplat`) restores what the
 chunk format cannot carry (near/far, source frame numbers and names, meta); peer loaders ignore it.
@@ -152,7 +152,8 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
                        ) -> PosedScene:
     """One chunk example -> PosedScene (SeeUError when the example is malformed).
 
-    The scene's `images` are read-only numpy views into the memory-mapped chunk, not copies.
+    The scene's `images` are read-only numpy views into the memory-mapped chunk, not copies: the
+    writer writes them straight into the posed file (`arrow_io.deferred_binary`).
     """
     key = example["key"]
     where = f"{chunk_name}:{key}"

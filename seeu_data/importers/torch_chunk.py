@@ -15,7 +15,6 @@ data, another global) raises `UnsupportedChunk` and the caller falls back to `to
 
 from __future__ import annotations
 
-import mmap
 import pickle
 import struct
 import zipfile
@@ -24,6 +23,7 @@ from pathlib import Path
 
 import numpy as np
 
+from ..arrow_io import map_readonly
 
 _STORAGE_DTYPES = {
     "ByteStorage": np.uint8, "CharStorage": np.int8, "ShortStorage": np.int16, "IntStorage": np.int32,
@@ -96,8 +96,7 @@ def load_plain(path: str | Path):
         if order is not None and zf.read(order).strip() != b"little":
             raise UnsupportedChunk("big-endian storages")
         data_pkl = zf.read(pkl[0])
-    with open(path, "rb") as fh:
-        mm = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    mm = map_readonly(path, populate=True)  # the whole chunk is read: page tables filled in one call
     cache: dict[str, np.ndarray] = {}
 
     def storage(key: str, dtype: np.dtype, numel: int) -> np.ndarray:
