@@ -26,6 +26,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import time
 from pathlib import Path
 
 
@@ -227,7 +228,7 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     from seeu_model.camera_path import camera_path, path_parameters
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import config_from_dict
-    from seeu_model.training.factory import model_from_checkpoint
+    from seeu_model.training.factory import encode_context, model_from_checkpoint
     from seeu_model.training.loop import batch_to
 
     if frames < 2:
@@ -255,11 +256,16 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     intr = ctx["intrinsics"][0].double().cpu().numpy()
     report: dict = {"checkpoint": ck["path"], "step": ck["step"], "image_hw": list(hw), "fps": fps,
                     "source": data or str(cameras), "sample_id": batch.get("sample_id", [None])[0]}
-    g = None
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        g = encode_context(model, ctx)
+    report["timing_s"] = {"encode": time.perf_counter() - t0}
     for name, e in (("interp", 0.0), ("extrap", extrapolate)):
         ts = path_parameters(frames, e)
         poses, ks = camera_path(c2w[0], c2w[-1], intr[0], intr[-1], ts)
+        t0 = time.perf_counter()
         imgs, g = render_views(model, ctx, poses, ks, hw, backend, g)
+        report["timing_s"][f"render_{name}_per_frame"] = (time.perf_counter() - t0) / len(imgs)
         for i, img in enumerate(imgs):
             write_png(out / "frames" / f"{name}_{i:03d}.png", img)
         write_mp4(out / f"{name}.mp4", imgs, fps)

@@ -133,6 +133,8 @@ def test_render_shard_sample_and_user_cameras(run, tmp_path):
     assert _read_mp4_frames(out / "extrap.mp4") == 3
     g = load_ply(out / "gaussians.ply")
     assert g.means.shape == (1, 2 * 32 * 32, 3) and rep["num_gaussians"] == 2048
+    assert set(rep["timing_s"]) == {"encode", "render_interp_per_frame", "render_extrap_per_frame"}
+    assert all(v > 0 for v in rep["timing_s"].values())
     # beside it: the 3DGS viewers' cameras.json (contexts, then targets) and the SH-degree sidecar
     cams_json = json.loads((out / "cameras.json").read_text())
     assert [c["img_name"] for c in cams_json][:2] == ["context_0", "context_1"] and len(cams_json) == 5
