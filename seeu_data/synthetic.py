@@ -158,6 +158,11 @@ def make_scene(seed: int = 0, config: SceneConfig | None = None) -> Scene:
         x0 = rng.uniform(-1.6, 1.6 - sx)
         z0 = 9.5 + 2.0 * i + rng.uniform(0, 1.0)
         boxes.append((np.array([x0, floor - sy, z0]), np.array([x0 + sx, floor, z0 + sz])))
+    return _scene_of(rects, rng, boxes, light, seed)
+
+
+def _scene_of(rects: list, rng, boxes: list, light: np.ndarray, seed: int) -> Scene:
+    """The Scene of `rects` plus the faces of `boxes` (textured and shaded with `light`)."""
     for bmin, bmax in boxes:
         _add_box(rects, rng, bmin, bmax, light)
     return Scene(
@@ -185,14 +190,7 @@ def make_planar_scene(seed: int = 0, width_m: float = 7.0) -> Scene:
         x0 = -width_m / 3 + i * width_m / 3 + rng.uniform(-0.3, 0.3)
         y0, z0 = rng.uniform(-0.8, 0.4), rng.uniform(3.0, 3.6 - size[2])
         boxes.append((np.array([x0, y0, z0]), np.array([x0, y0, z0]) + size))
-    for bmin, bmax in boxes:
-        _add_box(rects, rng, bmin, bmax, light)
-    return Scene(
-        axis=np.array([r[0] for r in rects], np.int64), coord=np.array([r[1] for r in rects]),
-        lo=np.stack([r[2] for r in rects]), hi=np.stack([r[3] for r in rects]),
-        facing=np.array([r[4] for r in rects], np.int64), shade=np.array([r[5] for r in rects]),
-        textures=[r[6] for r in rects], boxes=boxes, seed=seed,
-    )
+    return _scene_of(rects, rng, boxes, light, seed)
 
 
 # ---------------------------------------------------------------------------------------------
