@@ -84,11 +84,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                         "agree within 1%% of the path; mapping takes about twice as long with it)")
     p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
     p.add_argument("--threads", type=int, default=-1,
-                   help="COLMAP threads per scene for feature extraction and matching (default: all cores / "
-                        "workers); results do not depend on it")
+                   help="COLMAP threads per scene for feature extraction (default: all cores / workers); "
+                        "results do not depend on it")
     p.add_argument("--map-threads", type=int, default=1,
-                   help="threads for incremental mapping (default 1: poses identical run after run; more speeds up "
-                        "bundle adjustment of large models, but its sums then depend on thread timing; -1 = all cores)")
+                   help="threads for matching and mapping (default 1: poses identical run after run; more speeds up "
+                        "them on large inputs, but results then depend on thread timing; -1 = all cores)")
     p.add_argument("--force", action="store_true",
                    help="redo every stage instead of resuming, and replace OUT/<scene> even when it holds another input's scene")
     p.add_argument("--heartbeat", type=float, default=None, metavar="SECONDS",

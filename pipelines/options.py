@@ -23,7 +23,7 @@ def parse_dims(text: str, flag: str, minimum: int = 1) -> tuple[int, int]:
         raise SeeUError(f"{flag} {text!r} is not two sizes AxB (e.g. 256x256)")
     a, b = int(m.group(1)), int(m.group(2) or m.group(1))
     if min(a, b) < minimum:
-        raise SeeUError(f"{flag} {text!r}: sizes must be at least {minimum}")
+        raise SeeUError(f"{flag} {text!r}: sizes must be " + ("positive" if minimum <= 1 else f"at least {minimum}"))
     return a, b
 
 

@@ -27,7 +27,7 @@ Output directory layout::
 "verified_pairs"}, "timings": {...}} or {"error": "..."}.
 
 Determinism: the same frames give the same database and the same poses whatever `num_threads`
-(tested with 2 threads x 3 runs and 1 thread), with mapping on `mapping_threads` = 1. COLMAP's parallel extractor would number images in completion
+(tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `mapping_threads` = 1. COLMAP's parallel extractor would number images in completion
 order and each matching thread's RANSAC state would carry over between the pairs it happens to
 verify; both are fixed here (`_create_database`, `ransac.random_seed`). Progress comes from COLMAP's
 log lines, not from polling the database: in testing, a second SQLite connection counting rows while
@@ -457,7 +457,9 @@ def _child(job_path: str) -> int:
     _emit("stage", "match", len(names))
     t0 = time.perf_counter()
     matching = pycolmap.FeatureMatchingOptions()
-    matching.num_threads = cfg.num_threads
+    # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
+    # still gave a different database in 1 of ~10 full CI runs (a loaded machine); one thread never did.
+    matching.num_threads = cfg.mapping_threads
     if cfg.features != "sift":
         matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
     verification = pycolmap.TwoViewGeometryOptions()
