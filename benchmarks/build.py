@@ -65,18 +65,31 @@ def photo_like_scene(scene_id: str, n: int, seed: int) -> PosedScene:
     rng = np.random.default_rng(seed)
     pano_w = W + 4 * n
     low = cv2.resize(rng.uniform(40, 215, (8, 24, 3)).astype(np.float32), (pano_w, H), interpolation=cv2.INTER_CUBIC)
-    mid = cv2.resize(rng.normal(0, 25, (60, 180 + n, 3)).astype(np.float32), (pano_w, H), interpolation=cv2.INTER_LINEAR)
+    mid = cv2.resize(
+        rng.normal(0, 25, (60, 180 + n, 3)).astype(np.float32), (pano_w, H), interpolation=cv2.INTER_LINEAR
+    )
     pano = low + mid
     images, poses = [], []
     for i in range(n):
-        frame = pano[:, 4 * i:4 * i + W] + rng.normal(0, 4, (H, W, 3))
+        frame = pano[:, 4 * i : 4 * i + W] + rng.normal(0, 4, (H, W, 3))
         ok, buf = cv2.imencode(".jpg", np.clip(frame, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
         images.append(buf.tobytes())
         pose = np.eye(4)
         pose[0, 3] = 0.02 * i
         poses.append(pose)
-    return PosedScene(scene_id, images, "jpeg", np.full(n, W), np.full(n, H), np.tile([0.8, 1.4, 0.5, 0.5], (n, 1)),
-                      np.stack(poses), 1.0, 100.0, np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64) * 33_333)
+    return PosedScene(
+        scene_id,
+        images,
+        "jpeg",
+        np.full(n, W),
+        np.full(n, H),
+        np.tile([0.8, 1.4, 0.5, 0.5], (n, 1)),
+        np.stack(poses),
+        1.0,
+        100.0,
+        np.arange(n, dtype=np.int64),
+        np.arange(n, dtype=np.int64) * 33_333,
+    )
 
 
 def bare_copy(specs: list[dict], out: Path, fsync: bool = False) -> None:
@@ -114,8 +127,12 @@ def main() -> int:
     p.add_argument("--tmp", default=None, help="working directory (default: a temporary one)")
     p.add_argument("--posed", default=None, help="keep / reuse the generated posed data in this directory")
     p.add_argument("--workers", type=int, default=1, help="seeu local engine workers (default 1: in-process)")
-    p.add_argument("--prefault-mb", type=int, default=None,
-                   help="MB of memory touched and freed before each run (default: 2x the shards' size; 0: off)")
+    p.add_argument(
+        "--prefault-mb",
+        type=int,
+        default=None,
+        help="MB of memory touched and freed before each run (default: 2x the shards' size; 0: off)",
+    )
     args = p.parse_args()
 
     tmp = Path(tempfile.mkdtemp(prefix="seeu-bench-build-", dir=args.tmp))
@@ -127,20 +144,30 @@ def main() -> int:
                 for i in range(args.scenes):
                     w.add(photo_like_scene(f"scene{i:03d}", args.frames, i))
         posed_mb = sum(f.stat().st_size for f in posed.glob("*.arrow")) / 1e6
-        print(f"posed data: {args.scenes} scenes x {args.frames} frames {W}x{H}, {posed_mb:.0f} MB "
-              f"(made in {time.perf_counter() - t0:.1f} s)")
+        print(
+            f"posed data: {args.scenes} scenes x {args.frames} frames {W}x{H}, {posed_mb:.0f} MB "
+            f"(made in {time.perf_counter() - t0:.1f} s)"
+        )
         resize = tuple(int(x) for x in args.resize.lower().split("x")) if args.resize else None
-        cfg = BuildConfig(inputs=(str(posed),), out=str(tmp / "seeu"), mode="interp",
-                          sampling=SamplingConfig(mode="interp", gap_min=25, gap_max=45,
-                                                  samples_per_scene=args.samples_per_scene),
-                          image=ImageOptions(resize=resize), shard_bytes=args.shard_size, workers=args.workers)
+        cfg = BuildConfig(
+            inputs=(str(posed),),
+            out=str(tmp / "seeu"),
+            mode="interp",
+            sampling=SamplingConfig(mode="interp", gap_min=25, gap_max=45, samples_per_scene=args.samples_per_scene),
+            image=ImageOptions(resize=resize),
+            shard_bytes=args.shard_size,
+            workers=args.workers,
+        )
         scenes = scan_inputs(cfg.inputs)
         specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
         n = sum(len(s["samples"]) for s in specs)
         est_mb = n * 5 * posed_mb / (args.scenes * args.frames)  # the shards: 5 views per triple
         prefault_mb = int(2 * est_mb) if args.prefault_mb is None else args.prefault_mb
-        print(f"each run starts after touching and freeing {prefault_mb} MB" if prefault_mb else
-              "no prefault: runs pay the hypervisor's cost of fresh memory")
+        print(
+            f"each run starts after touching and freeing {prefault_mb} MB"
+            if prefault_mb
+            else "no prefault: runs pay the hypervisor's cost of fresh memory"
+        )
         names = ("bare", "seeu", "bare+fsync", "seeu+fsync")
         times: dict[str, list[float]] = {k: [] for k in names}
         cpu: dict[str, list[float]] = {k: [] for k in names}
@@ -174,22 +201,31 @@ def main() -> int:
                         digest.update(block)
             hash_times.append(time.perf_counter() - t)
         med = {k: statistics.median(v) for k, v in times.items()}
-        print(f"{n} triples (5 views each) in {len(specs)} shards; median of {args.repeats} interleaved runs; "
-              f"seeu workers {args.workers}"
-              + (f"; seeu resizes to {args.resize}" if resize else ""))
+        print(
+            f"{n} triples (5 views each) in {len(specs)} shards; median of {args.repeats} interleaved runs; "
+            f"seeu workers {args.workers}" + (f"; seeu resizes to {args.resize}" if resize else "")
+        )
         for name in names:
-            print(f"  {name:10s} {n / med[name]:8.0f} triples/s  {sizes[name] / med[name]:8.1f} MB/s written "
-                  f"({sizes[name]:.0f} MB, {med[name]:.2f} s, CPU {statistics.median(cpu[name]):.2f} s; "
-                  f"runs {', '.join(f'{t:.2f}' for t in times[name])})")
+            print(
+                f"  {name:10s} {n / med[name]:8.0f} triples/s  {sizes[name] / med[name]:8.1f} MB/s written "
+                f"({sizes[name]:.0f} MB, {med[name]:.2f} s, CPU {statistics.median(cpu[name]):.2f} s; "
+                f"runs {', '.join(f'{t:.2f}' for t in times[name])})"
+            )
         best = {k: min(v) for k, v in times.items()}
         ratio = med["bare"] / med["seeu"]
-        print(f"ratio seeu/bare (throughput) = {ratio:.2f} median, {best['bare'] / best['seeu']:.2f} best-of-runs  "
-              f"(target >= 0.8{', copy path only' if resize else ''})")
-        print(f"ratio seeu+fsync/bare+fsync = {med['bare+fsync'] / med['seeu+fsync']:.2f} median, "
-              f"{best['bare+fsync'] / best['seeu+fsync']:.2f} best-of-runs  (both fsync every file; for reference)")
-        print(f"sha256 of seeu's shards alone (read from the page cache and hashed): {min(hash_times):.2f} s "
-              f"({sizes['seeu'] / 1e3 / min(hash_times):.2f} GB/s) -- the bare copy does not hash; "
-              f"ratio seeu / (bare copy then sha256 of its output) = {(med['bare'] + min(hash_times)) / med['seeu']:.2f}")
+        print(
+            f"ratio seeu/bare (throughput) = {ratio:.2f} median, {best['bare'] / best['seeu']:.2f} best-of-runs  "
+            f"(target >= 0.8{', copy path only' if resize else ''})"
+        )
+        print(
+            f"ratio seeu+fsync/bare+fsync = {med['bare+fsync'] / med['seeu+fsync']:.2f} median, "
+            f"{best['bare+fsync'] / best['seeu+fsync']:.2f} best-of-runs  (both fsync every file; for reference)"
+        )
+        print(
+            f"sha256 of seeu's shards alone (read from the page cache and hashed): {min(hash_times):.2f} s "
+            f"({sizes['seeu'] / 1e3 / min(hash_times):.2f} GB/s) -- the bare copy does not hash; "
+            f"ratio seeu / (bare copy then sha256 of its output) = {(med['bare'] + min(hash_times)) / med['seeu']:.2f}"
+        )
         print(f"machine load average: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores")
     finally:
         shutil.rmtree(tmp, ignore_errors=True)

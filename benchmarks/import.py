@@ -73,10 +73,15 @@ def make_dataset(root: Path, chunks: int, chunk_mb: float, frames_per_scene: int
             w2c[:, 11] = np.linspace(0, 3, n)
             cams = np.concatenate([np.tile([0.86, 1.53, 0.5, 0.5, 0, 0], (n, 1)), w2c], 1)
             images = [torch.tensor(pool[(scene + i) % len(pool)]) for i in range(n)]
-            chunk.append({"url": f"https://www.youtube.com/watch?v={scene:011d}",
-                          "timestamps": torch.arange(n, dtype=torch.int64) * 33_366,
-                          "cameras": torch.tensor(cams, dtype=torch.float32), "images": images,
-                          "key": f"{scene:016x}"})
+            chunk.append(
+                {
+                    "url": f"https://www.youtube.com/watch?v={scene:011d}",
+                    "timestamps": torch.arange(n, dtype=torch.int64) * 33_366,
+                    "cameras": torch.tensor(cams, dtype=torch.float32),
+                    "images": images,
+                    "key": f"{scene:016x}",
+                }
+            )
             size += sum(int(t.numel()) for t in images)
             frames += n
             scene += 1
@@ -152,8 +157,17 @@ def child(mode: str, data: Path, out: Path, prefault_mb: int) -> None:
         write_import(ps.import_plan(cfg), out, ImportReport("pixelsplat"), params={}, provenance={})
         seconds = time.perf_counter() - t0
     peak = _rss_mb("VmHWM:")
-    print(json.dumps({"seconds": seconds, "cpu_s": time.process_time() - c0, "imports_s": t_imports,
-                      "maxrss_mb": peak, "growth_mb": peak - base_rss_mb}))
+    print(
+        json.dumps(
+            {
+                "seconds": seconds,
+                "cpu_s": time.process_time() - c0,
+                "imports_s": t_imports,
+                "maxrss_mb": peak,
+                "growth_mb": peak - base_rss_mb,
+            }
+        )
+    )
 
 
 def _rss_mb(field: str = "VmRSS:") -> float:
@@ -174,9 +188,24 @@ def _reset_peak_rss() -> None:
 
 def run_child(mode: str, data: Path, out: Path, prefault_mb: int) -> dict:
     os.sync()  # untimed: the previous child's dirty pages reach the disk first, so no run pays for another's write-back
-    res = subprocess.run([sys.executable, __file__, "--child", mode, "--data", str(data), "--out", str(out),
-                          "--prefault-mb", str(prefault_mb)],
-                         capture_output=True, text=True, cwd=ROOT, check=True)
+    res = subprocess.run(
+        [
+            sys.executable,
+            __file__,
+            "--child",
+            mode,
+            "--data",
+            str(data),
+            "--out",
+            str(out),
+            "--prefault-mb",
+            str(prefault_mb),
+        ],
+        capture_output=True,
+        text=True,
+        cwd=ROOT,
+        check=True,
+    )
     return json.loads(res.stdout.strip().splitlines()[-1])
 
 
@@ -188,9 +217,13 @@ def main() -> None:
     ap.add_argument("--child", choices=["load", "read", "write", "write_fsync", "sha256", "import", "import_fsync"])
     ap.add_argument("--data", type=Path)
     ap.add_argument("--out", type=Path)
-    ap.add_argument("--prefault-mb", type=int, default=None,
-                    help="MB of memory each child touches and frees before its timed part (default: 2x the "
-                         "dataset; 0: off, to see the hypervisor's cost of fresh memory)")
+    ap.add_argument(
+        "--prefault-mb",
+        type=int,
+        default=None,
+        help="MB of memory each child touches and frees before its timed part (default: 2x the "
+        "dataset; 0: off, to see the hypervisor's cost of fresh memory)",
+    )
     args = ap.parse_args()
     if args.child:
         sys.path.insert(0, str(ROOT))
@@ -201,41 +234,61 @@ def main() -> None:
         nbytes, frames = make_dataset(tmp / "chunks", args.chunks, args.chunk_mb)
         print(f"dataset: {args.chunks} chunks, {nbytes / 1e6:.1f} MB of JPEG, {frames} frames (360x640)")
         prefault = 2 * int(nbytes / 2**20) if args.prefault_mb is None else args.prefault_mb
-        print(f"each child touches and frees {prefault} MB before its timed part" if prefault else
-              "no prefault: children pay the hypervisor's cost of fresh memory (VMs with free page reporting)")
+        print(
+            f"each child touches and frees {prefault} MB before its timed part"
+            if prefault
+            else "no prefault: children pay the hypervisor's cost of fresh memory (VMs with free page reporting)"
+        )
         run_child("load", tmp / "chunks", tmp / "warm", prefault)  # warm the page cache for both
         modes = ("load", "read", "write", "write_fsync", "sha256", "import", "import_fsync")
         runs: dict[str, list[dict]] = {m: [] for m in modes}
         for r in range(args.repeats):
-            for mode in (modes if r % 2 == 0 else modes[::-1]):  # interleaved, alternating order
+            for mode in modes if r % 2 == 0 else modes[::-1]:  # interleaved, alternating order
                 out = tmp / f"{mode}{r}"
                 runs[mode].append(run_child(mode, tmp / "chunks", out, prefault))
                 shutil.rmtree(out, ignore_errors=True)
         t = {m: statistics.median(x["seconds"] for x in runs[m]) for m in modes}
         c = {m: statistics.median(x["cpu_s"] for x in runs[m]) for m in modes}
-        names = {"load": "torch.load alone", "read": "import, input side only", "write": "write bytes alone",
-                 "sha256": "sha256 of the bytes alone",
-                 "write_fsync": "write+fsync bytes", "import": "seeu import pixelsplat",
-                 "import_fsync": "seeu import --fsync"}
+        names = {
+            "load": "torch.load alone",
+            "read": "import, input side only",
+            "write": "write bytes alone",
+            "sha256": "sha256 of the bytes alone",
+            "write_fsync": "write+fsync bytes",
+            "import": "seeu import pixelsplat",
+            "import_fsync": "seeu import --fsync",
+        }
         for m in modes:
-            print(f"{names[m]:24s} {t[m]:7.3f} s  {nbytes / 1e6 / t[m]:8.1f} MB/s  {frames / t[m]:8.0f} frames/s  "
-                  f"CPU {c[m]:6.3f} s  peak RSS {max(x['maxrss_mb'] for x in runs[m]):6.0f} MB "
-                  f"(+{max(x['growth_mb'] for x in runs[m]):5.1f} MB over the libraries)  "
-                  "runs " + ", ".join(f"{x['seconds']:.3f}" for x in runs[m]))
+            print(
+                f"{names[m]:24s} {t[m]:7.3f} s  {nbytes / 1e6 / t[m]:8.1f} MB/s  {frames / t[m]:8.0f} frames/s  "
+                f"CPU {c[m]:6.3f} s  peak RSS {max(x['maxrss_mb'] for x in runs[m]):6.0f} MB "
+                f"(+{max(x['growth_mb'] for x in runs[m]):5.1f} MB over the libraries)  "
+                "runs " + ", ".join(f"{x['seconds']:.3f}" for x in runs[m])
+            )
         print(f"library imports per child: {statistics.median(x['imports_s'] for x in runs['import']):.2f} s (untimed)")
         print(f"ratio input side / torch.load: {t['load'] / t['read']:.2f}x (reading, converting, probing images)")
-        print(f"ratio write alone / torch.load: {t['load'] / t['write']:.2f}x; write+fsync / torch.load: "
-              f"{t['load'] / t['write_fsync']:.2f}x")
+        print(
+            f"ratio write alone / torch.load: {t['load'] / t['write']:.2f}x; write+fsync / torch.load: "
+            f"{t['load'] / t['write_fsync']:.2f}x"
+        )
         best = {m: min(x["seconds"] for x in runs[m]) for m in modes}
-        print(f"ratio import / torch.load throughput (wall, median of {args.repeats}): {t['load'] / t['import']:.2f}x "
-              f"(target >= 0.8x), best-of-runs {best['load'] / best['import']:.2f}x; CPU-time ratio "
-              f"{c['load'] / c['import']:.2f}x; largest chunk {args.chunk_mb:.0f} MB")
-        print(f"the manifest's sha256 alone takes {t['sha256']:.3f} s ({t['load'] / t['sha256']:.2f}x torch.load): the "
-              f"import's floor is about max(input side + writes, sha256) on 2 free cores")
-        print(f"ratio import --fsync / torch.load: {t['load'] / t['import_fsync']:.2f}x (for reference; "
-              f"import --fsync / write+fsync alone: {t['write_fsync'] / t['import_fsync']:.2f}x)")
-        print(f"machine load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
-              f"(contended runs understate both, the import's threads more)")
+        print(
+            f"ratio import / torch.load throughput (wall, median of {args.repeats}): {t['load'] / t['import']:.2f}x "
+            f"(target >= 0.8x), best-of-runs {best['load'] / best['import']:.2f}x; CPU-time ratio "
+            f"{c['load'] / c['import']:.2f}x; largest chunk {args.chunk_mb:.0f} MB"
+        )
+        print(
+            f"the manifest's sha256 alone takes {t['sha256']:.3f} s ({t['load'] / t['sha256']:.2f}x torch.load): the "
+            f"import's floor is about max(input side + writes, sha256) on 2 free cores"
+        )
+        print(
+            f"ratio import --fsync / torch.load: {t['load'] / t['import_fsync']:.2f}x (for reference; "
+            f"import --fsync / write+fsync alone: {t['write_fsync'] / t['import_fsync']:.2f}x)"
+        )
+        print(
+            f"machine load average during the run: {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores "
+            f"(contended runs understate both, the import's threads more)"
+        )
 
 
 if __name__ == "__main__":

@@ -30,8 +30,15 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
-def bare_pycolmap(image_dir: Path, names: list[str], work: Path, camera_model: str, overlap: int,
-                  max_features: int, min_model_size: int) -> tuple[float, int, dict]:
+def bare_pycolmap(
+    image_dir: Path,
+    names: list[str],
+    work: Path,
+    camera_model: str,
+    overlap: int,
+    max_features: int,
+    min_model_size: int,
+) -> tuple[float, int, dict]:
     """extract -> match -> map with pycolmap directly; returns (seconds, registered, per-call seconds)."""
     import pycolmap
 
@@ -45,8 +52,14 @@ def bare_pycolmap(image_dir: Path, names: list[str], work: Path, camera_model: s
     reader.camera_model = camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = max_features
-    pycolmap.extract_features(db, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, extraction_options=extraction)
+    pycolmap.extract_features(
+        db,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+    )
     t["extract"] = time.perf_counter() - t0
     t1 = time.perf_counter()
     pairing = pycolmap.SequentialPairingOptions()
@@ -106,14 +119,23 @@ def main() -> int:
         report = ingest_scene(source, args.out / "posed", cfg, force=True, progress=False)
         seeu_wall.append(time.perf_counter() - t0)
         seeu_cpu.append(_cpu_s() - c0)
-        print(f"seeu ingest run: {seeu_wall[-1]:.1f} s wall, {seeu_cpu[-1]:.1f} s CPU | {report['summary']}", flush=True)
+        print(
+            f"seeu ingest run: {seeu_wall[-1]:.1f} s wall, {seeu_cpu[-1]:.1f} s CPU | {report['summary']}", flush=True
+        )
 
     def run_bare():
         nonlocal calls, reg_bare
         names = sorted(p.name for p in frames_dir.iterdir())
         c0 = _cpu_s()
-        t, reg_bare, calls = bare_pycolmap(frames_dir, names, args.out / "bare", args.camera_model, cfg.overlap,
-                                           cfg.max_features, max(3, min(cfg.min_chunk_frames, 10)))
+        t, reg_bare, calls = bare_pycolmap(
+            frames_dir,
+            names,
+            args.out / "bare",
+            args.camera_model,
+            cfg.overlap,
+            cfg.max_features,
+            max(3, min(cfg.min_chunk_frames, 10)),
+        )
         bare_wall.append(t)
         bare_cpu.append(_cpu_s() - c0)
         print(f"bare pycolmap run: {t:.1f} s wall, {bare_cpu[-1]:.1f} s CPU", flush=True)
@@ -121,7 +143,7 @@ def main() -> int:
     run_seeu()  # first: it decodes the frames the bare calls then read
     run_bare()
     for i in range(1, args.repeats):  # then alternate the order, so drifting machine load hits both
-        for fn in ((run_bare, run_seeu) if i % 2 else (run_seeu, run_bare)):
+        for fn in (run_bare, run_seeu) if i % 2 else (run_seeu, run_bare):
             fn()
     n = report["frames_selected"]
     t_seeu, t_bare = min(seeu_wall), min(bare_wall)
@@ -129,43 +151,75 @@ def main() -> int:
     cpu_overhead = min(seeu_cpu) / min(bare_cpu) - 1.0
     print()
     print(f"frames: {n} selected of {report['frames_decoded']} decoded; best of {args.repeats} run(s) each")
-    print(f"seeu ingest   : {t_seeu:7.1f} s  {n / t_seeu:6.2f} frames/s  CPU {min(seeu_cpu):6.1f} s  (stages: "
-          + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items() if k != "total")
-          + "; sfm child: " + ", ".join(f"{k} {v:.1f}" for k, v in report["sfm"]["timings_s"].items()) + ")")
-    print(f"bare pycolmap : {t_bare:7.1f} s  {n / t_bare:6.2f} frames/s  CPU {min(bare_cpu):6.1f} s  (extract "
-          f"{calls['extract']:.1f}, match {calls['match']:.1f}, map {calls['map']:.1f}; {reg_bare}/{n} registered)")
-    print(f"overhead      : wall {100 * overhead:+.1f} % (seeu / bare = {t_seeu / t_bare:.3f}; target <= +10 %), "
-          f"CPU time {100 * cpu_overhead:+.1f} %")
+    print(
+        f"seeu ingest   : {t_seeu:7.1f} s  {n / t_seeu:6.2f} frames/s  CPU {min(seeu_cpu):6.1f} s  (stages: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in report["timings_s"].items() if k != "total")
+        + "; sfm child: "
+        + ", ".join(f"{k} {v:.1f}" for k, v in report["sfm"]["timings_s"].items())
+        + ")"
+    )
+    print(
+        f"bare pycolmap : {t_bare:7.1f} s  {n / t_bare:6.2f} frames/s  CPU {min(bare_cpu):6.1f} s  (extract "
+        f"{calls['extract']:.1f}, match {calls['match']:.1f}, map {calls['map']:.1f}; {reg_bare}/{n} registered)"
+    )
+    print(
+        f"overhead      : wall {100 * overhead:+.1f} % (seeu / bare = {t_seeu / t_bare:.3f}; target <= +10 %), "
+        f"CPU time {100 * cpu_overhead:+.1f} %"
+    )
     # Load-independent view of the same thing: the time seeu spends outside the three COLMAP calls
     # (decode, child start-up, database checks, undistortion/export, chunks, Arrow write, report, plot).
     inside = sum(report["sfm"]["timings_s"][k] for k in ("extract_s", "match_s", "map_s"))
     outside = report["timings_s"]["total"] - inside
-    print(f"outside COLMAP: {outside:.1f} s = {100 * outside / inside:.1f} % of the extract+match+map time in the same "
-          f"(last) seeu run")
+    print(
+        f"outside COLMAP: {outside:.1f} s = {100 * outside / inside:.1f} % of the extract+match+map time in the same "
+        f"(last) seeu run"
+    )
 
     gt = report.get("ground_truth", {})
     best = max(gt.get("chunks", []), key=lambda c: c["num_frames"], default=None)
     reg_pct = 100.0 * report["registered"] / n
     checks = [("registered", reg_pct, ">=", 95.0, "%")]
     if best is not None:
-        checks += [("centre RMSE / path length", best["centre_rmse_pct_path"], "<=", 0.5, "%"),
-                   ("rel. rotation error (mean)", best["rel_rot_err_mean_deg"], "<=", 0.2, "deg"),
-                   ("focal length error", best["focal_err_pct"], "<=", 1.0, "%")]
-    print(f"accuracy vs ground truth ({len(gt.get('chunks', []))} chunk(s); largest: "
-          f"{best['num_frames'] if best else 0} frames, path {best['path_length'] if best else 0:.2f} m):")
+        checks += [
+            ("centre RMSE / path length", best["centre_rmse_pct_path"], "<=", 0.5, "%"),
+            ("rel. rotation error (mean)", best["rel_rot_err_mean_deg"], "<=", 0.2, "deg"),
+            ("focal length error", best["focal_err_pct"], "<=", 1.0, "%"),
+        ]
+    print(
+        f"accuracy vs ground truth ({len(gt.get('chunks', []))} chunk(s); largest: "
+        f"{best['num_frames'] if best else 0} frames, path {best['path_length'] if best else 0:.2f} m):"
+    )
     ok = True
     for name, value, op, target, unit in checks:
         good = value >= target if op == ">=" else value <= target
         ok &= good
         print(f"  {name:28s} {value:8.3f} {unit:3s} (target {op} {target}) {'PASS' if good else 'FAIL'}")
     if best is not None:
-        print(f"  (max rel. rotation error {best['rel_rot_err_max_deg']:.3f} deg, centre RMSE {best['centre_rmse'] * 1000:.1f} mm)")
-    (args.out / "result.json").write_text(json.dumps({
-        "frames": n, "outside_colmap_s": outside, "seeu_s": t_seeu, "bare_s": t_bare, "overhead": overhead, "cpu_overhead": cpu_overhead,
-        "seeu_wall_s": seeu_wall, "bare_wall_s": bare_wall, "seeu_cpu_s": seeu_cpu, "bare_cpu_s": bare_cpu,
-        "bare_calls_s": calls,
-        "seeu_timings_s": report["timings_s"], "sfm_timings_s": report["sfm"]["timings_s"],
-        "accuracy": best, "registered_pct": reg_pct}, indent=1))
+        print(
+            f"  (max rel. rotation error {best['rel_rot_err_max_deg']:.3f} deg, centre RMSE {best['centre_rmse'] * 1000:.1f} mm)"
+        )
+    (args.out / "result.json").write_text(
+        json.dumps(
+            {
+                "frames": n,
+                "outside_colmap_s": outside,
+                "seeu_s": t_seeu,
+                "bare_s": t_bare,
+                "overhead": overhead,
+                "cpu_overhead": cpu_overhead,
+                "seeu_wall_s": seeu_wall,
+                "bare_wall_s": bare_wall,
+                "seeu_cpu_s": seeu_cpu,
+                "bare_cpu_s": bare_cpu,
+                "bare_calls_s": calls,
+                "seeu_timings_s": report["timings_s"],
+                "sfm_timings_s": report["sfm"]["timings_s"],
+                "accuracy": best,
+                "registered_pct": reg_pct,
+            },
+            indent=1,
+        )
+    )
     print("note: wall times depend on machine load; re-measure on a quiet machine.")
     return 0 if ok else 1
 

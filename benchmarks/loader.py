@@ -58,6 +58,7 @@ VIEWS, CONTEXT = 5, 2
 
 # ------------------------------------------------------------------------------------------ data
 
+
 def photo_like_frames(n: int, seed: int = 0) -> list[bytes]:
     """`n` distinct 360x640 JPEGs with photo-like statistics (smooth shading, edges, texture, noise)."""
     rng = np.random.default_rng(seed)
@@ -68,8 +69,13 @@ def photo_like_frames(n: int, seed: int = 0) -> list[bytes]:
         img = low + mid
         for _ in range(12):  # hard edges
             x0, y0 = rng.integers(0, W - 40), rng.integers(0, H - 40)
-            cv2.rectangle(img, (int(x0), int(y0)), (int(x0 + rng.integers(20, 200)), int(y0 + rng.integers(20, 150))),
-                          rng.uniform(0, 255, 3).tolist(), -1)
+            cv2.rectangle(
+                img,
+                (int(x0), int(y0)),
+                (int(x0 + rng.integers(20, 200)), int(y0 + rng.integers(20, 150))),
+                rng.uniform(0, 255, 3).tolist(),
+                -1,
+            )
         img = cv2.GaussianBlur(img, (3, 3), 0) + rng.normal(0, 3, img.shape)
         ok, buf = cv2.imencode(".jpg", np.clip(img, 0, 255).astype(np.uint8), [cv2.IMWRITE_JPEG_QUALITY, 90])
         out.append(buf.tobytes())
@@ -101,17 +107,38 @@ def write_seeu_shards(shards: Path, triples: list[list[bytes]], shard_rows: int 
     entries = []
     samples = len(triples)
     for k, start in enumerate(range(0, samples, shard_rows)):
-        rows = [{"sample_id": f"scene{i}/interp/0", "scene_id": f"scene{i}", "mode": "interp", "num_context": CONTEXT,
-                 "frame_index": list(range(VIEWS)), "source_frame": list(range(VIEWS)), "image": triples[i],
-                 "image_format": "jpeg", "width": [W] * VIEWS, "height": [H] * VIEWS,
-                 "intrinsics_norm": [intr] * VIEWS, "cam_to_world": [p.reshape(-1).tolist() for p in poses],
-                 "near": [1.0] * VIEWS, "far": [100.0] * VIEWS, "gap": VIEWS - 1, "target_offset": [0] * (VIEWS - CONTEXT)}
-                for i in range(start, min(samples, start + shard_rows))]
+        rows = [
+            {
+                "sample_id": f"scene{i}/interp/0",
+                "scene_id": f"scene{i}",
+                "mode": "interp",
+                "num_context": CONTEXT,
+                "frame_index": list(range(VIEWS)),
+                "source_frame": list(range(VIEWS)),
+                "image": triples[i],
+                "image_format": "jpeg",
+                "width": [W] * VIEWS,
+                "height": [H] * VIEWS,
+                "intrinsics_norm": [intr] * VIEWS,
+                "cam_to_world": [p.reshape(-1).tolist() for p in poses],
+                "near": [1.0] * VIEWS,
+                "far": [100.0] * VIEWS,
+                "gap": VIEWS - 1,
+                "target_offset": [0] * (VIEWS - CONTEXT),
+            }
+            for i in range(start, min(samples, start + shard_rows))
+        ]
         path = shards / f"shard-{k:05d}.arrow"
         write_table(path, pa.Table.from_pylist(rows, schema=schema), max_chunksize=16)
         entries.append(FileEntry.for_file(shards, path, len(rows)))
-    write_manifest(shards, "seeu.triples", schema_version("seeu.triples"), entries, params={"benchmark": True},
-                   provenance=provenance("benchmarks/loader.py"))
+    write_manifest(
+        shards,
+        "seeu.triples",
+        schema_version("seeu.triples"),
+        entries,
+        params={"benchmark": True},
+        provenance=provenance("benchmarks/loader.py"),
+    )
     return shards
 
 
@@ -123,9 +150,16 @@ def write_pixelsplat_chunks(chunks: Path, triples: list[list[bytes]], shard_rows
     cams = torch.tensor(np.stack([np.concatenate([intr, [0, 0], m]) for m in w2c]), dtype=torch.float32)
     samples = len(triples)
     for k, start in enumerate(range(0, samples, shard_rows)):
-        examples = [{"url": f"https://example.com/{i}", "timestamps": torch.arange(VIEWS, dtype=torch.int64) * 33_000,
-                     "cameras": cams.clone(), "images": [torch.frombuffer(bytearray(b), dtype=torch.uint8) for b in triples[i]],
-                     "key": f"scene{i}"} for i in range(start, min(samples, start + shard_rows))]
+        examples = [
+            {
+                "url": f"https://example.com/{i}",
+                "timestamps": torch.arange(VIEWS, dtype=torch.int64) * 33_000,
+                "cameras": cams.clone(),
+                "images": [torch.frombuffer(bytearray(b), dtype=torch.uint8) for b in triples[i]],
+                "key": f"scene{i}",
+            }
+            for i in range(start, min(samples, start + shard_rows))
+        ]
         torch.save(examples, chunks / f"{k:06d}.torch")
     return chunks
 
@@ -138,6 +172,7 @@ def make_data(root: Path, samples: int, shard_rows: int = 60) -> tuple[Path, Pat
 
 
 # -------------------------------------------------------------------------------- peer loaders
+
 
 class PixelSplatStyle(IterableDataset):
     """The peers' RE10K dataset path: torch.load chunks, PIL decode, Lanczos rescale, centre crop."""
@@ -159,7 +194,7 @@ class PixelSplatStyle(IterableDataset):
             out.append(torch.tensor(np.array(pil) / 255, dtype=torch.float32).permute(2, 0, 1))
         scaled = torch.stack(out)
         r0, c0 = (h_s - shape[0]) // 2, (w_s - shape[1]) // 2
-        return scaled[:, :, r0:r0 + shape[0], c0:c0 + shape[1]]
+        return scaled[:, :, r0 : r0 + shape[0], c0 : c0 + shape[1]]
 
     def __iter__(self):
         from PIL import Image
@@ -167,7 +202,7 @@ class PixelSplatStyle(IterableDataset):
 
         to_tensor = ToTensor()
         info = get_worker_info()
-        chunks = self.chunks if info is None else self.chunks[info.id::info.num_workers]
+        chunks = self.chunks if info is None else self.chunks[info.id :: info.num_workers]
         for path in chunks:
             for ex in torch.load(path, weights_only=True):
                 images = torch.stack([to_tensor(Image.open(io.BytesIO(im.numpy().tobytes()))) for im in ex["images"]])
@@ -176,8 +211,11 @@ class PixelSplatStyle(IterableDataset):
                 w2c[:, :3] = cams[:, 6:].reshape(-1, 3, 4)
                 c2w = w2c.inverse()
                 images = self._rescale_crop(images, OUT)
-                yield {"context": {"image": images[:CONTEXT], "extrinsics": c2w[:CONTEXT]},
-                       "target": {"image": images[CONTEXT:], "extrinsics": c2w[CONTEXT:]}, "scene": ex["key"]}
+                yield {
+                    "context": {"image": images[:CONTEXT], "extrinsics": c2w[:CONTEXT]},
+                    "target": {"image": images[CONTEXT:], "extrinsics": c2w[CONTEXT:]},
+                    "scene": ex["key"],
+                }
 
 
 class RawDecode(IterableDataset):
@@ -195,7 +233,7 @@ class RawDecode(IterableDataset):
             if j % k != w:
                 continue
             n = 0
-            for views in self.triples[start:start + self.batch]:
+            for views in self.triples[start : start + self.batch]:
                 for b in views:
                     img = cv2.imdecode(np.frombuffer(b, np.uint8), cv2.IMREAD_COLOR)
                     if self.resize:
@@ -212,8 +250,9 @@ def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, tri
     elif name == "pixelsplat":
         loader = DataLoader(PixelSplatStyle(chunks), batch_size=batch, num_workers=workers)
     else:
-        loader = DataLoader(RawDecode(triples, batch, resize=name == "raw+resize"), batch_size=None,
-                            num_workers=workers)
+        loader = DataLoader(
+            RawDecode(triples, batch, resize=name == "raw+resize"), batch_size=None, num_workers=workers
+        )
     t0 = time.perf_counter()
     n = 0
     for b in loader:
@@ -231,8 +270,12 @@ def main() -> int:
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[1, 2])
-    ap.add_argument("--variants", nargs="+", default=None,
-                    help="measure only these (of seeu, seeu-float32, pixelsplat, raw, raw+resize); for quick checks")
+    ap.add_argument(
+        "--variants",
+        nargs="+",
+        default=None,
+        help="measure only these (of seeu, seeu-float32, pixelsplat, raw, raw+resize); for quick checks",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--write", action="store_true", help="write the loader section of benchmarks/RESULTS.md")
     args = ap.parse_args()
@@ -242,14 +285,19 @@ def main() -> int:
         root = Path(tmp)
         shards, chunks, triples = make_data(root, args.samples)
         kb = np.mean([len(b) for t in triples for b in t]) / 1024
-        print(f"data: {args.samples} triples x {VIEWS} views of {H}x{W} JPEG (mean {kb:.0f} KB) -> {OUT[0]}x{OUT[1]}, "
-              f"batch {args.batch}; {args.repeats} interleaved repeats, median")
+        print(
+            f"data: {args.samples} triples x {VIEWS} views of {H}x{W} JPEG (mean {kb:.0f} KB) -> {OUT[0]}x{OUT[1]}, "
+            f"batch {args.batch}; {args.repeats} interleaved repeats, median"
+        )
         cache = root / "cache"
         list(make_loader(shards, 64, image_hw=(8, 8), cache_dir=str(cache)))  # sha256 stamps + page cache
         results = {}
-        lines = ["## Streaming loader (2 context + 3 targets, 360x640 JPEG -> 256x256, batch 4)", "",
-                 f"- machine: {os.cpu_count()} CPUs, torch {torch.__version__}, OpenCV {cv2.__version__}; "
-                 f"{args.samples} triples, median of {args.repeats} interleaved runs (samples/s)"]
+        lines = [
+            "## Streaming loader (2 context + 3 targets, 360x640 JPEG -> 256x256, batch 4)",
+            "",
+            f"- machine: {os.cpu_count()} CPUs, torch {torch.__version__}, OpenCV {cv2.__version__}; "
+            f"{args.samples} triples, median of {args.repeats} interleaved runs (samples/s)",
+        ]
         for workers in args.workers:
             runs = {"seeu": [], "seeu-float32": [], "pixelsplat": [], "raw": [], "raw+resize": []}
             if args.variants:
@@ -259,23 +307,39 @@ def main() -> int:
                     runs[name].append(measure(name, workers, args.batch, shards, chunks, triples, cache))
             med = {k: statistics.median(v) for k, v in runs.items()}
             if args.variants:  # a quick partial check: the figures, and each against raw decode if measured
-                print(f"workers={workers}: samples/s  " + ", ".join(
-                    f"{k} {m:.1f}" + (f" ({100 * m / med['raw']:.0f} % of raw)" if "raw" in med else "")
-                    for k, m in med.items()) + "   runs: " + json.dumps({k: [round(x) for x in v] for k, v in runs.items()}))
+                print(
+                    f"workers={workers}: samples/s  "
+                    + ", ".join(
+                        f"{k} {m:.1f}" + (f" ({100 * m / med['raw']:.0f} % of raw)" if "raw" in med else "")
+                        for k, m in med.items()
+                    )
+                    + "   runs: "
+                    + json.dumps({k: [round(x) for x in v] for k, v in runs.items()})
+                )
                 continue
-            results[workers] = {**med, "seeu/pixelsplat": med["seeu"] / med["pixelsplat"],
-                                "seeu/raw": med["seeu"] / med["raw"], "seeu-float32/raw": med["seeu-float32"] / med["raw"],
-                                "runs": runs}
-            print(f"workers={workers}: samples/s  seeu {med['seeu']:.1f} (float32 out: {med['seeu-float32']:.1f}) | "
-                  f"pixelsplat-style {med['pixelsplat']:.1f} | raw decode {med['raw']:.1f} "
-                  f"(decode+resize {med['raw+resize']:.1f})")
-            print(f"    seeu/pixelsplat {med['seeu'] / med['pixelsplat']:.2f}x (target >= 2); seeu/raw decode "
-                  f"{100 * med['seeu'] / med['raw']:.0f} % (float32 out {100 * med['seeu-float32'] / med['raw']:.0f} %; "
-                  f"target >= 70 %); seeu/(decode+resize) {100 * med['seeu'] / med['raw+resize']:.0f} %")
-            lines.append(f"- workers={workers}: seeu {med['seeu']:.1f} (float32 out {med['seeu-float32']:.1f}), "
-                         f"pixelSplat-style {med['pixelsplat']:.1f}, raw decode {med['raw']:.1f}, decode+resize "
-                         f"{med['raw+resize']:.1f}; seeu/pixelSplat {med['seeu'] / med['pixelsplat']:.2f}x, "
-                         f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (float32 {100 * med['seeu-float32'] / med['raw']:.0f} %)")
+            results[workers] = {
+                **med,
+                "seeu/pixelsplat": med["seeu"] / med["pixelsplat"],
+                "seeu/raw": med["seeu"] / med["raw"],
+                "seeu-float32/raw": med["seeu-float32"] / med["raw"],
+                "runs": runs,
+            }
+            print(
+                f"workers={workers}: samples/s  seeu {med['seeu']:.1f} (float32 out: {med['seeu-float32']:.1f}) | "
+                f"pixelsplat-style {med['pixelsplat']:.1f} | raw decode {med['raw']:.1f} "
+                f"(decode+resize {med['raw+resize']:.1f})"
+            )
+            print(
+                f"    seeu/pixelsplat {med['seeu'] / med['pixelsplat']:.2f}x (target >= 2); seeu/raw decode "
+                f"{100 * med['seeu'] / med['raw']:.0f} % (float32 out {100 * med['seeu-float32'] / med['raw']:.0f} %; "
+                f"target >= 70 %); seeu/(decode+resize) {100 * med['seeu'] / med['raw+resize']:.0f} %"
+            )
+            lines.append(
+                f"- workers={workers}: seeu {med['seeu']:.1f} (float32 out {med['seeu-float32']:.1f}), "
+                f"pixelSplat-style {med['pixelsplat']:.1f}, raw decode {med['raw']:.1f}, decode+resize "
+                f"{med['raw+resize']:.1f}; seeu/pixelSplat {med['seeu'] / med['pixelsplat']:.2f}x, "
+                f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (float32 {100 * med['seeu-float32'] / med['raw']:.0f} %)"
+            )
         if args.write:
             write_section("loader", "\n".join(lines))
         if args.json:

@@ -47,14 +47,19 @@ def make_batch(b: int, v: int, t: int, size: int, device) -> dict:
         c2w[:, i, :3, :3] = torch.tensor([[math.cos(a), 0, math.sin(a)], [0, 1, 0], [-math.sin(a), 0, math.cos(a)]])
         c2w[:, i, 0, 3] = -0.5 + i / (n - 1)
     intr = intrinsics_norm_matrix(torch.tensor([0.9, 0.9, 0.5, 0.5])).expand(b, n, 3, 3).clone()
-    img = F.interpolate(torch.rand(b * n, 3, size // 8, size // 8), size=(size, size), mode="bilinear",
-                        align_corners=False).reshape(b, n, 3, size, size)
+    img = F.interpolate(
+        torch.rand(b * n, 3, size // 8, size // 8), size=(size, size), mode="bilinear", align_corners=False
+    ).reshape(b, n, 3, size, size)
 
     def views(sl):
         k = len(range(n)[sl])
-        return {"image": img[:, sl].to(device), "cam_to_world": c2w[:, sl].to(device),
-                "intrinsics": intr[:, sl].to(device), "near": torch.ones(b, k, device=device),
-                "far": torch.full((b, k), 100.0, device=device)}
+        return {
+            "image": img[:, sl].to(device),
+            "cam_to_world": c2w[:, sl].to(device),
+            "intrinsics": intr[:, sl].to(device),
+            "near": torch.ones(b, k, device=device),
+            "far": torch.full((b, k), 100.0, device=device),
+        }
 
     return {"context": views(slice(0, v)), "target": views(slice(v, n))}
 
@@ -95,10 +100,18 @@ def bench_inference(model: SeeU, batch: dict, device, repeats: int, warmup: int,
         CPU_SECONDS.clear()
         ren = timed(lambda: model.render(state["g"], batch["target"], size, backend=backend), device, repeats)
         ren_cpu = statistics.median(CPU_SECONDS)
-        tot = timed(lambda: model.render(model.encode(batch["context"]), batch["target"], size, backend=backend),
-                    device, repeats)
-    res = {"encode_s": statistics.median(enc), "render3_s": statistics.median(ren), "total_s": statistics.median(tot),
-           "encode_cpu_s": enc_cpu, "render3_cpu_s": ren_cpu}
+        tot = timed(
+            lambda: model.render(model.encode(batch["context"]), batch["target"], size, backend=backend),
+            device,
+            repeats,
+        )
+    res = {
+        "encode_s": statistics.median(enc),
+        "render3_s": statistics.median(ren),
+        "total_s": statistics.median(tot),
+        "encode_cpu_s": enc_cpu,
+        "render3_cpu_s": ren_cpu,
+    }
     if device.type == "cuda":
         res["peak_mem_gib"] = torch.cuda.max_memory_allocated() / 2**30
     return res
@@ -156,43 +169,60 @@ def main() -> int:
     backend = "auto"
 
     batch = make_batch(1, args.views, args.targets, args.size, device)
-    lines = [f"## SeeU model ({args.preset}, {args.views} x {args.size}^2, {args.targets} targets)", "",
-             f"- machine: {platform.processor() or platform.machine()}, "
-             + (torch.cuda.get_device_name() if device.type == "cuda" else f"CPU, {args.threads} threads")
-             + f", torch {torch.__version__}",
-             f"- parameters: {trainable / 1e6:.2f} M trainable, {frozen / 1e6:.2f} M frozen (MVSplat: 12.0 M)"]
+    lines = [
+        f"## SeeU model ({args.preset}, {args.views} x {args.size}^2, {args.targets} targets)",
+        "",
+        f"- machine: {platform.processor() or platform.machine()}, "
+        + (torch.cuda.get_device_name() if device.type == "cuda" else f"CPU, {args.threads} threads")
+        + f", torch {torch.__version__}",
+        f"- parameters: {trainable / 1e6:.2f} M trainable, {frozen / 1e6:.2f} M frozen (MVSplat: 12.0 M)",
+    ]
     if device.type == "cpu" and args.no_render:
         with torch.no_grad():
             model.encode(batch["context"])
             CPU_SECONDS.clear()
             enc = timed(lambda: model.encode(batch["context"]), device, args.repeats)
         res = {"encode_s": statistics.median(enc), "encode_cpu_s": statistics.median(CPU_SECONDS)}
-        lines.append(f"- CPU encode (median of {args.repeats}): {res['encode_s']:.2f} s wall, "
-                     f"{res['encode_cpu_s']:.2f} s CPU time")
+        lines.append(
+            f"- CPU encode (median of {args.repeats}): {res['encode_s']:.2f} s wall, "
+            f"{res['encode_cpu_s']:.2f} s CPU time"
+        )
     else:
         res = bench_inference(model, batch, device, args.repeats, args.warmup, backend)
         where = "GPU" if device.type == "cuda" else "CPU"
-        lines.append(f"- {where} inference (median of {args.repeats} after {args.warmup} warm-up): encode "
-                     f"{res['encode_s']:.3f} s, 3 target renders {res['render3_s']:.3f} s, together "
-                     f"{res['total_s']:.3f} s (paper: "
-                     + (f"MVSplat {MVSPLAT_LATENCY_S} s, SeeU {PAPER_LATENCY_S} s" if args.preset == "mvsplat"
-                        else f"{PAPER_LATENCY_S} s") + " on an H800)")
+        lines.append(
+            f"- {where} inference (median of {args.repeats} after {args.warmup} warm-up): encode "
+            f"{res['encode_s']:.3f} s, 3 target renders {res['render3_s']:.3f} s, together "
+            f"{res['total_s']:.3f} s (paper: "
+            + (
+                f"MVSplat {MVSPLAT_LATENCY_S} s, SeeU {PAPER_LATENCY_S} s"
+                if args.preset == "mvsplat"
+                else f"{PAPER_LATENCY_S} s"
+            )
+            + " on an H800)"
+        )
         if device.type == "cpu":
-            lines.append(f"- CPU time (all threads): encode {res['encode_cpu_s']:.2f} s, 3 target renders "
-                         f"{res['render3_cpu_s']:.2f} s (wall on a busy shared machine overstates; "
-                         f"CPU time / threads is the idle-machine estimate)")
+            lines.append(
+                f"- CPU time (all threads): encode {res['encode_cpu_s']:.2f} s, 3 target renders "
+                f"{res['render3_cpu_s']:.2f} s (wall on a busy shared machine overstates; "
+                f"CPU time / threads is the idle-machine estimate)"
+            )
         if "peak_mem_gib" in res:
             lines.append(f"- inference peak allocated memory: {res['peak_mem_gib']:.2f} GiB")
     if device.type == "cpu":
         preset = "" if args.preset == "paper" else f" --preset {args.preset}"
-        lines.append("- GPU latency / peak memory / bf16 training step at batch 8: run "
-                     f"`benchmarks/model.py{preset} --cuda --write` on a CUDA machine (not measured on this CPU run)")
+        lines.append(
+            "- GPU latency / peak memory / bf16 training step at batch 8: run "
+            f"`benchmarks/model.py{preset} --cuda --write` on a CUDA machine (not measured on this CPU run)"
+        )
     if device.type == "cuda":
         tb = make_batch(args.train_batch, args.views, args.targets, args.size, device)
         tr = bench_train_step(model, tb, device, args.repeats, backend)
         res.update(tr)
-        lines.append(f"- training step, batch {args.train_batch}, bf16 autocast, AdamW, MSE (no LPIPS): "
-                     f"{tr['train_step_s']:.3f} s, peak {tr['train_peak_mem_gib']:.2f} GiB")
+        lines.append(
+            f"- training step, batch {args.train_batch}, bf16 autocast, AdamW, MSE (no LPIPS): "
+            f"{tr['train_step_s']:.3f} s, peak {tr['train_peak_mem_gib']:.2f} GiB"
+        )
     text = "\n".join(lines)
     print(text)
     print(json.dumps(res))

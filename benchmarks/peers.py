@@ -68,11 +68,16 @@ from seeu_data.loader.shard_reader import RawSample  # noqa: E402
 from seeu_data.loader.transforms import transform_sample  # noqa: E402
 
 SHARD_ROWS = 60
-S3_ENV = {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing", "AWS_DEFAULT_REGION": "us-east-1",
-          "AWS_EC2_METADATA_DISABLED": "true"}
+S3_ENV = {
+    "AWS_ACCESS_KEY_ID": "testing",
+    "AWS_SECRET_ACCESS_KEY": "testing",
+    "AWS_DEFAULT_REGION": "us-east-1",
+    "AWS_EC2_METADATA_DISABLED": "true",
+}
 
 
 # ------------------------------------------------------------------------------------ litdata side
+
 
 class LitItem:
     """`optimize()`'s fn: one row of the data set as a LitData item (a picklable callable)."""
@@ -83,22 +88,41 @@ class LitItem:
         self.intr = np.array([INTRINSICS] * VIEWS, dtype=np.float64)  # (V, 4)
 
     def __call__(self, i: int) -> dict:
-        return {"index": i, **{f"img{v}": b for v, b in enumerate(self.triples[i])},
-                "intrinsics_norm": self.intr, "cam_to_world": self.c2w,
-                "near": np.ones(VIEWS, np.float32), "far": np.full(VIEWS, 100.0, np.float32)}
+        return {
+            "index": i,
+            **{f"img{v}": b for v, b in enumerate(self.triples[i])},
+            "intrinsics_norm": self.intr,
+            "cam_to_world": self.c2w,
+            "near": np.ones(VIEWS, np.float32),
+            "far": np.full(VIEWS, 100.0, np.float32),
+        }
 
 
 def lit_transform(item: dict) -> dict:
     """A LitData item -> images (V, 3, 256, 256) uint8 + cameras, by the seeu loader's own decode/resize."""
-    raw = RawSample(sample_id=str(item["index"]), scene_id="", num_context=CONTEXT,
-                    images=[np.frombuffer(item[f"img{v}"], np.uint8) for v in range(VIEWS)],
-                    width=np.full(VIEWS, W), height=np.full(VIEWS, H), intrinsics_norm=item["intrinsics_norm"],
-                    cam_to_world=item["cam_to_world"], near=item["near"], far=item["far"],
-                    frame_index=np.arange(VIEWS), gap=VIEWS - 1)
+    raw = RawSample(
+        sample_id=str(item["index"]),
+        scene_id="",
+        num_context=CONTEXT,
+        images=[np.frombuffer(item[f"img{v}"], np.uint8) for v in range(VIEWS)],
+        width=np.full(VIEWS, W),
+        height=np.full(VIEWS, H),
+        intrinsics_norm=item["intrinsics_norm"],
+        cam_to_world=item["cam_to_world"],
+        near=item["near"],
+        far=item["far"],
+        frame_index=np.arange(VIEWS),
+        gap=VIEWS - 1,
+    )
     s = transform_sample(raw, OUT, where="litdata")
-    return {"index": item["index"], "images": torch.from_numpy(s.images),
-            "intrinsics_norm": torch.from_numpy(s.intrinsics_norm), "cam_to_world": torch.from_numpy(s.cam_to_world),
-            "near": torch.from_numpy(s.near), "far": torch.from_numpy(s.far)}
+    return {
+        "index": item["index"],
+        "images": torch.from_numpy(s.images),
+        "intrinsics_norm": torch.from_numpy(s.intrinsics_norm),
+        "cam_to_world": torch.from_numpy(s.cam_to_world),
+        "near": torch.from_numpy(s.near),
+        "far": torch.from_numpy(s.far),
+    }
 
 
 def build_litdata(out: Path, triples: list[list[bytes]]) -> None:
@@ -106,12 +130,22 @@ def build_litdata(out: Path, triples: list[list[bytes]]) -> None:
 
     # optimize() stages chunks under $TMPDIR/chunks unless told otherwise: keep its scratch beside `out`.
     scratch = out.parent / f".{out.name}-scratch"
-    env = {"DATA_OPTIMIZER_CACHE_FOLDER": str(scratch / "chunks"), "DATA_OPTIMIZER_DATA_CACHE_FOLDER": str(scratch / "data")}
+    env = {
+        "DATA_OPTIMIZER_CACHE_FOLDER": str(scratch / "chunks"),
+        "DATA_OPTIMIZER_DATA_CACHE_FOLDER": str(scratch / "data"),
+    }
     saved = {k: os.environ.get(k) for k in env}
     os.environ.update(env)
     try:
-        optimize(fn=LitItem(triples), inputs=list(range(len(triples))), output_dir=str(out), chunk_size=SHARD_ROWS,
-                 num_workers=1, start_method="fork", verbose=False)
+        optimize(
+            fn=LitItem(triples),
+            inputs=list(range(len(triples))),
+            output_dir=str(out),
+            chunk_size=SHARD_ROWS,
+            num_workers=1,
+            start_method="fork",
+            verbose=False,
+        )
     finally:
         for k, v in saved.items():
             os.environ.pop(k) if v is None else os.environ.__setitem__(k, v)
@@ -137,12 +171,14 @@ def lit_loader(url: str, workers: int, batch: int, cache: Path, storage_options:
 
     if storage_options and storage_options.get("endpoint_url", "").startswith("http://"):
         allow_plain_http_in_litdata()
-    ds = StreamingDataset(url, cache_dir=str(cache), shuffle=True, seed=0, transform=lit_transform,
-                          storage_options=storage_options or {})
+    ds = StreamingDataset(
+        url, cache_dir=str(cache), shuffle=True, seed=0, transform=lit_transform, storage_options=storage_options or {}
+    )
     return StreamingDataLoader(ds, batch_size=batch, num_workers=workers)
 
 
 # ------------------------------------------------------------------------------------ measuring
+
 
 def _tree(pid: int) -> list[int]:
     """pid and its descendants (from /proc/<pid>/task/*/children)."""
@@ -201,8 +237,9 @@ class PeakMemory:
 def ids_of(name: str, batch: dict) -> list[int]:
     """The row numbers of the samples of a batch (padding left out)."""
     if name == "seeu":
-        return [int(s.removeprefix("scene").split("/")[0]) for s, p in zip(batch["sample_id"], batch["is_padding"])
-                if not p]
+        return [
+            int(s.removeprefix("scene").split("/")[0]) for s, p in zip(batch["sample_id"], batch["is_padding"]) if not p
+        ]
     return [int(i) for i in batch["index"]]
 
 
@@ -235,13 +272,14 @@ def cpu_seconds() -> float:
     return t.user + t.system + t.children_user + t.children_system
 
 
-def one_pass(name: str, where: dict, workers: int, batch: int, cache: Path, samples: int,
-             memory: set[int] | None = None) -> dict:
+def one_pass(
+    name: str, where: dict, workers: int, batch: int, cache: Path, samples: int, memory: set[int] | None = None
+) -> dict:
     """A full epoch: samples/s, time to first batch, CPU ms per sample of the process tree; checks that
     every sample came exactly once. `memory`: sample the peak memory, these pids left out (costly:
     reading smaps_rollup about doubles the CPU per sample, so throughput passes run without it)."""
     seen: list[int] = []
-    with (PeakMemory(memory) if memory is not None else _NoSampling()) as mem:
+    with PeakMemory(memory) if memory is not None else _NoSampling() as mem:
         c0 = cpu_seconds()
         t0 = time.perf_counter()
         first = None
@@ -281,8 +319,17 @@ def in_child(fn, *args, **kwargs):
     return value
 
 
-def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int, stop_after: int,
-                  workers_before: int, workers_after: int, edit_state=None) -> dict:
+def resume_counts(
+    name: str,
+    where: dict,
+    batch: int,
+    cache: Path,
+    samples: int,
+    stop_after: int,
+    workers_before: int,
+    workers_after: int,
+    edit_state=None,
+) -> dict:
     """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses,
     and whether the epoch came in the order of an uninterrupted one (with `workers_before`).
 
@@ -303,19 +350,26 @@ def resume_counts(name: str, where: dict, batch: int, cache: Path, samples: int,
     after = [i for b in resumed for i in ids_of(name, b)]
     got = seen + after
     uninterrupted = [i for b in make(name, where, workers_before, batch, cache) for i in ids_of(name, b)]
-    return {"before": len(seen), "after": len(after), "duplicates": len(got) - len(set(got)),
-            "losses": samples - len(set(got) & set(range(samples))), "same_order": got == uninterrupted}
+    return {
+        "before": len(seen),
+        "after": len(after),
+        "duplicates": len(got) - len(set(got)),
+        "losses": samples - len(set(got) & set(range(samples))),
+        "same_order": got == uninterrupted,
+    }
 
 
 # ------------------------------------------------------------------------------------ S3 (moto)
+
 
 def start_moto() -> tuple[subprocess.Popen, str]:
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     exe = Path(sys.executable).with_name("moto_server")
-    proc = subprocess.Popen([str(exe), "-H", "127.0.0.1", "-p", str(port)], stdout=subprocess.DEVNULL,
-                            stderr=subprocess.DEVNULL)
+    proc = subprocess.Popen(
+        [str(exe), "-H", "127.0.0.1", "-p", str(port)], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL
+    )
     endpoint = f"http://127.0.0.1:{port}"
     import boto3
 
@@ -344,6 +398,7 @@ def upload(endpoint: str, local: Path, bucket: str, prefix: str) -> None:
 
 # ------------------------------------------------------------------------------------ main
 
+
 def du(path: Path) -> int:
     return sum(p.stat().st_size for p in path.rglob("*") if p.is_file())
 
@@ -359,8 +414,13 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2])
     ap.add_argument("--no-s3", action="store_true", help="local disk only")
-    ap.add_argument("--stop-after", type=int, nargs="+", default=[7, 37],
-                    help="resume test: batches before the stop (one test each)")
+    ap.add_argument(
+        "--stop-after",
+        type=int,
+        nargs="+",
+        default=[7, 37],
+        help="resume test: batches before the stop (one test each)",
+    )
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--write", action="store_true", help="write the peers section of benchmarks/RESULTS.md")
     args = ap.parse_args()
@@ -376,10 +436,12 @@ def main() -> int:
         root = Path(tmp)
         triples = make_triples(args.samples)
         kb = np.mean([len(b) for t in triples for b in t]) / 1024
-        print(f"data: {args.samples} triples x {VIEWS} views of {H}x{W} JPEG (mean {kb:.0f} KB) -> {OUT[0]}x{OUT[1]}, "
-              f"batch {args.batch}; {args.repeats} interleaved repeats, median")
+        print(
+            f"data: {args.samples} triples x {VIEWS} views of {H}x{W} JPEG (mean {kb:.0f} KB) -> {OUT[0]}x{OUT[1]}, "
+            f"batch {args.batch}; {args.repeats} interleaved repeats, median"
+        )
         write_seeu_shards(root / "warm-seeu", triples[:2], SHARD_ROWS)  # imports (pyarrow's pandas, ...) paid
-        build_litdata(root / "warm-litdata", triples[:2])                # before the timed builds
+        build_litdata(root / "warm-litdata", triples[:2])  # before the timed builds
         t = time.perf_counter()
         write_seeu_shards(root / "seeu", triples, SHARD_ROWS)
         build = {"seeu": time.perf_counter() - t}
@@ -388,8 +450,10 @@ def main() -> int:
         build["litdata"] = time.perf_counter() - t
         disk = {"seeu": du(root / "seeu"), "litdata": du(root / "litdata")}
         raw = sum(len(b) for tr in triples for b in tr)
-        print(f"build: seeu {build['seeu']:.2f} s, {disk['seeu'] / 1e6:.2f} MB | litdata {build['litdata']:.2f} s, "
-              f"{disk['litdata'] / 1e6:.2f} MB (JPEG bytes {raw / 1e6:.2f} MB)")
+        print(
+            f"build: seeu {build['seeu']:.2f} s, {disk['seeu'] / 1e6:.2f} MB | litdata {build['litdata']:.2f} s, "
+            f"{disk['litdata'] / 1e6:.2f} MB (JPEG bytes {raw / 1e6:.2f} MB)"
+        )
         storages = {"local": {"seeu": str(root / "seeu"), "litdata": str(root / "litdata")}}
         exclude: set[int] = set()
         if not args.no_s3:
@@ -398,9 +462,11 @@ def main() -> int:
             upload(endpoint, root / "seeu", "bench", "seeu")
             upload(endpoint, root / "litdata", "bench", "litdata")
             host = endpoint.split("://")[1]
-            storages["s3"] = {"seeu": f"s3://bench/seeu?endpoint_override={host}&scheme=http&region=us-east-1",
-                              "litdata": "s3://bench/litdata",
-                              "storage_options": {"endpoint_url": endpoint, "region_name": "us-east-1"}}
+            storages["s3"] = {
+                "seeu": f"s3://bench/seeu?endpoint_override={host}&scheme=http&region=us-east-1",
+                "litdata": "s3://bench/litdata",
+                "storage_options": {"endpoint_url": endpoint, "region_name": "us-east-1"},
+            }
         try:
             warm = root / "cache-warm"  # local: sha256 stamps + page cache, for both
             for name in ("seeu", "litdata"):
@@ -409,7 +475,7 @@ def main() -> int:
             for r in range(args.repeats):
                 for storage, where in storages.items():
                     for workers in args.workers:
-                        for name in (("seeu", "litdata") if r % 2 == 0 else ("litdata", "seeu")):
+                        for name in ("seeu", "litdata") if r % 2 == 0 else ("litdata", "seeu"):
                             cache = warm if storage == "local" else root / f"cache-{name}-{storage}-{workers}-{r}"
                             res = in_child(one_pass, name, where, workers, args.batch, cache, args.samples)
                             runs.setdefault((storage, workers, name), []).append(res)
@@ -421,8 +487,9 @@ def main() -> int:
                 for workers in args.workers:
                     for name in ("seeu", "litdata"):
                         cache = warm if storage == "local" else root / f"cache-{name}-{storage}-{workers}-mem"
-                        peak[(storage, workers, name)] = in_child(one_pass, name, where, workers, args.batch, cache,
-                                                                  args.samples, memory=exclude)
+                        peak[(storage, workers, name)] = in_child(
+                            one_pass, name, where, workers, args.batch, cache, args.samples, memory=exclude
+                        )
                         if storage != "local":
                             shutil.rmtree(cache, ignore_errors=True)
             resume = {}
@@ -431,9 +498,12 @@ def main() -> int:
                     for name in ("seeu", "litdata"):
                         try:
                             resume[(name, stop, before, after)] = resume_counts(
-                                name, storages["local"], args.batch, warm, args.samples, stop, before, after)
+                                name, storages["local"], args.batch, warm, args.samples, stop, before, after
+                            )
                         except Exception as exc:  # noqa: BLE001 - a peer's failure is a result to record
-                            resume[(name, stop, before, after)] = {"error": f"{type(exc).__name__}: {exc}".splitlines()[0]}
+                            resume[(name, stop, before, after)] = {
+                                "error": f"{type(exc).__name__}: {exc}".splitlines()[0]
+                            }
         finally:
             if moto is not None:
                 moto.terminate()
@@ -443,66 +513,99 @@ def main() -> int:
     med = {k: {m: statistics.median(x[m] for x in v) for m in v[0]} for k, v in runs.items()}
     for k, v in med.items():
         v["rss"], v["pss"] = peak[k]["rss"], peak[k]["pss"]
-    lines = [f"## Streaming loader vs LitData (`benchmarks/peers.py --repeats {args.repeats}`): the same "
-             f"{args.samples} triples x {VIEWS} views, 360x640 JPEG ({kb:.0f} KB) -> 256x256, batch {args.batch}", "",
-             f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine: {os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), "
-             f"torch {torch.__version__}, OpenCV {cv2.__version__}, litdata {litdata.__version__}; "
-             f"load average (1/5/15 min) {load_before} before, {load_after} after "
-             "(a shared machine: compare the ratios, measured interleaved under the same load)",
-             f"- both: shuffled (seed 0), the same decode + bilinear cover resize/crop (`transform_sample`), uint8 out; "
-             f"samples/s of one full pass (median of {args.repeats}; the ratio is the median of the ratios of the "
-             "pairs run back to back; each pass in a fresh forked process), CPU time per sample of the process "
-             "tree (user + system), time to first batch, peak memory of the process tree in a separate pass "
-             "(sum of RSS; PSS counts pages shared by forked workers once); S3 = a local moto server on the "
-             "same machine, cold cache (an empty cache directory per pass)",
-             f"- build: seeu {build['seeu']:.2f} s, {disk['seeu'] / 1e6:.2f} MB on disk; litdata `optimize()` "
-             f"(1 worker) {build['litdata']:.2f} s, {disk['litdata'] / 1e6:.2f} MB (the JPEGs: {raw / 1e6:.2f} MB)", "",
-             "| storage | workers | seeu samples/s | litdata samples/s | seeu/litdata (paired) | CPU ms/sample (seeu / litdata) "
-             "| first batch s (seeu / litdata) | peak RSS MB (seeu / litdata) | peak PSS MB (seeu / litdata) |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    print(f"\n{'storage':8} {'workers':>7} {'seeu/s':>8} {'lit/s':>8} {'ratio':>6} {'first(s/l)':>12} "
-          f"{'RSS MB (s/l)':>14} {'PSS MB (s/l)':>14} {'CPU ms/sample (s/l)':>20}")
+    lines = [
+        f"## Streaming loader vs LitData (`benchmarks/peers.py --repeats {args.repeats}`): the same "
+        f"{args.samples} triples x {VIEWS} views, 360x640 JPEG ({kb:.0f} KB) -> 256x256, batch {args.batch}",
+        "",
+        f"- {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, machine: {os.cpu_count()} CPUs ({platform.processor() or platform.machine()}), "
+        f"torch {torch.__version__}, OpenCV {cv2.__version__}, litdata {litdata.__version__}; "
+        f"load average (1/5/15 min) {load_before} before, {load_after} after "
+        "(a shared machine: compare the ratios, measured interleaved under the same load)",
+        f"- both: shuffled (seed 0), the same decode + bilinear cover resize/crop (`transform_sample`), uint8 out; "
+        f"samples/s of one full pass (median of {args.repeats}; the ratio is the median of the ratios of the "
+        "pairs run back to back; each pass in a fresh forked process), CPU time per sample of the process "
+        "tree (user + system), time to first batch, peak memory of the process tree in a separate pass "
+        "(sum of RSS; PSS counts pages shared by forked workers once); S3 = a local moto server on the "
+        "same machine, cold cache (an empty cache directory per pass)",
+        f"- build: seeu {build['seeu']:.2f} s, {disk['seeu'] / 1e6:.2f} MB on disk; litdata `optimize()` "
+        f"(1 worker) {build['litdata']:.2f} s, {disk['litdata'] / 1e6:.2f} MB (the JPEGs: {raw / 1e6:.2f} MB)",
+        "",
+        "| storage | workers | seeu samples/s | litdata samples/s | seeu/litdata (paired) | CPU ms/sample (seeu / litdata) "
+        "| first batch s (seeu / litdata) | peak RSS MB (seeu / litdata) | peak PSS MB (seeu / litdata) |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    print(
+        f"\n{'storage':8} {'workers':>7} {'seeu/s':>8} {'lit/s':>8} {'ratio':>6} {'first(s/l)':>12} "
+        f"{'RSS MB (s/l)':>14} {'PSS MB (s/l)':>14} {'CPU ms/sample (s/l)':>20}"
+    )
     ratios = {}
     for storage in storages:
         for workers in args.workers:
             s, li = med[(storage, workers, "seeu")], med[(storage, workers, "litdata")]
             # the median of the ratios of the pairs run back to back (the load drifts between repeats)
-            ratio = statistics.median(a["samples_s"] / b["samples_s"] for a, b in
-                                      zip(runs[(storage, workers, "seeu")], runs[(storage, workers, "litdata")]))
+            ratio = statistics.median(
+                a["samples_s"] / b["samples_s"]
+                for a, b in zip(runs[(storage, workers, "seeu")], runs[(storage, workers, "litdata")])
+            )
             ratios[(storage, workers)] = ratio
-            print(f"{storage:8} {workers:7d} {s['samples_s']:8.1f} {li['samples_s']:8.1f} {ratio:5.2f}x "
-                  f"{s['first_s']:5.2f}/{li['first_s']:5.2f} {s['rss'] / 2**20:6.0f}/{li['rss'] / 2**20:6.0f} "
-                  f"{s['pss'] / 2**20:6.0f}/{li['pss'] / 2**20:6.0f} {s['cpu_ms']:9.1f}/{li['cpu_ms']:5.1f}")
-            lines.append(f"| {storage} | {workers} | {s['samples_s']:.1f} | {li['samples_s']:.1f} | {ratio:.2f}x | "
-                         f"{s['cpu_ms']:.1f} / {li['cpu_ms']:.1f} | "
-                         f"{s['first_s']:.2f} / {li['first_s']:.2f} | {s['rss'] / 2**20:.0f} / {li['rss'] / 2**20:.0f} | "
-                         f"{s['pss'] / 2**20:.0f} / {li['pss'] / 2**20:.0f} |")
+            print(
+                f"{storage:8} {workers:7d} {s['samples_s']:8.1f} {li['samples_s']:8.1f} {ratio:5.2f}x "
+                f"{s['first_s']:5.2f}/{li['first_s']:5.2f} {s['rss'] / 2**20:6.0f}/{li['rss'] / 2**20:6.0f} "
+                f"{s['pss'] / 2**20:6.0f}/{li['pss'] / 2**20:6.0f} {s['cpu_ms']:9.1f}/{li['cpu_ms']:5.1f}"
+            )
+            lines.append(
+                f"| {storage} | {workers} | {s['samples_s']:.1f} | {li['samples_s']:.1f} | {ratio:.2f}x | "
+                f"{s['cpu_ms']:.1f} / {li['cpu_ms']:.1f} | "
+                f"{s['first_s']:.2f} / {li['first_s']:.2f} | {s['rss'] / 2**20:.0f} / {li['rss'] / 2**20:.0f} | "
+                f"{s['pss'] / 2**20:.0f} / {li['pss'] / 2**20:.0f} |"
+            )
     targets = []
     if ("local", 2) in ratios:
         targets.append(f"local, 2 workers: {ratios[('local', 2)]:.2f}x (target >= 1.5)")
     if ("s3", 2) in ratios:
         targets.append(f"S3, 2 workers: {ratios[('s3', 2)]:.2f}x (target >= 1.0)")
     print("seeu/litdata samples/s: " + "; ".join(targets))
-    lines.insert(next(i for i, x in enumerate(lines) if x.startswith("- build")) + 1,
-                 "- seeu/litdata samples/s: " + "; ".join(targets))
-    lines += ["", "Resume (local disk): stop after k batches, `state_dict()` through JSON, a new loader with another "
-              "number of workers resumes the epoch; samples seen twice (duplicates) and never (losses):", ""]
-    lines += ["| loader | stop after k batches | workers before -> after | samples before + after | duplicates | losses "
-              "| order = uninterrupted epoch's |", "|---|---|---|---|---|---|---|"]
+    lines.insert(
+        next(i for i, x in enumerate(lines) if x.startswith("- build")) + 1,
+        "- seeu/litdata samples/s: " + "; ".join(targets),
+    )
+    lines += [
+        "",
+        "Resume (local disk): stop after k batches, `state_dict()` through JSON, a new loader with another "
+        "number of workers resumes the epoch; samples seen twice (duplicates) and never (losses):",
+        "",
+    ]
+    lines += [
+        "| loader | stop after k batches | workers before -> after | samples before + after | duplicates | losses "
+        "| order = uninterrupted epoch's |",
+        "|---|---|---|---|---|---|---|",
+    ]
     print("\nresume (stop, save, resume with other workers): samples before + after, duplicates, losses, same order")
     for (name, stop, before, after), r in resume.items():
-        text = (f"{r['before']} + {r['after']} | {r['duplicates']} | {r['losses']} | {'yes' if r['same_order'] else 'no'}"
-                if "error" not in r else f"fails: {r['error']} | - | - | -")
+        text = (
+            f"{r['before']} + {r['after']} | {r['duplicates']} | {r['losses']} | {'yes' if r['same_order'] else 'no'}"
+            if "error" not in r
+            else f"fails: {r['error']} | - | - | -"
+        )
         print(f"  {name:8} k={stop} {before} -> {after} workers: " + text.replace(" | ", ", "))
         lines.append(f"| {name} | {stop} | {before} -> {after} | {text} |")
     print(f"load average after: {load_after}")
     if args.write:
         write_section("peers", "\n".join(lines))
     if args.json:
-        args.json.write_text(json.dumps({"build_s": build, "disk_bytes": disk, "load": [load_before, load_after],
-                                         "runs": {"/".join(map(str, k)): v for k, v in runs.items()},
-                                         "peak_memory": {"/".join(map(str, k)): v for k, v in peak.items()},
-                                         "resume": {"/".join(map(str, k)): v for k, v in resume.items()}}, indent=1))
+        args.json.write_text(
+            json.dumps(
+                {
+                    "build_s": build,
+                    "disk_bytes": disk,
+                    "load": [load_before, load_after],
+                    "runs": {"/".join(map(str, k)): v for k, v in runs.items()},
+                    "peak_memory": {"/".join(map(str, k)): v for k, v in peak.items()},
+                    "resume": {"/".join(map(str, k)): v for k, v in resume.items()},
+                },
+                indent=1,
+            )
+        )
     return 0
 
 

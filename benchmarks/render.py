@@ -31,7 +31,6 @@ from seeu_model.gaussians import Gaussians  # noqa: E402
 from seeu_model.rasterizer import rasterize  # noqa: E402
 
 
-
 def pixel_aligned_scene(size: int, views: int = 2, seed: int = 0):
     """`size`^2 Gaussians centred on the pixel centres of view 0 at depth ~2, 1 px sigma there."""
     gen = torch.Generator().manual_seed(seed)
@@ -73,8 +72,9 @@ def _rss_mib() -> float:
         return int(fh.read().split()[1]) * os.sysconf("SC_PAGE_SIZE") / 2**20
 
 
-def _measure_worker(backend: str, size: int, repeats: int, tile_size: int | None, device: str, threads: int,
-                    queue) -> None:
+def _measure_worker(
+    backend: str, size: int, repeats: int, tile_size: int | None, device: str, threads: int, queue
+) -> None:
     torch.set_num_threads(threads)
     g, c2w, k = pixel_aligned_scene(size)
     g, c2w, k = g.map(lambda t: t.to(device)), c2w.to(device), k.to(device)
@@ -90,8 +90,9 @@ def _measure_worker(backend: str, size: int, repeats: int, tile_size: int | None
     queue.put((statistics.median(r[0] for r in runs), statistics.median(r[1] for r in runs), peak))
 
 
-def measure(backend: str, size: int, repeats: int, tile_size: int | None, device: str = "cpu",
-            threads: int = 2) -> tuple[float, float, float]:
+def measure(
+    backend: str, size: int, repeats: int, tile_size: int | None, device: str = "cpu", threads: int = 2
+) -> tuple[float, float, float]:
     """(median wall s, median CPU s, peak memory MiB above the scene) in a fresh process, so peaks do not mix."""
     ctx = mp.get_context("spawn")
     queue = ctx.Queue()
@@ -114,23 +115,31 @@ def main() -> None:
     # glibc otherwise raises its mmap threshold after the first freed chunk buffer and keeps later ones
     # on the heap, where fragmentation inflates peak RSS several-fold (the dense 128^2 run: 17 GiB vs 0.4)
     os.environ.setdefault("MALLOC_MMAP_THRESHOLD_", str(1 << 20))  # read by the spawned workers at start
-    print(f"torch {torch.__version__}, {args.threads} threads, float32, 2 views, tile {args.tile_size or 'default'}; "
-          "times are median wall (CPU) seconds of forward+backward; memory is peak RSS above the scene "
-          f"(MALLOC_MMAP_THRESHOLD_={os.environ['MALLOC_MMAP_THRESHOLD_']})")
+    print(
+        f"torch {torch.__version__}, {args.threads} threads, float32, 2 views, tile {args.tile_size or 'default'}; "
+        "times are median wall (CPU) seconds of forward+backward; memory is peak RSS above the scene "
+        f"(MALLOC_MMAP_THRESHOLD_={os.environ['MALLOC_MMAP_THRESHOLD_']})"
+    )
     for size in args.sizes:
         wall, cpu, mem = measure("torch", size, args.repeats, args.tile_size, threads=args.threads)
         line = f"{size}^2 Gaussians @ {size}^2: tiled {wall:.3f} s ({cpu:.3f} s CPU), {mem:.0f} MiB"
         if not args.no_dense:
-            d_wall, d_cpu, d_mem = measure("dense", size, args.repeats if size <= 64 else 1, args.tile_size,
-                                           threads=args.threads)
-            line += (f"; dense {d_wall:.3f} s ({d_cpu:.3f} s CPU), {d_mem:.0f} MiB; "
-                     f"dense/tiled = {d_wall / wall:.1f}x wall, {d_cpu / cpu:.1f}x CPU")
+            d_wall, d_cpu, d_mem = measure(
+                "dense", size, args.repeats if size <= 64 else 1, args.tile_size, threads=args.threads
+            )
+            line += (
+                f"; dense {d_wall:.3f} s ({d_cpu:.3f} s CPU), {d_mem:.0f} MiB; "
+                f"dense/tiled = {d_wall / wall:.1f}x wall, {d_cpu / cpu:.1f}x CPU"
+            )
         print(line, flush=True)
         if args.cuda:
             t_wall, _, t_mem = measure("torch", size, args.repeats, args.tile_size, "cuda")
             g_wall, _, g_mem = measure("gsplat", size, args.repeats, args.tile_size, "cuda")
-            print(f"  CUDA: torch {t_wall * 1e3:.1f} ms, {t_mem:.0f} MiB; gsplat {g_wall * 1e3:.1f} ms, {g_mem:.0f} MiB; "
-                  f"torch/gsplat = {t_wall / g_wall:.1f}x", flush=True)
+            print(
+                f"  CUDA: torch {t_wall * 1e3:.1f} ms, {t_mem:.0f} MiB; gsplat {g_wall * 1e3:.1f} ms, {g_mem:.0f} MiB; "
+                f"torch/gsplat = {t_wall / g_wall:.1f}x",
+                flush=True,
+            )
 
 
 if __name__ == "__main__":

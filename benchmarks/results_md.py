@@ -13,7 +13,7 @@ def write_section(name: str, text: str, path: Path = RESULTS) -> None:
     old = path.read_text() if path.exists() else "# Benchmark results\n"
     section = f"{begin}\n{text.rstrip()}\n{end}"
     if begin in old and end in old:
-        new = old[: old.index(begin)] + section + old[old.index(end) + len(end):]
+        new = old[: old.index(begin)] + section + old[old.index(end) + len(end) :]
     else:
         new = old.rstrip() + "\n\n" + section + "\n"
     path.write_text(new)

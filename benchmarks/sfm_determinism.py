@@ -80,10 +80,15 @@ def main() -> int:
         reg, rmse = _accuracy(report)
         hashes.append(h)
         goal.append(reg >= 95.0 and rmse <= 0.5)
-        print(f"planar run {r + 1}: {reg:.1f}% registered, centre RMSE {rmse:.3f}% of path, "
-              f"check {report['sfm']['solution_check']['state']}, poses {h}, {secs:.1f} s", flush=True)
-    print(f"identical poses in all {args.runs} runs: {'yes' if len(set(hashes)) == 1 else 'NO'}; "
-          f"accuracy goal met in {sum(goal)}/{args.runs} runs")
+        print(
+            f"planar run {r + 1}: {reg:.1f}% registered, centre RMSE {rmse:.3f}% of path, "
+            f"check {report['sfm']['solution_check']['state']}, poses {h}, {secs:.1f} s",
+            flush=True,
+        )
+    print(
+        f"identical poses in all {args.runs} runs: {'yes' if len(set(hashes)) == 1 else 'NO'}; "
+        f"accuracy goal met in {sum(goal)}/{args.runs} runs"
+    )
 
     print("\nsolution check on single ingests (fires = check failed):")
     rows = []
@@ -95,12 +100,25 @@ def main() -> int:
             check = report["sfm"]["solution_check"]
             reg, rmse = _accuracy(report)
             planar = check["planar_or_panoramic_pairs"] / max(check["verified_pairs"], 1)
-            rows.append({"kind": kind, "seed": seed, "state": check["state"], "planar_pct": 100 * planar,
-                         "disagreement_pct": check["disagreement_pct"], "rmse_pct": rmse, "registered_pct": reg,
-                         "runs": len(report["sfm"]["mapping_attempts"]), "seconds": secs})
-            print(f"  {kind} seed {seed}: check {check['state']}, planar/panoramic pairs {100 * planar:.0f}%, "
-                  f"runs {rows[-1]['runs']}, disagreement {check['disagreement_pct']:.3g}% of path, "
-                  f"vs truth {rmse:.3f}% of path, {reg:.0f}% registered, {secs:.1f} s", flush=True)
+            rows.append(
+                {
+                    "kind": kind,
+                    "seed": seed,
+                    "state": check["state"],
+                    "planar_pct": 100 * planar,
+                    "disagreement_pct": check["disagreement_pct"],
+                    "rmse_pct": rmse,
+                    "registered_pct": reg,
+                    "runs": len(report["sfm"]["mapping_attempts"]),
+                    "seconds": secs,
+                }
+            )
+            print(
+                f"  {kind} seed {seed}: check {check['state']}, planar/panoramic pairs {100 * planar:.0f}%, "
+                f"runs {rows[-1]['runs']}, disagreement {check['disagreement_pct']:.3g}% of path, "
+                f"vs truth {rmse:.3f}% of path, {reg:.0f}% registered, {secs:.1f} s",
+                flush=True,
+            )
     for kind in ("corridor", "planar"):
         fired = sum(r["state"] == "failed" for r in rows if r["kind"] == kind)
         print(f"check fired on {fired}/{args.check_clips} {kind} clips")

@@ -47,39 +47,62 @@ def main() -> int:
 
     a.out.mkdir(parents=True, exist_ok=True)
     train_data, test_data = make_data(a.out, 32, a.size, 2)
-    ov = list(a.overrides) + [f"data.image_size=[{a.size},{a.size}]", f"data.batch_size={a.batch}",
-                              f"optim.max_steps={a.steps}", "log.every=1", f"checkpoint.every={a.steps}",
-                              "loss.lpips_weight=0"]
+    ov = list(a.overrides) + [
+        f"data.image_size=[{a.size},{a.size}]",
+        f"data.batch_size={a.batch}",
+        f"optim.max_steps={a.steps}",
+        "log.every=1",
+        f"checkpoint.every={a.steps}",
+        "loss.lpips_weight=0",
+    ]
     run = a.out / f"run_{int(time.time())}"
     cpu0 = time.process_time()
     res = train(train_data, run, config=a.config, overrides=ov, progress=False)
     cpu_train = time.process_time() - cpu0
-    hist = res["history"][a.warmup_steps:]
+    hist = res["history"][a.warmup_steps :]
     its = len(hist) / sum(1.0 / h["it_per_s"] for h in hist) if hist else float("nan")
     cuda = torch.cuda.is_available()
-    peak_train = (torch.cuda.max_memory_allocated() / 2**20 if cuda
-                  else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024)
-    ev = evaluate(res["checkpoint"], test_data, run / "eval", max_samples=a.eval_samples, lpips=False, warmup=2,
-                  progress=False)
-    report = {"device": res["device"], "torch": torch.__version__, "threads": torch.get_num_threads(),
-              "config": a.config, "overrides": ov, "size": a.size, "batch": a.batch, "steps": res["step"],
-              "train_it_per_s": its, "train_samples_per_s": its * a.batch, "train_cpu_seconds": cpu_train,
-              "train_wall_seconds": res["seconds"], "peak_train_memory_mb": peak_train,
-              "eval": ev["timing"], "gpu": torch.cuda.get_device_name() if cuda else None}
+    peak_train = (
+        torch.cuda.max_memory_allocated() / 2**20 if cuda else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+    )
+    ev = evaluate(
+        res["checkpoint"], test_data, run / "eval", max_samples=a.eval_samples, lpips=False, warmup=2, progress=False
+    )
+    report = {
+        "device": res["device"],
+        "torch": torch.__version__,
+        "threads": torch.get_num_threads(),
+        "config": a.config,
+        "overrides": ov,
+        "size": a.size,
+        "batch": a.batch,
+        "steps": res["step"],
+        "train_it_per_s": its,
+        "train_samples_per_s": its * a.batch,
+        "train_cpu_seconds": cpu_train,
+        "train_wall_seconds": res["seconds"],
+        "peak_train_memory_mb": peak_train,
+        "eval": ev["timing"],
+        "gpu": torch.cuda.get_device_name() if cuda else None,
+    }
     print(json.dumps(report, indent=2))
     if a.write:
         t = ev["timing"]
-        section = "\n".join([
-            "<!-- train:begin -->",
-            f"## Training and evaluation (`benchmarks/train.py`, {Path(a.config).name}, {a.size}^2, batch {a.batch})",
-            "",
-            f"- machine: {platform.machine()}, {report['gpu'] or 'CPU'}, {report['threads']} threads, torch {torch.__version__}",
-            f"- training: {its:.3f} it/s ({its * a.batch:.2f} samples/s) after {a.warmup_steps} warm-up steps, "
-            f"peak memory {peak_train:.0f} MiB ({'CUDA max allocated' if cuda else 'CPU peak RSS'})",
-            f"- evaluation (per sample, after warm-up): encoder {t['encoder_ms']:.1f} ms, renderer {t['renderer_ms']:.1f} ms, "
-            f"peak {t['peak_memory_mb']:.0f} MiB ({t['memory_kind']})",
-            f"- overrides: `{' '.join(a.overrides) or '-'}`",
-            "<!-- train:end -->", ""])
+        section = "\n".join(
+            [
+                "<!-- train:begin -->",
+                f"## Training and evaluation (`benchmarks/train.py`, {Path(a.config).name}, {a.size}^2, batch {a.batch})",
+                "",
+                f"- machine: {platform.machine()}, {report['gpu'] or 'CPU'}, {report['threads']} threads, torch {torch.__version__}",
+                f"- training: {its:.3f} it/s ({its * a.batch:.2f} samples/s) after {a.warmup_steps} warm-up steps, "
+                f"peak memory {peak_train:.0f} MiB ({'CUDA max allocated' if cuda else 'CPU peak RSS'})",
+                f"- evaluation (per sample, after warm-up): encoder {t['encoder_ms']:.1f} ms, renderer {t['renderer_ms']:.1f} ms, "
+                f"peak {t['peak_memory_mb']:.0f} MiB ({t['memory_kind']})",
+                f"- overrides: `{' '.join(a.overrides) or '-'}`",
+                "<!-- train:end -->",
+                "",
+            ]
+        )
         path = ROOT / "benchmarks" / "RESULTS.md"
         text = path.read_text() if path.exists() else "# Benchmark results\n\n"
         if "<!-- train:begin -->" in text:

@@ -40,9 +40,19 @@ def make_data(root: Path, frames: int, size: int, scenes: int) -> tuple[str, str
     for name, src, mode, n in (("train", train_posed, "extrap", 64), ("test", test_posed, "extrap", 8)):
         out = root / f"shards_{name}"
         if not (out / "manifest.json").exists():
-            sampling = SamplingConfig(mode=mode, gap_min=gap[0], gap_max=gap[1], extrap_frames=max(1, frames // 10),
-                                      samples_per_scene=n, interp_ratio=0.5)
-            build(BuildConfig(inputs=(str(src),), out=str(out), mode=mode, sampling=sampling, seed=1 if name == "test" else 0))
+            sampling = SamplingConfig(
+                mode=mode,
+                gap_min=gap[0],
+                gap_max=gap[1],
+                extrap_frames=max(1, frames // 10),
+                samples_per_scene=n,
+                interp_ratio=0.5,
+            )
+            build(
+                BuildConfig(
+                    inputs=(str(src),), out=str(out), mode=mode, sampling=sampling, seed=1 if name == "test" else 0
+                )
+            )
         paths.append(str(out))
     return paths[0], paths[1]
 
@@ -76,16 +86,35 @@ def main() -> int:
     seed_everything(cfg.seed)
     model, _ = build_model(cfg.model)
     t0 = time.perf_counter()
-    init = summarize(evaluate_on_data(model, test_data, tuple(cfg.data.image_size), device="cpu",
-                                      max_samples=a.eval_samples, warmup=0, rasterizer=cfg.rasterizer).records)
+    init = summarize(
+        evaluate_on_data(
+            model,
+            test_data,
+            tuple(cfg.data.image_size),
+            device="cpu",
+            max_samples=a.eval_samples,
+            warmup=0,
+            rasterizer=cfg.rasterizer,
+        ).records
+    )
     run = a.out / "run"
     res = train(train_data, run, config=a.config, overrides=ov, resume=True)
     after = evaluate(res["checkpoint"], test_data, run / "eval", max_samples=a.eval_samples, lpips=False, warmup=1)
-    report = {"config": a.config, "overrides": ov, "steps": res["step"], "train_seconds": res["seconds"],
-              "steps_per_s": res["steps_per_s"], "init_psnr": init["psnr"], "init_ssim": init["ssim"],
-              "trained_psnr": after["metrics"]["psnr"], "trained_ssim": after["metrics"]["ssim"],
-              "gain_db": after["metrics"]["psnr"] - init["psnr"], "eval_timing": after["timing"],
-              "wall_s": time.perf_counter() - t0, "torch_threads": torch.get_num_threads()}
+    report = {
+        "config": a.config,
+        "overrides": ov,
+        "steps": res["step"],
+        "train_seconds": res["seconds"],
+        "steps_per_s": res["steps_per_s"],
+        "init_psnr": init["psnr"],
+        "init_ssim": init["ssim"],
+        "trained_psnr": after["metrics"]["psnr"],
+        "trained_ssim": after["metrics"]["ssim"],
+        "gain_db": after["metrics"]["psnr"] - init["psnr"],
+        "eval_timing": after["timing"],
+        "wall_s": time.perf_counter() - t0,
+        "torch_threads": torch.get_num_threads(),
+    }
     (a.out / "learning.json").write_text(json.dumps(report, indent=2) + "\n")
     print(json.dumps(report, indent=2))
     return 0

@@ -42,10 +42,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data", required=True, help="training shards of the model variants")
     parser.add_argument("--eval", required=True, dest="eval_data", help="evaluation shards (same for every variant)")
     parser.add_argument("--out", required=True)
-    parser.add_argument("--variants", default=",".join(DEFAULT_VARIANTS),
-                        help=f"comma list of {', '.join(MODEL_VARIANTS)} (default {','.join(DEFAULT_VARIANTS)})")
-    parser.add_argument("--ext-data", action="append", default=[], metavar="N=PATH",
-                        help="training shards with extrapolation range N frames (adds variant extN)")
+    parser.add_argument(
+        "--variants",
+        default=",".join(DEFAULT_VARIANTS),
+        help=f"comma list of {', '.join(MODEL_VARIANTS)} (default {','.join(DEFAULT_VARIANTS)})",
+    )
+    parser.add_argument(
+        "--ext-data",
+        action="append",
+        default=[],
+        metavar="N=PATH",
+        help="training shards with extrapolation range N frames (adds variant extN)",
+    )
     parser.add_argument("--posed", default=None, help="posed frames to build the extrapolation-range shards from")
     parser.add_argument("--ext-ranges", default="0,45,90", help="with --posed: ranges to build (default 0,45,90)")
     parser.add_argument("--max-eval-samples", type=int, default=0)
@@ -66,11 +74,22 @@ def run(args: argparse.Namespace) -> int:
             raise SeeUError(f"--ext-data {item!r} is not N=PATH")
         ext[int(n)] = path
     ranges = [int(x) for x in args.ext_ranges.split(",") if x.strip()] if args.posed else []
-    rows = ablate(args.config, args.data, args.eval_data, args.out,
-                  variants=[v.strip() for v in args.variants.split(",") if v.strip()], ext_data=ext,
-                  posed=args.posed, ext_ranges=ranges, overrides=args.overrides,
-                  max_eval_samples=args.max_eval_samples, lpips=not args.no_lpips,
-                  lpips_weights=args.lpips_weights, device=args.device, progress=args.progress)
+    rows = ablate(
+        args.config,
+        args.data,
+        args.eval_data,
+        args.out,
+        variants=[v.strip() for v in args.variants.split(",") if v.strip()],
+        ext_data=ext,
+        posed=args.posed,
+        ext_ranges=ranges,
+        overrides=args.overrides,
+        max_eval_samples=args.max_eval_samples,
+        lpips=not args.no_lpips,
+        lpips_weights=args.lpips_weights,
+        device=args.device,
+        progress=args.progress,
+    )
     print((Path(args.out) / "ablation.md").read_text())
     return 0 if rows else 1
 
@@ -88,7 +107,9 @@ def build_ext_shards(posed: str, out: Path, ranges: list[int], like: str | None 
     base = {}
     if like is not None and (Path(like) / "manifest.json").exists():
         params = json.loads((Path(like) / "manifest.json").read_text()).get("params", {})
-        base = {k: v for k, v in (params.get("sampling") or {}).items() if k in {f.name for f in fields(SamplingConfig)}}
+        base = {
+            k: v for k, v in (params.get("sampling") or {}).items() if k in {f.name for f in fields(SamplingConfig)}
+        }
     base.pop("mode", None)
     base.pop("extrap_frames", None)
     base.pop("interp_ratio", None)
@@ -97,8 +118,10 @@ def build_ext_shards(posed: str, out: Path, ranges: list[int], like: str | None 
         dst = out / f"shards_ext{n}"
         if not (dst / "manifest.json").exists():
             sampling = SamplingConfig(mode="extrap", extrap_frames=n, **base)
-            build(BuildConfig(inputs=(str(posed),), out=str(dst), mode="extrap", sampling=sampling, seed=0),
-                  argv_command="seeu ablate")
+            build(
+                BuildConfig(inputs=(str(posed),), out=str(dst), mode="extrap", sampling=sampling, seed=0),
+                argv_command="seeu ablate",
+            )
         paths[n] = str(dst)
     return paths
 
@@ -115,25 +138,45 @@ def write_table(out: Path, rows: list[dict], budget: dict) -> None:
     for r in rows:
         for m in ("psnr", "ssim", "lpips"):
             r[f"d_{m}"] = (r[m] - ref[m]) if ref and r[m] is not None and ref[m] is not None else None
-    lines = ["# SeeU ablations (equal budgets)", "",
-             f"Budget per variant: {budget['steps']} steps x batch {budget['batch_size']} "
-             f"({budget['steps'] * budget['batch_size']} training samples), lr {budget['lr']}, seed {budget['seed']}; "
-             f"evaluated on `{budget['eval']}` ({rows[0]['num_targets'] if rows else 0} target views).", "",
-             "| Variant | Setup | PSNR↑ | SSIM↑ | LPIPS↓ | ΔPSNR | ΔSSIM | ΔLPIPS | Trainable params | Train s |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "# SeeU ablations (equal budgets)",
+        "",
+        f"Budget per variant: {budget['steps']} steps x batch {budget['batch_size']} "
+        f"({budget['steps'] * budget['batch_size']} training samples), lr {budget['lr']}, seed {budget['seed']}; "
+        f"evaluated on `{budget['eval']}` ({rows[0]['num_targets'] if rows else 0} target views).",
+        "",
+        "| Variant | Setup | PSNR↑ | SSIM↑ | LPIPS↓ | ΔPSNR | ΔSSIM | ΔLPIPS | Trainable params | Train s |",
+        "|---|---|---|---|---|---|---|---|---|---|",
+    ]
     for r in rows:
-        lines.append(f"| {r['variant']} | {r['label']} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | "
-                     f"{_fmt(r['d_psnr'], 2)} | {_fmt(r['d_ssim'])} | {_fmt(r['d_lpips'])} | "
-                     f"{r['trainable_params']:,} | {r['train_seconds']:.0f} |")
-    atomic_write_text(out / "ablation.csv", csv_text([{k: (math.nan if v is None else v) for k, v in r.items()}
-                                                       for r in rows]))
+        lines.append(
+            f"| {r['variant']} | {r['label']} | {_fmt(r['psnr'], 2)} | {_fmt(r['ssim'])} | {_fmt(r['lpips'])} | "
+            f"{_fmt(r['d_psnr'], 2)} | {_fmt(r['d_ssim'])} | {_fmt(r['d_lpips'])} | "
+            f"{r['trainable_params']:,} | {r['train_seconds']:.0f} |"
+        )
+    atomic_write_text(
+        out / "ablation.csv", csv_text([{k: (math.nan if v is None else v) for k, v in r.items()} for r in rows])
+    )
     atomic_write_text(out / "ablation.md", "\n".join(lines) + "\n")
 
 
-def ablate(config: str, data: str, eval_data: str, out: str | Path, *, variants=DEFAULT_VARIANTS,
-           ext_data: dict[int, str] | None = None, posed: str | None = None, ext_ranges=(), overrides=(),
-           max_eval_samples: int = 0, lpips: bool = True, lpips_weights: str | None = None,
-           device: str | None = None, progress: bool | None = None) -> list[dict]:
+def ablate(
+    config: str,
+    data: str,
+    eval_data: str,
+    out: str | Path,
+    *,
+    variants=DEFAULT_VARIANTS,
+    ext_data: dict[int, str] | None = None,
+    posed: str | None = None,
+    ext_ranges=(),
+    overrides=(),
+    max_eval_samples: int = 0,
+    lpips: bool = True,
+    lpips_weights: str | None = None,
+    device: str | None = None,
+    progress: bool | None = None,
+) -> list[dict]:
     """Python API of `seeu ablate`; returns the table rows."""
     from pipelines.evaluate import evaluate
     from pipelines.train import train
@@ -161,28 +204,62 @@ def ablate(config: str, data: str, eval_data: str, out: str | Path, *, variants=
         ts = json.loads(summary_path.read_text()) if summary_path.exists() else None
         if ts is None or ts.get("step", 0) < cfg.optim.max_steps:
             print(f"[ablate] {name}: {label} -- training {cfg.optim.max_steps} steps on {train_data}", flush=True)
-            ov = base_overrides + [f"model.{k}={json.dumps(v) if not isinstance(v, str) else v}"
-                                   for k, v in model_ov.items()]
-            ts = train(train_data, vdir, config=config, overrides=ov, resume=True, lpips_weights=lpips_weights,
-                       device=device, progress=progress)
+            ov = base_overrides + [
+                f"model.{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in model_ov.items()
+            ]
+            ts = train(
+                train_data,
+                vdir,
+                config=config,
+                overrides=ov,
+                resume=True,
+                lpips_weights=lpips_weights,
+                device=device,
+                progress=progress,
+            )
             done.unlink(missing_ok=True)
         if done.exists():
             es = json.loads(done.read_text())
         else:
             print(f"[ablate] {name}: evaluating on {eval_data}", flush=True)
-            es = evaluate(ts["checkpoint"], eval_data, vdir / "eval", max_samples=max_eval_samples,
-                          lpips=lpips, lpips_weights=lpips_weights, device=device, progress=progress)
+            es = evaluate(
+                ts["checkpoint"],
+                eval_data,
+                vdir / "eval",
+                max_samples=max_eval_samples,
+                lpips=lpips,
+                lpips_weights=lpips_weights,
+                device=device,
+                progress=progress,
+            )
         ck = ckpt_io.load_checkpoint(ts["checkpoint"])
         from seeu_model.training.factory import model_from_checkpoint
 
         model = model_from_checkpoint(ck)
         trainable = sum(p.numel() for p in model.parameters() if p.requires_grad)
         m = es["metrics"]
-        rows.append({"variant": name, "label": label, "train_data": train_data, "psnr": m["psnr"], "ssim": m["ssim"],
-                     "lpips": m["lpips"], "num_targets": m["num_targets"], "steps": ts["step"],
-                     "trainable_params": trainable, "train_seconds": ts.get("seconds", math.nan),
-                     "encoder_ms": es["timing"]["encoder_ms"], "renderer_ms": es["timing"]["renderer_ms"]})
-    budget = {"steps": cfg.optim.max_steps, "batch_size": cfg.data.batch_size, "lr": cfg.optim.lr, "seed": cfg.seed,
-              "eval": str(eval_data)}
+        rows.append(
+            {
+                "variant": name,
+                "label": label,
+                "train_data": train_data,
+                "psnr": m["psnr"],
+                "ssim": m["ssim"],
+                "lpips": m["lpips"],
+                "num_targets": m["num_targets"],
+                "steps": ts["step"],
+                "trainable_params": trainable,
+                "train_seconds": ts.get("seconds", math.nan),
+                "encoder_ms": es["timing"]["encoder_ms"],
+                "renderer_ms": es["timing"]["renderer_ms"],
+            }
+        )
+    budget = {
+        "steps": cfg.optim.max_steps,
+        "batch_size": cfg.data.batch_size,
+        "lr": cfg.optim.lr,
+        "seed": cfg.seed,
+        "eval": str(eval_data),
+    }
     write_table(out, rows, budget)
     return rows

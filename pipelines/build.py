@@ -29,6 +29,7 @@ import argparse
 from seeu_data.errors import SeeUError
 from pipelines.options import parse_bytes, parse_dims
 
+
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     """Sampler options shared by `seeu build` and `seeu index`."""
     g = p.add_argument_group("sampling")
@@ -36,10 +37,18 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--num-target", "-T", type=int, default=3, help="target views per example (default 3)")
     g.add_argument("--gap-min", type=int, default=25, help="smallest context gap in frames (default 25)")
     g.add_argument("--gap-max", type=int, default=45, help="largest context gap in frames (default 45)")
-    g.add_argument("--extrap-frames", type=int, default=45,
-                   help="extrap: targets at most this many frames before/after the pair (default 45)")
-    g.add_argument("--interp-ratio", type=float, default=0.0,
-                   help="extrap: probability that a target is drawn inside the pair instead (default 0)")
+    g.add_argument(
+        "--extrap-frames",
+        type=int,
+        default=45,
+        help="extrap: targets at most this many frames before/after the pair (default 45)",
+    )
+    g.add_argument(
+        "--interp-ratio",
+        type=float,
+        default=0.0,
+        help="extrap: probability that a target is drawn inside the pair instead (default 0)",
+    )
     g.add_argument("--samples-per-scene", type=int, default=4, help="examples drawn per scene (default 4)")
     g.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
 
@@ -48,9 +57,16 @@ def sampling_config(args: argparse.Namespace, mode: str):
     from seeu_data.sampling import SamplingConfig
 
     try:
-        return SamplingConfig(mode=mode, num_context=args.num_context, num_target=args.num_target,
-                              gap_min=args.gap_min, gap_max=args.gap_max, extrap_frames=args.extrap_frames,
-                              interp_ratio=args.interp_ratio, samples_per_scene=args.samples_per_scene)
+        return SamplingConfig(
+            mode=mode,
+            num_context=args.num_context,
+            num_target=args.num_target,
+            gap_min=args.gap_min,
+            gap_max=args.gap_max,
+            extrap_frames=args.extrap_frames,
+            interp_ratio=args.interp_ratio,
+            samples_per_scene=args.samples_per_scene,
+        )
     except ValueError as exc:
         raise SeeUError(f"invalid sampling options: {exc}") from None
 
@@ -60,36 +76,61 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, help="output shards directory")
     p.add_argument("--mode", choices=["interp", "extrap", "eval"], default="interp")
     p.add_argument("--index", help="eval: evaluation index JSON file")
-    p.add_argument("--index-format", choices=["auto", "pixelsplat", "latentsplat", "dtu"], default="auto",
-                   help="eval: format of --index (default: detected)")
+    p.add_argument(
+        "--index-format",
+        choices=["auto", "pixelsplat", "latentsplat", "dtu"],
+        default="auto",
+        help="eval: format of --index (default: detected)",
+    )
     add_sampling_arguments(p)
     g = p.add_argument_group("images and shards")
-    g.add_argument("--resize", metavar="HxW",
-                   help="resize + centre-crop at build time (intrinsics updated), e.g. 256x256; "
-                        "default: copy the encoded images as they are")
-    g.add_argument("--interpolation", choices=["area", "lanczos", "linear", "cubic"], default="area",
-                   help="resize filter (default area: INTER_AREA when shrinking)")
+    g.add_argument(
+        "--resize",
+        metavar="HxW",
+        help="resize + centre-crop at build time (intrinsics updated), e.g. 256x256; "
+        "default: copy the encoded images as they are",
+    )
+    g.add_argument(
+        "--interpolation",
+        choices=["area", "lanczos", "linear", "cubic"],
+        default="area",
+        help="resize filter (default area: INTER_AREA when shrinking)",
+    )
     g.add_argument("--jpeg-quality", type=int, default=95, help="JPEG quality of resized images (default 95)")
-    g.add_argument("--near", type=float, default=None,
-                   help="near plane for every view instead of the posed data's (e.g. 1 with --far 100: the "
-                        "peers' RealEstate10K values); default: the data's")
+    g.add_argument(
+        "--near",
+        type=float,
+        default=None,
+        help="near plane for every view instead of the posed data's (e.g. 1 with --far 100: the "
+        "peers' RealEstate10K values); default: the data's",
+    )
     g.add_argument("--far", type=float, default=None, help="far plane for every view (with --near)")
-    g.add_argument("--shard-size", default="128MB",
-                   help="target shard size (default 128MB)")
+    g.add_argument("--shard-size", default="128MB", help="target shard size (default 128MB)")
     g.add_argument("--rows-per-batch", type=int, default=64, help="rows per Arrow record batch (default 64)")
     e = p.add_argument_group("execution")
-    e.add_argument("--engine", choices=["local", "ray"], default="local",
-                   help="local process pool (default) or Ray Data; identical shards")
-    e.add_argument("--workers", type=int, default=None,
-                   help="local engine processes (default: the CPU count, at most 8; 1 when copying images "
-                        "on up to 4 cores, where one process hashes on threads while it writes)")
+    e.add_argument(
+        "--engine",
+        choices=["local", "ray"],
+        default="local",
+        help="local process pool (default) or Ray Data; identical shards",
+    )
+    e.add_argument(
+        "--workers",
+        type=int,
+        default=None,
+        help="local engine processes (default: the CPU count, at most 8; 1 when copying images "
+        "on up to 4 cores, where one process hashes on threads while it writes)",
+    )
     e.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local instance)")
     e.add_argument("--verify-inputs", action="store_true", help="check the posed files' sha256 first")
     e.add_argument("--progress", action="store_true", help="show the progress bar even when stderr is not a TTY")
-    e.add_argument("--fsync", action="store_true",
-                   help="fsync every shard before its rename (durable across a power loss; slower). Default: "
-                        "atomic renames only, a torn shard is caught by the manifest sha256 (seeu validate) "
-                        "and rebuilt by a re-run; also SEEU_FSYNC=1")
+    e.add_argument(
+        "--fsync",
+        action="store_true",
+        help="fsync every shard before its rename (durable across a power loss; slower). Default: "
+        "atomic renames only, a torn shard is caught by the manifest sha256 (seeu validate) "
+        "and rebuilt by a re-run; also SEEU_FSYNC=1",
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -115,28 +156,49 @@ def run(args: argparse.Namespace) -> int:
         near_far = (args.near, args.far)
     sampling = sampling_config(args, args.mode) if args.mode != "eval" else SamplingConfig()
     cfg = BuildConfig(
-        inputs=tuple(args.inputs), out=args.out, mode=args.mode, sampling=sampling, index_path=args.index,
-        index_format=args.index_format, seed=args.seed,
-        image=ImageOptions(resize=parse_dims(args.resize, "--resize") if args.resize else None, interpolation=args.interpolation, jpeg_quality=args.jpeg_quality),
-        shard_bytes=parse_bytes(args.shard_size, "--shard-size"), rows_per_batch=args.rows_per_batch, engine=args.engine,
+        inputs=tuple(args.inputs),
+        out=args.out,
+        mode=args.mode,
+        sampling=sampling,
+        index_path=args.index,
+        index_format=args.index_format,
+        seed=args.seed,
+        image=ImageOptions(
+            resize=parse_dims(args.resize, "--resize") if args.resize else None,
+            interpolation=args.interpolation,
+            jpeg_quality=args.jpeg_quality,
+        ),
+        shard_bytes=parse_bytes(args.shard_size, "--shard-size"),
+        rows_per_batch=args.rows_per_batch,
+        engine=args.engine,
         workers=args.workers if args.workers is not None else default_workers(args.resize is not None),
-        ray_address=args.ray_address, progress=args.progress, verify_inputs=args.verify_inputs, near_far=near_far)
+        ray_address=args.ray_address,
+        progress=args.progress,
+        verify_inputs=args.verify_inputs,
+        near_far=near_far,
+    )
     with fsync_policy(True if args.fsync else None):
         manifest = build(cfg, "seeu build")
     rep = manifest["report"]
     size = sum(f["bytes"] for f in manifest["files"]) / 1e6
     shards = len(manifest["files"])
-    print(f"wrote {manifest['total_rows']} triples in {shards} shard{'s' * (shards != 1)} ({size:.1f} MB) to {args.out}"
-          + (f"; {rep['shards_resumed']} kept from a previous run" if rep.get("shards_resumed") else ""))
+    print(
+        f"wrote {manifest['total_rows']} triples in {shards} shard{'s' * (shards != 1)} ({size:.1f} MB) to {args.out}"
+        + (f"; {rep['shards_resumed']} kept from a previous run" if rep.get("shards_resumed") else "")
+    )
     if args.mode == "eval":
-        print(f"index {rep['index_format']}: {rep['index_keys']} keys, {rep['index_null_skipped']} null skipped, "
-              f"{rep['index_entries']} entries, {rep['written']} written, {rep['not_written']} not written")
+        print(
+            f"index {rep['index_format']}: {rep['index_keys']} keys, {rep['index_null_skipped']} null skipped, "
+            f"{rep['index_entries']} entries, {rep['written']} written, {rep['not_written']} not written"
+        )
         for prob in rep["problems"][:10]:
             print(f"  not written: {prob['key']}: {prob['problem']}")
         if rep["not_written"] > 10:
             kinds = ", ".join(f"{n} {k}" for k, n in rep["problems_by_kind"].items())
             print(f"  ... {rep['not_written'] - 10} more ({kinds}; see manifest.json report.problems)")
     elif rep.get("scenes_skipped_too_short"):
-        print(f"skipped {rep['scenes_skipped_too_short']} of {rep['scenes']} scenes with fewer than "
-              f"{rep['min_scene_frames']} frames (e.g. {', '.join(rep['skipped_scene_examples'][:3])})")
+        print(
+            f"skipped {rep['scenes_skipped_too_short']} of {rep['scenes']} scenes with fewer than "
+            f"{rep['min_scene_frames']} frames (e.g. {', '.join(rep['skipped_scene_examples'][:3])})"
+        )
     return 0

@@ -50,8 +50,12 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in _available().items():
         mod = importlib.import_module(module)
-        p = sub.add_parser(name, help=help_text, description=(mod.__doc__ or help_text).strip(),
-                           formatter_class=argparse.RawDescriptionHelpFormatter)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=(mod.__doc__ or help_text).strip(),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
         mod.add_arguments(p)
         p.set_defaults(_module=mod)
     return parser
@@ -120,8 +124,10 @@ def main(argv: list[str] | None = None) -> int:
         if debug:
             raise
         msg = str(exc).splitlines()[0] if str(exc) else ""
-        print(f"seeu {args.command}: internal error: {type(exc).__name__}: {msg} (re-run with --debug for the traceback)",
-              file=sys.stderr)
+        print(
+            f"seeu {args.command}: internal error: {type(exc).__name__}: {msg} (re-run with --debug for the traceback)",
+            file=sys.stderr,
+        )
         return 1
 
 

@@ -20,10 +20,16 @@ import argparse
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("format", choices=["mvsplat"], help="the checkpoint's model")
     parser.add_argument("checkpoint", help="the checkpoint file to convert (e.g. MVSplat's re10k.ckpt)")
-    parser.add_argument("--out", required=True,
-                        help="a new directory for the SeeU checkpoint (ckpt-00000000.pt + conversion-report.txt)")
-    parser.add_argument("--allow-incomplete", action="store_true",
-                        help="write the checkpoint even with missing or unexpected keys (they are listed)")
+    parser.add_argument(
+        "--out",
+        required=True,
+        help="a new directory for the SeeU checkpoint (ckpt-00000000.pt + conversion-report.txt)",
+    )
+    parser.add_argument(
+        "--allow-incomplete",
+        action="store_true",
+        help="write the checkpoint even with missing or unexpected keys (they are listed)",
+    )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -47,22 +47,43 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--frames", type=int, default=72, help="frames per synthetic clip (default 72)")
     g.add_argument("--size", default="480x270", help="clip size WIDTHxHEIGHT (default 480x270)")
     g.add_argument("--seed", type=int, default=0, help="scene seed of the training clip (default 0)")
-    g.add_argument("--heldout-seed", type=int, default=None,
-                   help="scene seed of the held-out evaluation clip (default: --seed + 100)")
+    g.add_argument(
+        "--heldout-seed",
+        type=int,
+        default=None,
+        help="scene seed of the held-out evaluation clip (default: --seed + 100)",
+    )
     g = p.add_argument_group("training data and model")
-    g.add_argument("--image-size", default="64", metavar="HxW",
-                   help="training/evaluation image size, built into the shards (default 64 = 64x64)")
-    g.add_argument("--train-samples", type=int, default=256,
-                   help="training triples drawn per posed chunk (default 256)")
-    g.add_argument("--eval-samples", type=int, default=8,
-                   help="held-out triples per evaluation set, interp and extrap (default 8)")
-    g.add_argument("--config", default="demo",
-                   help="training preset: a shipped preset's name or a config file (default demo = configs/demo.json)")
-    g.add_argument("--steps", type=int, default=None,
-                   help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)")
-    g.add_argument("--lpips-weights", default=None, metavar="PATH",
-                   help="torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; "
-                        "LPIPS is skipped when it is missing)")
+    g.add_argument(
+        "--image-size",
+        default="64",
+        metavar="HxW",
+        help="training/evaluation image size, built into the shards (default 64 = 64x64)",
+    )
+    g.add_argument(
+        "--train-samples", type=int, default=256, help="training triples drawn per posed chunk (default 256)"
+    )
+    g.add_argument(
+        "--eval-samples", type=int, default=8, help="held-out triples per evaluation set, interp and extrap (default 8)"
+    )
+    g.add_argument(
+        "--config",
+        default="demo",
+        help="training preset: a shipped preset's name or a config file (default demo = configs/demo.json)",
+    )
+    g.add_argument(
+        "--steps",
+        type=int,
+        default=None,
+        help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)",
+    )
+    g.add_argument(
+        "--lpips-weights",
+        default=None,
+        metavar="PATH",
+        help="torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; "
+        "LPIPS is skipped when it is missing)",
+    )
     g.add_argument("--render-frames", type=int, default=30, help="frames per rendered camera path (default 30)")
     p.add_argument("--force", action="store_true", help="redo every stage")
     p.add_argument("--progress", action="store_true", help="show progress even when stderr is not a terminal")
@@ -78,7 +99,7 @@ class Stages:
         self.out = out
         self.dir = out / ".stages"
         self.force = force
-        self.info: dict[str, dict] = {}   # name -> {"seconds", "reused", "key"}
+        self.info: dict[str, dict] = {}  # name -> {"seconds", "reused", "key"}
 
     def _stamp(self, name: str) -> Path:
         return self.dir / f"{name}.json"
@@ -107,8 +128,11 @@ class Stages:
         result = fn()
         seconds = time.perf_counter() - t0
         self.dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(stamp, json.dumps({"key_hash": h, "key": full_key, "seconds": seconds,
-                                             "result": result}, indent=1, default=str) + "\n")
+        atomic_write_text(
+            stamp,
+            json.dumps({"key_hash": h, "key": full_key, "seconds": seconds, "result": result}, indent=1, default=str)
+            + "\n",
+        )
         self.info[name] = {"seconds": seconds, "reused": False, "hash": h}
         print(f"      {name} done in {seconds:.1f} s", flush=True)
         return result
@@ -123,9 +147,6 @@ def _remove(path: Path) -> None:
         shutil.rmtree(path)
     elif path.exists():
         path.unlink()
-
-
-
 
 
 def sampling_for(frames: int) -> dict:
@@ -144,22 +165,34 @@ def stage_synth(ctx: dict, stages: Stages) -> dict:
     from seeu_data.synthetic import ClipConfig, write_clip
 
     width, height = parse_dims(ctx["args"].size, "--size", minimum=16)
-    clips = {"clip": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["args"].seed),
-             "heldout": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["heldout_seed"])}
+    clips = {
+        "clip": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["args"].seed),
+        "heldout": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["heldout_seed"]),
+    }
 
     def fn() -> dict:
         out = {}
         for name, cfg in clips.items():
             video = ctx["out"] / "clip" / f"{name}.mp4"
             doc = write_clip(video, cfg, progress=ctx["progress"])
-            out[name] = {"video": str(video), "seed": cfg.seed, "frames": cfg.n_frames, "size": f"{width}x{height}",
-                         "path_length_m": doc["path_length"]}
+            out[name] = {
+                "video": str(video),
+                "seed": cfg.seed,
+                "frames": cfg.n_frames,
+                "size": f"{width}x{height}",
+                "path_length_m": doc["path_length"],
+            }
         return out
 
     key = {name: dict(cfg.__dict__) for name, cfg in clips.items()}
-    return stages.run("synth", key, f"rendering 2 clips ({ctx['args'].frames} frames at {width}x{height}): "
-                      f"training scene seed {ctx['args'].seed}, held-out scene seed {ctx['heldout_seed']}",
-                      fn, lambda r: [v["video"] for v in r.values()])
+    return stages.run(
+        "synth",
+        key,
+        f"rendering 2 clips ({ctx['args'].frames} frames at {width}x{height}): "
+        f"training scene seed {ctx['args'].seed}, held-out scene seed {ctx['heldout_seed']}",
+        fn,
+        lambda r: [v["video"] for v in r.values()],
+    )
 
 
 def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
@@ -173,7 +206,9 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     # thread count (image ids and RANSAC seeds are fixed by the frames; earlier multi-threaded runs
     # differed, about one in four with ~5% camera-centre error); on 2 cores one thread costs little
     # (measured: 57-71 s vs 51-81 s per 72-frame clip).
-    cfg = IngestConfig(camera_model="SIMPLE_PINHOLE", threads=1, scale="median-depth")  # the demo model's tight near/far
+    cfg = IngestConfig(
+        camera_model="SIMPLE_PINHOLE", threads=1, scale="median-depth"
+    )  # the demo model's tight near/far
 
     def fn() -> dict:
         out = {}
@@ -181,16 +216,26 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
             (source,) = discover_sources([Path(clip["video"])])
             report = ingest_scene(source, ctx["out"] / "posed", cfg, force=ctx["args"].force, progress=ctx["progress"])
             print(f"      {report['summary']}", flush=True)
-            out[name] = {"posed": report["output"], "summary": report["summary"],
-                         "frames_selected": report["frames_selected"], "registered": report["registered"],
-                         "chunks": len(report["chunks"]), "frames_in_chunks": report["frames_in_chunks"],
-                         "mean_reprojection_error_px": report["mean_reprojection_error_px"],
-                         "ground_truth": report.get("ground_truth")}
+            out[name] = {
+                "posed": report["output"],
+                "summary": report["summary"],
+                "frames_selected": report["frames_selected"],
+                "registered": report["registered"],
+                "chunks": len(report["chunks"]),
+                "frames_in_chunks": report["frames_in_chunks"],
+                "mean_reprojection_error_px": report["mean_reprojection_error_px"],
+                "ground_truth": report.get("ground_truth"),
+            }
         return out
 
     key = {"synth": stages.hash("synth"), "ingest": asdict(cfg)}
-    return stages.run("ingest", key, "decode -> select -> SfM (pycolmap) -> posed chunks, both clips", fn,
-                      lambda r: [Path(v["posed"]) / "manifest.json" for v in r.values()])
+    return stages.run(
+        "ingest",
+        key,
+        "decode -> select -> SfM (pycolmap) -> posed chunks, both clips",
+        fn,
+        lambda r: [Path(v["posed"]) / "manifest.json" for v in r.values()],
+    )
 
 
 def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
@@ -217,30 +262,67 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
         for name, (posed, mode, ratio, n, seed) in sets.items():
             d = shards / name
             _remove(d)
-            sampling = SamplingConfig(mode=mode, gap_min=s["gap_min"], gap_max=s["gap_max"],
-                                      extrap_frames=s["extrap_frames"], interp_ratio=ratio, samples_per_scene=n)
-            manifest = build(BuildConfig(inputs=(posed,), out=str(d), mode=mode, sampling=sampling, seed=seed,
-                                         image=ImageOptions(resize=hw), workers=min(2, default_workers(hw is not None)),
-                                         progress=ctx["progress"]), "seeu demo")
+            sampling = SamplingConfig(
+                mode=mode,
+                gap_min=s["gap_min"],
+                gap_max=s["gap_max"],
+                extrap_frames=s["extrap_frames"],
+                interp_ratio=ratio,
+                samples_per_scene=n,
+            )
+            manifest = build(
+                BuildConfig(
+                    inputs=(posed,),
+                    out=str(d),
+                    mode=mode,
+                    sampling=sampling,
+                    seed=seed,
+                    image=ImageOptions(resize=hw),
+                    workers=min(2, default_workers(hw is not None)),
+                    progress=ctx["progress"],
+                ),
+                "seeu demo",
+            )
             if manifest["total_rows"] == 0:
                 from seeu_data.errors import SeeUError
 
-                raise SeeUError(f"no {name} triples: the posed chunks are shorter than the sampler needs "
-                                f"(gap {s['gap_min']}-{s['gap_max']}, extrapolation {s['extrap_frames']}); use more --frames",
-                                posed)
+                raise SeeUError(
+                    f"no {name} triples: the posed chunks are shorter than the sampler needs "
+                    f"(gap {s['gap_min']}-{s['gap_max']}, extrapolation {s['extrap_frames']}); use more --frames",
+                    posed,
+                )
             sheet = figures / f"sheet_{name}.png"
             contact_sheet(d, sheet, 6 if name == "train" else 4)
-            out[name] = {"path": str(d), "rows": manifest["total_rows"], "shards": len(manifest["files"]),
-                         "mode": mode, "interp_ratio": ratio, "source": posed, "sheet": str(sheet)}
-            print(f"      {name}: {manifest['total_rows']} triples ({mode}"
-                  f"{', half the targets inside the pair' if ratio else ''}) from {posed}", flush=True)
+            out[name] = {
+                "path": str(d),
+                "rows": manifest["total_rows"],
+                "shards": len(manifest["files"]),
+                "mode": mode,
+                "interp_ratio": ratio,
+                "source": posed,
+                "sheet": str(sheet),
+            }
+            print(
+                f"      {name}: {manifest['total_rows']} triples ({mode}"
+                f"{', half the targets inside the pair' if ratio else ''}) from {posed}",
+                flush=True,
+            )
         return out
 
-    key = {"ingest": stages.hash("ingest"), "image_hw": list(hw), "sampling": s,
-           "sets": {k: [v[1], v[2], v[3], v[4]] for k, v in sets.items()}}
-    return stages.run("build", key, f"triples at {hw[0]}x{hw[1]}: train (interp + extrap) from the training clip, "
-                      "eval_interp / eval_extrap from the held-out clip", fn,
-                      lambda r: [Path(v["path"]) / "manifest.json" for v in r.values()] + [v["sheet"] for v in r.values()])
+    key = {
+        "ingest": stages.hash("ingest"),
+        "image_hw": list(hw),
+        "sampling": s,
+        "sets": {k: [v[1], v[2], v[3], v[4]] for k, v in sets.items()},
+    }
+    return stages.run(
+        "build",
+        key,
+        f"triples at {hw[0]}x{hw[1]}: train (interp + extrap) from the training clip, "
+        "eval_interp / eval_extrap from the held-out clip",
+        fn,
+        lambda r: [Path(v["path"]) / "manifest.json" for v in r.values()] + [v["sheet"] for v in r.values()],
+    )
 
 
 def train_overrides(ctx: dict) -> list[str]:
@@ -276,17 +358,40 @@ def stage_train(ctx: dict, stages: Stages, build: dict) -> dict:
             _remove(run_dir)
             run_dir.mkdir(parents=True)
             atomic_write_text(key_file, key_hash(key) + "\n")
-        res = train(build["train"]["path"], run_dir, config=a.config, overrides=ov_run,
-                    val=build["eval_interp"]["path"], resume=True, no_lpips=True, device="cpu",
-                    progress=ctx["progress"])
-        return {"run": str(run_dir), "checkpoint": res["checkpoint"], "step": res["step"],
-                "seconds": res["seconds"], "steps_per_s": res["steps_per_s"], "final": res["final"],
-                "val": res["val"], "config": str(a.config), "overrides": ov_run, "batch_size": cfg.data.batch_size,
-                "lr": cfg.optim.lr}
+        res = train(
+            build["train"]["path"],
+            run_dir,
+            config=a.config,
+            overrides=ov_run,
+            val=build["eval_interp"]["path"],
+            resume=True,
+            no_lpips=True,
+            device="cpu",
+            progress=ctx["progress"],
+        )
+        return {
+            "run": str(run_dir),
+            "checkpoint": res["checkpoint"],
+            "step": res["step"],
+            "seconds": res["seconds"],
+            "steps_per_s": res["steps_per_s"],
+            "final": res["final"],
+            "val": res["val"],
+            "config": str(a.config),
+            "overrides": ov_run,
+            "batch_size": cfg.data.batch_size,
+            "lr": cfg.optim.lr,
+        }
 
-    return stages.run("train", key, f"{cfg.name} preset ({a.config.name}), {steps} steps of batch "
-                      f"{cfg.data.batch_size} at {ctx['image_hw'][0]}x{ctx['image_hw'][1]} on CPU "
-                      f"(held-out validation every {val_every} steps)", fn, lambda r: [r["checkpoint"]])
+    return stages.run(
+        "train",
+        key,
+        f"{cfg.name} preset ({a.config.name}), {steps} steps of batch "
+        f"{cfg.data.batch_size} at {ctx['image_hw'][0]}x{ctx['image_hw'][1]} on CPU "
+        f"(held-out validation every {val_every} steps)",
+        fn,
+        lambda r: [r["checkpoint"]],
+    )
 
 
 def _lpips_module(weights: str | None, build: bool = True):
@@ -326,33 +431,66 @@ def stage_eval(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
         ck = ckpt_io.load_checkpoint(trained["checkpoint"])
         tcfg = config_from_dict(json.loads(json.dumps(ck["config"])))
         trained_model = model_from_checkpoint(ck, "cpu")
-        results: dict = {"lpips": lpips_note if lpips_fn is not None else None, "lpips_note": lpips_note,
-                         "checkpoint": ck["path"], "step": ck["step"], "sets": {}}
+        results: dict = {
+            "lpips": lpips_note if lpips_fn is not None else None,
+            "lpips_note": lpips_note,
+            "checkpoint": ck["path"],
+            "step": ck["step"],
+            "sets": {},
+        }
         renders: dict = {}
         for set_name in ("eval_interp", "eval_extrap"):
             data = build[set_name]["path"]
             row = {}
             for label, model, c in (("init", init_model, cfg), ("trained", trained_model, tcfg)):
-                res = evaluate_on_data(model, data, ctx["image_hw"], device="cpu", lpips_fn=lpips_fn,
-                                       rasterizer=c.rasterizer, precision=c.precision, warmup=1, keep_renders=2,
-                                       progress=ctx["progress"])
-                summary = write_results(eval_dir / f"{label}_{set_name.removeprefix('eval_')}", res,
-                                        {"model": label, "step": 0 if label == "init" else ck["step"], "data": data,
-                                         "image_hw": list(ctx["image_hw"]),
-                                         "lpips": "vgg" if lpips_fn is not None else "off", "device": "cpu"})
+                res = evaluate_on_data(
+                    model,
+                    data,
+                    ctx["image_hw"],
+                    device="cpu",
+                    lpips_fn=lpips_fn,
+                    rasterizer=c.rasterizer,
+                    precision=c.precision,
+                    warmup=1,
+                    keep_renders=2,
+                    progress=ctx["progress"],
+                )
+                summary = write_results(
+                    eval_dir / f"{label}_{set_name.removeprefix('eval_')}",
+                    res,
+                    {
+                        "model": label,
+                        "step": 0 if label == "init" else ck["step"],
+                        "data": data,
+                        "image_hw": list(ctx["image_hw"]),
+                        "lpips": "vgg" if lpips_fn is not None else "off",
+                        "device": "cpu",
+                    },
+                )
                 m = summary["metrics"]
-                row[label] = {"psnr": m["psnr"], "ssim": m["ssim"], "lpips": m.get("lpips"),
-                              "num_targets": m["num_targets"], "num_samples": m["num_samples"],
-                              "summary": str(eval_dir / f"{label}_{set_name.removeprefix('eval_')}" / "summary.json")}
+                row[label] = {
+                    "psnr": m["psnr"],
+                    "ssim": m["ssim"],
+                    "lpips": m.get("lpips"),
+                    "num_targets": m["num_targets"],
+                    "num_samples": m["num_samples"],
+                    "summary": str(eval_dir / f"{label}_{set_name.removeprefix('eval_')}" / "summary.json"),
+                }
                 renders.setdefault(set_name, {})[label] = res.renders
             row["gain_psnr_db"] = row["trained"]["psnr"] - row["init"]["psnr"]
             results["sets"][set_name] = row
-            print(f"      held-out {set_name.removeprefix('eval_')}: PSNR {row['init']['psnr']:.2f} dB at "
-                  f"initialisation -> {row['trained']['psnr']:.2f} dB trained ({row['gain_psnr_db']:+.2f} dB), "
-                  f"SSIM {row['init']['ssim']:.3f} -> {row['trained']['ssim']:.3f}", flush=True)
+            print(
+                f"      held-out {set_name.removeprefix('eval_')}: PSNR {row['init']['psnr']:.2f} dB at "
+                f"initialisation -> {row['trained']['psnr']:.2f} dB trained ({row['gain_psnr_db']:+.2f} dB), "
+                f"SSIM {row['init']['ssim']:.3f} -> {row['trained']['ssim']:.3f}",
+                flush=True,
+            )
         all_init = [results["sets"][s]["init"]["psnr"] for s in results["sets"]]
         all_trained = [results["sets"][s]["trained"]["psnr"] for s in results["sets"]]
-        results["mean"] = {"init_psnr": sum(all_init) / len(all_init), "trained_psnr": sum(all_trained) / len(all_trained)}
+        results["mean"] = {
+            "init_psnr": sum(all_init) / len(all_init),
+            "trained_psnr": sum(all_trained) / len(all_trained),
+        }
         results["mean"]["gain_psnr_db"] = results["mean"]["trained_psnr"] - results["mean"]["init_psnr"]
         results["renders_png"] = str(figures / "heldout_renders.png")
         render_grid(renders, Path(results["renders_png"]))
@@ -364,8 +502,13 @@ def stage_eval(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
         return results
 
     key = {"train": stages.hash("train"), "build": stages.hash("build"), "lpips": [a.lpips_weights, lpips_state]}
-    return stages.run("eval", key, "held-out PSNR / SSIM / LPIPS of the initial and the trained model", fn,
-                      lambda r: [r["metrics_json"], r["renders_png"]])
+    return stages.run(
+        "eval",
+        key,
+        "held-out PSNR / SSIM / LPIPS of the initial and the trained model",
+        fn,
+        lambda r: [r["metrics_json"], r["renders_png"]],
+    )
 
 
 def render_grid(renders: dict, path: Path) -> None:
@@ -404,8 +547,9 @@ def render_grid(renders: dict, path: Path) -> None:
                 continue
             ax.imshow(img.float().clamp(0, 1).permute(1, 2, 0).numpy())
             if r % 3 == 0:
-                ax.set_title("context" if c < v else f"target {c - v}", fontsize=8,
-                             color="tab:blue" if c < v else "tab:green")
+                ax.set_title(
+                    "context" if c < v else f"target {c - v}", fontsize=8, color="tab:blue" if c < v else "tab:green"
+                )
             if c == 0:
                 ax.set_ylabel(label, fontsize=7)
     fig.suptitle("held-out scene: ground truth, initial model, trained model", fontsize=10)
@@ -423,17 +567,37 @@ def stage_render(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
 
     def fn() -> dict:
         _remove(out)
-        rep = render(trained["checkpoint"], out, data=build["eval_extrap"]["path"], sample="0",
-                     frames=a.render_frames, extrapolate=0.5, fps=10.0, device="cpu")
-        return {"dir": str(out), "interp_mp4": rep["interp"]["mp4"], "extrap_mp4": rep["extrap"]["mp4"],
-                "ply": rep["ply"], "num_gaussians": rep["num_gaussians"], "sample_id": rep["sample_id"],
-                "context_png": str(out / "context.png"), "targets_png": str(out / "targets.png"),
-                "frames": rep["interp"]["frames"]}
+        rep = render(
+            trained["checkpoint"],
+            out,
+            data=build["eval_extrap"]["path"],
+            sample="0",
+            frames=a.render_frames,
+            extrapolate=0.5,
+            fps=10.0,
+            device="cpu",
+        )
+        return {
+            "dir": str(out),
+            "interp_mp4": rep["interp"]["mp4"],
+            "extrap_mp4": rep["extrap"]["mp4"],
+            "ply": rep["ply"],
+            "num_gaussians": rep["num_gaussians"],
+            "sample_id": rep["sample_id"],
+            "context_png": str(out / "context.png"),
+            "targets_png": str(out / "targets.png"),
+            "frames": rep["interp"]["frames"],
+        }
 
     key = {"train": stages.hash("train"), "build": stages.hash("build"), "frames": a.render_frames}
-    return stages.run("render", key, f"interp + extrap camera paths ({a.render_frames} frames each, MP4) and "
-                      "the Gaussians (.ply) from a held-out example", fn,
-                      lambda r: [r["interp_mp4"], r["extrap_mp4"], r["ply"]])
+    return stages.run(
+        "render",
+        key,
+        f"interp + extrap camera paths ({a.render_frames} frames each, MP4) and "
+        "the Gaussians (.ply) from a held-out example",
+        fn,
+        lambda r: [r["interp_mp4"], r["extrap_mp4"], r["ply"]],
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -479,8 +643,13 @@ def plot_training_curve(curves: dict, evals: dict, path: Path) -> None:
         ax2.plot(s, v, "o-", color="tab:blue", label="held-out PSNR (validation, interp)")
     for name, row in evals.get("sets", {}).items():
         style = "--" if name.endswith("interp") else ":"
-        ax2.axhline(row["init"]["psnr"], color="gray", ls=style, lw=1,
-                    label=f"held-out {name.removeprefix('eval_')} at initialisation")
+        ax2.axhline(
+            row["init"]["psnr"],
+            color="gray",
+            ls=style,
+            lw=1,
+            label=f"held-out {name.removeprefix('eval_')} at initialisation",
+        )
     ax2.set_xlabel("step")
     ax2.set_ylabel("PSNR (dB)")
     ax2.set_title("PSNR")
@@ -512,27 +681,36 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
     plot_training_curve(curves, r["eval"], curve_png)
     ev, tr, ing, bd, syn, rd = r["eval"], r["train"], r["ingest"], r["build"], r["synth"], r["render"]
     L: list[str] = []
-    L += ["# SeeU demo report", "",
-          "The whole toolkit on the built-in synthetic corridor: two clips rendered with exact ground truth, "
-          "posed with COLMAP SfM, sampled into context-target triples, a small SeeU trained on CPU, evaluated "
-          "on a held-out scene, and rendered along novel camera paths.", ""]
+    L += [
+        "# SeeU demo report",
+        "",
+        "The whole toolkit on the built-in synthetic corridor: two clips rendered with exact ground truth, "
+        "posed with COLMAP SfM, sampled into context-target triples, a small SeeU trained on CPU, evaluated "
+        "on a held-out scene, and rendered along novel camera paths.",
+        "",
+    ]
     mean = ev["mean"]
-    L += ["## Result", "",
-          f"Held-out PSNR (mean of interp and extrap): **{mean['init_psnr']:.2f} dB at initialisation -> "
-          f"{mean['trained_psnr']:.2f} dB after {tr['step']} training steps ({mean['gain_psnr_db']:+.2f} dB)**.",
-          "",
-          f"Held-out data: a separate synthetic clip of an unseen scene (seed {syn['heldout']['seed']}: other "
-          f"textures and box layout; the training clip is seed {syn['clip']['seed']}), posed by the same SfM "
-          "ingest. No frame of it is trained on; it is used only for validation curves and this evaluation.", ""]
+    L += [
+        "## Result",
+        "",
+        f"Held-out PSNR (mean of interp and extrap): **{mean['init_psnr']:.2f} dB at initialisation -> "
+        f"{mean['trained_psnr']:.2f} dB after {tr['step']} training steps ({mean['gain_psnr_db']:+.2f} dB)**.",
+        "",
+        f"Held-out data: a separate synthetic clip of an unseen scene (seed {syn['heldout']['seed']}: other "
+        f"textures and box layout; the training clip is seed {syn['clip']['seed']}), posed by the same SfM "
+        "ingest. No frame of it is trained on; it is used only for validation curves and this evaluation.",
+        "",
+    ]
     L += ["## Stages", "", "| stage | time (s) | this run | result |", "|---|---:|---|---|"]
     results_text = {
         "synth": f"2 clips, {syn['clip']['frames']} frames at {syn['clip']['size']} "
-                 f"([clip]({_rel(syn['clip']['video'], out)}), [held-out]({_rel(syn['heldout']['video'], out)}))",
-        "ingest": "; ".join(f"{k}: {v['registered']}/{v['frames_selected']} registered, {v['chunks']} chunk(s)"
-                            for k, v in ing.items()),
+        f"([clip]({_rel(syn['clip']['video'], out)}), [held-out]({_rel(syn['heldout']['video'], out)}))",
+        "ingest": "; ".join(
+            f"{k}: {v['registered']}/{v['frames_selected']} registered, {v['chunks']} chunk(s)" for k, v in ing.items()
+        ),
         "build": ", ".join(f"{k}: {v['rows']} triples" for k, v in bd.items()),
         "train": f"{tr['step']} steps, {tr['steps_per_s']:.2f} steps/s, final train PSNR "
-                 f"{_fmt(tr['final'].get('psnr'))} dB",
+        f"{_fmt(tr['final'].get('psnr'))} dB",
         "eval": f"held-out PSNR {mean['init_psnr']:.2f} -> {mean['trained_psnr']:.2f} dB",
         "render": f"{rd['frames']} + {rd['frames']} frames, {rd['num_gaussians']} Gaussians",
         "report": "this file",
@@ -544,67 +722,114 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
         L.append(f"| {name} | {info['seconds']:.1f} | {'reused' if info['reused'] else 'ran'} | {results_text[name]} |")
     L += [f"| **total** | **{total:.1f}** | | time of each stage when it ran |", ""]
 
-    L += ["## Posing (SfM) vs ground truth", "",
-          "| clip | registered | chunks | reprojection (px) | centre RMSE (% of path) | rel. rotation (deg) | focal error (%) |",
-          "|---|---:|---:|---:|---:|---:|---:|"]
+    L += [
+        "## Posing (SfM) vs ground truth",
+        "",
+        "| clip | registered | chunks | reprojection (px) | centre RMSE (% of path) | rel. rotation (deg) | focal error (%) |",
+        "|---|---:|---:|---:|---:|---:|---:|",
+    ]
     for k, v in ing.items():
         gt = v.get("ground_truth") or {}
         best = max(gt.get("chunks") or [{}], key=lambda c: c.get("num_frames", 0))
-        L.append(f"| {k} | {v['registered']}/{v['frames_selected']} | {v['chunks']} | "
-                 f"{_fmt(v['mean_reprojection_error_px'])} | {_fmt(best.get('centre_rmse_pct_path'), '.3f')} | "
-                 f"{_fmt(best.get('rel_rot_err_mean_deg'), '.3f')} | {_fmt(best.get('focal_err_pct'))} |")
-    L += ["", f"![trajectory of the training clip]({_rel(Path(ing['clip']['posed']) / 'trajectory.png', out)})", "",
-          f"Ingest reports: [{_rel(Path(ing['clip']['posed']) / 'report.json', out)}]"
-          f"({_rel(Path(ing['clip']['posed']) / 'report.json', out)}), "
-          f"[{_rel(Path(ing['heldout']['posed']) / 'report.json', out)}]"
-          f"({_rel(Path(ing['heldout']['posed']) / 'report.json', out)}).", ""]
+        L.append(
+            f"| {k} | {v['registered']}/{v['frames_selected']} | {v['chunks']} | "
+            f"{_fmt(v['mean_reprojection_error_px'])} | {_fmt(best.get('centre_rmse_pct_path'), '.3f')} | "
+            f"{_fmt(best.get('rel_rot_err_mean_deg'), '.3f')} | {_fmt(best.get('focal_err_pct'))} |"
+        )
+    L += [
+        "",
+        f"![trajectory of the training clip]({_rel(Path(ing['clip']['posed']) / 'trajectory.png', out)})",
+        "",
+        f"Ingest reports: [{_rel(Path(ing['clip']['posed']) / 'report.json', out)}]"
+        f"({_rel(Path(ing['clip']['posed']) / 'report.json', out)}), "
+        f"[{_rel(Path(ing['heldout']['posed']) / 'report.json', out)}]"
+        f"({_rel(Path(ing['heldout']['posed']) / 'report.json', out)}).",
+        "",
+    ]
 
     L += ["## Triples", "", "| set | source | mode | triples | shards |", "|---|---|---|---:|---:|"]
     for k, v in bd.items():
         mode = v["mode"] + (" (half the targets inside the pair: interp + extrap)" if v["interp_ratio"] else "")
         L.append(f"| [{k}]({_rel(v['path'], out)}) | {Path(v['source']).name} | {mode} | {v['rows']} | {v['shards']} |")
-    L += ["", "Contact sheet of the training triples (contexts, then targets with their offset outside the pair):", "",
-          f"![contact sheet]({_rel(bd['train']['sheet'], out)})", "",
-          f"Held-out sheets: [interp]({_rel(bd['eval_interp']['sheet'], out)}), "
-          f"[extrap]({_rel(bd['eval_extrap']['sheet'], out)}).", ""]
+    L += [
+        "",
+        "Contact sheet of the training triples (contexts, then targets with their offset outside the pair):",
+        "",
+        f"![contact sheet]({_rel(bd['train']['sheet'], out)})",
+        "",
+        f"Held-out sheets: [interp]({_rel(bd['eval_interp']['sheet'], out)}), "
+        f"[extrap]({_rel(bd['eval_extrap']['sheet'], out)}).",
+        "",
+    ]
 
-    L += ["## Training", "",
-          f"Preset `{Path(tr['config']).name}` with overrides `{' '.join(tr['overrides'])}`: batch {tr['batch_size']}, "
-          f"AdamW lr {tr['lr']:g}, MSE loss, fp32 on CPU. {tr['step']} steps in {tr['seconds']:.0f} s "
-          f"({tr['steps_per_s']:.2f} steps/s). Checkpoint: [{_rel(tr['checkpoint'], out)}]({_rel(tr['checkpoint'], out)}); "
-          f"TensorBoard: `tensorboard --logdir {Path(tr['run']) / 'tb'}`.", "",
-          f"![training curve]({_rel(curve_png, out)})", ""]
+    L += [
+        "## Training",
+        "",
+        f"Preset `{Path(tr['config']).name}` with overrides `{' '.join(tr['overrides'])}`: batch {tr['batch_size']}, "
+        f"AdamW lr {tr['lr']:g}, MSE loss, fp32 on CPU. {tr['step']} steps in {tr['seconds']:.0f} s "
+        f"({tr['steps_per_s']:.2f} steps/s). Checkpoint: [{_rel(tr['checkpoint'], out)}]({_rel(tr['checkpoint'], out)}); "
+        f"TensorBoard: `tensorboard --logdir {Path(tr['run']) / 'tb'}`.",
+        "",
+        f"![training curve]({_rel(curve_png, out)})",
+        "",
+    ]
 
-    L += ["## Metrics on the held-out scene", "",
-          "Same evaluation code for both rows (`pipelines.evaluate`: PSNR on images clipped to [0, 1], SSIM with "
-          "an 11-pixel Gaussian window; mean over the targets of a scene, then over scenes). *Initial* is the "
-          "model with the exact weights training starts from.", "",
-          "| set | model | PSNR (dB) | SSIM | LPIPS | targets |", "|---|---|---:|---:|---:|---:|"]
+    L += [
+        "## Metrics on the held-out scene",
+        "",
+        "Same evaluation code for both rows (`pipelines.evaluate`: PSNR on images clipped to [0, 1], SSIM with "
+        "an 11-pixel Gaussian window; mean over the targets of a scene, then over scenes). *Initial* is the "
+        "model with the exact weights training starts from.",
+        "",
+        "| set | model | PSNR (dB) | SSIM | LPIPS | targets |",
+        "|---|---|---:|---:|---:|---:|",
+    ]
     for k, row in ev["sets"].items():
         for label in ("init", "trained"):
             m = row[label]
-            L.append(f"| {k.removeprefix('eval_')} | {'initial' if label == 'init' else 'trained'} | "
-                     f"[{m['psnr']:.2f}]({_rel(m['summary'], out)}) | {m['ssim']:.4f} | {_fmt(m.get('lpips'), '.4f')} | "
-                     f"{m['num_targets']} |")
-        L.append(f"| {k.removeprefix('eval_')} | **gain** | **{row['gain_psnr_db']:+.2f}** | "
-                 f"{row['trained']['ssim'] - row['init']['ssim']:+.4f} | | |")
-    L += ["", f"{ev['lpips_note']}.", f"All numbers: [metrics.json]({_rel(ev['metrics_json'], out)}).", "",
-          "Renders next to ground truth (per held-out example: contexts and ground-truth targets, then the "
-          "initial model's and the trained model's renders of the same targets):", "",
-          f"![held-out renders]({_rel(ev['renders_png'], out)})", ""]
+            L.append(
+                f"| {k.removeprefix('eval_')} | {'initial' if label == 'init' else 'trained'} | "
+                f"[{m['psnr']:.2f}]({_rel(m['summary'], out)}) | {m['ssim']:.4f} | {_fmt(m.get('lpips'), '.4f')} | "
+                f"{m['num_targets']} |"
+            )
+        L.append(
+            f"| {k.removeprefix('eval_')} | **gain** | **{row['gain_psnr_db']:+.2f}** | "
+            f"{row['trained']['ssim'] - row['init']['ssim']:+.4f} | | |"
+        )
+    L += [
+        "",
+        f"{ev['lpips_note']}.",
+        f"All numbers: [metrics.json]({_rel(ev['metrics_json'], out)}).",
+        "",
+        "Renders next to ground truth (per held-out example: contexts and ground-truth targets, then the "
+        "initial model's and the trained model's renders of the same targets):",
+        "",
+        f"![held-out renders]({_rel(ev['renders_png'], out)})",
+        "",
+    ]
 
-    L += ["## Novel views and Gaussians", "",
-          f"From held-out example `{rd['sample_id']}` ([contexts]({_rel(rd['context_png'], out)}), "
-          f"[targets: ground truth over render]({_rel(rd['targets_png'], out)})):", "",
-          f"- interpolated path (between the two context cameras): [{_rel(rd['interp_mp4'], out)}]({_rel(rd['interp_mp4'], out)})",
-          f"- extrapolated path (50% beyond both ends): [{_rel(rd['extrap_mp4'], out)}]({_rel(rd['extrap_mp4'], out)})",
-          f"- frames: [{_rel(Path(rd['dir']) / 'frames', out)}/]({_rel(Path(rd['dir']) / 'frames', out)})",
-          f"- Gaussians ({rd['num_gaussians']}, standard 3DGS .ply, opens in any 3DGS viewer): "
-          f"[{_rel(rd['ply'], out)}]({_rel(rd['ply'], out)})", "",
-          f"![targets: ground truth (top) and render (bottom)]({_rel(rd['targets_png'], out)})", ""]
-    L += ["## Re-run", "",
-          f"`seeu demo --out {ctx['args'].out}` again reuses every finished stage; `--force` redoes them; "
-          "`--steps N` retrains (and re-evaluates) while keeping the clips, poses and shards.", ""]
+    L += [
+        "## Novel views and Gaussians",
+        "",
+        f"From held-out example `{rd['sample_id']}` ([contexts]({_rel(rd['context_png'], out)}), "
+        f"[targets: ground truth over render]({_rel(rd['targets_png'], out)})):",
+        "",
+        f"- interpolated path (between the two context cameras): [{_rel(rd['interp_mp4'], out)}]({_rel(rd['interp_mp4'], out)})",
+        f"- extrapolated path (50% beyond both ends): [{_rel(rd['extrap_mp4'], out)}]({_rel(rd['extrap_mp4'], out)})",
+        f"- frames: [{_rel(Path(rd['dir']) / 'frames', out)}/]({_rel(Path(rd['dir']) / 'frames', out)})",
+        f"- Gaussians ({rd['num_gaussians']}, standard 3DGS .ply, opens in any 3DGS viewer): "
+        f"[{_rel(rd['ply'], out)}]({_rel(rd['ply'], out)})",
+        "",
+        f"![targets: ground truth (top) and render (bottom)]({_rel(rd['targets_png'], out)})",
+        "",
+    ]
+    L += [
+        "## Re-run",
+        "",
+        f"`seeu demo --out {ctx['args'].out}` again reuses every finished stage; `--force` redoes them; "
+        "`--steps N` retrains (and re-evaluates) while keeping the clips, poses and shards.",
+        "",
+    ]
     path = out / "report.md"
     atomic_write_text(path, "\n".join(L))
     return path
@@ -637,8 +862,13 @@ def run(args: argparse.Namespace) -> int:
         args.out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise SeeUError(f"cannot create the output directory ({exc.strerror})", args.out) from None
-    ctx = {"args": args, "out": args.out, "progress": args.progress or sys.stderr.isatty(),
-           "image_hw": parse_dims(args.image_size, "--image-size", minimum=16), "heldout_seed": heldout_seed}
+    ctx = {
+        "args": args,
+        "out": args.out,
+        "progress": args.progress or sys.stderr.isatty(),
+        "image_hw": parse_dims(args.image_size, "--image-size", minimum=16),
+        "heldout_seed": heldout_seed,
+    }
     stages = Stages(args.out, args.force)
     r: dict = {}
     r["synth"] = stage_synth(ctx, stages)
@@ -654,13 +884,17 @@ def run(args: argparse.Namespace) -> int:
     stages.info["report"]["seconds"] = time.perf_counter() - t_rep
     report = write_report(ctx, stages, r)  # again, with its own time in the table
     mean = r["eval"]["mean"]
-    print(f"\nHeld-out PSNR {mean['init_psnr']:.2f} dB at initialisation -> {mean['trained_psnr']:.2f} dB trained "
-          f"({mean['gain_psnr_db']:+.2f} dB) after {r['train']['step']} steps; demo took "
-          f"{time.perf_counter() - t0:.0f} s this run.")
-    rows = [(report, "the report: timings, SfM accuracy, shards, training curve, renders vs ground truth, metrics"),
-            (r["eval"]["metrics_json"], "held-out metrics, initial vs trained"),
-            (r["render"]["extrap_mp4"], "novel views along an extrapolated camera path"),
-            (r["render"]["ply"], "the predicted 3D Gaussians (standard 3DGS .ply)")]
+    print(
+        f"\nHeld-out PSNR {mean['init_psnr']:.2f} dB at initialisation -> {mean['trained_psnr']:.2f} dB trained "
+        f"({mean['gain_psnr_db']:+.2f} dB) after {r['train']['step']} steps; demo took "
+        f"{time.perf_counter() - t0:.0f} s this run."
+    )
+    rows = [
+        (report, "the report: timings, SfM accuracy, shards, training curve, renders vs ground truth, metrics"),
+        (r["eval"]["metrics_json"], "held-out metrics, initial vs trained"),
+        (r["render"]["extrap_mp4"], "novel views along an extrapolated camera path"),
+        (r["render"]["ply"], "the predicted 3D Gaussians (standard 3DGS .ply)"),
+    ]
     width = max(len(str(p)) for p, _ in rows)
     print("Look at:")
     for p, what in rows:

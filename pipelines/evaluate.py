@@ -33,7 +33,9 @@ from pipelines.options import parse_dims
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--checkpoint", required=True, help="a ckpt-*.pt file or a directory (its newest checkpoint)")
-    parser.add_argument("--data", required=True, help="evaluation triple shards (seeu build --mode eval, or interp/extrap)")
+    parser.add_argument(
+        "--data", required=True, help="evaluation triple shards (seeu build --mode eval, or interp/extrap)"
+    )
     parser.add_argument("--out", default=None, help="output directory (default: RUN/eval/<data name>)")
     parser.add_argument("--batch-size", type=int, default=1)
     parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
@@ -44,27 +46,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--device", default=None, help="cpu or cuda (default: cuda when available)")
     parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat (default: the training config's)")
     parser.add_argument("--num-workers", type=int, default=0)
-    parser.add_argument("--depth-gt", default=None, metavar="DIR",
-                        help="ground-truth depth maps DIR/<scene_id>/<frame_index:06d>.npy|.pfm -> depth RMSE")
-    parser.add_argument("--points-gt", default=None, metavar="DIR",
-                        help="ground-truth points DIR/<scene_id>/points.npy|.ply [+ obs_mask.npz] -> DTUeval Chamfer")
-    parser.add_argument("--geometry-scale", type=float, default=1.0,
-                        help="multiply predicted points by this before Chamfer (DTU: 200 -> mm)")
+    parser.add_argument(
+        "--depth-gt",
+        default=None,
+        metavar="DIR",
+        help="ground-truth depth maps DIR/<scene_id>/<frame_index:06d>.npy|.pfm -> depth RMSE",
+    )
+    parser.add_argument(
+        "--points-gt",
+        default=None,
+        metavar="DIR",
+        help="ground-truth points DIR/<scene_id>/points.npy|.ply [+ obs_mask.npz] -> DTUeval Chamfer",
+    )
+    parser.add_argument(
+        "--geometry-scale",
+        type=float,
+        default=1.0,
+        help="multiply predicted points by this before Chamfer (DTU: 200 -> mm)",
+    )
     parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
 
 
 def run(args: argparse.Namespace) -> int:
     hw = parse_dims(args.image_size, "--image-size") if args.image_size else None
-    summary = evaluate(args.checkpoint, args.data, args.out, batch_size=args.batch_size, image_hw=hw,
-                       max_samples=args.max_samples, warmup=args.warmup, lpips=not args.no_lpips,
-                       lpips_weights=args.lpips_weights, device=args.device, rasterizer=args.rasterizer,
-                       num_workers=args.num_workers, progress=args.progress, depth_gt=args.depth_gt,
-                       points_gt=args.points_gt, geometry_scale=args.geometry_scale)
+    summary = evaluate(
+        args.checkpoint,
+        args.data,
+        args.out,
+        batch_size=args.batch_size,
+        image_hw=hw,
+        max_samples=args.max_samples,
+        warmup=args.warmup,
+        lpips=not args.no_lpips,
+        lpips_weights=args.lpips_weights,
+        device=args.device,
+        rasterizer=args.rasterizer,
+        num_workers=args.num_workers,
+        progress=args.progress,
+        depth_gt=args.depth_gt,
+        points_gt=args.points_gt,
+        geometry_scale=args.geometry_scale,
+    )
     print(json.dumps({k: summary[k] for k in ("metrics", "timing", "out")}, indent=2))
     return 0
-
-
-
 
 
 def check_image_size(model, hw: tuple[int, int]) -> None:
@@ -73,8 +97,10 @@ def check_image_size(model, hw: tuple[int, int]) -> None:
 
     unit = getattr(model, "size_unit", 1)
     if hw[0] % unit or hw[1] % unit:
-        raise SeeUError(f"--image-size {hw[0]}x{hw[1]}: this model needs height and width divisible by {unit} "
-                        f"(e.g. {max(unit, hw[0] // unit * unit)}x{max(unit, hw[1] // unit * unit)})")
+        raise SeeUError(
+            f"--image-size {hw[0]}x{hw[1]}: this model needs height and width divisible by {unit} "
+            f"(e.g. {max(unit, hw[0] // unit * unit)}x{max(unit, hw[1] // unit * unit)})"
+        )
 
 
 def csv_text(rows: list[dict]) -> str:
@@ -83,8 +109,12 @@ def csv_text(rows: list[dict]) -> str:
         w = csv.DictWriter(buf, fieldnames=list(rows[0].keys()), lineterminator="\n")
         w.writeheader()
         for r in rows:
-            w.writerow({k: ("" if isinstance(v, float) and math.isnan(v) else
-                            (f"{v:.6f}" if isinstance(v, float) else v)) for k, v in r.items()})
+            w.writerow(
+                {
+                    k: ("" if isinstance(v, float) and math.isnan(v) else (f"{v:.6f}" if isinstance(v, float) else v))
+                    for k, v in r.items()
+                }
+            )
     return buf.getvalue()
 
 
@@ -98,11 +128,25 @@ def _nan_to_none(obj: Any) -> Any:
     return obj
 
 
-def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None, batch_size: int = 1,
-                     max_samples: int = 0, warmup: int = 2, lpips_fn=None, rasterizer: str = "auto",
-                     precision: str = "auto", num_workers: int = 0, progress: bool | None = None,
-                     keep_renders: int = 0, depth_gt=None, points_gt=None,
-                     geometry_scale: float = 1.0):
+def evaluate_on_data(
+    model,
+    data: str,
+    image_hw: tuple[int, int],
+    *,
+    device=None,
+    batch_size: int = 1,
+    max_samples: int = 0,
+    warmup: int = 2,
+    lpips_fn=None,
+    rasterizer: str = "auto",
+    precision: str = "auto",
+    num_workers: int = 0,
+    progress: bool | None = None,
+    keep_renders: int = 0,
+    depth_gt=None,
+    points_gt=None,
+    geometry_scale: float = 1.0,
+):
     """Evaluate an in-memory model on triple shards; returns `seeu_model.evaluation.EvalOutput`."""
     import sys
 
@@ -115,13 +159,21 @@ def evaluate_on_data(model, data: str, image_hw: tuple[int, int], *, device=None
 
     device = torch.device(device) if device is not None else next(model.parameters()).device
     loader = make_eval_loader(data, image_hw, batch_size, num_workers)
-    return evaluate_model(model, loader, device, encode_context,
-                          lambda g, t: render_gaussians(g, t, rasterizer), lpips_fn=lpips_fn,
-                          max_samples=max_samples, warmup=warmup, keep_renders=keep_renders,
-                          progress=sys.stderr.isatty() if progress is None else progress,
-                          autocast=lambda: autocast_context(precision, device),
-                          depth_fn=make_depth_fn(depth_gt, image_hw) if depth_gt is not None else None,
-                          geometry_fn=make_geometry_fn(points_gt, geometry_scale) if points_gt is not None else None)
+    return evaluate_model(
+        model,
+        loader,
+        device,
+        encode_context,
+        lambda g, t: render_gaussians(g, t, rasterizer),
+        lpips_fn=lpips_fn,
+        max_samples=max_samples,
+        warmup=warmup,
+        keep_renders=keep_renders,
+        progress=sys.stderr.isatty() if progress is None else progress,
+        autocast=lambda: autocast_context(precision, device),
+        depth_fn=make_depth_fn(depth_gt, image_hw) if depth_gt is not None else None,
+        geometry_fn=make_geometry_fn(points_gt, geometry_scale) if points_gt is not None else None,
+    )
 
 
 def write_results(out: Path, res, extra: dict) -> dict:
@@ -145,22 +197,43 @@ def write_results(out: Path, res, extra: dict) -> dict:
         for key in ("accuracy", "completeness", "overall"):
             vals = [sum(g[key] for g in gs) / len(gs) for gs in by_scene.values()]
             metrics[f"chamfer_{key}"] = sum(vals) / len(vals)
-    summary = {**extra, "metrics": metrics, "timing": timing_dict(res.timing), "out": str(out),
-               "protocol": {"psnr": "clip [0,1], per-image MSE, -10 log10",
-                            "ssim": "11-px Gaussian window, sigma 1.5, scikit-image (sample covariance)",
-                            "lpips": "LPIPS(VGG) on [0,1] inputs (normalize=True)",
-                            "aggregation": "mean over the targets of a scene, then over scenes",
-                            "timing": "ms per sample, encoder and renderer separately, after warm-up"}}
+    summary = {
+        **extra,
+        "metrics": metrics,
+        "timing": timing_dict(res.timing),
+        "out": str(out),
+        "protocol": {
+            "psnr": "clip [0,1], per-image MSE, -10 log10",
+            "ssim": "11-px Gaussian window, sigma 1.5, scikit-image (sample covariance)",
+            "lpips": "LPIPS(VGG) on [0,1] inputs (normalize=True)",
+            "aggregation": "mean over the targets of a scene, then over scenes",
+            "timing": "ms per sample, encoder and renderer separately, after warm-up",
+        },
+    }
     summary = _nan_to_none(summary)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary
 
 
-def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *, batch_size: int = 1,
-             image_hw: tuple[int, int] | None = None, max_samples: int = 0, warmup: int = 2, lpips: bool = True,
-             lpips_weights: str | None = None, device: str | None = None, rasterizer: str | None = None,
-             num_workers: int = 0, progress: bool | None = None, depth_gt=None,
-             points_gt=None, geometry_scale: float = 1.0) -> dict:
+def evaluate(
+    checkpoint: str | Path,
+    data: str,
+    out: str | Path | None = None,
+    *,
+    batch_size: int = 1,
+    image_hw: tuple[int, int] | None = None,
+    max_samples: int = 0,
+    warmup: int = 2,
+    lpips: bool = True,
+    lpips_weights: str | None = None,
+    device: str | None = None,
+    rasterizer: str | None = None,
+    num_workers: int = 0,
+    progress: bool | None = None,
+    depth_gt=None,
+    points_gt=None,
+    geometry_scale: float = 1.0,
+) -> dict:
     """Python API of `seeu eval`; returns the summary document (also written to OUT/summary.json)."""
     import torch
 
@@ -196,14 +269,34 @@ def evaluate(checkpoint: str | Path, data: str, out: str | Path | None = None, *
         if found is not None:  # DTU: ground truth recorded by the importer
             depth_gt, points_gt, geometry_scale = found
             geometry_note = "ground truth from the posed scenes' meta (depth RMSE in scene units, Chamfer in mm)"
-    res = evaluate_on_data(model, data, hw, device=dev, batch_size=batch_size, max_samples=max_samples,
-                           warmup=warmup, lpips_fn=lpips_fn, rasterizer=rasterizer or cfg.rasterizer,
-                           precision=cfg.precision, num_workers=num_workers, progress=progress,
-                           depth_gt=depth_gt, points_gt=points_gt, geometry_scale=geometry_scale)
+    res = evaluate_on_data(
+        model,
+        data,
+        hw,
+        device=dev,
+        batch_size=batch_size,
+        max_samples=max_samples,
+        warmup=warmup,
+        lpips_fn=lpips_fn,
+        rasterizer=rasterizer or cfg.rasterizer,
+        precision=cfg.precision,
+        num_workers=num_workers,
+        progress=progress,
+        depth_gt=depth_gt,
+        points_gt=points_gt,
+        geometry_scale=geometry_scale,
+    )
     if not res.records:
         raise SeeUError("the evaluation data yielded no sample", data)
-    extra = {"checkpoint": ck["path"], "step": ck["step"], "data": str(data), "image_hw": list(hw),
-             "lpips": lpips_kind, "device": str(dev), "geometry": geometry_note}
+    extra = {
+        "checkpoint": ck["path"],
+        "step": ck["step"],
+        "data": str(data),
+        "image_hw": list(hw),
+        "lpips": lpips_kind,
+        "device": str(dev),
+        "geometry": geometry_note,
+    }
     return write_results(Path(out), res, extra)
 
 
@@ -264,7 +357,7 @@ def make_depth_fn(root_or_loader, image_hw: tuple[int, int]):
         (sh, sw), (oy, ox) = cover_crop_geometry(depth.shape[:2], (h, w))
         if (sh, sw) != depth.shape[:2]:
             depth = cv2.resize(depth, (sw, sh), interpolation=cv2.INTER_NEAREST)
-        return depth[oy:oy + h, ox:ox + w]
+        return depth[oy : oy + h, ox : ox + w]
 
     def depth_fn(batch, render):
         b, t = batch["target"]["frame_index"].shape
@@ -287,8 +380,9 @@ def _read_ply_points(path: Path):
     return np.stack([v["x"], v["y"], v["z"]], -1).astype(np.float64)
 
 
-def make_geometry_fn(root_or_loader, scale: float = 1.0, min_opacity: float = 0.5, density: float = 0.2,
-                     max_dist: float = 20.0):
+def make_geometry_fn(
+    root_or_loader, scale: float = 1.0, min_opacity: float = 0.5, density: float = 0.2, max_dist: float = 20.0
+):
     """geometry_fn for `evaluate_model`: DTUeval Chamfer between the Gaussian centres (opacity >=
     `min_opacity`, multiplied by `scale`, e.g. 200 to undo DTU's 1/200 camera scaling -> mm) and the
     ground-truth points.
@@ -314,8 +408,9 @@ def make_geometry_fn(root_or_loader, scale: float = 1.0, min_opacity: float = 0.
         mask = above = None
         if (d / "obs_mask.npz").is_file():
             z = np.load(d / "obs_mask.npz")
-            mask, above_fn = dtu_observation_filter(z["ObsMask"], z["BB"], float(z["Res"]),
-                                                    z["Plane"] if "Plane" in z else None)
+            mask, above_fn = dtu_observation_filter(
+                z["ObsMask"], z["BB"], float(z["Res"]), z["Plane"] if "Plane" in z else None
+            )
             above = above_fn(pts)
         return pts, mask, above
 
@@ -331,8 +426,7 @@ def make_geometry_fn(root_or_loader, scale: float = 1.0, min_opacity: float = 0.
         keep = gaussians.opacities[k] >= min_opacity
         pred = (gaussians.means[k][keep].double().cpu().numpy()) * scale
         r = chamfer_dtueval(pred, pts, mask, above, density=density, max_dist=max_dist)
-        return {"accuracy": r.accuracy, "completeness": r.completeness, "overall": r.overall,
-                "num_pred": r.num_pred}
+        return {"accuracy": r.accuracy, "completeness": r.completeness, "overall": r.overall, "num_pred": r.num_pred}
 
     return geometry_fn
 
@@ -400,8 +494,7 @@ def posed_ground_truth(data: str):
             if loadmat is not None:
                 om = loadmat(meta["obs_mask"])
                 plane = loadmat(meta["obs_plane"])["P"] if "obs_plane" in meta else None
-                mask, above_fn = dtu_observation_filter(om["ObsMask"], om["BB"], float(np.ravel(om["Res"])[0]),
-                                                        plane)
+                mask, above_fn = dtu_observation_filter(om["ObsMask"], om["BB"], float(np.ravel(om["Res"])[0]), plane)
                 above = above_fn(pts)
         return pts, mask, above
 

@@ -28,16 +28,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("pixelsplat", parents=[common], help="pixelSplat / MVSplat chunks + index.json")
     f.add_argument("--stage", choices=["train", "test"], default="test")
     f.add_argument("--chunk-mb", type=float, default=100.0, help="image megabytes per chunk (peers: 100)")
-    f.add_argument("--resize", metavar="HxW", default=None,
-                   help="resize + centre-crop every frame (the peers' crop, intrinsics updated, JPEG re-encoded); "
-                        "360x640 makes any posed data RE10K-loader ready")
-    f.add_argument("--size-check", choices=["warn", "refuse"], default="warn",
-                   help="scenes the peers' RE10K loaders would skip (frames not 360x640, field of view > 100 deg): "
-                        "warn in one line (default) or refuse the export (exit 2)")
+    f.add_argument(
+        "--resize",
+        metavar="HxW",
+        default=None,
+        help="resize + centre-crop every frame (the peers' crop, intrinsics updated, JPEG re-encoded); "
+        "360x640 makes any posed data RE10K-loader ready",
+    )
+    f.add_argument(
+        "--size-check",
+        choices=["warn", "refuse"],
+        default="warn",
+        help="scenes the peers' RE10K loaders would skip (frames not 360x640, field of view > 100 deg): "
+        "warn in one line (default) or refuse the export (exit 2)",
+    )
     f = sub.add_parser("nerfstudio", parents=[common], help="nerfstudio transforms.json + image files")
-
-
-
 
 
 def run(args: argparse.Namespace) -> int:
@@ -51,13 +56,22 @@ def run(args: argparse.Namespace) -> int:
     if args.format == "pixelsplat":
         from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
 
-        cfg = PixelSplatExportConfig(out=args.out, stage=args.stage, chunk_bytes=int(args.chunk_mb * 1e6),
-                                     scenes=scene_ids, resize=parse_dims(args.resize, "--resize") if args.resize else None, size_check=args.size_check)
+        cfg = PixelSplatExportConfig(
+            out=args.out,
+            stage=args.stage,
+            chunk_bytes=int(args.chunk_mb * 1e6),
+            scenes=scene_ids,
+            resize=parse_dims(args.resize, "--resize") if args.resize else None,
+            size_check=args.size_check,
+        )
         s = export_pixelsplat(dataset, cfg, progress=progress)
         print(f"exported {s['scenes']} scenes in {s['chunks']} chunks to {s['directory']}")
         if s["scenes_peers_skip"]:
-            print(f"seeu export: warning: the RE10K loaders would skip {s['scenes_peers_skip']} of {s['scenes']} "
-                  f"scenes (first: {s['peers_skip'][0]})", file=sys.stderr)
+            print(
+                f"seeu export: warning: the RE10K loaders would skip {s['scenes_peers_skip']} of {s['scenes']} "
+                f"scenes (first: {s['peers_skip'][0]})",
+                file=sys.stderr,
+            )
     else:
         from seeu_data.exporters.nerfstudio import NerfstudioExportConfig, export_nerfstudio
 

@@ -38,43 +38,54 @@ from pathlib import Path
 from pipelines.options import parse_scene_list
 
 
-
-
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--out", type=Path, required=True, help="output posed-frames directory")
-    common.add_argument("--verify-decode", action="store_true",
-                        help="fully decode every image (slow); default: header + trailer check")
+    common.add_argument(
+        "--verify-decode", action="store_true", help="fully decode every image (slow); default: header + trailer check"
+    )
     common.add_argument("--strict", action="store_true", help="fail on the first bad scene instead of skipping it")
     common.add_argument("--progress", action="store_true", help="show a progress bar even when stderr is not a TTY")
-    common.add_argument("--fsync", action="store_true",
-                        help="fsync every output file before its rename (durable across a power loss; slower). "
-                             "Default: atomic renames only, a torn file is caught by the manifest sha256 "
-                             "(seeu validate); also SEEU_FSYNC=1")
+    common.add_argument(
+        "--fsync",
+        action="store_true",
+        help="fsync every output file before its rename (durable across a power loss; slower). "
+        "Default: atomic renames only, a torn file is caught by the manifest sha256 "
+        "(seeu validate); also SEEU_FSYNC=1",
+    )
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
 
     f = sub.add_parser("pixelsplat", parents=[common], help="RE10K / ACID / DTU pixelSplat chunks")
     f.add_argument("root", type=Path, help="dataset dir holding train/ and test/ (or a stage dir)")
     f.add_argument("--stage", choices=["train", "test"], default="train")
     f.add_argument("--scenes", help="keep only these scene keys: a,b,c or @file.txt")
-    f.add_argument("--dataset", choices=["re10k", "acid", "dtu"], default="re10k",
-                   help="near/far preset (re10k/acid 1/100, dtu 2.125/4.525) and the name kept in the meta")
+    f.add_argument(
+        "--dataset",
+        choices=["re10k", "acid", "dtu"],
+        default="re10k",
+        help="near/far preset (re10k/acid 1/100, dtu 2.125/4.525) and the name kept in the meta",
+    )
     f.add_argument("--near", type=float)
     f.add_argument("--far", type=float)
     f.set_defaults(_import=_pixelsplat)
 
     f = sub.add_parser("re10k", parents=[common], help="raw RealEstate10K / ACID text files + frames")
     f.add_argument("--cameras", type=Path, required=True, help="directory of <scene>.txt camera files")
-    f.add_argument("--frames", type=Path, required=True,
-                   help="directory of <scene>/<timestamp_us>.{png,jpg} frames (as the download scripts leave them)")
+    f.add_argument(
+        "--frames",
+        type=Path,
+        required=True,
+        help="directory of <scene>/<timestamp_us>.{png,jpg} frames (as the download scripts leave them)",
+    )
     f.add_argument("--scenes", help="keep only these scenes: a,b,c or @file.txt")
     f.add_argument("--dataset", choices=["re10k", "acid"], default="re10k")
     f.add_argument("--near", type=float, default=1.0)
     f.add_argument("--far", type=float, default=100.0)
-    f.add_argument("--allow-missing-frames", action="store_true",
-                   help="drop frames whose image is missing instead of skipping the scene")
+    f.add_argument(
+        "--allow-missing-frames",
+        action="store_true",
+        help="drop frames whose image is missing instead of skipping the scene",
+    )
     f.set_defaults(_import=_re10k)
 
     f = sub.add_parser("dtu", parents=[common], help="DTU in the MVSNet layout")
@@ -90,11 +101,17 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("model", type=Path, help="model directory (cameras/images/points3D .bin or .txt)")
     f.add_argument("--images", type=Path, required=True, help="image directory the model's names are relative to")
     f.add_argument("--scene-id", help="scene id (default: derived from the model path)")
-    f.add_argument("--no-undistort", action="store_true",
-                   help="refuse distorted camera models instead of undistorting with pycolmap")
-    f.add_argument("--allow-outside-paths", action="store_true",
-                   help="read image names that lead outside --images (../x.jpg, absolute, links); "
-                        "default: such images are dropped and counted")
+    f.add_argument(
+        "--no-undistort",
+        action="store_true",
+        help="refuse distorted camera models instead of undistorting with pycolmap",
+    )
+    f.add_argument(
+        "--allow-outside-paths",
+        action="store_true",
+        help="read image names that lead outside --images (../x.jpg, absolute, links); "
+        "default: such images are dropped and counted",
+    )
     f.add_argument("--near", type=float, help="near plane (default: from the 3D points' depths)")
     f.add_argument("--far", type=float, help="far plane (default: from the 3D points' depths)")
     f.set_defaults(_import=_colmap)
@@ -102,15 +119,27 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f = sub.add_parser("nerfstudio", parents=[common], help="a nerfstudio / NeRF transforms.json")
     f.add_argument("transforms", type=Path, help="transforms.json")
     f.add_argument("--scene-id", help="scene id (default: the folder name)")
-    f.add_argument("--keep-applied-transform", action="store_true",
-                   help="keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)")
-    f.add_argument("--skip-missing", action="store_true",
-                   help="drop frames whose image is missing (counted in the report) instead of skipping the scene")
-    f.add_argument("--no-undistort", action="store_true",
-                   help="refuse frames with lens distortion (k1, k2, k3, k4, p1, p2) instead of undistorting them")
-    f.add_argument("--allow-outside-paths", action="store_true",
-                   help="read file_paths that lead outside the JSON's folder (../x.png, absolute, links); "
-                        "default: such frames are dropped and counted")
+    f.add_argument(
+        "--keep-applied-transform",
+        action="store_true",
+        help="keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)",
+    )
+    f.add_argument(
+        "--skip-missing",
+        action="store_true",
+        help="drop frames whose image is missing (counted in the report) instead of skipping the scene",
+    )
+    f.add_argument(
+        "--no-undistort",
+        action="store_true",
+        help="refuse frames with lens distortion (k1, k2, k3, k4, p1, p2) instead of undistorting them",
+    )
+    f.add_argument(
+        "--allow-outside-paths",
+        action="store_true",
+        help="read file_paths that lead outside the JSON's folder (../x.png, absolute, links); "
+        "default: such frames are dropped and counted",
+    )
     f.add_argument("--near", type=float, help="near plane (default: from a seeu export, else 0.1)")
     f.add_argument("--far", type=float, help="far plane (default: from a seeu export, else 100)")
     f.set_defaults(_import=_nerfstudio)
@@ -119,28 +148,55 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _pixelsplat(args):
     from seeu_data.importers import pixelsplat as m
 
-    cfg = m.PixelSplatImportConfig(root=args.root, stage=args.stage, scenes=parse_scene_list(args.scenes),
-                                   dataset=args.dataset, near=args.near, far=args.far,
-                                   verify_decode=args.verify_decode)
+    cfg = m.PixelSplatImportConfig(
+        root=args.root,
+        stage=args.stage,
+        scenes=parse_scene_list(args.scenes),
+        dataset=args.dataset,
+        near=args.near,
+        far=args.far,
+        verify_decode=args.verify_decode,
+    )
     directory, chunks, missing, total = m.plan(cfg)
 
     near, far = cfg.near_far()
-    params = {"format": "pixelsplat", "root": str(args.root), "stage": args.stage, "dataset": args.dataset,
-              "near": near, "far": far, "scenes": sorted(cfg.scenes) if cfg.scenes else None,
-              "verify_decode": args.verify_decode}
+    params = {
+        "format": "pixelsplat",
+        "root": str(args.root),
+        "stage": args.stage,
+        "dataset": args.dataset,
+        "near": near,
+        "far": far,
+        "scenes": sorted(cfg.scenes) if cfg.scenes else None,
+        "verify_decode": args.verify_decode,
+    }
     return m.import_plan(cfg, chunks, directory, missing), params, total, [str(directory)]
 
 
 def _re10k(args):
     from seeu_data.importers import re10k_text as m
 
-    cfg = m.Re10kTextImportConfig(cameras_dir=args.cameras, frames_dir=args.frames, scenes=parse_scene_list(args.scenes),
-                                  dataset=args.dataset, near=args.near, far=args.far,
-                                  allow_missing_frames=args.allow_missing_frames, verify_decode=args.verify_decode)
+    cfg = m.Re10kTextImportConfig(
+        cameras_dir=args.cameras,
+        frames_dir=args.frames,
+        scenes=parse_scene_list(args.scenes),
+        dataset=args.dataset,
+        near=args.near,
+        far=args.far,
+        allow_missing_frames=args.allow_missing_frames,
+        verify_decode=args.verify_decode,
+    )
     files = m.camera_files(cfg)
-    params = {"format": "re10k", "cameras": str(args.cameras), "frames": str(args.frames), "dataset": args.dataset,
-              "near": args.near, "far": args.far, "allow_missing_frames": args.allow_missing_frames,
-              "verify_decode": args.verify_decode}
+    params = {
+        "format": "re10k",
+        "cameras": str(args.cameras),
+        "frames": str(args.frames),
+        "dataset": args.dataset,
+        "near": args.near,
+        "far": args.far,
+        "allow_missing_frames": args.allow_missing_frames,
+        "verify_decode": args.verify_decode,
+    }
     return m.import_plan(cfg, files), params, len(files), [str(args.cameras), str(args.frames)]
 
 
@@ -148,39 +204,82 @@ def _dtu(args):
     from seeu_data.importers import dtu as m
 
     scans = None if args.scans is None else [int(s) for s in args.scans.replace("scan", "").split(",") if s.strip()]
-    cfg = m.DtuImportConfig(root=args.root, scans=scans, lighting=args.lighting, scale=args.scale,
-                            near=args.near, far=args.far, verify_decode=args.verify_decode)
+    cfg = m.DtuImportConfig(
+        root=args.root,
+        scans=scans,
+        lighting=args.lighting,
+        scale=args.scale,
+        near=args.near,
+        far=args.far,
+        verify_decode=args.verify_decode,
+    )
     found = m.scan_list(cfg)
-    params = {"format": "dtu", "root": str(args.root), "scans": found, "lighting": args.lighting,
-              "scale": args.scale, "near": args.near, "far": args.far, "verify_decode": args.verify_decode}
+    params = {
+        "format": "dtu",
+        "root": str(args.root),
+        "scans": found,
+        "lighting": args.lighting,
+        "scale": args.scale,
+        "near": args.near,
+        "far": args.far,
+        "verify_decode": args.verify_decode,
+    }
     return m.import_plan(cfg, found), params, len(found), [str(args.root)]
 
 
 def _colmap(args):
     from seeu_data.importers import colmap as m
 
-    cfg = m.ColmapImportConfig(model_dir=args.model, images_dir=args.images, scene_id=args.scene_id,
-                               undistort=not args.no_undistort, near=args.near, far=args.far,
-                               verify_decode=args.verify_decode, allow_outside_paths=args.allow_outside_paths)
-    params = {"format": "colmap", "model": str(args.model), "images": str(args.images),
-              "undistort": not args.no_undistort, "near": args.near, "far": args.far,
-              "scene_id": args.scene_id, "verify_decode": args.verify_decode,
-              "allow_outside_paths": args.allow_outside_paths}
+    cfg = m.ColmapImportConfig(
+        model_dir=args.model,
+        images_dir=args.images,
+        scene_id=args.scene_id,
+        undistort=not args.no_undistort,
+        near=args.near,
+        far=args.far,
+        verify_decode=args.verify_decode,
+        allow_outside_paths=args.allow_outside_paths,
+    )
+    params = {
+        "format": "colmap",
+        "model": str(args.model),
+        "images": str(args.images),
+        "undistort": not args.no_undistort,
+        "near": args.near,
+        "far": args.far,
+        "scene_id": args.scene_id,
+        "verify_decode": args.verify_decode,
+        "allow_outside_paths": args.allow_outside_paths,
+    }
     return m.import_plan(cfg), params, 1, [str(args.model), str(args.images)]
 
 
 def _nerfstudio(args):
     from seeu_data.importers import nerfstudio as m
 
-    cfg = m.NerfstudioImportConfig(transforms=args.transforms, scene_id=args.scene_id,
-                                   undo_applied_transform=not args.keep_applied_transform,
-                                   near=args.near, far=args.far, verify_decode=args.verify_decode,
-                                   undistort=not args.no_undistort, skip_missing=args.skip_missing,
-                                   allow_outside_paths=args.allow_outside_paths)
-    params = {"format": "nerfstudio", "transforms": str(args.transforms),
-              "undo_applied_transform": not args.keep_applied_transform, "near": args.near, "far": args.far,
-              "scene_id": args.scene_id, "verify_decode": args.verify_decode, "undistort": not args.no_undistort,
-              "skip_missing": args.skip_missing, "allow_outside_paths": args.allow_outside_paths}
+    cfg = m.NerfstudioImportConfig(
+        transforms=args.transforms,
+        scene_id=args.scene_id,
+        undo_applied_transform=not args.keep_applied_transform,
+        near=args.near,
+        far=args.far,
+        verify_decode=args.verify_decode,
+        undistort=not args.no_undistort,
+        skip_missing=args.skip_missing,
+        allow_outside_paths=args.allow_outside_paths,
+    )
+    params = {
+        "format": "nerfstudio",
+        "transforms": str(args.transforms),
+        "undo_applied_transform": not args.keep_applied_transform,
+        "near": args.near,
+        "far": args.far,
+        "scene_id": args.scene_id,
+        "verify_decode": args.verify_decode,
+        "undistort": not args.no_undistort,
+        "skip_missing": args.skip_missing,
+        "allow_outside_paths": args.allow_outside_paths,
+    }
     return m.import_plan(cfg), params, 1, [str(args.transforms)]
 
 
@@ -193,7 +292,15 @@ def run(args: argparse.Namespace) -> int:
         items, params, total, inputs = args._import(args)
         report = ImportReport(format=args.format)
         progress = args.progress or sys.stderr.isatty()
-        write_import(items, args.out, report, params=params, provenance=provenance(f"import {args.format}", inputs),
-                     strict=args.strict, progress=progress, total=total)
+        write_import(
+            items,
+            args.out,
+            report,
+            params=params,
+            provenance=provenance(f"import {args.format}", inputs),
+            strict=args.strict,
+            progress=progress,
+            total=total,
+        )
     print(report.summary_line(args.out))
     return 0

@@ -32,7 +32,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g = p.add_argument_group("context overlap")
     g.add_argument("--min-overlap", type=float, default=0.0, help="smallest allowed context view overlap (0..1)")
     g.add_argument("--max-overlap", type=float, default=1.0, help="largest allowed context view overlap (0..1)")
-    g.add_argument("--overlap-depth", type=float, default=None, help="depth of the overlap test (default sqrt(near*far))")
+    g.add_argument(
+        "--overlap-depth", type=float, default=None, help="depth of the overlap test (default sqrt(near*far))"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,7 +59,9 @@ def run(args: argparse.Namespace) -> int:
     for sid in sorted(scenes):
         src = scenes[sid]
         if src.path not in tables:
-            tables[src.path] = open_ipc_file(src.path).read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
+            tables[src.path] = (
+                open_ipc_file(src.path).read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
+            )
         rows = tables[src.path].slice(src.row_start, src.num_frames)
         c2w = rows.column("cam_to_world").combine_chunks().flatten().to_numpy().reshape(-1, 4, 4)
         intr = rows.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
@@ -67,6 +71,8 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(args.out, json.dumps(doc) + "\n")
     used = sum(1 for v in per_scene.values() if v)
     entries = sum(len(v) for v in per_scene.values() if v)
-    print(f"wrote {args.out}: {len(doc)} scenes, {used} with entries "
-          f"({entries if args.format == 'latentsplat' else used} entries), {len(doc) - used} null")
+    print(
+        f"wrote {args.out}: {len(doc)} scenes, {used} with entries "
+        f"({entries if args.format == 'latentsplat' else used} entries), {len(doc) - used} null"
+    )
     return 0

@@ -41,8 +41,14 @@ def _hist(values: np.ndarray, bins: int = 10) -> dict:
 def _summary(values: np.ndarray) -> dict:
     if values.size == 0:
         return {"count": 0}
-    return {"count": int(values.size), "min": int(values.min()), "max": int(values.max()),
-            "mean": round(float(values.mean()), 3), "median": float(np.median(values)), "histogram": _hist(values)}
+    return {
+        "count": int(values.size),
+        "min": int(values.min()),
+        "max": int(values.max()),
+        "mean": round(float(values.mean()), 3),
+        "median": float(np.median(values)),
+        "histogram": _hist(values),
+    }
 
 
 def triple_statistics(root: Path, verify: bool = False) -> dict:
@@ -54,8 +60,11 @@ def triple_statistics(root: Path, verify: bool = False) -> dict:
     shards = TripleShards(root, verify=verify)
     cols = ["scene_id", "mode", "num_context", "gap", "target_offset", "width", "height", "image"]
     table = shards.read_columns(cols)
-    modes, mode_counts = np.unique(np.asarray(table.column("mode").to_pylist(), dtype=object), return_counts=True) \
-        if table.num_rows else ([], [])
+    modes, mode_counts = (
+        np.unique(np.asarray(table.column("mode").to_pylist(), dtype=object), return_counts=True)
+        if table.num_rows
+        else ([], [])
+    )
     gaps = table.column("gap").to_numpy() if table.num_rows else np.zeros(0, int)
     offsets = pc.list_flatten(table.column("target_offset")).to_numpy() if table.num_rows else np.zeros(0, int)
     views = pc.list_value_length(table.column("width")).to_numpy() if table.num_rows else np.zeros(0, int)
@@ -63,7 +72,9 @@ def triple_statistics(root: Path, verify: bool = False) -> dict:
     widths = pc.list_flatten(table.column("width")).to_numpy() if table.num_rows else np.zeros(0, int)
     heights = pc.list_flatten(table.column("height")).to_numpy() if table.num_rows else np.zeros(0, int)
     img_bytes = pc.binary_length(pc.list_flatten(table.column("image"))).to_numpy() if table.num_rows else np.zeros(0)
-    sizes, size_counts = np.unique(np.stack([widths, heights], 1), axis=0, return_counts=True) if widths.size else ([], [])
+    sizes, size_counts = (
+        np.unique(np.stack([widths, heights], 1), axis=0, return_counts=True) if widths.size else ([], [])
+    )
     outside = offsets[offsets != 0]
     return {
         "path": str(root),
@@ -75,9 +86,13 @@ def triple_statistics(root: Path, verify: bool = False) -> dict:
         "num_context": {str(int(k)): int(c) for k, c in zip(*np.unique(nctx, return_counts=True))},
         "num_target": {str(int(k)): int(c) for k, c in zip(*np.unique(views - nctx, return_counts=True))},
         "gap": _summary(gaps),
-        "target_offset": {"inside": int((offsets == 0).sum()), "before": int((offsets < 0).sum()),
-                          "after": int((offsets > 0).sum()), "outside": _summary(outside),
-                          "max_abs": int(np.abs(offsets).max()) if offsets.size else 0},
+        "target_offset": {
+            "inside": int((offsets == 0).sum()),
+            "before": int((offsets < 0).sum()),
+            "after": int((offsets > 0).sum()),
+            "outside": _summary(outside),
+            "max_abs": int(np.abs(offsets).max()) if offsets.size else 0,
+        },
         "image_sizes": {f"{int(w)}x{int(h)}": int(c) for (w, h), c in zip(sizes, size_counts)},  # type: ignore[call-overload]
         "image_bytes_per_view_mean": round(float(img_bytes.mean()), 1) if img_bytes.size else 0.0,
         "params": shards.manifest.get("params", {}),
@@ -132,8 +147,11 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
                 ax.set_title(f"context f={row.frame_index[c]}", fontsize=8, color="tab:blue")
             else:
                 off = int(row.target_offset[c - v])
-                ax.set_title(f"target f={row.frame_index[c]} ({off:+d})" if off else f"target f={row.frame_index[c]}",
-                             fontsize=8, color="tab:red" if off else "tab:green")
+                ax.set_title(
+                    f"target f={row.frame_index[c]} ({off:+d})" if off else f"target f={row.frame_index[c]}",
+                    fontsize=8,
+                    color="tab:red" if off else "tab:green",
+                )
         axes[r_i, 0].set_ylabel(f"{row.mode}\n{row.scene_id[:18]}\ngap {row.gap}", fontsize=8)
     fig.suptitle(f"{root.name}: {total} triples", fontsize=10)
     fig.tight_layout()
@@ -155,14 +173,21 @@ def _print_text(s: dict) -> None:
     if t["outside"]["count"]:
         line += f" (offsets {t['outside']['min']}..{t['outside']['max']})"
     print(line)
-    print("image sizes (WxH: views): " + ", ".join(f"{k}: {v}" for k, v in s["image_sizes"].items())
-          + f"; {s['image_bytes_per_view_mean'] / 1e3:.1f} kB per view")
+    print(
+        "image sizes (WxH: views): "
+        + ", ".join(f"{k}: {v}" for k, v in s["image_sizes"].items())
+        + f"; {s['image_bytes_per_view_mean'] / 1e3:.1f} kB per view"
+    )
     rep = s["report"]
     if rep.get("scenes_skipped_too_short"):
-        print(f"build skipped {rep['scenes_skipped_too_short']} scenes shorter than {rep.get('min_scene_frames')} frames")
+        print(
+            f"build skipped {rep['scenes_skipped_too_short']} scenes shorter than {rep.get('min_scene_frames')} frames"
+        )
     if "index_entries" in rep:
-        print(f"eval index: {rep['index_entries']} entries, {rep['index_null_skipped']} null skipped, "
-              f"{rep['not_written']} not written")
+        print(
+            f"eval index: {rep['index_entries']} entries, {rep['index_null_skipped']} null skipped, "
+            f"{rep['not_written']} not written"
+        )
 
 
 def run(args: argparse.Namespace) -> int:

@@ -19,9 +19,13 @@ import json
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", default="paper", choices=["paper", "cpu_small", "tiny", "mvsplat"], help="model preset")
+    parser.add_argument(
+        "--preset", default="paper", choices=["paper", "cpu_small", "tiny", "mvsplat"], help="model preset"
+    )
     parser.add_argument("--refiner", choices=["none", "unet", "transformer"], help="override the refiner (ablation)")
-    parser.add_argument("--condition", choices=["cls", "cea", "clip", "blip2"], help="override the condition (ablation)")
+    parser.add_argument(
+        "--condition", choices=["cls", "cea", "clip", "blip2"], help="override the condition (ablation)"
+    )
     parser.add_argument("--sh-degree", type=int, help="override the SH degree")
     parser.add_argument("--depth-candidates", type=int, help="override the number of depth candidates D")
     parser.add_argument("--shapes", action="store_true", help="run one forward pass and print intermediate shapes")
@@ -38,8 +42,9 @@ def _fmt(n: int) -> str:
 
 def _encoder_name(cfg) -> str:
     """The frozen encoder behind the condition: DINOv3 (cls / cea), CLIP or BLIP-2."""
-    return {"clip": cfg.clip_backbone, "blip2": f"{cfg.blip2_model} (ViT-g + Q-Former)"}.get(cfg.condition,
-                                                                                          cfg.semantic_backbone)
+    return {"clip": cfg.clip_backbone, "blip2": f"{cfg.blip2_model} (ViT-g + Q-Former)"}.get(
+        cfg.condition, cfg.semantic_backbone
+    )
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,17 +73,21 @@ def run(args: argparse.Namespace) -> int:
         model = SeeU(cfg)
     counts = parameter_counts(model)
 
-    print(f"SeeU ({args.preset}): refiner={cfg.refiner} condition={cfg.condition} D={cfg.num_depth_candidates} "
-          f"s={cfg.downsample} SH degree {cfg.sh_degree}"
-          + (f" semantic={_encoder_name(cfg)}" if cfg.needs_semantic else ""))
+    print(
+        f"SeeU ({args.preset}): refiner={cfg.refiner} condition={cfg.condition} D={cfg.num_depth_candidates} "
+        f"s={cfg.downsample} SH degree {cfg.sh_degree}"
+        + (f" semantic={_encoder_name(cfg)}" if cfg.needs_semantic else "")
+    )
     print(f"{'module':<22}{'trainable':>12}{'frozen':>12}")
     for name, (trainable, frozen) in counts.items():
         print(f"{name:<22}{_fmt(trainable):>12}{_fmt(frozen):>12}")
     total_t = sum(t for t, _ in counts.values())
     total_f = sum(f for _, f in counts.values())
     print(f"{'total':<22}{_fmt(total_t):>12}{_fmt(total_f):>12}")
-    print(f"MVSplat (reference):  {MVSPLAT_PARAMS / 1e6:.1f} M parameters in total (all trainable); "
-          f"SeeU trainable / MVSplat = {total_t / MVSPLAT_PARAMS:.2f}")
+    print(
+        f"MVSplat (reference):  {MVSPLAT_PARAMS / 1e6:.1f} M parameters in total (all trainable); "
+        f"SeeU trainable / MVSplat = {total_t / MVSPLAT_PARAMS:.2f}"
+    )
 
     shapes = {}
     if args.shapes:
@@ -87,15 +96,25 @@ def run(args: argparse.Namespace) -> int:
         c2w = torch.eye(4).repeat(b, v, 1, 1)
         c2w[:, 1, 0, 3] = 0.2
         intr = torch.tensor([[1.0, 0, 0.5], [0, 1.0, 0.5], [0, 0, 1]]).repeat(b, v, 1, 1)
-        ctx = {"image": torch.rand(b, v, 3, size, size), "cam_to_world": c2w, "intrinsics": intr,
-               "near": torch.ones(b, v), "far": torch.full((b, v), 100.0)}
+        ctx = {
+            "image": torch.rand(b, v, 3, size, size),
+            "cam_to_world": c2w,
+            "intrinsics": intr,
+            "near": torch.ones(b, v),
+            "far": torch.full((b, v), 100.0),
+        }
         with torch.no_grad():
             enc = model.eval().encode_all(ctx)
-        shapes = {"context image": list(ctx["image"].shape), "cost volume": list(enc.cost.shape),
-                  "coarse depth": list(enc.coarse_depth.shape), "entropy": list(enc.entropy.shape),
-                  "latent tokens": list(enc.latent.shape),
-                  "condition tokens": None if enc.condition is None else list(enc.condition.shape),
-                  "gaussian means": list(enc.gaussians.means.shape), "gaussian sh": list(enc.gaussians.sh.shape)}
+        shapes = {
+            "context image": list(ctx["image"].shape),
+            "cost volume": list(enc.cost.shape),
+            "coarse depth": list(enc.coarse_depth.shape),
+            "entropy": list(enc.entropy.shape),
+            "latent tokens": list(enc.latent.shape),
+            "condition tokens": None if enc.condition is None else list(enc.condition.shape),
+            "gaussian means": list(enc.gaussians.means.shape),
+            "gaussian sh": list(enc.gaussians.sh.shape),
+        }
         for k, s in shapes.items():
             print(f"  {k:<18} {s}")
 
@@ -103,8 +122,17 @@ def run(args: argparse.Namespace) -> int:
         from seeu_data.arrow_io import naming_os_errors
 
         with naming_os_errors(args.json), open(args.json, "w") as fh:
-            json.dump({"preset": args.preset, "config": cfg.to_dict(),
-                       "modules": {k: {"trainable": t, "frozen": f} for k, (t, f) in counts.items()},
-                       "total_trainable": total_t, "total_frozen": total_f, "mvsplat_total": MVSPLAT_PARAMS,
-                       "shapes": shapes}, fh, indent=2)
+            json.dump(
+                {
+                    "preset": args.preset,
+                    "config": cfg.to_dict(),
+                    "modules": {k: {"trainable": t, "frozen": f} for k, (t, f) in counts.items()},
+                    "total_trainable": total_t,
+                    "total_frozen": total_f,
+                    "mvsplat_total": MVSPLAT_PARAMS,
+                    "shapes": shapes,
+                },
+                fh,
+                indent=2,
+            )
     return 0

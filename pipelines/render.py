@@ -38,8 +38,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sample", default="0", help="with --data: sample index (in manifest order) or sample_id")
     parser.add_argument("--out", required=True, help="output directory")
     parser.add_argument("--frames", type=int, default=30, help="frames per path (default 30)")
-    parser.add_argument("--extrapolate", type=float, default=0.5,
-                        help="extrapolated path runs from t=-e to 1+e (default 0.5)")
+    parser.add_argument(
+        "--extrapolate", type=float, default=0.5, help="extrapolated path runs from t=-e to 1+e (default 0.5)"
+    )
     parser.add_argument("--fps", type=float, default=10.0)
     parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
     parser.add_argument("--device", default=None)
@@ -50,9 +51,19 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.options import parse_dims
 
     hw = parse_dims(args.image_size, "--image-size") if args.image_size else None
-    report = render(args.checkpoint, args.out, data=args.data, sample=args.sample, cameras=args.cameras,
-                    frames=args.frames, extrapolate=args.extrapolate, fps=args.fps, image_hw=hw,
-                    device=args.device, rasterizer=args.rasterizer)
+    report = render(
+        args.checkpoint,
+        args.out,
+        data=args.data,
+        sample=args.sample,
+        cameras=args.cameras,
+        frames=args.frames,
+        extrapolate=args.extrapolate,
+        fps=args.fps,
+        image_hw=hw,
+        device=args.device,
+        rasterizer=args.rasterizer,
+    )
     print(json.dumps(report, indent=2))
     return 0
 
@@ -86,8 +97,11 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
     for i, f in enumerate(frames):
         where = f"{path} frame {i}"
         if not isinstance(f, dict) or not isinstance(f.get("image"), str):
-            raise SeeUError(f"frame {i}: must be an object with an 'image' path, 'cam_to_world' and intrinsics, "
-                            f"got {type(f).__name__}", path)
+            raise SeeUError(
+                f"frame {i}: must be an object with an 'image' path, 'cam_to_world' and intrinsics, "
+                f"got {type(f).__name__}",
+                path,
+            )
         img_path = (path.parent / f["image"]).resolve()
         if not img_path.is_file():
             raise SeeUError(f"frame {i}: image not found", img_path)
@@ -112,8 +126,9 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
             else:
                 k = intrinsics_norm_from_pixels(np.asarray(f["K"], dtype=np.float64).reshape(3, 3), w, h)
         except (KeyError, ValueError, TypeError):
-            raise SeeUError(f"frame {i}: give 'intrinsics_norm' [fx/W, fy/H, cx/W, cy/H] or a pixel 'K' 3x3",
-                            where) from None
+            raise SeeUError(
+                f"frame {i}: give 'intrinsics_norm' [fx/W, fy/H, cx/W, cy/H] or a pixel 'K' 3x3", where
+            ) from None
         if not np.isfinite(k).all():
             raise SeeUError(f"frame {i}: intrinsics have non-finite values (NaN or inf)", path)
         if not (k[0] > 0 and k[1] > 0):
@@ -123,10 +138,14 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
         intrs.append(intrinsics_norm_matrix(resized_intrinsics(k, (h, w), image_hw)))
     v = len(images)
     img_t = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).float().div(255.0)
-    return {"image": img_t[None], "cam_to_world": torch.tensor(np.stack(poses), dtype=torch.float32)[None],
-            "intrinsics": torch.tensor(np.stack(intrs), dtype=torch.float32)[None],
-            "near": torch.full((1, v), near), "far": torch.full((1, v), far),
-            "frame_index": torch.arange(v)[None]}
+    return {
+        "image": img_t[None],
+        "cam_to_world": torch.tensor(np.stack(poses), dtype=torch.float32)[None],
+        "intrinsics": torch.tensor(np.stack(intrs), dtype=torch.float32)[None],
+        "near": torch.full((1, v), near),
+        "far": torch.full((1, v), far),
+        "frame_index": torch.arange(v)[None],
+    }
 
 
 def _shard_sample(data: str, sample: str, image_hw) -> dict:
@@ -174,8 +193,9 @@ def write_mp4(path: Path, frames: list, fps: float) -> None:
     os.replace(tmp, path)
 
 
-def render_views(model, context: dict, cam_to_world, intrinsics, image_hw, rasterizer: str, gaussians=None,
-                 chunk: int = 8):
+def render_views(
+    model, context: dict, cam_to_world, intrinsics, image_hw, rasterizer: str, gaussians=None, chunk: int = 8
+):
     """Render (N, 4, 4) poses / (N, 3, 3) normalised intrinsics -> list of (H, W, 3) uint8 frames."""
     import torch
 
@@ -186,10 +206,13 @@ def render_views(model, context: dict, cam_to_world, intrinsics, image_hw, raste
         g = gaussians if gaussians is not None else encode_context(model, context)
         frames = []
         for s in range(0, len(cam_to_world), chunk):
-            c2w = torch.as_tensor(cam_to_world[s:s + chunk], dtype=torch.float32, device=dev)[None]
-            k = torch.as_tensor(intrinsics[s:s + chunk], dtype=torch.float32, device=dev)[None]
-            target = {"cam_to_world": c2w, "intrinsics": k,
-                      "image": torch.empty(1, c2w.shape[1], 3, *image_hw, device=dev)}
+            c2w = torch.as_tensor(cam_to_world[s : s + chunk], dtype=torch.float32, device=dev)[None]
+            k = torch.as_tensor(intrinsics[s : s + chunk], dtype=torch.float32, device=dev)[None]
+            target = {
+                "cam_to_world": c2w,
+                "intrinsics": k,
+                "image": torch.empty(1, c2w.shape[1], 3, *image_hw, device=dev),
+            }
             out = render_gaussians(g, target, rasterizer)
             frames += [_to_uint8(c) for c in out.color[0]]
     return frames, g
@@ -209,15 +232,32 @@ def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
             c2w.append(views["cam_to_world"][0].double().cpu().numpy())
             intr.append(views["intrinsics"][0].double().cpu().numpy())
             names += [f"{part}_{i}" for i in range(len(c2w[-1]))]
-    side = save_ply_bundle(g.map(lambda t: t.detach().float().cpu()), out, np.concatenate(c2w),
-                           np.concatenate(intr), image_hw[1], image_hw[0], names)
+    side = save_ply_bundle(
+        g.map(lambda t: t.detach().float().cpu()),
+        out,
+        np.concatenate(c2w),
+        np.concatenate(intr),
+        image_hw[1],
+        image_hw[0],
+        names,
+    )
     return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
 
 
-def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, sample: str = "0",
-           cameras: str | Path | None = None, frames: int = 30, extrapolate: float = 0.5, fps: float = 10.0,
-           image_hw: tuple[int, int] | None = None, device: str | None = None,
-           rasterizer: str | None = None) -> dict:
+def render(
+    checkpoint: str | Path,
+    out: str | Path,
+    *,
+    data: str | None = None,
+    sample: str = "0",
+    cameras: str | Path | None = None,
+    frames: int = 30,
+    extrapolate: float = 0.5,
+    fps: float = 10.0,
+    image_hw: tuple[int, int] | None = None,
+    device: str | None = None,
+    rasterizer: str | None = None,
+) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
     import numpy as np
     import torch
@@ -254,8 +294,14 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     ctx = batch["context"]
     c2w = ctx["cam_to_world"][0].double().cpu().numpy()
     intr = ctx["intrinsics"][0].double().cpu().numpy()
-    report: dict = {"checkpoint": ck["path"], "step": ck["step"], "image_hw": list(hw), "fps": fps,
-                    "source": data or str(cameras), "sample_id": batch.get("sample_id", [None])[0]}
+    report: dict = {
+        "checkpoint": ck["path"],
+        "step": ck["step"],
+        "image_hw": list(hw),
+        "fps": fps,
+        "source": data or str(cameras),
+        "sample_id": batch.get("sample_id", [None])[0],
+    }
     t0 = time.perf_counter()
     with torch.no_grad():
         g = encode_context(model, ctx)
@@ -273,8 +319,9 @@ def render(checkpoint: str | Path, out: str | Path, *, data: str | None = None, 
     write_png(out / "context.png", np.concatenate([_to_uint8(v) for v in ctx["image"][0]], axis=1))
     if "target" in batch:  # ground truth (top) over the model's renders of the sample's targets
         tgt = batch["target"]
-        renders, _ = render_views(model, ctx, tgt["cam_to_world"][0].cpu().numpy(),
-                                  tgt["intrinsics"][0].cpu().numpy(), hw, backend, g)
+        renders, _ = render_views(
+            model, ctx, tgt["cam_to_world"][0].cpu().numpy(), tgt["intrinsics"][0].cpu().numpy(), hw, backend, g
+        )
         top = np.concatenate([_to_uint8(v) for v in tgt["image"][0]], axis=1)
         write_png(out / "targets.png", np.concatenate([top, np.concatenate(renders, axis=1)], axis=0))
     report.update(_export_gaussians(out, g, batch, hw))

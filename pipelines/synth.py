@@ -19,17 +19,18 @@ from pathlib import Path
 from pipelines.options import parse_dims
 
 
-
-
-
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="output directory (clip.mp4 + clip.json)")
     p.add_argument("--frames", type=int, default=90, help="number of frames (default 90)")
     p.add_argument("--size", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
     p.add_argument("--seed", type=int, default=0, help="scene seed: textures and box layout (default 0)")
-    p.add_argument("--scene", choices=["corridor", "planar"], default="corridor",
-                   help="corridor (default) or planar: one large textured wall with three small boxes, seen by "
-                        "a camera walking along it at 4 m (a scene dominated by one plane)")
+    p.add_argument(
+        "--scene",
+        choices=["corridor", "planar"],
+        default="corridor",
+        help="corridor (default) or planar: one large textured wall with three small boxes, seen by "
+        "a camera walking along it at 4 m (a scene dominated by one plane)",
+    )
     p.add_argument("--fps", type=float, default=30.0, help="frame rate written to the video (default 30)")
     p.add_argument("--name", default="clip", help="file stem (default clip)")
     p.add_argument("--progress", action="store_true", help="show progress even when stderr is not a terminal")
@@ -39,10 +40,11 @@ def run(args: argparse.Namespace) -> int:
     from seeu_data.synthetic import ClipConfig, write_clip
 
     width, height = parse_dims(args.size, "--size", minimum=16)  # WIDTHxHEIGHT, as video sizes are written
-    cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps,
-                     scene=args.scene)
+    cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps, scene=args.scene)
     video = args.out / f"{args.name}.mp4"
     doc = write_clip(video, cfg, progress=args.progress or sys.stderr.isatty())
-    print(f"wrote {video} ({cfg.n_frames} frames, {width}x{height}, path {doc['path_length']:.2f} m) "
-          f"and ground truth {video.with_suffix('.json')}")
+    print(
+        f"wrote {video} ({cfg.n_frames} frames, {width}x{height}, path {doc['path_length']:.2f} m) "
+        f"and ground truth {video.with_suffix('.json')}"
+    )
     return 0

@@ -77,8 +77,9 @@ def validate_dataset(root: Path, check_sha: bool = True) -> dict:
             table = open_ipc_file(root / entry["path"]).read_all()
             check_table(table, expected, root / entry["path"])
         except (pa.ArrowException, UnicodeDecodeError, ValueError) as exc:  # corrupt bytes (seen with --no-sha)
-            raise SeeUError(f"unreadable (corrupt?): {type(exc).__name__}: {str(exc).splitlines()[0][:160]}",
-                            root / entry["path"]) from None
+            raise SeeUError(
+                f"unreadable (corrupt?): {type(exc).__name__}: {str(exc).splitlines()[0][:160]}", root / entry["path"]
+            ) from None
         rows_by_file[entry["path"]] = table.num_rows
     for scene in manifest.get("scenes", []):
         where = root / scene["file"]
@@ -114,9 +115,11 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(summary, indent=1))
     else:
         scenes = f", {summary['scenes']} scenes" if summary["scenes"] else ""
-        print(f"OK {summary['path']}: {summary['schema']} v{summary['schema_version']}, {summary['files']} files, "
-              f"{summary['rows']} rows{scenes}, {summary['bytes'] / 1e6:.1f} MB"
-              + ("" if summary["sha256_checked"] else " (sha256 not checked)"))
+        print(
+            f"OK {summary['path']}: {summary['schema']} v{summary['schema_version']}, {summary['files']} files, "
+            f"{summary['rows']} rows{scenes}, {summary['bytes'] / 1e6:.1f} MB"
+            + ("" if summary["sha256_checked"] else " (sha256 not checked)")
+        )
         if summary["unlisted_files"]:
             print(f"note: files not in the manifest (ignored): {', '.join(summary['unlisted_files'][:5])}")
     return 0

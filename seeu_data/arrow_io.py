@@ -166,8 +166,11 @@ def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
         raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
     # Private and without access rights (where the platform has them): never backed by memory nor
     # charged to the commit limit, and a read by anything but the writer's sink faults loudly.
-    placeholder = _Placeholder(-1, max(total, 1), flags=mmap.MAP_PRIVATE | getattr(mmap, "MAP_NORESERVE", 0),
-                               prot=0) if hasattr(mmap, "MAP_PRIVATE") else _Placeholder(-1, max(total, 1))
+    placeholder = (
+        _Placeholder(-1, max(total, 1), flags=mmap.MAP_PRIVATE | getattr(mmap, "MAP_NORESERVE", 0), prot=0)
+        if hasattr(mmap, "MAP_PRIVATE")
+        else _Placeholder(-1, max(total, 1))
+    )
     placeholder.pieces, placeholder.offsets = views, offsets.tolist()
     data = pa.py_buffer(placeholder)[:total]
     base = data.address
@@ -226,11 +229,11 @@ def _writev_all(fd: int, views: list[memoryview]) -> None:
         return
     i = 0
     while i < len(views):
-        group = views[i:i + 1024]
+        group = views[i : i + 1024]
         written = os.writev(fd, group)
         for v in group:
             if written < v.nbytes:  # a short write: go on from inside this view
-                views = [v[written:]] + views[i + 1:]
+                views = [v[written:]] + views[i + 1 :]
                 i = 0
                 break
             written -= v.nbytes
@@ -285,7 +288,7 @@ class _HashingFile:
                     left -= len(block)
                 return
             with m, memoryview(m) as view:
-                self._sha256.update(view[start - aligned:])
+                self._sha256.update(view[start - aligned :])
         except BaseException as exc:  # reported by the digest, never a digest of part of the file
             self._hash_error = exc
 
@@ -455,8 +458,9 @@ class AtomicIpcWriter:
 atomic_ipc_writer = AtomicIpcWriter  # `with atomic_ipc_writer(path, schema) as w: w.write_table(...)`
 
 
-def write_table(path: str | Path, table: pa.Table, max_chunksize: int | None = None,
-                commit: bool = True) -> tuple[int, str]:
+def write_table(
+    path: str | Path, table: pa.Table, max_chunksize: int | None = None, commit: bool = True
+) -> tuple[int, str]:
     """Write a whole table atomically as an Arrow IPC file; return (bytes, sha256) of the file."""
     with AtomicIpcWriter(path, table.schema, commit=commit) as writer:
         writer.write_table(table, max_chunksize=max_chunksize)
@@ -464,8 +468,9 @@ def write_table(path: str | Path, table: pa.Table, max_chunksize: int | None = N
     return writer.size, writer.sha256
 
 
-def write_table_async(path: str | Path, table: pa.Table, max_chunksize: int | None = None,
-                      commit: bool = True) -> tuple[int, Future]:
+def write_table_async(
+    path: str | Path, table: pa.Table, max_chunksize: int | None = None, commit: bool = True
+) -> tuple[int, Future]:
     """`write_table` returning (bytes, future of the sha256) as soon as the file is written: the
     hashing of its last buffers overlaps whatever the caller does next."""
     writer = AtomicIpcWriter(path, table.schema, commit=commit)

@@ -37,8 +37,15 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .arrow_io import (atomic_write_text, commit_pending, fsync_enabled, open_ipc_file, set_fsync, sha256_file,
-                       write_table_async)
+from .arrow_io import (
+    atomic_write_text,
+    commit_pending,
+    fsync_enabled,
+    open_ipc_file,
+    set_fsync,
+    sha256_file,
+    write_table_async,
+)
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
@@ -75,13 +82,20 @@ class BuildConfig:
 
     def params(self) -> dict:
         """The build parameters recorded in the manifest (engine and workers are not: they do not change bytes)."""
-        out = {"inputs": [str(Path(p).resolve()) for p in self.inputs], "mode": self.mode, "seed": self.seed,
-               "image": self.image.as_dict(), "shard_bytes": self.shard_bytes, "rows_per_batch": self.rows_per_batch}
+        out = {
+            "inputs": [str(Path(p).resolve()) for p in self.inputs],
+            "mode": self.mode,
+            "seed": self.seed,
+            "image": self.image.as_dict(),
+            "shard_bytes": self.shard_bytes,
+            "rows_per_batch": self.rows_per_batch,
+        }
         if self.near_far is not None:
             out["near_far"] = list(self.near_far)
         if self.mode == "eval":
-            out.update(index=str(Path(self.index_path).resolve()) if self.index_path else None,
-                       index_format=self.index_format)
+            out.update(
+                index=str(Path(self.index_path).resolve()) if self.index_path else None, index_format=self.index_format
+            )
         else:
             out["sampling"] = asdict(self.sampling)
         return out
@@ -96,8 +110,12 @@ class SceneSource:
     file_sha256: str
 
     def as_spec(self) -> dict:
-        return {"path": self.path, "row_start": self.row_start, "num_frames": self.num_frames,
-                "file_sha256": self.file_sha256}
+        return {
+            "path": self.path,
+            "row_start": self.row_start,
+            "num_frames": self.num_frames,
+            "file_sha256": self.file_sha256,
+        }
 
 
 def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> dict[str, SceneSource]:
@@ -112,12 +130,22 @@ def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> di
             sha[entry["path"]] = entry["sha256"]
         for s in manifest.get("scenes", []):
             if s["scene_id"] in scenes:
-                raise SeeUError(f"scene id {s['scene_id']!r} appears in two inputs "
-                                f"({Path(scenes[s['scene_id']].path).parent} and {root_p})", root_p)
+                raise SeeUError(
+                    f"scene id {s['scene_id']!r} appears in two inputs "
+                    f"({Path(scenes[s['scene_id']].path).parent} and {root_p})",
+                    root_p,
+                )
             if s["file"] not in sha:
-                raise SeeUError(f"scene {s['scene_id']!r} points at {s['file']}, which the manifest does not list", root_p)
-            scenes[s["scene_id"]] = SceneSource(s["scene_id"], str((root_p / s["file"]).resolve()), int(s["row_start"]),
-                                                int(s["num_frames"]), sha[s["file"]])
+                raise SeeUError(
+                    f"scene {s['scene_id']!r} points at {s['file']}, which the manifest does not list", root_p
+                )
+            scenes[s["scene_id"]] = SceneSource(
+                s["scene_id"],
+                str((root_p / s["file"]).resolve()),
+                int(s["row_start"]),
+                int(s["num_frames"]),
+                sha[s["file"]],
+            )
     return scenes
 
 
@@ -141,9 +169,14 @@ def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
     need = min_scene_length(s)
     used = [sid for sid in sorted(scenes) if scenes[sid].num_frames >= need]
     short = sorted(set(scenes) - set(used))
-    report = {"scenes": len(scenes), "scenes_used": len(used),
-              "scenes_skipped_too_short": len(short), "skipped_scene_examples": short[:20],
-              "min_scene_frames": need, "samples": len(used) * s.samples_per_scene}
+    report = {
+        "scenes": len(scenes),
+        "scenes_used": len(used),
+        "scenes_skipped_too_short": len(short),
+        "skipped_scene_examples": short[:20],
+        "min_scene_frames": need,
+        "samples": len(used) * s.samples_per_scene,
+    }
     draws = (sample for sid in used for sample in sample_scene(s, scenes[sid].num_frames, sid, cfg.seed))
     return Plan(draws, len(used) * s.samples_per_scene, report)
 
@@ -163,23 +196,35 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
             continue
         bad = [v for v in e.context + e.target if not 0 <= v < src.num_frames]
         if bad:
-            problems.append({"key": e.key, "scene_id": e.scene_id,
-                             "problem": f"frame(s) {bad} outside 0..{src.num_frames - 1}"})
+            problems.append(
+                {"key": e.key, "scene_id": e.scene_id, "problem": f"frame(s) {bad} outside 0..{src.num_frames - 1}"}
+            )
             continue
         samples.append(make_sample(e.scene_id, "eval", e.k, e.context, e.target))
     kinds: dict[str, int] = {}
     for prob in problems:
         kind = "scene not in the posed data" if prob["problem"].startswith("scene") else "frames out of range"
         kinds[kind] = kinds.get(kind, 0) + 1
-    report = {"index": index.path, "index_format": index.format, "index_keys": index.num_keys,
-              "index_null_skipped": index.num_null, "index_entries": len(index.entries),
-              "written": len(samples), "not_written": len(problems), "problems_by_kind": kinds,
-              "problems": problems[:MAX_REPORTED_PROBLEMS],
-              "problems_truncated": len(problems) > MAX_REPORTED_PROBLEMS}
+    report = {
+        "index": index.path,
+        "index_format": index.format,
+        "index_keys": index.num_keys,
+        "index_null_skipped": index.num_null,
+        "index_entries": len(index.entries),
+        "written": len(samples),
+        "not_written": len(problems),
+        "problems_by_kind": kinds,
+        "problems": problems[:MAX_REPORTED_PROBLEMS],
+        "problems_truncated": len(problems) > MAX_REPORTED_PROBLEMS,
+    }
     if not samples:
-        raise SeeUError(f"none of the {len(index.entries)} index entries match the posed data "
-                        f"(first problem: {problems[0]['key']}: {problems[0]['problem']})" if problems
-                        else "the index lists no entries", cfg.index_path)
+        raise SeeUError(
+            f"none of the {len(index.entries)} index entries match the posed data "
+            f"(first problem: {problems[0]['key']}: {problems[0]['problem']})"
+            if problems
+            else "the index lists no entries",
+            cfg.index_path,
+        )
     return Plan(samples, len(samples), report)
 
 
@@ -215,9 +260,14 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
     view_bytes = _ViewBytes(scenes, cfg.image.resize)
 
     def spec(index: int, group: list[Sample]) -> dict:
-        out = {"index": index, "file": SHARD_PATTERN.format(index), "samples": [s.as_dict() for s in group],
-               "sources": {sid: scenes[sid].as_spec() for sid in sorted({s.scene_id for s in group})},
-               "image": cfg.image.as_dict(), "rows_per_batch": cfg.rows_per_batch}
+        out = {
+            "index": index,
+            "file": SHARD_PATTERN.format(index),
+            "samples": [s.as_dict() for s in group],
+            "sources": {sid: scenes[sid].as_spec() for sid in sorted({s.scene_id for s in group})},
+            "image": cfg.image.as_dict(),
+            "rows_per_batch": cfg.rows_per_batch,
+        }
         if cfg.near_far is not None:
             out["near_far"] = list(cfg.near_far)
         out["plan_sha256"] = plan_sha256(out)
@@ -294,8 +344,13 @@ def materialise(spec: dict, out_dir: str, commit: bool = True, wait_hash: bool =
         entry = FileEntry(path.name, table.num_rows, size, digest.result() if wait_hash else None)  # type: ignore[arg-type]
     except SeeUError as exc:
         return {"index": spec["index"], "error": str(exc)}
-    result = {"index": spec["index"], "entry": asdict(entry), "resumed": False, "pending": not commit,
-              "plan_sha256": spec["plan_sha256"]}
+    result = {
+        "index": spec["index"],
+        "entry": asdict(entry),
+        "resumed": False,
+        "pending": not commit,
+        "plan_sha256": spec["plan_sha256"],
+    }
     if not wait_hash:
         result["sha256_future"] = digest
     return result
@@ -343,8 +398,9 @@ class ProgressJournal:
 _PENDING_SHARDS = 4
 
 
-def run_local(specs: Iterable[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
-              ) -> list[dict]:
+def run_local(
+    specs: Iterable[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
+) -> list[dict]:
     """Materialise the specs (taken from `specs` as they are needed) in this process (workers <= 1)
     or in a process pool.
 
@@ -405,8 +461,9 @@ def run_local(specs: Iterable[dict], out_dir: str, workers: int, bar, journal: P
 def _progress_bar(total: int, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(total=total, unit="triple", desc="seeu build", file=sys.stderr,
-                disable=not (enabled or sys.stderr.isatty()))
+    return tqdm(
+        total=total, unit="triple", desc="seeu build", file=sys.stderr, disable=not (enabled or sys.stderr.isatty())
+    )
 
 
 def known_shards(out: Path) -> dict[str, dict]:
@@ -454,7 +511,9 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     if cfg.mode != "eval" and cfg.sampling.mode != cfg.mode:
         raise SeeUError(f"sampling config mode {cfg.sampling.mode!r} differs from build mode {cfg.mode!r}")
     if not 0 < cfg.shard_bytes <= MAX_SHARD_BYTES:
-        raise SeeUError(f"shard size must be in 1 byte .. {MAX_SHARD_BYTES >> 20} MiB (the image column has 32-bit offsets)")
+        raise SeeUError(
+            f"shard size must be in 1 byte .. {MAX_SHARD_BYTES >> 20} MiB (the image column has 32-bit offsets)"
+        )
     out = Path(cfg.out)
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():
@@ -464,8 +523,11 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         raise SeeUError("the inputs hold no scenes", cfg.inputs[0])
     plan = plan_eval(cfg, scenes) if cfg.mode == "eval" else plan_sampled(cfg, scenes)
     if not plan.total:
-        raise SeeUError(f"no scene is long enough: all {len(scenes)} scenes have fewer than "
-                        f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)", cfg.inputs[0])
+        raise SeeUError(
+            f"no scene is long enough: all {len(scenes)} scenes have fewer than "
+            f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)",
+            cfg.inputs[0],
+        )
     if cfg.engine not in ("local", "ray"):
         raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
     out.mkdir(parents=True, exist_ok=True)
@@ -506,9 +568,12 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         raise SeeUError(errors[0] + (f" (and {len(errors) - 1} more shard errors)" if len(errors) > 1 else ""))
     files = [FileEntry(**r["entry"]) for r in results]
     report = dict(plan.report)
-    report.update(shards=len(files), shards_resumed=sum(1 for r in results if r["resumed"]),
-                  stale_files_removed=removed,
-                  plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest())
+    report.update(
+        shards=len(files),
+        shards_resumed=sum(1 for r in results if r["resumed"]),
+        stale_files_removed=removed,
+        plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest(),
+    )
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)
     doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report)
     journal.remove()

@@ -192,9 +192,7 @@ def intrinsics_norm_matrix(intrinsics_norm: Array) -> Array:
     fx, fy, cx, cy = [intrinsics_norm[..., i] for i in range(4)]
     zero = fx * 0
     one = zero + 1
-    return _stack(
-        [_stack([fx, zero, cx], -1), _stack([zero, fy, cy], -1), _stack([zero, zero, one], -1)], -2
-    )
+    return _stack([_stack([fx, zero, cx], -1), _stack([zero, fy, cy], -1), _stack([zero, zero, one], -1)], -2)
 
 
 def intrinsics_norm_vector(intrinsics_norm_mat: Array) -> Array:
@@ -261,7 +259,9 @@ def field_of_view_deg(intrinsics_norm: Array) -> tuple[Array, Array]:
 # ---------------------------------------------------------------------------------------------
 
 
-def project_points(points_world: Array, cam_to_world: Array, intrinsics_norm: Array, width: int, height: int) -> tuple[Array, Array]:
+def project_points(
+    points_world: Array, cam_to_world: Array, intrinsics_norm: Array, width: int, height: int
+) -> tuple[Array, Array]:
     """Project world points into a camera.
 
     Shapes: points `(..., N, 3)`, cam_to_world `(..., 4, 4)`, intrinsics_norm `(..., 4)`.
@@ -276,7 +276,9 @@ def project_points(points_world: Array, cam_to_world: Array, intrinsics_norm: Ar
     return uv, depth
 
 
-def unproject_pixels(uv: Array, depth: Array, cam_to_world: Array, intrinsics_norm: Array, width: int, height: int) -> Array:
+def unproject_pixels(
+    uv: Array, depth: Array, cam_to_world: Array, intrinsics_norm: Array, width: int, height: int
+) -> Array:
     """Inverse of `project_points`: pixels `(..., N, 2)` at camera depth `(..., N)` -> world `(..., N, 3)`."""
     K = intrinsics_pixels(intrinsics_norm, width, height)
     fx, fy, cx, cy = K[..., 0, 0], K[..., 1, 1], K[..., 0, 2], K[..., 1, 2]

@@ -25,8 +25,10 @@ from .cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, inver
 from .errors import SeeUError
 from .scale import ScaleConfig, chunk_scale
 
-NEAR_FAR_METHOD = ("sfm_point_depth_percentiles: near = 0.4 * p0.1, far = 1.5 * p99.9 of the depths of SfM point "
-                   "observations in the model's cameras")
+NEAR_FAR_METHOD = (
+    "sfm_point_depth_percentiles: near = 0.4 * p0.1, far = 1.5 * p99.9 of the depths of SfM point "
+    "observations in the model's cameras"
+)
 FRAME_METHOD = "world frame = first camera of the chunk"
 
 
@@ -74,8 +76,14 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
-def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_dir: str | Path,
-                config: ChunkConfig, distance_names: tuple[str, str] | None = None) -> tuple[list[Chunk], list[dict]]:
+def plan_chunks(
+    scene_name: str,
+    frame_names: list[str],
+    sfm_result: dict,
+    sfm_dir: str | Path,
+    config: ChunkConfig,
+    distance_names: tuple[str, str] | None = None,
+) -> tuple[list[Chunk], list[dict]]:
     """Turn SfM models into chunks. `frame_names`: the selected frames' image names, in order;
     `distance_names`: the two frames `config.scale.known_distance` apart (metric scale; default the
     first and the last frame).
@@ -93,8 +101,11 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
     # COLMAP may register a frame in several (overlapping) models: the largest model claims it, so
     # no frame appears in two chunks.
     for model in sorted(sfm_result["models"], key=lambda m: -len(m["images"])):
-        w2c = {pos_of[im["name"]]: homogeneous_from_3x4(np.asarray(im["world_to_cam"], np.float64))
-               for im in model["images"] if im["name"] in pos_of}
+        w2c = {
+            pos_of[im["name"]]: homogeneous_from_3x4(np.asarray(im["world_to_cam"], np.float64))
+            for im in model["images"]
+            if im["name"] in pos_of
+        }
         flags = np.zeros(len(frame_names), bool)
         flags[list(w2c)] = True
         registered_anywhere |= flags
@@ -105,8 +116,14 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
     kept = []
     for start, end, model, w2c in sorted(raw, key=lambda r: (r[0], -r[1])):
         if end - start < config.min_chunk_frames:
-            dropped += [{"position": p, "reason": f"in a registered run of {end - start} frames "
-                         f"(< --min-chunk-frames {config.min_chunk_frames})"} for p in range(start, end)]
+            dropped += [
+                {
+                    "position": p,
+                    "reason": f"in a registered run of {end - start} frames "
+                    f"(< --min-chunk-frames {config.min_chunk_frames})",
+                }
+                for p in range(start, end)
+            ]
             continue
         kept.append((start, end, model, w2c))
     dropped += [{"position": int(p), "reason": "not registered by SfM"} for p in np.nonzero(~registered_anywhere)[0]]
@@ -120,15 +137,19 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
         depths = depths[np.isfinite(depths) & (depths > 0)]
         if len(depths) < 10:
             raise SeeUError(f"SfM model {model['index']} has only {len(depths)} usable 3D points")
-        near_far_unit = (config.near_margin * float(np.percentile(depths, config.near_percentile)),
-                         config.far_margin * float(np.percentile(depths, config.far_percentile)))
+        near_far_unit = (
+            config.near_margin * float(np.percentile(depths, config.near_percentile)),
+            config.far_margin * float(np.percentile(depths, config.far_percentile)),
+        )
         centres = None
         if config.scale.scale == "metric":
             names = distance_names or (frame_names[0], frame_names[-1])
             missing = [n for n in names if pos_of.get(n) not in w2c]
             if missing:
-                raise SeeUError(f"--scale metric: frame {missing[0]} is not registered in SfM model {model['index']}, "
-                                "so its distance is unknown (name registered frames with --distance-frames)")
+                raise SeeUError(
+                    f"--scale metric: frame {missing[0]} is not registered in SfM model {model['index']}, "
+                    "so its distance is unknown (name registered frames with --distance-frames)"
+                )
             centres = tuple(invert_rigid(w2c[pos_of[n]])[:3, 3] for n in names)
         choice = chunk_scale(config.scale, depths, near_far_unit, centres)
         scale, near, far = choice.factor, choice.near, choice.far
@@ -140,14 +161,32 @@ def plan_chunks(scene_name: str, frame_names: list[str], sfm_result: dict, sfm_d
         sfm_to_chunk = np.diag([scale, scale, scale, 1.0]) @ first_w2c  # SfM world point -> chunk frame
         w, h = int(cam["width"]), int(cam["height"])
         intr = np.array([cam["fx"] / w, cam["fy"] / h, cam["cx"] / w, cam["cy"] / h])
-        chunks.append(Chunk(
-            scene_id=f"{scene_name}_c{j}", model_index=int(model["index"]), frame_positions=positions,
-            image_paths=[Path(model["image_dir"]) / frame_names[p] for p in positions],
-            cam_to_world=c2w, intrinsics_norm=intr, width=w, height=h, near=near, far=far,
-            meta={"sfm_model": int(model["index"]), "camera_model": cam["model"], "camera_params": cam["params"],
-                  "undistorted": bool(model["undistorted"]), "distortion_max_px": model.get("distortion_max_px"),
-                  "camera_as_mapped": model.get("camera_distorted", cam), "scale_factor": scale, **choice.meta, "sfm_to_chunk": sfm_to_chunk.tolist(), "frame_method": FRAME_METHOD,
-                  "near_far_method": choice.meta.get("near_far_method", NEAR_FAR_METHOD),
-                  "mean_reprojection_error_px": model["mean_reprojection_error"]},
-        ))
+        chunks.append(
+            Chunk(
+                scene_id=f"{scene_name}_c{j}",
+                model_index=int(model["index"]),
+                frame_positions=positions,
+                image_paths=[Path(model["image_dir"]) / frame_names[p] for p in positions],
+                cam_to_world=c2w,
+                intrinsics_norm=intr,
+                width=w,
+                height=h,
+                near=near,
+                far=far,
+                meta={
+                    "sfm_model": int(model["index"]),
+                    "camera_model": cam["model"],
+                    "camera_params": cam["params"],
+                    "undistorted": bool(model["undistorted"]),
+                    "distortion_max_px": model.get("distortion_max_px"),
+                    "camera_as_mapped": model.get("camera_distorted", cam),
+                    "scale_factor": scale,
+                    **choice.meta,
+                    "sfm_to_chunk": sfm_to_chunk.tolist(),
+                    "frame_method": FRAME_METHOD,
+                    "near_far_method": choice.meta.get("near_far_method", NEAR_FAR_METHOD),
+                    "mean_reprojection_error_px": model["mean_reprojection_error"],
+                },
+            )
+        )
     return chunks, dropped

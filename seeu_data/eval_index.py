@@ -129,12 +129,21 @@ class IndexConfig:
 
 def pair_overlap(cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, a: int, b: int, depth: float) -> float:
     """Symmetric view overlap of frames a and b: min of the two directed frustum overlaps."""
-    return min(frustum_overlap(cam_to_world[a], intrinsics_norm[a], cam_to_world[b], intrinsics_norm[b], depth),
-               frustum_overlap(cam_to_world[b], intrinsics_norm[b], cam_to_world[a], intrinsics_norm[a], depth))
+    return min(
+        frustum_overlap(cam_to_world[a], intrinsics_norm[a], cam_to_world[b], intrinsics_norm[b], depth),
+        frustum_overlap(cam_to_world[b], intrinsics_norm[b], cam_to_world[a], intrinsics_norm[a], depth),
+    )
 
 
-def generate_entries(cfg: IndexConfig, scene_id: str, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray,
-                     near: float, far: float, seed: int) -> list[dict] | None:
+def generate_entries(
+    cfg: IndexConfig,
+    scene_id: str,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    near: float,
+    far: float,
+    seed: int,
+) -> list[dict] | None:
     """Up to `samples_per_scene` entries {"context", "target"} for one scene, or None (scene unusable).
 
     Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4). Context pairs whose overlap falls outside

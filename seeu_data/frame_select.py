@@ -42,8 +42,7 @@ def drop_blurriest_per_window(sharpness: np.ndarray, window: int) -> tuple[np.nd
     n = len(sharpness)
     if window < 2 or n == 0:
         return np.arange(n), np.zeros(0, np.int64)
-    dropped = [start + int(np.argmin(sharpness[start:start + window]))
-               for start in range(0, n - window + 1, window)]
+    dropped = [start + int(np.argmin(sharpness[start : start + window])) for start in range(0, n - window + 1, window)]
     mask = np.ones(n, bool)
     mask[dropped] = False
     return np.nonzero(mask)[0], np.asarray(dropped, np.int64)
@@ -56,8 +55,9 @@ def evenly_spaced(n: int, target: int | None) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, target)).astype(np.int64))
 
 
-def select_frames(sharpness: list[float] | np.ndarray, source_frames: list[int] | np.ndarray,
-                  config: SelectConfig) -> tuple[np.ndarray, list[dict]]:
+def select_frames(
+    sharpness: list[float] | np.ndarray, source_frames: list[int] | np.ndarray, config: SelectConfig
+) -> tuple[np.ndarray, list[dict]]:
     """Apply the sharpness filter then the target count to the decoded candidates.
 
     Returns positions into the candidate list (increasing) and the dropped frames with the reason.
@@ -68,6 +68,8 @@ def select_frames(sharpness: list[float] | np.ndarray, source_frames: list[int] 
     dropped = [{"source_frame": int(source_frames[i]), "reason": "blurriest in its sharpness window"} for i in blurry]
     pick = evenly_spaced(len(kept), config.target_frames)
     not_picked = np.setdiff1d(np.arange(len(kept)), pick)
-    dropped += [{"source_frame": int(source_frames[kept[i]]), "reason": "thinned to --target-frames"} for i in not_picked]
+    dropped += [
+        {"source_frame": int(source_frames[kept[i]]), "reason": "thinned to --target-frames"} for i in not_picked
+    ]
     dropped.sort(key=lambda d: int(d["source_frame"]))  # type: ignore[call-overload]
     return kept[pick], dropped

@@ -113,8 +113,9 @@ def decode_check(data, where: str | None = None) -> ImageInfo:
     if img is None:
         raise SeeUError("image failed to decode (OpenCV)", where)
     if img.shape[:2] != (info.height, info.width):
-        raise SeeUError(f"decoded size {img.shape[1]}x{img.shape[0]} differs from the header's "
-                        f"{info.width}x{info.height}", where)
+        raise SeeUError(
+            f"decoded size {img.shape[1]}x{img.shape[0]} differs from the header's {info.width}x{info.height}", where
+        )
     return info
 
 

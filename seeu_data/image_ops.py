@@ -15,8 +15,12 @@ import numpy as np
 
 from .cameras import cover_crop_geometry, crop_intrinsics_norm
 
-INTERPOLATIONS = {"area": cv2.INTER_AREA, "lanczos": cv2.INTER_LANCZOS4, "linear": cv2.INTER_LINEAR,
-                  "cubic": cv2.INTER_CUBIC}
+INTERPOLATIONS = {
+    "area": cv2.INTER_AREA,
+    "lanczos": cv2.INTER_LANCZOS4,
+    "linear": cv2.INTER_LINEAR,
+    "cubic": cv2.INTER_CUBIC,
+}
 
 
 def decode_rgb(data: bytes) -> np.ndarray:
@@ -50,8 +54,9 @@ def aligned_span(size_in: int, size_scaled: int, start: int, length: int, radius
     return a * p, b * p, a * q, b * q
 
 
-def resize_cover_crop(img: np.ndarray, out_hw: tuple[int, int], interpolation: str = "area",
-                      copy: bool = True) -> np.ndarray:
+def resize_cover_crop(
+    img: np.ndarray, out_hw: tuple[int, int], interpolation: str = "area", copy: bool = True
+) -> np.ndarray:
     """(H, W, 3) -> (out_h, out_w, 3): scale to cover `out_hw`, then crop the centre (the peers' crop).
 
     `interpolation` 'area' (default) uses INTER_AREA when shrinking and INTER_CUBIC when enlarging;
@@ -72,7 +77,7 @@ def resize_cover_crop(img: np.ndarray, out_hw: tuple[int, int], interpolation: s
         x0, x1, dx0, dx1 = aligned_span(w, sw, ox, ow, r)
         img = cv2.resize(img[y0:y1, x0:x1], (dx1 - dx0, dy1 - dy0), interpolation=flag)
         oy, ox = oy - dy0, ox - dx0
-    crop = img[oy:oy + oh, ox:ox + ow]
+    crop = img[oy : oy + oh, ox : ox + ow]
     return np.ascontiguousarray(crop) if copy else crop
 
 
@@ -92,7 +97,9 @@ def encode_jpeg(img: np.ndarray, quality: int = 95) -> bytes:
 
 def encode_png(img: np.ndarray, compression: int = 3) -> bytes:
     """(H, W, 3) uint8 RGB -> PNG bytes (lossless)."""
-    ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)])
+    ok, buf = cv2.imencode(
+        ".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_PNG_COMPRESSION, int(compression)]
+    )
     if not ok:
         raise ValueError("PNG encoding failed")
     return buf.tobytes()

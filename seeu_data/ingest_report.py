@@ -54,9 +54,18 @@ def plot_trajectory(path: str | Path, chunks: list, title: str) -> None:
         span = max(float(np.ptp(c, axis=0).max()), 1e-6)
         step = max(1, len(c) // 15)
         for ax, (i, j) in zip(axes, [(0, 2), (2, 1)]):
-            line, = ax.plot(c[:, i], c[:, j], ".-", ms=3, lw=1, label=f"{chunk.scene_id} ({len(c)} frames)")
-            ax.quiver(c[::step, i], c[::step, j], fwd[::step, i], fwd[::step, j], color=line.get_color(),
-                      angles="xy", scale_units="xy", scale=1 / (0.12 * span), width=0.004)
+            (line,) = ax.plot(c[:, i], c[:, j], ".-", ms=3, lw=1, label=f"{chunk.scene_id} ({len(c)} frames)")
+            ax.quiver(
+                c[::step, i],
+                c[::step, j],
+                fwd[::step, i],
+                fwd[::step, j],
+                color=line.get_color(),
+                angles="xy",
+                scale_units="xy",
+                scale=1 / (0.12 * span),
+                width=0.004,
+            )
             ax.plot(c[0, i], c[0, j], "o", color=line.get_color())
     axes[0].set(xlabel="x", ylabel="z", title="top view (x-z); arrows: viewing direction")
     axes[1].set(xlabel="z", ylabel="y", title="side view (z-y, +y down)")
@@ -98,13 +107,18 @@ def scene_warnings(report: dict) -> list[str]:
     check = report["sfm"].get("solution_check", {})
     if check.get("state") == "failed":
         d = check.get("disagreement_pct")
-        out.append("SfM solution check failed: no two mapping runs agree"
-                   + (f" (closest {d:.2g}% of the path apart)" if d is not None and np.isfinite(d) else "")
-                   + "; the poses may be wrong")
+        out.append(
+            "SfM solution check failed: no two mapping runs agree"
+            + (f" (closest {d:.2g}% of the path apart)" if d is not None and np.isfinite(d) else "")
+            + "; the poses may be wrong"
+        )
     low = [c for c in report["chunks"] if c.get("baseline_over_depth", np.inf) < LOW_PARALLAX]
     if low:
-        out.append(f"low parallax: baseline/depth {min(c['baseline_over_depth'] for c in low):.3f} < {LOW_PARALLAX} in "
-                   + ", ".join(c["scene_id"] for c in low) + " (geometry weakly constrained)")
+        out.append(
+            f"low parallax: baseline/depth {min(c['baseline_over_depth'] for c in low):.3f} < {LOW_PARALLAX} in "
+            + ", ".join(c["scene_id"] for c in low)
+            + " (geometry weakly constrained)"
+        )
     return out
 
 
@@ -114,17 +128,26 @@ def summary_line(report: dict) -> str:
     attempts = len(report["sfm"].get("mapping_attempts", []))
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
-    line = (f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
-            + (f" after {attempts} mapping runs" if attempts > expected else "") + "), "
-            f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
-            f"reprojection {report['mean_reprojection_error_px']:.2f} px, "
-            + (f"solution check passed ({check['disagreement_pct']:.2g}% apart), " if check.get("state") == "passed" else "")
-            + f"{report['timings_s']['total']:.1f} s -> {report['output']}")
+    line = (
+        f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
+        + (f" after {attempts} mapping runs" if attempts > expected else "")
+        + "), "
+        f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
+        f"reprojection {report['mean_reprojection_error_px']:.2f} px, "
+        + (
+            f"solution check passed ({check['disagreement_pct']:.2g}% apart), "
+            if check.get("state") == "passed"
+            else ""
+        )
+        + f"{report['timings_s']['total']:.1f} s -> {report['output']}"
+    )
     gt = report.get("ground_truth")
     if gt and gt.get("chunks"):
         best = max(gt["chunks"], key=lambda c: c["num_frames"])
-        line += (f" | vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
-                 f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%")
+        line += (
+            f" | vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
+            f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%"
+        )
     for w in report.get("warnings", []):
         line += f" | WARNING: {w}"
     return line

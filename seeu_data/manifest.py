@@ -117,7 +117,9 @@ def read_manifest(root: str | Path, expect_schema: str | None = None, verify: bo
     if not isinstance(doc, dict) or "manifest_version" not in doc:
         raise SeeUError("not a SeeU manifest (no manifest_version)", path)
     if str(doc["manifest_version"]).split(".")[0] != MANIFEST_VERSION.split(".")[0]:
-        raise SeeUError(f"manifest version {doc['manifest_version']} is not supported (this seeu reads {MANIFEST_VERSION})", path)
+        raise SeeUError(
+            f"manifest version {doc['manifest_version']} is not supported (this seeu reads {MANIFEST_VERSION})", path
+        )
     try:
         _validate(doc)
     except jsonschema.ValidationError as exc:
@@ -153,7 +155,9 @@ def verify_file(root: str | Path, entry: dict, check_sha: bool = True) -> None:
         raise SeeUError("listed in the manifest but missing", path)
     size = path.stat().st_size
     if size != entry["bytes"]:
-        raise SeeUError(f"size {size} bytes differs from the manifest's {entry['bytes']} (truncated or replaced?)", path)
+        raise SeeUError(
+            f"size {size} bytes differs from the manifest's {entry['bytes']} (truncated or replaced?)", path
+        )
     if check_sha and sha256_file(path) != entry["sha256"]:
         raise SeeUError("sha256 differs from the manifest (corrupt or replaced)", path)
     rows = open_ipc_file(path).read_all().num_rows  # memory-mapped: no copy of the data

@@ -40,10 +40,13 @@ def match_graph_stats(db, names: list[str]) -> dict:
     chain = sum((i, i + 1) in edges for i in range(n - 1))
     gaps = np.array([b - a for a, b in edges]) if edges else np.zeros(0)
     degree = np.bincount(np.array([v for e in edges for v in e], np.int64), minlength=n) if edges else np.zeros(n)
-    return {"verified_pairs": len(edges), "min_inliers": MIN_INLIERS,
-            "consecutive_matched_pct": 100.0 * chain / max(n - 1, 1),
-            "mean_index_gap": float(gaps.mean()) if len(gaps) else 0.0,
-            "mean_degree": float(degree.mean()) if n else 0.0}
+    return {
+        "verified_pairs": len(edges),
+        "min_inliers": MIN_INLIERS,
+        "consecutive_matched_pct": 100.0 * chain / max(n - 1, 1),
+        "mean_index_gap": float(gaps.mean()) if len(gaps) else 0.0,
+        "mean_degree": float(degree.mean()) if n else 0.0,
+    }
 
 
 def choose_mapper(stats: dict) -> tuple[str, str]:

@@ -20,8 +20,9 @@ class OutsidePathError(SeeUError):
     """A path read from a file leads outside its dataset directory."""
 
 
-def contained_path(root: str | Path, name: str, what: str, source: str | Path | None = None,
-                   allow_outside: bool = False) -> Path:
+def contained_path(
+    root: str | Path, name: str, what: str, source: str | Path | None = None, allow_outside: bool = False
+) -> Path:
     """`root / name`, resolved (`..` and symbolic links followed); OutsidePathError naming `source`
     (the file that holds `name`; default `root`) unless it stays inside `root` or `allow_outside`.
 
@@ -36,8 +37,11 @@ def contained_path(root: str | Path, name: str, what: str, source: str | Path | 
     resolved_root = root_p.resolve()
     resolved = path.resolve()
     if resolved != resolved_root and not resolved.is_relative_to(resolved_root):
-        raise OutsidePathError(f"{what} {name!r} leads outside {root_p} (to {resolved}); paths in dataset files "
-                               "must stay inside their directory", source or root_p)
+        raise OutsidePathError(
+            f"{what} {name!r} leads outside {root_p} (to {resolved}); paths in dataset files "
+            "must stay inside their directory",
+            source or root_p,
+        )
     return path
 
 
@@ -48,6 +52,8 @@ def contained_key(name: str, what: str, source: str | Path) -> str:
         raise SeeUError(f"{what} {name!r} is not a usable relative path", source)
     norm = posixpath.normpath(name.replace("\\", "/"))
     if name.startswith(("/", "\\")) or norm == ".." or norm.startswith("../") or "://" in name:
-        raise OutsidePathError(f"{what} {name!r} leads outside its dataset; paths in dataset files "
-                               "must stay inside their directory", source)
+        raise OutsidePathError(
+            f"{what} {name!r} leads outside its dataset; paths in dataset files must stay inside their directory",
+            source,
+        )
     return name

@@ -27,8 +27,9 @@ def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> Path
 
     xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
     rgb = np.clip(np.round(np.asarray(rgb, np.float64).reshape(-1, 3)), 0, 255).astype(np.uint8)
-    vertex = np.empty(len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
-                                       ("red", "u1"), ("green", "u1"), ("blue", "u1")])
+    vertex = np.empty(
+        len(xyz), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"), ("red", "u1"), ("green", "u1"), ("blue", "u1")]
+    )
     for i, k in enumerate("xyz"):
         vertex[k] = xyz[:, i]
     for i, k in enumerate(("red", "green", "blue")):
@@ -53,8 +54,9 @@ def read_points_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
     return xyz, rgb
 
 
-def write_chunk_points(sfm_dir: str | Path, model_index: int, sfm_to_chunk: np.ndarray, dataset_dir: str | Path,
-                       scene_id: str) -> dict:
+def write_chunk_points(
+    sfm_dir: str | Path, model_index: int, sfm_to_chunk: np.ndarray, dataset_dir: str | Path, scene_id: str
+) -> dict:
     """Write the SfM points of model `model_index` (`points3d_<k>.npy` in `sfm_dir`), moved into a
     chunk's frame by the (4, 4) similarity `sfm_to_chunk`, to `dataset_dir/points3d/<scene_id>.ply`.
     Returns the meta entries to record ({} when the model has no point file)."""

@@ -44,7 +44,7 @@ def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Simila
     if np.linalg.det(u) * np.linalg.det(vt) < 0:
         sign[2, 2] = -1
     rot = u @ sign @ vt
-    var_s = (xs ** 2).sum() / len(src)
+    var_s = (xs**2).sum() / len(src)
     scale = float(np.trace(np.diag(d) @ sign) / var_s) if with_scale else 1.0
     return Similarity(scale, rot, mu_d - scale * rot @ mu_s)
 
@@ -70,8 +70,9 @@ class PoseAccuracy:
         return asdict(self)
 
 
-def pose_accuracy(est_c2w: np.ndarray, gt_c2w: np.ndarray, est_intr: np.ndarray | None = None,
-                  gt_intr: np.ndarray | None = None) -> PoseAccuracy:
+def pose_accuracy(
+    est_c2w: np.ndarray, gt_c2w: np.ndarray, est_intr: np.ndarray | None = None, gt_intr: np.ndarray | None = None
+) -> PoseAccuracy:
     """Compare `(N, 4, 4)` camera-to-world poses of the same frames (same order).
 
     Frame-to-frame relative rotations `R_i^T R_{i+1}` do not depend on the world frame or scale,
@@ -84,7 +85,7 @@ def pose_accuracy(est_c2w: np.ndarray, gt_c2w: np.ndarray, est_intr: np.ndarray 
         raise SeeUError(f"pose arrays differ: {est.shape} vs {gt.shape}")
     sim = umeyama(est[:, :3, 3], gt[:, :3, 3])
     err = np.linalg.norm(sim.apply(est[:, :3, 3]) - gt[:, :3, 3], axis=1)
-    rmse = float(np.sqrt((err ** 2).mean()))
+    rmse = float(np.sqrt((err**2).mean()))
     length = float(np.linalg.norm(np.diff(gt[:, :3, 3], axis=0), axis=1).sum())
     rel_est = np.swapaxes(est[:-1, :3, :3], -1, -2) @ est[1:, :3, :3]
     rel_gt = np.swapaxes(gt[:-1, :3, :3], -1, -2) @ gt[1:, :3, :3]
@@ -93,5 +94,13 @@ def pose_accuracy(est_c2w: np.ndarray, gt_c2w: np.ndarray, est_intr: np.ndarray 
     if est_intr is not None and gt_intr is not None:
         e, g = np.asarray(est_intr, np.float64), np.asarray(gt_intr, np.float64)
         focal = float(100 * max(abs(e[:, 0].mean() / g[:, 0].mean() - 1), abs(e[:, 1].mean() / g[:, 1].mean() - 1)))
-    return PoseAccuracy(len(est), length, rmse, 100 * rmse / length if length > 0 else float("nan"),
-                        float(rot_err.mean()), float(rot_err.max()), focal, sim.scale)
+    return PoseAccuracy(
+        len(est),
+        length,
+        rmse,
+        100 * rmse / length if length > 0 else float("nan"),
+        float(rot_err.mean()),
+        float(rot_err.max()),
+        focal,
+        sim.scale,
+    )

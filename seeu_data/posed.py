@@ -67,7 +67,9 @@ class PosedScene:
         if self.source_name and len(self.source_name) != n:
             raise SeeUError(f"{where}: source_name has {len(self.source_name)} entries for {n} frames")
         if np.shape(self.intrinsics_norm) != (n, 4) or np.shape(self.cam_to_world) != (n, 4, 4):
-            raise SeeUError(f"{where}: cameras have shapes {np.shape(self.intrinsics_norm)} / {np.shape(self.cam_to_world)}, expected ({n}, 4) / ({n}, 4, 4)")
+            raise SeeUError(
+                f"{where}: cameras have shapes {np.shape(self.intrinsics_norm)} / {np.shape(self.cam_to_world)}, expected ({n}, 4) / ({n}, 4, 4)"
+            )
         if not (np.isfinite(self.cam_to_world).all() and np.isfinite(self.intrinsics_norm).all()):
             raise SeeUError(f"{where}: non-finite camera values")
         err = rotation_orthonormality_error(self.cam_to_world).max()
@@ -90,15 +92,18 @@ class PosedScene:
             "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
             "source_name": pa.array(names, pa.string()),
             "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
-            "image": deferred_binary(self.images) if deferred else
-            pa.array([b if isinstance(b, bytes) else bytes(memoryview(b)) for b in self.images], pa.binary()),
+            "image": deferred_binary(self.images)
+            if deferred
+            else pa.array([b if isinstance(b, bytes) else bytes(memoryview(b)) for b in self.images], pa.binary()),
             "image_format": pa.array([self.image_format] * n, pa.string()),
             "width": pa.array(np.asarray(self.width, dtype=np.int32)),
             "height": pa.array(np.asarray(self.height, dtype=np.int32)),
             "intrinsics_norm": pa.FixedSizeListArray.from_arrays(
-                pa.array(np.asarray(self.intrinsics_norm, dtype=np.float64).reshape(-1)), 4),
+                pa.array(np.asarray(self.intrinsics_norm, dtype=np.float64).reshape(-1)), 4
+            ),
             "cam_to_world": pa.FixedSizeListArray.from_arrays(
-                pa.array(np.asarray(self.cam_to_world, dtype=np.float64).reshape(-1)), 16),
+                pa.array(np.asarray(self.cam_to_world, dtype=np.float64).reshape(-1)), 16
+            ),
             "near": pa.array(np.full(n, self.near, dtype=np.float32)),
             "far": pa.array(np.full(n, self.far, dtype=np.float32)),
         }
@@ -140,8 +145,14 @@ class PosedDatasetWriter:
     Use as a context manager: an exception leaves no manifest, so the output never looks complete.
     """
 
-    def __init__(self, out_dir: str | Path, params: dict, provenance: dict,
-                 target_file_bytes: int = 256 << 20, prefix: str = "posed"):
+    def __init__(
+        self,
+        out_dir: str | Path,
+        params: dict,
+        provenance: dict,
+        target_file_bytes: int = 256 << 20,
+        prefix: str = "posed",
+    ):
         self.out_dir = Path(out_dir)
         self.params = params
         self.provenance = provenance
@@ -183,8 +194,14 @@ class PosedDatasetWriter:
             self._open()
         assert self._path is not None and self._writer is not None
         self._writer.write_batch(batch)
-        entry = {"scene_id": scene.scene_id, "file": self._path.name, "row_start": self._rows,
-                 "num_frames": len(scene), "near": float(scene.near), "far": float(scene.far)}
+        entry = {
+            "scene_id": scene.scene_id,
+            "file": self._path.name,
+            "row_start": self._rows,
+            "num_frames": len(scene),
+            "near": float(scene.near),
+            "far": float(scene.far),
+        }
         if scene.meta:
             entry["meta"] = scene.meta
         self.scenes.append(entry)
@@ -211,8 +228,16 @@ class PosedDatasetWriter:
         self._finish_file()
         if not self.scenes:
             raise SeeUError("no usable scene to write", self.out_dir)
-        return write_manifest(self.out_dir, SCHEMA, schema_version(SCHEMA), self.files, self.params,
-                              self.provenance, scenes=self.scenes, report=self.report or None)
+        return write_manifest(
+            self.out_dir,
+            SCHEMA,
+            schema_version(SCHEMA),
+            self.files,
+            self.params,
+            self.provenance,
+            scenes=self.scenes,
+            report=self.report or None,
+        )
 
 
 class PosedDataset:
@@ -258,9 +283,11 @@ class PosedDataset:
             batch = reader.read_all().slice(info["row_start"], info["num_frames"])
         scene = PosedScene.from_record_batch(batch, info.get("meta"))
         if scene.scene_id != scene_id:
-            raise SeeUError(f"manifest points scene {scene_id!r} at rows holding {scene.scene_id!r}", self.root / info["file"])
+            raise SeeUError(
+                f"manifest points scene {scene_id!r} at rows holding {scene.scene_id!r}", self.root / info["file"]
+            )
         return scene
 
     def iter_scenes(self, scene_ids: Iterable[str] | None = None) -> Iterator[PosedScene]:
-        for sid in (scene_ids if scene_ids is not None else self.scene_ids):
+        for sid in scene_ids if scene_ids is not None else self.scene_ids:
             yield self.load_scene(sid)

@@ -39,8 +39,13 @@ def ensure_ray(address: str | None = None) -> None:
         return
     repo_root = str(Path(__file__).resolve().parent.parent)
     try:
-        ray.init(address=address, include_dashboard=False, logging_level=logging.ERROR, log_to_driver=False,
-                 runtime_env={"env_vars": {"PYTHONPATH": repo_root}})
+        ray.init(
+            address=address,
+            include_dashboard=False,
+            logging_level=logging.ERROR,
+            log_to_driver=False,
+            runtime_env={"env_vars": {"PYTHONPATH": repo_root}},
+        )
     except (ConnectionError, ValueError, RuntimeError) as exc:
         raise SeeUError(f"cannot start or reach Ray ({str(exc).splitlines()[0]})", address or "local") from None
 

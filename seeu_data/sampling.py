@@ -98,8 +98,13 @@ class Sample:
         return self.context + self.target
 
     def as_dict(self) -> dict:
-        return {"scene_id": self.scene_id, "mode": self.mode, "k": self.k,
-                "context": list(self.context), "target": list(self.target)}
+        return {
+            "scene_id": self.scene_id,
+            "mode": self.mode,
+            "k": self.k,
+            "context": list(self.context),
+            "target": list(self.target),
+        }
 
 
 def target_offsets(context, target) -> tuple[int, ...]:
@@ -117,7 +122,7 @@ def make_sample(scene_id: str, mode: str, k: int, context, target) -> Sample:
 def scene_rng(seed: int, scene_id: str) -> np.random.Generator:
     """Generator seeded by (seed, sha256(scene_id)): independent of order, workers and engine."""
     digest = hashlib.sha256(scene_id.encode("utf-8")).digest()
-    words = [int.from_bytes(digest[i:i + 4], "little") for i in range(0, 16, 4)]
+    words = [int.from_bytes(digest[i : i + 4], "little") for i in range(0, 16, 4)]
     return np.random.default_rng(np.random.SeedSequence([int(seed) & 0xFFFFFFFF, int(seed) >> 32 & 0xFFFFFFFF, *words]))
 
 
@@ -166,8 +171,14 @@ def sample_scene(cfg: SamplingConfig, num_frames: int, scene_id: str, seed: int)
     return [sample_one(rng, cfg, num_frames, scene_id, k) for k in range(cfg.samples_per_scene)]
 
 
-def frustum_overlap(cam_to_world_a: np.ndarray, intrinsics_a: np.ndarray, cam_to_world_b: np.ndarray,
-                    intrinsics_b: np.ndarray, depth: float, grid: int = 16) -> float:
+def frustum_overlap(
+    cam_to_world_a: np.ndarray,
+    intrinsics_a: np.ndarray,
+    cam_to_world_b: np.ndarray,
+    intrinsics_b: np.ndarray,
+    depth: float,
+    grid: int = 16,
+) -> float:
     """Fraction of camera A's view (a grid of pixels unprojected at `depth`) that camera B sees.
 
     Shapes: cam_to_world (4, 4), intrinsics_norm (4,). Computed on a normalised 1x1 image (the
@@ -178,8 +189,9 @@ def frustum_overlap(cam_to_world_a: np.ndarray, intrinsics_a: np.ndarray, cam_to
 
     ticks = (np.arange(grid) + 0.5) / grid
     uv = np.stack(np.meshgrid(ticks, ticks, indexing="xy"), -1).reshape(-1, 2)
-    pts = unproject_pixels(uv, np.full(len(uv), float(depth)), np.asarray(cam_to_world_a, float),
-                           np.asarray(intrinsics_a, float), 1, 1)
+    pts = unproject_pixels(
+        uv, np.full(len(uv), float(depth)), np.asarray(cam_to_world_a, float), np.asarray(intrinsics_a, float), 1, 1
+    )
     uv_b, z_b = project_points(pts, np.asarray(cam_to_world_b, float), np.asarray(intrinsics_b, float), 1, 1)
     seen = (z_b > 0) & (uv_b >= 0).all(-1) & (uv_b <= 1).all(-1)
     return float(seen.mean())

@@ -65,8 +65,12 @@ class ScaleChoice:
     meta: dict
 
 
-def chunk_scale(cfg: ScaleConfig, depths: np.ndarray, near_far_unit: tuple[float, float],
-                distance_centres: tuple[np.ndarray, np.ndarray] | None = None) -> ScaleChoice:
+def chunk_scale(
+    cfg: ScaleConfig,
+    depths: np.ndarray,
+    near_far_unit: tuple[float, float],
+    distance_centres: tuple[np.ndarray, np.ndarray] | None = None,
+) -> ScaleChoice:
     """The scale factor and near/far of a chunk.
 
     `depths`: (M,) positive depths of the SfM point observations in the model's cameras (model
@@ -77,28 +81,46 @@ def chunk_scale(cfg: ScaleConfig, depths: np.ndarray, near_far_unit: tuple[float
     depths = np.asarray(depths, np.float64)
     if cfg.scale == "median-depth":
         s = 1.0 / float(np.median(depths))
-        return ScaleChoice(s, near_far_unit[0] * s, near_far_unit[1] * s,
-                           {"scale_convention": "median-depth", "scale_method": "median SfM point depth = 1"})
+        return ScaleChoice(
+            s,
+            near_far_unit[0] * s,
+            near_far_unit[1] * s,
+            {"scale_convention": "median-depth", "scale_method": "median SfM point depth = 1"},
+        )
     if cfg.scale == "re10k":
         near, far = RE10K_NEAR_FAR
         s = near / near_far_unit[0]
-        return ScaleChoice(s, near, far, {
-            "scale_convention": "re10k",
-            "scale_method": "the scene's near bound (0.4 x the 0.1th percentile of SfM point depths) = the peers' "
-                            "fixed near 1; near/far = the RE10K setup's 1 / 100",
-            "points_nearer_than_near_pct": float(100.0 * np.mean(depths * s < near)),
-            "points_farther_than_far_pct": float(100.0 * np.mean(depths * s > far)),
-            "near_far_method": "fixed 1 / 100 (the pixelSplat / MVSplat RealEstate10K setup)",
-            "near_far_from_depths": [near_far_unit[0] * s, near_far_unit[1] * s]})
+        return ScaleChoice(
+            s,
+            near,
+            far,
+            {
+                "scale_convention": "re10k",
+                "scale_method": "the scene's near bound (0.4 x the 0.1th percentile of SfM point depths) = the peers' "
+                "fixed near 1; near/far = the RE10K setup's 1 / 100",
+                "points_nearer_than_near_pct": float(100.0 * np.mean(depths * s < near)),
+                "points_farther_than_far_pct": float(100.0 * np.mean(depths * s > far)),
+                "near_far_method": "fixed 1 / 100 (the pixelSplat / MVSplat RealEstate10K setup)",
+                "near_far_from_depths": [near_far_unit[0] * s, near_far_unit[1] * s],
+            },
+        )
     assert cfg.scale == "metric" and distance_centres is not None and cfg.known_distance is not None
     d = float(np.linalg.norm(np.asarray(distance_centres[0]) - np.asarray(distance_centres[1])))
     if not d > 1e-9 * max(1.0, float(np.median(depths))):
-        raise SeeUError("--known-distance: the two cameras are at the same place in the SfM model; "
-                        "name two frames further apart with --distance-frames")
+        raise SeeUError(
+            "--known-distance: the two cameras are at the same place in the SfM model; "
+            "name two frames further apart with --distance-frames"
+        )
     s = cfg.known_distance / d
-    return ScaleChoice(s, near_far_unit[0] * s, near_far_unit[1] * s, {
-        "scale_convention": "metric",
-        "scale_method": f"metres: the two cameras are {cfg.known_distance:g} m apart (--known-distance)"})
+    return ScaleChoice(
+        s,
+        near_far_unit[0] * s,
+        near_far_unit[1] * s,
+        {
+            "scale_convention": "metric",
+            "scale_method": f"metres: the two cameras are {cfg.known_distance:g} m apart (--known-distance)",
+        },
+    )
 
 
 def distance_frame_names(frames: list[dict], distance_frames: tuple[int, int] | None, source) -> tuple[str, str] | None:
@@ -109,6 +131,9 @@ def distance_frame_names(frames: list[dict], distance_frames: tuple[int, int] | 
     by_source = {int(f["source_frame"]): f["name"] for f in frames}
     for f in distance_frames:
         if f not in by_source:
-            raise SeeUError(f"--distance-frames: source frame {f} is not among the selected frames "
-                            f"({len(frames)} kept of the video; see --stride / --target-frames)", source)
+            raise SeeUError(
+                f"--distance-frames: source frame {f} is not among the selected frames "
+                f"({len(frames)} kept of the video; see --stride / --target-frames)",
+                source,
+            )
     return by_source[distance_frames[0]], by_source[distance_frames[1]]

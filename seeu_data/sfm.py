@@ -120,12 +120,19 @@ def _check_features_available(features: str) -> None:
     try:
         pycolmap.FeatureExtractor.create(options)
     except RuntimeError as exc:  # e.g. "ALIKED feature extraction requires ONNX support."
-        raise SeeUError(f"--features {features} cannot run with this pycolmap ({str(exc).rstrip('.')}); "
-                        "use --features sift") from None
+        raise SeeUError(
+            f"--features {features} cannot run with this pycolmap ({str(exc).rstrip('.')}); use --features sift"
+        ) from None
 
 
-def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, config: SfmConfig,
-            source: str | Path, progress=False) -> dict:
+def run_sfm(
+    image_dir: str | Path,
+    image_names: list[str],
+    out_dir: str | Path,
+    config: SfmConfig,
+    source: str | Path,
+    progress=False,
+) -> dict:
     """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
 
     `source` names the user's input in error messages. `progress`: a `StageProgress` (or True for bars
@@ -138,8 +145,12 @@ def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, 
     config.check()
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
-    job = {"image_dir": str(Path(image_dir).resolve()), "image_names": list(image_names),
-           "out_dir": str(out_dir.resolve()), "config": asdict(config)}
+    job = {
+        "image_dir": str(Path(image_dir).resolve()),
+        "image_names": list(image_names),
+        "out_dir": str(out_dir.resolve()),
+        "config": asdict(config),
+    }
     (out_dir / "job.json").write_text(json.dumps(job, indent=1))
     log_path = out_dir / "sfm.log"
     env = dict(os.environ, GLOG_minloglevel=os.environ.get("GLOG_minloglevel", "0"))
@@ -149,8 +160,12 @@ def run_sfm(image_dir: str | Path, image_names: list[str], out_dir: str | Path, 
         with open(log_path, "wb") as log:
             # COLMAP's log (stderr) comes through the same pipe: it goes to sfm.log, and its
             # "Processed file [k/N]" / "Processing image [k/N]" lines move the extract and match stages.
-            proc = subprocess.Popen([sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
-                                    stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+            proc = subprocess.Popen(
+                [sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
+                stdout=subprocess.PIPE,
+                stderr=subprocess.STDOUT,
+                env=env,
+            )
             assert proc.stdout is not None
             for raw in proc.stdout:
                 line = raw.decode(errors="replace").strip()
@@ -193,11 +208,12 @@ def _last_log_line(path: Path) -> str:
         lines = [ln.strip() for ln in path.read_text(errors="replace").splitlines() if ln.strip()]
     except OSError:
         return "(no log)"
-    pick = next((ln for ln in reversed(lines) if ln[:1] in "EF" or "Check failed" in ln or "rror" in ln),
-                lines[-1] if lines else "(empty log)")
+    pick = next(
+        (ln for ln in reversed(lines) if ln[:1] in "EF" or "Check failed" in ln or "rror" in ln),
+        lines[-1] if lines else "(empty log)",
+    )
     pick = re.sub(r"^[IWEF]\d{8} [\d:.]+ +\d+ [\w.]+:\d+\] ", "", pick)  # glog prefix
     return pick if len(pick) <= 200 else pick[:197] + "..."
-
 
 
 def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: SfmConfig) -> None:
@@ -231,8 +247,9 @@ def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: Sf
         db.close()
 
 
-def map_with_retries(map_once, num_frames: int, cfg: SfmConfig,
-                     check: bool = False) -> tuple[dict, list[dict], list[dict], dict]:
+def map_with_retries(
+    map_once, num_frames: int, cfg: SfmConfig, check: bool = False
+) -> tuple[dict, list[dict], list[dict], dict]:
     """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
     cfg.random_seed, +1, ... at most `cfg.mapping_attempts` times, until a run registers enough frames
     and, with `check`, agrees with an earlier such run.
@@ -268,8 +285,13 @@ def map_with_retries(map_once, num_frames: int, cfg: SfmConfig,
             if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
                 continue
             if camera.has_bogus_params(*_PLAUSIBLE_CAMERA):
-                rejected.append({"index": int(k), "registered": n, "reason": "implausible camera parameters "
-                                 + ", ".join(f"{p:.3g}" for p in camera.params)})
+                rejected.append(
+                    {
+                        "index": int(k),
+                        "registered": n,
+                        "reason": "implausible camera parameters " + ", ".join(f"{p:.3g}" for p in camera.params),
+                    }
+                )
                 continue
             usable[k] = rec
         registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
@@ -293,8 +315,12 @@ def map_with_retries(map_once, num_frames: int, cfg: SfmConfig,
         keep = agreed
     else:  # the run registering most, the first on ties
         keep = max(range(len(runs)), key=lambda i: (runs[i][0], -i))
-    result = {"ran": check, "passed": (agreed is not None) if check else None,
-              "disagreement_pct": smallest, "kept_seed": attempts[keep]["seed"]}
+    result = {
+        "ran": check,
+        "passed": (agreed is not None) if check else None,
+        "disagreement_pct": smallest,
+        "kept_seed": attempts[keep]["seed"],
+    }
     return runs[keep][1], attempts, runs[keep][2], result
 
 
@@ -340,8 +366,10 @@ def geometry_counts(db_path: str | Path) -> dict:
     import pycolmap
 
     cfg = pycolmap.TwoViewGeometryConfiguration
-    verified = {int(c) for c in (cfg.CALIBRATED, cfg.UNCALIBRATED, cfg.PLANAR, cfg.PANORAMIC,
-                                 cfg.PLANAR_OR_PANORAMIC, cfg.MULTIPLE)}
+    verified = {
+        int(c)
+        for c in (cfg.CALIBRATED, cfg.UNCALIBRATED, cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC, cfg.MULTIPLE)
+    }
     planar = {int(c) for c in (cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC)}
     db = pycolmap.Database.open(db_path)
     try:
@@ -363,9 +391,16 @@ def _emit(*parts) -> None:
 
 def _camera_dict(camera) -> dict:
     K = camera.calibration_matrix()
-    return {"model": camera.model.name, "width": int(camera.width), "height": int(camera.height),
-            "params": [float(p) for p in camera.params],
-            "fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2])}
+    return {
+        "model": camera.model.name,
+        "width": int(camera.width),
+        "height": int(camera.height),
+        "params": [float(p) for p in camera.params],
+        "fx": float(K[0, 0]),
+        "fy": float(K[1, 1]),
+        "cx": float(K[0, 2]),
+        "cy": float(K[1, 2]),
+    }
 
 
 def _max_distortion_px(camera) -> float:
@@ -375,8 +410,14 @@ def _max_distortion_px(camera) -> float:
 
     w, h = float(camera.width), float(camera.height)
     ts = np.linspace(0.0, 1.0, 9)
-    border = np.concatenate([np.stack([ts * w, np.zeros_like(ts)], 1), np.stack([ts * w, np.full_like(ts, h)], 1),
-                             np.stack([np.zeros_like(ts), ts * h], 1), np.stack([np.full_like(ts, w), ts * h], 1)])
+    border = np.concatenate(
+        [
+            np.stack([ts * w, np.zeros_like(ts)], 1),
+            np.stack([ts * w, np.full_like(ts, h)], 1),
+            np.stack([np.zeros_like(ts), ts * h], 1),
+            np.stack([np.full_like(ts, w), ts * h], 1),
+        ]
+    )
     rays = np.asarray(camera.cam_from_img(border), np.float64)
     K = np.asarray(camera.calibration_matrix(), np.float64)
     pinhole = rays @ K[:2, :2].T + K[:2, 2]
@@ -406,9 +447,15 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
     xyz = np.array([points[p] for p in ids], np.float64).reshape(-1, 3)
     rgb = np.array([rec.points3D[p].color for p in ids], np.float64).reshape(-1, 3)
     np.save(out / f"points3d_{index}.npy", np.concatenate([xyz, rgb], 1))  # (M, 6) world xyz + RGB 0-255
-    return {"index": index, "camera": next(iter(cams.values())), "undistorted": undistorted,
-            "image_dir": image_dir, "images": images, "num_points3D": int(rec.num_points3D()),
-            "mean_reprojection_error": float(rec.compute_mean_reprojection_error())}
+    return {
+        "index": index,
+        "camera": next(iter(cams.values())),
+        "undistorted": undistorted,
+        "image_dir": image_dir,
+        "images": images,
+        "num_points3D": int(rec.num_points3D()),
+        "mean_reprojection_error": float(rec.compute_mean_reprojection_error()),
+    }
 
 
 def _child(job_path: str) -> int:
@@ -440,8 +487,14 @@ def _child(job_path: str) -> int:
     extraction.sift.max_num_features = cfg.max_num_features
     extraction.num_threads = cfg.num_threads
     extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
-    pycolmap.extract_features(db_path, image_dir, image_names=names, camera_mode=pycolmap.CameraMode.SINGLE,
-                              reader_options=reader, extraction_options=extraction)
+    pycolmap.extract_features(
+        db_path,
+        image_dir,
+        image_names=names,
+        camera_mode=pycolmap.CameraMode.SINGLE,
+        reader_options=reader,
+        extraction_options=extraction,
+    )
     timings["extract_s"] = time.perf_counter() - t0
     db = pycolmap.Database.open(db_path)
     num_kp = int(db.num_keypoints())
@@ -466,8 +519,9 @@ def _child(job_path: str) -> int:
     # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
     # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
     verification.ransac.random_seed = cfg.random_seed
-    pycolmap.match_sequential(db_path, matching_options=matching, pairing_options=pairing,
-                              verification_options=verification)
+    pycolmap.match_sequential(
+        db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
+    )
     timings["match_s"] = time.perf_counter() - t0
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
@@ -495,19 +549,23 @@ def _child(job_path: str) -> int:
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.mapping_threads
         options.random_seed = seed
-        return pycolmap.incremental_mapping(db_path, image_dir, sparse, options=options,
-                                            next_image_callback=lambda: _emit("step"))
+        return pycolmap.incremental_mapping(
+            db_path, image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
+        )
 
     pairs = geometry_counts(db_path)
-    recs, attempts, rejected, check = map_with_retries(map_once, len(names), cfg,
-                                                       check=cfg.solution_check and cfg.mapping_attempts >= 2)
+    recs, attempts, rejected, check = map_with_retries(
+        map_once, len(names), cfg, check=cfg.solution_check and cfg.mapping_attempts >= 2
+    )
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]
     timings["map_s"] = time.perf_counter() - t0
     if not recs:
-        return fail("SfM found no model: no frame pair with enough parallax "
-                    "(static camera, blank frames, or too few overlapping frames)"
-                    + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else ""))
+        return fail(
+            "SfM found no model: no frame pair with enough parallax "
+            "(static camera, blank frames, or too few overlapping frames)"
+            + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else "")
+        )
     shutil.rmtree(sparse)  # the models kept are written again below, under their own index
     sparse.mkdir()
 
@@ -517,8 +575,9 @@ def _child(job_path: str) -> int:
     for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
         names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
         if len(names_k & seen) > 0.5 * len(names_k):
-            discarded.append({"index": int(k), "registered": len(names_k),
-                              "reason": "mostly re-registers frames of a larger model"})
+            discarded.append(
+                {"index": int(k), "registered": len(names_k), "reason": "mostly re-registers frames of a larger model"}
+            )
             continue
         seen |= names_k
         kept.append(k)
@@ -549,12 +608,20 @@ def _child(job_path: str) -> int:
         models[-1]["distortion_max_px"] = distortion
         models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
     timings["export_s"] = time.perf_counter() - t0
-    (out / "result.json").write_text(json.dumps({"models": models, "discarded_models": discarded,
-                                                 "num_keypoints": num_kp,
-                                                 "num_verified_pairs": num_pairs, "mapping_attempts": attempts,
-                                                 "mapper": mapper_info,
-                                                 "solution_check": check,
-                                                 "timings": timings}))
+    (out / "result.json").write_text(
+        json.dumps(
+            {
+                "models": models,
+                "discarded_models": discarded,
+                "num_keypoints": num_kp,
+                "num_verified_pairs": num_pairs,
+                "mapping_attempts": attempts,
+                "mapper": mapper_info,
+                "solution_check": check,
+                "timings": timings,
+            }
+        )
+    )
     return 0
 
 

@@ -67,8 +67,13 @@ class StageCache:
             shutil.rmtree(d, ignore_errors=True)
             raise
         elapsed = time.perf_counter() - t0
-        atomic_write_text(d / STAMP, json.dumps({"stage": name, "key_hash": key_hash(key), "key": key,
-                                                 "elapsed_s": elapsed, "result": result}, default=str))
+        atomic_write_text(
+            d / STAMP,
+            json.dumps(
+                {"stage": name, "key_hash": key_hash(key), "key": key, "elapsed_s": elapsed, "result": result},
+                default=str,
+            ),
+        )
         self.timings[name] = elapsed
         self.reused[name] = False
         return result, False

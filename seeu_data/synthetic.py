@@ -98,8 +98,14 @@ def _make_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
         elif kind == 1:
             cv2.circle(img, (cx, cy), size // 2 + 2, color, -1)
         elif kind == 2:
-            pts = np.array([[cx, cy], [cx + size, cy + int(rng.integers(-size, size))],
-                            [cx + int(rng.integers(-size, size)), cy + size]], np.int32)
+            pts = np.array(
+                [
+                    [cx, cy],
+                    [cx + size, cy + int(rng.integers(-size, size))],
+                    [cx + int(rng.integers(-size, size)), cy + size],
+                ],
+                np.int32,
+            )
             cv2.fillPoly(img, [pts], color)
         else:
             cv2.line(img, (cx, cy), (cx + int(rng.integers(-40, 40)), cy + int(rng.integers(-40, 40))), color, 2)
@@ -166,10 +172,15 @@ def _scene_of(rects: list, rng, boxes: list, light: np.ndarray, seed: int) -> Sc
     for bmin, bmax in boxes:
         _add_box(rects, rng, bmin, bmax, light)
     return Scene(
-        axis=np.array([r[0] for r in rects], np.int64), coord=np.array([r[1] for r in rects]),
-        lo=np.stack([r[2] for r in rects]), hi=np.stack([r[3] for r in rects]),
-        facing=np.array([r[4] for r in rects], np.int64), shade=np.array([r[5] for r in rects]),
-        textures=[r[6] for r in rects], boxes=boxes, seed=seed,
+        axis=np.array([r[0] for r in rects], np.int64),
+        coord=np.array([r[1] for r in rects]),
+        lo=np.stack([r[2] for r in rects]),
+        hi=np.stack([r[3] for r in rects]),
+        facing=np.array([r[4] for r in rects], np.int64),
+        shade=np.array([r[5] for r in rects]),
+        textures=[r[6] for r in rects],
+        boxes=boxes,
+        seed=seed,
     )
 
 
@@ -296,8 +307,14 @@ def _bilinear(tex: np.ndarray, u: np.ndarray, v: np.ndarray) -> np.ndarray:
     return top * (1 - fy) + bot * fy
 
 
-def render_view(scene: Scene, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, width: int, height: int,
-                background: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+def render_view(
+    scene: Scene,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int,
+    height: int,
+    background: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray]:
     """Ray-cast one view.
 
     cam_to_world: `(4, 4)` OpenCV; intrinsics_norm: `(4,)`. Rays go through pixel centres
@@ -312,8 +329,7 @@ def render_view(scene: Scene, cam_to_world: np.ndarray, intrinsics_norm: np.ndar
     rot = c2w[:3, :3].astype(np.float32)
     origin = c2w[:3, 3]
     # ray directions with camera-z = 1, so the ray parameter t is the camera depth: (3, H, W)
-    dirs = (rot[:, 0, None, None] * xs[None, None, :] + rot[:, 1, None, None] * ys[None, :, None]
-            + rot[:, 2, None, None])
+    dirs = rot[:, 0, None, None] * xs[None, None, :] + rot[:, 1, None, None] * ys[None, :, None] + rot[:, 2, None, None]
     depth = np.full((height, width), np.inf, np.float32)
     face = np.full((height, width), -1, np.int32)
     for k in range(len(scene)):
@@ -400,7 +416,10 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     if cfg.scene not in SCENES:
         raise SeeUError(f"scene must be one of {', '.join(SCENES)}, got {cfg.scene!r}")
     if cfg.scene == "planar":
-        scene, poses = make_planar_scene(cfg.seed, cfg.path_length_m), planar_camera_path(cfg.n_frames, cfg.path_length_m)
+        scene, poses = (
+            make_planar_scene(cfg.seed, cfg.path_length_m),
+            planar_camera_path(cfg.n_frames, cfg.path_length_m),
+        )
     else:
         scene, poses = make_scene(cfg.seed), camera_path(cfg.n_frames, cfg.path_length_m)
     intr = default_intrinsics_norm(cfg.width, cfg.height, cfg.hfov_deg)
@@ -413,17 +432,30 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
         for i in tqdm(range(cfg.n_frames), desc="render", unit="frame", disable=not progress):
             rgb, _ = render_view(scene, poses[i], intr, cfg.width, cfg.height)
             writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
-            frames.append({"frame": i, "timestamp_us": int(round(i * 1e6 / cfg.fps)),
-                           "cam_to_world": poses[i].tolist(), "intrinsics_norm": intr.tolist()})
+            frames.append(
+                {
+                    "frame": i,
+                    "timestamp_us": int(round(i * 1e6 / cfg.fps)),
+                    "cam_to_world": poses[i].tolist(),
+                    "intrinsics_norm": intr.tolist(),
+                }
+            )
         writer.release()
         tmp.replace(video_path)
     except BaseException:
         writer.release()
         tmp.unlink(missing_ok=True)
         raise
-    doc = {"format": GT_FORMAT, "config": dict(cfg.__dict__), "video": video_path.name,
-           "width": cfg.width, "height": cfg.height, "fps": cfg.fps,
-           "path_length": path_length(poses), "frames": frames}
+    doc = {
+        "format": GT_FORMAT,
+        "config": dict(cfg.__dict__),
+        "video": video_path.name,
+        "width": cfg.width,
+        "height": cfg.height,
+        "fps": cfg.fps,
+        "path_length": path_length(poses),
+        "frames": frames,
+    }
     atomic_write_text(ground_truth_path(video_path), json.dumps(doc, indent=1) + "\n")
     return doc
 
@@ -445,9 +477,17 @@ def load_ground_truth(path: str | Path) -> dict:
     return doc
 
 
-def synthetic_posed_scene(n_frames: int = 24, height: int = 90, width: int = 160, seed: int = 0,
-                          scene_id: str | None = None, fps: float = 30.0, jpeg_quality: int = 95,
-                          hfov_deg: float = 70.0, path_length_m: float = 7.0):
+def synthetic_posed_scene(
+    n_frames: int = 24,
+    height: int = 90,
+    width: int = 160,
+    seed: int = 0,
+    scene_id: str | None = None,
+    fps: float = 30.0,
+    jpeg_quality: int = 95,
+    hfov_deg: float = 70.0,
+    path_length_m: float = 7.0,
+):
     """A ground-truth `PosedScene` of the synthetic corridor (JPEG images, exact cameras, no SfM).
 
     near/far are the min/max rendered depth over all frames with a 10 % margin (recorded in meta).
@@ -467,13 +507,22 @@ def synthetic_posed_scene(n_frames: int = 24, height: int = 90, width: int = 160
         finite = depth[np.isfinite(depth)]
         dmin, dmax = min(dmin, float(finite.min())), max(dmax, float(finite.max()))
     return PosedScene(
-        scene_id=scene_id or f"synthetic_s{seed}", images=images, image_format="jpeg",
-        width=np.full(n_frames, width), height=np.full(n_frames, height),
-        intrinsics_norm=np.tile(intr, (n_frames, 1)), cam_to_world=poses,
-        near=0.9 * dmin, far=1.1 * dmax,
+        scene_id=scene_id or f"synthetic_s{seed}",
+        images=images,
+        image_format="jpeg",
+        width=np.full(n_frames, width),
+        height=np.full(n_frames, height),
+        intrinsics_norm=np.tile(intr, (n_frames, 1)),
+        cam_to_world=poses,
+        near=0.9 * dmin,
+        far=1.1 * dmax,
         source_frame=np.arange(n_frames, dtype=np.int64),
         timestamp_us=np.round(np.arange(n_frames) * 1e6 / fps).astype(np.int64),
         source_name=[""] * n_frames,
-        meta={"synthetic": True, "seed": seed, "ground_truth": True,
-              "near_far_method": "min/max rendered depth over the frames with a 10% margin"},
+        meta={
+            "synthetic": True,
+            "seed": seed,
+            "ground_truth": True,
+            "near_far_method": "min/max rendered depth over the frames with a 10% margin",
+        },
     )

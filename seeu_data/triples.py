@@ -34,9 +34,28 @@ from .schema import arrow_schema
 
 SCHEMA = "seeu.triples"
 PLAN_KEY = b"seeu.shard_plan_sha256"
-_POSED_COLUMNS = ["source_frame", "image", "image_format", "width", "height", "intrinsics_norm", "cam_to_world",
-                  "near", "far"]
-_PER_VIEW = ("frame_index", "source_frame", "image", "width", "height", "intrinsics_norm", "cam_to_world", "near", "far")
+_POSED_COLUMNS = [
+    "source_frame",
+    "image",
+    "image_format",
+    "width",
+    "height",
+    "intrinsics_norm",
+    "cam_to_world",
+    "near",
+    "far",
+]
+_PER_VIEW = (
+    "frame_index",
+    "source_frame",
+    "image",
+    "width",
+    "height",
+    "intrinsics_norm",
+    "cam_to_world",
+    "near",
+    "far",
+)
 
 
 @dataclass(frozen=True)
@@ -48,8 +67,11 @@ class ImageOptions:
     jpeg_quality: int = 95
 
     def as_dict(self) -> dict:
-        return {"resize": list(self.resize) if self.resize else None, "interpolation": self.interpolation,
-                "jpeg_quality": self.jpeg_quality}
+        return {
+            "resize": list(self.resize) if self.resize else None,
+            "interpolation": self.interpolation,
+            "jpeg_quality": self.jpeg_quality,
+        }
 
 
 def shard_schema(plan_sha256: str) -> pa.Schema:
@@ -89,8 +111,9 @@ class _MappedFile:
         try:
             self.table = pa.ipc.open_file(pa.BufferReader(buf)).read_all()
         except (pa.ArrowInvalid, OSError) as exc:
-            raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0],
-                            path) from None
+            raise SeeUError(
+                f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0], path
+            ) from None
         self.populated: set[str] = set()
 
 
@@ -139,8 +162,11 @@ class _SceneTables:
         path = src["path"]
         full = self._file(scene_id).table
         if src["row_start"] + src["num_frames"] > full.num_rows:
-            raise SeeUError(f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
-                            f"exceed the file's {full.num_rows} rows", path)
+            raise SeeUError(
+                f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
+                f"exceed the file's {full.num_rows} rows",
+                path,
+            )
         rows = full.slice(src["row_start"], src["num_frames"])
         first = rows.column("scene_id")[0].as_py()
         if first != scene_id:
@@ -153,10 +179,11 @@ class _SceneTables:
         views: list[memoryview] = []
         for chunk in rows.column("image").chunks:
             _, offsets_buf, data_buf = chunk.buffers()
-            offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset:chunk.offset + len(chunk) + 1]
+            offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset : chunk.offset + len(chunk) + 1]
             if len(chunk) and scene_id not in mapped.populated:
-                populate(mapped.mapping, data_buf.address - mapped.base + int(offsets[0]),
-                         int(offsets[-1] - offsets[0]))
+                populate(
+                    mapped.mapping, data_buf.address - mapped.base + int(offsets[0]), int(offsets[-1] - offsets[0])
+                )
             data = memoryview(data_buf)
             views.extend(data[a:b] for a, b in zip(offsets[:-1].tolist(), offsets[1:].tolist()))
         mapped.populated.add(scene_id)
@@ -169,8 +196,9 @@ def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.
     return pa.ListArray.from_arrays(offsets, values, type=typ)
 
 
-def _resize_views(taken: pa.Table, view_scene: list[str], view_frame: np.ndarray, opts: ImageOptions,
-                  sources: dict[str, dict]) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
+def _resize_views(
+    taken: pa.Table, view_scene: list[str], view_frame: np.ndarray, opts: ImageOptions, sources: dict[str, dict]
+) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
     """Decode, resize + centre-crop and re-encode every view (cached per scene frame within the shard)."""
     from .image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
 
@@ -189,15 +217,25 @@ def _resize_views(taken: pa.Table, view_scene: list[str], view_frame: np.ndarray
             try:
                 img = decode_rgb(images[i])
             except ValueError:
-                raise SeeUError(f"scene {sid!r} frame {int(f)}: image bytes cannot be decoded", sources[sid]["path"]) from None
+                raise SeeUError(
+                    f"scene {sid!r} frame {int(f)}: image bytes cannot be decoded", sources[sid]["path"]
+                ) from None
             if img.shape[:2] != (heights[i], widths[i]):
-                raise SeeUError(f"scene {sid!r} frame {int(f)}: image is {img.shape[1]}x{img.shape[0]}, "
-                                f"the table says {widths[i]}x{heights[i]}", sources[sid]["path"])
+                raise SeeUError(
+                    f"scene {sid!r} frame {int(f)}: image is {img.shape[1]}x{img.shape[0]}, "
+                    f"the table says {widths[i]}x{heights[i]}",
+                    sources[sid]["path"],
+                )
             img = resize_cover_crop(img, (out_h, out_w), opts.interpolation)
             cache[key] = encode_png(img) if fmts[i] == "png" else encode_jpeg(img, opts.jpeg_quality)
         out.append(cache[key])
-    new_intr = np.stack([resized_intrinsics(intr[i], (int(heights[i]), int(widths[i])), (out_h, out_w))
-                         for i in range(len(out))]) if out else np.zeros((0, 4))
+    new_intr = (
+        np.stack(
+            [resized_intrinsics(intr[i], (int(heights[i]), int(widths[i])), (out_h, out_w)) for i in range(len(out))]
+        )
+        if out
+        else np.zeros((0, 4))
+    )
     n = len(out)
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
 
@@ -216,8 +254,11 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
     from .sampling import make_sample
 
     samples = [make_sample(s["scene_id"], s["mode"], s["k"], s["context"], s["target"]) for s in spec["samples"]]
-    opts = ImageOptions(resize=tuple(spec["image"]["resize"]) if spec["image"]["resize"] else None,
-                        interpolation=spec["image"]["interpolation"], jpeg_quality=spec["image"]["jpeg_quality"])
+    opts = ImageOptions(
+        resize=tuple(spec["image"]["resize"]) if spec["image"]["resize"] else None,
+        interpolation=spec["image"]["interpolation"],
+        jpeg_quality=spec["image"]["jpeg_quality"],
+    )
     tables = _SceneTables(spec["sources"])
     scene_order: list[str] = []
     base: dict[str, int] = {}
@@ -230,7 +271,9 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
             scene_order.append(s.scene_id)
         n = spec["sources"][s.scene_id]["num_frames"]
         if any(not 0 <= v < n for v in s.views):
-            raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec["sources"][s.scene_id]["path"])
+            raise SeeUError(
+                f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec["sources"][s.scene_id]["path"]
+            )
     schema = shard_schema(spec["plan_sha256"])
     if not samples:
         return schema.empty_table()
@@ -259,9 +302,13 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
     per_view = {
         "frame_index": pa.array(view_frame.astype(np.int32)),
         "source_frame": taken.column("source_frame"),
-        "image": images, "width": width, "height": height, "intrinsics_norm": intr,
+        "image": images,
+        "width": width,
+        "height": height,
+        "intrinsics_norm": intr,
         "cam_to_world": taken.column("cam_to_world"),
-        "near": taken.column("near"), "far": taken.column("far"),
+        "near": taken.column("near"),
+        "far": taken.column("far"),
     }
     if spec.get("near_far") is not None:  # `seeu build --near/--far`: the user's bounds instead of the data's
         for key, value in zip(("near", "far"), spec["near_far"]):
@@ -279,7 +326,8 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
         "gap": pa.array(np.array([s.gap for s in samples], dtype=np.int32)),
         "target_offset": pa.ListArray.from_arrays(
             pa.array(np.concatenate([[0], np.cumsum(tgt_counts)]).astype(np.int32)),
-            pa.array(np.array([o for s in samples for o in s.target_offset], dtype=np.int32))),
+            pa.array(np.array([o for s in samples for o in s.target_offset], dtype=np.int32)),
+        ),
     }
     for name in _PER_VIEW:
         cols[name] = _list_column(offsets, per_view[name], schema.field(name).type)
@@ -328,19 +376,27 @@ class TripleRow:
 
     @property
     def target(self) -> list[int]:
-        return self.frame_index[self.num_context:].tolist()
+        return self.frame_index[self.num_context :].tolist()
 
     @classmethod
     def from_pydict(cls, d: dict) -> "TripleRow":
         return cls(
-            sample_id=d["sample_id"], scene_id=d["scene_id"], mode=d["mode"], num_context=int(d["num_context"]),
-            frame_index=np.asarray(d["frame_index"], np.int64), source_frame=np.asarray(d["source_frame"], np.int64),
-            images=list(d["image"]), image_format=d["image_format"],
-            width=np.asarray(d["width"], np.int64), height=np.asarray(d["height"], np.int64),
+            sample_id=d["sample_id"],
+            scene_id=d["scene_id"],
+            mode=d["mode"],
+            num_context=int(d["num_context"]),
+            frame_index=np.asarray(d["frame_index"], np.int64),
+            source_frame=np.asarray(d["source_frame"], np.int64),
+            images=list(d["image"]),
+            image_format=d["image_format"],
+            width=np.asarray(d["width"], np.int64),
+            height=np.asarray(d["height"], np.int64),
             intrinsics_norm=np.asarray(d["intrinsics_norm"], np.float64).reshape(-1, 4),
             cam_to_world=np.asarray(d["cam_to_world"], np.float64).reshape(-1, 4, 4),
-            near=np.asarray(d["near"], np.float32), far=np.asarray(d["far"], np.float32),
-            gap=int(d["gap"]), target_offset=np.asarray(d["target_offset"], np.int64),
+            near=np.asarray(d["near"], np.float32),
+            far=np.asarray(d["far"], np.float32),
+            gap=int(d["gap"]),
+            target_offset=np.asarray(d["target_offset"], np.int64),
         )
 
 

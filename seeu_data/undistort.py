@@ -41,9 +41,16 @@ class PinholeCamera:
     scale: float
 
     def as_dict(self) -> dict:
-        return {"model": "PINHOLE", "width": self.width, "height": self.height,
-                "params": [self.fx, self.fy, self.cx, self.cy], "fx": self.fx, "fy": self.fy, "cx": self.cx,
-                "cy": self.cy}
+        return {
+            "model": "PINHOLE",
+            "width": self.width,
+            "height": self.height,
+            "params": [self.fx, self.fy, self.cx, self.cy],
+            "fx": self.fx,
+            "fy": self.fy,
+            "cx": self.cx,
+            "cy": self.cy,
+        }
 
 
 def same_size_pinhole(camera) -> PinholeCamera:
@@ -83,8 +90,9 @@ def undistort_maps(camera, pinhole: PinholeCamera) -> tuple[np.ndarray, np.ndarr
     return src[..., 0].astype(np.float32), src[..., 1].astype(np.float32)
 
 
-def undistort_files(camera, image_dir: str | Path, names: list[str], out_dir: str | Path,
-                    jpeg_quality: int = 95) -> PinholeCamera:
+def undistort_files(
+    camera, image_dir: str | Path, names: list[str], out_dir: str | Path, jpeg_quality: int = 95
+) -> PinholeCamera:
     """Undistort the frames `image_dir/name` to `out_dir/name` (JPEG at `jpeg_quality`, bilinear
     resampling, same size); returns the pinhole camera of the output frames."""
     import cv2

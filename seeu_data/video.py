@@ -96,7 +96,9 @@ def discover_sources(inputs: list[str | Path]) -> list[SceneSource]:
             raise SeeUError("no such file or directory", path)
         if path.is_file():
             if path.suffix.lower() not in VIDEO_EXTENSIONS:
-                raise SeeUError(f"not a video file (expected one of {', '.join(sorted(VIDEO_EXTENSIONS))}) or an image folder", path)
+                raise SeeUError(
+                    f"not a video file (expected one of {', '.join(sorted(VIDEO_EXTENSIONS))}) or an image folder", path
+                )
             sources.append(SceneSource(_scene_name(path), path, "video"))
             continue
         images = _sorted_images(path)
@@ -122,8 +124,7 @@ def unique_scene_names(sources: list[SceneSource]) -> list[SceneSource]:
         if p in paths[:i]:
             raise SeeUError("the same input is given twice", sources[i].path)
     names = [s.name for s in sources]
-    names = [f"{_scene_name(s.path.resolve().parent)}-{n}" if names.count(n) > 1 else n
-             for s, n in zip(sources, names)]
+    names = [f"{_scene_name(s.path.resolve().parent)}-{n}" if names.count(n) > 1 else n for s, n in zip(sources, names)]
     final: list[str] = []
     for n in names:
         k, cand = 1, n
@@ -188,8 +189,9 @@ def iter_frames(source: SceneSource, stride: int = 1) -> Iterator[DecodedFrame]:
     if index == 0:
         raise SeeUError("no decodable video frames (truncated or corrupt)", source.path)
     if info.frame_count - index > _MISSING_FRAMES_TOLERANCE:
-        raise SeeUError(f"decoding stopped after {index} of {info.frame_count} frames (truncated or corrupt video)",
-                        source.path)
+        raise SeeUError(
+            f"decoding stopped after {index} of {info.frame_count} frames (truncated or corrupt video)", source.path
+        )
 
 
 def resize_max_side(rgb: np.ndarray, max_size: int | None) -> np.ndarray:

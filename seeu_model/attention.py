@@ -35,7 +35,9 @@ class Attention(nn.Module):
     def project_kv(self, context: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         return self.to_k(context), self.to_v(context)
 
-    def attend(self, q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor | None = None) -> torch.Tensor:
+    def attend(
+        self, q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """Projected q (N, Tq, dim), k, v (N, Tk, dim) -> (N, Tq, dim), output projection applied."""
         n, tq, dim = q.shape
         h = self.heads
@@ -46,7 +48,9 @@ class Attention(nn.Module):
         out = F.scaled_dot_product_attention(split(q), split(k), split(v), attn_mask=mask)
         return self.proj(out.transpose(1, 2).reshape(n, tq, dim))
 
-    def forward(self, x: torch.Tensor, context: torch.Tensor | None = None, mask: torch.Tensor | None = None) -> torch.Tensor:
+    def forward(
+        self, x: torch.Tensor, context: torch.Tensor | None = None, mask: torch.Tensor | None = None
+    ) -> torch.Tensor:
         context = x if context is None else context
         k, v = self.project_kv(context)
         return self.attend(self.to_q(x), k, v, mask)

@@ -54,8 +54,9 @@ def path_parameters(num_frames: int, extrapolate: float = 0.0) -> np.ndarray:
     return np.linspace(-extrapolate, 1.0 + extrapolate, num_frames)
 
 
-def camera_path(c2w_a: np.ndarray, c2w_b: np.ndarray, intr_a: np.ndarray, intr_b: np.ndarray,
-                ts: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def camera_path(
+    c2w_a: np.ndarray, c2w_b: np.ndarray, intr_a: np.ndarray, intr_b: np.ndarray, ts: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Poses (N, 4, 4) and normalised intrinsics (N, 3, 3) at the path parameters `ts` (N,)."""
     poses = np.stack([interpolate_pose(c2w_a, c2w_b, float(t)) for t in ts])
     intr = np.stack([(1.0 - t) * intr_a + t * intr_b for t in ts])

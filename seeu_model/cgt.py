@@ -55,8 +55,9 @@ class DiTBlock(nn.Module):
 class ConditionalGaussianTransformer(nn.Module):
     """latent (B, V, h, w, C), condition (B, L, cond_dim) -> residual (B, V, h, w, C), exactly 0 at init."""
 
-    def __init__(self, channels: int, cond_dim: int, hidden: int = 256, layers: int = 4, heads: int = 4,
-                 mlp_ratio: float = 2.0):
+    def __init__(
+        self, channels: int, cond_dim: int, hidden: int = 256, layers: int = 4, heads: int = 4, mlp_ratio: float = 2.0
+    ):
         super().__init__()
         self.hidden = hidden
         self.embed = nn.Linear(channels, hidden)

@@ -29,21 +29,25 @@ class ConditionEncoder(nn.Module):
         super().__init__()
         self.mode = cfg.condition
         if cfg.condition == "clip":
-            self.semantic: nn.Module = FrozenCLIPImageEncoder(cfg.clip_backbone, cfg.clip_weights, cfg.semantic_pretrained,
-                                                              cfg.clip_model_kwargs)
+            self.semantic: nn.Module = FrozenCLIPImageEncoder(
+                cfg.clip_backbone, cfg.clip_weights, cfg.semantic_pretrained, cfg.clip_model_kwargs
+            )
             self.project = nn.Linear(self.semantic.embed_dim, cfg.condition_dim)
         elif cfg.condition == "blip2":
-            self.semantic = FrozenBLIP2ImageEncoder(cfg.blip2_model, cfg.blip2_weights, cfg.semantic_pretrained,
-                                                    cfg.blip2_model_kwargs)
+            self.semantic = FrozenBLIP2ImageEncoder(
+                cfg.blip2_model, cfg.blip2_weights, cfg.semantic_pretrained, cfg.blip2_model_kwargs
+            )
             self.project = nn.Linear(self.semantic.embed_dim, cfg.condition_dim)
         else:
-            self.semantic = FrozenViTEncoder(cfg.semantic_backbone, cfg.semantic_weights, cfg.semantic_pretrained,
-                                             cfg.semantic_model_kwargs)
+            self.semantic = FrozenViTEncoder(
+                cfg.semantic_backbone, cfg.semantic_weights, cfg.semantic_pretrained, cfg.semantic_model_kwargs
+            )
             if cfg.condition == "cls":
                 self.project = nn.Linear(self.semantic.embed_dim, cfg.condition_dim)
             else:
-                self.cea = CEAEmbedding(self.semantic.embed_dim, cfg.condition_dim, cfg.condition_heads,
-                                        cfg.num_latent_queries)
+                self.cea = CEAEmbedding(
+                    self.semantic.embed_dim, cfg.condition_dim, cfg.condition_heads, cfg.num_latent_queries
+                )
         self.norm = nn.LayerNorm(cfg.condition_dim) if cfg.condition in ("cls", "clip", "blip2") else nn.Identity()
 
     def forward(self, images: torch.Tensor, entropy: torch.Tensor) -> torch.Tensor:

@@ -127,11 +127,23 @@ class SeeUConfig:
         32 depth candidates, SH degree 2, DINOv3 ViT-S/16 semantic encoder (pretrained unless
         ``semantic_pretrained=False`` is passed)."""
         base = dict(
-            backbone_channels=(32, 48, 64), mv_layers=2, mv_heads=1, mv_ffn_ratio=2,
-            num_depth_candidates=32, sh_degree=2, latent_feature_dim=32, head_hidden=64,
-            decoder_hidden=32, semantic_backbone="vit_small_patch16_dinov3.lvd1689m",
-            condition_dim=384, condition_heads=4, num_latent_queries=8,
-            cgt_layers=2, cgt_hidden=128, cgt_heads=4, unet_channels=(64, 128),
+            backbone_channels=(32, 48, 64),
+            mv_layers=2,
+            mv_heads=1,
+            mv_ffn_ratio=2,
+            num_depth_candidates=32,
+            sh_degree=2,
+            latent_feature_dim=32,
+            head_hidden=64,
+            decoder_hidden=32,
+            semantic_backbone="vit_small_patch16_dinov3.lvd1689m",
+            condition_dim=384,
+            condition_heads=4,
+            num_latent_queries=8,
+            cgt_layers=2,
+            cgt_hidden=128,
+            cgt_heads=4,
+            unet_channels=(64, 128),
         )
         base.update(overrides)
         return cls(**base)
@@ -141,12 +153,26 @@ class SeeUConfig:
         """The unit-test model: tiny widths, 16 depth candidates, SH degree 1, a randomly initialised
         2-block DINOv3 ViT-S/16 as the semantic encoder. Not meant to be trained for quality."""
         base = dict(
-            backbone_channels=(16, 24, 32), mv_layers=2, mv_heads=2, mv_ffn_ratio=2,
-            num_depth_candidates=16, sh_degree=1, latent_feature_dim=8, head_hidden=32,
-            decoder_hidden=16, semantic_backbone="vit_small_patch16_dinov3.lvd1689m",
-            semantic_pretrained=False, semantic_model_kwargs={"depth": 2},
-            condition_dim=64, condition_heads=4, num_latent_queries=4,
-            cgt_layers=2, cgt_hidden=32, cgt_heads=4, cgt_mlp_ratio=2.0, unet_channels=(16, 32),
+            backbone_channels=(16, 24, 32),
+            mv_layers=2,
+            mv_heads=2,
+            mv_ffn_ratio=2,
+            num_depth_candidates=16,
+            sh_degree=1,
+            latent_feature_dim=8,
+            head_hidden=32,
+            decoder_hidden=16,
+            semantic_backbone="vit_small_patch16_dinov3.lvd1689m",
+            semantic_pretrained=False,
+            semantic_model_kwargs={"depth": 2},
+            condition_dim=64,
+            condition_heads=4,
+            num_latent_queries=4,
+            cgt_layers=2,
+            cgt_hidden=32,
+            cgt_heads=4,
+            cgt_mlp_ratio=2.0,
+            unet_channels=(16, 32),
         )
         base.update(overrides)
         return cls(**base)
@@ -156,8 +182,19 @@ class SeeUConfig:
         """MVSplat's encoder as released for RE10K / ACID (128 disparity candidates, SH degree 4), without a
         refiner: what a converted MVSplat checkpoint runs as ("SeeU w/o refinement"). With
         ``refiner="transformer"`` (and the paper's condition) SeeU's refiner sits on MVSplat's latent tokens."""
-        base = dict(encoder="mvsplat", refiner="none", num_depth_candidates=128, sh_degree=4, mv_layers=6,
-                    mv_heads=1, mv_ffn_ratio=4, mv_windows=2, downsample=4, scale_min=0.5, scale_max=15.0)
+        base = dict(
+            encoder="mvsplat",
+            refiner="none",
+            num_depth_candidates=128,
+            sh_degree=4,
+            mv_layers=6,
+            mv_heads=1,
+            mv_ffn_ratio=4,
+            mv_windows=2,
+            downsample=4,
+            scale_min=0.5,
+            scale_max=15.0,
+        )
         base.update(overrides)
         return cls(**base)
 
@@ -182,15 +219,23 @@ class SeeUConfig:
         from .mvsplat.encoder import MVSplatShape
 
         return MVSplatShape(
-            cnn_channels=tuple(self.mvsplat_cnn_channels), feature_dim=self.mvsplat_feature_dim,
-            transformer_layers=self.mv_layers, ffn_ratio=self.mv_ffn_ratio, windows=self.mv_windows,
-            downsample=self.downsample, num_depth_candidates=self.num_depth_candidates,
-            cost_unet_channels=self.mvsplat_cost_unet_channels, cost_unet_mult=(1,) * self.mvsplat_cost_unet_levels,
+            cnn_channels=tuple(self.mvsplat_cnn_channels),
+            feature_dim=self.mvsplat_feature_dim,
+            transformer_layers=self.mv_layers,
+            ffn_ratio=self.mv_ffn_ratio,
+            windows=self.mv_windows,
+            downsample=self.downsample,
+            num_depth_candidates=self.num_depth_candidates,
+            cost_unet_channels=self.mvsplat_cost_unet_channels,
+            cost_unet_mult=(1,) * self.mvsplat_cost_unet_levels,
             cost_unet_attention=self.mvsplat_cost_unet_attention,
             depth_unet_channels=self.mvsplat_depth_unet_channels,
             depth_unet_mult=(1,) * self.mvsplat_depth_unet_levels,
-            depth_unet_attention=self.mvsplat_depth_unet_attention, sh_degree=self.sh_degree,
-            scale_min=self.scale_min, scale_max=self.scale_max)
+            depth_unet_attention=self.mvsplat_depth_unet_attention,
+            sh_degree=self.sh_degree,
+            scale_min=self.scale_min,
+            scale_max=self.scale_max,
+        )
 
     @property
     def needs_semantic(self) -> bool:

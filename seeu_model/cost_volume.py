@@ -49,7 +49,9 @@ def depth_from_unit_disparity(t: torch.Tensor, near: torch.Tensor, far: torch.Te
 def pixel_centres(h: int, w: int, device=None, dtype=torch.float32) -> torch.Tensor:
     """(h*w, 2) pixel centres (x, y) = (j + 0.5, i + 0.5), row-major."""
     ys, xs = torch.meshgrid(
-        torch.arange(h, device=device, dtype=dtype) + 0.5, torch.arange(w, device=device, dtype=dtype) + 0.5, indexing="ij"
+        torch.arange(h, device=device, dtype=dtype) + 0.5,
+        torch.arange(w, device=device, dtype=dtype) + 0.5,
+        indexing="ij",
     )
     return torch.stack([xs, ys], -1).reshape(h * w, 2)
 

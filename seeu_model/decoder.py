@@ -26,9 +26,12 @@ class UpsamplingDecoder(nn.Module):
         self.layout = layout
         self.scale_min, self.scale_max = scale_min, scale_max
         self.latent_in = nn.Conv2d(layout.channels, hidden, 3, padding=1)
-        self.image_in = nn.Sequential(nn.Conv2d(3, hidden, 3, padding=1), nn.GELU(), nn.Conv2d(hidden, hidden, 3, padding=1))
-        self.fuse = nn.Sequential(nn.GELU(), nn.Conv2d(hidden, hidden, 3, padding=1), nn.GELU(),
-                                  nn.Conv2d(hidden, layout.params, 1))
+        self.image_in = nn.Sequential(
+            nn.Conv2d(3, hidden, 3, padding=1), nn.GELU(), nn.Conv2d(hidden, hidden, 3, padding=1)
+        )
+        self.fuse = nn.Sequential(
+            nn.GELU(), nn.Conv2d(hidden, hidden, 3, padding=1), nn.GELU(), nn.Conv2d(hidden, layout.params, 1)
+        )
         with torch.no_grad():  # start as plain upsampling; the network learns its corrections
             self.fuse[-1].weight.mul_(0.1)
             self.fuse[-1].bias.zero_()

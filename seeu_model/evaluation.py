@@ -31,12 +31,12 @@ class TargetRecord:
 
     scene_id: str
     sample_id: str
-    target: int          # position among the sample's targets
+    target: int  # position among the sample's targets
     frame_index: int
     psnr: float
     ssim: float
     lpips: float = math.nan
-    depth_rmse: float = math.nan   # only with ground-truth depth
+    depth_rmse: float = math.nan  # only with ground-truth depth
 
 
 @dataclass
@@ -49,7 +49,7 @@ class Timing:
     timed_batches: int = 0
     warmup_batches: int = 0
     peak_memory_mb: float = math.nan
-    memory_kind: str = ""   # "cuda_max_allocated" or "cpu_max_rss"
+    memory_kind: str = ""  # "cuda_max_allocated" or "cpu_max_rss"
     device: str = ""
 
 
@@ -57,7 +57,7 @@ class Timing:
 class EvalOutput:
     records: list[TargetRecord] = field(default_factory=list)
     timing: Timing = field(default_factory=Timing)
-    renders: list[dict] = field(default_factory=list)   # kept renders (first `keep_renders` samples), CPU tensors
+    renders: list[dict] = field(default_factory=list)  # kept renders (first `keep_renders` samples), CPU tensors
     geometry: list[dict] = field(default_factory=list)  # per-sample geometry metrics (geometry_fn)
 
 
@@ -75,11 +75,21 @@ def peak_memory_mb(device: torch.device) -> tuple[float, str]:
 
 
 @torch.no_grad()
-def evaluate_model(model: nn.Module, batches: Iterable[dict], device: torch.device,
-                   encode_fn: Callable, render_fn: Callable, lpips_fn: nn.Module | None = None,
-                   max_samples: int = 0, warmup: int = 1, keep_renders: int = 0,
-                   depth_fn: Callable | None = None, progress: bool = False, autocast=None,
-                   geometry_fn: Callable | None = None) -> EvalOutput:
+def evaluate_model(
+    model: nn.Module,
+    batches: Iterable[dict],
+    device: torch.device,
+    encode_fn: Callable,
+    render_fn: Callable,
+    lpips_fn: nn.Module | None = None,
+    max_samples: int = 0,
+    warmup: int = 1,
+    keep_renders: int = 0,
+    depth_fn: Callable | None = None,
+    progress: bool = False,
+    autocast=None,
+    geometry_fn: Callable | None = None,
+) -> EvalOutput:
     """Run the model over `batches` and measure every target view.
 
     depth_fn(batch, render) -> (B, T) depth RMSE or None: optional geometry metric (DTU).
@@ -119,7 +129,7 @@ def evaluate_model(model: nn.Module, batches: Iterable[dict], device: torch.devi
                 ren_t.append((t2 - t1) / b)
             pred = render.color.float().clamp(0, 1)
             gt = batch["target"]["image"].float()
-            p = psnr(pred, gt)                    # (B, T)
+            p = psnr(pred, gt)  # (B, T)
             s = ssim(pred, gt)
             lp = lpips_fn(pred, gt) if lpips_fn is not None else None
             d = depth_fn(batch, render) if depth_fn is not None else None
@@ -130,19 +140,35 @@ def evaluate_model(model: nn.Module, batches: Iterable[dict], device: torch.devi
                 if max_samples and seen >= max_samples:
                     break
                 for j in range(pred.shape[1]):
-                    out.records.append(TargetRecord(
-                        batch["scene_id"][k], batch["sample_id"][k], j, int(batch["target"]["frame_index"][k, j]),
-                        float(p[k, j]), float(s[k, j]), float(lp[k, j]) if lp is not None else math.nan,
-                        float(d[k, j]) if d is not None else math.nan))
+                    out.records.append(
+                        TargetRecord(
+                            batch["scene_id"][k],
+                            batch["sample_id"][k],
+                            j,
+                            int(batch["target"]["frame_index"][k, j]),
+                            float(p[k, j]),
+                            float(s[k, j]),
+                            float(lp[k, j]) if lp is not None else math.nan,
+                            float(d[k, j]) if d is not None else math.nan,
+                        )
+                    )
                 if geometry_fn is not None:
                     gm = geometry_fn(batch, gaussians, k)
                     if gm is not None:
-                        out.geometry.append({"scene_id": batch["scene_id"][k], "sample_id": batch["sample_id"][k], **gm})
+                        out.geometry.append(
+                            {"scene_id": batch["scene_id"][k], "sample_id": batch["sample_id"][k], **gm}
+                        )
                 if len(out.renders) < keep_renders:
-                    out.renders.append({"scene_id": batch["scene_id"][k], "sample_id": batch["sample_id"][k],
-                                        "pred": pred[k].cpu(), "gt": gt[k].cpu(),
-                                        "depth": render.depth[k].float().cpu(),
-                                        "context": batch["context"]["image"][k].float().cpu()})
+                    out.renders.append(
+                        {
+                            "scene_id": batch["scene_id"][k],
+                            "sample_id": batch["sample_id"][k],
+                            "pred": pred[k].cpu(),
+                            "gt": gt[k].cpu(),
+                            "depth": render.depth[k].float().cpu(),
+                            "context": batch["context"]["image"][k].float().cpu(),
+                        }
+                    )
                 seen += 1
                 if bar is not None:
                     bar.update(1)
@@ -153,8 +179,16 @@ def evaluate_model(model: nn.Module, batches: Iterable[dict], device: torch.devi
             bar.close()
     mem, kind = peak_memory_mb(device)
     mean = lambda xs: 1000.0 * sum(xs) / len(xs) if xs else math.nan  # noqa: E731
-    out.timing = Timing(mean(enc_t), mean(ren_t), mean([a + b for a, b in zip(enc_t, ren_t)]), len(enc_t),
-                        min(warmup, len(enc_t) + warmup), mem, kind, str(device))
+    out.timing = Timing(
+        mean(enc_t),
+        mean(ren_t),
+        mean([a + b for a, b in zip(enc_t, ren_t)]),
+        len(enc_t),
+        min(warmup, len(enc_t) + warmup),
+        mem,
+        kind,
+        str(device),
+    )
     return out
 
 
@@ -177,8 +211,11 @@ def summarize(records: list[TargetRecord]) -> dict:
     """The peers' numbers: mean over targets within each scene, then over scenes; plus the plain
     mean over all targets (`*_all_targets`) for reference."""
     scenes = per_scene(records)
-    out: dict = {"num_scenes": len(scenes), "num_samples": len({r.sample_id for r in records}),
-                 "num_targets": len(records)}
+    out: dict = {
+        "num_scenes": len(scenes),
+        "num_samples": len({r.sample_id for r in records}),
+        "num_targets": len(records),
+    }
     for m in (*METRICS, "depth_rmse"):
         vals = [row[m] for row in scenes.values() if not math.isnan(row[m])]
         out[m] = sum(vals) / len(vals) if vals else math.nan

@@ -77,20 +77,23 @@ class CoarseGaussianHead(nn.Module):
     The depth channel is the matched depth itself (no learned change); the rest is predicted.
     """
 
-    def __init__(self, feature_dim: int, num_depths: int, layout: LatentLayout, hidden: int,
-                 initial_scale: float = 0.0):
+    def __init__(
+        self, feature_dim: int, num_depths: int, layout: LatentLayout, hidden: int, initial_scale: float = 0.0
+    ):
         super().__init__()
         self.layout = layout
         out = layout.channels - 1
         self.net = nn.Sequential(
-            nn.Conv2d(feature_dim + num_depths + 3, hidden, 3, padding=1), nn.GELU(),
-            nn.Conv2d(hidden, hidden, 3, padding=1), nn.GELU(),
+            nn.Conv2d(feature_dim + num_depths + 3, hidden, 3, padding=1),
+            nn.GELU(),
+            nn.Conv2d(hidden, hidden, 3, padding=1),
+            nn.GELU(),
             nn.Conv2d(hidden, out, 1),
         )
         with torch.no_grad():  # identity rotations (bias w = 1) and scales near `initial_scale` (raw units)
             self.net[-1].bias.zero_()
             self.net[-1].bias[layout.rotation.start - 1] = 1.0
-            self.net[-1].bias[layout.scale.start - 1: layout.scale.stop - 1] = initial_scale
+            self.net[-1].bias[layout.scale.start - 1 : layout.scale.stop - 1] = initial_scale
 
     def forward(self, features, posterior, depth, images_lowres, near, far) -> torch.Tensor:
         b, v, c, h, w = features.shape

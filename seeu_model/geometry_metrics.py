@@ -46,7 +46,7 @@ def nearest_distances(query: np.ndarray, ref: np.ndarray, chunk: int = 4096) -> 
         r = torch.from_numpy(np.ascontiguousarray(ref, dtype=np.float64))
         out = []
         for s in range(0, len(query), chunk):
-            q = torch.from_numpy(np.ascontiguousarray(query[s:s + chunk], dtype=np.float64))
+            q = torch.from_numpy(np.ascontiguousarray(query[s : s + chunk], dtype=np.float64))
             out.append(torch.cdist(q, r).min(dim=1).values.numpy())
         return np.concatenate(out) if out else np.zeros(0)
 
@@ -73,8 +73,8 @@ def downsample_density(points: np.ndarray, density: float, seed: int = 0) -> np.
         t = torch.from_numpy(np.ascontiguousarray(pts, dtype=np.float64))
         for i in range(len(pts)):
             if keep[i]:
-                d = (t[i + 1:] - t[i]).norm(dim=1).numpy()
-                keep[i + 1:][d <= density] = False
+                d = (t[i + 1 :] - t[i]).norm(dim=1).numpy()
+                keep[i + 1 :][d <= density] = False
     return pts[keep]
 
 
@@ -83,13 +83,20 @@ class ChamferResult:
     accuracy: float
     completeness: float
     overall: float
-    num_pred: int        # after thinning
+    num_pred: int  # after thinning
     num_pred_in_mask: int
     num_gt: int
 
 
-def chamfer_dtueval(pred: np.ndarray, gt: np.ndarray, pred_in_mask=None, gt_above_plane=None,
-                    density: float = 0.2, max_dist: float = 20.0, seed: int = 0) -> ChamferResult:
+def chamfer_dtueval(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    pred_in_mask=None,
+    gt_above_plane=None,
+    density: float = 0.2,
+    max_dist: float = 20.0,
+    seed: int = 0,
+) -> ChamferResult:
     """DTUeval accuracy / completeness / overall between point clouds (N, 3) and (M, 3).
 
     pred_in_mask: callable (K, 3) -> (K,) bool (observation mask test of the thinned points), or None.

@@ -43,14 +43,18 @@ def resolve_vgg_weights(path: str | os.PathLike | None) -> Path:
         if not p.is_file():
             raise SeeUError(
                 "LPIPS VGG-16 weights file not found (expected torchvision's "
-                f"{VGG16_FILENAME}; or switch LPIPS off with lpips_weight=0 / --no-lpips)", p)
+                f"{VGG16_FILENAME}; or switch LPIPS off with lpips_weight=0 / --no-lpips)",
+                p,
+            )
         return p
     p = default_vgg_weights_path()
     if not p.is_file():
         raise SeeUError(
             f"LPIPS needs torchvision's VGG-16 ImageNet weights ({VGG16_FILENAME}, ~528 MB), which cannot be "
             f"downloaded here: copy it to this path (or set TORCH_HOME), pass --lpips-weights PATH, "
-            f"or switch LPIPS off (--no-lpips / lpips_weight=0)", p)
+            f"or switch LPIPS off (--no-lpips / lpips_weight=0)",
+            p,
+        )
     return p
 
 
@@ -63,11 +67,11 @@ def load_vgg16_features(path: Path) -> nn.Sequential:
     from torchvision.models.vgg import cfgs, make_layers
 
     features = make_layers(cfgs["D"], batch_norm=False)
-    state = safe_torch_load(path, "VGG-16 weights file")   # refuses a file that needs more than weights
+    state = safe_torch_load(path, "VGG-16 weights file")  # refuses a file that needs more than weights
     try:
         if not isinstance(state, dict):
             raise TypeError(f"a {type(state).__name__}, not a state dict")
-        sub = {k[len("features."):]: v for k, v in state.items() if k.startswith("features.")}
+        sub = {k[len("features.") :]: v for k, v in state.items() if k.startswith("features.")}
         features.load_state_dict(sub)
     except Exception as exc:  # noqa: BLE001 - any failure here means a bad weights file
         msg = str(exc).splitlines()[0] if str(exc) else ""
@@ -88,8 +92,13 @@ class LPIPS(nn.Module):
             warnings.simplefilter("ignore")  # lpips prints set-up chatter; torchvision warns on pretrained=
             self.net = lpips.LPIPS(net="vgg", pretrained=True, pnet_rand=True, verbose=False)
         if features is not None:
-            for slice_ in (self.net.net.slice1, self.net.net.slice2, self.net.net.slice3,
-                           self.net.net.slice4, self.net.net.slice5):
+            for slice_ in (
+                self.net.net.slice1,
+                self.net.net.slice2,
+                self.net.net.slice3,
+                self.net.net.slice4,
+                self.net.net.slice5,
+            ):
                 for name, module in slice_.named_children():
                     module.load_state_dict(features[int(name)].state_dict())
         self.random_trunk = random_trunk

@@ -33,8 +33,9 @@ def psnr(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-10) -> torch.
     return -10.0 * torch.log10(mse.clamp_min(eps))
 
 
-def gaussian_window_1d(win_size: int = SSIM_WIN_SIZE, sigma: float = SSIM_SIGMA,
-                       dtype: torch.dtype = torch.float64, device=None) -> torch.Tensor:
+def gaussian_window_1d(
+    win_size: int = SSIM_WIN_SIZE, sigma: float = SSIM_SIGMA, dtype: torch.dtype = torch.float64, device=None
+) -> torch.Tensor:
     """Normalised 1-D Gaussian taps ``(win_size,)``, as scipy.ndimage.gaussian_filter1d builds them."""
     radius = win_size // 2
     x = torch.arange(-radius, radius + 1, dtype=torch.float64)
@@ -51,8 +52,15 @@ def _filter_valid(x: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
     return F.conv2d(F.conv2d(x, wy, groups=c), wx, groups=c)
 
 
-def ssim(pred: torch.Tensor, target: torch.Tensor, data_range: float = 1.0, win_size: int = SSIM_WIN_SIZE,
-         sigma: float = SSIM_SIGMA, use_sample_covariance: bool = True, clip: bool = True) -> torch.Tensor:
+def ssim(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    data_range: float = 1.0,
+    win_size: int = SSIM_WIN_SIZE,
+    sigma: float = SSIM_SIGMA,
+    use_sample_covariance: bool = True,
+    clip: bool = True,
+) -> torch.Tensor:
     """Per-image SSIM matching scikit-image's Gaussian-window SSIM (mean over channels and valid pixels).
 
     pred, target: ``(..., C, H, W)`` -> ``(...)``. Computed in float64 for parity with scikit-image.

@@ -21,7 +21,7 @@ from .attention import Attention, FeedForward, sine_positions_2d
 def other_view_index(num_views: int, device=None) -> torch.Tensor:
     """(V, V-1) long: row i lists the views j != i in increasing order."""
     idx = torch.arange(num_views, device=device)
-    return torch.stack([torch.cat([idx[:i], idx[i + 1:]]) for i in range(num_views)])
+    return torch.stack([torch.cat([idx[:i], idx[i + 1 :]]) for i in range(num_views)])
 
 
 def window_partition(x: torch.Tensor, windows: int) -> torch.Tensor:

@@ -31,9 +31,11 @@ OPACITY_EPS = 1e-6
 def ply_property_names(sh_degree: int) -> list[str]:
     """The 3DGS vertex property names, in file order, for SH of `sh_degree`."""
     n_rest = 3 * ((sh_degree + 1) ** 2 - 1)
-    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
-            + [f"f_rest_{i}" for i in range(n_rest)]
-            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    return (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(n_rest)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
 
 
 def save_ply(gaussians: Gaussians, path: str | Path, batch_index: int = 0) -> Path:
@@ -43,11 +45,22 @@ def save_ply(gaussians: Gaussians, path: str | Path, batch_index: int = 0) -> Pa
     degree = sh_degree_from_bases(k)
     opac = g.opacities.clamp(OPACITY_EPS, 1.0 - OPACITY_EPS)
     quat = g.rotations / g.rotations.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    columns = torch.cat([
-        g.means, torch.zeros(n, 3, dtype=torch.float64), g.sh[:, 0, :],
-        g.sh[:, 1:, :].transpose(1, 2).reshape(n, 3 * (k - 1)),  # channel-major rest
-        torch.log(opac / (1.0 - opac))[:, None], torch.log(g.scales.clamp_min(1e-12)), quat,
-    ], 1).numpy().astype(np.float32)
+    columns = (
+        torch.cat(
+            [
+                g.means,
+                torch.zeros(n, 3, dtype=torch.float64),
+                g.sh[:, 0, :],
+                g.sh[:, 1:, :].transpose(1, 2).reshape(n, 3 * (k - 1)),  # channel-major rest
+                torch.log(opac / (1.0 - opac))[:, None],
+                torch.log(g.scales.clamp_min(1e-12)),
+                quat,
+            ],
+            1,
+        )
+        .numpy()
+        .astype(np.float32)
+    )
     names = ply_property_names(degree)
     vertex = np.empty(n, dtype=[(name, "<f4") for name in names])
     for i, name in enumerate(names):
@@ -60,8 +73,9 @@ def save_ply(gaussians: Gaussians, path: str | Path, batch_index: int = 0) -> Pa
     return path
 
 
-def cameras_json(cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, width: int, height: int,
-                 names: list[str]) -> list[dict]:
+def cameras_json(
+    cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, width: int, height: int, names: list[str]
+) -> list[dict]:
     """Cameras in the layout the 3DGS viewers read (`cameras.json` of the INRIA code): per camera
     `id, img_name, width, height, position` (camera centre), `rotation` (3x3 camera-to-world rotation,
     rows; OpenCV axes as in COLMAP), `fx, fy` (pixels). The layout has no principal point: viewers
@@ -69,13 +83,31 @@ def cameras_json(cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, width: i
     c2w = np.asarray(cam_to_world, np.float64).reshape(-1, 4, 4)
     k = np.asarray(intrinsics_norm, np.float64)
     k = k.reshape(-1, 3, 3)[:, [0, 1, 0, 1], [0, 1, 2, 2]] if k.shape[-2:] == (3, 3) else k.reshape(-1, 4)
-    return [{"id": i, "img_name": names[i], "width": int(width), "height": int(height),
-             "position": c2w[i, :3, 3].tolist(), "rotation": c2w[i, :3, :3].tolist(),
-             "fy": float(k[i, 1] * height), "fx": float(k[i, 0] * width)} for i in range(len(c2w))]
+    return [
+        {
+            "id": i,
+            "img_name": names[i],
+            "width": int(width),
+            "height": int(height),
+            "position": c2w[i, :3, 3].tolist(),
+            "rotation": c2w[i, :3, :3].tolist(),
+            "fy": float(k[i, 1] * height),
+            "fx": float(k[i, 0] * width),
+        }
+        for i in range(len(c2w))
+    ]
 
 
-def save_ply_bundle(gaussians: Gaussians, out_dir: str | Path, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray,
-                    width: int, height: int, names: list[str], batch_index: int = 0) -> dict:
+def save_ply_bundle(
+    gaussians: Gaussians,
+    out_dir: str | Path,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int,
+    height: int,
+    names: list[str],
+    batch_index: int = 0,
+) -> dict:
     """`out_dir/gaussians.ply` (3DGS layout) + `cameras.json` (`cameras_json`) + `gaussians.json`, a
     sidecar saying the SH degree, the Gaussian count and the conventions. Returns the sidecar."""
     from seeu_data.arrow_io import atomic_write_text
@@ -84,9 +116,14 @@ def save_ply_bundle(gaussians: Gaussians, out_dir: str | Path, cam_to_world: np.
     ply = save_ply(gaussians, out_dir / "gaussians.ply", batch_index)
     cams = cameras_json(cam_to_world, intrinsics_norm, width, height, names)
     atomic_write_text(out_dir / "cameras.json", json.dumps(cams, indent=1))
-    sidecar = {"ply": ply.name, "cameras": "cameras.json", "sh_degree": sh_degree_from_bases(gaussians.sh.shape[2]),
-               "num_gaussians": int(gaussians.means.shape[1]), "layout": "3DGS (INRIA) binary little-endian",
-               "axes": "OpenCV (x right, y down, z forward), the world of the context cameras"}
+    sidecar = {
+        "ply": ply.name,
+        "cameras": "cameras.json",
+        "sh_degree": sh_degree_from_bases(gaussians.sh.shape[2]),
+        "num_gaussians": int(gaussians.means.shape[1]),
+        "layout": "3DGS (INRIA) binary little-endian",
+        "axes": "OpenCV (x right, y down, z forward), the world of the context cameras",
+    }
     atomic_write_text(out_dir / "gaussians.json", json.dumps(sidecar, indent=1))
     return sidecar
 
@@ -120,8 +157,13 @@ def load_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> Gaussians:
     sh = torch.cat([dc[:, None, :], rest.reshape(n, 3, k - 1).transpose(1, 2)], 1)
     quat = stack(["rot_0", "rot_1", "rot_2", "rot_3"])
     quat = quat / quat.norm(dim=-1, keepdim=True).clamp_min(1e-12)
-    g = Gaussians(means=means, scales=torch.exp(stack(["scale_0", "scale_1", "scale_2"])), rotations=quat,
-                  opacities=torch.sigmoid(torch.from_numpy(col("opacity"))), sh=sh)
+    g = Gaussians(
+        means=means,
+        scales=torch.exp(stack(["scale_0", "scale_1", "scale_2"])),
+        rotations=quat,
+        opacities=torch.sigmoid(torch.from_numpy(col("opacity"))),
+        sh=sh,
+    )
     if not all(torch.isfinite(t).all() for t in (g.means, g.scales, g.rotations, g.opacities, g.sh)):
         raise SeeUError("non-finite values in the Gaussians", path)
     return g.map(lambda t: t[None].to(dtype))

@@ -50,8 +50,11 @@ def safe_torch_load(path: str | Path, what: str, *, allow: Iterable[Any] = (), m
     except pickle.UnpicklingError as exc:
         name = refused_global(exc)
         if name is not None:
-            raise SeeUError(f"refused: this {what} needs objects other than tensors and plain containers ({name}); "
-                            "only weights-only files are loaded (no code runs from a file we read)", p) from None
+            raise SeeUError(
+                f"refused: this {what} needs objects other than tensors and plain containers ({name}); "
+                "only weights-only files are loaded (no code runs from a file we read)",
+                p,
+            ) from None
         raise SeeUError(f"not a readable {what} (not a weights-only torch file)", p) from None
     except Exception as exc:  # noqa: BLE001 - a truncated / corrupt / foreign file
         raise SeeUError(f"not a readable {what} ({type(exc).__name__}: {_first_line(exc)})", p) from None

@@ -132,8 +132,9 @@ class SeeU(nn.Module):
     def _build_refiner(self, cfg: SeeUConfig, channels: int) -> None:
         self.condition = ConditionEncoder(cfg)
         if cfg.refiner == "transformer":
-            self.refiner = ConditionalGaussianTransformer(channels, cfg.condition_dim, cfg.cgt_hidden,
-                                                          cfg.cgt_layers, cfg.cgt_heads, cfg.cgt_mlp_ratio)
+            self.refiner = ConditionalGaussianTransformer(
+                channels, cfg.condition_dim, cfg.cgt_hidden, cfg.cgt_layers, cfg.cgt_heads, cfg.cgt_mlp_ratio
+            )
         else:
             self.refiner = UNetRefiner(channels, cfg.condition_dim, cfg.unet_channels, cfg.cgt_heads)
 
@@ -165,12 +166,16 @@ class SeeU(nn.Module):
         try:
             missing, unexpected = self.load_state_dict(state, strict=False)
         except RuntimeError as exc:  # shape mismatches
-            raise SeeUError(f"checkpoint does not match the model configuration: {str(exc).splitlines()[-1].strip()}") from exc
+            raise SeeUError(
+                f"checkpoint does not match the model configuration: {str(exc).splitlines()[-1].strip()}"
+            ) from exc
         missing = [k for k in missing if not k.startswith(prefixes)] if prefixes else list(missing)
         if strict and (missing or unexpected):
-            raise SeeUError(f"checkpoint does not match the model configuration: missing {missing[:5]}"
-                            f"{'...' if len(missing) > 5 else ''}, unexpected {list(unexpected)[:5]}"
-                            f"{'...' if len(unexpected) > 5 else ''}")
+            raise SeeUError(
+                f"checkpoint does not match the model configuration: missing {missing[:5]}"
+                f"{'...' if len(missing) > 5 else ''}, unexpected {list(unexpected)[:5]}"
+                f"{'...' if len(unexpected) > 5 else ''}"
+            )
 
     def trainable_parameters(self) -> list[nn.Parameter]:
         return [p for p in self.parameters() if p.requires_grad]
@@ -187,9 +192,11 @@ class SeeU(nn.Module):
             raise ValueError("SeeU needs at least two context views (plane-sweep matching)")
         unit = self.size_unit
         if h % unit or w % unit:
-            raise ValueError(f"context images must have H and W divisible by {unit} "
-                             f"(s={self.cfg.downsample}, {self.cfg.mv_windows} shifted windows"
-                             f"{', UNet levels' if self.cfg.refiner == 'unet' else ''}); got {h}x{w}")
+            raise ValueError(
+                f"context images must have H and W divisible by {unit} "
+                f"(s={self.cfg.downsample}, {self.cfg.mv_windows} shifted windows"
+                f"{', UNet levels' if self.cfg.refiner == 'unet' else ''}); got {h}x{w}"
+            )
 
     @property
     def size_unit(self) -> int:
@@ -236,10 +243,22 @@ class SeeU(nn.Module):
             coarse_gaussians = gaussians
         elif decode_coarse:
             coarse_gaussians, _ = self.decoder(latent, images, c2w, intr, near, far)
-        latent_gaussians, _ = gaussians_from_params(latent.permute(0, 1, 4, 2, 3), c2w, intr, near, far, self.layout,
-                                                    self.cfg.scale_min, self.cfg.scale_max)
-        return SeeUEncoding(gaussians, coarse_gaussians, latent_gaussians, depth, coarse_depth, entropy, cost, depths,
-                            latent, residual, condition)
+        latent_gaussians, _ = gaussians_from_params(
+            latent.permute(0, 1, 4, 2, 3), c2w, intr, near, far, self.layout, self.cfg.scale_min, self.cfg.scale_max
+        )
+        return SeeUEncoding(
+            gaussians,
+            coarse_gaussians,
+            latent_gaussians,
+            depth,
+            coarse_depth,
+            entropy,
+            cost,
+            depths,
+            latent,
+            residual,
+            condition,
+        )
 
     def _encode_mvsplat(self, context: dict, decode_coarse: bool) -> SeeUEncoding:
         """MVSplat's encoder, with SeeU's refiner (when configured) on its latent tokens.
@@ -266,8 +285,12 @@ class SeeU(nn.Module):
         if self.refiner is not None:
             condition = self.condition(images, entropy)
             residual = self.refiner(latent, condition)
-            delta = F.interpolate(residual[..., :r].permute(0, 1, 4, 2, 3).reshape(b * v, r, h, w), size=(hh, ww),
-                                  mode="bilinear", align_corners=False).reshape(b, v, r, hh, ww)
+            delta = F.interpolate(
+                residual[..., :r].permute(0, 1, 4, 2, 3).reshape(b * v, r, h, w),
+                size=(hh, ww),
+                mode="bilinear",
+                align_corners=False,
+            ).reshape(b, v, r, hh, ww)
             out = enc.adapt(dict(pred, raw=raw + delta), c2w, intr, near, far)
             if decode_coarse:
                 coarse = enc.adapt(pred, c2w, intr, near, far)
@@ -280,9 +303,19 @@ class SeeU(nn.Module):
 
         g = gaussians(out)
         coarse_g = g if self.refiner is None else (gaussians(coarse) if coarse is not None else None)
-        return SeeUEncoding(g, coarse_g, coarse_g if coarse_g is not None else g, out.depth,
-                            1.0 / pred["coarse_disparity"], entropy, pred["probabilities"], 1.0 / pred["disparities"],
-                            latent, residual, condition)
+        return SeeUEncoding(
+            g,
+            coarse_g,
+            coarse_g if coarse_g is not None else g,
+            out.depth,
+            1.0 / pred["coarse_disparity"],
+            entropy,
+            pred["probabilities"],
+            1.0 / pred["disparities"],
+            latent,
+            residual,
+            condition,
+        )
 
     def encode(self, context: dict) -> Gaussians:
         """context (as in `encode_all`) -> refined Gaussians (B, V*H*W, ...)."""
@@ -301,8 +334,15 @@ class SeeU(nn.Module):
         device_type = gaussians.means.device.type
         with torch.autocast(device_type=device_type, enabled=False):  # rasterise in float32, also under autocast
             g = gaussians.map(lambda t: t.float())
-            return rasterize(g, cameras["cam_to_world"].float(), cameras["intrinsics"].float(), w, h,
-                             background=background, backend=backend)
+            return rasterize(
+                g,
+                cameras["cam_to_world"].float(),
+                cameras["intrinsics"].float(),
+                w,
+                h,
+                background=background,
+                backend=backend,
+            )
 
     def forward(self, batch: dict, render_coarse: bool = False, background=None, backend: str = "auto") -> SeeUOutput:
         """batch: the loader layout ("context" and optionally "target" dicts) -> SeeUOutput with the
@@ -311,7 +351,9 @@ class SeeU(nn.Module):
         target = batch.get("target")
         render = coarse = None
         if target is not None:
-            size = tuple(target["image"].shape[-2:]) if "image" in target else tuple(batch["context"]["image"].shape[-2:])
+            size = (
+                tuple(target["image"].shape[-2:]) if "image" in target else tuple(batch["context"]["image"].shape[-2:])
+            )
             render = self.render(enc.gaussians, target, size, background, backend)
             if render_coarse:
                 coarse = self.render(enc.coarse_gaussians, target, size, background, backend)
@@ -327,7 +369,7 @@ def parameter_counts(model: SeeU) -> "OrderedDict[str, tuple[int, int]]":
     """Per top-level module (the semantic encoder split out): name -> (trainable, frozen) parameter counts."""
     counts: OrderedDict[str, tuple[int, int]] = OrderedDict()
     for name, module in model.named_children():
-        for sub_name, sub in ([(name, module)] if name != "condition" else list(module.named_children())):
+        for sub_name, sub in [(name, module)] if name != "condition" else list(module.named_children()):
             key = name if sub is module else f"{name}.{sub_name}"
             trainable = sum(p.numel() for p in sub.parameters() if p.requires_grad)
             frozen = sum(p.numel() for p in sub.parameters() if not p.requires_grad)

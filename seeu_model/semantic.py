@@ -24,8 +24,9 @@ from seeu_data.errors import SeeUError
 from seeu_model.safe_load import safe_torch_load
 
 
-def create_timm_model(name: str, weights: str | None, pretrained: bool, what: str, flag: str,
-                      **kwargs: Any) -> nn.Module:
+def create_timm_model(
+    name: str, weights: str | None, pretrained: bool, what: str, flag: str, **kwargs: Any
+) -> nn.Module:
     """Build a timm model with pretrained weights from ``weights`` (a local file), the hub, or (only when
     ``pretrained`` is False and no file is given) random initialisation. Raises SeeUError when weights
     cannot be loaded. ``flag`` names the config field / CLI option that supplies the file."""
@@ -45,8 +46,9 @@ def create_timm_model(name: str, weights: str | None, pretrained: bool, what: st
             return timm.create_model(name, pretrained=True, pretrained_cfg_overlay=dict(file=str(path)), **kwargs)
         except Exception as exc:
             first = str(exc).splitlines()[0] if str(exc) else ""
-            raise SeeUError(f"cannot load {what} weights for {name!r} from this file: {type(exc).__name__}: {first}",
-                            path) from exc
+            raise SeeUError(
+                f"cannot load {what} weights for {name!r} from this file: {type(exc).__name__}: {first}", path
+            ) from exc
     if not pretrained:
         return timm.create_model(name, pretrained=False, **kwargs)
     try:
@@ -78,12 +80,14 @@ class FrozenViTEncoder(FrozenModule):
     cls (B, V, D) and patch features (B, V, D, H'/p, W'/p), where H', W' are H, W rounded to
     multiples of the patch size p (bilinear resize when needed). ImageNet-normalised input."""
 
-    def __init__(self, name: str, weights: str | None = None, pretrained: bool = True,
-                 model_kwargs: dict[str, Any] | None = None):
+    def __init__(
+        self, name: str, weights: str | None = None, pretrained: bool = True, model_kwargs: dict[str, Any] | None = None
+    ):
         super().__init__()
         self.name = name
-        self.model = create_timm_model(name, weights, pretrained, "semantic encoder", "semantic_weights",
-                                       **(model_kwargs or {}))
+        self.model = create_timm_model(
+            name, weights, pretrained, "semantic encoder", "semantic_weights", **(model_kwargs or {})
+        )
         cfg = getattr(self.model, "pretrained_cfg", {}) or {}
         mean = cfg.get("mean", (0.485, 0.456, 0.406))
         std = cfg.get("std", (0.229, 0.224, 0.225))
@@ -106,7 +110,7 @@ class FrozenViTEncoder(FrozenModule):
         x = (x - self.mean) / self.std
         tokens = self.model.forward_features(x)  # (BV, prefix + gh*gw, D)
         cls = tokens[:, 0]
-        patches = tokens[:, self.num_prefix_tokens:].transpose(1, 2).reshape(b * v, -1, gh, gw)
+        patches = tokens[:, self.num_prefix_tokens :].transpose(1, 2).reshape(b * v, -1, gh, gw)
         return cls.reshape(b, v, -1), patches.reshape(b, v, -1, gh, gw)
 
 
@@ -115,17 +119,21 @@ class FrozenCLIPImageEncoder(FrozenModule):
     images (B, V, 3, H, W) in [0, 1] -> projected image embeddings (B, V, D_clip), input resized to the
     model's native resolution (224 for ViT-B/16) and CLIP-normalised."""
 
-    def __init__(self, name: str, weights: str | None = None, pretrained: bool = True,
-                 model_kwargs: dict[str, Any] | None = None):
+    def __init__(
+        self, name: str, weights: str | None = None, pretrained: bool = True, model_kwargs: dict[str, Any] | None = None
+    ):
         super().__init__()
-        self.model = create_timm_model(name, weights, pretrained, "CLIP image encoder", "clip_weights",
-                                       **(model_kwargs or {}))
+        self.model = create_timm_model(
+            name, weights, pretrained, "CLIP image encoder", "clip_weights", **(model_kwargs or {})
+        )
         cfg = getattr(self.model, "pretrained_cfg", {}) or {}
         self.input_size = tuple(cfg.get("input_size", (3, 224, 224))[1:])
-        self.register_buffer("mean", torch.tensor(cfg.get("mean", (0.4815, 0.4578, 0.4082))).view(1, 3, 1, 1),
-                             persistent=False)
-        self.register_buffer("std", torch.tensor(cfg.get("std", (0.2686, 0.2613, 0.2758))).view(1, 3, 1, 1),
-                             persistent=False)
+        self.register_buffer(
+            "mean", torch.tensor(cfg.get("mean", (0.4815, 0.4578, 0.4082))).view(1, 3, 1, 1), persistent=False
+        )
+        self.register_buffer(
+            "std", torch.tensor(cfg.get("std", (0.2686, 0.2613, 0.2758))).view(1, 3, 1, 1), persistent=False
+        )
         self.embed_dim = int(getattr(self.model, "num_classes", 0) or self.model.num_features)
         self.freeze()
 
@@ -150,9 +158,11 @@ def import_blip2() -> Any:
         import transformers
         from transformers import Blip2Config, Blip2QFormerModel, Blip2VisionModel  # noqa: F401
     except ImportError as exc:
-        raise SeeUError(f"condition 'blip2' needs the optional 'transformers' package ({type(exc).__name__}: "
-                        f"{str(exc).splitlines()[0] if str(exc) else ''}): install the 'blip2' extra, "
-                        "pip install -e '.[blip2]' in the SeeU checkout (or pip install transformers)") from None
+        raise SeeUError(
+            f"condition 'blip2' needs the optional 'transformers' package ({type(exc).__name__}: "
+            f"{str(exc).splitlines()[0] if str(exc) else ''}): install the 'blip2' extra, "
+            "pip install -e '.[blip2]' in the SeeU checkout (or pip install transformers)"
+        ) from None
     return transformers
 
 
@@ -167,8 +177,11 @@ def _blip2_resolver(model: str, weights: str | None) -> tuple[Callable[[str], Pa
     local = Path(weights) if weights is not None else Path(model) if Path(model).is_dir() else None
     if local is not None:
         if not local.is_dir():
-            raise SeeUError("BLIP-2 weights directory not found (given by blip2_weights; it should hold "
-                            "config.json and *.safetensors)", local)
+            raise SeeUError(
+                "BLIP-2 weights directory not found (given by blip2_weights; it should hold "
+                "config.json and *.safetensors)",
+                local,
+            )
         return (lambda name: (local / name) if (local / name).is_file() else None), str(local), False
     try:
         from huggingface_hub import hf_hub_download
@@ -189,7 +202,8 @@ def _blip2_resolver(model: str, weights: str | None) -> tuple[Callable[[str], Pa
                 f"cannot load BLIP-2 weights {model!r} from the Hugging Face hub ({_first_line(exc)}). Download its "
                 "config.json and safetensors once (or export the image part with "
                 "seeu_model.semantic.export_blip2_image_part) and pass blip2_weights=DIR; random initialisation "
-                "(semantic_pretrained=False) is for tests only") from None
+                "(semantic_pretrained=False) is for tests only"
+            ) from None
 
     return fetch, model, True
 
@@ -212,8 +226,9 @@ def _image_side_files(resolve: Callable[[str], Path | None], where: str, hub: bo
     return [f for f in files if f is not None] if names and all(f is not None for f in files) else []
 
 
-def load_blip2_image_state(model: str = BLIP2_DEFAULT_MODEL, weights: str | None = None
-                           ) -> tuple[Any, dict[str, torch.Tensor]]:
+def load_blip2_image_state(
+    model: str = BLIP2_DEFAULT_MODEL, weights: str | None = None
+) -> tuple[Any, dict[str, torch.Tensor]]:
     """The Blip2Config and the image-side tensors (vision encoder, query tokens, Q-Former) of a BLIP-2
     checkpoint: a local directory (``weights``, or ``model`` naming one) or a hub repo (``model``). Only
     the shards that hold image-side tensors are read (downloaded), never the language model's."""
@@ -227,14 +242,19 @@ def load_blip2_image_state(model: str = BLIP2_DEFAULT_MODEL, weights: str | None
     except (OSError, ValueError) as exc:
         raise SeeUError(f"unreadable BLIP-2 config.json ({_first_line(exc)})", cfg_path) from None
     if cfg_dict.get("model_type") != "blip-2":
-        raise SeeUError(f"not a BLIP-2 checkpoint (config.json model_type {cfg_dict.get('model_type')!r}, "
-                        "expected 'blip-2')", where)
+        raise SeeUError(
+            f"not a BLIP-2 checkpoint (config.json model_type {cfg_dict.get('model_type')!r}, expected 'blip-2')", where
+        )
     config = transformers.Blip2Config.from_dict(cfg_dict)
-    files = _image_side_files(resolve, where, hub, "model.safetensors") \
-        or _image_side_files(resolve, where, hub, "pytorch_model.bin")
+    files = _image_side_files(resolve, where, hub, "model.safetensors") or _image_side_files(
+        resolve, where, hub, "pytorch_model.bin"
+    )
     if not files:
-        raise SeeUError("no weights of BLIP-2's image side found (expected model.safetensors, or "
-                        "model.safetensors.index.json with its shards; pytorch_model.bin also works)", where)
+        raise SeeUError(
+            "no weights of BLIP-2's image side found (expected model.safetensors, or "
+            "model.safetensors.index.json with its shards; pytorch_model.bin also works)",
+            where,
+        )
     state: dict[str, torch.Tensor] = {}
     for f in files:
         try:
@@ -264,8 +284,9 @@ def export_blip2_image_part(model: str, out_dir: str | Path, dtype: torch.dtype 
     config, state = load_blip2_image_state(model)
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    state = {k: (v.to(dtype) if dtype is not None and v.is_floating_point() else v).contiguous()
-             for k, v in state.items()}
+    state = {
+        k: (v.to(dtype) if dtype is not None and v.is_floating_point() else v).contiguous() for k, v in state.items()
+    }
     save_file(state, str(out / "model.safetensors"), metadata={"format": "pt", "source": str(model)})
     config.to_json_file(str(out / "config.json"))
     return out
@@ -299,8 +320,13 @@ class FrozenBLIP2ImageEncoder(FrozenModule):
     tensors are loaded. ``pretrained=False`` without ``weights``: random initialisation of
     ``Blip2Config(**model_kwargs)`` (tests only; default config = blip2-opt-2.7b's image side)."""
 
-    def __init__(self, model: str = BLIP2_DEFAULT_MODEL, weights: str | None = None, pretrained: bool = True,
-                 model_kwargs: dict[str, Any] | None = None):
+    def __init__(
+        self,
+        model: str = BLIP2_DEFAULT_MODEL,
+        weights: str | None = None,
+        pretrained: bool = True,
+        model_kwargs: dict[str, Any] | None = None,
+    ):
         super().__init__()
         transformers = import_blip2()
         if weights is None and not pretrained:
@@ -315,8 +341,10 @@ class FrozenBLIP2ImageEncoder(FrozenModule):
                 self._build(transformers, config)
         else:
             if model_kwargs:
-                raise SeeUError("blip2_model_kwargs only apply to random initialisation (semantic_pretrained=False "
-                                "without blip2_weights); the architecture comes from the checkpoint's config.json")
+                raise SeeUError(
+                    "blip2_model_kwargs only apply to random initialisation (semantic_pretrained=False "
+                    "without blip2_weights); the architecture comes from the checkpoint's config.json"
+                )
             config, state = load_blip2_image_state(model, weights)
             with torch.device("meta"):  # no random init of ~1 B parameters that are overwritten at once
                 self._build(transformers, config)
@@ -324,9 +352,11 @@ class FrozenBLIP2ImageEncoder(FrozenModule):
             missing = [k for k in expected if k not in state]
             bad = [k for k in expected if k in state and tuple(state[k].shape) != tuple(expected[k].shape)]
             if missing or bad:
-                raise SeeUError(f"BLIP-2 checkpoint does not match its config.json: {len(missing)} image-side tensors "
-                                f"missing (e.g. {missing[:2]}), {len(bad)} of another shape (e.g. {bad[:2]})",
-                                weights or model)
+                raise SeeUError(
+                    f"BLIP-2 checkpoint does not match its config.json: {len(missing)} image-side tensors "
+                    f"missing (e.g. {missing[:2]}), {len(bad)} of another shape (e.g. {bad[:2]})",
+                    weights or model,
+                )
             self.load_state_dict({k: state[k].float() for k in expected}, strict=True, assign=True)
         self.config = config
         size = config.vision_config.image_size

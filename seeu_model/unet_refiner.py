@@ -26,8 +26,12 @@ class ConvBlock(nn.Module):
     def __init__(self, cin: int, cout: int):
         super().__init__()
         self.net = nn.Sequential(
-            nn.GroupNorm(_groups(cin), cin), nn.SiLU(), nn.Conv2d(cin, cout, 3, padding=1),
-            nn.GroupNorm(_groups(cout), cout), nn.SiLU(), nn.Conv2d(cout, cout, 3, padding=1),
+            nn.GroupNorm(_groups(cin), cin),
+            nn.SiLU(),
+            nn.Conv2d(cin, cout, 3, padding=1),
+            nn.GroupNorm(_groups(cout), cout),
+            nn.SiLU(),
+            nn.Conv2d(cout, cout, 3, padding=1),
         )
         self.skip = nn.Conv2d(cin, cout, 1) if cin != cout else nn.Identity()
 

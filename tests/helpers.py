@@ -21,8 +21,9 @@ def look_at_cam_to_world(eye: np.ndarray, target: np.ndarray, up=(0.0, -1.0, 0.0
     return m
 
 
-def make_posed_scene(scene_id: str = "scene0", n: int = 12, height: int = 48, width: int = 64,
-                     seed: int = 0, image_format: str = "jpeg") -> PosedScene:
+def make_posed_scene(
+    scene_id: str = "scene0", n: int = 12, height: int = 48, width: int = 64, seed: int = 0, image_format: str = "jpeg"
+) -> PosedScene:
     """A scene of `n` noise-textured encoded images along a sideways camera path."""
     rng = np.random.default_rng(seed)
     ext = ".jpg" if image_format == "jpeg" else ".png"
@@ -36,10 +37,16 @@ def make_posed_scene(scene_id: str = "scene0", n: int = 12, height: int = 48, wi
         eye = np.array([0.1 * i, 0.0, -2.0])
         poses.append(look_at_cam_to_world(eye, np.array([0.1 * i, 0.0, 0.0])))
     return PosedScene(
-        scene_id=scene_id, images=images, image_format=image_format,
-        width=np.full(n, width), height=np.full(n, height),
+        scene_id=scene_id,
+        images=images,
+        image_format=image_format,
+        width=np.full(n, width),
+        height=np.full(n, height),
         intrinsics_norm=np.tile([0.9, 1.2, 0.5, 0.5], (n, 1)),
-        cam_to_world=np.stack(poses), near=0.5, far=10.0,
-        source_frame=np.arange(n, dtype=np.int64) * 3, timestamp_us=np.arange(n, dtype=np.int64) * 100_000,
+        cam_to_world=np.stack(poses),
+        near=0.5,
+        far=10.0,
+        source_frame=np.arange(n, dtype=np.int64) * 3,
+        timestamp_us=np.arange(n, dtype=np.int64) * 100_000,
         source_name=[f"frame_{i * 3:05d}{ext}" for i in range(n)],
     )

@@ -31,8 +31,16 @@ def view_image(shard: int, row: int, view: int, hw: tuple[int, int]) -> np.ndarr
     return img
 
 
-def row_dict(shard: int, row: int, num_context: int, num_target: int, hw: tuple[int, int], gap: int,
-             image_fn: Callable[[int, int, int], bytes] | None = None, ext: str = ".jpg") -> dict:
+def row_dict(
+    shard: int,
+    row: int,
+    num_context: int,
+    num_target: int,
+    hw: tuple[int, int],
+    gap: int,
+    image_fn: Callable[[int, int, int], bytes] | None = None,
+    ext: str = ".jpg",
+) -> dict:
     """One triples row with V = num_context + num_target views of size hw."""
     v = num_context + num_target
     h, w = hw
@@ -45,7 +53,9 @@ def row_dict(shard: int, row: int, num_context: int, num_target: int, hw: tuple[
             ok, buf = cv2.imencode(ext, view_image(shard, row, k, hw), [cv2.IMWRITE_JPEG_QUALITY, 95])
             assert ok
             images.append(buf.tobytes())
-    poses = [look_at_cam_to_world(np.array([0.1 * f, 0.02 * shard, -2.0]), np.array([0.1 * f, 0.0, 0.0])) for f in frames]
+    poses = [
+        look_at_cam_to_world(np.array([0.1 * f, 0.02 * shard, -2.0]), np.array([0.1 * f, 0.0, 0.0])) for f in frames
+    ]
     return {
         "sample_id": f"s{shard}/interp/{row}",
         "scene_id": f"s{shard}",
@@ -66,23 +76,40 @@ def row_dict(shard: int, row: int, num_context: int, num_target: int, hw: tuple[
     }
 
 
-def write_triples(root: str | Path, shard_rows: list[int], num_context: int = 2, num_target: int = 3,
-                  hw: tuple[int, int] = (24, 40), gaps: Callable[[int, int], int] | None = None,
-                  rows_fn: Callable[[int, int], dict] | None = None, record_batch_rows: int = 4) -> Path:
+def write_triples(
+    root: str | Path,
+    shard_rows: list[int],
+    num_context: int = 2,
+    num_target: int = 3,
+    hw: tuple[int, int] = (24, 40),
+    gaps: Callable[[int, int], int] | None = None,
+    rows_fn: Callable[[int, int], dict] | None = None,
+    record_batch_rows: int = 4,
+) -> Path:
     """A triples dataset: shard k holds `shard_rows[k]` rows; manifest written last."""
     root = Path(root)
     root.mkdir(parents=True, exist_ok=True)
     schema = arrow_schema(SCHEMA)
     entries = []
     for k, n in enumerate(shard_rows):
-        rows = [rows_fn(k, j) if rows_fn else
-                row_dict(k, j, num_context, num_target, hw, gaps(k, j) if gaps else 5 + (j % 3)) for j in range(n)]
+        rows = [
+            rows_fn(k, j)
+            if rows_fn
+            else row_dict(k, j, num_context, num_target, hw, gaps(k, j) if gaps else 5 + (j % 3))
+            for j in range(n)
+        ]
         table = pa.Table.from_pylist(rows, schema=schema)
         path = root / f"shard-{k:05d}.arrow"
         write_table(path, table, max_chunksize=record_batch_rows)
         entries.append(FileEntry.for_file(root, path, n))
-    write_manifest(root, SCHEMA, schema_version(SCHEMA), entries, params={"test": True},
-                   provenance=provenance("tests.loader_fixtures"))
+    write_manifest(
+        root,
+        SCHEMA,
+        schema_version(SCHEMA),
+        entries,
+        params={"test": True},
+        provenance=provenance("tests.loader_fixtures"),
+    )
     return root
 
 

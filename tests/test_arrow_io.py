@@ -15,8 +15,7 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data import arrow_io
-from seeu_data.arrow_io import (atomic_write_text, commit_pending, fsync_enabled, fsync_policy, sha256_file,
-                                write_table)
+from seeu_data.arrow_io import atomic_write_text, commit_pending, fsync_enabled, fsync_policy, sha256_file, write_table
 from seeu_data.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
@@ -36,7 +35,9 @@ def fsyncs(monkeypatch):
 
 
 def _table(n=3000):
-    return pa.table({"a": np.arange(n), "b": [bytes([i % 251]) * ((3 << 20) if i % 1000 == 7 else i % 50) for i in range(n)]})
+    return pa.table(
+        {"a": np.arange(n), "b": [bytes([i % 251]) * ((3 << 20) if i % 1000 == 7 else i % 50) for i in range(n)]}
+    )
 
 
 def test_default_is_atomic_without_fsync(tmp_path, fsyncs):
@@ -67,9 +68,13 @@ def test_fsync_policy_fsyncs_every_file_before_its_rename(tmp_path, fsyncs):
 def test_env_var_turns_fsync_on():
     code = "import seeu_data.arrow_io as a; print(a.fsync_enabled())"
     env = dict(os.environ, SEEU_FSYNC="1", PYTHONPATH=os.getcwd())
-    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "True"
+    assert (
+        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "True"
+    )
     env["SEEU_FSYNC"] = "0"
-    assert subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "False"
+    assert (
+        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "False"
+    )
 
 
 def test_failed_write_leaves_nothing(tmp_path):
@@ -127,8 +132,20 @@ def test_build_and_import_fsync_flag(tmp_path, fsyncs):
         for i in range(3):
             w.add(make_posed_scene(f"s{i}", n=30, height=24, width=32, seed=i))
     assert fsyncs == []
-    cmd = ["build", str(posed), "--gap-min", "10", "--gap-max", "20", "--samples-per-scene", "3",
-           "--shard-size", "20kB", "--workers", "1"]
+    cmd = [
+        "build",
+        str(posed),
+        "--gap-min",
+        "10",
+        "--gap-max",
+        "20",
+        "--samples-per-scene",
+        "3",
+        "--shard-size",
+        "20kB",
+        "--workers",
+        "1",
+    ]
     assert cli_main([*cmd, "--out", str(tmp_path / "a")]) == 0
     assert fsyncs == []
     assert cli_main([*cmd, "--out", str(tmp_path / "b"), "--fsync"]) == 0
@@ -168,15 +185,23 @@ def test_deferred_binary_writes_the_bytes_pyarrow_writes(tmp_path, max_chunksize
     n_rows = len(offsets) - 1
 
     def table(images):
-        return pa.table({"flat": images.slice(0, n_rows), "views": pa.ListArray.from_arrays(offsets, images),
-                         "i": np.arange(n_rows)})
+        return pa.table(
+            {
+                "flat": images.slice(0, n_rows),
+                "views": pa.ListArray.from_arrays(offsets, images),
+                "i": np.arange(n_rows),
+            }
+        )
 
     expected = _plain_ipc_bytes(table(pa.array(values, pa.binary())), max_chunksize)
-    size, digest = write_table(tmp_path / "d.arrow", table(arrow_io.deferred_binary(pieces)), max_chunksize=max_chunksize)
+    size, digest = write_table(
+        tmp_path / "d.arrow", table(arrow_io.deferred_binary(pieces)), max_chunksize=max_chunksize
+    )
     assert (tmp_path / "d.arrow").read_bytes() == expected
     assert (size, digest) == (len(expected), hashlib.sha256(expected).hexdigest())
-    assert pa.ipc.open_file(str(tmp_path / "d.arrow")).read_all().column("views").to_pylist() == \
-        [values[i:i + 3] for i in range(0, 3 * n_rows, 3)]
+    assert pa.ipc.open_file(str(tmp_path / "d.arrow")).read_all().column("views").to_pylist() == [
+        values[i : i + 3] for i in range(0, 3 * n_rows, 3)
+    ]
 
 
 def test_deferred_binary_placeholders_are_released_and_short_writes_resume(tmp_path, monkeypatch):
@@ -201,8 +226,8 @@ def test_deferred_binary_placeholders_are_released_and_short_writes_resume(tmp_p
 
 def test_reading_a_deferred_column_outside_the_writer_faults():
     """A deferred column read anywhere but the writer's sink must fail loudly, never give zeros."""
-    code = ("from seeu_data.arrow_io import deferred_binary\n"
-            "print(deferred_binary([b'abc', b'de']).to_pylist())\n")
-    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
-                         env=dict(os.environ, PYTHONPATH=os.getcwd()))
+    code = "from seeu_data.arrow_io import deferred_binary\nprint(deferred_binary([b'abc', b'de']).to_pylist())\n"
+    res = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=os.getcwd())
+    )
     assert res.returncode != 0 and "abc" not in res.stdout and "\\x00" not in res.stdout

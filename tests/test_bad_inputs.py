@@ -32,9 +32,11 @@ CASES: list = []
 
 def case(name: str, rc: int | None = 2, text: str | None = None):
     """Register `fn(ws, tmp) -> argv` (or `(argv, check)` where `check()` runs after the command)."""
+
     def deco(fn):
         CASES.append(pytest.param(fn, rc, text, id=name))
         return fn
+
     return deco
 
 
@@ -56,6 +58,7 @@ def _put(path: Path, data: str | bytes) -> None:
 def _sentinel_check(sentinel: Path):
     def check():
         assert not sentinel.exists(), "code from a file we read ran"
+
     return check
 
 
@@ -69,11 +72,35 @@ def ws(tmp_path_factory):
     assert cli_main(["export", "pixelsplat", str(posed), "--out", str(root / "ps")]) == 0
     assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "64x48"]) == 0
     _colmap_fixture(root / "colmap", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
-    assert cli_main(["train", "--data", str(tri), "--config", "configs/cpu_tiny.json", "--out", str(root / "run"),
-                     "--max-steps", "1", "checkpoint.every=1", "log.val_every=0"]) == 0
+    assert (
+        cli_main(
+            [
+                "train",
+                "--data",
+                str(tri),
+                "--config",
+                "configs/cpu_tiny.json",
+                "--out",
+                str(root / "run"),
+                "--max-steps",
+                "1",
+                "checkpoint.every=1",
+                "log.val_every=0",
+            ]
+        )
+        == 0
+    )
     ckpt = sorted((root / "run" / "checkpoints").glob("ckpt-*.pt"))[-1]
-    return {"root": root, "triples": tri, "posed": posed, "ns": next((root / "ns").rglob("transforms.json")),
-            "ps": root / "ps", "clip": root / "clip" / "clip.mp4", "colmap": root / "colmap", "ckpt": ckpt}
+    return {
+        "root": root,
+        "triples": tri,
+        "posed": posed,
+        "ns": next((root / "ns").rglob("transforms.json")),
+        "ps": root / "ps",
+        "clip": root / "clip" / "clip.mp4",
+        "colmap": root / "colmap",
+        "ckpt": ckpt,
+    }
 
 
 def _copy(src: Path, tmp: Path, name: str = "copy") -> Path:
@@ -140,117 +167,186 @@ def _good_frame(tmp, name="a.png", **over) -> dict:
 case("synth-size-not-WxH")(lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--size", "big"])
 case("synth-zero-frames")(lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--frames", "0"])
 case("synth-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["synth", "--out", str(tmp / "f" / "x"), "--frames", "2",
-                                                   "--size", "32x24"])
+    lambda ws, tmp: _put(tmp / "f", "") or ["synth", "--out", str(tmp / "f" / "x"), "--frames", "2", "--size", "32x24"]
+)
 
 # ------------------------------------------------------------------------------------------ ingest
 case("ingest-missing-input")(lambda ws, tmp: ["ingest", str(tmp / "nothing.mp4"), "--out", str(tmp / "o")])
-case("ingest-empty-folder")(lambda ws, tmp: (tmp / "empty").mkdir() or ["ingest", str(tmp / "empty"),
-                                                                          "--out", str(tmp / "o")])
-case("ingest-garbage-video")(lambda ws, tmp: _put(tmp / "v.mp4", os.urandom(4096)) or
-                             ["ingest", str(tmp / "v.mp4"), "--out", str(tmp / "o"), "--threads", "1"])
+case("ingest-empty-folder")(
+    lambda ws, tmp: (tmp / "empty").mkdir() or ["ingest", str(tmp / "empty"), "--out", str(tmp / "o")]
+)
+case("ingest-garbage-video")(
+    lambda ws, tmp: (
+        _put(tmp / "v.mp4", os.urandom(4096))
+        or ["ingest", str(tmp / "v.mp4"), "--out", str(tmp / "o"), "--threads", "1"]
+    )
+)
 case("ingest-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["ingest", str(ws["clip"]), "--out", str(tmp / "f")])
-case("ingest-stride-zero")(lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"),
-                                                        "--stride", "0"])
+    lambda ws, tmp: _put(tmp / "f", "") or ["ingest", str(ws["clip"]), "--out", str(tmp / "f")]
+)
+case("ingest-stride-zero")(lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--stride", "0"])
 
 # ------------------------------------------------------------------------------------------ import
-case("import-pixelsplat-missing-dir")(lambda ws, tmp: ["import", "pixelsplat", str(tmp / "no"), "--out", str(tmp / "o")])
+case("import-pixelsplat-missing-dir")(
+    lambda ws, tmp: ["import", "pixelsplat", str(tmp / "no"), "--out", str(tmp / "o")]
+)
 case("import-pixelsplat-index-not-json")(lambda ws, tmp: _ps(ws, tmp, index="{not json"))
 case("import-pixelsplat-index-a-list")(lambda ws, tmp: _ps(ws, tmp, index="[1, 2]"))
 case("import-pixelsplat-index-escapes", text="leads outside")(
-    lambda ws, tmp: _ps(ws, tmp, index=json.dumps({"k": "../../elsewhere/x.torch"})))
+    lambda ws, tmp: _ps(ws, tmp, index=json.dumps({"k": "../../elsewhere/x.torch"}))
+)
 case("import-pixelsplat-index-absolute", text="leads outside")(
-    lambda ws, tmp: _ps(ws, tmp, index=json.dumps({"k": "/etc/passwd"})))
+    lambda ws, tmp: _ps(ws, tmp, index=json.dumps({"k": "/etc/passwd"}))
+)
 case("import-pixelsplat-chunk-garbage")(lambda ws, tmp: _ps(ws, tmp, chunk=b"garbage"))
 case("import-pixelsplat-chunk-storage-call", text="not a readable pixelSplat chunk")(
-    lambda ws, tmp: _ps(ws, tmp, chunk=[_Call(torch.FloatStorage)]))
+    lambda ws, tmp: _ps(ws, tmp, chunk=[_Call(torch.FloatStorage)])
+)
 case("import-pixelsplat-chunk-ordereddict-5", text="not a readable pixelSplat chunk")(
-    lambda ws, tmp: _ps(ws, tmp, chunk=[_Call(collections.OrderedDict, 5)]))
+    lambda ws, tmp: _ps(ws, tmp, chunk=[_Call(collections.OrderedDict, 5)])
+)
 case("import-pixelsplat-chunk-runs-code")(
-    lambda ws, tmp: (_ps(ws, tmp, chunk=[_Call(os.system, f"touch {tmp / 'PWNED'}")]),
-                     _sentinel_check(tmp / "PWNED")))
+    lambda ws, tmp: (_ps(ws, tmp, chunk=[_Call(os.system, f"touch {tmp / 'PWNED'}")]), _sentinel_check(tmp / "PWNED"))
+)
 case("import-pixelsplat-chunk-a-dict")(lambda ws, tmp: _ps(ws, tmp, chunk={"key": "x"}))
 case("import-pixelsplat-chunk-examples-numbers")(lambda ws, tmp: _ps(ws, tmp, chunk=[1, 2, 3]))
-case("import-re10k-missing-cameras")(lambda ws, tmp: ["import", "re10k", "--cameras", str(tmp / "c"),
-                                                      "--frames", str(tmp / "f"), "--out", str(tmp / "o")])
+case("import-re10k-missing-cameras")(
+    lambda ws, tmp: [
+        "import",
+        "re10k",
+        "--cameras",
+        str(tmp / "c"),
+        "--frames",
+        str(tmp / "f"),
+        "--out",
+        str(tmp / "o"),
+    ]
+)
 case("import-re10k-garbage-camera-file")(
-    lambda ws, tmp: [(tmp / "c").mkdir(), (tmp / "f" / "x").mkdir(parents=True),
-                     (tmp / "c" / "x.txt").write_text("http://u\n1 2 three\n")] and
-    ["import", "re10k", "--cameras", str(tmp / "c"), "--frames", str(tmp / "f"), "--out", str(tmp / "o")])
+    lambda ws, tmp: (
+        [
+            (tmp / "c").mkdir(),
+            (tmp / "f" / "x").mkdir(parents=True),
+            (tmp / "c" / "x.txt").write_text("http://u\n1 2 three\n"),
+        ]
+        and ["import", "re10k", "--cameras", str(tmp / "c"), "--frames", str(tmp / "f"), "--out", str(tmp / "o")]
+    )
+)
 case("import-dtu-missing")(lambda ws, tmp: ["import", "dtu", str(tmp / "dtu"), "--out", str(tmp / "o")])
-case("import-colmap-not-a-model")(lambda ws, tmp: ["import", "colmap", str(tmp), "--images", str(tmp),
-                                                   "--out", str(tmp / "o")])
+case("import-colmap-not-a-model")(
+    lambda ws, tmp: ["import", "colmap", str(tmp), "--images", str(tmp), "--out", str(tmp / "o")]
+)
 case("import-colmap-garbage-binary")(
-    lambda ws, tmp: [(tmp / "m").mkdir(), (tmp / "m" / "cameras.bin").write_bytes(os.urandom(100)),
-                     (tmp / "m" / "images.bin").write_bytes(os.urandom(100))] and
-    ["import", "colmap", str(tmp / "m"), "--images", str(ws["colmap"] / "images"), "--out", str(tmp / "o")])
+    lambda ws, tmp: (
+        [
+            (tmp / "m").mkdir(),
+            (tmp / "m" / "cameras.bin").write_bytes(os.urandom(100)),
+            (tmp / "m" / "images.bin").write_bytes(os.urandom(100)),
+        ]
+        and ["import", "colmap", str(tmp / "m"), "--images", str(ws["colmap"] / "images"), "--out", str(tmp / "o")]
+    )
+)
 case("import-nerfstudio-not-json")(
-    lambda ws, tmp: _put(tmp / "t.json", "{") or ["import", "nerfstudio", str(tmp / "t.json"), "--out", str(tmp / "o")])
+    lambda ws, tmp: _put(tmp / "t.json", "{") or ["import", "nerfstudio", str(tmp / "t.json"), "--out", str(tmp / "o")]
+)
 case("import-nerfstudio-frames-numbers", text="frames[0] is not an object")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: d.update(frames=[1, 2, 3])))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: d.update(frames=[1, 2, 3]))
+)
 case("import-nerfstudio-fl_x-string", text="fl_x must be a finite number")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: [f.update(fl_x="wide") for f in d["frames"]] and d.update(fl_x="wide")))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: [f.update(fl_x="wide") for f in d["frames"]] and d.update(fl_x="wide"))
+)
 case("import-nerfstudio-seeu-near-string", text="seeu.near must be a finite number")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: d.update(seeu={"near": "close"})))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: d.update(seeu={"near": "close"}))
+)
 case("import-nerfstudio-seeu-block-string", text="'seeu' block must be an object")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: d.update(seeu="x")))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: d.update(seeu="x"))
+)
 case("import-nerfstudio-matrix-shape", text="transform_matrix")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]])))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(transform_matrix=[[1, 0], [0, 1]]))
+)
 case("import-nerfstudio-unknown-camera-model", text="camera_model")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: [f.update(camera_model="EQUIRECTANGULAR") for f in d["frames"]]
-                        and d.update(camera_model="EQUIRECTANGULAR")))
+    lambda ws, tmp: _ns(
+        ws,
+        tmp,
+        lambda d: (
+            [f.update(camera_model="EQUIRECTANGULAR") for f in d["frames"]] and d.update(camera_model="EQUIRECTANGULAR")
+        ),
+    )
+)
 case("import-nerfstudio-negative-width", text="w must be positive")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: [f.pop("w", None) for f in d["frames"]] and d.update(w=-5)))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: [f.pop("w", None) for f in d["frames"]] and d.update(w=-5))
+)
 case("import-nerfstudio-missing-image", text="--skip-missing")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(file_path="images/not_there.jpg")))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(file_path="images/not_there.jpg"))
+)
 case("import-nerfstudio-file-path-number", text="file_path must be a non-empty string")(
-    lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(file_path=7)))
+    lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(file_path=7))
+)
 case("import-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["import", "nerfstudio", str(ws["ns"]), "--out", str(tmp / "f")])
+    lambda ws, tmp: _put(tmp / "f", "") or ["import", "nerfstudio", str(ws["ns"]), "--out", str(tmp / "f")]
+)
 
 # ------------------------------------------------------------------------------------------ export
 case("export-missing-dataset")(lambda ws, tmp: ["export", "pixelsplat", str(tmp / "no"), "--out", str(tmp / "o")])
 case("export-of-triples", text="expected a seeu.posed_frames dataset")(
-    lambda ws, tmp: ["export", "nerfstudio", str(ws["triples"]), "--out", str(tmp / "o")])
+    lambda ws, tmp: ["export", "nerfstudio", str(ws["triples"]), "--out", str(tmp / "o")]
+)
 case("export-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["export", "pixelsplat", str(ws["posed"]), "--out", str(tmp / "f")])
+    lambda ws, tmp: _put(tmp / "f", "") or ["export", "pixelsplat", str(ws["posed"]), "--out", str(tmp / "f")]
+)
 
 # ------------------------------------------------------------------------------------------ build
 case("build-missing-input")(lambda ws, tmp: ["build", str(tmp / "no"), "--out", str(tmp / "o")])
 case("build-of-triples")(lambda ws, tmp: ["build", str(ws["triples"]), "--out", str(tmp / "o")])
 case("build-eval-without-index")(lambda ws, tmp: ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--mode", "eval"])
 case("build-index-not-json")(
-    lambda ws, tmp: _put(tmp / "i.json", "[") or
-    ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--mode", "eval", "--index", str(tmp / "i.json")])
+    lambda ws, tmp: (
+        _put(tmp / "i.json", "[")
+        or ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--mode", "eval", "--index", str(tmp / "i.json")]
+    )
+)
 case("build-resize-zero")(lambda ws, tmp: ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--resize", "0x0"])
 case("build-manifest-entry-escapes", text="leads outside")(
-    lambda ws, tmp: ["build", str(_manifest(ws, tmp, "posed", lambda d: d["files"][0].update(path="../x.arrow"))),
-                     "--out", str(tmp / "o")])
+    lambda ws, tmp: [
+        "build",
+        str(_manifest(ws, tmp, "posed", lambda d: d["files"][0].update(path="../x.arrow"))),
+        "--out",
+        str(tmp / "o"),
+    ]
+)
 case("build-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["build", str(ws["posed"]), "--out", str(tmp / "f"),
-                                                   "--gap-min", "3", "--gap-max", "5", "--workers", "1"])
+    lambda ws, tmp: (
+        _put(tmp / "f", "")
+        or ["build", str(ws["posed"]), "--out", str(tmp / "f"), "--gap-min", "3", "--gap-max", "5", "--workers", "1"]
+    )
+)
 
 # ------------------------------------------------------------------------------------------ index / inspect
 case("index-missing-input")(lambda ws, tmp: ["index", str(tmp / "no"), "--out", str(tmp / "i.json")])
 case("index-of-triples")(lambda ws, tmp: ["index", str(ws["triples"]), "--out", str(tmp / "i.json")])
 case("inspect-missing")(lambda ws, tmp: ["inspect", str(tmp / "no")])
 case("inspect-manifest-not-json")(
-    lambda ws, tmp: _put(_manifest(ws, tmp) / "manifest.json", "{") or ["inspect", str(tmp / "ds")])
+    lambda ws, tmp: _put(_manifest(ws, tmp) / "manifest.json", "{") or ["inspect", str(tmp / "ds")]
+)
 
 # ------------------------------------------------------------------------------------------ validate
 case("validate-good", rc=0)(lambda ws, tmp: ["validate", str(ws["triples"])])
 case("validate-missing")(lambda ws, tmp: ["validate", str(tmp / "no")])
 case("validate-manifest-not-json")(
-    lambda ws, tmp: _put(_manifest(ws, tmp) / "manifest.json", "nope") or ["validate", str(tmp / "ds")])
+    lambda ws, tmp: _put(_manifest(ws, tmp) / "manifest.json", "nope") or ["validate", str(tmp / "ds")]
+)
 case("validate-manifest-no-files")(
-    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d.pop("files")))])
+    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d.pop("files")))]
+)
 case("validate-entry-escapes", text="leads outside")(
-    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d["files"][0].update(path="../../x.arrow")))])
+    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d["files"][0].update(path="../../x.arrow")))]
+)
 case("validate-entry-absolute", text="leads outside")(
-    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d["files"][0].update(path="/etc/passwd")))])
+    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d["files"][0].update(path="/etc/passwd")))]
+)
 case("validate-total-rows-disagree", text="disagrees")(
-    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d.update(total_rows=d["total_rows"] + 1)))])
+    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=lambda d: d.update(total_rows=d["total_rows"] + 1)))]
+)
 
 
 def _truncate(ws, tmp, no_sha=False):
@@ -279,64 +375,195 @@ case("validate-no-sha-corrupt-names", text="corrupt")(_flip_names)
 # ------------------------------------------------------------------------------------------ train
 TRAIN = ["--config", "configs/cpu_tiny.json", "--max-steps", "1"]
 case("train-missing-data")(lambda ws, tmp: ["train", "--data", str(tmp / "no"), "--out", str(tmp / "r")] + TRAIN)
-case("train-missing-config")(lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"),
-                                              "--config", str(tmp / "no.json")])
-case("train-unknown-override")(lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")]
-                               + TRAIN + ["optim.nonsense=1"])
-case("train-data-is-posed-frames")(lambda ws, tmp: ["train", "--data", str(ws["posed"]), "--out", str(tmp / "r")] + TRAIN)
+case("train-missing-config")(
+    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), "--config", str(tmp / "no.json")]
+)
+case("train-unknown-override")(
+    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["optim.nonsense=1"]
+)
+case("train-data-is-posed-frames")(
+    lambda ws, tmp: ["train", "--data", str(ws["posed"]), "--out", str(tmp / "r")] + TRAIN
+)
 case("train-log-every-zero")(
-    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["log.every=0"])
+    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["log.every=0"]
+)
 case("train-num-workers-negative")(
-    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["data.num_workers=-1"])
+    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["data.num_workers=-1"]
+)
 case("train-lr-nan")(
-    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["optim.lr=nan"])
+    lambda ws, tmp: ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r")] + TRAIN + ["optim.lr=nan"]
+)
 case("train-resume-garbage")(
-    lambda ws, tmp: _put(tmp / "c.pt", b"\x80\x04garbage") or
-    ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), "--resume", str(tmp / "c.pt")] + TRAIN)
+    lambda ws, tmp: (
+        _put(tmp / "c.pt", b"\x80\x04garbage")
+        or ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), "--resume", str(tmp / "c.pt")] + TRAIN
+    )
+)
 case("train-resume-runs-code")(
-    lambda ws, tmp: (["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), "--resume",
-                      str(_ckpt_with(tmp, {"step": 1, "x": _Call(os.system, f"touch {tmp / 'PWNED'}")}))] + TRAIN,
-                     _sentinel_check(tmp / "PWNED")))
+    lambda ws, tmp: (
+        [
+            "train",
+            "--data",
+            str(ws["triples"]),
+            "--out",
+            str(tmp / "r"),
+            "--resume",
+            str(_ckpt_with(tmp, {"step": 1, "x": _Call(os.system, f"touch {tmp / 'PWNED'}")})),
+        ]
+        + TRAIN,
+        _sentinel_check(tmp / "PWNED"),
+    )
+)
 case("train-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["train", "--data", str(ws["triples"]), "--out", str(tmp / "f")] + TRAIN)
+    lambda ws, tmp: _put(tmp / "f", "") or ["train", "--data", str(ws["triples"]), "--out", str(tmp / "f")] + TRAIN
+)
 
 # ------------------------------------------------------------------------------------------ eval
-case("eval-missing-checkpoint")(lambda ws, tmp: ["eval", "--checkpoint", str(tmp / "no.pt"), "--data", str(ws["triples"]),
-                                                 "--no-lpips"])
+case("eval-missing-checkpoint")(
+    lambda ws, tmp: ["eval", "--checkpoint", str(tmp / "no.pt"), "--data", str(ws["triples"]), "--no-lpips"]
+)
 case("eval-garbage-checkpoint")(
-    lambda ws, tmp: _put(tmp / "c.pt", os.urandom(300)) or
-    ["eval", "--checkpoint", str(tmp / "c.pt"), "--data", str(ws["triples"]), "--no-lpips"])
-case("eval-missing-data")(lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(tmp / "no"), "--no-lpips"])
+    lambda ws, tmp: (
+        _put(tmp / "c.pt", os.urandom(300))
+        or ["eval", "--checkpoint", str(tmp / "c.pt"), "--data", str(ws["triples"]), "--no-lpips"]
+    )
+)
+case("eval-missing-data")(
+    lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(tmp / "no"), "--no-lpips"]
+)
 case("eval-image-size-zero")(
-    lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]), "--no-lpips",
-                     "--image-size", "0x0", "--out", str(tmp / "e")])
+    lambda ws, tmp: [
+        "eval",
+        "--checkpoint",
+        str(ws["ckpt"]),
+        "--data",
+        str(ws["triples"]),
+        "--no-lpips",
+        "--image-size",
+        "0x0",
+        "--out",
+        str(tmp / "e"),
+    ]
+)
 case("eval-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
-                                            "--no-lpips", "--max-samples", "1", "--out", str(tmp / "f")])
+    lambda ws, tmp: (
+        _put(tmp / "f", "")
+        or [
+            "eval",
+            "--checkpoint",
+            str(ws["ckpt"]),
+            "--data",
+            str(ws["triples"]),
+            "--no-lpips",
+            "--max-samples",
+            "1",
+            "--out",
+            str(tmp / "f"),
+        ]
+    )
+)
 case("eval-checkpoint-runs-code")(
-    lambda ws, tmp: (["eval", "--checkpoint", str(_ckpt_with(tmp, _Call(os.system, f"touch {tmp / 'PWNED'}"))),
-                      "--data", str(ws["triples"]), "--no-lpips"], _sentinel_check(tmp / "PWNED")))
+    lambda ws, tmp: (
+        [
+            "eval",
+            "--checkpoint",
+            str(_ckpt_with(tmp, _Call(os.system, f"touch {tmp / 'PWNED'}"))),
+            "--data",
+            str(ws["triples"]),
+            "--no-lpips",
+        ],
+        _sentinel_check(tmp / "PWNED"),
+    )
+)
 
 # ------------------------------------------------------------------------------------------ render
-case("render-missing-checkpoint")(lambda ws, tmp: ["render", "--checkpoint", str(tmp / "no.pt"), "--data",
-                                                   str(ws["triples"]), "--out", str(tmp / "r")])
-case("render-sample-out-of-range")(lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
-                                                    "--sample", "999", "--out", str(tmp / "r"), "--frames", "2"])
+case("render-missing-checkpoint")(
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(tmp / "no.pt"),
+        "--data",
+        str(ws["triples"]),
+        "--out",
+        str(tmp / "r"),
+    ]
+)
+case("render-sample-out-of-range")(
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(ws["ckpt"]),
+        "--data",
+        str(ws["triples"]),
+        "--sample",
+        "999",
+        "--out",
+        str(tmp / "r"),
+        "--frames",
+        "2",
+    ]
+)
 case("render-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["render", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]),
-                                            "--out", str(tmp / "f"), "--frames", "2"])
+    lambda ws, tmp: (
+        _put(tmp / "f", "")
+        or [
+            "render",
+            "--checkpoint",
+            str(ws["ckpt"]),
+            "--data",
+            str(ws["triples"]),
+            "--out",
+            str(tmp / "f"),
+            "--frames",
+            "2",
+        ]
+    )
+)
 case("render-cameras-not-json")(
-    lambda ws, tmp: _put(tmp / "c.json", "{") or
-    ["render", "--checkpoint", str(ws["ckpt"]), "--cameras", str(tmp / "c.json"), "--out", str(tmp / "r")])
+    lambda ws, tmp: (
+        _put(tmp / "c.json", "{")
+        or ["render", "--checkpoint", str(ws["ckpt"]), "--cameras", str(tmp / "c.json"), "--out", str(tmp / "r")]
+    )
+)
 case("render-camera-frames-strings")(
-    lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--cameras", str(_cameras(tmp, ["a", "b"])),
-                     "--out", str(tmp / "r"), "--frames", "2"])
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(ws["ckpt"]),
+        "--cameras",
+        str(_cameras(tmp, ["a", "b"])),
+        "--out",
+        str(tmp / "r"),
+        "--frames",
+        "2",
+    ]
+)
 case("render-camera-nan-pose")(
-    lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--out", str(tmp / "r"), "--frames", "2", "--cameras",
-                     str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png", cam_to_world=[[float("nan")] * 4] * 4)]))])
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(ws["ckpt"]),
+        "--out",
+        str(tmp / "r"),
+        "--frames",
+        "2",
+        "--cameras",
+        str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png", cam_to_world=[[float("nan")] * 4] * 4)])),
+    ]
+)
 case("render-camera-negative-focal")(
-    lambda ws, tmp: ["render", "--checkpoint", str(ws["ckpt"]), "--out", str(tmp / "r"), "--frames", "2", "--cameras",
-                     str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png", intrinsics_norm=[-1, 1, 0.5, 0.5])]))])
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(ws["ckpt"]),
+        "--out",
+        str(tmp / "r"),
+        "--frames",
+        "2",
+        "--cameras",
+        str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png", intrinsics_norm=[-1, 1, 0.5, 0.5])])),
+    ]
+)
 
 
 @pytest.mark.parametrize("make,rc,text", CASES)
@@ -363,25 +590,47 @@ def test_bad_input(ws, tmp_path, capsys, make, rc, text):
 
 def test_enough_cases():
     commands = {p.id.split("-")[0] for p in CASES}
-    assert len(CASES) >= 40 and commands >= {"ingest", "import", "export", "build", "index", "inspect", "validate",
-                                             "train", "eval", "render", "synth"}
+    assert len(CASES) >= 40 and commands >= {
+        "ingest",
+        "import",
+        "export",
+        "build",
+        "index",
+        "inspect",
+        "validate",
+        "train",
+        "eval",
+        "render",
+        "synth",
+    }
 
 
 # ------------------------------------------------------------------------------------------ real processes
 
+
 def _seeu(*argv: str) -> subprocess.CompletedProcess:
     env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    return subprocess.run([sys.executable, "-m", "pipelines.cli", *argv], capture_output=True, text=True,
-                          env=env, timeout=300)
+    return subprocess.run(
+        [sys.executable, "-m", "pipelines.cli", *argv], capture_output=True, text=True, env=env, timeout=300
+    )
 
 
-@pytest.mark.parametrize("argv,expect", [
-    (lambda ws: ["ingest", str(ws["clip"]), "--out", "/sys/seeu-bad-input-test"], "/sys/seeu-bad-input-test: "),
-    (lambda ws: ["synth", "--out", "/sys/seeu-bad-input-test", "--frames", "2", "--size", "32x24"],
-     "/sys/seeu-bad-input-test: "),
-    (lambda ws: ["model-info", "--preset", "tiny", "--json", "/dev/full"], "/dev/full: cannot write: no space left"),
-    (lambda ws: ["validate", str(ws["triples"]), "--frobnicate"], "unrecognized arguments"),
-], ids=["ingest-out-in-sys", "synth-out-in-sys", "model-info-json-dev-full", "validate-unknown-flag"])
+@pytest.mark.parametrize(
+    "argv,expect",
+    [
+        (lambda ws: ["ingest", str(ws["clip"]), "--out", "/sys/seeu-bad-input-test"], "/sys/seeu-bad-input-test: "),
+        (
+            lambda ws: ["synth", "--out", "/sys/seeu-bad-input-test", "--frames", "2", "--size", "32x24"],
+            "/sys/seeu-bad-input-test: ",
+        ),
+        (
+            lambda ws: ["model-info", "--preset", "tiny", "--json", "/dev/full"],
+            "/dev/full: cannot write: no space left",
+        ),
+        (lambda ws: ["validate", str(ws["triples"]), "--frobnicate"], "unrecognized arguments"),
+    ],
+    ids=["ingest-out-in-sys", "synth-out-in-sys", "model-info-json-dev-full", "validate-unknown-flag"],
+)
 def test_bad_input_real_process(ws, argv, expect):
     """The real `seeu` process: a system folder no one may write (EPERM even for root), a device
     that is always full (ENOSPC on every write), an unknown flag (argparse's own exit)."""

@@ -19,20 +19,46 @@ from seeu_data.errors import SeeUError  # noqa: E402
 from seeu_model.config import SeeUConfig  # noqa: E402
 from seeu_model.seeu import SeeU, parameter_counts  # noqa: E402
 from seeu_model.semantic import (  # noqa: E402
-    BLIP2_PREFIXES, OPENAI_CLIP_MEAN, OPENAI_CLIP_STD, FrozenBLIP2ImageEncoder, export_blip2_image_part)
+    BLIP2_PREFIXES,
+    OPENAI_CLIP_MEAN,
+    OPENAI_CLIP_STD,
+    FrozenBLIP2ImageEncoder,
+    export_blip2_image_part,
+)
 
 from tests.test_model import _batch  # noqa: E402
 
 Q = 3
 TINY_BLIP2 = {
-    "vision_config": {"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 1, "num_attention_heads": 2,
-                      "image_size": 32, "patch_size": 8},
-    "qformer_config": {"hidden_size": 32, "intermediate_size": 64, "num_hidden_layers": 2, "num_attention_heads": 2,
-                       "cross_attention_frequency": 1, "vocab_size": 100, "max_position_embeddings": 32},
+    "vision_config": {
+        "hidden_size": 32,
+        "intermediate_size": 64,
+        "num_hidden_layers": 1,
+        "num_attention_heads": 2,
+        "image_size": 32,
+        "patch_size": 8,
+    },
+    "qformer_config": {
+        "hidden_size": 32,
+        "intermediate_size": 64,
+        "num_hidden_layers": 2,
+        "num_attention_heads": 2,
+        "cross_attention_frequency": 1,
+        "vocab_size": 100,
+        "max_position_embeddings": 32,
+    },
     "num_query_tokens": Q,
 }
-TINY_OPT = {"model_type": "opt", "hidden_size": 16, "ffn_dim": 32, "num_hidden_layers": 1, "num_attention_heads": 2,
-            "vocab_size": 1024, "max_position_embeddings": 32, "word_embed_proj_dim": 16}
+TINY_OPT = {
+    "model_type": "opt",
+    "hidden_size": 16,
+    "ffn_dim": 32,
+    "num_hidden_layers": 1,
+    "num_attention_heads": 2,
+    "vocab_size": 1024,
+    "max_position_embeddings": 32,
+    "word_embed_proj_dim": 16,
+}
 
 
 def _tiny_cfg(**kw) -> SeeUConfig:
@@ -105,8 +131,9 @@ def test_blip2_loads_only_the_image_side_and_matches_transformers_qformer_featur
     for k, v in enc.state_dict().items():
         assert torch.equal(v, ref_state[k]), k
     images = torch.rand(2, 2, 3, 32, 32)  # native size: no resize
-    pixel_values = (images.reshape(4, 3, 32, 32) - torch.tensor(OPENAI_CLIP_MEAN).view(1, 3, 1, 1)) \
-        / torch.tensor(OPENAI_CLIP_STD).view(1, 3, 1, 1)
+    pixel_values = (images.reshape(4, 3, 32, 32) - torch.tensor(OPENAI_CLIP_MEAN).view(1, 3, 1, 1)) / torch.tensor(
+        OPENAI_CLIP_STD
+    ).view(1, 3, 1, 1)
     with torch.no_grad():
         expected = ref.get_qformer_features(pixel_values=pixel_values)  # (4, Q, 32)
     got = enc(images)
@@ -158,8 +185,10 @@ def test_blip2_from_the_hub_downloads_only_image_side_shards(blip2_dir, monkeypa
     assert "config.json" in asked and not lm_only & set(asked)
 
     def offline(repo_id, filename, **kw):
-        raise LocalEntryNotFoundError("Cannot find the requested files in the disk cache and outgoing traffic "
-                                      "has been disabled.\nTo enable hf.co look-ups, set HF_HUB_OFFLINE=0.")
+        raise LocalEntryNotFoundError(
+            "Cannot find the requested files in the disk cache and outgoing traffic "
+            "has been disabled.\nTo enable hf.co look-ups, set HF_HUB_OFFLINE=0."
+        )
 
     monkeypatch.setattr(huggingface_hub, "hf_hub_download", offline)
     with pytest.raises(SeeUError, match="Hugging Face hub.*blip2_weights=DIR") as exc:
@@ -189,7 +218,9 @@ def test_blip2_errors_are_one_line(tmp_path, monkeypatch, blip2_dir):
     _one_line(exc)
 
     monkeypatch.setitem(sys.modules, "transformers", None)  # `import transformers` raises ImportError
-    with pytest.raises(SeeUError, match=r"needs the optional 'transformers' package.*pip install -e '\.\[blip2\]'") as exc:
+    with pytest.raises(
+        SeeUError, match=r"needs the optional 'transformers' package.*pip install -e '\.\[blip2\]'"
+    ) as exc:
         SeeU(_tiny_cfg())
     _one_line(exc)
     from pipelines.cli import main

@@ -35,8 +35,23 @@ def posed(tmp_path_factory) -> Path:
 
 
 def _build(posed: Path, out: Path, *extra: str) -> int:
-    return cli_main(["build", str(posed), "--out", str(out), "--gap-min", "10", "--gap-max", "20",
-                     "--samples-per-scene", "3", "--shard-size", "20kB", *extra])
+    return cli_main(
+        [
+            "build",
+            str(posed),
+            "--out",
+            str(out),
+            "--gap-min",
+            "10",
+            "--gap-max",
+            "20",
+            "--samples-per-scene",
+            "3",
+            "--shard-size",
+            "20kB",
+            *extra,
+        ]
+    )
 
 
 def _shard_bytes(out: Path) -> dict[str, bytes]:
@@ -51,8 +66,9 @@ def test_interp_rows_match_posed_data_and_plan(posed, tmp_path, capsys):
     rows = shards.rows()
     cfg = SamplingConfig(mode="interp", gap_min=10, gap_max=20, samples_per_scene=3)
     expected = [s for sid in sorted(SCENES) for s in sample_scene(cfg, SCENES[sid], sid, 0)]
-    assert [(r.sample_id, r.context, r.target) for r in rows] == \
-        [(s.sample_id, list(s.context), list(s.target)) for s in expected]
+    assert [(r.sample_id, r.context, r.target) for r in rows] == [
+        (s.sample_id, list(s.context), list(s.target)) for s in expected
+    ]
     assert len(shards.files) > 1  # cut by the target size
     ds = PosedDataset(posed)
     scenes = {sid: ds.load_scene(sid) for sid in ds.scene_ids}
@@ -139,9 +155,22 @@ def _gradient_scene(n: int = 14, h: int = 48, w: int = 96) -> PosedScene:
         img = np.stack([xx * 2.0, yy * 4.0, np.full_like(xx, 10.0 * i)], -1).astype(np.uint8)  # RGB
         ok, buf = cv2.imencode(".png", cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
         images.append(buf.tobytes())
-    poses = np.stack([look_at_cam_to_world(np.array([0.05 * i, 0, -2.0]), np.array([0.05 * i, 0, 0.0])) for i in range(n)])
-    return PosedScene("grad", images, "png", np.full(n, w), np.full(n, h), np.tile([0.6, 1.1, 0.48, 0.52], (n, 1)),
-                      poses, 0.5, 10.0, np.arange(n, dtype=np.int64), np.arange(n, dtype=np.int64) * 1000)
+    poses = np.stack(
+        [look_at_cam_to_world(np.array([0.05 * i, 0, -2.0]), np.array([0.05 * i, 0, 0.0])) for i in range(n)]
+    )
+    return PosedScene(
+        "grad",
+        images,
+        "png",
+        np.full(n, w),
+        np.full(n, h),
+        np.tile([0.6, 1.1, 0.48, 0.52], (n, 1)),
+        poses,
+        0.5,
+        10.0,
+        np.arange(n, dtype=np.int64),
+        np.arange(n, dtype=np.int64) * 1000,
+    )
 
 
 def test_resize_center_crop_pixels_and_intrinsics(tmp_path):
@@ -149,8 +178,25 @@ def test_resize_center_crop_pixels_and_intrinsics(tmp_path):
     with PosedDatasetWriter(posed, params={}, provenance={}) as w:
         w.add(_gradient_scene())
     out = tmp_path / "r"
-    assert cli_main(["build", str(posed), "--out", str(out), "--gap-min", "4", "--gap-max", "6",
-                     "--samples-per-scene", "2", "--resize", "32x40"]) == 0
+    assert (
+        cli_main(
+            [
+                "build",
+                str(posed),
+                "--out",
+                str(out),
+                "--gap-min",
+                "4",
+                "--gap-max",
+                "6",
+                "--samples-per-scene",
+                "2",
+                "--resize",
+                "32x40",
+            ]
+        )
+        == 0
+    )
     rows = TripleShards(out).rows()
     # 48x96 -> cover 32x40: scale 2/3 -> 32x64, centre crop offset x = 12
     s, ox = 2.0 / 3.0, 12
@@ -216,10 +262,13 @@ def test_shard_spec_out_of_range_and_missing_file_are_errors(posed):
     from seeu_data.triples import build_shard_table
 
     src = scan_inputs([str(posed)])["alpha"]
-    spec = {"samples": [{"scene_id": "alpha", "mode": "interp", "k": 0, "context": [0, 5], "target": [30]}],
-            "sources": {"alpha": src.as_spec()},
-            "image": {"resize": None, "interpolation": "area", "jpeg_quality": 95}, "rows_per_batch": 8,
-            "plan_sha256": "0"}
+    spec = {
+        "samples": [{"scene_id": "alpha", "mode": "interp", "k": 0, "context": [0, 5], "target": [30]}],
+        "sources": {"alpha": src.as_spec()},
+        "image": {"resize": None, "interpolation": "area", "jpeg_quality": 95},
+        "rows_per_batch": 8,
+        "plan_sha256": "0",
+    }
     with pytest.raises(SeeUError, match="frame index out of range 0..29"):
         build_shard_table(spec)
     spec["sources"]["alpha"] = dict(src.as_spec(), path="/nonexistent.arrow")
@@ -291,8 +340,13 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     from seeu_data.arrow_io import commit_pending, pending_path, sha256_file, write_table
 
     # large values too, so that the file spans several of the hasher's ranges and the big-write path
-    table = pa.table({"a": np.arange(5000), "b": [bytes([i % 251]) * (i % 300) for i in range(5000)],
-                      "c": [bytes([i % 251]) * ((2 << 20) if i % 1000 == 0 else 10) for i in range(5000)]})
+    table = pa.table(
+        {
+            "a": np.arange(5000),
+            "b": [bytes([i % 251]) * (i % 300) for i in range(5000)],
+            "c": [bytes([i % 251]) * ((2 << 20) if i % 1000 == 0 else 10) for i in range(5000)],
+        }
+    )
     size, digest = write_table(tmp_path / "x.arrow", table, max_chunksize=64)
     with pa.OSFile(str(tmp_path / "y.arrow"), "wb") as sink:
         with pa.ipc.new_file(sink, table.schema, options=pa.ipc.IpcWriteOptions(compression=None)) as w:
@@ -324,8 +378,11 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     monkeypatch.setattr(build_mod, "build_shard_table", interrupted)
     assert _build(posed, out, "--workers", "1") == 130
     assert not (out / "manifest.json").exists()
-    assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == \
-        ["shard-00000.arrow", "shard-00001.arrow", "shard-00002.arrow"]
+    assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
+        "shard-00000.arrow",
+        "shard-00001.arrow",
+        "shard-00002.arrow",
+    ]
     (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))  # caught before its rename
     monkeypatch.setattr(build_mod, "build_shard_table", real)
     assert _build(posed, out) == 0
@@ -359,15 +416,21 @@ def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
     from seeu_data.sampling import SamplingConfig
     from seeu_data.triples import build_shard_table
 
-    cfg = BuildConfig(inputs=(str(posed),), out=str(tmp_path / "o"), rows_per_batch=3, shard_bytes=60_000,
-                      sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9))
+    cfg = BuildConfig(
+        inputs=(str(posed),),
+        out=str(tmp_path / "o"),
+        rows_per_batch=3,
+        shard_bytes=60_000,
+        sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9),
+    )
     scenes = scan_inputs(cfg.inputs)
     specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
     assert len(specs) > 1 and max(len(s["sources"]) for s in specs) > 1
     for spec in specs:
         plain = write_table(tmp_path / "plain.arrow", build_shard_table(spec), max_chunksize=3)
-        deferred = write_table(tmp_path / "deferred.arrow", build_shard_table(spec, deferred_images=True),
-                               max_chunksize=3)
+        deferred = write_table(
+            tmp_path / "deferred.arrow", build_shard_table(spec, deferred_images=True), max_chunksize=3
+        )
         assert plain == deferred
         assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "deferred.arrow").read_bytes()
 
@@ -375,6 +438,7 @@ def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
 def test_rewritten_posed_data_is_mapped_again(tmp_path):
     """Posed files are mapped once per process and kept across builds; a rewritten posed directory
     (same paths, other images) must be read afresh, never served from the old mapping."""
+
     def write(seed: int) -> None:
         with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
             w.add(make_posed_scene("alpha", n=30, height=24, width=32, seed=seed))

@@ -27,8 +27,18 @@ def test_build_near_far_from_data_or_override(tmp_path, capsys):
     scene.near, scene.far = 0.25, 7.5
     with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
         w.add(scene)
-    base = ["build", str(tmp_path / "posed"), "--gap-min", "4", "--gap-max", "6", "--samples-per-scene", "3",
-            "--workers", "1"]
+    base = [
+        "build",
+        str(tmp_path / "posed"),
+        "--gap-min",
+        "4",
+        "--gap-max",
+        "6",
+        "--samples-per-scene",
+        "3",
+        "--workers",
+        "1",
+    ]
     assert cli_main(base + ["--out", str(tmp_path / "data")]) == 0
     near, far = _near_far(tmp_path / "data")
     assert len(near) == 3 * 5 and (near == 0.25).all() and (far == 7.5).all()

@@ -47,11 +47,22 @@ def test_cameras_json_layout_projects_like_our_cameras():
 
 def test_ply_bundle_names_sh_degree(tmp_path):
     n, k = 5, 9  # SH degree 2
-    g = Gaussians(means=torch.randn(1, n, 3), scales=torch.rand(1, n, 3) + 0.1,
-                  rotations=torch.nn.functional.normalize(torch.randn(1, n, 4), dim=-1),
-                  opacities=torch.rand(1, n) * 0.8 + 0.1, sh=torch.randn(1, n, k, 3))
-    side = save_ply_bundle(g, tmp_path, _poses(2, np.random.default_rng(1)), np.array([[1.0, 1.0, 0.5, 0.5]] * 2),
-                           32, 32, ["context_0", "context_1"])
+    g = Gaussians(
+        means=torch.randn(1, n, 3),
+        scales=torch.rand(1, n, 3) + 0.1,
+        rotations=torch.nn.functional.normalize(torch.randn(1, n, 4), dim=-1),
+        opacities=torch.rand(1, n) * 0.8 + 0.1,
+        sh=torch.randn(1, n, k, 3),
+    )
+    side = save_ply_bundle(
+        g,
+        tmp_path,
+        _poses(2, np.random.default_rng(1)),
+        np.array([[1.0, 1.0, 0.5, 0.5]] * 2),
+        32,
+        32,
+        ["context_0", "context_1"],
+    )
     assert side["sh_degree"] == 2 and side["num_gaussians"] == n
     assert json.loads((tmp_path / "gaussians.json").read_text()) == side
     assert len(json.loads((tmp_path / "cameras.json").read_text())) == 2

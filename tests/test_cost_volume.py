@@ -110,7 +110,7 @@ def test_plane_sweep_recovers_known_plane_depth_and_entropy_marks_textureless():
         flat = cols_ok[view] & (x_view.abs() < FLAT_HALF - 3 * PLANE_Z / W)
         rows = slice(6, H - 6)
         d_tex = depth[0, view, rows][:, textured]
-        rel_err = ((d_tex - PLANE_Z).abs() / PLANE_Z)
+        rel_err = (d_tex - PLANE_Z).abs() / PLANE_Z
         assert float(rel_err.median()) < 0.02, float(rel_err.median())
         assert float((rel_err < 0.05).float().mean()) > 0.9
         e_tex = ent[0, view, rows][:, textured].mean()

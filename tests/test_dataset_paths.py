@@ -134,8 +134,9 @@ def test_pixelsplat_index_entry_outside_the_stage_is_skipped(tmp_path, capsys, e
     index = json.loads((stage / "index.json").read_text())
     index["evil"] = str(elsewhere / "000000.torch") if entry == "ABSOLUTE" else entry
     (stage / "index.json").write_text(json.dumps(index))
-    assert cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test",
-                     "--out", str(tmp_path / "out")]) == 0
+    assert (
+        cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "out")]) == 0
+    )
     assert "skipped 1 scenes (evil)" in capsys.readouterr().out
     report = json.loads((tmp_path / "out" / "manifest.json").read_text())["report"]
     assert report["skipped_scenes"] == 1 and "leads outside" in report["skipped"][0]["reason"]

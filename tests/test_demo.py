@@ -22,8 +22,22 @@ STEPS = 150
 # clips, 150 steps, 4 held-out samples per set) gains +1.94 dB (19.95 -> 21.89 dB; one-thread SfM, so the
 # same on every run on one machine): it asserts a clear gain with a margin for other CPUs' rounding.
 MIN_GAIN_DB = 1.2
-ARGV = ["--frames", "36", "--size", "320x180", "--image-size", "64", "--steps", str(STEPS),
-        "--train-samples", "96", "--eval-samples", "4", "--render-frames", "6"]
+ARGV = [
+    "--frames",
+    "36",
+    "--size",
+    "320x180",
+    "--image-size",
+    "64",
+    "--steps",
+    str(STEPS),
+    "--train-samples",
+    "96",
+    "--eval-samples",
+    "4",
+    "--render-frames",
+    "6",
+]
 
 
 @pytest.fixture(scope="module")
@@ -114,20 +128,24 @@ def test_demo_learns_on_heldout_scene(demo):
     """Held-out PSNR after the demo's short CI training clearly beats initialisation (unseen scene)."""
     metrics = json.loads((demo["out"] / "metrics.json").read_text())
     gains = {k: v["gain_psnr_db"] for k, v in metrics["sets"].items()}
-    print(f"held-out PSNR {metrics['mean']['init_psnr']:.2f} -> {metrics['mean']['trained_psnr']:.2f} dB, "
-          f"gains {gains}, first run {demo['first_s']:.0f} s")
+    print(
+        f"held-out PSNR {metrics['mean']['init_psnr']:.2f} -> {metrics['mean']['trained_psnr']:.2f} dB, "
+        f"gains {gains}, first run {demo['first_s']:.0f} s"
+    )
     assert metrics["mean"]["gain_psnr_db"] >= MIN_GAIN_DB, metrics["mean"]
 
 
 def test_bad_out_and_options(tmp_path, capsys):
     f = tmp_path / "a_file"
     f.write_text("x")
-    for argv, needle in ((["demo", "--out", str(f)], "must be a directory"),
-                         (["demo", "--out", str(tmp_path / "d"), "--steps", "0"], "--steps"),
-                         (["demo", "--out", str(tmp_path / "d"), "--frames", "5"], "--frames"),
-                         (["demo", "--out", str(tmp_path / "d"), "--image-size", "abc"], "--image-size"),
-                         (["demo", "--out", str(tmp_path / "d"), "--heldout-seed", "0"], "--heldout-seed"),
-                         (["demo", "--out", str(tmp_path / "d"), "--config", str(tmp_path / "none.json")], "not found")):
+    for argv, needle in (
+        (["demo", "--out", str(f)], "must be a directory"),
+        (["demo", "--out", str(tmp_path / "d"), "--steps", "0"], "--steps"),
+        (["demo", "--out", str(tmp_path / "d"), "--frames", "5"], "--frames"),
+        (["demo", "--out", str(tmp_path / "d"), "--image-size", "abc"], "--image-size"),
+        (["demo", "--out", str(tmp_path / "d"), "--heldout-seed", "0"], "--heldout-seed"),
+        (["demo", "--out", str(tmp_path / "d"), "--config", str(tmp_path / "none.json")], "not found"),
+    ):
         assert cli_main(argv) == 2
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and err.startswith("seeu demo: error:") and needle in err, err

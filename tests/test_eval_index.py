@@ -71,8 +71,9 @@ def test_eval_build_reproduces_re10k_index_exactly(tmp_path, capsys):
     assert "6474 entries, 5 written, 6469 not written" in printed and "720 null skipped" in printed
     rows = TripleShards(out).rows()
     # exactly the index's entries: scene, contexts, targets, in file order
-    assert [(r.scene_id, r.context, r.target) for r in rows] == \
-        [(k, raw[k]["context"], raw[k]["target"]) for k in chosen]
+    assert [(r.scene_id, r.context, r.target) for r in rows] == [
+        (k, raw[k]["context"], raw[k]["target"]) for k in chosen
+    ]
     assert all(r.mode == "eval" and r.sample_id == f"{r.scene_id}/eval/0" for r in rows)
     for r in rows:
         lo, hi = min(r.context), max(r.context)
@@ -89,14 +90,19 @@ def test_eval_build_dtu_index(tmp_path):
     out = tmp_path / "dtu"
     assert cli_main(["build", str(posed), "--out", str(out), "--mode", "eval", "--index", str(DTU)]) == 0
     rows = TripleShards(out).rows()
-    assert [(r.scene_id, r.context, r.target) for r in rows] == \
-        [(s, [33, 31], [t]) for s in ("scan1", "scan8") for t in (32, 24, 23, 44)]
+    assert [(r.scene_id, r.context, r.target) for r in rows] == [
+        (s, [33, 31], [t]) for s in ("scan1", "scan8") for t in (32, 24, 23, 44)
+    ]
     assert [r.target_offset.tolist() for r in rows[:4]] == [[0], [-7], [-8], [11]]
 
 
 def test_latentsplat_format_and_problems(tmp_path, capsys):
-    index = {"a": [{"context": [2, 8], "target": [0, 1, 9]}, None, {"context": [3, 6], "target": [10, 11, 12]}],
-             "b": [{"context": [1, 4], "target": [5, 6, 7]}], "c": None, "zz": [{"context": [0, 1], "target": [2]}]}
+    index = {
+        "a": [{"context": [2, 8], "target": [0, 1, 9]}, None, {"context": [3, 6], "target": [10, 11, 12]}],
+        "b": [{"context": [1, 4], "target": [5, 6, 7]}],
+        "c": None,
+        "zz": [{"context": [0, 1], "target": [2]}],
+    }
     path = tmp_path / "extra.json"
     path.write_text(json.dumps(index))
     idx = read_index(path)
@@ -109,26 +115,58 @@ def test_latentsplat_format_and_problems(tmp_path, capsys):
     assert "not written: a: frame(s) [12] outside 0..11" in printed
     assert "not written: zz: scene not in the posed data" in printed
     rows = TripleShards(out).rows()
-    assert [(r.sample_id, r.context, r.target) for r in rows] == [("a/eval/0", [2, 8], [0, 1, 9]),
-                                                                   ("b/eval/0", [1, 4], [5, 6, 7])]
+    assert [(r.sample_id, r.context, r.target) for r in rows] == [
+        ("a/eval/0", [2, 8], [0, 1, 9]),
+        ("b/eval/0", [1, 4], [5, 6, 7]),
+    ]
     assert rows[0].target_offset.tolist() == [-2, -1, 1]
 
 
 def test_bad_index_files(tmp_path, capsys):
     posed = _write_posed(tmp_path / "posed", {"a": 12})
     (tmp_path / "bad.json").write_text("{not json")
-    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o"), "--mode", "eval", "--index",
-                     str(tmp_path / "bad.json")]) == 2
+    assert (
+        cli_main(
+            ["build", str(posed), "--out", str(tmp_path / "o"), "--mode", "eval", "--index", str(tmp_path / "bad.json")]
+        )
+        == 2
+    )
     assert "bad.json: evaluation index is not valid JSON" in capsys.readouterr().err
     (tmp_path / "none.json").write_text(json.dumps({"q": {"context": [0, 1], "target": [2]}}))
-    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o"), "--mode", "eval", "--index",
-                     str(tmp_path / "none.json")]) == 2
+    assert (
+        cli_main(
+            [
+                "build",
+                str(posed),
+                "--out",
+                str(tmp_path / "o"),
+                "--mode",
+                "eval",
+                "--index",
+                str(tmp_path / "none.json"),
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert "none of the 1 index entries match" in err and "q: scene not in the posed data" in err
     assert not (tmp_path / "o" / "manifest.json").exists()
     (tmp_path / "shape.json").write_text(json.dumps({"a": {"context": [0, 1]}}))
-    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o"), "--mode", "eval", "--index",
-                     str(tmp_path / "shape.json")]) == 2
+    assert (
+        cli_main(
+            [
+                "build",
+                str(posed),
+                "--out",
+                str(tmp_path / "o"),
+                "--mode",
+                "eval",
+                "--index",
+                str(tmp_path / "shape.json"),
+            ]
+        )
+        == 2
+    )
     assert "entry 'a' is not" in capsys.readouterr().err
 
 
@@ -146,24 +184,55 @@ def test_seeu_index_generation_round_trip(tmp_path):
         assert 10 <= r - l <= 20 and all(l <= t <= r for t in doc[sid]["target"]) and r < n
     # its own random stream: not the first training sample of a build with the same seed and options
     from seeu_data.sampling import SamplingConfig, sample_scene
-    train = [sample_scene(SamplingConfig(gap_min=10, gap_max=20, samples_per_scene=1), n, sid, 3)[0]
-             for sid, n in (("s0", 40), ("s1", 60))]
-    assert [(list(t.context), list(t.target)) for t in train] != \
-        [(doc[s]["context"], doc[s]["target"]) for s in ("s0", "s1")]
+
+    train = [
+        sample_scene(SamplingConfig(gap_min=10, gap_max=20, samples_per_scene=1), n, sid, 3)[0]
+        for sid, n in (("s0", 40), ("s1", 60))
+    ]
+    assert [(list(t.context), list(t.target)) for t in train] != [
+        (doc[s]["context"], doc[s]["target"]) for s in ("s0", "s1")
+    ]
     out = tmp_path / "ev"
     assert cli_main(["build", str(posed), "--out", str(out), "--mode", "eval", "--index", str(idx_path)]) == 0
     rows = TripleShards(out).rows()
-    assert [(r.scene_id, r.context, r.target) for r in rows] == [(k, v["context"], v["target"])
-                                                                 for k, v in doc.items() if v]
+    assert [(r.scene_id, r.context, r.target) for r in rows] == [
+        (k, v["context"], v["target"]) for k, v in doc.items() if v
+    ]
 
 
 def test_seeu_index_latentsplat_extrap_with_overlap_window(tmp_path):
     posed = _write_posed(tmp_path / "posed", {"s0": 60})
     idx_path = tmp_path / "extra.json"
     # make_posed_scene: cameras 0.1 apart sideways, fx_n 0.9 -> overlap falls with the gap
-    assert cli_main(["index", str(posed), "--out", str(idx_path), "--format", "latentsplat", "--mode", "extrap",
-                     "--gap-min", "2", "--gap-max", "40", "--extrap-frames", "5", "--samples-per-scene", "6",
-                     "--min-overlap", "0.5", "--max-overlap", "0.8", "--overlap-depth", "2.0"]) == 0
+    assert (
+        cli_main(
+            [
+                "index",
+                str(posed),
+                "--out",
+                str(idx_path),
+                "--format",
+                "latentsplat",
+                "--mode",
+                "extrap",
+                "--gap-min",
+                "2",
+                "--gap-max",
+                "40",
+                "--extrap-frames",
+                "5",
+                "--samples-per-scene",
+                "6",
+                "--min-overlap",
+                "0.5",
+                "--max-overlap",
+                "0.8",
+                "--overlap-depth",
+                "2.0",
+            ]
+        )
+        == 0
+    )
     entries = json.loads(idx_path.read_text())["s0"]
     assert len(entries) == 6
     scene = make_posed_scene("s0", n=60, height=16, width=16, seed=0)

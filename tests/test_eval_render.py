@@ -17,8 +17,17 @@ from seeu_model.camera_path import camera_path, interpolate_pose, path_parameter
 from seeu_model.evaluation import TargetRecord, summarize
 from tests.training_fixtures import synthetic_triples
 
-OV = ["model.preset=tiny", "data.batch_size=2", "data.num_workers=0", "data.image_size=[32,32]", "optim.max_steps=1",
-      "loss.lpips_weight=0", "precision=fp32", "rasterizer=torch", "log.every=1"]
+OV = [
+    "model.preset=tiny",
+    "data.batch_size=2",
+    "data.num_workers=0",
+    "data.image_size=[32,32]",
+    "optim.max_steps=1",
+    "loss.lpips_weight=0",
+    "precision=fp32",
+    "rasterizer=torch",
+    "log.every=1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -32,10 +41,14 @@ def run(tmp_path_factory) -> tuple[Path, Path]:
 
 
 def test_summary_is_mean_over_targets_then_scenes():
-    recs = [TargetRecord("a", "a/0", 0, 0, 10.0, 0.5), TargetRecord("a", "a/0", 1, 1, 20.0, 0.7),
-            TargetRecord("a", "a/1", 0, 2, 30.0, 0.9), TargetRecord("b", "b/0", 0, 0, 40.0, 0.1)]
+    recs = [
+        TargetRecord("a", "a/0", 0, 0, 10.0, 0.5),
+        TargetRecord("a", "a/0", 1, 1, 20.0, 0.7),
+        TargetRecord("a", "a/1", 0, 2, 30.0, 0.9),
+        TargetRecord("b", "b/0", 0, 0, 40.0, 0.1),
+    ]
     s = summarize(recs)
-    assert s["psnr"] == pytest.approx((20.0 + 40.0) / 2)            # scene a: 20, scene b: 40
+    assert s["psnr"] == pytest.approx((20.0 + 40.0) / 2)  # scene a: 20, scene b: 40
     assert s["psnr_all_targets"] == pytest.approx(25.0)
     assert s["ssim"] == pytest.approx((0.7 + 0.1) / 2)
     assert (s["num_scenes"], s["num_samples"], s["num_targets"]) == (2, 3, 4)
@@ -70,8 +83,9 @@ def test_eval_metrics_match_independent_computation(run, tmp_path, monkeypatch):
     shards, run_dir = run
     ck = ckpt_io.load_checkpoint(run_dir / "checkpoints")
     model = model_from_checkpoint(ck)
-    res = evaluate_on_data(model, str(shards), (32, 32), batch_size=2, max_samples=3, warmup=1, keep_renders=3,
-                           rasterizer="torch")
+    res = evaluate_on_data(
+        model, str(shards), (32, 32), batch_size=2, max_samples=3, warmup=1, keep_renders=3, rasterizer="torch"
+    )
     assert len(res.records) == 9 and len(res.renders) == 3
     for k, r in enumerate(res.renders):
         for j in range(3):
@@ -88,8 +102,25 @@ def test_eval_metrics_match_independent_computation(run, tmp_path, monkeypatch):
 
     # the CLI: files, aggregation recomputed from per_target.csv
     out = tmp_path / "eval"
-    assert main(["eval", "--checkpoint", str(run_dir / "checkpoints"), "--data", str(shards), "--out", str(out),
-                 "--no-lpips", "--batch-size", "2", "--warmup", "1"]) == 0
+    assert (
+        main(
+            [
+                "eval",
+                "--checkpoint",
+                str(run_dir / "checkpoints"),
+                "--data",
+                str(shards),
+                "--out",
+                str(out),
+                "--no-lpips",
+                "--batch-size",
+                "2",
+                "--warmup",
+                "1",
+            ]
+        )
+        == 0
+    )
     summary = json.loads((out / "summary.json").read_text())
     rows = list(csv.DictReader((out / "per_target.csv").open()))
     assert len(rows) == summary["metrics"]["num_targets"] == 8 * 3
@@ -105,8 +136,12 @@ def test_eval_metrics_match_independent_computation(run, tmp_path, monkeypatch):
 
     # LPIPS on but no VGG weights: one clear line, exit 2
     monkeypatch.setenv("TORCH_HOME", str(tmp_path / "no_torch_home"))
-    assert main(["eval", "--checkpoint", str(run_dir / "checkpoints"), "--data", str(shards),
-                 "--out", str(tmp_path / "e2")]) == 2
+    assert (
+        main(
+            ["eval", "--checkpoint", str(run_dir / "checkpoints"), "--data", str(shards), "--out", str(tmp_path / "e2")]
+        )
+        == 2
+    )
 
 
 def _read_mp4_frames(path: Path) -> int:
@@ -125,8 +160,26 @@ def test_render_shard_sample_and_user_cameras(run, tmp_path):
 
     shards, run_dir = run
     out = tmp_path / "r1"
-    assert main(["render", "--checkpoint", str(run_dir / "checkpoints"), "--data", str(shards), "--sample", "2",
-                 "--out", str(out), "--frames", "3", "--extrapolate", "0.5"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(run_dir / "checkpoints"),
+                "--data",
+                str(shards),
+                "--sample",
+                "2",
+                "--out",
+                str(out),
+                "--frames",
+                "3",
+                "--extrapolate",
+                "0.5",
+            ]
+        )
+        == 0
+    )
     rep = json.loads((out / "render.json").read_text())
     assert rep["sample_id"] and rep["extrap"]["t"] == [-0.5, 1.5]
     assert len(list((out / "frames").glob("interp_*.png"))) == 3 == _read_mp4_frames(out / "interp.mp4")
@@ -138,7 +191,11 @@ def test_render_shard_sample_and_user_cameras(run, tmp_path):
     # beside it: the 3DGS viewers' cameras.json (contexts, then targets) and the SH-degree sidecar
     cams_json = json.loads((out / "cameras.json").read_text())
     assert [c["img_name"] for c in cams_json][:2] == ["context_0", "context_1"] and len(cams_json) == 5
-    assert json.loads((out / "gaussians.json").read_text())["sh_degree"] == rep["sh_degree"] == int(g.sh.shape[2] ** 0.5) - 1
+    assert (
+        json.loads((out / "gaussians.json").read_text())["sh_degree"]
+        == rep["sh_degree"]
+        == int(g.sh.shape[2] ** 0.5) - 1
+    )
     assert cv2.imread(str(out / "targets.png")).shape == (64, 96, 3)
 
     # your own images + cameras (pixel K of 48x64 images: resized and centre-cropped to 32x32)
@@ -153,11 +210,39 @@ def test_render_shard_sample_and_user_cameras(run, tmp_path):
         frames.append({"image": f"v{i}.png", "cam_to_world": poses[i].tolist(), "K": K})
     (tmp_path / "cams.json").write_text(json.dumps({"near": 0.5, "far": 20.0, "frames": frames}))
     out2 = tmp_path / "r2"
-    assert main(["render", "--checkpoint", str(run_dir / "checkpoints"), "--cameras", str(tmp_path / "cams.json"),
-                 "--out", str(out2), "--frames", "2", "--extrapolate", "0"]) == 0
+    assert (
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(run_dir / "checkpoints"),
+                "--cameras",
+                str(tmp_path / "cams.json"),
+                "--out",
+                str(out2),
+                "--frames",
+                "2",
+                "--extrapolate",
+                "0",
+            ]
+        )
+        == 0
+    )
     first = cv2.imread(str(out2 / "frames" / "interp_000.png"))
     assert first.shape == (32, 32, 3) and not (out2 / "targets.png").exists()
     # bad cameras file -> exit 2
     (tmp_path / "bad.json").write_text(json.dumps({"near": 1, "far": 2, "frames": frames[:1]}))
-    assert main(["render", "--checkpoint", str(run_dir / "checkpoints"), "--cameras", str(tmp_path / "bad.json"),
-                 "--out", str(tmp_path / "r3")]) == 2
+    assert (
+        main(
+            [
+                "render",
+                "--checkpoint",
+                str(run_dir / "checkpoints"),
+                "--cameras",
+                str(tmp_path / "bad.json"),
+                "--out",
+                str(tmp_path / "r3"),
+            ]
+        )
+        == 2
+    )

@@ -16,8 +16,10 @@ from tests.helpers import make_posed_scene
 
 
 def _dataset(path: Path) -> list:
-    scenes = [make_posed_scene("alpha", n=5, seed=3), make_posed_scene("beta", n=3, seed=4, image_format="png",
-                                                                       height=40, width=50)]
+    scenes = [
+        make_posed_scene("alpha", n=5, seed=3),
+        make_posed_scene("beta", n=3, seed=4, image_format="png", height=40, width=50),
+    ]
     scenes[0].cam_to_world[:, :3, 3] += [3.0, -2.0, 7.5]  # not near the origin
     scenes[0].intrinsics_norm[:, 2] = 0.47
     scenes[1].meta = {"url": "https://example.org/beta", "dataset": "mine"}
@@ -53,8 +55,10 @@ def test_nerfstudio_round_trip_and_layout(tmp_path):
     assert np.allclose(uv[0], uv_ns, atol=1e-9)
     for s in scenes:
         out = tmp_path / f"back_{s.scene_id}"
-        assert cli_main(["import", "nerfstudio", str(tmp_path / "ns" / s.scene_id / "transforms.json"),
-                         "--out", str(out)]) == 0
+        assert (
+            cli_main(["import", "nerfstudio", str(tmp_path / "ns" / s.scene_id / "transforms.json"), "--out", str(out)])
+            == 0
+        )
         back = PosedDataset(out)
         assert back.scene_ids == [s.scene_id]
         got = back.load_scene(s.scene_id)
@@ -64,8 +68,22 @@ def test_nerfstudio_round_trip_and_layout(tmp_path):
 
 def test_pixelsplat_export_cli_and_reimport(tmp_path, capsys):
     scenes = _dataset(tmp_path / "posed")
-    assert cli_main(["export", "pixelsplat", str(tmp_path / "posed"), "--out", str(tmp_path / "ps"),
-                     "--stage", "train", "--scenes", "beta"]) == 0
+    assert (
+        cli_main(
+            [
+                "export",
+                "pixelsplat",
+                str(tmp_path / "posed"),
+                "--out",
+                str(tmp_path / "ps"),
+                "--stage",
+                "train",
+                "--scenes",
+                "beta",
+            ]
+        )
+        == 0
+    )
     err = capsys.readouterr().err.strip()
     assert "would skip 1 of 1 scenes" in err and "50x40" in err and "\n" not in err
     index = json.loads((tmp_path / "ps" / "train" / "index.json").read_text())
@@ -79,6 +97,8 @@ def test_pixelsplat_export_cli_and_reimport(tmp_path, capsys):
     assert cli_main(["import", "pixelsplat", str(tmp_path / "ps"), "--out", str(tmp_path / "back")]) == 0
     _assert_same(PosedDataset(tmp_path / "back").load_scene("beta"), scenes[1])
     # Unknown scene: one-line error.
-    assert cli_main(["export", "pixelsplat", str(tmp_path / "posed"), "--out", str(tmp_path / "x"),
-                     "--scenes", "gamma"]) == 2
+    assert (
+        cli_main(["export", "pixelsplat", str(tmp_path / "posed"), "--out", str(tmp_path / "x"), "--scenes", "gamma"])
+        == 2
+    )
     assert "gamma" in capsys.readouterr().err

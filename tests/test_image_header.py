@@ -10,11 +10,14 @@ from seeu_data.errors import SeeUError
 from seeu_data.image_header import decode_check, image_info
 
 
-@pytest.mark.parametrize("ext,params,fmt", [
-    (".jpg", [], "jpeg"),
-    (".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], "jpeg"),  # SOF2
-    (".png", [], "png"),
-])
+@pytest.mark.parametrize(
+    "ext,params,fmt",
+    [
+        (".jpg", [], "jpeg"),
+        (".jpg", [cv2.IMWRITE_JPEG_PROGRESSIVE, 1], "jpeg"),  # SOF2
+        (".png", [], "png"),
+    ],
+)
 @pytest.mark.parametrize("h,w,c", [(360, 640, 3), (1, 7, 3), (33, 17, 1)])
 def test_size_matches_opencv(ext, params, fmt, h, w, c):
     img = (np.random.default_rng(h * w).random((h, w, c)) * 255).astype(np.uint8)

@@ -56,9 +56,13 @@ def _re10k_fixture(root: Path, rng, n_extra: int = 3) -> tuple[Path, Path, list[
         t = 50316733 + 33367 * k
         c2w = look_at_cam_to_world(np.array([0.1 * k, 0.0, -0.3 * k]), np.array([0.1 * k + 0.2, 0.1, 5.0]))
         w2c = np.linalg.inv(c2w)[:3]
-        lines.append(f"{t} 0.474455 0.843477 0.500000 0.500000 0.000000 0.000000 "
-                     + " ".join(f"{v:.9f}" for v in w2c.reshape(-1)))
-    (cams / "0000cf2ea3c0f0c1.txt").write_text("https://www.youtube.com/watch?v=-aldZQifF2U\n" + "\n".join(lines) + "\n")
+        lines.append(
+            f"{t} 0.474455 0.843477 0.500000 0.500000 0.000000 0.000000 "
+            + " ".join(f"{v:.9f}" for v in w2c.reshape(-1))
+        )
+    (cams / "0000cf2ea3c0f0c1.txt").write_text(
+        "https://www.youtube.com/watch?v=-aldZQifF2U\n" + "\n".join(lines) + "\n"
+    )
     for ln in lines:
         (frames / "0000cf2ea3c0f0c1").mkdir(parents=True, exist_ok=True)
         (frames / "0000cf2ea3c0f0c1" / f"{ln.split()[0]}.png").write_bytes(_img(rng, 45, 80))
@@ -110,8 +114,9 @@ def test_re10k_text_bad_files_skip_their_scene(tmp_path):
     assert "18 tokens, expected 19" in reasons["short"] and "line 2" in reasons["short"]
     assert "1 of 3 frames" in reasons["missing"] and "failed to decode" in reasons["broken"]
     # --allow-missing-frames keeps the scene without the missing frame.
-    cfg2 = re10k_imp.Re10kTextImportConfig(cameras_dir=cams, frames_dir=frames, scenes=frozenset({"missing", "nope"}),
-                                           allow_missing_frames=True)
+    cfg2 = re10k_imp.Re10kTextImportConfig(
+        cameras_dir=cams, frames_dir=frames, scenes=frozenset({"missing", "nope"}), allow_missing_frames=True
+    )
     report = _run(re10k_imp.iter_scenes(cfg2), tmp_path / "out2")
     assert [s.scene_id for s in report.skipped] == ["nope"]
     scene = PosedDataset(tmp_path / "out2").load_scene("missing")
@@ -119,6 +124,7 @@ def test_re10k_text_bad_files_skip_their_scene(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------ DTU
+
 
 def _write_cam_txt(path: Path, w2c_mm: np.ndarray, K: np.ndarray, dmin=425.0, dint=2.5) -> None:
     rows = "\n".join(" ".join(f"{v:.6f}" for v in r) + " " for r in w2c_mm)
@@ -149,9 +155,11 @@ def _dtu_fixture(root: Path, rng, views=3, scans=(1, 8)) -> list[np.ndarray]:
 
 
 def test_dtu_cam_file_parsed_exactly():
-    text = ("extrinsic\n0.970263 0.00747983 0.241939 -191.02 \n-0.0147429 0.999493 0.0282234 3.28832 \n"
-            "-0.241605 -0.030951 0.969881 22.5401 \n0.0 0.0 0.0 1.0 \n\nintrinsic\n361.54125 0.0 82.900625 \n"
-            "0.0 360.3975 66.383875 \n0.0 0.0 1.0 \n\n425.0 2.5\n")
+    text = (
+        "extrinsic\n0.970263 0.00747983 0.241939 -191.02 \n-0.0147429 0.999493 0.0282234 3.28832 \n"
+        "-0.241605 -0.030951 0.969881 22.5401 \n0.0 0.0 0.0 1.0 \n\nintrinsic\n361.54125 0.0 82.900625 \n"
+        "0.0 360.3975 66.383875 \n0.0 0.0 1.0 \n\n425.0 2.5\n"
+    )
     import tempfile
 
     with tempfile.TemporaryDirectory() as tmp:
@@ -159,7 +167,9 @@ def test_dtu_cam_file_parsed_exactly():
         p.write_text(text)
         c = dtu_imp.parse_cam_file(p)
     assert c.world_to_cam[0].tolist() == [0.970263, 0.00747983, 0.241939, -191.02]
-    assert c.world_to_cam[2, 3] == 22.5401 and c.K[1, 2] == 66.383875 and (c.depth_min, c.depth_interval) == (425.0, 2.5)
+    assert (
+        c.world_to_cam[2, 3] == 22.5401 and c.K[1, 2] == 66.383875 and (c.depth_min, c.depth_interval) == (425.0, 2.5)
+    )
 
 
 def test_dtu_import_matches_the_mvsnet_projection_and_keeps_ground_truth(tmp_path):
@@ -180,7 +190,7 @@ def test_dtu_import_matches_the_mvsnet_projection_and_keeps_ground_truth(tmp_pat
     K160 = np.array([[361.54125, 0.0, 82.900625], [0.0, 360.3975, 66.383875], [0.0, 0.0, 1.0]])
     point_mm = np.array([20.0, -35.0, 40.0])
     for v, w2c in enumerate(w2cs):  # MVSNet: P = K @ E (mm, 160x128); the 640x512 pixel is 4x that
-        x = (K160 @ (w2c[:3, :3] @ point_mm + w2c[:3, 3]))
+        x = K160 @ (w2c[:3, :3] @ point_mm + w2c[:3, 3])
         expected = 4 * x[:2] / x[2]
         uv, depth = cam.project_points(point_mm[None] / 200, scene.cam_to_world[v], scene.intrinsics_norm[v], 640, 512)
         assert np.allclose(uv[0], expected, atol=1e-6)
@@ -205,6 +215,7 @@ def test_dtu_bad_scan_is_skipped(tmp_path):
 
 # ------------------------------------------------------------------------------------------ COLMAP
 
+
 def _colmap_fixture(root: Path, model_id, params, w=96, h=64, frames=5, ext=".png"):
     o = pycolmap.SyntheticDatasetOptions()
     o.num_rigs, o.num_cameras_per_rig, o.num_frames_per_rig, o.num_points3D = 1, 1, frames, 60
@@ -224,8 +235,17 @@ def _colmap_fixture(root: Path, model_id, params, w=96, h=64, frames=5, ext=".pn
 
 def test_colmap_pinhole_projects_like_pycolmap(tmp_path):
     rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
-    rc = cli_main(["import", "colmap", str(tmp_path / "scene" / "sparse" / "0"), "--images",
-                   str(tmp_path / "scene" / "images"), "--out", str(tmp_path / "out")])
+    rc = cli_main(
+        [
+            "import",
+            "colmap",
+            str(tmp_path / "scene" / "sparse" / "0"),
+            "--images",
+            str(tmp_path / "scene" / "images"),
+            "--out",
+            str(tmp_path / "out"),
+        ]
+    )
     assert rc == 0
     scene = PosedDataset(tmp_path / "out").load_scene("scene")
     names = sorted(im.name for im in rec.images.values())
@@ -260,7 +280,9 @@ def test_colmap_distorted_model_is_undistorted(tmp_path):
             expected = image.project_point(p.xyz)  # pixel in the original, distorted image
             if expected is None:
                 continue
-            uv, depth = cam.project_points(np.asarray(p.xyz)[None], scene.cam_to_world[k], scene.intrinsics_norm[k], w, h)
+            uv, depth = cam.project_points(
+                np.asarray(p.xyz)[None], scene.cam_to_world[k], scene.intrinsics_norm[k], w, h
+            )
             if depth[0] <= 0:
                 continue
             # Back through the imported pinhole camera to a ray, then through COLMAP's distorted model.
@@ -270,20 +292,34 @@ def test_colmap_distorted_model_is_undistorted(tmp_path):
             checked += 1
     assert checked >= 10 and not np.allclose(scene.intrinsics_norm[0], [80 / 96, 80 / 64, 0.5, 0.5])
     # Refusing instead of undistorting, and an unknown model, are one-line errors.
-    args = ["import", "colmap", str(tmp_path / "s" / "sparse" / "0"), "--images", str(tmp_path / "s" / "images"),
-            "--out", str(tmp_path / "o2")]
+    args = [
+        "import",
+        "colmap",
+        str(tmp_path / "s" / "sparse" / "0"),
+        "--images",
+        str(tmp_path / "s" / "images"),
+        "--out",
+        str(tmp_path / "o2"),
+    ]
     assert cli_main(args + ["--no-undistort"]) == 2
     text_model = tmp_path / "txt"
     text_model.mkdir()
     rec.write_text(str(text_model))
-    lines = [ln if ln.startswith("#") else "1 EQUIRECTANGULAR 96 64 96 64"
-             for ln in (text_model / "cameras.txt").read_text().splitlines()]
+    lines = [
+        ln if ln.startswith("#") else "1 EQUIRECTANGULAR 96 64 96 64"
+        for ln in (text_model / "cameras.txt").read_text().splitlines()
+    ]
     (text_model / "cameras.txt").write_text("\n".join(lines) + "\n")
     with pytest.raises(SeeUError, match="unsupported camera model EQUIRECTANGULAR"):
-        list(colmap_imp.iter_scenes(colmap_imp.ColmapImportConfig(model_dir=text_model, images_dir=tmp_path / "s" / "images")))
+        list(
+            colmap_imp.iter_scenes(
+                colmap_imp.ColmapImportConfig(model_dir=text_model, images_dir=tmp_path / "s" / "images")
+            )
+        )
 
 
 # ------------------------------------------------------------------------------------------ nerfstudio
+
 
 def _nerfstudio_from_colmap(rec, root: Path, images: Path) -> Path:
     """transforms.json exactly as nerfstudio's colmap_to_json writes it (keep_original_world_coordinate=False)."""
@@ -295,13 +331,27 @@ def _nerfstudio_from_colmap(rec, root: Path, images: Path) -> Path:
         c2w[0:3, 1:3] *= -1
         c2w = c2w[np.array([0, 2, 1, 3]), :]
         c2w[2, :] *= -1
-        frames.append({"file_path": f"./images/{im.name}", "transform_matrix": c2w.tolist(), "colmap_im_id": im.image_id})
+        frames.append(
+            {"file_path": f"./images/{im.name}", "transform_matrix": c2w.tolist(), "colmap_im_id": im.image_id}
+        )
     c = next(iter(rec.cameras.values()))
     applied = np.eye(4)[:3, :][np.array([0, 2, 1]), :]
     applied[2, :] *= -1
-    doc = {"w": c.width, "h": c.height, "fl_x": c.params[0], "fl_y": c.params[1], "cx": c.params[2],
-           "cy": c.params[3], "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "camera_model": "OPENCV",
-           "frames": frames, "applied_transform": applied.tolist()}
+    doc = {
+        "w": c.width,
+        "h": c.height,
+        "fl_x": c.params[0],
+        "fl_y": c.params[1],
+        "cx": c.params[2],
+        "cy": c.params[3],
+        "k1": 0.0,
+        "k2": 0.0,
+        "p1": 0.0,
+        "p2": 0.0,
+        "camera_model": "OPENCV",
+        "frames": frames,
+        "applied_transform": applied.tolist(),
+    }
     root.mkdir(parents=True, exist_ok=True)
     shutil.copytree(images, root / "images")
     (root / "transforms.json").write_text(json.dumps(doc, indent=4))
@@ -313,8 +363,14 @@ def test_nerfstudio_projects_like_nerfstudio_and_matches_colmap(tmp_path):
     tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
     _run(ns_imp.iter_scenes(ns_imp.NerfstudioImportConfig(transforms=tj)), tmp_path / "a")
     _run(ns_imp.iter_scenes(ns_imp.NerfstudioImportConfig(transforms=tj, undo_applied_transform=False)), tmp_path / "b")
-    _run(colmap_imp.iter_scenes(colmap_imp.ColmapImportConfig(model_dir=tmp_path / "scene" / "sparse" / "0",
-                                                              images_dir=tmp_path / "scene" / "images")), tmp_path / "c")
+    _run(
+        colmap_imp.iter_scenes(
+            colmap_imp.ColmapImportConfig(
+                model_dir=tmp_path / "scene" / "sparse" / "0", images_dir=tmp_path / "scene" / "images"
+            )
+        ),
+        tmp_path / "c",
+    )
     undone = PosedDataset(tmp_path / "a").load_scene("ns")
     kept = PosedDataset(tmp_path / "b").load_scene("ns")
     via_colmap = PosedDataset(tmp_path / "c").load_scene("scene")
@@ -338,9 +394,11 @@ def test_nerfstudio_refuses_unknown_models_and_names_missing_frames(tmp_path, ca
     rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
     doc = json.loads(tj.read_text())
-    for change, extra, message in (({"k1": 0.1}, ["--no-undistort"], "distortion"),
-                                   ({"k4": 0.01}, [], "k4"),
-                                   ({"camera_model": "EQUIRECTANGULAR"}, [], "camera_model")):
+    for change, extra, message in (
+        ({"k1": 0.1}, ["--no-undistort"], "distortion"),
+        ({"k4": 0.01}, [], "k4"),
+        ({"camera_model": "EQUIRECTANGULAR"}, [], "camera_model"),
+    ):
         (tmp_path / "ns" / "transforms.json").write_text(json.dumps({**doc, **change}))
         rc = cli_main(["import", "nerfstudio", str(tj), "--out", str(tmp_path / "o")] + extra)
         err = capsys.readouterr().err
@@ -376,18 +434,26 @@ def _blob_image(h: int, w: int, centres: list[np.ndarray], sigma: float = 1.2) -
 def _blob_centre(img: np.ndarray, near: np.ndarray, radius: int = 5) -> np.ndarray:
     """Intensity-weighted centre (continuous pixel coordinates) of the blob around `near`."""
     x0, y0 = int(near[0]), int(near[1])
-    patch = img[max(y0 - radius, 0):y0 + radius + 1, max(x0 - radius, 0):x0 + radius + 1].astype(np.float64) - 20
+    patch = img[max(y0 - radius, 0) : y0 + radius + 1, max(x0 - radius, 0) : x0 + radius + 1].astype(np.float64) - 20
     patch = np.clip(patch, 0, None)
-    ys, xs = np.mgrid[max(y0 - radius, 0):max(y0 - radius, 0) + patch.shape[0],
-                      max(x0 - radius, 0):max(x0 - radius, 0) + patch.shape[1]] + 0.5
+    ys, xs = (
+        np.mgrid[
+            max(y0 - radius, 0) : max(y0 - radius, 0) + patch.shape[0],
+            max(x0 - radius, 0) : max(x0 - radius, 0) + patch.shape[1],
+        ]
+        + 0.5
+    )
     return np.array([(xs * patch).sum(), (ys * patch).sum()]) / patch.sum()
 
 
-@pytest.mark.parametrize("model,dist", [
-    ("OPENCV", {"k1": -0.3, "k2": 0.08, "p1": 0.003, "p2": -0.002}),
-    ("OPENCV", {"k1": -0.25, "k2": 0.05, "k3": 0.02, "p1": 0.0, "p2": 0.001}),
-    ("OPENCV_FISHEYE", {"k1": 0.05, "k2": -0.01, "k3": 0.004, "k4": -0.001}),
-])
+@pytest.mark.parametrize(
+    "model,dist",
+    [
+        ("OPENCV", {"k1": -0.3, "k2": 0.08, "p1": 0.003, "p2": -0.002}),
+        ("OPENCV", {"k1": -0.25, "k2": 0.05, "k3": 0.02, "p1": 0.0, "p2": 0.001}),
+        ("OPENCV_FISHEYE", {"k1": 0.05, "k2": -0.01, "k3": 0.004, "k4": -0.001}),
+    ],
+)
 def test_nerfstudio_distorted_frames_are_undistorted_like_opencv_projects(tmp_path, model, dist):
     """A 3-D point projected with OpenCV's distortion model (cv2.projectPoints / cv2.fisheye) marks
     the distorted frame; after import, the same point through the imported pinhole camera lands on
@@ -414,14 +480,14 @@ def test_nerfstudio_distorted_frames_are_undistorted_like_opencv_projects(tmp_pa
         img = _blob_image(h, w, list(uv)) + rng.integers(0, 3, (h, w), dtype=np.uint8)
         ok, buf = cv2.imencode(".png", img)
         (tmp_path / "ns" / "images" / f"f{k}.png").write_bytes(buf.tobytes())
-        frames.append({"file_path": f"images/f{k}.png",
-                       "transform_matrix": cam.opengl_from_opencv(c2w).tolist()})
+        frames.append({"file_path": f"images/f{k}.png", "transform_matrix": cam.opengl_from_opencv(c2w).tolist()})
     assert expected_shift > 2.0  # the distortion matters: without undistortion the test fails
-    doc = {"camera_model": model, "w": w, "h": h, "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, **dist,
-           "frames": frames}
+    doc = {"camera_model": model, "w": w, "h": h, "fl_x": fx, "fl_y": fy, "cx": cx, "cy": cy, **dist, "frames": frames}
     (tmp_path / "ns" / "transforms.json").write_text(json.dumps(doc))
-    assert cli_main(["import", "nerfstudio", str(tmp_path / "ns" / "transforms.json"),
-                     "--out", str(tmp_path / "out")]) == 0
+    assert (
+        cli_main(["import", "nerfstudio", str(tmp_path / "ns" / "transforms.json"), "--out", str(tmp_path / "out")])
+        == 0
+    )
     scene = PosedDataset(tmp_path / "out").load_scene("ns")
     assert scene.meta["undistorted"].startswith("pycolmap.undistort_images")
     for k in range(3):
@@ -435,6 +501,7 @@ def test_nerfstudio_distorted_frames_are_undistorted_like_opencv_projects(tmp_pa
 
 
 # ------------------------------------------------------------------------------------------ resume
+
 
 def _files(out: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(out.glob("posed-*.arrow"))}
@@ -465,8 +532,14 @@ def _counting(monkeypatch, module, name: str, key) -> list:
 def _re10k_plan_import(cams, frames, out, near=1.0, **kw) -> ImportReport:
     """Every camera file closes its own output file (target size 1 byte), as the pixelsplat resume test does."""
     cfg = re10k_imp.Re10kTextImportConfig(cameras_dir=cams, frames_dir=frames, near=near, **kw)
-    return write_import(re10k_imp.import_plan(cfg), out, ImportReport("re10k"), params={"near": near},
-                        provenance={}, target_file_bytes=1)
+    return write_import(
+        re10k_imp.import_plan(cfg),
+        out,
+        ImportReport("re10k"),
+        params={"near": near},
+        provenance={},
+        target_file_bytes=1,
+    )
 
 
 def test_re10k_rerun_resumes_scene_by_scene(tmp_path, monkeypatch):
@@ -526,8 +599,14 @@ def test_dtu_rerun_resumes_scan_by_scan(tmp_path, monkeypatch):
 
     def run(out, **kw):
         cfg = dtu_imp.DtuImportConfig(root=root, scans=[1, 8, 9, 21], **kw)
-        return write_import(dtu_imp.import_plan(cfg), out, ImportReport("dtu"), params={"lighting": cfg.lighting},
-                            provenance={}, target_file_bytes=1)
+        return write_import(
+            dtu_imp.import_plan(cfg),
+            out,
+            ImportReport("dtu"),
+            params={"lighting": cfg.lighting},
+            provenance={},
+            target_file_bytes=1,
+        )
 
     out = tmp_path / "out"
     first = run(out)
@@ -566,9 +645,10 @@ def test_cli_rerun_of_dtu_and_re10k_keeps_everything(tmp_path, capsys):
     rng = np.random.default_rng(22)
     _dtu_fixture(tmp_path / "dtu", rng)
     cams, frames, _ = _re10k_fixture(tmp_path, rng, n_extra=1)
-    for cmd in (["import", "dtu", str(tmp_path / "dtu"), "--scans", "1,8,9"],
-                ["import", "re10k", "--cameras", str(cams), "--frames", str(frames), "--scenes",
-                 "0000cf2ea3c0f0c1,nope"]):
+    for cmd in (
+        ["import", "dtu", str(tmp_path / "dtu"), "--scans", "1,8,9"],
+        ["import", "re10k", "--cameras", str(cams), "--frames", str(frames), "--scenes", "0000cf2ea3c0f0c1,nope"],
+    ):
         out = tmp_path / f"out-{cmd[1]}"
         assert cli_main([*cmd, "--out", str(out)]) == 0
         first = capsys.readouterr().out
@@ -588,7 +668,13 @@ def test_cli_rerun_of_dtu_and_re10k_keeps_everything(tmp_path, capsys):
 def test_single_scene_formats_resume_until_an_input_changes(tmp_path, capsys, fmt):
     rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     if fmt == "colmap":
-        cmd = ["import", "colmap", str(tmp_path / "scene" / "sparse" / "0"), "--images", str(tmp_path / "scene" / "images")]
+        cmd = [
+            "import",
+            "colmap",
+            str(tmp_path / "scene" / "sparse" / "0"),
+            "--images",
+            str(tmp_path / "scene" / "images"),
+        ]
         images, model_file = tmp_path / "scene" / "images", tmp_path / "scene" / "sparse" / "0" / "images.bin"
     else:
         tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")

@@ -148,8 +148,11 @@ def test_nothing_usable_fails_without_manifest(tmp_path, capsys):
 
 def test_scene_filter_reads_only_needed_chunks(tmp_path, monkeypatch):
     rng = np.random.default_rng(3)
-    write_chunks(tmp_path / "ds", "train", [[make_example(f"a{i}", 2, rng) for i in range(2)],
-                                            [make_example(f"b{i}", 2, rng) for i in range(2)]])
+    write_chunks(
+        tmp_path / "ds",
+        "train",
+        [[make_example(f"a{i}", 2, rng) for i in range(2)], [make_example(f"b{i}", 2, rng) for i in range(2)]],
+    )
     loaded = []
     real = ps.load_chunk
     monkeypatch.setattr(ps, "load_chunk", lambda p: loaded.append(p.name) or real(p))
@@ -178,8 +181,10 @@ def test_round_trip_posed_export_import(tmp_path):
     assert list(ex) == ["url", "timestamps", "cameras", "images", "key"]
     assert ex["timestamps"].dtype == torch.int64 and ex["cameras"].dtype == torch.float32
     assert ex["cameras"].shape == (6, 18) and all(t.dtype == torch.uint8 and t.ndim == 1 for t in ex["images"])
-    assert json.loads((tmp_path / "chunks" / "train" / "index.json").read_text()) == {"s0": "000000.torch",
-                                                                                      "s1": "000001.torch"}
+    assert json.loads((tmp_path / "chunks" / "train" / "index.json").read_text()) == {
+        "s0": "000000.torch",
+        "s1": "000001.torch",
+    }
     _import(tmp_path / "chunks", tmp_path / "back", stage="train")
     back = PosedDataset(tmp_path / "back")
     for orig in scenes:
@@ -200,7 +205,9 @@ def test_round_trip_chunks_import_export(tmp_path):
     rng = np.random.default_rng(4)
     examples = [make_example(f"k{i}", 3, rng) for i in range(3)]
     write_chunks(tmp_path / "ds", "test", [examples])
-    assert cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "p")]) == 0
+    assert (
+        cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "p")]) == 0
+    )
     assert cli_main(["export", "pixelsplat", str(tmp_path / "p"), "--out", str(tmp_path / "again")]) == 0
     again = torch.load(tmp_path / "again" / "test" / "000000.torch", weights_only=True)
     by_key = {ex["key"]: ex for ex in again}
@@ -219,12 +226,26 @@ def test_fast_chunk_reader_equals_torch_load_and_refuses_code(tmp_path):
     from seeu_data.importers.torch_chunk import UnsupportedChunk, load_plain
 
     base = torch.arange(60, dtype=torch.float32).view(6, 10)
-    obj = [{"key": "k", "url": "u", "n": 3, "f": 0.5, "none": None, "t": (1, "a"),
-            "slice": base[2:5, 1:4],            # storage offset + strides
-            "transposed": base.t(),             # non-contiguous
-            "shared": base[1], "same": base,    # one storage, several tensors
-            "empty": torch.zeros(0, 18), "i64": torch.tensor([2**40, -3]), "u8": torch.tensor([1, 255], dtype=torch.uint8),
-            "f64": torch.tensor([1e-300]), "b": torch.tensor([True, False]), "h": torch.tensor([1.5], dtype=torch.float16)}]
+    obj = [
+        {
+            "key": "k",
+            "url": "u",
+            "n": 3,
+            "f": 0.5,
+            "none": None,
+            "t": (1, "a"),
+            "slice": base[2:5, 1:4],  # storage offset + strides
+            "transposed": base.t(),  # non-contiguous
+            "shared": base[1],
+            "same": base,  # one storage, several tensors
+            "empty": torch.zeros(0, 18),
+            "i64": torch.tensor([2**40, -3]),
+            "u8": torch.tensor([1, 255], dtype=torch.uint8),
+            "f64": torch.tensor([1e-300]),
+            "b": torch.tensor([True, False]),
+            "h": torch.tensor([1.5], dtype=torch.float16),
+        }
+    ]
     torch.save(obj, tmp_path / "c.torch")
     got = load_plain(tmp_path / "c.torch")
     ref = torch.load(tmp_path / "c.torch", weights_only=True)
@@ -297,8 +318,14 @@ def test_prefetch_keeps_order_reraises_and_stops():
 def _resumable_import(root, out, target_file_bytes=1, **kw) -> ImportReport:
     """An import whose every chunk closes its own output file (target size 1 byte)."""
     cfg = ps.PixelSplatImportConfig(root=root, **kw)
-    return write_import(ps.import_plan(cfg), out, ImportReport("pixelsplat"), params={"near": cfg.near},
-                        provenance={}, target_file_bytes=target_file_bytes)
+    return write_import(
+        ps.import_plan(cfg),
+        out,
+        ImportReport("pixelsplat"),
+        params={"near": cfg.near},
+        provenance={},
+        target_file_bytes=target_file_bytes,
+    )
 
 
 def _files(out: Path) -> dict[str, bytes]:
@@ -380,7 +407,11 @@ def test_cli_rerun_resumes_and_reports_skips_again(tmp_path, capsys):
     assert cli_main(cmd) == 0
     second = capsys.readouterr().out
     doc2 = json.loads((tmp_path / "o" / "manifest.json").read_text())
-    assert "kept from a previous run" in second and "skipped 1 scenes (bad)" in first and "skipped 1 scenes (bad)" in second
+    assert (
+        "kept from a previous run" in second
+        and "skipped 1 scenes (bad)" in first
+        and "skipped 1 scenes (bad)" in second
+    )
     assert doc1["files"] == doc2["files"] and doc1["scenes"] == doc2["scenes"]
     assert doc1["report"]["skipped"] == doc2["report"]["skipped"]
     assert validate_dataset(tmp_path / "o")["unlisted_files"] == []

@@ -22,8 +22,14 @@ from seeu_data.ingest_report import summary_line
 from seeu_data.pose_eval import pose_accuracy, umeyama
 from seeu_data.posed import PosedDataset
 from seeu_data.scale import ScaleConfig
-from seeu_data.synthetic import (camera_path, default_intrinsics_norm, load_ground_truth, make_scene, render_view,
-                                 write_clip)
+from seeu_data.synthetic import (
+    camera_path,
+    default_intrinsics_norm,
+    load_ground_truth,
+    make_scene,
+    render_view,
+    write_clip,
+)
 from seeu_data.video import discover_sources, iter_frames, sharpness
 
 W, H, N = 320, 180, 36
@@ -187,10 +193,23 @@ def test_umeyama_recovers_a_known_similarity():
 def _fake_model(index, names, poses, depth_scale, out: Path):
     np.save(out / f"points_depth_{index}.npy", depth_scale * np.linspace(0.5, 1.5, 101))
     w2c = cam.world_to_cam_from_cam_to_world(poses)
-    return {"index": index, "undistorted": False, "image_dir": str(out), "mean_reprojection_error": 0.5,
-            "camera": {"model": "PINHOLE", "width": 100, "height": 50, "params": [80, 80, 50, 25],
-                       "fx": 80.0, "fy": 80.0, "cx": 50.0, "cy": 25.0},
-            "images": [{"name": n, "world_to_cam": w[:3].tolist()} for n, w in zip(names, w2c)]}
+    return {
+        "index": index,
+        "undistorted": False,
+        "image_dir": str(out),
+        "mean_reprojection_error": 0.5,
+        "camera": {
+            "model": "PINHOLE",
+            "width": 100,
+            "height": 50,
+            "params": [80, 80, 50, 25],
+            "fx": 80.0,
+            "fy": 80.0,
+            "cx": 50.0,
+            "cy": 25.0,
+        },
+        "images": [{"name": n, "world_to_cam": w[:3].tolist()} for n, w in zip(names, w2c)],
+    }
 
 
 def test_chunks_split_runs_claim_frames_and_normalise_scale(tmp_path):
@@ -201,10 +220,15 @@ def test_chunks_split_runs_claim_frames_and_normalise_scale(tmp_path):
     # model 0: frames 0-13 and 15-29 (frame 14 unregistered: splits the run); model 1 overlaps 20-29 + 3 extra
     m0 = [i for i in range(30) if i != 14]
     m1 = list(range(20, 30))
-    res = {"models": [_fake_model(0, [names[i] for i in m0], poses_scaled[m0], 3.0, tmp_path),
-                      _fake_model(1, [names[i] for i in m1], poses[m1], 1.0, tmp_path)]}
-    chunks, dropped = plan_chunks("s", names, res, tmp_path,
-                                  ChunkConfig(min_chunk_frames=15, scale=ScaleConfig("median-depth")))
+    res = {
+        "models": [
+            _fake_model(0, [names[i] for i in m0], poses_scaled[m0], 3.0, tmp_path),
+            _fake_model(1, [names[i] for i in m1], poses[m1], 1.0, tmp_path),
+        ]
+    }
+    chunks, dropped = plan_chunks(
+        "s", names, res, tmp_path, ChunkConfig(min_chunk_frames=15, scale=ScaleConfig("median-depth"))
+    )
     # run 0-13 (14 frames) is too short; 15-29 kept from the larger model; model 1's frames are claimed
     assert [c.scene_id for c in chunks] == ["s_c0"] and chunks[0].frame_positions == list(range(15, 30))
     assert {d["position"] for d in dropped} == set(range(15))
@@ -233,38 +257,50 @@ def _write_video(path: Path, frames: list[np.ndarray]) -> Path:
 
 
 def test_missing_path(tmp_path, capsys):
-    _expect_failure(["ingest", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "nope.mp4", "no such file")
+    _expect_failure(
+        ["ingest", str(tmp_path / "nope.mp4"), "--out", str(tmp_path / "out")], capsys, "nope.mp4", "no such file"
+    )
     _no_complete_output(tmp_path / "out")
 
 
 def test_not_a_video(tmp_path, capsys):
     (tmp_path / "notes.txt").write_text("hello")
-    _expect_failure(["ingest", str(tmp_path / "notes.txt"), "--out", str(tmp_path / "out")], capsys,
-                    "notes.txt", "not a video")
+    _expect_failure(
+        ["ingest", str(tmp_path / "notes.txt"), "--out", str(tmp_path / "out")], capsys, "notes.txt", "not a video"
+    )
     (tmp_path / "fake.mp4").write_text("hello, not a video\n")
-    _expect_failure(["ingest", str(tmp_path / "fake.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "fake.mp4", "cannot be opened as a video")
+    _expect_failure(
+        ["ingest", str(tmp_path / "fake.mp4"), "--out", str(tmp_path / "out")],
+        capsys,
+        "fake.mp4",
+        "cannot be opened as a video",
+    )
     _no_complete_output(tmp_path / "out")
 
 
 def test_truncated_and_corrupt_mp4(clip, tmp_path, capsys):
     data = clip.read_bytes()
     (tmp_path / "trunc.mp4").write_bytes(data[: len(data) // 2])
-    _expect_failure(["ingest", str(tmp_path / "trunc.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "trunc.mp4", "truncated")
+    _expect_failure(
+        ["ingest", str(tmp_path / "trunc.mp4"), "--out", str(tmp_path / "out")], capsys, "trunc.mp4", "truncated"
+    )
     corrupt = bytearray(data)
-    corrupt[len(data) // 3: len(data) // 3 + 20000] = bytes(20000)
+    corrupt[len(data) // 3 : len(data) // 3 + 20000] = bytes(20000)
     (tmp_path / "corrupt.mp4").write_bytes(bytes(corrupt))
-    _expect_failure(["ingest", str(tmp_path / "corrupt.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "corrupt.mp4", "corrupt")
+    _expect_failure(
+        ["ingest", str(tmp_path / "corrupt.mp4"), "--out", str(tmp_path / "out")], capsys, "corrupt.mp4", "corrupt"
+    )
     _no_complete_output(tmp_path / "out")
 
 
 def test_too_few_frames(tmp_path, capsys):
     write_clip(tmp_path / "short.mp4", n_frames=5, width=160, height=96, seed=0)
-    _expect_failure(["ingest", str(tmp_path / "short.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "short.mp4", "only 5 usable frame")
+    _expect_failure(
+        ["ingest", str(tmp_path / "short.mp4"), "--out", str(tmp_path / "out")],
+        capsys,
+        "short.mp4",
+        "only 5 usable frame",
+    )
     _no_complete_output(tmp_path / "out")
 
 
@@ -272,8 +308,13 @@ def test_static_camera_no_model(tmp_path, capsys):
     scene = make_scene(0)
     rgb, _ = render_view(scene, camera_path(30)[10], default_intrinsics_norm(W, H), W, H)
     _write_video(tmp_path / "static.mp4", [rgb] * 12)
-    _expect_failure(["ingest", str(tmp_path / "static.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "static.mp4", "no model", "after 3 mapping runs")
+    _expect_failure(
+        ["ingest", str(tmp_path / "static.mp4"), "--out", str(tmp_path / "out")],
+        capsys,
+        "static.mp4",
+        "no model",
+        "after 3 mapping runs",
+    )
     _no_complete_output(tmp_path / "out")
 
 
@@ -283,8 +324,9 @@ def test_blank_clip_and_workers(tmp_path, capsys):
     vids.mkdir()
     _write_video(vids / "blank.mp4", [np.full((96, 160, 3), 128, np.uint8)] * 12)
     shutil.copy(vids / "blank.mp4", vids / "blank2.mp4")
-    _expect_failure(["ingest", str(vids / "blank.mp4"), "--out", str(tmp_path / "out")], capsys,
-                    "blank.mp4", "blank or textureless")
+    _expect_failure(
+        ["ingest", str(vids / "blank.mp4"), "--out", str(tmp_path / "out")], capsys, "blank.mp4", "blank or textureless"
+    )
     assert cli_main(["ingest", str(vids), "--out", str(tmp_path / "out"), "--workers", "2"]) == 2
     captured = capsys.readouterr()
     lines = captured.err.strip().splitlines()
@@ -335,10 +377,29 @@ def test_colmap_abort_in_child_is_one_line(clip, tmp_path, capsys):
     """An invalid vocabulary tree makes COLMAP abort (SIGABRT): only the child dies; the user gets one line."""
     bogus = tmp_path / "vocab.bin"
     bogus.write_bytes(b"not a vocabulary tree")
-    _expect_failure(["ingest", str(clip), "--out", str(tmp_path / "out"), "--target-frames", "8",
-                     "--min-chunk-frames", "3", "--vocab-tree", str(bogus)], capsys, "walk.mp4", "COLMAP aborted")
-    _expect_failure(["ingest", str(clip), "--out", str(tmp_path / "out"), "--vocab-tree", str(tmp_path / "none.bin")],
-                    capsys, "none.bin", "vocabulary-tree file not found")
+    _expect_failure(
+        [
+            "ingest",
+            str(clip),
+            "--out",
+            str(tmp_path / "out"),
+            "--target-frames",
+            "8",
+            "--min-chunk-frames",
+            "3",
+            "--vocab-tree",
+            str(bogus),
+        ],
+        capsys,
+        "walk.mp4",
+        "COLMAP aborted",
+    )
+    _expect_failure(
+        ["ingest", str(clip), "--out", str(tmp_path / "out"), "--vocab-tree", str(tmp_path / "none.bin")],
+        capsys,
+        "none.bin",
+        "vocabulary-tree file not found",
+    )
     _no_complete_output(tmp_path / "out")
 
 
@@ -349,8 +410,10 @@ def test_split_clip_gives_two_chunks_and_reports_dropped_frames(tmp_path):
     scene = make_scene(0)
     poses = camera_path(n)
     intr = default_intrinsics_norm(W, H)
-    frames = [np.full((H, W, 3), 128, np.uint8) if i in blank else render_view(scene, poses[i], intr, W, H)[0]
-              for i in range(n)]
+    frames = [
+        np.full((H, W, 3), 128, np.uint8) if i in blank else render_view(scene, poses[i], intr, W, H)[0]
+        for i in range(n)
+    ]
     vid = _write_video(tmp_path / "split.mp4", frames)
     assert cli_main(["ingest", str(vid), "--out", str(tmp_path / "out")]) == 0
     report = json.loads((tmp_path / "out" / "split" / "report.json").read_text())

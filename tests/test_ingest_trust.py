@@ -17,8 +17,14 @@ from seeu_data.ingest_report import LOW_PARALLAX, baseline_over_depth, scene_war
 from seeu_data.pose_eval import pose_accuracy
 from seeu_data.progress import StageProgress
 from seeu_data.sfm import SfmConfig, map_with_retries, model_disagreement_pct, run_sfm
-from seeu_data.synthetic import (default_intrinsics_norm, load_ground_truth, make_planar_scene, planar_camera_path,
-                                 render_view, write_clip)
+from seeu_data.synthetic import (
+    default_intrinsics_norm,
+    load_ground_truth,
+    make_planar_scene,
+    planar_camera_path,
+    render_view,
+    write_clip,
+)
 from seeu_data.video import SceneSource, discover_sources, unique_scene_names
 
 W, H = 320, 180
@@ -53,10 +59,13 @@ class _Recorder(StageProgress):
 def _db_rows(db: Path) -> dict:
     con = sqlite3.connect(db)
     try:
-        return {"images": con.execute("SELECT image_id, name FROM images ORDER BY image_id").fetchall(),
-                "matches": con.execute("SELECT pair_id, data FROM matches ORDER BY pair_id").fetchall(),
-                "geometries": con.execute("SELECT pair_id, config, data FROM two_view_geometries "
-                                          "ORDER BY pair_id").fetchall()}
+        return {
+            "images": con.execute("SELECT image_id, name FROM images ORDER BY image_id").fetchall(),
+            "matches": con.execute("SELECT pair_id, data FROM matches ORDER BY pair_id").fetchall(),
+            "geometries": con.execute(
+                "SELECT pair_id, config, data FROM two_view_geometries ORDER BY pair_id"
+            ).fetchall(),
+        }
     finally:
         con.close()
 
@@ -91,8 +100,9 @@ def test_sfm_is_identical_run_after_run_with_two_threads(tmp_path):
     models = [[(im["name"], im["world_to_cam"]) for m in res["models"] for im in m["images"]] for res in results]
     assert all(m == models[0] for m in models[1:])
     assert len(models[0]) == n
-    c2w = np.linalg.inv(np.concatenate([np.asarray([w for _, w in models[0]]), np.tile([[[0, 0, 0, 1.0]]], (n, 1, 1))],
-                                       axis=1))
+    c2w = np.linalg.inv(
+        np.concatenate([np.asarray([w for _, w in models[0]]), np.tile([[[0, 0, 0, 1.0]]], (n, 1, 1))], axis=1)
+    )
     assert pose_accuracy(c2w, poses).centre_rmse_pct_path <= 0.5
     # progress moved inside the extract and match stages (values strictly between 0 and the end)
     for stage in ("sfm extract", "sfm match"):
@@ -205,19 +215,34 @@ def test_solution_check_maps_again_until_two_runs_agree_and_flags_when_none_do()
 
 
 def test_failed_check_and_low_parallax_are_warned_in_the_summary():
-    base = {"scene": "s", "registered": 30, "frames_selected": 30, "registration_rate": 1.0, "frames_in_chunks": 30,
-            "mean_reprojection_error_px": 0.3, "timings_s": {"total": 1.0}, "output": "out/s",
-            "sfm": {"mapping_attempts": [{}, {}, {}],
-                    "solution_check": {"ran": True, "passed": False, "state": "failed", "disagreement_pct": 27.9}},
-            "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.04}, {"scene_id": "s_c1", "baseline_over_depth": 0.5}]}
+    base = {
+        "scene": "s",
+        "registered": 30,
+        "frames_selected": 30,
+        "registration_rate": 1.0,
+        "frames_in_chunks": 30,
+        "mean_reprojection_error_px": 0.3,
+        "timings_s": {"total": 1.0},
+        "output": "out/s",
+        "sfm": {
+            "mapping_attempts": [{}, {}, {}],
+            "solution_check": {"ran": True, "passed": False, "state": "failed", "disagreement_pct": 27.9},
+        },
+        "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.04}, {"scene_id": "s_c1", "baseline_over_depth": 0.5}],
+    }
     warnings = scene_warnings(base)
     assert len(warnings) == 2 and "solution check failed" in warnings[0] and "28%" in warnings[0]
     assert "low parallax" in warnings[1] and "s_c0" in warnings[1] and "s_c1" not in warnings[1]
     line = summary_line({**base, "warnings": warnings})
     assert line.count("WARNING") == 2 and "\n" not in line and "after 3 mapping runs" in line
-    ok = {**base, "sfm": {"mapping_attempts": [{}, {}], "solution_check": {"ran": True, "passed": True,
-                                                                            "state": "passed", "disagreement_pct": 0.02}},
-          "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.5}]}
+    ok = {
+        **base,
+        "sfm": {
+            "mapping_attempts": [{}, {}],
+            "solution_check": {"ran": True, "passed": True, "state": "passed", "disagreement_pct": 0.02},
+        },
+        "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.5}],
+    }
     assert scene_warnings(ok) == []
     assert "mapping runs" not in summary_line(ok) and "solution check passed" in summary_line(ok)
 
@@ -261,8 +286,10 @@ def test_unique_scene_names_rule(tmp_path):
     for d in ("a/images", "b/images"):
         (tmp_path / d).mkdir(parents=True)
         (tmp_path / d / "0.png").write_bytes(b"")
-    assert [s.name for s in discover_sources([tmp_path / "a/images", tmp_path / "b/images"])] == ["a-images",
-                                                                                                  "b-images"]
+    assert [s.name for s in discover_sources([tmp_path / "a/images", tmp_path / "b/images"])] == [
+        "a-images",
+        "b-images",
+    ]
     from seeu_data.errors import SeeUError
 
     with pytest.raises(SeeUError, match="same input is given twice"):
@@ -292,12 +319,18 @@ def test_another_inputs_scene_is_never_overwritten(tmp_path, capsys):
     manifest = (out / "walk" / "manifest.json").read_bytes()
     report = json.loads((out / "walk" / "report.json").read_text())
     assert report["input_identity"]["path"] == str((tmp_path / "a" / "walk.mp4").resolve())
-    _one_line_error(["ingest", str(tmp_path / "b" / "walk.mp4"), *common], capsys,
-                    str(out / "walk"), "another input", "--force")
+    _one_line_error(
+        ["ingest", str(tmp_path / "b" / "walk.mp4"), *common], capsys, str(out / "walk"), "another input", "--force"
+    )
     assert (out / "walk" / "manifest.json").read_bytes() == manifest
-    _one_line_error(["ingest", str(tmp_path / "a" / "walk.mp4"), str(tmp_path / "b" / "walk.mp4"), "--name", "x",
-                     *common], capsys, "--name names one scene")
-    assert cli_main(["ingest", str(tmp_path / "b" / "walk.mp4"), "--name", "walk-b", "--heartbeat", "0.5", *common]) == 0
+    _one_line_error(
+        ["ingest", str(tmp_path / "a" / "walk.mp4"), str(tmp_path / "b" / "walk.mp4"), "--name", "x", *common],
+        capsys,
+        "--name names one scene",
+    )
+    assert (
+        cli_main(["ingest", str(tmp_path / "b" / "walk.mp4"), "--name", "walk-b", "--heartbeat", "0.5", *common]) == 0
+    )
     err = capsys.readouterr().err
     assert "seeu ingest: walk-b: sfm " in err
     gt = load_ground_truth(tmp_path / "b" / "walk.mp4")

@@ -19,15 +19,27 @@ def test_heldout_psnr_improves_over_initialisation(tmp_path):
     from seeu_model.training.config import load_config
     from seeu_model.training.factory import build_model
 
-    train_data, test_data = make_data(tmp_path, frames=24, size=32, scenes=2)   # test scene: unseen seed
-    ov = ["model.preset=tiny", "data.image_size=[32,32]", "data.batch_size=2", "data.num_workers=0",
-          f"optim.max_steps={STEPS}", "optim.lr=4e-3", "optim.warmup_steps=10", "loss.lpips_weight=0",
-          "precision=fp32", "rasterizer=torch", f"checkpoint.every={STEPS}", "log.every=10"]
+    train_data, test_data = make_data(tmp_path, frames=24, size=32, scenes=2)  # test scene: unseen seed
+    ov = [
+        "model.preset=tiny",
+        "data.image_size=[32,32]",
+        "data.batch_size=2",
+        "data.num_workers=0",
+        f"optim.max_steps={STEPS}",
+        "optim.lr=4e-3",
+        "optim.warmup_steps=10",
+        "loss.lpips_weight=0",
+        "precision=fp32",
+        "rasterizer=torch",
+        f"checkpoint.every={STEPS}",
+        "log.every=10",
+    ]
     cfg = load_config(None, ov)
     seed_everything(cfg.seed)
-    model, _ = build_model(cfg.model)                 # exactly the initial model `train` starts from
-    init = summarize(evaluate_on_data(model, test_data, (32, 32), device="cpu", max_samples=4, warmup=0,
-                                      rasterizer="torch").records)
+    model, _ = build_model(cfg.model)  # exactly the initial model `train` starts from
+    init = summarize(
+        evaluate_on_data(model, test_data, (32, 32), device="cpu", max_samples=4, warmup=0, rasterizer="torch").records
+    )
     res = train(train_data, tmp_path / "run", overrides=ov)
     after = evaluate(res["checkpoint"], test_data, tmp_path / "eval", max_samples=4, lpips=False, warmup=0)
     gain = after["metrics"]["psnr"] - init["psnr"]

@@ -42,6 +42,7 @@ def ids_of(batches):
 
 # ------------------------------------------------------------------------------- batch layout
 
+
 def test_batch_layout_and_values(dataset, tmp_path):
     ld = loader(dataset, tmp_path, batch_size=3, seed=1, image_dtype="float32")
     batches = list(ld)
@@ -128,21 +129,31 @@ def test_image_ring_never_overwrites_an_unreleased_buffer():
 
 # ------------------------------------------------------------------------- partition and resume
 
+
 @pytest.mark.parametrize("world", [1, 2, 3])
 @pytest.mark.parametrize("workers", [0, 2])
 def test_dataloader_exactly_once_across_ranks_and_workers(dataset, tmp_path, world, workers):
     streams = []
     for r in range(world):
-        ld = loader(dataset, tmp_path, batch_size=2, rank=r, world_size=world, num_workers=workers, seed=7,
-                    flip_p=0.5)
+        ld = loader(dataset, tmp_path, batch_size=2, rank=r, world_size=world, num_workers=workers, seed=7, flip_p=0.5)
         assert len(ld) == -(-21 // (2 * world))
         streams.append(list(ld))
     assert len({len(s) for s in streams}) == 1  # DDP-safe: same batch count on every rank
     got = [i for s in streams for i in ids_of(s)]
     assert sorted(got) == sorted(all_sample_ids(ROWS))
     # The rank's output (ids, pixels, cameras) does not depend on the worker count.
-    ref = list(loader(dataset, tmp_path, batch_size=2, rank=0, world_size=world, num_workers=1 - min(workers, 1),
-                      seed=7, flip_p=0.5))
+    ref = list(
+        loader(
+            dataset,
+            tmp_path,
+            batch_size=2,
+            rank=0,
+            world_size=world,
+            num_workers=1 - min(workers, 1),
+            seed=7,
+            flip_p=0.5,
+        )
+    )
     for a, b in zip(streams[0], ref):
         assert a["sample_id"] == b["sample_id"]
         assert torch.equal(a["context"]["image"], b["context"]["image"])
@@ -199,6 +210,7 @@ def test_set_epoch_and_foreign_checkpoint(dataset, tmp_path):
 
 # ---------------------------------------------------------------------- pixels and cameras round trip
 
+
 def _blob_rows(src_hw, point):
     h, w = src_hw
 
@@ -209,9 +221,10 @@ def _blob_rows(src_hw, point):
             c2w = np.asarray(base["cam_to_world"][v]).reshape(4, 4)
             (uv,), _ = cameras.project_points(point[None], c2w, np.asarray(base["intrinsics_norm"][v]), w, h)
             ys, xs = np.mgrid[0:h, 0:w] + 0.5
-            blob = 250 * np.exp(-((xs - uv[0]) ** 2 + (ys - uv[1]) ** 2) / (2 * 3.0 ** 2))
-            ramp = np.stack([2 * np.arange(w)[None].repeat(h, 0), 3 * np.arange(h)[:, None].repeat(w, 1),
-                             blob], -1)  # B: 2x, G: 3y, R: blob
+            blob = 250 * np.exp(-((xs - uv[0]) ** 2 + (ys - uv[1]) ** 2) / (2 * 3.0**2))
+            ramp = np.stack(
+                [2 * np.arange(w)[None].repeat(h, 0), 3 * np.arange(h)[:, None].repeat(w, 1), blob], -1
+            )  # B: 2x, G: 3y, R: blob
             ok, buf = cv2.imencode(".png", ramp.round().astype(np.uint8))
             images.append(buf.tobytes())
         base.update(image=images, image_format="png")
@@ -269,8 +282,11 @@ def test_known_frame_pixels_and_cameras_match_the_crop_math(tmp_path, interpolat
 def test_flip_is_deterministic_and_about_half(dataset, tmp_path):
     a = list(loader(dataset, tmp_path, batch_size=7, flip_p=0.5, seed=5, image_hw=(10, 14)))
     b = list(loader(dataset, tmp_path, batch_size=7, flip_p=0.5, seed=5, image_hw=(10, 14)))
-    plain = {s: (bt, i) for bt in list(loader(dataset, tmp_path, batch_size=7, seed=5, image_hw=(10, 14)))
-             for i, s in enumerate(bt["sample_id"])}
+    plain = {
+        s: (bt, i)
+        for bt in list(loader(dataset, tmp_path, batch_size=7, seed=5, image_hw=(10, 14)))
+        for i, s in enumerate(bt["sample_id"])
+    }
     flipped = 0
     for x, y in zip(a, b):
         assert torch.equal(x["context"]["image"], y["context"]["image"])
@@ -284,6 +300,7 @@ def test_flip_is_deterministic_and_about_half(dataset, tmp_path):
 
 
 # ------------------------------------------------------------------------------------- errors
+
 
 def _copy(dataset, tmp_path) -> Path:
     dst = tmp_path / "copy"
@@ -364,6 +381,7 @@ def test_rank_and_world_size_from_the_environment(dataset, tmp_path, monkeypatch
 
 # ----------------------------------------------------------------------------------- curriculum
 
+
 def test_gap_curriculum_in_the_loader(tmp_path):
     gaps = lambda k, j: 2 + (3 * j + k) % 9  # 2 .. 10
     ds = write_triples(tmp_path / "ds", [10, 10], gaps=gaps, hw=(6, 6))
@@ -400,19 +418,29 @@ def test_workers_do_not_deadlock_after_the_parent_used_opencv_threads(dataset, t
 
 
 @settings(max_examples=80, deadline=None)
-@given(h=st.integers(6, 160), w=st.integers(6, 160), oh=st.integers(2, 96), ow=st.integers(2, 96), seed=st.integers(0, 99),
-       interpolation=st.sampled_from(["area", "linear", "cubic", "lanczos"]))
+@given(
+    h=st.integers(6, 160),
+    w=st.integers(6, 160),
+    oh=st.integers(2, 96),
+    ow=st.integers(2, 96),
+    seed=st.integers(0, 99),
+    interpolation=st.sampled_from(["area", "linear", "cubic", "lanczos"]),
+)
 def test_span_resize_equals_full_resize_then_crop(h, w, oh, ow, seed, interpolation):
     # resize_cover_crop resizes only the block-aligned span it keeps; the reference resizes the whole frame.
     img = np.random.default_rng(seed).integers(0, 256, (h, w, 3), dtype=np.uint8)
     fast = resize_cover_crop(img, (oh, ow), interpolation)
     (sh, sw), (oy, ox) = cameras.cover_crop_geometry((h, w), (oh, ow))
-    flag = {"area": cv2.INTER_AREA, "linear": cv2.INTER_LINEAR, "cubic": cv2.INTER_CUBIC,
-            "lanczos": cv2.INTER_LANCZOS4}[interpolation]
+    flag = {
+        "area": cv2.INTER_AREA,
+        "linear": cv2.INTER_LINEAR,
+        "cubic": cv2.INTER_CUBIC,
+        "lanczos": cv2.INTER_LANCZOS4,
+    }[interpolation]
     if interpolation == "area" and (sh > h or sw > w):
         flag = cv2.INTER_CUBIC  # enlarging
     full = img if (sh, sw) == (h, w) else cv2.resize(img, (sw, sh), interpolation=flag)
-    full = full[oy:oy + oh, ox:ox + ow]
+    full = full[oy : oy + oh, ox : ox + ow]
     assert fast.shape == full.shape == (oh, ow, 3) and fast.flags.c_contiguous
     diff = np.abs(fast.astype(int) - full)
     if interpolation in ("area", "cubic"):
@@ -433,8 +461,12 @@ def test_reads_what_seeu_build_writes(tmp_path):
         for i, (sid, n) in enumerate({"a": 20, "b": 26}.items()):
             w.add(make_posed_scene(sid, n=n, height=24, width=32, seed=i))
     out = tmp_path / "triples"
-    assert cli_main(["build", str(posed), "--out", str(out), "--gap-min", "4", "--gap-max", "8",
-                     "--samples-per-scene", "3"]) == 0
+    assert (
+        cli_main(
+            ["build", str(posed), "--out", str(out), "--gap-min", "4", "--gap-max", "8", "--samples-per-scene", "3"]
+        )
+        == 0
+    )
     rows = {r.sample_id: r for r in TripleShards(out, verify=True).rows()}
     batches = list(make_loader(out, 2, image_hw=(24, 32), cache_dir=str(tmp_path / "c"), num_workers=1))
     assert sorted(ids_of(batches)) == sorted(rows)

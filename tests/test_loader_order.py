@@ -13,8 +13,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seeu_data.loader.curriculum import GapCurriculum
-from seeu_data.loader.order import (epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
-                                    shard_offsets)
+from seeu_data.loader.order import (
+    epoch_order,
+    manifest_fingerprint,
+    plan_global_batches,
+    rank_worker_batches,
+    shard_offsets,
+)
 
 FILES = [{"path": f"shard-{i}.arrow", "rows": 10, "sha256": f"{i:064x}"} for i in range(3)]
 
@@ -45,6 +50,7 @@ def rank_stream(plan, batch_size: int, rank: int, world_size: int, num_workers: 
 
 # --------------------------------------------------------------------------------------------- order
 
+
 def test_fingerprint_depends_on_contents():
     a = manifest_fingerprint(FILES)
     assert a == manifest_fingerprint([dict(f) for f in FILES])
@@ -55,8 +61,12 @@ def test_fingerprint_depends_on_contents():
 
 
 @settings(max_examples=60, deadline=None)
-@given(rows=st.lists(st.integers(0, 30), min_size=0, max_size=12), seed=st.integers(0, 2**40),
-       epoch=st.integers(0, 1000), block=st.integers(1, 5))
+@given(
+    rows=st.lists(st.integers(0, 30), min_size=0, max_size=12),
+    seed=st.integers(0, 2**40),
+    epoch=st.integers(0, 1000),
+    block=st.integers(1, 5),
+)
 def test_epoch_order_is_a_pure_permutation_with_shard_locality(rows, seed, epoch, block):
     fp = 12345
     order = epoch_order(rows, seed, epoch, fp, block_shards=block)
@@ -87,9 +97,16 @@ def test_epoch_order_changes_with_seed_epoch_and_manifest():
 
 # ------------------------------------------------------------------------------------------ partition
 
+
 @settings(max_examples=300, deadline=None)
-@given(n=st.integers(0, 120), batch=st.integers(1, 6), world=st.integers(1, 8), workers=st.integers(0, 4),
-       seen_frac=st.floats(0, 1), remainder=st.sampled_from(["pad", "drop"]))
+@given(
+    n=st.integers(0, 120),
+    batch=st.integers(1, 6),
+    world=st.integers(1, 8),
+    workers=st.integers(0, 4),
+    seen_frac=st.floats(0, 1),
+    remainder=st.sampled_from(["pad", "drop"]),
+)
 def test_partition_exactly_once_equal_batches_worker_independent(n, batch, world, workers, seen_frac, remainder):
     g = batch * world
     seen = int(seen_frac * n)
@@ -116,9 +133,17 @@ def test_partition_exactly_once_equal_batches_worker_independent(n, batch, world
 
 
 @settings(max_examples=200, deadline=None)
-@given(n=st.integers(1, 150), b1=st.integers(1, 5), w1=st.integers(1, 8), k1=st.integers(0, 4),
-       b2=st.integers(1, 5), w2=st.integers(1, 8), k2=st.integers(0, 4), stop_frac=st.floats(0, 1),
-       remainder=st.sampled_from(["pad", "drop"]))
+@given(
+    n=st.integers(1, 150),
+    b1=st.integers(1, 5),
+    w1=st.integers(1, 8),
+    k1=st.integers(0, 4),
+    b2=st.integers(1, 5),
+    w2=st.integers(1, 8),
+    k2=st.integers(0, 4),
+    stop_frac=st.floats(0, 1),
+    remainder=st.sampled_from(["pad", "drop"]),
+)
 def test_resume_with_other_geometry_loses_and_repeats_nothing(n, b1, w1, k1, b2, w2, k2, stop_frac, remainder):
     plan1 = plan_global_batches(n, 0, b1 * w1, remainder)
     stop = int(stop_frac * plan1.num_batches)  # batches consumed before the checkpoint
@@ -148,8 +173,9 @@ def test_global_batches_do_not_depend_on_the_rank_split(split):
     plan = plan_global_batches(53, 5, batch * world, "pad")
     ref = plan_global_batches(53, 5, 8, "pad")
     for b in range(plan.num_batches):
-        got = np.concatenate([plan.positions[b, rank_worker_batches(plan.num_batches, batch, r, world)[1]]
-                              for r in range(world)])
+        got = np.concatenate(
+            [plan.positions[b, rank_worker_batches(plan.num_batches, batch, r, world)[1]] for r in range(world)]
+        )
         assert np.array_equal(got, ref.positions[b])
 
 
@@ -168,6 +194,7 @@ def test_padding_repeats_the_start_of_the_order_and_is_flagged():
 
 # ----------------------------------------------------------------------------------------- curriculum
 
+
 def test_gap_curriculum_ramp():
     c = GapCurriculum(25, 45, 150_000)
     assert c.max_gap(0) == 25 and c.max_gap(75_000) == 35 and c.max_gap(150_000) == 45 and c.max_gap(10**9) == 45
@@ -178,11 +205,19 @@ def test_gap_curriculum_ramp():
 
 
 @settings(max_examples=150, deadline=None)
-@given(gaps=st.lists(st.integers(0, 12), min_size=1, max_size=120), batch=st.integers(1, 4), world=st.integers(1, 4),
-       start=st.integers(0, 20), warm=st.integers(0, 30), stop_frac=st.floats(0, 1), world2=st.integers(1, 5),
-       remainder=st.sampled_from(["pad", "drop"]))
-def test_curriculum_plan_filters_deterministically_and_resumes(gaps, batch, world, start, warm, stop_frac, world2,
-                                                               remainder):
+@given(
+    gaps=st.lists(st.integers(0, 12), min_size=1, max_size=120),
+    batch=st.integers(1, 4),
+    world=st.integers(1, 4),
+    start=st.integers(0, 20),
+    warm=st.integers(0, 30),
+    stop_frac=st.floats(0, 1),
+    world2=st.integers(1, 5),
+    remainder=st.sampled_from(["pad", "drop"]),
+)
+def test_curriculum_plan_filters_deterministically_and_resumes(
+    gaps, batch, world, start, warm, stop_frac, world2, remainder
+):
     gaps = np.asarray(gaps)
     n, g = len(gaps), batch * world
     cur = GapCurriculum(2, 10, warm)
@@ -201,8 +236,9 @@ def test_curriculum_plan_filters_deterministically_and_resumes(gaps, batch, worl
     seen = int(plan.cursor_after[stop - 1]) if stop else 0
     again = plan_global_batches(n, seen, g, remainder, gaps=gaps, max_gap=cur.max_gap, start_step=start + stop)
     assert np.array_equal(again.positions, plan.positions[stop:])
-    other = plan_global_batches(n, seen, batch * world2, remainder, gaps=gaps, max_gap=cur.max_gap,
-                                start_step=start + stop)
+    other = plan_global_batches(
+        n, seen, batch * world2, remainder, gaps=gaps, max_gap=cur.max_gap, start_step=start + stop
+    )
     before = [p for b in range(stop) for p in plan.positions[b][~plan.is_padding[b]].tolist()]
     after = [p for b in range(other.num_batches) for p in other.positions[b][~other.is_padding[b]].tolist()]
     skipped_before = plan.skipped[plan.skipped < seen].tolist()

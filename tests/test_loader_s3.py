@@ -19,8 +19,12 @@ ROWS = [6, 4, 5]
 @pytest.fixture(scope="module")
 def s3(tmp_path_factory):
     mp = pytest.MonkeyPatch()
-    for key, value in {"AWS_ACCESS_KEY_ID": "testing", "AWS_SECRET_ACCESS_KEY": "testing",
-                       "AWS_DEFAULT_REGION": "us-east-1", "AWS_EC2_METADATA_DISABLED": "true"}.items():
+    for key, value in {
+        "AWS_ACCESS_KEY_ID": "testing",
+        "AWS_SECRET_ACCESS_KEY": "testing",
+        "AWS_DEFAULT_REGION": "us-east-1",
+        "AWS_EC2_METADATA_DISABLED": "true",
+    }.items():
         mp.setenv(key, value)
     server = ThreadedMotoServer(ip_address="127.0.0.1", port=0, verbose=False)
     server.start()
@@ -31,9 +35,12 @@ def s3(tmp_path_factory):
     for f in sorted(local.iterdir()):
         client.upload_file(str(f), "data", f"ds/{f.name}")
     try:
-        yield {"client": client, "local": local,
-               "url": f"s3://data/ds?endpoint_override={host}:{port}&scheme=http&region=us-east-1",
-               "opts": f"endpoint_override={host}:{port}&scheme=http&region=us-east-1"}
+        yield {
+            "client": client,
+            "local": local,
+            "url": f"s3://data/ds?endpoint_override={host}:{port}&scheme=http&region=us-east-1",
+            "opts": f"endpoint_override={host}:{port}&scheme=http&region=us-east-1",
+        }
     finally:
         server.stop()
         mp.undo()
@@ -46,8 +53,11 @@ def test_s3_stream_equals_local_and_is_cached_by_content(s3, tmp_path, workers):
     local = list(make_loader(s3["local"], 2, seed=4, image_hw=(8, 8), cache_dir=str(tmp_path / "c2")))
     assert [b["sample_id"] for b in remote] == [b["sample_id"] for b in local]
     assert all(torch.equal(a["target"]["image"], b["target"]["image"]) for a, b in zip(remote, local))
-    assert sorted(s for b in remote for s, p in zip(b["sample_id"], b["is_padding"]) if not p) == sorted(all_sample_ids(ROWS))
+    assert sorted(s for b in remote for s, p in zip(b["sample_id"], b["is_padding"]) if not p) == sorted(
+        all_sample_ids(ROWS)
+    )
     import json
+
     shas = {f["sha256"] for f in json.loads((s3["local"] / "manifest.json").read_text())["files"]}
     assert {p.stem for p in (cache / "objects").glob("*.arrow")} == shas
 
@@ -55,8 +65,15 @@ def test_s3_stream_equals_local_and_is_cached_by_content(s3, tmp_path, workers):
 def test_s3_cache_is_bounded(s3, tmp_path):
     sizes = [f.stat().st_size for f in s3["local"].glob("*.arrow")]
     cache = tmp_path / "cache"
-    ld = make_loader(s3["url"], 3, seed=1, image_hw=(8, 8), cache_dir=str(cache),
-                     cache_limit_bytes=int(max(sizes) * 1.5), max_open_shards=1)
+    ld = make_loader(
+        s3["url"],
+        3,
+        seed=1,
+        image_hw=(8, 8),
+        cache_dir=str(cache),
+        cache_limit_bytes=int(max(sizes) * 1.5),
+        max_open_shards=1,
+    )
     got = [s for b in ld for s in b["sample_id"]]
     assert sorted(got) == sorted(all_sample_ids(ROWS))
     cached = list((cache / "objects").glob("*.arrow"))

@@ -21,8 +21,23 @@ W, H, N = 320, 180, 24
 def global_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("mapper")
     write_clip(root / "walk.mp4", n_frames=N, width=W, height=H, seed=0)
-    assert cli_main(["ingest", str(root / "walk.mp4"), "--out", str(root / "posed"), "--mapper", "global",
-                     "--threads", "1", "--size", "120x160"]) == 0
+    assert (
+        cli_main(
+            [
+                "ingest",
+                str(root / "walk.mp4"),
+                "--out",
+                str(root / "posed"),
+                "--mapper",
+                "global",
+                "--threads",
+                "1",
+                "--size",
+                "120x160",
+            ]
+        )
+        == 0
+    )
     return root
 
 
@@ -75,4 +90,6 @@ def test_ingest_size_resizes_and_crops_with_intrinsics(global_run):
     gt = load_ground_truth(global_run / "walk.mp4")
     fx_true = gt["intrinsics_norm"][0, 0] * W * (120 / H)
     assert s.intrinsics_norm[0, 0] * 160 == pytest.approx(fx_true, rel=0.02)  # SfM focal ~1%; unscaled: 50% off
-    assert s.intrinsics_norm[0, 2] == pytest.approx(0.5, abs=0.01) and s.intrinsics_norm[0, 3] == pytest.approx(0.5, abs=0.01)
+    assert s.intrinsics_norm[0, 2] == pytest.approx(0.5, abs=0.01) and s.intrinsics_norm[0, 3] == pytest.approx(
+        0.5, abs=0.01
+    )

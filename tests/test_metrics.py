@@ -17,8 +17,9 @@ def _pair(seed: int, h: int, w: int, noise: float):
     rng = np.random.default_rng(seed)
     # smooth-ish content plus noise, so SSIM is well away from 0 and 1
     base = rng.random((3, h // 4 + 1, w // 4 + 1))
-    img = torch.nn.functional.interpolate(torch.from_numpy(base)[None], size=(h, w), mode="bilinear",
-                                          align_corners=False)[0].numpy()
+    img = torch.nn.functional.interpolate(
+        torch.from_numpy(base)[None], size=(h, w), mode="bilinear", align_corners=False
+    )[0].numpy()
     other = np.clip(img + noise * rng.standard_normal(img.shape), 0, 1)
     return img.astype(np.float32), other.astype(np.float32)
 
@@ -27,8 +28,7 @@ def _pair(seed: int, h: int, w: int, noise: float):
 def test_ssim_matches_scikit_image(h, w, noise):
     a, b = _pair(h * w, h, w, noise)
     ours = ssim(torch.from_numpy(a), torch.from_numpy(b)).item()
-    ref = structural_similarity(a, b, win_size=11, gaussian_weights=True, sigma=1.5, data_range=1.0,
-                                channel_axis=0)
+    ref = structural_similarity(a, b, win_size=11, gaussian_weights=True, sigma=1.5, data_range=1.0, channel_axis=0)
     assert abs(ours - ref) < 1e-6, (ours, ref)
 
 
@@ -43,8 +43,9 @@ def test_ssim_batched_and_population_covariance():
         assert abs(out.flatten()[i].item() - ref) < 1e-6
     x, y = pairs[0]
     pop = ssim(torch.from_numpy(x), torch.from_numpy(y), use_sample_covariance=False).item()
-    ref = structural_similarity(x, y, win_size=11, gaussian_weights=True, data_range=1.0, channel_axis=0,
-                                use_sample_covariance=False)
+    ref = structural_similarity(
+        x, y, win_size=11, gaussian_weights=True, data_range=1.0, channel_axis=0, use_sample_covariance=False
+    )
     assert abs(pop - ref) < 1e-6
     assert ssim(torch.from_numpy(x), torch.from_numpy(x)).item() == pytest.approx(1.0, abs=1e-9)
 
@@ -112,11 +113,11 @@ def test_depth_rmse_closed_form():
     from seeu_model.geometry_metrics import depth_rmse
 
     gt = torch.full((2, 4, 5), 2.0)
-    gt[0, 0, :] = 0.0            # no ground truth there
-    gt[1] = float("nan")         # an image without ground truth
+    gt[0, 0, :] = 0.0  # no ground truth there
+    gt[1] = float("nan")  # an image without ground truth
     pred = torch.full((2, 4, 5), 2.0)
     pred[0, 1:] += 0.3
-    pred[0, 0] += 5.0            # ignored (gt invalid)
+    pred[0, 0] += 5.0  # ignored (gt invalid)
     out = depth_rmse(pred, gt)
     assert out[0].item() == pytest.approx(0.3, abs=1e-6) and math.isnan(out[1].item())
     mask = torch.zeros(2, 4, 5, dtype=torch.bool)
@@ -132,16 +133,17 @@ def test_chamfer_dtueval_against_brute_force():
     pred = g + [0.0, 0.0, 0.5]
     pred = np.concatenate([pred, [[100.0, 100.0, 100.0]], pred[:5].copy()])  # outlier + duplicates
     res = chamfer_dtueval(pred, g, density=0.2, max_dist=20.0)
-    assert res.num_pred == 101              # the 5 duplicates are thinned away, the outlier stays
+    assert res.num_pred == 101  # the 5 duplicates are thinned away, the outlier stays
     assert res.accuracy == pytest.approx(0.5) and res.completeness == pytest.approx(0.5)
     assert res.overall == pytest.approx(0.5)
     # observation mask (a voxel volume) keeps only x < 5 for accuracy; plane keeps gt with y >= 3
     vol = np.zeros((200, 200, 10), dtype=bool)
-    vol[:50] = True                          # res 0.1 from bb min (0, 0, -0.4): x < 5
-    in_mask, above = dtu_observation_filter(vol, np.array([[0.0, 0.0, -0.4], [20, 20, 0.6]]), 0.1,
-                                            plane=np.array([0.0, 1.0, 0.0, -2.5]))
+    vol[:50] = True  # res 0.1 from bb min (0, 0, -0.4): x < 5
+    in_mask, above = dtu_observation_filter(
+        vol, np.array([[0.0, 0.0, -0.4], [20, 20, 0.6]]), 0.1, plane=np.array([0.0, 1.0, 0.0, -2.5])
+    )
     pred2 = g + [0.0, 0.0, 0.5]
-    pred2[g[:, 0] >= 5] += [0.0, 0.0, 1.0]   # outside the mask: worse, must not count for accuracy
+    pred2[g[:, 0] >= 5] += [0.0, 0.0, 1.0]  # outside the mask: worse, must not count for accuracy
     res2 = chamfer_dtueval(pred2, g, pred_in_mask=in_mask, gt_above_plane=above(g))
     d = np.linalg.norm(g[above(g)][:, None] - downsample_density(pred2, 0.2)[None], axis=-1).min(1)
     assert res2.accuracy == pytest.approx(0.5) and res2.num_pred_in_mask == 50
@@ -161,12 +163,12 @@ def test_depth_fn_aligns_ground_truth_with_the_loader_crop(tmp_path):
     (tmp_path / "sceneA").mkdir()
     np.save(tmp_path / "sceneA" / "000007.npy", gt)
     fn = make_depth_fn(tmp_path, (20, 20))
-    expect = gt[::2, ::2][:, 10:30]                                    # nearest-neighbour resize, centre crop
-    depth = torch.from_numpy(expect.copy())[None, None, None] + 0.5   # (B=1, T=1, 1, H, W)
+    expect = gt[::2, ::2][:, 10:30]  # nearest-neighbour resize, centre crop
+    depth = torch.from_numpy(expect.copy())[None, None, None] + 0.5  # (B=1, T=1, 1, H, W)
     batch = {"scene_id": ["sceneA"], "target": {"frame_index": torch.tensor([[7]])}}
     out = fn(batch, SimpleNamespace(depth=depth))
     assert out.shape == (1, 1) and out[0, 0].item() == pytest.approx(0.5, abs=1e-5)
-    batch["target"]["frame_index"] = torch.tensor([[8]])                # no file -> NaN
+    batch["target"]["frame_index"] = torch.tensor([[8]])  # no file -> NaN
     assert math.isnan(fn(batch, SimpleNamespace(depth=depth))[0, 0].item())
 
 
@@ -190,20 +192,36 @@ def test_dtu_ground_truth_found_through_the_shards(tmp_path):
 
     gt_dir = tmp_path / "Depths" / "scan1_train"
     gt_dir.mkdir(parents=True)
-    depth = np.arange(12 * 16, dtype=np.float32).reshape(12, 16) + 500.0   # mm
+    depth = np.arange(12 * 16, dtype=np.float32).reshape(12, 16) + 500.0  # mm
     _write_pfm(gt_dir / "depth_map_0005.pfm", depth)
     assert np.array_equal(read_pfm(gt_dir / "depth_map_0005.pfm"), depth)
     pts = np.random.default_rng(0).random((50, 3)).astype(np.float32)
     ply = tmp_path / "stl001_total.ply"
-    PlyData([PlyElement.describe(np.array([tuple(p) for p in pts], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]),
-                                 "vertex")]).write(str(ply))
+    PlyData(
+        [
+            PlyElement.describe(
+                np.array([tuple(p) for p in pts], dtype=[("x", "f4"), ("y", "f4"), ("z", "f4")]), "vertex"
+            )
+        ]
+    ).write(str(ply))
     scene = synthetic_posed_scene(12, 24, 32, seed=0, scene_id="scan1")
-    scene.meta = {"dataset": "dtu", "scale": 0.005, "gt_depth_dir": str(gt_dir), "gt_depth_units": "mm",
-                  "gt_depth_pattern": "depth_map_{view:04d}.pfm", "gt_points": str(ply)}
+    scene.meta = {
+        "dataset": "dtu",
+        "scale": 0.005,
+        "gt_depth_dir": str(gt_dir),
+        "gt_depth_units": "mm",
+        "gt_depth_pattern": "depth_map_{view:04d}.pfm",
+        "gt_points": str(ply),
+    }
     with PosedDatasetWriter(tmp_path / "posed", {}, provenance("test")) as w:
         w.add(scene)
-    build(BuildConfig(inputs=(str(tmp_path / "posed"),), out=str(tmp_path / "shards"),
-                      sampling=SamplingConfig(gap_min=3, gap_max=4, samples_per_scene=2)))
+    build(
+        BuildConfig(
+            inputs=(str(tmp_path / "posed"),),
+            out=str(tmp_path / "shards"),
+            sampling=SamplingConfig(gap_min=3, gap_max=4, samples_per_scene=2),
+        )
+    )
     found = posed_ground_truth(str(tmp_path / "shards"))
     assert found is not None
     depth_loader, points_loader, to_mm = found

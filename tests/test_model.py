@@ -32,13 +32,19 @@ def _batch(v: int = 2, t: int = 1, size: int = 64, seed: int = 0) -> dict:
         c2w[i, :3, :3] = _rot_y(-4.0 + 8.0 * i / max(n - 1, 1))
         c2w[i, :3, 3] = torch.tensor([-0.3 + 0.6 * i / max(n - 1, 1), 0.02 * i, 0.05 * i])
     intr = intrinsics_norm_matrix(torch.tensor([0.9, 0.9, 0.5, 0.5])).expand(n, 3, 3)
-    imgs = F.interpolate(torch.rand(n, 3, size // 8, size // 8, generator=g), size=(size, size), mode="bilinear",
-                         align_corners=False)
+    imgs = F.interpolate(
+        torch.rand(n, 3, size // 8, size // 8, generator=g), size=(size, size), mode="bilinear", align_corners=False
+    )
 
     def views(sl: slice) -> dict:
         k = len(range(n)[sl])
-        return {"image": imgs[sl][None], "cam_to_world": c2w[sl][None], "intrinsics": intr[sl][None].clone(),
-                "near": torch.full((1, k), 0.5), "far": torch.full((1, k), 20.0)}
+        return {
+            "image": imgs[sl][None],
+            "cam_to_world": c2w[sl][None],
+            "intrinsics": intr[sl][None].clone(),
+            "near": torch.full((1, k), 0.5),
+            "far": torch.full((1, k), 20.0),
+        }
 
     # context = views 0..v-1, targets after them
     return {"context": views(slice(0, v)), "target": views(slice(v, n))}
@@ -85,8 +91,11 @@ def test_forward_backward_gradients_reach_every_trainable_module_and_not_the_fro
     opt.zero_grad(set_to_none=True)
     out = model(batch)
     F.mse_loss(out.render.color, batch["target"]["image"]).backward()
-    no_grad = [n for n, p in model.named_parameters()
-               if p.requires_grad and (p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().max() == 0)]
+    no_grad = [
+        n
+        for n, p in model.named_parameters()
+        if p.requires_grad and (p.grad is None or not torch.isfinite(p.grad).all() or p.grad.abs().max() == 0)
+    ]
     assert no_grad == []
     assert all(p.grad is None for p in semantic.parameters())
     # After the step the refinement is active.

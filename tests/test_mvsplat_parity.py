@@ -47,8 +47,13 @@ def test_depths_and_gaussians_match_mvsplat(fixture, case_index):
     assert not report.missing and not report.unexpected and len(report.mapped) == len(state)
     model = SeeU(cfg).eval()
     model.load_state_dict(seeu_state, strict=True)
-    context = {"image": inp["image"].float() / 255, "cam_to_world": inp["extrinsics"], "intrinsics": inp["intrinsics"],
-               "near": inp["near"], "far": inp["far"]}
+    context = {
+        "image": inp["image"].float() / 255,
+        "cam_to_world": inp["extrinsics"],
+        "intrinsics": inp["intrinsics"],
+        "near": inp["near"],
+        "far": inp["far"],
+    }
     with torch.no_grad():
         enc = model.encode_all(context)
     g = enc.gaussians
@@ -78,12 +83,22 @@ def test_full_size_key_set_converts_without_missing_or_unexpected_keys():
 
 def _write_lightning_ckpt(path: Path, state: dict, sentinel: Path) -> None:
     """A Lightning-like checkpoint whose hyper_parameters, when unpickled normally, create `sentinel`."""
+
     class Payload:
         def __reduce__(self):
             return (exec, (f"open({str(sentinel)!r}, 'w').write('pwned')",))
 
-    torch.save({"epoch": 3, "global_step": 1000, "pytorch-lightning_version": "2.2.0", "state_dict": state,
-                "hyper_parameters": {"cfg": Payload()}, "loops": {}}, path)
+    torch.save(
+        {
+            "epoch": 3,
+            "global_step": 1000,
+            "pytorch-lightning_version": "2.2.0",
+            "state_dict": state,
+            "hyper_parameters": {"cfg": Payload()},
+            "loops": {},
+        },
+        path,
+    )
 
 
 def test_converter_reads_only_tensors_and_never_runs_pickled_code(fixture, tmp_path):
@@ -133,17 +148,35 @@ def test_train_init_from_a_converted_checkpoint_adds_the_refiner_and_starts_from
     convert_checkpoint(ckpt, tmp_path / "converted")
     init = ckpt_io.load_checkpoint(tmp_path / "converted")["model"]
     shards = synthetic_triples(tmp_path / "data", n_frames=12, hw=(32, 32), samples_per_scene=2)
-    ov = ["data.num_workers=0", "data.batch_size=1", "data.image_size=[32,32]", "optim.warmup_steps=0",
-          "optim.lr=1e-4", "optim.max_steps=1", "loss.lpips_weight=0", "log.every=1", "log.image_every=1000",
-          "precision=fp32", "rasterizer=torch",
-          # SeeU's refiner on top (tiny, random semantic encoder): absent from the converted checkpoint
-          "model.refiner=transformer", "model.semantic_pretrained=false", 'model.semantic_model_kwargs={"depth": 2}',
-          "model.semantic_backbone=vit_small_patch16_dinov3.lvd1689m", "model.condition_dim=64",
-          "model.condition_heads=4", "model.num_latent_queries=4", "model.cgt_layers=1", "model.cgt_hidden=32"]
+    ov = [
+        "data.num_workers=0",
+        "data.batch_size=1",
+        "data.image_size=[32,32]",
+        "optim.warmup_steps=0",
+        "optim.lr=1e-4",
+        "optim.max_steps=1",
+        "loss.lpips_weight=0",
+        "log.every=1",
+        "log.image_every=1000",
+        "precision=fp32",
+        "rasterizer=torch",
+        # SeeU's refiner on top (tiny, random semantic encoder): absent from the converted checkpoint
+        "model.refiner=transformer",
+        "model.semantic_pretrained=false",
+        'model.semantic_model_kwargs={"depth": 2}',
+        "model.semantic_backbone=vit_small_patch16_dinov3.lvd1689m",
+        "model.condition_dim=64",
+        "model.condition_heads=4",
+        "model.num_latent_queries=4",
+        "model.cgt_layers=1",
+        "model.cgt_hidden=32",
+    ]
     train(str(shards), tmp_path / "run", overrides=ov, init_from=tmp_path / "converted")
     after = ckpt_io.load_checkpoint(tmp_path / "run" / "checkpoints")
     assert after["model_config"]["encoder"] == "mvsplat" and after["model_config"]["refiner"] == "transformer"
-    assert after["step"] == 1 and set(init) < set(after["model"]) and any(k.startswith("refiner.") for k in after["model"])
+    assert (
+        after["step"] == 1 and set(init) < set(after["model"]) and any(k.startswith("refiner.") for k in after["model"])
+    )
     # one AdamW step of lr 1e-4 moves each weight by about 1e-4; a fresh initialisation would be far away
     moved = max(float((after["model"][k] - init[k]).abs().max()) for k in init)
     assert 0 < moved < 1e-3
@@ -156,15 +189,30 @@ def test_seeu_refiner_on_mvsplat_starts_at_mvsplat_and_learns(fixture):
     inp = case["input"]
     state = {k: t.float() for k, t in fixture["state_dict"].items()}
     cfg, seeu_state, _ = convert_state_dict(state)
-    cfg = cfg.replace(refiner="transformer", condition="cea", semantic_backbone="vit_small_patch16_dinov3.lvd1689m",
-                      semantic_pretrained=False, semantic_model_kwargs={"depth": 2}, condition_dim=64,
-                      condition_heads=4, num_latent_queries=4, cgt_layers=1, cgt_hidden=32, cgt_heads=4)
+    cfg = cfg.replace(
+        refiner="transformer",
+        condition="cea",
+        semantic_backbone="vit_small_patch16_dinov3.lvd1689m",
+        semantic_pretrained=False,
+        semantic_model_kwargs={"depth": 2},
+        condition_dim=64,
+        condition_heads=4,
+        num_latent_queries=4,
+        cgt_layers=1,
+        cgt_hidden=32,
+        cgt_heads=4,
+    )
     torch.manual_seed(0)
     model = SeeU(cfg)
     missing, unexpected = model.load_state_dict(seeu_state, strict=False)
     assert not unexpected and all(k.startswith(("refiner.", "condition.")) for k in missing)
-    context = {"image": inp["image"].float() / 255, "cam_to_world": inp["extrinsics"], "intrinsics": inp["intrinsics"],
-               "near": inp["near"], "far": inp["far"]}
+    context = {
+        "image": inp["image"].float() / 255,
+        "cam_to_world": inp["extrinsics"],
+        "intrinsics": inp["intrinsics"],
+        "near": inp["near"],
+        "far": inp["far"],
+    }
     enc = model.encode_all(context)
     assert _rel(enc.gaussians.means.detach(), case["means"]) <= TOL
     assert _rel(enc.gaussians.opacities.detach(), case["opacities"]) <= TOL

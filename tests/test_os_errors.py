@@ -31,8 +31,11 @@ def _one_line(capsys) -> str:
 
 def _leftovers(root: Path) -> list[str]:
     """Temporary or complete-looking files left under `root`."""
-    return sorted(str(p.relative_to(root)) for p in root.rglob("*")
-                  if p.name.endswith((".tmp", ".pending")) or p.name in ("manifest.json", "train_summary.json"))
+    return sorted(
+        str(p.relative_to(root))
+        for p in root.rglob("*")
+        if p.name.endswith((".tmp", ".pending")) or p.name in ("manifest.json", "train_summary.json")
+    )
 
 
 def _fail_writes(monkeypatch, code: int) -> None:
@@ -72,8 +75,18 @@ def _argv(command: str, data: dict, out: Path) -> list[str]:
         "ingest": ["ingest", str(data["clip"]), "--out", str(out), "--threads", "1"],
         "build": ["build", str(data["posed"]), "--out", str(out), "--gap-min", "3", "--gap-max", "5", "--workers", "1"],
         "import": ["import", "nerfstudio", str(data["transforms"]), "--out", str(out)],
-        "train": ["train", "--data", str(data["triples"]), "--config", "configs/cpu_tiny.json", "--out", str(out),
-                  "--max-steps", "1", "checkpoint.every=1"],
+        "train": [
+            "train",
+            "--data",
+            str(data["triples"]),
+            "--config",
+            "configs/cpu_tiny.json",
+            "--out",
+            str(out),
+            "--max-steps",
+            "1",
+            "checkpoint.every=1",
+        ],
     }[command]
 
 
@@ -123,15 +136,23 @@ def test_permission_denied_creating_the_output(tmp_path, capsys, monkeypatch, da
     monkeypatch.setattr(os, "mkdir", mkdir)
     assert cli_main(_argv(command, data, locked / "out")) == 2
     line = _one_line(capsys)
-    assert line.startswith(f"seeu {command}: error: {locked}") and line.endswith(": permission denied (Permission denied)")
+    assert line.startswith(f"seeu {command}: error: {locked}") and line.endswith(
+        ": permission denied (Permission denied)"
+    )
     assert not locked.exists()
 
 
 def test_os_error_line_forms(tmp_path):
     (tmp_path / "f").write_text("")
-    assert os_error_line(NotADirectoryError(errno.ENOTDIR, "Not a directory", str(tmp_path / "f" / "x" / "y"))) == \
-        f"{tmp_path / 'f'}: is a file, a directory is needed here (Not a directory)"
-    assert os_error_line(OSError(errno.ENOSPC, "No space left on device")) == \
-        "cannot write: no space left on the device (No space left on device)"
-    assert os_error_line(OSError(errno.EXDEV, "Invalid cross-device link", "a")) == \
-        "a: operating-system error (Invalid cross-device link)"
+    assert (
+        os_error_line(NotADirectoryError(errno.ENOTDIR, "Not a directory", str(tmp_path / "f" / "x" / "y")))
+        == f"{tmp_path / 'f'}: is a file, a directory is needed here (Not a directory)"
+    )
+    assert (
+        os_error_line(OSError(errno.ENOSPC, "No space left on device"))
+        == "cannot write: no space left on the device (No space left on device)"
+    )
+    assert (
+        os_error_line(OSError(errno.EXDEV, "Invalid cross-device link", "a"))
+        == "a: operating-system error (Invalid cross-device link)"
+    )

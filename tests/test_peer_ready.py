@@ -44,8 +44,12 @@ def exported(tmp_path_factory):
     root = tmp_path_factory.mktemp("peer")
     write_clip(root / "clip.mp4", n_frames=N, width=W, height=H, seed=0)
     assert cli_main(["ingest", str(root / "clip.mp4"), "--out", str(root / "posed")]) == 0
-    assert cli_main(["export", "pixelsplat", str(root / "posed" / "clip"), "--out", str(root / "ps"),
-                     "--size-check", "refuse"]) == 0
+    assert (
+        cli_main(
+            ["export", "pixelsplat", str(root / "posed" / "clip"), "--out", str(root / "ps"), "--size-check", "refuse"]
+        )
+        == 0
+    )
     return root
 
 
@@ -67,7 +71,7 @@ def _align(est_c2w: np.ndarray, gt_c2w: np.ndarray):
     rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
     a, b = est_c2w[:, :3, 3], gt_c2w[:, :3, 3]
     a0, b0 = a - a.mean(0), b - b.mean(0)
-    s = float(((a0 @ rot.T) * b0).sum() / (a0 ** 2).sum())
+    s = float(((a0 @ rot.T) * b0).sum() / (a0**2).sum())
     return s, rot, b.mean(0) - s * rot @ a.mean(0)
 
 
@@ -113,8 +117,10 @@ def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(export
             errs.append(np.linalg.norm(uv_ex - uv_gt, axis=1)[inside])
         errs = np.concatenate(errs)
         checked += len(errs)
-        print(f"{key}: undistorted {meta['undistorted']}, projection error vs ground truth: median "
-              f"{np.median(errs):.3f} px, p95 {np.percentile(errs, 95):.3f} px, max {errs.max():.3f} px")
+        print(
+            f"{key}: undistorted {meta['undistorted']}, projection error vs ground truth: median "
+            f"{np.median(errs):.3f} px, p95 {np.percentile(errs, 95):.3f} px, max {errs.max():.3f} px"
+        )
         assert np.median(errs) < 0.4 and np.percentile(errs, 95) < 1.0, (np.median(errs), np.percentile(errs, 95))
     assert checked > 500
 
@@ -129,8 +135,12 @@ def test_pixelsplat_layout_projects_ground_truth_within_005_px(tmp_path):
     scene = synthetic_posed_scene(n_frames=3, height=H, width=W, seed=0, scene_id="gt")
     with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
         w.add(scene)
-    assert cli_main(["export", "pixelsplat", str(tmp_path / "posed"), "--out", str(tmp_path / "ps"),
-                     "--size-check", "refuse"]) == 0
+    assert (
+        cli_main(
+            ["export", "pixelsplat", str(tmp_path / "posed"), "--out", str(tmp_path / "ps"), "--size-check", "refuse"]
+        )
+        == 0
+    )
     (ex,) = torch.load(tmp_path / "ps" / "test" / "000000.torch", weights_only=True)
     c2w, intr = _peer_cameras(ex)
     gt = {"config": {"seed": 0}, "cam_to_world": scene.cam_to_world, "intrinsics_norm": scene.intrinsics_norm}
@@ -180,8 +190,9 @@ def test_export_resize_makes_frames_peer_size_with_ground_truth_intrinsics(tmp_p
         blur = lambda a: cv2.GaussianBlur(a, (0, 0), 1.0)  # geometry, not JPEG/filter noise
         assert cv2.PSNR(blur(got), blur(truth)) > 30
     # 600x800 covers 360x640 at 0.8 (480x640), then 60 rows are cropped top and bottom
-    assert np.allclose(cams[:, :4], [[scene.intrinsics_norm[0, 0], scene.intrinsics_norm[0, 1] * 480 / 360, 0.5, 0.5]],
-                       atol=1e-6)
+    assert np.allclose(
+        cams[:, :4], [[scene.intrinsics_norm[0, 0], scene.intrinsics_norm[0, 1] * 480 / 360, 0.5, 0.5]], atol=1e-6
+    )
 
 
 def test_ingested_sfm_points_lie_on_ground_truth_surfaces_and_reach_nerfstudio(exported, tmp_path):

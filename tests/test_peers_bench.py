@@ -32,12 +32,27 @@ def test_resume_counting_finds_repeats_and_losses(data, tmp_path):
         return lambda state: {**state, "samples_seen": state["samples_seen"] + delta}
 
     args = ("seeu", where, 2, tmp_path / "cache", SAMPLES, 3)  # 6 of 12 samples before the stop
-    assert peers.resume_counts(*args, 1, 0) == {"before": 6, "after": 6, "duplicates": 0, "losses": 0,
-                                                "same_order": True}
-    assert peers.resume_counts(*args, 0, 0, edit_state=moved(-4)) == {"before": 6, "after": 10, "duplicates": 4,
-                                                                       "losses": 0, "same_order": False}
-    assert peers.resume_counts(*args, 0, 0, edit_state=moved(+4)) == {"before": 6, "after": 2, "duplicates": 0,
-                                                                       "losses": 4, "same_order": False}
+    assert peers.resume_counts(*args, 1, 0) == {
+        "before": 6,
+        "after": 6,
+        "duplicates": 0,
+        "losses": 0,
+        "same_order": True,
+    }
+    assert peers.resume_counts(*args, 0, 0, edit_state=moved(-4)) == {
+        "before": 6,
+        "after": 10,
+        "duplicates": 4,
+        "losses": 0,
+        "same_order": False,
+    }
+    assert peers.resume_counts(*args, 0, 0, edit_state=moved(+4)) == {
+        "before": 6,
+        "after": 2,
+        "duplicates": 0,
+        "losses": 4,
+        "same_order": False,
+    }
 
 
 def test_litdata_items_hold_the_same_jpegs_and_decode_to_the_same_images(data, tmp_path):

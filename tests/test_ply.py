@@ -15,10 +15,13 @@ from seeu_model.ply import load_ply, ply_property_names, save_ply
 def _scene(n: int, degree: int, b: int = 2, seed: int = 0) -> Gaussians:
     gen = torch.Generator().manual_seed(seed)
     q = torch.randn(b, n, 4, generator=gen)
-    return Gaussians(means=torch.randn(b, n, 3, generator=gen), scales=torch.rand(b, n, 3, generator=gen) * 0.3 + 1e-3,
-                     rotations=q / q.norm(dim=-1, keepdim=True),
-                     opacities=torch.rand(b, n, generator=gen) * 0.98 + 0.01,
-                     sh=torch.randn(b, n, (degree + 1) ** 2, 3, generator=gen))
+    return Gaussians(
+        means=torch.randn(b, n, 3, generator=gen),
+        scales=torch.rand(b, n, 3, generator=gen) * 0.3 + 1e-3,
+        rotations=q / q.norm(dim=-1, keepdim=True),
+        opacities=torch.rand(b, n, generator=gen) * 0.98 + 0.01,
+        sh=torch.randn(b, n, (degree + 1) ** 2, 3, generator=gen),
+    )
 
 
 def test_header_is_the_standard_3dgs_layout(tmp_path):
@@ -30,8 +33,11 @@ def test_header_is_the_standard_3dgs_layout(tmp_path):
     props = [line.split() for line in lines if line.startswith("property")]
     assert all(p[1] == "float" for p in props)
     names = [p[2] for p in props]
-    expected = (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"] + [f"f_rest_{i}" for i in range(45)]
-                + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+    expected = (
+        ["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+        + [f"f_rest_{i}" for i in range(45)]
+        + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"]
+    )
     assert names == expected == ply_property_names(3)
     assert len(raw) - len(header) == 5 * 62 * 4  # 62 float32 per Gaussian, nothing else
 

@@ -24,13 +24,18 @@ def random_scene(b: int, n: int, degree: int = 1, dtype=torch.float64, seed: int
     """Gaussians around (0, 0, 3) in front of cameras at the origin; `behind` of them at z < 0."""
     gen = torch.Generator().manual_seed(seed)
     r = lambda *s: torch.rand(*s, generator=gen, dtype=dtype)  # noqa: E731
-    means = (torch.randn(b, n, 3, generator=gen, dtype=dtype) * torch.tensor([0.6, 0.5, 0.4], dtype=dtype)
-             + torch.tensor([0.0, 0.0, 3.0], dtype=dtype))
+    means = torch.randn(b, n, 3, generator=gen, dtype=dtype) * torch.tensor(
+        [0.6, 0.5, 0.4], dtype=dtype
+    ) + torch.tensor([0.0, 0.0, 3.0], dtype=dtype)
     if behind:
         means[:, :behind, 2] = -1.0
-    return Gaussians(means=means, scales=r(b, n, 3) * 0.15 + 0.03, rotations=torch.randn(b, n, 4, generator=gen, dtype=dtype),
-                     opacities=r(b, n) * 0.85 + 0.05,
-                     sh=torch.randn(b, n, (degree + 1) ** 2, 3, generator=gen, dtype=dtype) * 0.4)
+    return Gaussians(
+        means=means,
+        scales=r(b, n, 3) * 0.15 + 0.03,
+        rotations=torch.randn(b, n, 4, generator=gen, dtype=dtype),
+        opacities=r(b, n) * 0.85 + 0.05,
+        sh=torch.randn(b, n, (degree + 1) ** 2, 3, generator=gen, dtype=dtype) * 0.4,
+    )
 
 
 def cameras(b: int, v: int, dtype=torch.float64, seed: int = 0):
@@ -42,7 +47,9 @@ def cameras(b: int, v: int, dtype=torch.float64, seed: int = 0):
             eye = np.array([0.3 * j - 0.3, 0.1 * i, -0.2 * j])
             c2w[i, j] = torch.from_numpy(look_at_cam_to_world(eye, np.array([0.05 * i, 0.0, 3.0])))
     k = cam.intrinsics_norm_matrix(torch.tensor([0.9, 1.1, 0.52, 0.47], dtype=dtype)).repeat(b, v, 1, 1)
-    k = k + 0.02 * torch.rand(b, v, 3, 3, generator=gen, dtype=dtype) * torch.tensor([[1, 0, 1], [0, 1, 1], [0, 0, 0]], dtype=dtype)
+    k = k + 0.02 * torch.rand(b, v, 3, 3, generator=gen, dtype=dtype) * torch.tensor(
+        [[1, 0, 1], [0, 1, 1], [0, 0, 0]], dtype=dtype
+    )
     return c2w, k
 
 
@@ -63,7 +70,9 @@ def test_tiled_matches_dense(dtype, antialiased):
     c2w, k = cameras(b, v, dtype)
     bg = torch.tensor([[0.2, 0.3, 0.4], [1.0, 0.0, 0.5]], dtype=dtype)
     ref = rasterize(g, c2w, k, w, h, background=bg, backend="dense", antialiased=antialiased)
-    assert ref.color.shape == (b, v, 3, h, w) and ref.depth.shape == (b, v, 1, h, w) and ref.alpha.shape == (b, v, 1, h, w)
+    assert (
+        ref.color.shape == (b, v, 3, h, w) and ref.depth.shape == (b, v, 1, h, w) and ref.alpha.shape == (b, v, 1, h, w)
+    )
     assert 0.1 < float(ref.alpha.mean()) < 0.9  # a scene with overlaps and holes
     for tile in (4, 8, 16):
         out = rasterize(g, c2w, k, w, h, background=bg, backend="torch", tile_size=tile, antialiased=antialiased)
@@ -81,8 +90,13 @@ def test_opaque_stack_stops_like_3dgs():
     dtype = torch.float64
     n = 6
     means = torch.tensor([[0.0, 0.0, 2.0 + 0.1 * i] for i in range(n)], dtype=dtype)[None]
-    g = Gaussians(means, torch.full((1, n, 3), 0.5, dtype=dtype), torch.tensor([[1.0, 0, 0, 0]] * n, dtype=dtype)[None],
-                  torch.ones(1, n, dtype=dtype), torch.zeros(1, n, 1, 3, dtype=dtype))
+    g = Gaussians(
+        means,
+        torch.full((1, n, 3), 0.5, dtype=dtype),
+        torch.tensor([[1.0, 0, 0, 0]] * n, dtype=dtype)[None],
+        torch.ones(1, n, dtype=dtype),
+        torch.zeros(1, n, 1, 3, dtype=dtype),
+    )
     g.sh[0, :, 0, 0] = torch.arange(n, dtype=dtype)  # layer i has red = 0.5 + C0 * i
     c2w = torch.eye(4, dtype=dtype)[None, None]
     k = cam.intrinsics_norm_matrix(torch.tensor([1.0, 1.0, 0.5, 0.5], dtype=dtype))[None, None]
@@ -92,7 +106,7 @@ def test_opaque_stack_stops_like_3dgs():
     # centre pixel: layers 0 and 1 are clamped to alpha 0.99 (T: 1 -> 0.01 -> 1e-4); layer 2 would bring
     # T to 1e-6 <= 1e-4, so the pixel stops before it and the layers behind it
     red = 0.5 + 0.28209479177387814 * np.arange(n)
-    assert out.alpha[0, 0, 0, 4, 4].item() == pytest.approx(1 - 0.01 ** 2, abs=1e-12)
+    assert out.alpha[0, 0, 0, 4, 4].item() == pytest.approx(1 - 0.01**2, abs=1e-12)
     assert out.color[0, 0, 0, 4, 4].item() == pytest.approx(0.99 * red[0] + 0.01 * 0.99 * red[1], abs=1e-12)
     assert out.depth[0, 0, 0, 4, 4].item() == pytest.approx((0.99 * 2.0 + 0.0099 * 2.1) / 0.9999, abs=1e-12)
 
@@ -155,20 +169,30 @@ def test_gradcheck_tiled_compositor():
     sig = torch.rand(n, 2, generator=gen, dtype=dtype) + 0.8
     rho = torch.rand(n, generator=gen, dtype=dtype) * 0.6 - 0.3
     cxx, cyy, cxy = sig[:, 0] ** 2, sig[:, 1] ** 2, rho * sig[:, 0] * sig[:, 1]
-    det = cxx * cyy - cxy ** 2
+    det = cxx * cyy - cxy**2
     conics = torch.stack([cyy / det, -cxy / det, cxx / det], -1).requires_grad_()
     opac = (torch.rand(n, generator=gen, dtype=dtype) * 0.8 + 0.1).requires_grad_()
     feats = torch.rand(n, 4, generator=gen, dtype=dtype).requires_grad_()
     # bin with a Projected-like object for a single camera
     from seeu_model.rasterizer.projection import Projected
 
-    proj = Projected(means2d[None].detach(), conics[None].detach(), torch.stack([cxx, cxy, cyy], -1)[None],
-                     torch.rand(1, n, generator=gen, dtype=dtype) + 1, opac[None].detach(),
-                     torch.zeros(1, n, 3, dtype=dtype), torch.ones(1, n, dtype=torch.bool))
+    proj = Projected(
+        means2d[None].detach(),
+        conics[None].detach(),
+        torch.stack([cxx, cxy, cyy], -1)[None],
+        torch.rand(1, n, generator=gen, dtype=dtype) + 1,
+        opac[None].detach(),
+        torch.zeros(1, n, 3, dtype=dtype),
+        torch.ones(1, n, dtype=torch.bool),
+    )
     isect, tiles, tx, ty = bin_gaussians(proj, w, h, tile)
     comp = _Compositor(isect, tiles, tx * ty, tx, ty, tile, 1 << 20)
-    assert torch.autograd.gradcheck(lambda m, c, o, f: _TiledComposite.apply(m, c, o, f, comp, 0.99),
-                                    (means2d, conics, opac, feats), eps=1e-6, atol=1e-7)
+    assert torch.autograd.gradcheck(
+        lambda m, c, o, f: _TiledComposite.apply(m, c, o, f, comp, 0.99),
+        (means2d, conics, opac, feats),
+        eps=1e-6,
+        atol=1e-7,
+    )
 
 
 def test_gradcheck_end_to_end():
@@ -194,9 +218,13 @@ def test_gradcheck_end_to_end():
 
 
 def _single_gaussian(mean, scale, opacity, dtype=torch.float64):
-    return Gaussians(torch.tensor([[mean]], dtype=dtype), torch.full((1, 1, 3), scale, dtype=dtype),
-                     torch.tensor([[[1.0, 0.0, 0.0, 0.0]]], dtype=dtype), torch.tensor([[opacity]], dtype=dtype),
-                     torch.zeros(1, 1, 1, 3, dtype=dtype))
+    return Gaussians(
+        torch.tensor([[mean]], dtype=dtype),
+        torch.full((1, 1, 3), scale, dtype=dtype),
+        torch.tensor([[[1.0, 0.0, 0.0, 0.0]]], dtype=dtype),
+        torch.tensor([[opacity]], dtype=dtype),
+        torch.zeros(1, 1, 1, 3, dtype=dtype),
+    )
 
 
 @pytest.mark.parametrize("antialiased", [False, True])
@@ -210,7 +238,9 @@ def test_isotropic_gaussian_footprint_closed_form(antialiased):
         x, y = (u0 - cx) * z / f, (v0 - cy) * z / f
         g = _single_gaussian([x, y, z], s, o)
         k = cam.intrinsics_norm_matrix(torch.tensor([f / w, f / h, cx / w, cy / h], dtype=torch.float64))[None, None]
-        out = rasterize(g, torch.eye(4, dtype=torch.float64)[None, None], k, w, h, backend="torch", antialiased=antialiased)
+        out = rasterize(
+            g, torch.eye(4, dtype=torch.float64)[None, None], k, w, h, backend="torch", antialiased=antialiased
+        )
         q = np.array([x / z, y / z])
         sig = (f * s / z) ** 2 * (np.eye(2) + np.outer(q, q))
         cov = sig + 0.3 * np.eye(2)
@@ -241,7 +271,8 @@ def test_ewa_covariance_is_the_projection_jacobian_sandwich():
         for i in range(6):
             mean = g.means[0, i]
             jac = torch.autograd.functional.jacobian(
-                lambda p: cam.project_points(p[None], c2w[0, v], intr[0, v], w, h)[0][0], mean)  # (2, 3)
+                lambda p: cam.project_points(p[None], c2w[0, v], intr[0, v], w, h)[0][0], mean
+            )  # (2, 3)
             rot = cam.rotmat_from_quat_wxyz(g.rotations[0, i])
             sigma = rot @ torch.diag(g.scales[0, i] ** 2) @ rot.T
             expect = jac @ sigma @ jac.T + 0.3 * torch.eye(2, dtype=dtype)
@@ -265,9 +296,13 @@ def test_projection_convention_agrees_with_project_points():
     uv, depth = cam.project_points(pts, pose, intr, w, h)
     assert ((uv > 6) & (uv < np.array([w, h]) - 6)).all()
     b = len(pts)  # one Gaussian per batch element, so each render shows exactly one
-    g = Gaussians(torch.from_numpy(pts)[:, None], torch.full((b, 1, 3), 0.02 * depth.mean() / 4, dtype=torch.float64),
-                  torch.tensor([1.0, 0, 0, 0], dtype=torch.float64).repeat(b, 1, 1),
-                  torch.full((b, 1), 0.9, dtype=torch.float64), torch.zeros(b, 1, 1, 3, dtype=torch.float64))
+    g = Gaussians(
+        torch.from_numpy(pts)[:, None],
+        torch.full((b, 1, 3), 0.02 * depth.mean() / 4, dtype=torch.float64),
+        torch.tensor([1.0, 0, 0, 0], dtype=torch.float64).repeat(b, 1, 1),
+        torch.full((b, 1), 0.9, dtype=torch.float64),
+        torch.zeros(b, 1, 1, 3, dtype=torch.float64),
+    )
     c2w = torch.from_numpy(pose).repeat(b, 1, 1, 1)
     k = torch.from_numpy(cam.intrinsics_norm_matrix(intr)).repeat(b, 1, 1, 1)
     out = rasterize(g, c2w, k, w, h, backend="torch")
@@ -304,8 +339,13 @@ def test_view_dependent_colour_uses_camera_centre_direction():
     sh = torch.zeros(1, 1, 4, 3, dtype=dtype)
     sh[0, 0, 0] = torch.tensor([0.2, -0.1, 0.0])
     sh[0, 0, 3, 0] = 1.5  # red follows -C1 * x of the viewing direction
-    g = Gaussians(mean[None, None], torch.full((1, 1, 3), 0.3, dtype=dtype), torch.tensor([[[1.0, 0, 0, 0]]], dtype=dtype),
-                  torch.full((1, 1), 0.7, dtype=dtype), sh)
+    g = Gaussians(
+        mean[None, None],
+        torch.full((1, 1, 3), 0.3, dtype=dtype),
+        torch.tensor([[[1.0, 0, 0, 0]]], dtype=dtype),
+        torch.full((1, 1), 0.7, dtype=dtype),
+        sh,
+    )
     eyes = [np.array([-1.0, 0.0, 0.0]), np.array([1.5, 0.3, 0.5])]
     c2w = torch.stack([torch.from_numpy(look_at_cam_to_world(e, mean.numpy())) for e in eyes])[None]
     k = cam.intrinsics_norm_matrix(torch.tensor([1.0, 1.0, 0.5, 0.5], dtype=dtype)).repeat(1, 2, 1, 1)
@@ -313,8 +353,12 @@ def test_view_dependent_colour_uses_camera_centre_direction():
     for v, eye in enumerate(eyes):
         dvec = mean.numpy() - eye
         dvec /= np.linalg.norm(dvec)
-        expect = np.maximum(0.5 + 0.28209479177387814 * np.array([0.2, -0.1, 0.0])
-                            + np.array([-0.4886025119029199 * dvec[0] * 1.5, 0, 0]), 0)
+        expect = np.maximum(
+            0.5
+            + 0.28209479177387814 * np.array([0.2, -0.1, 0.0])
+            + np.array([-0.4886025119029199 * dvec[0] * 1.5, 0, 0]),
+            0,
+        )
         centre = out.color[0, v, :, 7, 7].numpy() / out.alpha[0, v, 0, 7, 7].item()
         assert np.allclose(centre, expect, atol=1e-12)
     assert sh_to_color(torch.full((1, 3), -5.0, dtype=dtype)[:, None].expand(1, 1, 3), torch.ones(1, 3)).max() == 0
@@ -395,8 +439,26 @@ def test_gsplat_call_follows_its_documented_api(monkeypatch, version):
     w, h = 21, 17
     calls = []
 
-    def rasterization(means, quats, scales, opacities, colors, viewmats, Ks, width, height, near_plane, far_plane,
-                      eps2d, sh_degree, packed, tile_size, backgrounds, render_mode, rasterize_mode):
+    def rasterization(
+        means,
+        quats,
+        scales,
+        opacities,
+        colors,
+        viewmats,
+        Ks,
+        width,
+        height,
+        near_plane,
+        far_plane,
+        eps2d,
+        sh_degree,
+        packed,
+        tile_size,
+        backgrounds,
+        render_mode,
+        rasterize_mode,
+    ):
         batch = means.shape[:-2]
         n, c = means.shape[-2], viewmats.shape[-3]
         calls.append(len(batch))
@@ -405,12 +467,18 @@ def test_gsplat_call_follows_its_documented_api(monkeypatch, version):
         assert colors.shape == batch + (n, (sh_degree + 1) ** 2, 3) and backgrounds.shape == batch + (c, 3)
         assert Ks.shape == batch + (c, 3, 3) and render_mode == "RGB+ED" and (width, height) == (w, h)
         assert all(t.dtype == torch.float32 and t.is_contiguous() for t in (means, viewmats, Ks, colors))
-        g = Gaussians(means.reshape(-1, n, 3), scales.reshape(-1, n, 3), quats.reshape(-1, n, 4),
-                      opacities.reshape(-1, n), colors.reshape(-1, n, colors.shape[-2], 3))
+        g = Gaussians(
+            means.reshape(-1, n, 3),
+            scales.reshape(-1, n, 3),
+            quats.reshape(-1, n, 4),
+            opacities.reshape(-1, n),
+            colors.reshape(-1, n, colors.shape[-2], 3),
+        )
         c2w = torch.linalg.inv(viewmats.reshape(-1, c, 4, 4))
         k_norm = Ks.reshape(-1, c, 3, 3) / torch.tensor([[width], [height], [1.0]])
-        proj = project_gaussians(g, c2w, k_norm, width, height, near_plane, far_plane, eps2d,
-                                 rasterize_mode == "antialiased")
+        proj = project_gaussians(
+            g, c2w, k_norm, width, height, near_plane, far_plane, eps2d, rasterize_mode == "antialiased"
+        )
         feats, alpha = render_dense(proj, width, height)
         alpha = alpha[..., None]
         rgb = feats[..., :3] + (1 - alpha) * backgrounds.reshape(-1, 3)[:, None, None, :]
@@ -452,8 +520,16 @@ def test_gsplat_agrees_with_torch_backend(antialiased):
     covered = ref.alpha > 0.5
     assert _psnr(out.depth[covered] / 4, ref.depth[covered] / 4) >= 40.0
     # the torch backend gives the same pixels on CUDA and CPU
-    cpu = rasterize(g.map(lambda t: t.cpu()), c2w.cpu(), k.cpu(), 96, 64, background=bg.cpu(), backend="torch",
-                    antialiased=antialiased)
+    cpu = rasterize(
+        g.map(lambda t: t.cpu()),
+        c2w.cpu(),
+        k.cpu(),
+        96,
+        64,
+        background=bg.cpu(),
+        backend="torch",
+        antialiased=antialiased,
+    )
     assert max(_diff(cpu, type(ref)(ref.color.cpu(), ref.depth.cpu(), ref.alpha.cpu()))) <= 1e-4
 
 

@@ -16,8 +16,13 @@ ray = pytest.importorskip("ray")
 
 @pytest.fixture(scope="module")
 def ray_local():
-    ray.init(num_cpus=2, include_dashboard=False, logging_level="ERROR", log_to_driver=False,
-             runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parent.parent)}})
+    ray.init(
+        num_cpus=2,
+        include_dashboard=False,
+        logging_level="ERROR",
+        log_to_driver=False,
+        runtime_env={"env_vars": {"PYTHONPATH": str(Path(__file__).resolve().parent.parent)}},
+    )
     yield
     ray.shutdown()
 
@@ -35,11 +40,29 @@ def _shards(out: Path) -> dict[str, bytes]:
     return {p.name: p.read_bytes() for p in sorted(out.glob("shard-*.arrow"))}
 
 
-@pytest.mark.parametrize("extra", [["--mode", "extrap", "--extrap-frames", "9", "--interp-ratio", "0.3"],
-                                   ["--mode", "interp", "--resize", "16x20", "-V", "3"]])
+@pytest.mark.parametrize(
+    "extra",
+    [
+        ["--mode", "extrap", "--extrap-frames", "9", "--interp-ratio", "0.3"],
+        ["--mode", "interp", "--resize", "16x20", "-V", "3"],
+    ],
+)
 def test_ray_engine_byte_identical_to_local(ray_local, posed, tmp_path, extra):
-    common = ["build", str(posed), "--gap-min", "8", "--gap-max", "14", "--samples-per-scene", "4",
-              "--shard-size", "30kB", "--seed", "5", *extra]
+    common = [
+        "build",
+        str(posed),
+        "--gap-min",
+        "8",
+        "--gap-max",
+        "14",
+        "--samples-per-scene",
+        "4",
+        "--shard-size",
+        "30kB",
+        "--seed",
+        "5",
+        *extra,
+    ]
     assert cli_main([*common, "--out", str(tmp_path / "local"), "--workers", "1"]) == 0
     assert cli_main([*common, "--out", str(tmp_path / "ray"), "--engine", "ray"]) == 0
     local, remote = _shards(tmp_path / "local"), _shards(tmp_path / "ray")

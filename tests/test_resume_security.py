@@ -16,9 +16,22 @@ from seeu_model.training import checkpoint as ckpt_io
 from tests.training_fixtures import synthetic_triples
 
 # 8 samples, batch 2: 4 steps per epoch, 2 epochs = 8 steps (the stand-in model keeps it fast)
-FAST = ["data.num_workers=0", "data.image_size=[16,16]", "data.batch_size=2", "data.flip=true",
-        "optim.warmup_steps=2", "optim.lr=2e-3", "optim.max_steps=8", "loss.lpips_weight=0", "log.every=1",
-        "log.image_every=1000", "precision=fp32", "rasterizer=torch", "checkpoint.every=1", "checkpoint.keep=8"]
+FAST = [
+    "data.num_workers=0",
+    "data.image_size=[16,16]",
+    "data.batch_size=2",
+    "data.flip=true",
+    "optim.warmup_steps=2",
+    "optim.lr=2e-3",
+    "optim.max_steps=8",
+    "loss.lpips_weight=0",
+    "log.every=1",
+    "log.image_every=1000",
+    "precision=fp32",
+    "rasterizer=torch",
+    "checkpoint.every=1",
+    "checkpoint.keep=8",
+]
 
 
 class _ConvStandIn(nn.Module):
@@ -31,7 +44,7 @@ class _ConvStandIn(nn.Module):
 
     def forward(self, batch: dict) -> torch.Tensor:
         ctx, t = batch["context"]["image"], batch["target"]["image"].shape[1]
-        out = torch.sigmoid(self.net(ctx[:, :2].flatten(1, 2)))        # (B, 3, H, W)
+        out = torch.sigmoid(self.net(ctx[:, :2].flatten(1, 2)))  # (B, 3, H, W)
         return out[:, None].expand(-1, t, -1, -1, -1)
 
 
@@ -81,8 +94,9 @@ def test_stop_at_epoch_end_then_resume(shards, tmp_path):
 
     ov = [o for o in FAST if not o.startswith("optim.max_steps")]
     train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=4"], model_factory=stand_in_factory)
-    rest = train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=6"], resume=True,
-                 model_factory=stand_in_factory)
+    rest = train(
+        str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=6"], resume=True, model_factory=stand_in_factory
+    )
     assert rest["step"] == 6
     assert ckpt_io.load_checkpoint(tmp_path / "r" / "checkpoints")["loader"]["epoch"] == 1
 
@@ -150,8 +164,10 @@ def _malicious(tmp_path: Path, kind: str, name: str = "evil.pt") -> tuple[Path, 
         path.write_bytes(pickle.dumps(_RunsCommand(sentinel), protocol=2))
     else:
         payload = _RunsCommand(sentinel) if kind == "system" else _OpensFile(sentinel)
-        torch.save({"format": "seeu-train-checkpoint", "version": 2, "step": 1, "config": {}, "model": {},
-                    "rng": payload}, path)
+        torch.save(
+            {"format": "seeu-train-checkpoint", "version": 2, "step": 1, "config": {}, "model": {}, "rng": payload},
+            path,
+        )
     return path, sentinel
 
 
@@ -172,8 +188,10 @@ def _cli(argv: list[str], capsys) -> tuple[int, str]:
 
 
 @pytest.mark.parametrize("kind", ["system", "open", "pickle"])
-@pytest.mark.parametrize("entry", ["eval", "render", "train-resume-file", "train-resume-dropped", "lpips-weights",
-                                   "semantic-weights", "ablate"])
+@pytest.mark.parametrize(
+    "entry",
+    ["eval", "render", "train-resume-file", "train-resume-dropped", "lpips-weights", "semantic-weights", "ablate"],
+)
 def test_a_malicious_file_is_refused_before_it_runs(shards, tmp_path, capsys, entry, kind):
     evil, sentinel = _malicious(tmp_path, kind)
     out = tmp_path / "out"
@@ -188,25 +206,46 @@ def test_a_malicious_file_is_refused_before_it_runs(shards, tmp_path, capsys, en
         shutil.copy(evil, out / "checkpoints" / "ckpt-00000005.pt")
         argv = ["train", "--data", str(shards), "--out", str(out)] + FAST + ["--resume"]
     elif entry == "lpips-weights":
-        argv = ["train", "--data", str(shards), "--out", str(out), "--lpips-weights", str(evil)] + \
-            [o for o in FAST if not o.startswith("loss.")] + ["loss.lpips_weight=0.05"]
+        argv = (
+            ["train", "--data", str(shards), "--out", str(out), "--lpips-weights", str(evil)]
+            + [o for o in FAST if not o.startswith("loss.")]
+            + ["loss.lpips_weight=0.05"]
+        )
     elif entry == "ablate":  # a finished variant whose summary names the malicious checkpoint
         (out / "full" / "eval").mkdir(parents=True)
         (out / "full" / "train_summary.json").write_text(json.dumps({"step": 1, "checkpoint": str(evil)}))
         (out / "full" / "eval" / "summary.json").write_text("{}")
         configs = Path(__file__).resolve().parents[1] / "configs"
-        argv = ["ablate", "--config", str(configs / "cpu_small.json"), "--data", str(shards), "--eval", str(shards),
-                "--out", str(out), "--variants", "full", "--no-lpips", "model.preset=tiny", "optim.max_steps=1"]
+        argv = [
+            "ablate",
+            "--config",
+            str(configs / "cpu_small.json"),
+            "--data",
+            str(shards),
+            "--eval",
+            str(shards),
+            "--out",
+            str(out),
+            "--variants",
+            "full",
+            "--no-lpips",
+            "model.preset=tiny",
+            "optim.max_steps=1",
+        ]
     else:
-        argv = ["train", "--data", str(shards), "--out", str(out), "--no-lpips"] + FAST + \
-            ["model.preset=tiny", "model.semantic_pretrained=true", f"model.semantic_weights={evil}"]
+        argv = (
+            ["train", "--data", str(shards), "--out", str(out), "--no-lpips"]
+            + FAST
+            + ["model.preset=tiny", "model.semantic_pretrained=true", f"model.semantic_weights={evil}"]
+        )
     code, err = _cli(argv, capsys)
     assert not sentinel.exists()
     assert code == 2, err
     assert len(err.splitlines()) == 1 and "internal error" not in err
     assert str(evil.name) in err or "ckpt-00000005.pt" in err
-    assert ("refused" in err and ("posix.system" in err or "io.open" in err)) or \
-        (kind == "pickle" and "not a readable" in err), err
+    assert ("refused" in err and ("posix.system" in err or "io.open" in err)) or (
+        kind == "pickle" and "not a readable" in err
+    ), err
 
 
 def test_rng_state_round_trips_through_v2_and_v1_checkpoints(tmp_path):
@@ -218,12 +257,23 @@ def test_rng_state_round_trips_through_v2_and_v1_checkpoints(tmp_path):
     np.random.seed(7)
     random.seed(7)
     torch.manual_seed(7)
-    v1 = {"format": ckpt_io.FORMAT, "version": 1, "step": 3, "config": {}, "model": {"w": torch.ones(2)},
-          "rng": {"torch": torch.get_rng_state(), "cuda": [], "numpy": np.random.get_state(),
-                  "python": random.getstate()}}
+    v1 = {
+        "format": ckpt_io.FORMAT,
+        "version": 1,
+        "step": 3,
+        "config": {},
+        "model": {"w": torch.ones(2)},
+        "rng": {
+            "torch": torch.get_rng_state(),
+            "cuda": [],
+            "numpy": np.random.get_state(),
+            "python": random.getstate(),
+        },
+    }
     torch.save(v1, tmp_path / "ckpt-00000003.pt")
-    v2_path = ckpt_io.save_checkpoint(tmp_path / "v2", 3, {"config": {}, "model": {"w": torch.ones(2)},
-                                                           "rng": ckpt_io.rng_state()}, keep=1)
+    v2_path = ckpt_io.save_checkpoint(
+        tmp_path / "v2", 3, {"config": {}, "model": {"w": torch.ones(2)}, "rng": ckpt_io.rng_state()}, keep=1
+    )
     expected = (np.random.rand(3), random.random(), torch.rand(3))
     for path in (tmp_path / "ckpt-00000003.pt", v2_path):
         ck = ckpt_io.load_checkpoint(path)
@@ -238,8 +288,17 @@ def test_rng_state_round_trips_through_v2_and_v1_checkpoints(tmp_path):
 # Part 4: config / CLI values and render cameras: one line, exit 2
 # ------------------------------------------------------------------------------------------------
 
-SEEU_OV = ["model.preset=tiny", "data.batch_size=2", "data.num_workers=0", "data.image_size=[32,32]",
-           "optim.max_steps=1", "loss.lpips_weight=0", "precision=fp32", "rasterizer=torch", "log.every=1"]
+SEEU_OV = [
+    "model.preset=tiny",
+    "data.batch_size=2",
+    "data.num_workers=0",
+    "data.image_size=[32,32]",
+    "optim.max_steps=1",
+    "loss.lpips_weight=0",
+    "precision=fp32",
+    "rasterizer=torch",
+    "log.every=1",
+]
 
 
 @pytest.fixture(scope="module")
@@ -259,20 +318,23 @@ def _one_line_exit_2(argv, capsys) -> str:
     return err
 
 
-@pytest.mark.parametrize("override, says", [
-    ("log.every=0", "log.every must be > 0"),
-    ("log.image_every=-5", "log.image_every must be > 0"),
-    ("data.num_workers=-1", "data.num_workers must be >= 0"),
-    ("optim.lr=NaN", "finite"),
-    ("optim.lr=Infinity", "finite"),
-    ("optim.lr=-1e-4", "optim.lr must be > 0"),
-    ("optim.max_steps=NaN", "integer"),
-    ("optim.max_steps=0", "optim.max_steps must be > 0"),
-    ("optim.betas=[0.9,1.5]", "optim.betas"),
-    ("checkpoint.every=0", "checkpoint.every must be > 0"),
-    ("data.image_size=0x0", "data.image_size must be positive"),
-    ("loss.lpips_weight=-0.1", "loss.lpips_weight must be >= 0"),
-])
+@pytest.mark.parametrize(
+    "override, says",
+    [
+        ("log.every=0", "log.every must be > 0"),
+        ("log.image_every=-5", "log.image_every must be > 0"),
+        ("data.num_workers=-1", "data.num_workers must be >= 0"),
+        ("optim.lr=NaN", "finite"),
+        ("optim.lr=Infinity", "finite"),
+        ("optim.lr=-1e-4", "optim.lr must be > 0"),
+        ("optim.max_steps=NaN", "integer"),
+        ("optim.max_steps=0", "optim.max_steps must be > 0"),
+        ("optim.betas=[0.9,1.5]", "optim.betas"),
+        ("checkpoint.every=0", "checkpoint.every must be > 0"),
+        ("data.image_size=0x0", "data.image_size must be positive"),
+        ("loss.lpips_weight=-0.1", "loss.lpips_weight must be >= 0"),
+    ],
+)
 def test_bad_config_values_are_one_line(shards, tmp_path, capsys, override, says):
     err = _one_line_exit_2(["train", "--data", str(shards), "--out", str(tmp_path / "o")] + FAST + [override], capsys)
     assert says in err
@@ -284,8 +346,10 @@ def test_checkpoint_whose_model_config_disagrees_with_its_weights(seeu_run, shar
     ck["model_config"]["head_hidden"] = ck["model_config"]["head_hidden"] * 2  # the weights stay as they were
     bad = tmp_path / "ckpt-00000001.pt"
     torch.save(ck, bad)
-    for argv in (["eval", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "e"), "--no-lpips"],
-                 ["render", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "r")]):
+    for argv in (
+        ["eval", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "e"), "--no-lpips"],
+        ["render", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "r")],
+    ):
         err = _one_line_exit_2(argv, capsys)
         assert str(bad) in err and "do not match its model config" in err
 
@@ -297,9 +361,14 @@ def _camera_files(tmp_path: Path) -> dict:
     for i in (0, 1):
         cv2.imwrite(str(tmp_path / f"v{i}.png"), np.full((32, 32, 3), 60 * (i + 1), np.uint8))
     pose = np.eye(4)
-    return {"near": 0.5, "far": 20.0,
-            "frames": [{"image": f"v{i}.png", "cam_to_world": pose.tolist(), "intrinsics_norm": [1.0, 1.0, 0.5, 0.5]}
-                       for i in (0, 1)]}
+    return {
+        "near": 0.5,
+        "far": 20.0,
+        "frames": [
+            {"image": f"v{i}.png", "cam_to_world": pose.tolist(), "intrinsics_norm": [1.0, 1.0, 0.5, 0.5]}
+            for i in (0, 1)
+        ],
+    }
 
 
 def _bad_cameras(case: str, doc: dict) -> dict:
@@ -322,17 +391,36 @@ def _bad_cameras(case: str, doc: dict) -> dict:
     return doc
 
 
-@pytest.mark.parametrize("case, says", [("frames-strings", "must be an object"), ("nan-pose", "non-finite"),
-                                        ("not-orthonormal", "not orthonormal"), ("reflection", "not orthonormal"),
-                                        ("zero-focal", "focal lengths must be positive"),
-                                        ("negative-focal-K", "focal lengths must be positive"),
-                                        ("nan-far", "near < far")])
+@pytest.mark.parametrize(
+    "case, says",
+    [
+        ("frames-strings", "must be an object"),
+        ("nan-pose", "non-finite"),
+        ("not-orthonormal", "not orthonormal"),
+        ("reflection", "not orthonormal"),
+        ("zero-focal", "focal lengths must be positive"),
+        ("negative-focal-K", "focal lengths must be positive"),
+        ("nan-far", "near < far"),
+    ],
+)
 def test_render_refuses_bad_cameras(seeu_run, tmp_path, capsys, case, says):
     cams = tmp_path / "cams.json"
     cams.write_text(json.dumps(_bad_cameras(case, _camera_files(tmp_path))))
     out = tmp_path / "r"
-    err = _one_line_exit_2(["render", "--checkpoint", str(seeu_run / "checkpoints"), "--cameras", str(cams),
-                            "--out", str(out), "--frames", "2"], capsys)
+    err = _one_line_exit_2(
+        [
+            "render",
+            "--checkpoint",
+            str(seeu_run / "checkpoints"),
+            "--cameras",
+            str(cams),
+            "--out",
+            str(out),
+            "--frames",
+            "2",
+        ],
+        capsys,
+    )
     assert says in err and not (out / "render.json").exists()
 
 
@@ -366,6 +454,10 @@ def test_resume_from_a_checkpoint_with_unfit_state_is_one_line(seeu_run, shards,
         ck.pop("rng_per_rank", None)
     bad = tmp_path / "ckpt-00000001.pt"
     torch.save(ck, bad)
-    err = _one_line_exit_2(["train", "--data", str(shards), "--out", str(tmp_path / "o"), "--resume", str(bad)]
-                           + SEEU_OV + ["optim.max_steps=2"], capsys)
+    err = _one_line_exit_2(
+        ["train", "--data", str(shards), "--out", str(tmp_path / "o"), "--resume", str(bad)]
+        + SEEU_OV
+        + ["optim.max_steps=2"],
+        capsys,
+    )
     assert str(bad) in err and "does not fit this run" in err

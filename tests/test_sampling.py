@@ -7,8 +7,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seeu_data.sampling import (SamplingConfig, frustum_overlap, min_scene_length, sample_scene, scene_rng,
-                                target_offsets)
+from seeu_data.sampling import (
+    SamplingConfig,
+    frustum_overlap,
+    min_scene_length,
+    sample_scene,
+    scene_rng,
+    target_offsets,
+)
 from tests.helpers import look_at_cam_to_world
 
 
@@ -18,10 +24,16 @@ def configs(draw):
     v = draw(st.integers(2, 4))
     gap_min = draw(st.integers(v - 1, 40))
     gap_max = draw(st.integers(gap_min, gap_min + 60))
-    return SamplingConfig(mode=mode, num_context=v, num_target=draw(st.integers(1, 5)), gap_min=gap_min,
-                          gap_max=gap_max, extrap_frames=draw(st.sampled_from([0, 1, 3, 45, 90])),
-                          interp_ratio=draw(st.sampled_from([0.0, 0.25, 1.0])),
-                          samples_per_scene=draw(st.integers(1, 6)))
+    return SamplingConfig(
+        mode=mode,
+        num_context=v,
+        num_target=draw(st.integers(1, 5)),
+        gap_min=gap_min,
+        gap_max=gap_max,
+        extrap_frames=draw(st.sampled_from([0, 1, 3, 45, 90])),
+        interp_ratio=draw(st.sampled_from([0.0, 0.25, 1.0])),
+        samples_per_scene=draw(st.integers(1, 6)),
+    )
 
 
 scene_ids = st.text(min_size=1, max_size=12)
@@ -82,16 +94,23 @@ def test_scene_rng_is_stable_across_processes():
     assert a == b
     import subprocess
     import sys
+
     code = "from seeu_data.sampling import scene_rng; print(scene_rng(7, '5aca87f95a9412c6').integers(0, 1 << 30, 3).tolist())"
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env={"PYTHONHASHSEED": "123"},
-                         cwd=str(__import__("pathlib").Path(__file__).resolve().parent.parent))
+    out = subprocess.run(
+        [sys.executable, "-c", code],
+        capture_output=True,
+        text=True,
+        env={"PYTHONHASHSEED": "123"},
+        cwd=str(__import__("pathlib").Path(__file__).resolve().parent.parent),
+    )
     assert out.stdout.strip() == str(a)
 
 
 def test_extrap_statistics_mix_and_range():
     """Mix ratio and offset range, checked against binomial / uniform expectations."""
-    cfg = SamplingConfig(mode="extrap", gap_min=30, gap_max=30, extrap_frames=10, interp_ratio=0.3,
-                         samples_per_scene=4000, num_target=1)
+    cfg = SamplingConfig(
+        mode="extrap", gap_min=30, gap_max=30, extrap_frames=10, interp_ratio=0.3, samples_per_scene=4000, num_target=1
+    )
     samples = sample_scene(cfg, 200, "stats", 0)
     offs = np.array([s.target_offset[0] for s in samples])
     frac_inside = (offs == 0).mean()
@@ -99,7 +118,9 @@ def test_extrap_statistics_mix_and_range():
     assert abs(frac_inside - 0.3) < 5 * sigma
     outside = offs[offs != 0]
     # with both sides fully available (left placed away from the edges) offsets are uniform on +-1..10
-    central = np.array([s.target_offset[0] for s in samples if 10 <= s.context[0] and s.context[1] <= 189 and s.target_offset[0]])
+    central = np.array(
+        [s.target_offset[0] for s in samples if 10 <= s.context[0] and s.context[1] <= 189 and s.target_offset[0]]
+    )
     vals, counts = np.unique(central, return_counts=True)
     assert set(vals.tolist()) == set(range(-10, 0)) | set(range(1, 11))
     expected = len(central) / 20

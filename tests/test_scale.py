@@ -25,10 +25,23 @@ def _model(tmp_path: Path) -> tuple[list[str], dict]:
     c2w[:, 0, 3] = 1.0 + 0.25 * np.arange(N)
     np.save(tmp_path / "points_depth_0.npy", DEPTHS)
     w2c = cam.world_to_cam_from_cam_to_world(c2w)
-    model = {"index": 0, "undistorted": False, "image_dir": str(tmp_path), "mean_reprojection_error": 0.3,
-             "camera": {"model": "PINHOLE", "width": 64, "height": 36, "params": [50, 50, 32, 18],
-                        "fx": 50.0, "fy": 50.0, "cx": 32.0, "cy": 18.0},
-             "images": [{"name": n, "world_to_cam": w[:3].tolist()} for n, w in zip(names, w2c)]}
+    model = {
+        "index": 0,
+        "undistorted": False,
+        "image_dir": str(tmp_path),
+        "mean_reprojection_error": 0.3,
+        "camera": {
+            "model": "PINHOLE",
+            "width": 64,
+            "height": 36,
+            "params": [50, 50, 32, 18],
+            "fx": 50.0,
+            "fy": 50.0,
+            "cx": 32.0,
+            "cy": 18.0,
+        },
+        "images": [{"name": n, "world_to_cam": w[:3].tolist()} for n, w in zip(names, w2c)],
+    }
     return names, {"models": [model]}
 
 
@@ -70,9 +83,11 @@ def test_metric_scale_from_known_distance(tmp_path):
 
 def test_scale_bad_input_is_one_line_before_any_work(tmp_path, capsys):
     video = tmp_path / "missing_is_fine.mp4"
-    for extra, needle in ((["--scale", "metric"], "--known-distance"),
-                          (["--scale", "metric", "--known-distance", "-1"], "positive"),
-                          (["--known-distance", "3"], "only apply with --scale metric")):
+    for extra, needle in (
+        (["--scale", "metric"], "--known-distance"),
+        (["--scale", "metric", "--known-distance", "-1"], "positive"),
+        (["--known-distance", "3"], "only apply with --scale metric"),
+    ):
         assert cli_main(["ingest", str(video), "--out", str(tmp_path / "o")] + extra) == 2
         err = capsys.readouterr().err.strip()
         assert needle in err and "\n" not in err, err

@@ -11,8 +11,15 @@ import pytest
 from pipelines.cli import main as cli_main
 from seeu_data import cameras as cam
 from seeu_data.posed import PosedDataset, PosedDatasetWriter
-from seeu_data.synthetic import (camera_path, default_intrinsics_norm, load_ground_truth, make_scene, path_length,
-                                 render_view, synthetic_posed_scene)
+from seeu_data.synthetic import (
+    camera_path,
+    default_intrinsics_norm,
+    load_ground_truth,
+    make_scene,
+    path_length,
+    render_view,
+    synthetic_posed_scene,
+)
 
 W, H = 160, 96
 
@@ -28,9 +35,13 @@ def _on_surface(scene, pts: np.ndarray, tol: float) -> np.ndarray:
     for k in range(len(scene)):
         a = int(scene.axis[k])
         b0, b1 = [i for i in range(3) if i != a]
-        ok |= ((np.abs(pts[:, a] - scene.coord[k]) < tol)
-               & (pts[:, b0] >= scene.lo[k, 0] - tol) & (pts[:, b0] <= scene.hi[k, 0] + tol)
-               & (pts[:, b1] >= scene.lo[k, 1] - tol) & (pts[:, b1] <= scene.hi[k, 1] + tol))
+        ok |= (
+            (np.abs(pts[:, a] - scene.coord[k]) < tol)
+            & (pts[:, b0] >= scene.lo[k, 0] - tol)
+            & (pts[:, b0] <= scene.hi[k, 0] + tol)
+            & (pts[:, b1] >= scene.lo[k, 1] - tol)
+            & (pts[:, b1] <= scene.hi[k, 1] + tol)
+        )
     return ok
 
 
@@ -80,7 +91,7 @@ def test_cross_view_reprojection_consistency(scene):
     intr = default_intrinsics_norm(W, H)
     rgb_a, da = render_view(scene, poses[5], intr, W, H)
     rgb_b, db = render_view(scene, poses[7], intr, W, H)
-    ii, jj = np.mgrid[2:H - 2:5, 2:W - 2:5]
+    ii, jj = np.mgrid[2 : H - 2 : 5, 2 : W - 2 : 5]
     uv = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], -1)
     pts = cam.unproject_pixels(uv, da[ii.ravel(), jj.ravel()], poses[5], intr, W, H)
     uvb, zb = cam.project_points(pts, poses[7], intr, W, H)

@@ -17,8 +17,18 @@ from seeu_model.training.schedule import warmup_cosine_factor
 from tests.training_fixtures import ddp_worker, initial_state, synthetic_triples
 
 # The real SeeU model (tiny preset: same architecture, tiny widths, random 2-block ViT-S semantic encoder).
-COMMON = ["model.preset=tiny", "data.num_workers=0", "data.image_size=[32,32]", "optim.warmup_steps=2", "optim.lr=2e-3",
-          "loss.lpips_weight=0", "log.every=1", "log.image_every=1000", "precision=fp32", "rasterizer=torch"]
+COMMON = [
+    "model.preset=tiny",
+    "data.num_workers=0",
+    "data.image_size=[32,32]",
+    "optim.warmup_steps=2",
+    "optim.lr=2e-3",
+    "loss.lpips_weight=0",
+    "log.every=1",
+    "log.image_every=1000",
+    "precision=fp32",
+    "rasterizer=torch",
+]
 
 
 @pytest.fixture(scope="module")
@@ -34,7 +44,7 @@ def test_warmup_cosine_closed_form():
     assert warmup_cosine_factor(0, 4, 20) == pytest.approx(0.25)
     assert warmup_cosine_factor(3, 4, 20) == pytest.approx(1.0)
     assert warmup_cosine_factor(4, 4, 20) == pytest.approx(1.0)
-    assert warmup_cosine_factor(12, 4, 20) == pytest.approx(0.5)          # half way: cos(pi/2)
+    assert warmup_cosine_factor(12, 4, 20) == pytest.approx(0.5)  # half way: cos(pi/2)
     assert warmup_cosine_factor(20, 4, 20) == pytest.approx(0.0, abs=1e-12)
     assert warmup_cosine_factor(8, 4, 20, 0.1) == pytest.approx(0.1 + 0.9 * 0.5 * (1 + math.cos(math.pi / 4)))
 
@@ -44,11 +54,12 @@ def test_config_presets_and_overrides(tmp_path):
     paper = load_config(root / "re10k_paper.json")
     assert (paper.data.batch_size, paper.optim.max_steps, paper.loss.lpips_weight) == (8, 300_000, 0.05)
     assert paper.data.image_size == (256, 256)
-    small = load_config(root / "cpu_small.json", ["optim.lr=5e-4", "data.image_size=32x48", "model.refiner=unet",
-                                                    "log.progress=true"])
+    small = load_config(
+        root / "cpu_small.json", ["optim.lr=5e-4", "data.image_size=32x48", "model.refiner=unet", "log.progress=true"]
+    )
     assert small.optim.lr == 5e-4 and small.data.image_size == (32, 48) and small.model["refiner"] == "unet"
     assert small.log.progress is True
-    for preset in sorted(root.glob("*.json")):           # every shipped preset parses and validates
+    for preset in sorted(root.glob("*.json")):  # every shipped preset parses and validates
         cfg = load_config(preset)
         assert cfg.model.get("preset") in ("paper", "cpu_small", "tiny"), preset
     with pytest.raises(SeeUError, match="unknown key"):
@@ -64,8 +75,13 @@ def test_config_presets_and_overrides(tmp_path):
 def test_resume_continues_the_same_run(shards, tmp_path):
     from pipelines.train import train
 
-    ov = COMMON + ["data.batch_size=2", "optim.max_steps=3", "checkpoint.every=1", "checkpoint.keep=2",
-                   "data.flip=true"]
+    ov = COMMON + [
+        "data.batch_size=2",
+        "optim.max_steps=3",
+        "checkpoint.every=1",
+        "checkpoint.keep=2",
+        "data.flip=true",
+    ]
     full = train(str(shards), tmp_path / "full", overrides=ov)
     part = train(str(shards), tmp_path / "part", overrides=ov, stop_after=1)
     assert part["step"] == 1

@@ -26,17 +26,42 @@ def synthetic_posed(root: Path, n_frames: int = 16, hw: tuple[int, int] = (32, 3
     return out
 
 
-def synthetic_triples(root: Path, n_frames: int = 16, hw: tuple[int, int] = (32, 32), seeds=(0,),
-                      mode: str = "interp", samples_per_scene: int = 8, gap=(3, 6), extrap_frames: int = 3,
-                      name: str | None = None, seed: int = 0) -> Path:
+def synthetic_triples(
+    root: Path,
+    n_frames: int = 16,
+    hw: tuple[int, int] = (32, 32),
+    seeds=(0,),
+    mode: str = "interp",
+    samples_per_scene: int = 8,
+    gap=(3, 6),
+    extrap_frames: int = 3,
+    name: str | None = None,
+    seed: int = 0,
+) -> Path:
     posed = synthetic_posed(root, n_frames, hw, seeds)
     out = Path(root) / (name or f"triples_{mode}")
     if (out / "manifest.json").exists():
         return out
-    sampling = SamplingConfig(mode=mode, num_context=2, num_target=3, gap_min=gap[0], gap_max=gap[1],
-                              extrap_frames=extrap_frames, samples_per_scene=samples_per_scene)
-    build(BuildConfig(inputs=(str(posed),), out=str(out), mode=mode, sampling=sampling, seed=seed,
-                      image=ImageOptions(resize=None), workers=1))
+    sampling = SamplingConfig(
+        mode=mode,
+        num_context=2,
+        num_target=3,
+        gap_min=gap[0],
+        gap_max=gap[1],
+        extrap_frames=extrap_frames,
+        samples_per_scene=samples_per_scene,
+    )
+    build(
+        BuildConfig(
+            inputs=(str(posed),),
+            out=str(out),
+            mode=mode,
+            sampling=sampling,
+            seed=seed,
+            image=ImageOptions(resize=None),
+            workers=1,
+        )
+    )
     return out
 
 
@@ -63,7 +88,7 @@ class PixelSplat2(nn.Module):
         b, v, _, h, w = img.shape
         out = self.net(img.flatten(0, 1)).view(b, v, 6, h * w)
         near, far = context["near"][..., None], context["far"][..., None]
-        depth = near + torch.sigmoid(out[:, :, 0]) * (far - near)                        # (B, V, HW)
+        depth = near + torch.sigmoid(out[:, :, 0]) * (far - near)  # (B, V, HW)
         ys, xs = torch.meshgrid(torch.arange(h, dtype=img.dtype), torch.arange(w, dtype=img.dtype), indexing="ij")
         uv = torch.stack([xs + 0.5, ys + 0.5], -1).reshape(1, 1, h * w, 2).expand(b, v, h * w, 2)
         means = unproject_pixels(uv, depth, context["cam_to_world"], context["intrinsics"], w, h)
@@ -73,8 +98,13 @@ class PixelSplat2(nn.Module):
         sh = ((colour - 0.5) / 0.28209479177387814)[..., None, :]
         rot = torch.zeros(b, v, h * w, 4, dtype=img.dtype)
         rot[..., 0] = 1
-        return Gaussians(means.flatten(1, 2), scale.flatten(1, 2), rot.flatten(1, 2),
-                         torch.sigmoid(out[:, :, 5] + 2).flatten(1, 2), sh.flatten(1, 2))
+        return Gaussians(
+            means.flatten(1, 2),
+            scale.flatten(1, 2),
+            rot.flatten(1, 2),
+            torch.sigmoid(out[:, :, 5] + 2).flatten(1, 2),
+            sh.flatten(1, 2),
+        )
 
     def forward(self, batch: dict):
         from seeu_model.rasterizer import rasterize
@@ -89,8 +119,9 @@ def ddp_worker(rank: int, world_size: int, port: int, kwargs: dict) -> None:
     """torch.multiprocessing.spawn target: one rank of a gloo DDP run of `pipelines.train.train`."""
     import os
 
-    os.environ.update(MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank),
-                      WORLD_SIZE=str(world_size), LOCAL_RANK=str(rank))
+    os.environ.update(
+        MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world_size), LOCAL_RANK=str(rank)
+    )
     torch.set_num_threads(1)
     from pipelines.train import train
 

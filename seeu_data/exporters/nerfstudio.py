@@ -47,18 +47,36 @@ def transforms_for_scene(scene: PosedScene) -> tuple[dict, list[str]]:
         K = intrinsics_pixels(np.asarray(scene.intrinsics_norm[i], dtype=np.float64), w, h)
         name = f"images/frame_{i:05d}{ext}"
         names.append(name)
-        frames.append({
-            "file_path": name,
-            "transform_matrix": c2w_gl[i].tolist(),
-            "fl_x": float(K[0, 0]), "fl_y": float(K[1, 1]), "cx": float(K[0, 2]), "cy": float(K[1, 2]),
-            "w": w, "h": h,
-            "seeu_source_frame": int(scene.source_frame[i]),
-            "seeu_source_name": scene.source_name[i] if scene.source_name else "",
-            "seeu_timestamp_us": int(scene.timestamp_us[i]),
-        })
-    doc = {"camera_model": "OPENCV", "k1": 0.0, "k2": 0.0, "p1": 0.0, "p2": 0.0, "frames": frames,
-           "seeu": {"scene_id": scene.scene_id, "near": scene.near, "far": scene.far, "meta": scene.meta,
-                    "convention": "transform_matrix: OpenGL camera-to-world in the posed dataset's world"}}
+        frames.append(
+            {
+                "file_path": name,
+                "transform_matrix": c2w_gl[i].tolist(),
+                "fl_x": float(K[0, 0]),
+                "fl_y": float(K[1, 1]),
+                "cx": float(K[0, 2]),
+                "cy": float(K[1, 2]),
+                "w": w,
+                "h": h,
+                "seeu_source_frame": int(scene.source_frame[i]),
+                "seeu_source_name": scene.source_name[i] if scene.source_name else "",
+                "seeu_timestamp_us": int(scene.timestamp_us[i]),
+            }
+        )
+    doc = {
+        "camera_model": "OPENCV",
+        "k1": 0.0,
+        "k2": 0.0,
+        "p1": 0.0,
+        "p2": 0.0,
+        "frames": frames,
+        "seeu": {
+            "scene_id": scene.scene_id,
+            "near": scene.near,
+            "far": scene.far,
+            "meta": scene.meta,
+            "convention": "transform_matrix: OpenGL camera-to-world in the posed dataset's world",
+        },
+    }
     return doc, names
 
 
@@ -84,8 +102,14 @@ def export_nerfstudio(dataset: PosedDataset, cfg: NerfstudioExportConfig, progre
         if "/" in sid or sid in (".", ".."):
             raise SeeUError(f"scene id {sid!r} cannot be a folder name", dataset.root)
     frames = 0
-    for scene in tqdm(dataset.iter_scenes(scene_ids), total=len(scene_ids), unit="scene",
-                      desc="export nerfstudio", file=sys.stderr, disable=not progress):
+    for scene in tqdm(
+        dataset.iter_scenes(scene_ids),
+        total=len(scene_ids),
+        unit="scene",
+        desc="export nerfstudio",
+        file=sys.stderr,
+        disable=not progress,
+    ):
         folder = Path(cfg.out) / scene.scene_id
         (folder / "transforms.json").unlink(missing_ok=True)  # being rewritten: not complete
         doc, names = transforms_for_scene(scene)

@@ -92,7 +92,7 @@ def peer_skip_reason(width: np.ndarray, height: np.ndarray, intrinsics_norm: np.
         return f"frames are {int(w[bad])}x{int(h[bad])}, the RE10K loaders need 640x360 (try --resize 360x640)"
     fov = peer_fov_deg(intrinsics_norm)
     if (fov > PEER_MAX_FOV_DEG).any():
-        return (f"field of view {fov.max():.1f} deg > {PEER_MAX_FOV_DEG:.0f} deg, which the RE10K loaders skip")
+        return f"field of view {fov.max():.1f} deg > {PEER_MAX_FOV_DEG:.0f} deg, which the RE10K loaders skip"
     return None
 
 
@@ -151,21 +151,32 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
         written.append(name)
         chunk, size = [], 0
 
-    for scene in tqdm(dataset.iter_scenes(scene_ids), total=len(scene_ids), unit="scene",
-                      desc="export pixelsplat", file=sys.stderr, disable=not progress):
+    for scene in tqdm(
+        dataset.iter_scenes(scene_ids),
+        total=len(scene_ids),
+        unit="scene",
+        desc="export pixelsplat",
+        file=sys.stderr,
+        disable=not progress,
+    ):
         if cfg.resize is not None:
             scene = resize_scene(scene, cfg.resize, cfg.jpeg_quality)
         reason = peer_skip_reason(scene.width, scene.height, scene.intrinsics_norm)
         if reason is not None:
             if cfg.size_check == "refuse":
-                raise SeeUError(f"scene {scene.scene_id!r}: {reason}; nothing exported (index.json not written)",
-                                dataset.root)
+                raise SeeUError(
+                    f"scene {scene.scene_id!r}: {reason}; nothing exported (index.json not written)", dataset.root
+                )
             skipped_by_peers.append(f"{scene.scene_id}: {reason}")
         chunk.append(example_from_scene(scene))
         size += sum(len(b) for b in scene.images)
-        sidecar[scene.scene_id] = {"near": scene.near, "far": scene.far,
-                                   "source_frame": np.asarray(scene.source_frame).tolist(),
-                                   "source_name": list(scene.source_name), "meta": scene.meta}
+        sidecar[scene.scene_id] = {
+            "near": scene.near,
+            "far": scene.far,
+            "source_frame": np.asarray(scene.source_frame).tolist(),
+            "source_name": list(scene.source_name),
+            "meta": scene.meta,
+        }
         if size >= cfg.chunk_bytes:
             flush()
     if chunk:
@@ -175,5 +186,10 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
             stale.unlink()
     atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar))
     atomic_write_text(directory / "index.json", json.dumps(index))
-    return {"directory": str(directory), "chunks": len(written), "scenes": len(index),
-            "scenes_peers_skip": len(skipped_by_peers), "peers_skip": skipped_by_peers}
+    return {
+        "directory": str(directory),
+        "chunks": len(written),
+        "scenes": len(index),
+        "scenes_peers_skip": len(skipped_by_peers),
+        "peers_skip": skipped_by_peers,
+    }

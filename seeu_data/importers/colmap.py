@@ -33,9 +33,23 @@ from ..posed import PosedScene
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
-UNDISTORTABLE_MODELS = {"SIMPLE_RADIAL", "RADIAL", "OPENCV", "FULL_OPENCV", "SIMPLE_RADIAL_FISHEYE",
-                        "RADIAL_FISHEYE", "OPENCV_FISHEYE", "THIN_PRISM_FISHEYE", "RAD_TAN_THIN_PRISM_FISHEYE",
-                        "FOV", "SIMPLE_FISHEYE", "FISHEYE", "SIMPLE_DIVISION", "DIVISION", "EUCM"}
+UNDISTORTABLE_MODELS = {
+    "SIMPLE_RADIAL",
+    "RADIAL",
+    "OPENCV",
+    "FULL_OPENCV",
+    "SIMPLE_RADIAL_FISHEYE",
+    "RADIAL_FISHEYE",
+    "OPENCV_FISHEYE",
+    "THIN_PRISM_FISHEYE",
+    "RAD_TAN_THIN_PRISM_FISHEYE",
+    "FOV",
+    "SIMPLE_FISHEYE",
+    "FISHEYE",
+    "SIMPLE_DIVISION",
+    "DIVISION",
+    "EUCM",
+}
 
 
 @dataclass
@@ -95,8 +109,9 @@ def needs_undistortion(rec, model_dir: Path) -> bool:
         if _distortion_free(cam):
             continue
         if name not in UNDISTORTABLE_MODELS:
-            raise SeeUError(f"camera {cid} has the unsupported camera model {name} (pinhole-like models only)",
-                            model_dir)
+            raise SeeUError(
+                f"camera {cid} has the unsupported camera model {name} (pinhole-like models only)", model_dir
+            )
         need = True
     return need
 
@@ -141,8 +156,9 @@ def outside_images(rec, cfg: ColmapImportConfig) -> dict[str, str]:
     return out
 
 
-def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict,
-                     skip: dict[str, str] | None = None) -> PosedScene:
+def scene_from_model(
+    rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict, skip: dict[str, str] | None = None
+) -> PosedScene:
     """`skip`: image names to leave out -> reason (kept in `meta["skipped_frames"]`)."""
     images_dir = Path(images_dir)
     skip = skip or {}
@@ -150,14 +166,16 @@ def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict,
     if skip:
         meta["skipped_frames"] = [{"frame": n, "reason": r} for n, r in sorted(skip.items())]
     if not ids:
-        raise SeeUError("the model has no registered images" + (" inside the image directory" if skip else ""),
-                        cfg.model_dir)
+        raise SeeUError(
+            "the model has no registered images" + (" inside the image directory" if skip else ""), cfg.model_dir
+        )
     names = [rec.image(i).name for i in ids]
     paths = [images_dir / n for n in names]
     missing = [n for n, p in zip(names, paths) if not p.is_file()]
     if missing:
-        raise SeeUError(f"{len(missing)} of {len(names)} registered images are missing (first: {missing[0]})",
-                        images_dir)
+        raise SeeUError(
+            f"{len(missing)} of {len(names)} registered images are missing (first: {missing[0]})", images_dir
+        )
     data = [p.read_bytes() for p in paths]
     fmt, width, height = probe_images(data, [str(p) for p in paths], cfg.verify_decode)
     w2c, intr = [], []
@@ -167,8 +185,9 @@ def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict,
         if abs(width[k] / height[k] - cam.width / cam.height) > 1e-2 * cam.width / cam.height:
             raise SeeUError(f"image is {width[k]}x{height[k]} but its camera is {cam.width}x{cam.height}", paths[k])
         w2c.append(np.asarray(img.cam_from_world().matrix(), dtype=np.float64))
-        intr.append(intrinsics_norm_from_pixels(np.asarray(cam.calibration_matrix(), dtype=np.float64),
-                                                cam.width, cam.height))
+        intr.append(
+            intrinsics_norm_from_pixels(np.asarray(cam.calibration_matrix(), dtype=np.float64), cam.width, cam.height)
+        )
     near, far = cfg.near, cfg.far
     if near is None or far is None:
         est = _near_far_from_points(rec, ids)
@@ -180,11 +199,21 @@ def scene_from_model(rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict,
     else:
         meta["near_far_method"] = "given"
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
-    return PosedScene(scene_id=scene_id, images=data, image_format=fmt, width=width, height=height,
-                      intrinsics_norm=np.stack(intr),
-                      cam_to_world=cam_to_world_from_world_to_cam(homogeneous_from_3x4(np.stack(w2c))),
-                      near=near, far=far, source_frame=_source_frames(names),
-                      timestamp_us=np.zeros(len(ids), dtype=np.int64), source_name=names, meta=meta)
+    return PosedScene(
+        scene_id=scene_id,
+        images=data,
+        image_format=fmt,
+        width=width,
+        height=height,
+        intrinsics_norm=np.stack(intr),
+        cam_to_world=cam_to_world_from_world_to_cam(homogeneous_from_3x4(np.stack(w2c))),
+        near=near,
+        far=far,
+        source_frame=_source_frames(names),
+        timestamp_us=np.zeros(len(ids), dtype=np.int64),
+        source_name=names,
+        meta=meta,
+    )
 
 
 def undistort_model(model_dir: Path, images_dir: Path, out_dir: Path, image_names: list[str] | None = None):
@@ -219,20 +248,27 @@ def import_plan(cfg: ColmapImportConfig):
     rec = _check_and_read(cfg)
     model_files = sorted(p for p in Path(cfg.model_dir).iterdir() if p.is_file())
     outside = outside_images(rec, cfg)
-    images = [Path(cfg.images_dir) / n for n in sorted(rec.image(i).name for i in rec.reg_image_ids())
-              if n not in outside]
+    images = [
+        Path(cfg.images_dir) / n for n in sorted(rec.image(i).name for i in rec.reg_image_ids()) if n not in outside
+    ]
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
     return ImportPlan([ImportUnit(scene_id, files_fingerprint(model_files + images), lambda: _scene_items(cfg, rec))])
 
 
 def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedScene]:
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
-    meta = {"dataset": "colmap", "model": str(Path(cfg.model_dir).resolve()),
-            "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()})}
+    meta = {
+        "dataset": "colmap",
+        "model": str(Path(cfg.model_dir).resolve()),
+        "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()}),
+    }
     need = needs_undistortion(rec, cfg.model_dir)  # raises for models that cannot become pinhole
     if need and not cfg.undistort:
-        raise SeeUError(f"camera models {meta['camera_models']} have lens distortion; undistort first "
-                        f"(COLMAP image_undistorter) or drop --no-undistort", cfg.model_dir)
+        raise SeeUError(
+            f"camera models {meta['camera_models']} have lens distortion; undistort first "
+            f"(COLMAP image_undistorter) or drop --no-undistort",
+            cfg.model_dir,
+        )
     outside = outside_images(rec, cfg)
     kept = sorted(n for n in (rec.image(i).name for i in rec.reg_image_ids()) if n not in outside)
     try:

@@ -42,10 +42,14 @@ class ImportReport:
     notes: dict = field(default_factory=dict)
 
     def as_dict(self) -> dict:
-        return {"format": self.format, "imported_scenes": self.scenes, "imported_frames": self.frames,
-                "skipped_scenes": len(self.skipped),
-                "skipped": [{"scene_id": s.scene_id, "reason": s.reason} for s in self.skipped],
-                **self.notes}
+        return {
+            "format": self.format,
+            "imported_scenes": self.scenes,
+            "imported_frames": self.frames,
+            "skipped_scenes": len(self.skipped),
+            "skipped": [{"scene_id": s.scene_id, "reason": s.reason} for s in self.skipped],
+            **self.notes,
+        }
 
     def count_dropped_frames(self, scene_meta: dict | None) -> None:
         """Add the frames an importer dropped from an imported scene (`meta["skipped_frames"]`: a
@@ -59,16 +63,19 @@ class ImportReport:
         if self.notes.get("skipped_frames"):
             line += f"; dropped {self.notes['skipped_frames']} frames (named in each scene's meta.skipped_frames)"
         if self.notes.get("resumed_files"):
-            line += (f" ({self.notes['resumed_scenes']} scenes in {self.notes['resumed_files']} files kept "
-                     "from a previous run)")
+            line += (
+                f" ({self.notes['resumed_scenes']} scenes in {self.notes['resumed_files']} files kept "
+                "from a previous run)"
+            )
         if self.skipped:
             names = ", ".join(s.scene_id for s in self.skipped[:5]) + (", ..." if len(self.skipped) > 5 else "")
             line += f"; skipped {len(self.skipped)} scenes ({names}): see the manifest's report"
         return line
 
 
-def probe_images(images: Sequence[bytes], names: Sequence[str], verify_decode: bool = False
-                 ) -> tuple[str, np.ndarray, np.ndarray]:
+def probe_images(
+    images: Sequence[bytes], names: Sequence[str], verify_decode: bool = False
+) -> tuple[str, np.ndarray, np.ndarray]:
     """Format and sizes of a scene's encoded frames: `(format, width (N,), height (N,))`.
 
     Header parse plus trailer check per image (see `seeu_data.image_header`); a full OpenCV decode
@@ -205,8 +212,15 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
     for rec in resume.get("files", []):
         if rec.get("file") not in entries:
             break
-        records.append({"key": key, "file": entries[rec["file"]], "units": rec["units"], "skipped": rec["skipped"],
-                        "scenes": [s for s in doc.get("scenes", []) if s["file"] == rec["file"]]})
+        records.append(
+            {
+                "key": key,
+                "file": entries[rec["file"]],
+                "units": rec["units"],
+                "skipped": rec["skipped"],
+                "scenes": [s for s in doc.get("scenes", []) if s["file"] == rec["file"]],
+            }
+        )
     return records
 
 
@@ -219,7 +233,7 @@ def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit
     for i, rec in enumerate(records):
         entry = rec.get("file") or {}
         n = len(rec.get("units") or [])
-        if n == 0 or rec["units"] != keyed[pos:pos + n] or entry.get("path") != name_of(i):
+        if n == 0 or rec["units"] != keyed[pos : pos + n] or entry.get("path") != name_of(i):
             break
         path = out_dir / entry["path"]
         try:
@@ -233,9 +247,17 @@ def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit
     return done, pos
 
 
-def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_dir: str | Path, report: ImportReport,
-                 params: dict, provenance: dict, strict: bool = False, progress: bool = False,
-                 total: int | None = None, target_file_bytes: int = 256 << 20) -> ImportReport:
+def write_import(
+    items: Iterable[PosedScene | SkippedScene] | ImportPlan,
+    out_dir: str | Path,
+    report: ImportReport,
+    params: dict,
+    provenance: dict,
+    strict: bool = False,
+    progress: bool = False,
+    total: int | None = None,
+    target_file_bytes: int = 256 << 20,
+) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
     The importer runs in a background thread a few scenes ahead (`prefetch.prefetch`), where each
@@ -305,8 +327,15 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
                 yield (i, *_prepare(item))
             yield (i, _UNIT_END, None)
 
-    bar = tqdm(total=total, unit="scene", desc=f"import {report.format}", file=sys.stderr,
-               disable=not progress, dynamic_ncols=True, initial=report.scenes + len(report.skipped))
+    bar = tqdm(
+        total=total,
+        unit="scene",
+        desc=f"import {report.format}",
+        file=sys.stderr,
+        disable=not progress,
+        dynamic_ncols=True,
+        initial=report.scenes + len(report.skipped),
+    )
     cur_units: list[list[str]] = []
     cur_skipped: list[list[str]] = []
     recordable = True
@@ -317,8 +346,13 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
         if entry is None:
             return
         if resumable and recordable and cur_units:
-            rec = {"key": key, "file": asdict(entry), "units": cur_units, "skipped": cur_skipped,
-                   "scenes": [s for s in writer.scenes if s["file"] == entry.path]}
+            rec = {
+                "key": key,
+                "file": asdict(entry),
+                "units": cur_units,
+                "skipped": cur_skipped,
+                "scenes": [s for s in writer.scenes if s["file"] == entry.path],
+            }
             new_records.append(rec)
             with open(journal, "a") as fh:  # one write per line: a torn last line is ignored
                 fh.write(json.dumps(rec) + "\n")
@@ -327,7 +361,7 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
         cur_units, cur_skipped = [], []
 
     try:
-        for i, item, batch in (prefetch(stream()) if plan.prefetch else stream()):
+        for i, item, batch in prefetch(stream()) if plan.prefetch else stream():
             unit = units[i]
             if item is _UNIT_END:
                 if unit.key is not None:
@@ -355,14 +389,18 @@ def write_import(items: Iterable[PosedScene | SkippedScene] | ImportPlan, out_di
             bar.set_postfix(skipped=len(report.skipped))
         if report.scenes == 0:
             reasons = "; ".join(f"{s.scene_id}: {s.reason}" for s in report.skipped[:3])
-            raise SeeUError("no usable scene to import" + (f" ({len(report.skipped)} skipped; {reasons})"
-                                                          if report.skipped else ""))
+            raise SeeUError(
+                "no usable scene to import" + (f" ({len(report.skipped)} skipped; {reasons})" if report.skipped else "")
+            )
         record_file(writer.finish_file(force=True))
         writer.report = report.as_dict()
         if resumable:
             writer.report["resume"] = {
                 "key": key,
-                "files": [{"file": r["file"]["path"], "units": r["units"], "skipped": r["skipped"]} for r in new_records]}
+                "files": [
+                    {"file": r["file"]["path"], "units": r["units"], "skipped": r["skipped"]} for r in new_records
+                ],
+            }
     except BaseException as exc:
         writer.__exit__(type(exc), exc, None)
         raise

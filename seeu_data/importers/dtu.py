@@ -69,7 +69,7 @@ def parse_cam_file(path: Path) -> DtuCamera:
         if keyword not in lines:
             raise SeeUError(f"no '{keyword}' line", path)
         start = lines.index(keyword) + 1
-        body = lines[start:start + rows]
+        body = lines[start : start + rows]
         try:
             mat = np.array([[float(v) for v in ln.split()] for ln in body], dtype=np.float64)
         except ValueError:
@@ -158,8 +158,10 @@ def scene_for_scan(scan: int, cams: dict[int, DtuCamera], cfg: DtuImportConfig) 
     paths = [scan_dir / f"rect_{v + 1:03d}_{cfg.lighting}_r5000.png" for v in views]
     missing = [p.name for p in paths if not p.exists()]
     if missing:
-        raise SeeUError(f"{len(missing)} of {len(paths)} images missing for the {len(views)} cameras "
-                        f"(first: {missing[0]})", scan_dir)
+        raise SeeUError(
+            f"{len(missing)} of {len(paths)} images missing for the {len(views)} cameras (first: {missing[0]})",
+            scan_dir,
+        )
     images = [p.read_bytes() for p in paths]
     fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
     w0, h0 = CAM_FILE_SIZE
@@ -171,32 +173,57 @@ def scene_for_scan(scan: int, cams: dict[int, DtuCamera], cfg: DtuImportConfig) 
     intr = np.stack([K[:, 0, 0] / w0, K[:, 1, 1] / h0, K[:, 0, 2] / w0, K[:, 1, 2] / h0], axis=1)
     dmin = np.array([cams[v].depth_min for v in views])
     dmax = dmin + np.array([cams[v].depth_interval for v in views]) * DEPTH_PLANES
-    meta = {"dataset": "dtu", "scan": scan, "lighting": cfg.lighting, "scale": cfg.scale,
-            "near_far_method": "fixed (MVSplat DTU)",
-            "cam_file_depth_range": [float(dmin.min() * cfg.scale), float(dmax.max() * cfg.scale)],
-            **ground_truth_paths(root, scan)}
+    meta = {
+        "dataset": "dtu",
+        "scan": scan,
+        "lighting": cfg.lighting,
+        "scale": cfg.scale,
+        "near_far_method": "fixed (MVSplat DTU)",
+        "cam_file_depth_range": [float(dmin.min() * cfg.scale), float(dmax.max() * cfg.scale)],
+        **ground_truth_paths(root, scan),
+    }
     view_ids = np.asarray(views, dtype=np.int64)
-    return PosedScene(scene_id=f"scan{scan}", images=images, image_format=fmt, width=width, height=height,
-                      intrinsics_norm=intr, cam_to_world=cam_to_world_from_world_to_cam(w2c),
-                      near=cfg.near, far=cfg.far, source_frame=view_ids, timestamp_us=view_ids,
-                      source_name=[p.name for p in paths], meta=meta)
+    return PosedScene(
+        scene_id=f"scan{scan}",
+        images=images,
+        image_format=fmt,
+        width=width,
+        height=height,
+        intrinsics_norm=intr,
+        cam_to_world=cam_to_world_from_world_to_cam(w2c),
+        near=cfg.near,
+        far=cfg.far,
+        source_frame=view_ids,
+        timestamp_us=view_ids,
+        source_name=[p.name for p in paths],
+        meta=meta,
+    )
 
 
 def camera_paths(root: Path) -> list[Path]:
     """Cameras/train/NNNNNNNN_cam.txt files (sorted), the ones `read_cameras` parses."""
-    return [p for p in sorted((Path(root) / "Cameras" / "train").glob("*_cam.txt"))
-            if re.fullmatch(r"\d{8}_cam\.txt", p.name)]
+    return [
+        p
+        for p in sorted((Path(root) / "Cameras" / "train").glob("*_cam.txt"))
+        if re.fullmatch(r"\d{8}_cam\.txt", p.name)
+    ]
 
 
 def _scan_inputs(root: Path, scan: int, views: list[int], lighting: int) -> list[Path]:
     """What a scan's import reads or records: its images and the ground truth it looks for."""
     scan_dir = _scan_dir(root, scan)
     names = (f"scan{scan}_train", f"scan{scan}")
-    paths = ([root / "Rectified" / n for n in names] if scan_dir is None
-             else [scan_dir / f"rect_{v + 1:03d}_{lighting}_r5000.png" for v in views])
+    paths = (
+        [root / "Rectified" / n for n in names]
+        if scan_dir is None
+        else [scan_dir / f"rect_{v + 1:03d}_{lighting}_r5000.png" for v in views]
+    )
     paths += [root / "Depths" / n for n in names]  # a directory's mtime changes as depth maps come and go
-    paths += [root / "Points" / "stl" / f"stl{scan:03d}_total.ply", root / "ObsMask" / f"ObsMask{scan}_10.mat",
-              root / "ObsMask" / f"Plane{scan}.mat"]
+    paths += [
+        root / "Points" / "stl" / f"stl{scan:03d}_total.ply",
+        root / "ObsMask" / f"ObsMask{scan}_10.mat",
+        root / "ObsMask" / f"Plane{scan}.mat",
+    ]
     return paths
 
 
@@ -220,8 +247,14 @@ def import_plan(cfg: DtuImportConfig, scans: list[int] | None = None):
         except SeeUError as exc:
             yield SkippedScene(f"scan{scan}", str(exc))
 
-    units = [ImportUnit(f"scan{scan}", files_fingerprint(_scan_inputs(root, scan, views, cfg.lighting)),
-                        lambda scan=scan: read(scan)) for scan in scans]
+    units = [
+        ImportUnit(
+            f"scan{scan}",
+            files_fingerprint(_scan_inputs(root, scan, views, cfg.lighting)),
+            lambda scan=scan: read(scan),
+        )
+        for scan in scans
+    ]
     return ImportPlan(units, fingerprint=files_fingerprint(cam_paths))
 
 

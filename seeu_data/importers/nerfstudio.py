@@ -150,8 +150,9 @@ def frame_paths(cfg: NerfstudioImportConfig, doc: dict) -> tuple[list[Path | Non
     return paths, outside
 
 
-def _camera(doc: dict, frame: dict, path: Path, image_size: tuple[int, int] | None
-            ) -> tuple[np.ndarray, int, int, str, dict]:
+def _camera(
+    doc: dict, frame: dict, path: Path, image_size: tuple[int, int] | None
+) -> tuple[np.ndarray, int, int, str, dict]:
     """Pixel K (3, 3), w, h, camera model and non-zero distortion {key: value} of a frame (frame
     keys override the top level)."""
 
@@ -160,15 +161,21 @@ def _camera(doc: dict, frame: dict, path: Path, image_size: tuple[int, int] | No
 
     model = get("camera_model") or "OPENCV"
     if model not in PINHOLE_MODELS:
-        raise CameraModelError(f"unsupported camera_model {model!r:.40} (OPENCV, OPENCV_FISHEYE, PINHOLE or "
-                               "SIMPLE_PINHOLE; undistort the images first)", path)
+        raise CameraModelError(
+            f"unsupported camera_model {model!r:.40} (OPENCV, OPENCV_FISHEYE, PINHOLE or "
+            "SIMPLE_PINHOLE; undistort the images first)",
+            path,
+        )
     dist = {k: _number(get(k), k, path) for k in DISTORTION_KEYS if get(k) is not None}
     dist = {k: v for k, v in dist.items() if v != 0.0}
     if dist and model in ("PINHOLE", "SIMPLE_PINHOLE"):
         raise CameraModelError(f"camera_model {model} with distortion {dist}", path)
     if model == "OPENCV" and "k4" in dist:
-        raise CameraModelError(f"OPENCV distortion k4={dist['k4']} (nerfstudio's r^8 term) has no COLMAP camera "
-                               "model: undistort the images first", path)
+        raise CameraModelError(
+            f"OPENCV distortion k4={dist['k4']} (nerfstudio's r^8 term) has no COLMAP camera "
+            "model: undistort the images first",
+            path,
+        )
     if model == "OPENCV_FISHEYE" and ({"p1", "p2"} & set(dist)):
         raise CameraModelError("OPENCV_FISHEYE with tangential distortion p1/p2", path)
     w, h = get("w"), get("h")
@@ -184,8 +191,11 @@ def _camera(doc: dict, frame: dict, path: Path, image_size: tuple[int, int] | No
         raise SeeUError("no focal length (fl_x or camera_angle_x)", path)
     fx = _number(fx, "fl_x", path, positive=True)
     if fy is None:
-        fy = (0.5 * h / math.tan(0.5 * _number(get("camera_angle_y"), "camera_angle_y", path, positive=True))
-              if get("camera_angle_y") is not None else fx)
+        fy = (
+            0.5 * h / math.tan(0.5 * _number(get("camera_angle_y"), "camera_angle_y", path, positive=True))
+            if get("camera_angle_y") is not None
+            else fx
+        )
     fy = _number(fy, "fl_y", path, positive=True)
     cx = _number(get("cx"), "cx", path) if get("cx") is not None else 0.5 * w
     cy = _number(get("cy"), "cy", path) if get("cy") is not None else 0.5 * h
@@ -205,8 +215,9 @@ def colmap_camera(K: np.ndarray, model: str, dist: dict) -> tuple[str, list[floa
     return "OPENCV", base + [d("k1"), d("k2"), d("p1"), d("p2")]
 
 
-def undistort_frames(paths: list[Path], cameras: list[tuple[str, list[float], int, int]], model_ref: Path
-                     ) -> tuple[list[bytes], list[np.ndarray], list[tuple[int, int]]]:
+def undistort_frames(
+    paths: list[Path], cameras: list[tuple[str, list[float], int, int]], model_ref: Path
+) -> tuple[list[bytes], list[np.ndarray], list[tuple[int, int]]]:
     """Undistort frames with the COLMAP importer's undistortion (`colmap.undistort_model`).
 
     `cameras[k]`: (COLMAP model, params, w, h) of frame k. A one-image-per-frame COLMAP text model
@@ -268,8 +279,9 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
     scene_id = cfg.scene_id or extra.get("scene_id") or base.resolve().name
     all_paths, outside = frame_paths(cfg, doc)
     dropped = [{"frame": n, "reason": r} for n, r in sorted(outside.items())]
-    pairs = sorted(((f, p) for f, p in zip(doc["frames"], all_paths) if p is not None),
-                   key=lambda fp: fp[0]["file_path"])
+    pairs = sorted(
+        ((f, p) for f, p in zip(doc["frames"], all_paths) if p is not None), key=lambda fp: fp[0]["file_path"]
+    )
     applied = None
     if doc.get("applied_transform") is not None:
         applied = _matrix(doc["applied_transform"], (3, 4), "applied_transform", path)
@@ -278,8 +290,11 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
     try:
         missing = [(f, p) for f, p in pairs if not p.is_file()]
         if missing and not cfg.skip_missing:
-            raise SeeUError(f"{len(missing)} of {len(pairs)} frame images are missing (first: {missing[0][1]}); "
-                            "pass --skip-missing to drop those frames", path)
+            raise SeeUError(
+                f"{len(missing)} of {len(pairs)} frame images are missing (first: {missing[0][1]}); "
+                "pass --skip-missing to drop those frames",
+                path,
+            )
         dropped += [{"frame": f["file_path"], "reason": f"image missing: {p}"} for f, p in missing]
         pairs = [(f, p) for f, p in pairs if p.is_file()]
         if not pairs:
@@ -295,8 +310,11 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
                 raise SeeUError(f"image is {width[k]}x{height[k]}, transforms.json says {w}x{h}", paths[k])
             if dist:
                 if not cfg.undistort:
-                    raise CameraModelError(f"non-zero distortion {dist}: undistort the images first (e.g. COLMAP "
-                                           "image_undistorter) or drop --no-undistort", path)
+                    raise CameraModelError(
+                        f"non-zero distortion {dist}: undistort the images first (e.g. COLMAP "
+                        "image_undistorter) or drop --no-undistort",
+                        path,
+                    )
                 if (int(width[k]), int(height[k])) != (w, h):
                     raise SeeUError(f"image is {width[k]}x{height[k]}, its distorted camera is {w}x{h}", paths[k])
                 distorted[k] = (*colmap_camera(K, model, dist), w, h)
@@ -312,15 +330,20 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
         intr = [intrinsics_norm_from_pixels(K, w, h) for K, (w, h) in zip(Ks, sizes)]
         names = [f["file_path"] for f in frames]
         if all("seeu_source_frame" in f for f in frames):
-            source_frame = np.asarray([int(_number(f["seeu_source_frame"], "seeu_source_frame", path))
-                                       for f in frames], dtype=np.int64)
+            source_frame = np.asarray(
+                [int(_number(f["seeu_source_frame"], "seeu_source_frame", path)) for f in frames], dtype=np.int64
+            )
         else:
             nums = [re.findall(r"\d+", Path(n).stem) for n in names]
             vals = [int(m[-1]) if m else None for m in nums]
-            source_frame = (np.asarray(vals, dtype=np.int64) if None not in vals and len(set(vals)) == len(vals)
-                            else np.arange(len(names), dtype=np.int64))
-        timestamps = np.asarray([int(_number(f.get("seeu_timestamp_us", 0), "seeu_timestamp_us", path))
-                                 for f in frames], dtype=np.int64)
+            source_frame = (
+                np.asarray(vals, dtype=np.int64)
+                if None not in vals and len(set(vals)) == len(vals)
+                else np.arange(len(names), dtype=np.int64)
+            )
+        timestamps = np.asarray(
+            [int(_number(f.get("seeu_timestamp_us", 0), "seeu_timestamp_us", path)) for f in frames], dtype=np.int64
+        )
     except CameraModelError:
         raise
     except SeeUError as exc:
@@ -329,9 +352,15 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
     c2w_gl = np.stack(c2w_gl)
     if applied is not None and cfg.undo_applied_transform:
         c2w_gl = invert_rigid(applied) @ c2w_gl
-    meta = {"dataset": "nerfstudio", "transforms": str(path.resolve()),
-            "world": "nerfstudio (applied_transform kept)" if applied is not None and not cfg.undo_applied_transform
-            else "original (applied_transform undone)" if applied is not None else "as stored"}
+    meta = {
+        "dataset": "nerfstudio",
+        "transforms": str(path.resolve()),
+        "world": "nerfstudio (applied_transform kept)"
+        if applied is not None and not cfg.undo_applied_transform
+        else "original (applied_transform undone)"
+        if applied is not None
+        else "as stored",
+    }
     meta.update(extra.get("meta", {}))
     if distorted:
         meta["undistorted"] = f"pycolmap.undistort_images ({len(distorted)} frames)"
@@ -339,7 +368,18 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
         meta["skipped_frames"] = dropped
     near = float(cfg.near if cfg.near is not None else extra.get("near", DEFAULT_NEAR_FAR[0]))
     far = float(cfg.far if cfg.far is not None else extra.get("far", DEFAULT_NEAR_FAR[1]))
-    yield PosedScene(scene_id=str(scene_id), images=images, image_format=fmt, width=width, height=height,
-                     intrinsics_norm=np.stack(intr), cam_to_world=opencv_from_opengl(c2w_gl), near=near, far=far,
-                     source_frame=source_frame, timestamp_us=timestamps,
-                     source_name=[str(f.get("seeu_source_name", n)) for f, n in zip(frames, names)], meta=meta)
+    yield PosedScene(
+        scene_id=str(scene_id),
+        images=images,
+        image_format=fmt,
+        width=width,
+        height=height,
+        intrinsics_norm=np.stack(intr),
+        cam_to_world=opencv_from_opengl(c2w_gl),
+        near=near,
+        far=far,
+        source_frame=source_frame,
+        timestamp_us=timestamps,
+        source_name=[str(f.get("seeu_source_name", n)) for f, n in zip(frames, names)],
+        meta=meta,
+    )

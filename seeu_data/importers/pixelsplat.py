@@ -124,12 +124,24 @@ def load_chunk(path: Path) -> list:
         chunk = load_plain(path)
     except UnsupportedChunk:
         chunk = _torch_load(path)
-    except (OSError, EOFError, ValueError, TypeError, AttributeError, IndexError, KeyError, RecursionError,
-            zipfile.BadZipFile, pickle.UnpicklingError, struct.error) as exc:
+    except (
+        OSError,
+        EOFError,
+        ValueError,
+        TypeError,
+        AttributeError,
+        IndexError,
+        KeyError,
+        RecursionError,
+        zipfile.BadZipFile,
+        pickle.UnpicklingError,
+        struct.error,
+    ) as exc:
         # TypeError & co.: a pickle calling an allowed global with arguments it does not take
         # (`torch.FloatStorage()`, `OrderedDict(5)`): never code, only an unusable chunk.
-        raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
-                        path) from None
+        raise SeeUError(
+            f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})", path
+        ) from None
     if not isinstance(chunk, list):
         raise SeeUError(f"a chunk must hold a list of examples, found {type(chunk).__name__}", path)
     return chunk
@@ -144,12 +156,12 @@ def _torch_load(path: Path):
         # mmap (zip format only): storages stay in the page cache instead of process memory.
         return torch.load(path, map_location="cpu", weights_only=True, mmap=zipfile.is_zipfile(path))
     except Exception as exc:  # corrupt zip, truncated file, pickle of other objects
-        raise SeeUError(f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
-                        path) from None
+        raise SeeUError(
+            f"not a readable pixelSplat chunk ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})", path
+        ) from None
 
 
-def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: str, sidecar: dict | None
-                       ) -> PosedScene:
+def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: str, sidecar: dict | None) -> PosedScene:
     """One chunk example -> PosedScene (SeeUError when the example is malformed).
 
     The scene's `images` are read-only numpy views into the memory-mapped chunk, not copies: the
@@ -190,9 +202,21 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
             source_name = [str(s) for s in extra["source_name"]]
         meta.update(extra.get("meta", {}))
         meta.update({"dataset": meta.get("dataset", cfg.dataset), "stage": cfg.stage, "chunk": chunk_name})
-    return PosedScene(scene_id=str(key), images=data, image_format=fmt, width=width, height=height,
-                      intrinsics_norm=cams[:, :4].copy(), cam_to_world=cam_to_world, near=near, far=far,
-                      source_frame=source_frame, timestamp_us=timestamps, source_name=source_name, meta=meta)
+    return PosedScene(
+        scene_id=str(key),
+        images=data,
+        image_format=fmt,
+        width=width,
+        height=height,
+        intrinsics_norm=cams[:, :4].copy(),
+        cam_to_world=cam_to_world,
+        near=near,
+        far=far,
+        source_frame=source_frame,
+        timestamp_us=timestamps,
+        source_name=source_name,
+        meta=meta,
+    )
 
 
 def image_views(images: list) -> list[np.ndarray]:
@@ -215,8 +239,9 @@ def read_sidecar(directory: Path) -> dict | None:
     return read_json(path)
 
 
-def _chunk_items(path: Path, cfg: PixelSplatImportConfig, sidecar: dict | None, index: dict[str, str],
-                 seen: set[str]) -> Iterator[PosedScene | SkippedScene]:
+def _chunk_items(
+    path: Path, cfg: PixelSplatImportConfig, sidecar: dict | None, index: dict[str, str], seen: set[str]
+) -> Iterator[PosedScene | SkippedScene]:
     """One chunk's scenes (one chunk in memory), its malformed examples as SkippedScene, and the
     scenes index.json places in it that it does not hold; every id yielded is added to `seen`."""
     try:
@@ -249,8 +274,12 @@ def _chunk_items(path: Path, cfg: PixelSplatImportConfig, sidecar: dict | None, 
         yield SkippedScene(key, f"index.json lists it in {path.name}, which does not hold it")
 
 
-def import_plan(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None,
-                missing: list[SkippedScene] | None = None):
+def import_plan(
+    cfg: PixelSplatImportConfig,
+    chunks: list[Path] | None = None,
+    directory: Path | None = None,
+    missing: list[SkippedScene] | None = None,
+):
     """The import as resumable units (`importers.common.ImportPlan`): one unit per chunk (fingerprint:
     size and mtime), scenes asked for but not in index.json first, and, without an index.json,
     scenes asked for that no chunk held last. index.json and the sidecar are the plan's fingerprint."""
@@ -265,9 +294,12 @@ def import_plan(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, d
     index = read_index(directory)
     seen: set[str] = {s.scene_id for s in missing}
     units = [ImportUnit(None, "", lambda: iter(missing))] if missing else []
-    units += [ImportUnit(p.name, file_fingerprint(p), partial(_chunk_items, p, cfg, sidecar, index or {}, seen))
-              for p in chunks]
+    units += [
+        ImportUnit(p.name, file_fingerprint(p), partial(_chunk_items, p, cfg, sidecar, index or {}, seen))
+        for p in chunks
+    ]
     if index is None and cfg.scenes is not None:
+
         def not_found():
             return (SkippedScene(k, "not found in any chunk") for k in sorted(set(cfg.scenes) - seen))
 
@@ -278,8 +310,9 @@ def import_plan(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, d
     return ImportPlan(units, seen, fingerprint, prefetch=False)
 
 
-def iter_scenes(cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None
-                ) -> Iterator[PosedScene | SkippedScene]:
+def iter_scenes(
+    cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None
+) -> Iterator[PosedScene | SkippedScene]:
     """Yield scenes chunk by chunk (one chunk in memory); malformed examples and unreadable chunks
     are yielded as SkippedScene (and, when the chunks are not given, scenes asked for but missing
     from index.json first)."""

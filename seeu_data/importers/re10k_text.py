@@ -80,9 +80,12 @@ def parse_camera_file(path: Path) -> Re10kCameraFile:
         raise SeeUError("no frame lines", path)
     values = np.asarray(rows, dtype=np.float64)
     n = len(rows)
-    return Re10kCameraFile(url=url, timestamps_us=np.asarray(timestamps, dtype=np.int64),
-                           intrinsics_norm=values[:, :4].copy(),
-                           world_to_cam=homogeneous_from_3x4(values[:, 6:].reshape(n, 3, 4)))
+    return Re10kCameraFile(
+        url=url,
+        timestamps_us=np.asarray(timestamps, dtype=np.int64),
+        intrinsics_norm=values[:, :4].copy(),
+        world_to_cam=homogeneous_from_3x4(values[:, 6:].reshape(n, 3, 4)),
+    )
 
 
 def camera_files(cfg: Re10kTextImportConfig) -> list[Path]:
@@ -95,8 +98,9 @@ def camera_files(cfg: Re10kTextImportConfig) -> list[Path]:
     if cfg.scenes is not None:
         files = [f for f in files if f.stem in cfg.scenes]
     if not files:
-        raise SeeUError("no <scene>.txt camera files" + (" for the requested scenes" if cfg.scenes else ""),
-                        cfg.cameras_dir)
+        raise SeeUError(
+            "no <scene>.txt camera files" + (" for the requested scenes" if cfg.scenes else ""), cfg.cameras_dir
+        )
     return files
 
 
@@ -122,8 +126,11 @@ def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
     if not keep.all():
         missing = int((~keep).sum())
         if not cfg.allow_missing_frames or not keep.any():
-            raise SeeUError(f"{missing} of {len(keep)} frames listed in {cam_file.name} have no image "
-                            f"(first: {cams.timestamps_us[~keep][0]}); --allow-missing-frames drops them", scene_dir)
+            raise SeeUError(
+                f"{missing} of {len(keep)} frames listed in {cam_file.name} have no image "
+                f"(first: {cams.timestamps_us[~keep][0]}); --allow-missing-frames drops them",
+                scene_dir,
+            )
     if len(frames) > len(cams.timestamps_us) and not cfg.allow_missing_frames:
         extra = len(set(frames) - set(int(t) for t in cams.timestamps_us))
         if extra:
@@ -138,11 +145,21 @@ def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
     meta = {"url": cams.url, "dataset": cfg.dataset, "camera_file": str(cam_file)}
     if len(idx) < len(keep):
         meta["dropped_frames_without_image"] = int(len(keep) - len(idx))
-    return PosedScene(scene_id=scene_id, images=images, image_format=fmt, width=width, height=height,
-                      intrinsics_norm=cams.intrinsics_norm[idx],
-                      cam_to_world=cam_to_world_from_world_to_cam(cams.world_to_cam[idx]),
-                      near=cfg.near, far=cfg.far, source_frame=idx.astype(np.int64),
-                      timestamp_us=cams.timestamps_us[idx], source_name=[p.name for p in paths], meta=meta)
+    return PosedScene(
+        scene_id=scene_id,
+        images=images,
+        image_format=fmt,
+        width=width,
+        height=height,
+        intrinsics_norm=cams.intrinsics_norm[idx],
+        cam_to_world=cam_to_world_from_world_to_cam(cams.world_to_cam[idx]),
+        near=cfg.near,
+        far=cfg.far,
+        source_frame=idx.astype(np.int64),
+        timestamp_us=cams.timestamps_us[idx],
+        source_name=[p.name for p in paths],
+        meta=meta,
+    )
 
 
 def _scene_items(cam_file: Path, cfg: Re10kTextImportConfig) -> Iterator[PosedScene | SkippedScene]:
@@ -155,8 +172,11 @@ def _scene_items(cam_file: Path, cfg: Re10kTextImportConfig) -> Iterator[PosedSc
 def _scene_inputs(cam_file: Path, cfg: Re10kTextImportConfig) -> list[Path]:
     """The files a scene's import reads: its camera file and every frame file in its frame directory."""
     scene_dir = Path(cfg.frames_dir) / cam_file.stem
-    frames = sorted(p for p in scene_dir.iterdir() if p.suffix.lower() in FRAME_EXTENSIONS and p.stem.isdigit()
-                    ) if scene_dir.is_dir() else []
+    frames = (
+        sorted(p for p in scene_dir.iterdir() if p.suffix.lower() in FRAME_EXTENSIONS and p.stem.isdigit())
+        if scene_dir.is_dir()
+        else []
+    )
     return [cam_file, *frames]
 
 
@@ -169,11 +189,14 @@ def import_plan(cfg: Re10kTextImportConfig, files: list[Path] | None = None):
     from .common import ImportPlan, ImportUnit, files_fingerprint
 
     files = files if files is not None else camera_files(cfg)
-    missing = [SkippedScene(scene_id, f"no {scene_id}.txt camera file in {cfg.cameras_dir}")
-               for scene_id in sorted(set(cfg.scenes or ()) - {f.stem for f in files})]
+    missing = [
+        SkippedScene(scene_id, f"no {scene_id}.txt camera file in {cfg.cameras_dir}")
+        for scene_id in sorted(set(cfg.scenes or ()) - {f.stem for f in files})
+    ]
     units = [ImportUnit(None, "", lambda: iter(missing))] if missing else []
-    units += [ImportUnit(f.name, files_fingerprint(_scene_inputs(f, cfg)), partial(_scene_items, f, cfg))
-              for f in files]
+    units += [
+        ImportUnit(f.name, files_fingerprint(_scene_inputs(f, cfg)), partial(_scene_items, f, cfg)) for f in files
+    ]
     return ImportPlan(units)
 
 

@@ -26,9 +26,15 @@ import numpy as np
 from ..arrow_io import map_readonly
 
 _STORAGE_DTYPES = {
-    "ByteStorage": np.uint8, "CharStorage": np.int8, "ShortStorage": np.int16, "IntStorage": np.int32,
-    "LongStorage": np.int64, "FloatStorage": np.float32, "DoubleStorage": np.float64,
-    "HalfStorage": np.float16, "BoolStorage": np.bool_,
+    "ByteStorage": np.uint8,
+    "CharStorage": np.int8,
+    "ShortStorage": np.int16,
+    "IntStorage": np.int32,
+    "LongStorage": np.int64,
+    "FloatStorage": np.float32,
+    "DoubleStorage": np.float64,
+    "HalfStorage": np.float16,
+    "BoolStorage": np.bool_,
 }
 
 
@@ -53,8 +59,9 @@ def _rebuild_tensor(storage: np.ndarray, offset: int, size, stride, *_ignored) -
     if stride == (1,):  # the common case (1-D contiguous: encoded images, timestamps): a plain slice
         return storage[offset:end]
     base = storage[offset:]
-    return np.lib.stride_tricks.as_strided(base, shape=size, strides=[s * storage.itemsize for s in stride],
-                                           writeable=False)
+    return np.lib.stride_tricks.as_strided(
+        base, shape=size, strides=[s * storage.itemsize for s in stride], writeable=False
+    )
 
 
 class _RestrictedUnpickler(pickle.Unpickler):

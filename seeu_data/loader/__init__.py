@@ -10,5 +10,18 @@ from .order import epoch_order, manifest_fingerprint, plan_global_batches, rank_
 from .source import ShardSource
 from .types import Batch, Views
 
-__all__ = ["Batch", "Views", "batch_to_device", "GapCurriculum", "LoaderConfig", "StreamingLoader", "TripleStream", "make_loader", "epoch_order",
-           "manifest_fingerprint", "plan_global_batches", "rank_worker_batches", "ShardSource"]
+__all__ = [
+    "Batch",
+    "Views",
+    "batch_to_device",
+    "GapCurriculum",
+    "LoaderConfig",
+    "StreamingLoader",
+    "TripleStream",
+    "make_loader",
+    "epoch_order",
+    "manifest_fingerprint",
+    "plan_global_batches",
+    "rank_worker_batches",
+    "ShardSource",
+]

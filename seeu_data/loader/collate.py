@@ -95,9 +95,15 @@ def images_to_tensor(images: np.ndarray, dtype: str = "float32") -> torch.Tensor
     return torch.from_numpy(out_np)
 
 
-def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool] | np.ndarray, image_dtype: str = "uint8",
-                  images: np.ndarray | None = None, where: str = "", ship: bool = False,
-                  ticket: dict | None = None) -> dict:
+def collate_views(
+    samples: Sequence[ViewsSample],
+    is_padding: Sequence[bool] | np.ndarray,
+    image_dtype: str = "uint8",
+    images: np.ndarray | None = None,
+    where: str = "",
+    ship: bool = False,
+    ticket: dict | None = None,
+) -> dict:
     """Stack samples into the batch dict. `images`: the (B, V, 3, H, W) uint8 buffer the samples' images live in.
 
     `ship=True` (DataLoader workers under `StreamingLoader`): the small fields stay numpy (pickled by
@@ -111,8 +117,11 @@ def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool] | n
     vc, v = samples[0].num_context, len(samples[0].frame_index)
     for s in samples:
         if (s.num_context, len(s.frame_index)) != (vc, v):
-            raise SeeUError(f"sample {s.sample_id} has {s.num_context} context / {len(s.frame_index)} views, "
-                            f"the batch has {vc} / {v}: batches need equal view counts", where)
+            raise SeeUError(
+                f"sample {s.sample_id} has {s.num_context} context / {len(s.frame_index)} views, "
+                f"the batch has {vc} / {v}: batches need equal view counts",
+                where,
+            )
     if images is None:
         images = np.stack([s.images for s in samples])
     wrap = (lambda a: a) if ship else torch.from_numpy
@@ -120,8 +129,9 @@ def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool] | n
     def part(sl: slice) -> dict:
         out = {
             "cam_to_world": wrap(np.stack([s.cam_to_world[sl] for s in samples]).astype(np.float32)),
-            "intrinsics": wrap(cameras.intrinsics_norm_matrix(
-                np.stack([s.intrinsics_norm[sl] for s in samples])).astype(np.float32)),
+            "intrinsics": wrap(
+                cameras.intrinsics_norm_matrix(np.stack([s.intrinsics_norm[sl] for s in samples])).astype(np.float32)
+            ),
             "near": wrap(np.stack([s.near[sl] for s in samples])),
             "far": wrap(np.stack([s.far[sl] for s in samples])),
             "frame_index": wrap(np.stack([s.frame_index[sl] for s in samples])),
@@ -139,8 +149,13 @@ def collate_views(samples: Sequence[ViewsSample], is_padding: Sequence[bool] | n
     }
     if ship:
         if ticket is None:  # no ring: hand over one uint8 shared tensor
-            ticket = {"worker": None, "seq": None, "slot": None, "shape": images.shape,
-                      "buffer": images_to_tensor(images, "uint8").reshape(-1)}
+            ticket = {
+                "worker": None,
+                "seq": None,
+                "slot": None,
+                "shape": images.shape,
+                "buffer": images_to_tensor(images, "uint8").reshape(-1),
+            }
         batch["_images"] = {**ticket, "num_context": vc}
     return batch
 
@@ -162,15 +177,19 @@ def batch_to_device(batch: Any, device: torch.device | str, non_blocking: bool =
     if isinstance(batch, torch.Tensor):
         return batch.to(device, non_blocking=non_blocking)
     if isinstance(batch, dict):
-        return {k: image_to_float(v.to(device, non_blocking=non_blocking))
-                if k == "image" and isinstance(v, torch.Tensor) else batch_to_device(v, device, non_blocking)
-                for k, v in batch.items()}
+        return {
+            k: image_to_float(v.to(device, non_blocking=non_blocking))
+            if k == "image" and isinstance(v, torch.Tensor)
+            else batch_to_device(v, device, non_blocking)
+            for k, v in batch.items()
+        }
     if isinstance(batch, (list, tuple)) and batch and isinstance(batch[0], torch.Tensor):
         return type(batch)(batch_to_device(v, device, non_blocking) for v in batch)
     return batch
 
 
 # ------------------------------------------------------------------------- worker -> main hand-off
+
 
 class ImageRing:
     """Worker half of the image hand-off: a few batch buffers in shared memory, reused round-robin.
@@ -247,7 +266,7 @@ class ImageRingHost:
         elif ticket["worker"] is not None:
             self.misses += 1
         shape = tuple(ticket["shape"])
-        return buf.numpy()[:int(np.prod(shape))].reshape(shape)
+        return buf.numpy()[: int(np.prod(shape))].reshape(shape)
 
     def release(self, ticket: dict) -> None:
         """Let the worker write the ticket's buffer again (batches of a worker arrive in order)."""
@@ -255,13 +274,17 @@ class ImageRingHost:
             self._released[ticket["worker"]] = ticket["seq"] + 1
 
 
-def finish_shipped_batch(batch: dict, image_dtype: str = "uint8", ring: ImageRingHost | None = None,
-                         pin: bool = False) -> Batch:
+def finish_shipped_batch(
+    batch: dict, image_dtype: str = "uint8", ring: ImageRingHost | None = None, pin: bool = False
+) -> Batch:
     """Main-process half of `collate_views(..., ship=True)`: the images out of shared memory (uint8 copied,
     or converted to float32 in [0, 1]), numpy -> tensors. `pin`: the images go straight into pinned memory."""
     ticket = batch.pop("_images")
-    images = ring.images(ticket) if ring is not None else \
-        ticket["buffer"].numpy()[:int(np.prod(ticket["shape"]))].reshape(ticket["shape"])
+    images = (
+        ring.images(ticket)
+        if ring is not None
+        else ticket["buffer"].numpy()[: int(np.prod(ticket["shape"]))].reshape(ticket["shape"])
+    )
     vc = ticket["num_context"]
     np_dtype, torch_dtype = (np.uint8, torch.uint8) if image_dtype == "uint8" else (np.float32, torch.float32)
     for key, sl in (("context", slice(0, vc)), ("target", slice(vc, None))):

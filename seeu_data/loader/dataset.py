@@ -38,8 +38,14 @@ from ..image_ops import single_threaded_cv2
 from .collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
 from .types import Batch
 from .curriculum import GapCurriculum
-from .order import (GlobalPlan, epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches,
-                    shard_offsets)
+from .order import (
+    GlobalPlan,
+    epoch_order,
+    manifest_fingerprint,
+    plan_global_batches,
+    rank_worker_batches,
+    shard_offsets,
+)
 from .shard_reader import RawSample, ShardReader
 from .source import DEFAULT_CACHE_LIMIT, ShardSource
 from .transforms import ViewsSample, transform_sample
@@ -91,8 +97,8 @@ def flip_decisions(seed: int, epoch: int, positions: np.ndarray, p: float) -> np
     if p <= 0.0:
         return np.zeros(len(positions), dtype=bool)
     with np.errstate(over="ignore"):
-        x = (np.asarray(positions, dtype=np.uint64) + np.uint64((seed * 0x9E3779B1 + epoch * 0x85EBCA77) & (2**64 - 1)))
-        x = (x + np.uint64(0x9E3779B97F4A7C15))
+        x = np.asarray(positions, dtype=np.uint64) + np.uint64((seed * 0x9E3779B1 + epoch * 0x85EBCA77) & (2**64 - 1))
+        x = x + np.uint64(0x9E3779B97F4A7C15)
         x = (x ^ (x >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
         x = (x ^ (x >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
         x = x ^ (x >> np.uint64(31))
@@ -115,12 +121,26 @@ class TripleStream(IterableDataset):
     `"_skipped"` (samples replaced because they could not be read), removed by `StreamingLoader`.
     """
 
-    def __init__(self, source: str | Path | ShardSource, config: LoaderConfig = LoaderConfig(),
-                 rank: int | None = None, world_size: int | None = None, filesystem=None):
+    def __init__(
+        self,
+        source: str | Path | ShardSource,
+        config: LoaderConfig = LoaderConfig(),
+        rank: int | None = None,
+        world_size: int | None = None,
+        filesystem=None,
+    ):
         self.config = config
-        self.source = source if isinstance(source, ShardSource) else ShardSource(
-            source, cache_dir=config.cache_dir, cache_limit_bytes=config.cache_limit_bytes,
-            verify=config.verify, filesystem=filesystem)
+        self.source = (
+            source
+            if isinstance(source, ShardSource)
+            else ShardSource(
+                source,
+                cache_dir=config.cache_dir,
+                cache_limit_bytes=config.cache_limit_bytes,
+                verify=config.verify,
+                filesystem=filesystem,
+            )
+        )
         self.rank, self.world_size = resolve_rank(rank, world_size)
         if not 0 <= self.rank < self.world_size:
             raise ValueError(f"rank {self.rank} outside [0, {self.world_size})")
@@ -151,15 +171,26 @@ class TripleStream(IterableDataset):
     def order(self, epoch: int) -> np.ndarray:
         """`(N,) int64` row ids of the epoch in order (pure function of seed, epoch, manifest)."""
         if epoch not in self._orders:
-            self._orders = {epoch: epoch_order(self.shard_rows, self.config.seed, epoch, self.fingerprint,
-                                               self.config.shuffle, self.config.block_shards)}
+            self._orders = {
+                epoch: epoch_order(
+                    self.shard_rows,
+                    self.config.seed,
+                    epoch,
+                    self.fingerprint,
+                    self.config.shuffle,
+                    self.config.block_shards,
+                )
+            }
         return self._orders[epoch]
 
     def row_gaps(self) -> np.ndarray:
         """`(N,) int64` context gap per row id (read once; needed by the curriculum)."""
         if self._gaps is None:
-            self._gaps = np.concatenate([self._reader(k).gaps() for k in range(len(self.shard_rows))]) \
-                if self.shard_rows else np.zeros(0, np.int64)
+            self._gaps = (
+                np.concatenate([self._reader(k).gaps() for k in range(len(self.shard_rows))])
+                if self.shard_rows
+                else np.zeros(0, np.int64)
+            )
         return self._gaps
 
     def plan(self) -> GlobalPlan:
@@ -171,9 +202,15 @@ class TripleStream(IterableDataset):
             if c.curriculum is None:
                 plan = plan_global_batches(self.num_samples, p.samples_seen, self.global_batch_size, c.remainder)
             else:
-                plan = plan_global_batches(self.num_samples, p.samples_seen, self.global_batch_size, c.remainder,
-                                           gaps=self.row_gaps()[order], max_gap=c.curriculum.max_gap,
-                                           start_step=p.step)
+                plan = plan_global_batches(
+                    self.num_samples,
+                    p.samples_seen,
+                    self.global_batch_size,
+                    c.remainder,
+                    gaps=self.row_gaps()[order],
+                    max_gap=c.curriculum.max_gap,
+                    start_step=p.step,
+                )
             self._plan_key, self._plan = key, plan
         assert self._plan is not None
         return self._plan
@@ -220,10 +257,18 @@ class TripleStream(IterableDataset):
                 self._scratch = self._scratch_own
         elif self._scratch is None or self._scratch.shape != shape:
             have = "?" if self._scratch is None else self._scratch.shape[1]
-            raise SeeUError(f"sample {raw.sample_id} has {len(raw.images)} views, the batch "
-                            f"{have}: batches need equal view counts", self.source.name(k))
-        return transform_sample(raw, self.config.image_hw, flip, self.config.interpolation,
-                                where=self.source.name(k), out=self._scratch[slot])
+            raise SeeUError(
+                f"sample {raw.sample_id} has {len(raw.images)} views, the batch {have}: batches need equal view counts",
+                self.source.name(k),
+            )
+        return transform_sample(
+            raw,
+            self.config.image_hw,
+            flip,
+            self.config.interpolation,
+            where=self.source.name(k),
+            out=self._scratch[slot],
+        )
 
     def make_batch(self, positions: np.ndarray, is_padding: np.ndarray, epoch: int) -> dict:
         """Read, transform and collate the samples at these epoch positions, `(B,)` each."""
@@ -246,8 +291,9 @@ class TripleStream(IterableDataset):
                 skipped += 1
             while True:  # replace it with the first readable sample from the start of the order
                 if fill >= len(order):
-                    raise SeeUError("no readable sample left to fill a batch (every shard unreadable?)",
-                                    self.source.url)
+                    raise SeeUError(
+                        "no readable sample left to fill a batch (every shard unreadable?)", self.source.url
+                    )
                 try:
                     samples.append(self._load(int(order[fill]), False, i, size))
                     pad[i] = True
@@ -256,8 +302,15 @@ class TripleStream(IterableDataset):
                 except SeeUError:
                     fill += 1
         ship = self.ship and get_worker_info() is not None
-        batch = collate_views(samples, pad, c.image_dtype, images=self._scratch, where=self.source.url, ship=ship,
-                              ticket=self._ring.ticket() if ship and self._ring is not None else None)
+        batch = collate_views(
+            samples,
+            pad,
+            c.image_dtype,
+            images=self._scratch,
+            where=self.source.url,
+            ship=ship,
+            ticket=self._ring.ticket() if ship and self._ring is not None else None,
+        )
         batch["_skipped"] = skipped
         return batch
 
@@ -266,10 +319,14 @@ class TripleStream(IterableDataset):
         worker, num_workers = (info.id, info.num_workers) if info is not None else (0, 0)
         plan = self.plan()
         epoch = self.position.epoch
-        ids, cols = rank_worker_batches(plan.num_batches, self.config.batch_size, self.rank, self.world_size,
-                                        worker, num_workers)
-        self._ring = ImageRing(self.ring[0], worker, self.ring[1]) \
-            if self.ship and self.ring is not None and info is not None else None
+        ids, cols = rank_worker_batches(
+            plan.num_batches, self.config.batch_size, self.rank, self.world_size, worker, num_workers
+        )
+        self._ring = (
+            ImageRing(self.ring[0], worker, self.ring[1])
+            if self.ship and self.ring is not None and info is not None
+            else None
+        )
         for b in ids:
             try:
                 batch = self.make_batch(plan.positions[b, cols], plan.is_padding[b, cols], epoch)
@@ -288,7 +345,7 @@ def _error_parts(exc: SeeUError) -> tuple[str, str | None]:
     """(message, path) of a SeeUError, so it can be rebuilt in another process."""
     text = str(exc)
     if exc.path is not None and text.startswith(exc.path + ": "):
-        return text[len(exc.path) + 2:], exc.path
+        return text[len(exc.path) + 2 :], exc.path
     return text, None
 
 
@@ -307,8 +364,15 @@ class StreamingLoader:
     (`samples_seen` == the epoch size); `set_epoch(e)` jumps to the start of epoch e (no-op if already in e).
     """
 
-    def __init__(self, dataset: TripleStream, num_workers: int = 0, pin_memory: bool = False,
-                 prefetch_factor: int | None = 2, multiprocessing_context: str | None = None, timeout: float = 0):
+    def __init__(
+        self,
+        dataset: TripleStream,
+        num_workers: int = 0,
+        pin_memory: bool = False,
+        prefetch_factor: int | None = 2,
+        multiprocessing_context: str | None = None,
+        timeout: float = 0,
+    ):
         self.dataset = dataset
         self.num_workers = int(num_workers)
         self.pin_memory = pin_memory
@@ -337,17 +401,26 @@ class StreamingLoader:
 
     def state_dict(self) -> dict:
         p = self.dataset.position
-        return {"epoch": p.epoch, "samples_seen": p.samples_seen, "step": p.step, "seed": self.dataset.config.seed,
-                "num_samples": self.dataset.num_samples, "fingerprint": self.dataset.fingerprint}
+        return {
+            "epoch": p.epoch,
+            "samples_seen": p.samples_seen,
+            "step": p.step,
+            "seed": self.dataset.config.seed,
+            "num_samples": self.dataset.num_samples,
+            "fingerprint": self.dataset.fingerprint,
+        }
 
     def load_state_dict(self, state: dict) -> None:
         ds = self.dataset
         if "fingerprint" in state and int(state["fingerprint"]) != ds.fingerprint:
-            raise SeeUError("loader checkpoint belongs to a different dataset (manifest fingerprint differs)",
-                            ds.source.url)
+            raise SeeUError(
+                "loader checkpoint belongs to a different dataset (manifest fingerprint differs)", ds.source.url
+            )
         if not 0 <= int(state["samples_seen"]) <= ds.num_samples:
-            raise SeeUError(f"loader checkpoint has samples_seen {state['samples_seen']} outside "
-                            f"[0, {ds.num_samples}]", ds.source.url)
+            raise SeeUError(
+                f"loader checkpoint has samples_seen {state['samples_seen']} outside [0, {ds.num_samples}]",
+                ds.source.url,
+            )
         if "seed" in state and int(state["seed"]) != ds.config.seed:
             ds.config = replace(ds.config, seed=int(state["seed"]))  # the order must be the checkpoint's
         ds.position = _Position(int(state["epoch"]), int(state["samples_seen"]), int(state.get("step", 0)))
@@ -365,10 +438,17 @@ class StreamingLoader:
             ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
         plan = ds.plan()  # computed here once; forked workers inherit it
         pin = self.pin_memory and torch.cuda.is_available()
-        loader = DataLoader(ds, batch_size=None, collate_fn=_as_is, num_workers=self.num_workers, pin_memory=False,
-                            prefetch_factor=self.prefetch_factor, persistent_workers=False,
-                            multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
-                            timeout=self.timeout)
+        loader = DataLoader(
+            ds,
+            batch_size=None,
+            collate_fn=_as_is,
+            num_workers=self.num_workers,
+            pin_memory=False,
+            prefetch_factor=self.prefetch_factor,
+            persistent_workers=False,
+            multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
+            timeout=self.timeout,
+        )
         skipped = plan.skipped
         ds.ship = self.num_workers > 0
         ring = None
@@ -401,14 +481,30 @@ class StreamingLoader:
         ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
 
 
-def make_loader(shards: str | Path, batch_size: int, *, num_workers: int = 0, rank: int | None = None,
-                world_size: int | None = None, seed: int = 0, pin_memory: bool = False, filesystem=None,
-                multiprocessing_context: str | None = None, timeout: float = 0, **config) -> StreamingLoader:
+def make_loader(
+    shards: str | Path,
+    batch_size: int,
+    *,
+    num_workers: int = 0,
+    rank: int | None = None,
+    world_size: int | None = None,
+    seed: int = 0,
+    pin_memory: bool = False,
+    filesystem=None,
+    multiprocessing_context: str | None = None,
+    timeout: float = 0,
+    **config,
+) -> StreamingLoader:
     """A `StreamingLoader` over the triples dataset at `shards` (directory or object-storage URL).
 
     `config` takes the other `LoaderConfig` fields (image_hw, flip_p, remainder, curriculum, ...).
     """
     cfg = LoaderConfig(batch_size=batch_size, seed=seed, **config)
     ds = TripleStream(shards, cfg, rank=rank, world_size=world_size, filesystem=filesystem)
-    return StreamingLoader(ds, num_workers=num_workers, pin_memory=pin_memory,
-                           multiprocessing_context=multiprocessing_context, timeout=timeout)
+    return StreamingLoader(
+        ds,
+        num_workers=num_workers,
+        pin_memory=pin_memory,
+        multiprocessing_context=multiprocessing_context,
+        timeout=timeout,
+    )

@@ -51,8 +51,9 @@ def shard_offsets(shard_rows: Sequence[int]) -> np.ndarray:
     return np.concatenate([[0], np.cumsum(np.asarray(shard_rows, dtype=np.int64))]).astype(np.int64)
 
 
-def epoch_order(shard_rows: Sequence[int], seed: int, epoch: int, fingerprint: int,
-                shuffle: bool = True, block_shards: int = 4) -> np.ndarray:
+def epoch_order(
+    shard_rows: Sequence[int], seed: int, epoch: int, fingerprint: int, shuffle: bool = True, block_shards: int = 4
+) -> np.ndarray:
     """The epoch's sample order: a permutation of the row ids `0 .. N-1`, `(N,) int64`.
 
     A pure function of its arguments. `shuffle=False` gives shard order, row order (evaluation).
@@ -63,12 +64,15 @@ def epoch_order(shard_rows: Sequence[int], seed: int, epoch: int, fingerprint: i
         return np.arange(total, dtype=np.int64)
     if block_shards < 1:
         raise ValueError("block_shards must be >= 1")
-    rng = np.random.default_rng([int(seed) & 0xFFFFFFFF, int(seed) >> 32, int(epoch), fingerprint & 0xFFFFFFFF, fingerprint >> 32])
+    rng = np.random.default_rng(
+        [int(seed) & 0xFFFFFFFF, int(seed) >> 32, int(epoch), fingerprint & 0xFFFFFFFF, fingerprint >> 32]
+    )
     shards = rng.permutation(len(shard_rows))
     parts = []
     for start in range(0, len(shards), block_shards):
-        block = np.concatenate([np.arange(offsets[k], offsets[k + 1], dtype=np.int64)
-                                for k in shards[start:start + block_shards]])
+        block = np.concatenate(
+            [np.arange(offsets[k], offsets[k + 1], dtype=np.int64) for k in shards[start : start + block_shards]]
+        )
         parts.append(rng.permutation(block))
     return np.concatenate(parts) if parts else np.zeros(0, dtype=np.int64)
 
@@ -101,9 +105,15 @@ def _pad_positions(count: int, pool: np.ndarray) -> np.ndarray:
     return pool[np.arange(count) % len(pool)].astype(np.int64)
 
 
-def plan_global_batches(num_samples: int, samples_seen: int, global_batch: int, remainder: str = "pad",
-                        gaps: np.ndarray | None = None, max_gap: Callable[[int], float] | None = None,
-                        start_step: int = 0) -> GlobalPlan:
+def plan_global_batches(
+    num_samples: int,
+    samples_seen: int,
+    global_batch: int,
+    remainder: str = "pad",
+    gaps: np.ndarray | None = None,
+    max_gap: Callable[[int], float] | None = None,
+    start_step: int = 0,
+) -> GlobalPlan:
     """Global batches of the positions `[samples_seen, num_samples)` of an epoch order.
 
     Without a curriculum: consecutive runs of `global_batch` positions. With one, `gaps` is the
@@ -169,8 +179,9 @@ def plan_global_batches(num_samples: int, samples_seen: int, global_batch: int, 
     return GlobalPlan(pos, pad, np.asarray(cursors, dtype=np.int64), skip.astype(np.int64))
 
 
-def rank_worker_batches(num_global_batches: int, batch_size: int, rank: int, world_size: int,
-                        worker: int = 0, num_workers: int = 0) -> tuple[np.ndarray, slice]:
+def rank_worker_batches(
+    num_global_batches: int, batch_size: int, rank: int, world_size: int, worker: int = 0, num_workers: int = 0
+) -> tuple[np.ndarray, slice]:
     """Which global batches a (rank, worker) pair produces and which columns of them it takes.
 
     Returns `(batch_indices (nb_w,), columns)`: the worker produces global batches
@@ -182,5 +193,4 @@ def rank_worker_batches(num_global_batches: int, batch_size: int, rank: int, wor
     k = max(1, num_workers)
     if not 0 <= worker < k:
         raise ValueError(f"worker {worker} outside [0, {k})")
-    return (np.arange(worker, num_global_batches, k, dtype=np.int64),
-            slice(rank * batch_size, (rank + 1) * batch_size))
+    return (np.arange(worker, num_global_batches, k, dtype=np.int64), slice(rank * batch_size, (rank + 1) * batch_size))

@@ -48,7 +48,7 @@ def _binary_parts(arr: pa.Array) -> tuple[np.ndarray, np.ndarray]:
     """(offsets (n + 1,) int64, data uint8) of a binary array, zero-copy."""
     bufs = arr.buffers()
     dtype = np.int64 if pa.types.is_large_binary(arr.type) else np.int32
-    offsets = np.frombuffer(bufs[1], dtype=dtype)[arr.offset: arr.offset + len(arr) + 1].astype(np.int64)
+    offsets = np.frombuffer(bufs[1], dtype=dtype)[arr.offset : arr.offset + len(arr) + 1].astype(np.int64)
     data = np.frombuffer(bufs[2], dtype=np.uint8) if bufs[2] is not None else np.zeros(0, np.uint8)
     return offsets, data
 
@@ -83,11 +83,17 @@ class _BatchColumns:
         lo, hi = int(self.view_offsets[j]), int(self.view_offsets[j + 1])
         io, data = self.image_offsets, self.image_data
         return RawSample(
-            sample_id=self.sample_id[j], scene_id=self.scene_id[j], num_context=int(self.num_context[j]),
-            images=[data[io[k]:io[k + 1]] for k in range(lo, hi)],
-            width=self.width[lo:hi], height=self.height[lo:hi],
-            intrinsics_norm=self.intrinsics[lo:hi], cam_to_world=self.cam_to_world[lo:hi],
-            near=self.near[lo:hi], far=self.far[lo:hi], frame_index=self.frame_index[lo:hi],
+            sample_id=self.sample_id[j],
+            scene_id=self.scene_id[j],
+            num_context=int(self.num_context[j]),
+            images=[data[io[k] : io[k + 1]] for k in range(lo, hi)],
+            width=self.width[lo:hi],
+            height=self.height[lo:hi],
+            intrinsics_norm=self.intrinsics[lo:hi],
+            cam_to_world=self.cam_to_world[lo:hi],
+            near=self.near[lo:hi],
+            far=self.far[lo:hi],
+            frame_index=self.frame_index[lo:hi],
             gap=int(self.gap[j]),
         )
 
@@ -140,6 +146,8 @@ class ShardReader:
 
     def gaps(self) -> np.ndarray:
         """`(rows,) int64` context gap of every row (reads only the gap column's buffers)."""
-        out = [np.asarray(self._reader.get_batch(b).column("gap").to_numpy(), dtype=np.int64)
-               for b in range(len(self.batch_starts) - 1)]
+        out = [
+            np.asarray(self._reader.get_batch(b).column("gap").to_numpy(), dtype=np.int64)
+            for b in range(len(self.batch_starts) - 1)
+        ]
         return np.concatenate(out) if out else np.zeros(0, np.int64)

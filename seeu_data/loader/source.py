@@ -83,8 +83,14 @@ def _is_remote(url: str) -> bool:
 class ShardSource:
     """The manifest and shard files of a triples dataset at `url` (local path or object-storage URI)."""
 
-    def __init__(self, url: str | Path, cache_dir: str | Path | None = None,
-                 cache_limit_bytes: int = DEFAULT_CACHE_LIMIT, verify: str = "sha256", filesystem=None):
+    def __init__(
+        self,
+        url: str | Path,
+        cache_dir: str | Path | None = None,
+        cache_limit_bytes: int = DEFAULT_CACHE_LIMIT,
+        verify: str = "sha256",
+        filesystem=None,
+    ):
         if verify not in ("sha256", "size"):
             raise ValueError("verify must be 'sha256' or 'size'")
         self.uri = str(url)  # as given (object-storage options may follow '?')
@@ -109,10 +115,12 @@ class ShardSource:
             self.root = self.cache_dir / "manifests" / hashlib.sha1(self.uri.encode()).hexdigest()[:16]
             self._fetch_manifest()
         else:
-            self.root = Path(self.url[len("file://"):] if self.url.startswith("file://") else self.url)
+            self.root = Path(self.url[len("file://") :] if self.url.startswith("file://") else self.url)
         self.manifest = read_manifest(self.root, expect_schema=SCHEMA)
-        self.shards = [ShardInfo(i, f["path"], int(f["rows"]), int(f["bytes"]), f["sha256"])
-                       for i, f in enumerate(self.manifest["files"])]
+        self.shards = [
+            ShardInfo(i, f["path"], int(f["rows"]), int(f["bytes"]), f["sha256"])
+            for i, f in enumerate(self.manifest["files"])
+        ]
 
     # ------------------------------------------------------------------ naming
     def name(self, k: int) -> str:
@@ -132,7 +140,9 @@ class ShardSource:
         except FileNotFoundError:
             raise SeeUError("shard listed in the manifest is missing", path) from None
         if st.st_size != info.bytes:
-            raise SeeUError(f"size {st.st_size} bytes differs from the manifest's {info.bytes} (truncated or replaced?)", path)
+            raise SeeUError(
+                f"size {st.st_size} bytes differs from the manifest's {info.bytes} (truncated or replaced?)", path
+            )
         if self.verify == "sha256":
             key = (info.sha256, str(path), st.st_size, st.st_dev, st.st_ino, st.st_mtime_ns, st.st_ctime_ns)
             if key not in _VERIFIED:
@@ -188,11 +198,15 @@ class ShardSource:
                         out.write(block)
                         size += len(block)
                 if size != info.bytes:
-                    raise SeeUError(f"downloaded {size} bytes, the manifest says {info.bytes} (truncated or replaced?)",
-                                    self.name(info.index))
+                    raise SeeUError(
+                        f"downloaded {size} bytes, the manifest says {info.bytes} (truncated or replaced?)",
+                        self.name(info.index),
+                    )
                 if digest.hexdigest() != info.sha256:
-                    raise SeeUError("sha256 of the downloaded shard differs from the manifest (corrupt or replaced)",
-                                    self.name(info.index))
+                    raise SeeUError(
+                        "sha256 of the downloaded shard differs from the manifest (corrupt or replaced)",
+                        self.name(info.index),
+                    )
                 os.replace(tmp, dest)
             except FileNotFoundError:
                 raise SeeUError("shard listed in the manifest is missing", self.name(info.index)) from None
@@ -221,5 +235,8 @@ class ShardSource:
                 p.unlink(missing_ok=True)
                 used -= size
             if used + need > self.cache_limit_bytes:
-                warnings.warn(f"seeu loader cache {objects} is smaller than one shard ({need} bytes); "
-                              "shards will be downloaded again when re-read", stacklevel=3)
+                warnings.warn(
+                    f"seeu loader cache {objects} is smaller than one shard ({need} bytes); "
+                    "shards will be downloaded again when re-read",
+                    stacklevel=3,
+                )

@@ -30,7 +30,6 @@ from ..errors import SeeUError
 from .shard_reader import RawSample
 
 
-
 @dataclass
 class ViewsSample:
     """A transformed sample, V views at H x W.
@@ -63,8 +62,14 @@ def decode_bgr(buf: np.ndarray, where: str) -> np.ndarray:
 _BGR_TO_PLANAR_RGB = [2, 0, 1, 1, 0, 2]
 
 
-def transform_sample(raw: RawSample, out_hw: tuple[int, int], flip: bool = False, interpolation: str = "linear",
-                     where: str = "", out: np.ndarray | None = None) -> ViewsSample:
+def transform_sample(
+    raw: RawSample,
+    out_hw: tuple[int, int],
+    flip: bool = False,
+    interpolation: str = "linear",
+    where: str = "",
+    out: np.ndarray | None = None,
+) -> ViewsSample:
     """Decode, resize/crop (and optionally mirror) every view of a stored sample.
 
     `out`, if given, is a (V, 3, H, W) uint8 array the images are written into (a batch buffer row).
@@ -102,8 +107,14 @@ def transform_sample(raw: RawSample, out_hw: tuple[int, int], flip: bool = False
     if flip:
         cam_to_world, intrinsics = cameras.flip_horizontal(cam_to_world, intrinsics)
     return ViewsSample(
-        sample_id=raw.sample_id, scene_id=raw.scene_id, num_context=raw.num_context, images=images,
-        cam_to_world=cam_to_world, intrinsics_norm=intrinsics,
-        near=np.asarray(raw.near, np.float32), far=np.asarray(raw.far, np.float32),
-        frame_index=np.asarray(raw.frame_index, np.int64), gap=raw.gap,
+        sample_id=raw.sample_id,
+        scene_id=raw.scene_id,
+        num_context=raw.num_context,
+        images=images,
+        cam_to_world=cam_to_world,
+        intrinsics_norm=intrinsics,
+        near=np.asarray(raw.near, np.float32),
+        far=np.asarray(raw.far, np.float32),
+        frame_index=np.asarray(raw.frame_index, np.int64),
+        gap=raw.gap,
     )

@@ -40,11 +40,13 @@ class MVSplatCNN(nn.Module):
         super().__init__()
         c0, c1, c2 = channels
         self.stem = nn.Conv2d(3, c0, 7, 2, 3, bias=False)  # H/2
-        self.stages = nn.ModuleList([
-            nn.Sequential(_Residual(c0, c0, 1), _Residual(c0, c0, 1)),  # H/2
-            nn.Sequential(_Residual(c0, c1, 2), _Residual(c1, c1, 1)),  # H/4
-            nn.Sequential(_Residual(c1, c2, 1), _Residual(c2, c2, 1)),  # H/4
-        ])
+        self.stages = nn.ModuleList(
+            [
+                nn.Sequential(_Residual(c0, c0, 1), _Residual(c0, c0, 1)),  # H/2
+                nn.Sequential(_Residual(c0, c1, 2), _Residual(c1, c1, 1)),  # H/4
+                nn.Sequential(_Residual(c1, c2, 1), _Residual(c2, c2, 1)),  # H/4
+            ]
+        )
         self.proj = nn.Conv2d(c2, out_dim, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
@@ -114,8 +116,11 @@ class _AttentionLayer(nn.Module):
         self.norm = nn.LayerNorm(dim)
         self.ffn = None
         if ffn:
-            self.ffn = nn.Sequential(nn.Linear(2 * dim, 2 * dim * ffn_ratio, bias=False), nn.GELU(),
-                                     nn.Linear(2 * dim * ffn_ratio, dim, bias=False))
+            self.ffn = nn.Sequential(
+                nn.Linear(2 * dim, 2 * dim * ffn_ratio, bias=False),
+                nn.GELU(),
+                nn.Linear(2 * dim * ffn_ratio, dim, bias=False),
+            )
             self.ffn_norm = nn.LayerNorm(dim)
 
     def forward(self, x: torch.Tensor, others: torch.Tensor, k: int, shift: bool, bias: torch.Tensor | None):
@@ -133,7 +138,7 @@ class _AttentionLayer(nn.Module):
         kw = to_windows(kk.permute(0, 2, 3, 1, 4).reshape(n, h, w, m * c), k).reshape(n * k * k, -1, m, c)
         vw = to_windows(vv.permute(0, 2, 3, 1, 4).reshape(n, h, w, m * c), k).reshape(n * k * k, -1, m, c)
         kw, vw = kw.reshape(n * k * k, -1, c), vw.reshape(n * k * k, -1, c)
-        scores = q_k = qw @ kw.transpose(1, 2) / (c ** 0.5)  # (N', L, L*M)
+        scores = q_k = qw @ kw.transpose(1, 2) / (c**0.5)  # (N', L, L*M)
         if shift:
             # the window bias is tiled view-major over the keys (as in MVSplat), whatever their order
             q_k = scores + bias.repeat(n, 1, m)

@@ -36,8 +36,11 @@ def _stand_in(name: str) -> type:
     def _setstate(self, state):
         self.__dict__["_state"] = state
 
-    return type(f"StandIn[{name}]", (), {"__new__": _new, "__init__": lambda self, *a, **k: None,
-                                         "__setstate__": _setstate, "__module__": __name__})
+    return type(
+        f"StandIn[{name}]",
+        (),
+        {"__new__": _new, "__init__": lambda self, *a, **k: None, "__setstate__": _setstate, "__module__": __name__},
+    )
 
 
 def read_lightning_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
@@ -53,8 +56,9 @@ def read_lightning_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         with torch.serialization.safe_globals(stand_ins):
             ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable / refused file: one line, no traceback
-        raise SeeUError(f"not a readable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})",
-                        p) from None
+        raise SeeUError(
+            f"not a readable checkpoint ({type(exc).__name__}: {str(exc).splitlines()[0][:120]})", p
+        ) from None
     state = ckpt.get("state_dict") if isinstance(ckpt, dict) else None
     if not isinstance(state, dict):
         raise SeeUError("not an MVSplat checkpoint: no 'state_dict' (a Lightning checkpoint is expected)", p)
@@ -81,8 +85,10 @@ class ConversionReport:
         return out
 
     def summary(self) -> str:
-        return (f"{len(self.mapped)} keys mapped, {len(self.missing)} missing, {len(self.unexpected)} unexpected, "
-                f"{len(self.ignored)} ignored (training losses)")
+        return (
+            f"{len(self.mapped)} keys mapped, {len(self.missing)} missing, {len(self.unexpected)} unexpected, "
+            f"{len(self.ignored)} ignored (training losses)"
+        )
 
 
 def convert_state_dict(state: dict[str, torch.Tensor], where=None):
@@ -93,20 +99,31 @@ def convert_state_dict(state: dict[str, torch.Tensor], where=None):
     from seeu_model.config import SeeUConfig
     from seeu_model.seeu import SeeU
 
-    encoder = {k[len("encoder."):]: v for k, v in state.items() if k.startswith("encoder.")}
+    encoder = {k[len("encoder.") :]: v for k, v in state.items() if k.startswith("encoder.")}
     if "backbone.backbone.conv1.weight" not in encoder or "depth_predictor.to_gaussians.2.weight" not in encoder:
-        raise SeeUError("not an MVSplat checkpoint: no MVSplat encoder weights (encoder.backbone.*, "
-                        "encoder.depth_predictor.*) in its state_dict", where)
+        raise SeeUError(
+            "not an MVSplat checkpoint: no MVSplat encoder weights (encoder.backbone.*, "
+            "encoder.depth_predictor.*) in its state_dict",
+            where,
+        )
     try:
         shape = shape_from_state(encoder)
     except (KeyError, IndexError, ValueError) as exc:
         raise SeeUError(f"not an MVSplat checkpoint of a known structure (no {exc})", where) from None
     cfg = SeeUConfig.mvsplat(
-        num_depth_candidates=shape.num_depth_candidates, sh_degree=shape.sh_degree, mv_layers=shape.transformer_layers,
-        mv_ffn_ratio=shape.ffn_ratio, mvsplat_cnn_channels=shape.cnn_channels, mvsplat_feature_dim=shape.feature_dim,
-        mvsplat_cost_unet_channels=shape.cost_unet_channels, mvsplat_cost_unet_levels=len(shape.cost_unet_mult),
-        mvsplat_cost_unet_attention=shape.cost_unet_attention, mvsplat_depth_unet_channels=shape.depth_unet_channels,
-        mvsplat_depth_unet_levels=len(shape.depth_unet_mult), mvsplat_depth_unet_attention=shape.depth_unet_attention)
+        num_depth_candidates=shape.num_depth_candidates,
+        sh_degree=shape.sh_degree,
+        mv_layers=shape.transformer_layers,
+        mv_ffn_ratio=shape.ffn_ratio,
+        mvsplat_cnn_channels=shape.cnn_channels,
+        mvsplat_feature_dim=shape.feature_dim,
+        mvsplat_cost_unet_channels=shape.cost_unet_channels,
+        mvsplat_cost_unet_levels=len(shape.cost_unet_mult),
+        mvsplat_cost_unet_attention=shape.cost_unet_attention,
+        mvsplat_depth_unet_channels=shape.depth_unet_channels,
+        mvsplat_depth_unet_levels=len(shape.depth_unet_mult),
+        mvsplat_depth_unet_attention=shape.depth_unet_attention,
+    )
     expected = {k: tuple(v.shape) for k, v in SeeU(cfg).state_dict().items()}
     report = ConversionReport()
     out: dict[str, torch.Tensor] = {}
@@ -114,7 +131,7 @@ def convert_state_dict(state: dict[str, torch.Tensor], where=None):
         if key.startswith(IGNORED_PREFIXES):
             report.ignored.append(key)
             continue
-        ours = map_key(key[len("encoder."):]) if key.startswith("encoder.") else None
+        ours = map_key(key[len("encoder.") :]) if key.startswith("encoder.") else None
         target = f"mvsplat.{ours}" if ours else None
         if target is None or target not in expected or expected[target] != tuple(value.shape):
             report.unexpected.append(key)
@@ -125,7 +142,9 @@ def convert_state_dict(state: dict[str, torch.Tensor], where=None):
     return cfg, out, report
 
 
-def convert_checkpoint(path: str | Path, out_dir: str | Path, allow_incomplete: bool = False) -> tuple[Path, ConversionReport]:
+def convert_checkpoint(
+    path: str | Path, out_dir: str | Path, allow_incomplete: bool = False
+) -> tuple[Path, ConversionReport]:
     """Read an MVSplat checkpoint safely, convert it and write ``out_dir/ckpt-00000000.pt`` (a SeeU
     checkpoint that `seeu eval` / `seeu render` run and `seeu train --init-from` starts from)."""
     from seeu_model.training.checkpoint import list_checkpoints, save_checkpoint
@@ -136,14 +155,31 @@ def convert_checkpoint(path: str | Path, out_dir: str | Path, allow_incomplete: 
     state = read_lightning_state_dict(path)
     cfg, model_state, report = convert_state_dict(state, where=path)
     if (report.missing or report.unexpected) and not allow_incomplete:
-        raise SeeUError(f"not converted: {report.summary()} (first: "
-                        f"{(report.missing + report.unexpected)[0]}); --allow-incomplete writes it anyway", path)
+        raise SeeUError(
+            f"not converted: {report.summary()} (first: "
+            f"{(report.missing + report.unexpected)[0]}); --allow-incomplete writes it anyway",
+            path,
+        )
     model_section = {k: v for k, v in cfg.to_dict().items() if k.startswith(("mvsplat_",))}
-    model_section.update(preset="mvsplat", num_depth_candidates=cfg.num_depth_candidates, sh_degree=cfg.sh_degree,
-                         mv_layers=cfg.mv_layers, mv_ffn_ratio=cfg.mv_ffn_ratio)
+    model_section.update(
+        preset="mvsplat",
+        num_depth_candidates=cfg.num_depth_candidates,
+        sh_degree=cfg.sh_degree,
+        mv_layers=cfg.mv_layers,
+        mv_ffn_ratio=cfg.mv_ffn_ratio,
+    )
     train_cfg = TrainConfig(name="mvsplat", model=model_section)
-    payload = {"epoch": 0, "config": train_cfg.to_dict(), "model_config": cfg.to_dict(), "model": model_state,
-               "metrics": {}, "converted_from": {"format": "mvsplat-lightning", "path": str(Path(path).resolve()),
-                                                 "report": report.summary()}}
+    payload = {
+        "epoch": 0,
+        "config": train_cfg.to_dict(),
+        "model_config": cfg.to_dict(),
+        "model": model_state,
+        "metrics": {},
+        "converted_from": {
+            "format": "mvsplat-lightning",
+            "path": str(Path(path).resolve()),
+            "report": report.summary(),
+        },
+    }
     written = save_checkpoint(out_dir, 0, payload, keep=1)
     return written, report

@@ -82,17 +82,48 @@ def matrix_to_quaternion_wxyz(r: torch.Tensor) -> torch.Tensor:
     """(..., 3, 3) rotation -> (..., 4) unit quaternion (w, x, y, z), w >= 0 (branch on the largest term)."""
     m = r.reshape(-1, 3, 3)
     tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
-    cand = torch.stack([
-        torch.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1),
-        torch.stack([m[:, 2, 1] - m[:, 1, 2], 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2], m[:, 0, 1] + m[:, 1, 0],
-                     m[:, 0, 2] + m[:, 2, 0]], -1),
-        torch.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
-                     m[:, 1, 2] + m[:, 2, 1]], -1),
-        torch.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1],
-                     1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1),
-    ], 1)  # (M, 4 candidates, 4): each is 4 * q * q_i for i = w, x, y, z
-    diag = torch.stack([1 + tr, 1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2], 1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
-                        1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2]], -1)
+    cand = torch.stack(
+        [
+            torch.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], -1),
+            torch.stack(
+                [
+                    m[:, 2, 1] - m[:, 1, 2],
+                    1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
+                    m[:, 0, 1] + m[:, 1, 0],
+                    m[:, 0, 2] + m[:, 2, 0],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[:, 0, 2] - m[:, 2, 0],
+                    m[:, 0, 1] + m[:, 1, 0],
+                    1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
+                    m[:, 1, 2] + m[:, 2, 1],
+                ],
+                -1,
+            ),
+            torch.stack(
+                [
+                    m[:, 1, 0] - m[:, 0, 1],
+                    m[:, 0, 2] + m[:, 2, 0],
+                    m[:, 1, 2] + m[:, 2, 1],
+                    1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2],
+                ],
+                -1,
+            ),
+        ],
+        1,
+    )  # (M, 4 candidates, 4): each is 4 * q * q_i for i = w, x, y, z
+    diag = torch.stack(
+        [
+            1 + tr,
+            1 + m[:, 0, 0] - m[:, 1, 1] - m[:, 2, 2],
+            1 - m[:, 0, 0] + m[:, 1, 1] - m[:, 2, 2],
+            1 - m[:, 0, 0] - m[:, 1, 1] + m[:, 2, 2],
+        ],
+        -1,
+    )
     best = diag.argmax(-1)
     q = cand[torch.arange(m.shape[0], device=m.device), best]
     q = q / q.norm(dim=-1, keepdim=True)
@@ -125,12 +156,13 @@ class MVSplatEncoder(nn.Module):
         # heads
         self.sh_coeffs = (s.sh_degree + 1) ** 2
         raw = 2 + 7 + 3 * self.sh_coeffs
-        self.gaussian_head = nn.Sequential(nn.Conv2d(dc + 3 + c, 2 * raw, 3, 1, 1), nn.GELU(),
-                                           nn.Conv2d(2 * raw, raw, 3, 1, 1))
+        self.gaussian_head = nn.Sequential(
+            nn.Conv2d(dc + 3 + c, 2 * raw, 3, 1, 1), nn.GELU(), nn.Conv2d(2 * raw, raw, 3, 1, 1)
+        )
         self.disparity_head = nn.Sequential(nn.Conv2d(dc, 2 * dc, 3, 1, 1), nn.GELU(), nn.Conv2d(2 * dc, 2, 3, 1, 1))
         mask = torch.ones(self.sh_coeffs)
         for degree in range(1, s.sh_degree + 1):
-            mask[degree * degree:(degree + 1) ** 2] = 0.1 * 0.25 ** degree
+            mask[degree * degree : (degree + 1) ** 2] = 0.1 * 0.25**degree
         self.register_buffer("sh_damping", mask, persistent=False)
 
     # ------------------------------------------------------------------------------------------
@@ -144,8 +176,9 @@ class MVSplatEncoder(nn.Module):
         k = intr[..., :3, :3].clone()
         k[..., 0, :] *= float(w)
         k[..., 1, :] *= float(h)  # pixel units of the feature grid
-        ys, xs = torch.meshgrid(torch.arange(h, device=feats.device), torch.arange(w, device=feats.device),
-                                indexing="ij")
+        ys, xs = torch.meshgrid(
+            torch.arange(h, device=feats.device), torch.arange(w, device=feats.device), indexing="ij"
+        )
         pix = torch.stack([xs, ys, torch.ones_like(xs)], 0).float().reshape(3, h * w)
         if v == 2:  # as MVSplat: one relative pose and its inverse
             rel = torch.linalg.inv(c2w[:, 1]) @ c2w[:, 0]
@@ -165,10 +198,15 @@ class MVSplatEncoder(nn.Module):
                 proj = (kk @ pts.reshape(b * v, 3, -1)).reshape(b * v, 3, d, h * w)
                 xy = proj[:, :2] / proj[:, 2:].clamp(min=1e-3)
                 grid = torch.stack([2 * xy[:, 0] / (w - 1) - 1, 2 * xy[:, 1] / (h - 1) - 1], -1)  # (BV, D, hw, 2)
-            warped = F.grid_sample(src.reshape(b * v, c, h, w), grid.reshape(b * v, d * h, w, 2), mode="bilinear",
-                                   padding_mode="zeros", align_corners=True).reshape(b * v, c, d, h, w)
+            warped = F.grid_sample(
+                src.reshape(b * v, c, h, w),
+                grid.reshape(b * v, d * h, w, 2),
+                mode="bilinear",
+                padding_mode="zeros",
+                align_corners=True,
+            ).reshape(b * v, c, d, h, w)
             ref = feats.reshape(b * v, c, 1, h, w)
-            corr_sum.append((ref * warped).sum(1) / c ** 0.5)  # (BV, D, h, w)
+            corr_sum.append((ref * warped).sum(1) / c**0.5)  # (BV, D, h, w)
         corr = torch.stack(corr_sum, 0).mean(0)
         return corr.reshape(b, v, d, h, w), disp
 
@@ -178,8 +216,9 @@ class MVSplatEncoder(nn.Module):
         (1), opacity logit (1)."""
         return 2 + 7 + 3 * self.sh_coeffs + 2
 
-    def predict(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
-                far: torch.Tensor) -> dict:
+    def predict(
+        self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor, far: torch.Tensor
+    ) -> dict:
         """Everything before the Gaussian adapter. images (B, V, 3, H, W) in [0, 1]; c2w (B, V, 4, 4);
         intrinsics (B, V, 3, 3) normalised; near/far (B, V) -> dict: raw (B, V, raw_channels, H, W),
         coarse_disparity_full (B, V, 1, H, W), coarse_disparity (B, V, h, w), probabilities (B, V, D, h, w),
@@ -198,19 +237,29 @@ class MVSplatEncoder(nn.Module):
         conf = F.interpolate(prob.max(1, keepdim=True)[0], scale_factor=s.downsample)  # nearest
         coarse_full = F.interpolate(coarse, scale_factor=s.downsample, mode="bilinear", align_corners=True)
 
-        up = F.interpolate(self.upsample_conv(torch.cat([feats, cnn], 2).reshape(bv, 2 * c, h, w)),
-                           scale_factor=s.downsample, mode="bilinear", align_corners=True)
+        up = F.interpolate(
+            self.upsample_conv(torch.cat([feats, cnn], 2).reshape(bv, 2 * c, h, w)),
+            scale_factor=s.downsample,
+            mode="bilinear",
+            align_corners=True,
+        )
         up = F.gelu(up)  # (BV, C, H, W)
         img = images.reshape(bv, 3, hh, ww)
         refine = torch.cat([img, self.feature_proj(up), coarse_full, conf], 1)
         refined = self.refine_unet(F.gelu(self.refine_in_norm(self.refine_in(refine))), v)
         raw = torch.cat([self.gaussian_head(torch.cat([refined, img, up], 1)), self.disparity_head(refined)], 1)
-        return {"raw": raw.reshape(b, v, -1, hh, ww), "coarse_disparity_full": coarse_full.reshape(b, v, 1, hh, ww),
-                "coarse_disparity": coarse.reshape(b, v, h, w), "probabilities": prob.reshape(b, v, -1, h, w),
-                "disparities": disp, "features": feats}
+        return {
+            "raw": raw.reshape(b, v, -1, hh, ww),
+            "coarse_disparity_full": coarse_full.reshape(b, v, 1, hh, ww),
+            "coarse_disparity": coarse.reshape(b, v, h, w),
+            "probabilities": prob.reshape(b, v, -1, h, w),
+            "disparities": disp,
+            "features": feats,
+        }
 
-    def adapt(self, pred: dict, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
-              far: torch.Tensor) -> MVSplatOutput:
+    def adapt(
+        self, pred: dict, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor, far: torch.Tensor
+    ) -> MVSplatOutput:
         """`predict`'s output (its ``raw`` possibly refined) -> Gaussians, MVSplat's activations."""
         s = self.shape
         raw_all = pred["raw"]
@@ -229,8 +278,9 @@ class MVSplatEncoder(nn.Module):
         raw = raw.reshape(b, v, -1, n).transpose(2, 3)  # (B, V, HW, R)
         depth_px = depth.reshape(b, v, n)
         k3 = intr[..., :3, :3]
-        ys, xs = torch.meshgrid(torch.arange(hh, device=raw_all.device), torch.arange(ww, device=raw_all.device),
-                                indexing="ij")
+        ys, xs = torch.meshgrid(
+            torch.arange(hh, device=raw_all.device), torch.arange(ww, device=raw_all.device), indexing="ij"
+        )
         pixel = torch.tensor((1 / ww, 1 / hh), dtype=torch.float32, device=raw_all.device)
         xy = torch.stack([(xs + 0.5) / ww, (ys + 0.5) / hh], -1).reshape(n, 2)
         xy = xy + (raw[..., :2].sigmoid() - 0.5) * pixel  # (B, V, HW, 2)
@@ -256,13 +306,20 @@ class MVSplatEncoder(nn.Module):
             return t.reshape(b, v * n, *t.shape[3:])
 
         return MVSplatOutput(
-            means=flat(means), scales=flat(scales), rotations=flat(rotations), covariances=flat(cov),
-            opacities=opacity.reshape(b, v * n), sh=flat(sh).transpose(-1, -2),
-            depth=depth.reshape(b, v, hh, ww), coarse_disparity=pred["coarse_disparity"],
-            probabilities=pred["probabilities"], disparities=pred["disparities"],
+            means=flat(means),
+            scales=flat(scales),
+            rotations=flat(rotations),
+            covariances=flat(cov),
+            opacities=opacity.reshape(b, v * n),
+            sh=flat(sh).transpose(-1, -2),
+            depth=depth.reshape(b, v, hh, ww),
+            coarse_disparity=pred["coarse_disparity"],
+            probabilities=pred["probabilities"],
+            disparities=pred["disparities"],
         )
 
-    def forward(self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor,
-                far: torch.Tensor) -> MVSplatOutput:
+    def forward(
+        self, images: torch.Tensor, c2w: torch.Tensor, intr: torch.Tensor, near: torch.Tensor, far: torch.Tensor
+    ) -> MVSplatOutput:
         """images (B, V, 3, H, W) in [0, 1]; c2w (B, V, 4, 4); intrinsics (B, V, 3, 3) normalised; near/far (B, V)."""
         return self.adapt(self.predict(images, c2w, intr, near, far), c2w, intr, near, far)

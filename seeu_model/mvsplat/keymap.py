@@ -48,10 +48,20 @@ _TOP = [
     (r"^depth_predictor\.to_gaussians\.([02])\.(weight|bias)$", r"gaussian_head.\1.\2"),
     (r"^depth_predictor\.to_disparity\.([02])\.(weight|bias)$", r"disparity_head.\1.\2"),
 ]
-_ATTN = {"q_proj": "q", "k_proj": "k", "v_proj": "v", "merge": "out", "norm1": "norm", "norm2": "ffn_norm",
-         "mlp.0": "ffn.0", "mlp.2": "ffn.2"}
-_TRANSFORMER = re.compile(r"^backbone\.transformer\.layers\.(\d+)\.(self_attn|cross_attn_ffn)\."
-                          r"(q_proj|k_proj|v_proj|merge|norm1|norm2|mlp\.0|mlp\.2)\.(weight|bias)$")
+_ATTN = {
+    "q_proj": "q",
+    "k_proj": "k",
+    "v_proj": "v",
+    "merge": "out",
+    "norm1": "norm",
+    "norm2": "ffn_norm",
+    "mlp.0": "ffn.0",
+    "mlp.2": "ffn.2",
+}
+_TRANSFORMER = re.compile(
+    r"^backbone\.transformer\.layers\.(\d+)\.(self_attn|cross_attn_ffn)\."
+    r"(q_proj|k_proj|v_proj|merge|norm1|norm2|mlp\.0|mlp\.2)\.(weight|bias)$"
+)
 
 
 def _map_unet(rest: str) -> str | None:
@@ -82,10 +92,12 @@ def map_key(key: str) -> str | None:
     if m:
         part = "self_attn" if m[2] == "self_attn" else "cross_attn"
         return f"backbone.transformer.{part}.{m[1]}.{_ATTN[m[3]]}.{m[4]}"
-    for prefix, ours in (("depth_predictor.corr_refine_net.3.", "cost_unet."),
-                         ("depth_predictor.refine_unet.3.", "refine_unet.")):
+    for prefix, ours in (
+        ("depth_predictor.corr_refine_net.3.", "cost_unet."),
+        ("depth_predictor.refine_unet.3.", "refine_unet."),
+    ):
         if key.startswith(prefix):
-            inner = _map_unet(key[len(prefix):])
+            inner = _map_unet(key[len(prefix) :])
             return ours + inner if inner else None
     for pattern, repl in _TOP:
         if repl is not None and re.match(pattern, key):
@@ -116,8 +128,11 @@ def shape_from_state(state: dict) -> MVSplatShape:
     keys = set(state)
     sd = {k: tuple(v.shape) for k, v in state.items()}
     c = sd["backbone.backbone.conv2.weight"][0]
-    cnn = (sd["backbone.backbone.conv1.weight"][0], sd["backbone.backbone.layer2.0.conv1.weight"][0],
-           sd["backbone.backbone.layer3.0.conv1.weight"][0])
+    cnn = (
+        sd["backbone.backbone.conv1.weight"][0],
+        sd["backbone.backbone.layer2.0.conv1.weight"][0],
+        sd["backbone.backbone.layer3.0.conv1.weight"][0],
+    )
     layers = len({m[1] for k in keys if (m := re.match(r"^backbone\.transformer\.layers\.(\d+)\.", k))})
     ffn_hidden = sd["backbone.transformer.layers.0.cross_attn_ffn.mlp.0.weight"][0]
     d = sd["depth_predictor.regressor_residual.weight"][0]
@@ -125,10 +140,20 @@ def shape_from_state(state: dict) -> MVSplatShape:
     dc = sd["depth_predictor.proj_feature.weight"][0]
     raw = sd["depth_predictor.to_gaussians.2.weight"][0]
     sh_coeffs = (raw - 9) // 3
-    sh_degree = round(sh_coeffs ** 0.5) - 1
+    sh_degree = round(sh_coeffs**0.5) - 1
     cost_levels, cost_attn = _levels(keys, "depth_predictor.corr_refine_net.3.")
     depth_levels, depth_attn = _levels(keys, "depth_predictor.refine_unet.3.")
-    return MVSplatShape(cnn_channels=cnn, feature_dim=c, transformer_layers=layers, ffn_ratio=ffn_hidden // (2 * c),
-                        num_depth_candidates=d, cost_unet_channels=cc, cost_unet_mult=(1,) * cost_levels,
-                        cost_unet_attention=cost_attn, depth_unet_channels=dc, depth_unet_mult=(1,) * depth_levels,
-                        depth_unet_attention=depth_attn, sh_degree=sh_degree)
+    return MVSplatShape(
+        cnn_channels=cnn,
+        feature_dim=c,
+        transformer_layers=layers,
+        ffn_ratio=ffn_hidden // (2 * c),
+        num_depth_candidates=d,
+        cost_unet_channels=cc,
+        cost_unet_mult=(1,) * cost_levels,
+        cost_unet_attention=cost_attn,
+        depth_unet_channels=dc,
+        depth_unet_mult=(1,) * depth_levels,
+        depth_unet_attention=depth_attn,
+        sh_degree=sh_degree,
+    )

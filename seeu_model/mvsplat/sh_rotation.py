@@ -30,7 +30,7 @@ _E3NN_SIGNS = {
 def e3nn_basis(degree: int, d: torch.Tensor) -> torch.Tensor:
     """Unit directions (N, 3) -> e3nn's real SH basis of one degree (N, 2l+1), up to a common factor."""
     signs = torch.tensor(_E3NN_SIGNS[degree], dtype=d.dtype, device=d.device)
-    return eval_sh_bases(degree, d[..., [2, 0, 1]])[..., degree * degree:] * signs
+    return eval_sh_bases(degree, d[..., [2, 0, 1]])[..., degree * degree :] * signs
 
 
 def _fibonacci_directions(n: int) -> torch.Tensor:
@@ -62,6 +62,6 @@ def rotate_sh(sh: torch.Tensor, rotations: torch.Tensor) -> torch.Tensor:
     max_degree = math.isqrt(k) - 1
     parts = [sh[..., :1]]
     for degree, d in enumerate(wigner_matrices(rotations, max_degree), start=1):
-        block = sh[..., degree * degree:(degree + 1) ** 2]
+        block = sh[..., degree * degree : (degree + 1) ** 2]
         parts.append(torch.einsum("...ij,...cj->...ci", d.to(sh.dtype), block))
     return torch.cat(parts, -1)

@@ -91,35 +91,77 @@ def rasterize(
     Gaussians are float64, else float32 (half inputs are upcast and autocast is disabled inside).
     """
     with torch.autocast(device_type=gaussians.means.device.type, enabled=False):  # positions need float32+
-        return _rasterize(gaussians.map(_at_least_float32), cam_to_world, intrinsics, width, height, background,
-                          backend, near_plane, far_plane, antialiased, tile_size, alpha_max, eps2d, max_elements)
+        return _rasterize(
+            gaussians.map(_at_least_float32),
+            cam_to_world,
+            intrinsics,
+            width,
+            height,
+            background,
+            backend,
+            near_plane,
+            far_plane,
+            antialiased,
+            tile_size,
+            alpha_max,
+            eps2d,
+            max_elements,
+        )
 
 
 def _at_least_float32(t: torch.Tensor) -> torch.Tensor:
     return t.float() if t.dtype in (torch.float16, torch.bfloat16) else t
 
 
-def _rasterize(gaussians, cam_to_world, intrinsics, width, height, background, backend, near_plane, far_plane,
-               antialiased, tile_size, alpha_max, eps2d, max_elements) -> RenderOutput:
+def _rasterize(
+    gaussians,
+    cam_to_world,
+    intrinsics,
+    width,
+    height,
+    background,
+    backend,
+    near_plane,
+    far_plane,
+    antialiased,
+    tile_size,
+    alpha_max,
+    eps2d,
+    max_elements,
+) -> RenderOutput:
     means = gaussians.means
     b, n = means.shape[:2]
     v = cam_to_world.shape[1] if cam_to_world.dim() == 4 else -1
     if cam_to_world.shape != (b, v, 4, 4) or intrinsics.shape != (b, v, 3, 3):
-        raise ValueError(f"cam_to_world must be (B, V, 4, 4) and intrinsics (B, V, 3, 3) with B={b}; got "
-                         f"{tuple(cam_to_world.shape)} and {tuple(intrinsics.shape)}")
+        raise ValueError(
+            f"cam_to_world must be (B, V, 4, 4) and intrinsics (B, V, 3, 3) with B={b}; got "
+            f"{tuple(cam_to_world.shape)} and {tuple(intrinsics.shape)}"
+        )
     if width <= 0 or height <= 0:
         raise ValueError(f"image size must be positive, got {width}x{height}")
     name = resolve_backend(backend, means.device)
     bg = _background(background, b, v, means.dtype, means.device)
 
     if name == "gsplat":
-        color, depth, alpha = render_gsplat(gaussians, cam_to_world, intrinsics, width, height, bg,
-                                            near_plane, far_plane, antialiased, tile_size or 16, eps2d)
+        color, depth, alpha = render_gsplat(
+            gaussians,
+            cam_to_world,
+            intrinsics,
+            width,
+            height,
+            bg,
+            near_plane,
+            far_plane,
+            antialiased,
+            tile_size or 16,
+            eps2d,
+        )
         to_chw = lambda t: t.permute(0, 1, 4, 2, 3)  # noqa: E731
         return RenderOutput(to_chw(color), to_chw(depth), to_chw(alpha))
 
-    proj = project_gaussians(gaussians, cam_to_world, intrinsics, width, height, near_plane, far_plane,
-                             eps2d=eps2d, antialiased=antialiased)
+    proj = project_gaussians(
+        gaussians, cam_to_world, intrinsics, width, height, near_plane, far_plane, eps2d=eps2d, antialiased=antialiased
+    )
     if name == "dense":
         from seeu_model.rasterizer.dense import render_dense
 
@@ -127,8 +169,9 @@ def _rasterize(gaussians, cam_to_world, intrinsics, width, height, background, b
     else:
         from seeu_model.rasterizer.tiled import render_tiled
 
-        feats, alpha = render_tiled(proj, width, height, tile_size=tile_size or TORCH_TILE_SIZE, alpha_max=alpha_max,
-                                    max_elements=max_elements)
+        feats, alpha = render_tiled(
+            proj, width, height, tile_size=tile_size or TORCH_TILE_SIZE, alpha_max=alpha_max, max_elements=max_elements
+        )
     feats = feats.reshape(b, v, height, width, feats.shape[-1])
     alpha = alpha.reshape(b, v, height, width)
     color = feats[..., :3] + (1.0 - alpha)[..., None] * bg[:, :, None, None, :]

@@ -16,13 +16,22 @@ from seeu_model.rasterizer.projection import ALPHA_MAX, ALPHA_MIN, T_MIN, Projec
 
 def _pixel_centres(width: int, height: int, dtype, device) -> torch.Tensor:
     """(H * W, 2) pixel centres (j + 0.5, i + 0.5), row-major."""
-    ys, xs = torch.meshgrid(torch.arange(height, dtype=dtype, device=device) + 0.5,
-                            torch.arange(width, dtype=dtype, device=device) + 0.5, indexing="ij")
+    ys, xs = torch.meshgrid(
+        torch.arange(height, dtype=dtype, device=device) + 0.5,
+        torch.arange(width, dtype=dtype, device=device) + 0.5,
+        indexing="ij",
+    )
     return torch.stack([xs.reshape(-1), ys.reshape(-1)], -1)
 
 
-def composite_dense(pix: torch.Tensor, means2d: torch.Tensor, conics: torch.Tensor, opacities: torch.Tensor,
-                    feats: torch.Tensor, alpha_max: float = ALPHA_MAX) -> tuple[torch.Tensor, torch.Tensor]:
+def composite_dense(
+    pix: torch.Tensor,
+    means2d: torch.Tensor,
+    conics: torch.Tensor,
+    opacities: torch.Tensor,
+    feats: torch.Tensor,
+    alpha_max: float = ALPHA_MAX,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Composite depth-sorted Gaussians at pixels.
 
     pix (P, 2); means2d (C, N, 2), conics (C, N, 3), opacities (C, N), feats (C, N, F), all sorted
@@ -43,16 +52,18 @@ def composite_dense(pix: torch.Tensor, means2d: torch.Tensor, conics: torch.Tens
     return weights @ feats, weights.sum(-1)
 
 
-def render_dense(proj: Projected, width: int, height: int, alpha_max: float = ALPHA_MAX,
-                 max_elements: int = 1 << 24) -> tuple[torch.Tensor, torch.Tensor]:
+def render_dense(
+    proj: Projected, width: int, height: int, alpha_max: float = ALPHA_MAX, max_elements: int = 1 << 24
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Render projected Gaussians densely.
 
     Returns features (C, H, W, 4) = (r, g, b, sum w z) and alpha (C, H, W). Pixels are processed in
     chunks of at most `max_elements` (pixel, Gaussian) pairs per camera; with gradients on, each chunk
     is checkpointed so memory stays bounded (the backward pass recomputes it).
     """
-    order = torch.sort(torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, float("inf"))),
-                       dim=-1, stable=True).indices  # (C, N)
+    order = torch.sort(
+        torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, float("inf"))), dim=-1, stable=True
+    ).indices  # (C, N)
     take = lambda t: torch.gather(t, 1, order.view(*order.shape, *([1] * (t.dim() - 2))).expand_as(t))  # noqa: E731
     means2d, conics, opac = take(proj.means2d), take(proj.conics), take(proj.opacities)
     feats = torch.cat([take(proj.colors), take(proj.depths)[..., None]], -1)  # (C, N, 4)
@@ -62,7 +73,7 @@ def render_dense(proj: Projected, width: int, height: int, alpha_max: float = AL
     outs, alphas = [], []
     grad = torch.is_grad_enabled() and any(t.requires_grad for t in (means2d, conics, opac, feats))
     for start in range(0, pix.shape[0], chunk):
-        p = pix[start:start + chunk]
+        p = pix[start : start + chunk]
         if grad and chunk < pix.shape[0]:
             o, a = checkpoint(composite_dense, p, means2d, conics, opac, feats, alpha_max, use_reentrant=False)
         else:

@@ -33,13 +33,16 @@ def gsplat_usable(device: torch.device) -> bool:
 def check_gsplat(device: torch.device) -> None:
     """Raise a one-line SeeUError saying why backend="gsplat" cannot run here."""
     if not torch.cuda.is_available():
-        raise SeeUError('rasterizer backend "gsplat" needs a CUDA GPU and none is available; '
-                        'use backend="torch" (or "auto") on CPU')
+        raise SeeUError(
+            'rasterizer backend "gsplat" needs a CUDA GPU and none is available; use backend="torch" (or "auto") on CPU'
+        )
     if not gsplat_installed():
         raise SeeUError(f'rasterizer backend "gsplat" needs the gsplat package, which is not installed; {INSTALL_HINT}')
     if device.type != "cuda":
-        raise SeeUError(f'rasterizer backend "gsplat" needs the Gaussians on a CUDA device, got {device}; '
-                        'move them with .to("cuda") or use backend="torch"')
+        raise SeeUError(
+            f'rasterizer backend "gsplat" needs the Gaussians on a CUDA device, got {device}; '
+            'move them with .to("cuda") or use backend="torch"'
+        )
 
 
 def render_gsplat(
@@ -65,19 +68,34 @@ def render_gsplat(
 
     dtype = torch.float32  # gsplat's kernels are float32
     args = dict(
-        means=gaussians.means.to(dtype), quats=gaussians.rotations.to(dtype), scales=gaussians.scales.to(dtype),
-        opacities=gaussians.opacities.to(dtype), colors=gaussians.sh.to(dtype),
+        means=gaussians.means.to(dtype),
+        quats=gaussians.rotations.to(dtype),
+        scales=gaussians.scales.to(dtype),
+        opacities=gaussians.opacities.to(dtype),
+        colors=gaussians.sh.to(dtype),
         viewmats=world_to_cam_from_cam_to_world(cam_to_world.to(dtype)),
-        Ks=intrinsics_pixels(intrinsics.to(dtype), width, height), backgrounds=background.to(dtype),
+        Ks=intrinsics_pixels(intrinsics.to(dtype), width, height),
+        backgrounds=background.to(dtype),
     )
-    common = dict(width=width, height=height, near_plane=near_plane, far_plane=far_plane, eps2d=eps2d,
-                  sh_degree=gaussians.sh_degree, packed=False, tile_size=tile_size, render_mode="RGB+ED",
-                  rasterize_mode="antialiased" if antialiased else "classic")
+    common = dict(
+        width=width,
+        height=height,
+        near_plane=near_plane,
+        far_plane=far_plane,
+        eps2d=eps2d,
+        sh_degree=gaussians.sh_degree,
+        packed=False,
+        tile_size=tile_size,
+        render_mode="RGB+ED",
+        rasterize_mode="antialiased" if antialiased else "classic",
+    )
     if gsplat_supports_batch():
         colors, alphas, _meta = gsplat.rasterization(**{k: v.contiguous() for k, v in args.items()}, **common)
     else:  # gsplat 1.4: one scene (all its views) per call
-        outs = [gsplat.rasterization(**{k: v[i].contiguous() for k, v in args.items()}, **common)
-                for i in range(gaussians.means.shape[0])]
+        outs = [
+            gsplat.rasterization(**{k: v[i].contiguous() for k, v in args.items()}, **common)
+            for i in range(gaussians.means.shape[0])
+        ]
         colors, alphas = torch.stack([o[0] for o in outs]), torch.stack([o[1] for o in outs])
     return colors[..., :3], colors[..., 3:4], alphas
 

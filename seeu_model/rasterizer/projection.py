@@ -80,13 +80,20 @@ def project_gaussians(
 ) -> Projected:
     """Project `gaussians` (B, N, ...) into cameras `cam_to_world` (B, V, 4, 4) with normalised
     `intrinsics` (B, V, 3, 3) for a `width` x `height` image. Differentiable in the Gaussians."""
-    means, scales, rots, opac, sh = (gaussians.means, gaussians.scales, gaussians.rotations,
-                                     gaussians.opacities, gaussians.sh)
+    means, scales, rots, opac, sh = (
+        gaussians.means,
+        gaussians.scales,
+        gaussians.rotations,
+        gaussians.opacities,
+        gaussians.sh,
+    )
     b, n = means.shape[:2]
     v = cam_to_world.shape[1]
     if cam_to_world.shape != (b, v, 4, 4) or intrinsics.shape != (b, v, 3, 3):
-        raise ValueError(f"cameras must be (B, V, 4, 4) and (B, V, 3, 3) with B={b}, got "
-                         f"{tuple(cam_to_world.shape)} and {tuple(intrinsics.shape)}")
+        raise ValueError(
+            f"cameras must be (B, V, 4, 4) and (B, V, 3, 3) with B={b}, got "
+            f"{tuple(cam_to_world.shape)} and {tuple(intrinsics.shape)}"
+        )
     dtype = means.dtype
     w2c = world_to_cam_from_cam_to_world(cam_to_world.to(dtype))  # (B, V, 4, 4)
     k_pix = intrinsics_pixels(intrinsics.to(dtype), width, height)  # (B, V, 3, 3)
@@ -105,8 +112,9 @@ def project_gaussians(
     tx = zs * torch.minimum(torch.maximum(x / zs, -lim_x_neg), lim_x_pos)
     ty = zs * torch.minimum(torch.maximum(y / zs, -lim_y_neg), lim_y_pos)
     zero = torch.zeros_like(zs)
-    jac = torch.stack([torch.stack([fx / zs, zero, -fx * tx / zs ** 2], -1),
-                       torch.stack([zero, fy / zs, -fy * ty / zs ** 2], -1)], -2)  # (B, V, N, 2, 3)
+    jac = torch.stack(
+        [torch.stack([fx / zs, zero, -fx * tx / zs**2], -1), torch.stack([zero, fy / zs, -fy * ty / zs**2], -1)], -2
+    )  # (B, V, N, 2, 3)
     cov2 = jac @ cov_c @ jac.transpose(-1, -2)  # (B, V, N, 2, 2)
     cxx, cxy, cyy = cov2[..., 0, 0], 0.5 * (cov2[..., 0, 1] + cov2[..., 1, 0]), cov2[..., 1, 1]
     det_orig = cxx * cyy - cxy * cxy
@@ -129,7 +137,11 @@ def project_gaussians(
 
     flat = lambda t: t.reshape(b * v, *t.shape[2:])  # noqa: E731
     return Projected(
-        means2d=flat(means2d), conics=flat(conics), cov2d=flat(torch.stack([cxx, cxy, cyy], -1)),
-        depths=flat(z), opacities=flat(opac_v), colors=flat(colors), valid=flat(valid),
+        means2d=flat(means2d),
+        conics=flat(conics),
+        cov2d=flat(torch.stack([cxx, cxy, cyy], -1)),
+        depths=flat(z),
+        opacities=flat(opac_v),
+        colors=flat(colors),
+        valid=flat(valid),
     )
-

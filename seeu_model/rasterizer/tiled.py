@@ -22,7 +22,9 @@ from seeu_model.rasterizer.projection import ALPHA_MAX, ALPHA_MIN, T_MIN, Projec
 _MARGIN = 1e-3  # px added to extents: float rounding must never make culling drop a pixel
 
 
-def bin_gaussians(proj: Projected, width: int, height: int, tile_size: int) -> tuple[torch.Tensor, torch.Tensor, int, int]:
+def bin_gaussians(
+    proj: Projected, width: int, height: int, tile_size: int
+) -> tuple[torch.Tensor, torch.Tensor, int, int]:
     """Intersect Gaussians with tiles.
 
     Returns `isect_gauss` (I,) flat indices into C * N, `tile_ids` (I,) global tile index
@@ -33,8 +35,9 @@ def bin_gaussians(proj: Projected, width: int, height: int, tile_size: int) -> t
     tiles_x, tiles_y = -(-width // tile_size), -(-height // tile_size)
     dev = proj.depths.device
     with torch.no_grad():
-        order = torch.sort(torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, float("inf"))),
-                           dim=-1, stable=True).indices  # (C, N)
+        order = torch.sort(
+            torch.where(proj.valid, proj.depths, torch.full_like(proj.depths, float("inf"))), dim=-1, stable=True
+        ).indices  # (C, N)
         ext = torch.gather(proj.extents(), 1, order[..., None].expand(n_cam, n, 2)) * (1 + 1e-5) + _MARGIN
         mean = torch.gather(proj.means2d.detach(), 1, order[..., None].expand(n_cam, n, 2))
         vis = torch.gather(proj.valid & (proj.opacities.detach() >= ALPHA_MIN), 1, order)
@@ -73,7 +76,7 @@ def _plan_chunks(tile_counts: torch.Tensor, pixels_per_tile: int, max_elements: 
     while start < len(counts):
         longest = counts[start]
         n_tiles = max(1, max_elements // max(1, longest * pixels_per_tile))
-        chunks.append(tiles[start:start + n_tiles])
+        chunks.append(tiles[start : start + n_tiles])
         start += n_tiles
     return chunks
 
@@ -153,7 +156,7 @@ class _TiledComposite(torch.autograd.Function):
     def forward(ctx, means2d, conics, opacities, feats, comp: _Compositor, alpha_max: float):
         """means2d (M, 2), conics (M, 3), opacities (M,), feats (M, F), M = C * N.
         Returns per-tile features (tiles, P, F) and alpha (tiles, P)."""
-        n_pix = comp.tile_size ** 2
+        n_pix = comp.tile_size**2
         table = torch.cat([means2d, conics, opacities[:, None]], -1)
         local = comp.local_xy.to(means2d.dtype)
         out = means2d.new_zeros(comp.n_tiles_total, n_pix, feats.shape[-1])
@@ -203,15 +206,22 @@ class _TiledComposite(torch.autograd.Function):
             sdxx = suu - 2 * mx * su + mx * mx * s1
             sdxy = suv - mx * sv - my * su + mx * my * s1
             sdyy = svv - 2 * my * sv + my * my * s1
-            g_chunk = torch.stack([-(a * sdx + b * sdy), -(b * sdx + c * sdy),
-                                   0.5 * sdxx, sdxy, 0.5 * sdyy, q.sum(1)], -1)  # (T, L, 6)
+            g_chunk = torch.stack(
+                [-(a * sdx + b * sdy), -(b * sdx + c * sdy), 0.5 * sdxx, sdxy, 0.5 * sdyy, q.sum(1)], -1
+            )  # (T, L, 6)
             g_table.index_add_(0, flat, g_chunk.masked_fill_(pad[..., None], 0.0).reshape(-1, 6))
         g_means, g_conics, g_opac = g_table.split([2, 3, 1], -1)
         return g_means, g_conics, g_opac.squeeze(-1), g_feats, None, None
 
 
-def render_tiled(proj: Projected, width: int, height: int, tile_size: int = 16, alpha_max: float = ALPHA_MAX,
-                 max_elements: int = 1 << 22) -> tuple[torch.Tensor, torch.Tensor]:
+def render_tiled(
+    proj: Projected,
+    width: int,
+    height: int,
+    tile_size: int = 16,
+    alpha_max: float = ALPHA_MAX,
+    max_elements: int = 1 << 22,
+) -> tuple[torch.Tensor, torch.Tensor]:
     """Render projected Gaussians with the tiled compositor.
 
     Returns features (C, H, W, 4) = (r, g, b, sum w z) and alpha (C, H, W), like `render_dense`.
@@ -222,8 +232,9 @@ def render_tiled(proj: Projected, width: int, height: int, tile_size: int = 16, 
     isect_gauss, tile_ids, tiles_x, tiles_y = bin_gaussians(proj, width, height, tile_size)
     comp = _Compositor(isect_gauss, tile_ids, n_cam * tiles_x * tiles_y, tiles_x, tiles_y, tile_size, max_elements)
     feats = torch.cat([proj.colors, proj.depths[..., None]], -1).reshape(n_cam * n, 4)
-    out, out_a = _TiledComposite.apply(proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3),
-                                       proj.opacities.reshape(-1), feats, comp, alpha_max)
+    out, out_a = _TiledComposite.apply(
+        proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), proj.opacities.reshape(-1), feats, comp, alpha_max
+    )
     shape = (n_cam, tiles_y, tiles_x, tile_size, tile_size)
     out = out.reshape(*shape, 4).permute(0, 1, 3, 2, 4, 5).reshape(n_cam, tiles_y * tile_size, tiles_x * tile_size, 4)
     out_a = out_a.reshape(shape).permute(0, 1, 3, 2, 4).reshape(n_cam, tiles_y * tile_size, tiles_x * tile_size)

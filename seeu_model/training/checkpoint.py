@@ -38,8 +38,13 @@ FORMAT = "seeu-train-checkpoint"
 VERSION = 2
 # what a v1 checkpoint's numpy RNG state (a uint32 array) needs beyond tensors and plain containers
 _reconstruct = (getattr(np, "_core", None) or np.core).multiarray._reconstruct
-_V1_NUMPY_GLOBALS = [_reconstruct, (_reconstruct, "numpy.core.multiarray._reconstruct"),  # numpy 2 / 1 name
-                     np.ndarray, np.dtype, np.dtypes.UInt32DType]
+_V1_NUMPY_GLOBALS = [
+    _reconstruct,
+    (_reconstruct, "numpy.core.multiarray._reconstruct"),  # numpy 2 / 1 name
+    np.ndarray,
+    np.dtype,
+    np.dtypes.UInt32DType,
+]
 _NAME = re.compile(r"^ckpt-(\d{8})\.pt$")
 
 
@@ -74,8 +79,9 @@ def set_rng_state(state: dict) -> None:
     if state.get("cuda") and torch.cuda.is_available() and len(state["cuda"]) == torch.cuda.device_count():
         torch.cuda.set_rng_state_all(state["cuda"])
     name, keys, pos, has_gauss, cached = state["numpy"]
-    np.random.set_state((str(name), np.asarray(keys, dtype=np.int64).astype(np.uint32), int(pos), int(has_gauss),
-                         float(cached)))
+    np.random.set_state(
+        (str(name), np.asarray(keys, dtype=np.int64).astype(np.uint32), int(pos), int(has_gauss), float(cached))
+    )
     py = state["python"]
     random.setstate((py[0], tuple(py[1]), py[2]))
 
@@ -117,8 +123,12 @@ def load_checkpoint(path: str | Path) -> dict:
     for key in ("step", "config", "model"):
         if key not in ckpt:
             raise SeeUError(f"not a complete SeeU training checkpoint (no {key!r})", p)
-    if not isinstance(ckpt.get("version", 0), int) or not isinstance(ckpt["step"], int) \
-            or not isinstance(ckpt["config"], dict) or not isinstance(ckpt["model"], dict):
+    if (
+        not isinstance(ckpt.get("version", 0), int)
+        or not isinstance(ckpt["step"], int)
+        or not isinstance(ckpt["config"], dict)
+        or not isinstance(ckpt["model"], dict)
+    ):
         raise SeeUError("not a valid SeeU training checkpoint (version, step, config or model of the wrong type)", p)
     if int(ckpt.get("version", 0)) > VERSION:
         raise SeeUError(f"checkpoint version {ckpt.get('version')} is newer than this toolkit reads ({VERSION})", p)

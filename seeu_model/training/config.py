@@ -31,13 +31,13 @@ PRESETS_DIR = files("seeu_model") / "presets"
 class DataConfig:
     """Loader settings. image_size: (H, W) after resize/centre-crop."""
 
-    batch_size: int = 8               # per process (global batch = batch_size x world size)
+    batch_size: int = 8  # per process (global batch = batch_size x world size)
     image_size: tuple[int, int] = (256, 256)
     num_workers: int = 2
     seed: int = 0
-    flip: bool = True                 # horizontal flip with p = 0.5 (pose mirrored)
+    flip: bool = True  # horizontal flip with p = 0.5 (pose mirrored)
     val_batch_size: int = 1
-    val_max_samples: int = 16         # validation samples per validation pass (0: all)
+    val_max_samples: int = 16  # validation samples per validation pass (0: all)
 
 
 @dataclass
@@ -51,7 +51,7 @@ class OptimConfig:
     warmup_steps: int = 2000
     max_steps: int = 300_000
     min_lr_ratio: float = 0.0
-    grad_clip: float = 0.5            # max global grad norm; 0 = off
+    grad_clip: float = 0.5  # max global grad norm; 0 = off
 
 
 @dataclass
@@ -65,30 +65,30 @@ class LossConfig:
 
 @dataclass
 class CheckpointConfig:
-    every: int = 5000                 # steps between checkpoints (the last step is always saved)
-    keep: int = 3                     # keep the last K checkpoints
+    every: int = 5000  # steps between checkpoints (the last step is always saved)
+    keep: int = 3  # keep the last K checkpoints
 
 
 @dataclass
 class LogConfig:
-    every: int = 50                   # scalars (loss, PSNR, lr, it/s) to TensorBoard
-    image_every: int = 1000           # rendered vs ground-truth image grid
-    val_every: int = 5000             # validation pass (when --val is given); 0 = only at the end
-    progress: bool | None = None      # tqdm bar; None = only on a TTY
+    every: int = 50  # scalars (loss, PSNR, lr, it/s) to TensorBoard
+    image_every: int = 1000  # rendered vs ground-truth image grid
+    val_every: int = 5000  # validation pass (when --val is given); 0 = only at the end
+    progress: bool | None = None  # tqdm bar; None = only on a TTY
 
 
 @dataclass
 class TrainConfig:
     name: str = "seeu"
-    model: dict[str, Any] = field(default_factory=dict)   # SeeUConfig fields
+    model: dict[str, Any] = field(default_factory=dict)  # SeeUConfig fields
     data: DataConfig = field(default_factory=DataConfig)
     optim: OptimConfig = field(default_factory=OptimConfig)
     loss: LossConfig = field(default_factory=LossConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     log: LogConfig = field(default_factory=LogConfig)
-    precision: str = "auto"           # "auto" (bf16 autocast on CUDA, fp32 on CPU) | "bf16" | "fp32"
-    rasterizer: str = "auto"          # "auto" | "torch" | "gsplat"
-    seed: int = 0                     # model init and training RNG
+    precision: str = "auto"  # "auto" (bf16 autocast on CUDA, fp32 on CPU) | "bf16" | "fp32"
+    rasterizer: str = "auto"  # "auto" | "torch" | "gsplat"
+    seed: int = 0  # model init and training RNG
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -168,7 +168,9 @@ def _build(cls: type, data: dict, where: str) -> Any:
     data = {k: v for k, v in data.items() if not str(k).startswith("_")}  # "_comment" keys
     unknown = sorted(set(data) - known)
     if unknown:
-        raise SeeUError(f"config {where or 'root'}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}")
+        raise SeeUError(
+            f"config {where or 'root'}: unknown key(s) {', '.join(unknown)}; known: {', '.join(sorted(known))}"
+        )
     kwargs = {}
     for f in fields(cls):
         if f.name not in data:

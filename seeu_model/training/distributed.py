@@ -41,8 +41,7 @@ def pick_device(local_rank: int = 0, device: str | None = None) -> torch.device:
     return torch.device("cpu")
 
 
-def setup_distributed(device: str | None = None, backend: str | None = None,
-                      timeout_s: float = 1800.0) -> DistInfo:
+def setup_distributed(device: str | None = None, backend: str | None = None, timeout_s: float = 1800.0) -> DistInfo:
     """Join the process group described by the torchrun environment (or the one already initialised)."""
     if dist.is_available() and dist.is_initialized():
         local = int(os.environ.get("LOCAL_RANK", dist.get_rank()))

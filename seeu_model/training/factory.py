@@ -60,8 +60,12 @@ def model_from_checkpoint(ckpt: dict, device: torch.device | str = "cpu", **mode
 def _frozen_is_random(model_config: dict) -> bool:
     """True when the frozen encoders were randomly initialised (tests / CPU demo): their weights
     cannot be re-created from a file, so checkpoints must carry them."""
-    return (model_config.get("semantic_pretrained") is False and not model_config.get("semantic_weights")
-            and not model_config.get("clip_weights") and not model_config.get("blip2_weights"))
+    return (
+        model_config.get("semantic_pretrained") is False
+        and not model_config.get("semantic_weights")
+        and not model_config.get("clip_weights")
+        and not model_config.get("blip2_weights")
+    )
 
 
 def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str, torch.Tensor]:
@@ -81,11 +85,17 @@ def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: st
     if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
         raise SeeUError("checkpoint 'model' is not a state dict of tensors", where)
     own = model.state_dict()
-    wrong = [f"{k} {tuple(v.shape)} vs the config's {tuple(own[k].shape)}" for k, v in state.items()
-             if k in own and tuple(v.shape) != tuple(own[k].shape)]
+    wrong = [
+        f"{k} {tuple(v.shape)} vs the config's {tuple(own[k].shape)}"
+        for k, v in state.items()
+        if k in own and tuple(v.shape) != tuple(own[k].shape)
+    ]
     if wrong:
-        raise SeeUError(f"checkpoint weights do not match its model config ({len(wrong)} tensor(s) of another shape, "
-                        f"e.g. {wrong[0]}): was the config edited, or the weights of another model?", where)
+        raise SeeUError(
+            f"checkpoint weights do not match its model config ({len(wrong)} tensor(s) of another shape, "
+            f"e.g. {wrong[0]}): was the config edited, or the weights of another model?",
+            where,
+        )
     try:
         missing, unexpected = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself
@@ -94,8 +104,11 @@ def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: st
     frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
     missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]
     if missing or unexpected:
-        raise SeeUError(f"checkpoint does not match the model (missing {missing[:3]}, unexpected {list(unexpected)[:3]}):"
-                        " was it trained with another model config?", where)
+        raise SeeUError(
+            f"checkpoint does not match the model (missing {missing[:3]}, unexpected {list(unexpected)[:3]}):"
+            " was it trained with another model config?",
+            where,
+        )
 
 
 def target_color(output: Any) -> torch.Tensor:

@@ -42,8 +42,8 @@ class TrainResult:
     step: int
     out_dir: str
     last_checkpoint: str | None
-    history: list[dict] = field(default_factory=list)   # logged scalars (rank 0)
-    val: list[dict] = field(default_factory=list)       # validation summaries (rank 0)
+    history: list[dict] = field(default_factory=list)  # logged scalars (rank 0)
+    val: list[dict] = field(default_factory=list)  # validation summaries (rank 0)
     seconds: float = 0.0
     steps_per_s: float = 0.0
 
@@ -82,9 +82,17 @@ class Trainer:
     model_config: stored in checkpoints so `seeu eval` / `seeu render` can rebuild the model.
     """
 
-    def __init__(self, model: nn.Module, cfg: TrainConfig, out_dir: str | Path, render_fn: RenderFn,
-                 dist: DistInfo | None = None, lpips_fn: nn.Module | None = None,
-                 model_config: dict | None = None, eval_fn: EvalFn | None = None):
+    def __init__(
+        self,
+        model: nn.Module,
+        cfg: TrainConfig,
+        out_dir: str | Path,
+        render_fn: RenderFn,
+        dist: DistInfo | None = None,
+        lpips_fn: nn.Module | None = None,
+        model_config: dict | None = None,
+        eval_fn: EvalFn | None = None,
+    ):
         self.cfg = cfg
         self.out_dir = Path(out_dir)
         self.ckpt_dir = self.out_dir / "checkpoints"
@@ -98,14 +106,22 @@ class Trainer:
         if self.dist.enabled:
             from torch.nn.parallel import DistributedDataParallel as DDP
 
-            self.ddp = DDP(self.model, device_ids=[self.device] if self.device.type == "cuda" else None,
-                           find_unused_parameters=True)
+            self.ddp = DDP(
+                self.model,
+                device_ids=[self.device] if self.device.type == "cuda" else None,
+                find_unused_parameters=True,
+            )
         else:
             self.ddp = self.model
         o = cfg.optim
         fused = self.device.type == "cuda"
-        self.optimizer = torch.optim.AdamW(parameter_groups(self.model, o.weight_decay), lr=o.lr, betas=o.betas, eps=o.eps,
-                                           **({"fused": True} if fused else {}))
+        self.optimizer = torch.optim.AdamW(
+            parameter_groups(self.model, o.weight_decay),
+            lr=o.lr,
+            betas=o.betas,
+            eps=o.eps,
+            **({"fused": True} if fused else {}),
+        )
         self.scheduler = make_scheduler(self.optimizer, o.warmup_steps, o.max_steps, o.min_lr_ratio)
         self.step = 0
         self.history: list[dict] = []
@@ -152,8 +168,10 @@ class Trainer:
             ckpt_io.set_rng_state(per_rank[self.dist.rank] if len(per_rank) == self.dist.world_size else per_rank[0])
         except (KeyError, TypeError, ValueError, IndexError, RuntimeError) as exc:
             msg = str(exc).splitlines()[0][:160] if str(exc) else ""
-            raise SeeUError(f"checkpoint optimizer/scheduler/loader/RNG state does not fit this run "
-                            f"({type(exc).__name__}: {msg})", where) from None
+            raise SeeUError(
+                f"checkpoint optimizer/scheduler/loader/RNG state does not fit this run ({type(exc).__name__}: {msg})",
+                where,
+            ) from None
         self.step = int(ck["step"])
         self.history = list(ck.get("history_tail", []))
         return self.step
@@ -181,8 +199,13 @@ class Trainer:
         return parts, float(grad_norm)
 
     # ------------------------------------------------------------------ the loop
-    def fit(self, loader, val_loader: Iterable | None = None, stop_after: int | None = None,
-            resume_from: str | Path | dict | None = None) -> TrainResult:
+    def fit(
+        self,
+        loader,
+        val_loader: Iterable | None = None,
+        stop_after: int | None = None,
+        resume_from: str | Path | dict | None = None,
+    ) -> TrainResult:
         """Train until `cfg.optim.max_steps` (or until step `stop_after`, for a planned interruption).
 
         A checkpoint is written every `cfg.checkpoint.every` steps and at the end.
@@ -203,8 +226,15 @@ class Trainer:
         if self.dist.is_main and _progress_enabled(cfg.log.progress):
             from tqdm import tqdm
 
-            bar = tqdm(total=target, initial=self.step, desc="train", unit="it", dynamic_ncols=True,
-                       file=sys.stderr, smoothing=0.1)
+            bar = tqdm(
+                total=target,
+                initial=self.step,
+                desc="train",
+                unit="it",
+                dynamic_ncols=True,
+                file=sys.stderr,
+                smoothing=0.1,
+            )
         t_start = time.perf_counter()
         start_step = self.step
         t_log, s_log = t_start, self.step
@@ -220,15 +250,19 @@ class Trainer:
                         bar.update(1)
                         bar.set_postfix(loss=f"{parts.loss:.4f}", psnr=f"{parts.psnr:.2f}", refresh=False)
                     if not math.isfinite(parts.loss):
-                        raise SeeUError(f"loss became {parts.loss} at step {self.step} (lower optim.lr?)",
-                                        self.out_dir)
+                        raise SeeUError(f"loss became {parts.loss} at step {self.step} (lower optim.lr?)", self.out_dir)
                     if self.step % cfg.log.every == 0 or self.step == target:
                         now = time.perf_counter()
-                        rec = {"step": self.step, "loss": mean_across(parts.loss, self.dist),
-                               "mse": mean_across(parts.mse, self.dist), "lpips": mean_across(parts.lpips, self.dist),
-                               "psnr": mean_across(parts.psnr, self.dist), "grad_norm": gnorm,
-                               "lr": self.scheduler.get_last_lr()[0],
-                               "it_per_s": (self.step - s_log) / max(now - t_log, 1e-9)}
+                        rec = {
+                            "step": self.step,
+                            "loss": mean_across(parts.loss, self.dist),
+                            "mse": mean_across(parts.mse, self.dist),
+                            "lpips": mean_across(parts.lpips, self.dist),
+                            "psnr": mean_across(parts.psnr, self.dist),
+                            "grad_norm": gnorm,
+                            "lr": self.scheduler.get_last_lr()[0],
+                            "it_per_s": (self.step - s_log) / max(now - t_log, 1e-9),
+                        }
                         t_log, s_log = now, self.step
                         self.history.append(rec)
                         if writer is not None:
@@ -239,8 +273,12 @@ class Trainer:
                         self._log_images(writer)
                     if self.step % cfg.checkpoint.every == 0 and self.step < target:
                         self.save(loader)
-                    if (val_loader is not None or self.eval_fn is not None) and cfg.log.val_every > 0 \
-                            and self.step % cfg.log.val_every == 0 and self.step < target:
+                    if (
+                        (val_loader is not None or self.eval_fn is not None)
+                        and cfg.log.val_every > 0
+                        and self.step % cfg.log.val_every == 0
+                        and self.step < target
+                    ):
                         self._validate(writer)
                     if self.step >= target:
                         break
@@ -248,8 +286,11 @@ class Trainer:
                 # batch); two in a row mean the data yields nothing
                 empty_passes += 0 if got_batch else 1
                 if empty_passes >= 2:
-                    raise SeeUError("the training data yielded no batch (empty dataset, or batch larger than "
-                                    "the dataset with remainder='drop')", self.out_dir)
+                    raise SeeUError(
+                        "the training data yielded no batch (empty dataset, or batch larger than "
+                        "the dataset with remainder='drop')",
+                        self.out_dir,
+                    )
             if self.eval_fn is not None:
                 self._validate(writer)
             self.save(loader)
@@ -260,8 +301,15 @@ class Trainer:
                 writer.flush()
                 writer.close()
         seconds = time.perf_counter() - t_start
-        return TrainResult(self.step, str(self.out_dir), self.last_checkpoint, self.history, self.val_history,
-                           seconds, (self.step - start_step) / max(seconds, 1e-9))
+        return TrainResult(
+            self.step,
+            str(self.out_dir),
+            self.last_checkpoint,
+            self.history,
+            self.val_history,
+            seconds,
+            (self.step - start_step) / max(seconds, 1e-9),
+        )
 
     def _validate(self, writer) -> None:
         if not self.dist.is_main or self.eval_fn is None:
@@ -278,7 +326,7 @@ class Trainer:
         """Rendered vs ground truth of the first sample: a grid with one row per target view."""
         from torchvision.utils import make_grid
 
-        pred = self._last_pred[0].float().clamp(0, 1).cpu()   # (T, 3, H, W)
+        pred = self._last_pred[0].float().clamp(0, 1).cpu()  # (T, 3, H, W)
         gt = self._last_gt[0].float().cpu()
         rows = torch.stack([gt, pred], dim=1).flatten(0, 1)  # gt, pred, gt, pred, ...
         writer.add_image("train/gt_vs_render", make_grid(rows, nrow=2, padding=2), self.step)

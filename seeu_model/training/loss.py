@@ -19,9 +19,13 @@ class LossParts:
     psnr: float
 
 
-def photometric_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tensor | None = None,
-                     lpips_fn: torch.nn.Module | None = None, lpips_weight: float = 0.05
-                     ) -> tuple[torch.Tensor, LossParts]:
+def photometric_loss(
+    pred: torch.Tensor,
+    target: torch.Tensor,
+    valid: torch.Tensor | None = None,
+    lpips_fn: torch.nn.Module | None = None,
+    lpips_weight: float = 0.05,
+) -> tuple[torch.Tensor, LossParts]:
     """pred, target: (B, T, 3, H, W) in [0, 1]; valid: (B,) bool (False for loader padding samples).
 
     Every term is a mean over the valid samples of this process (each sample's terms are means over
@@ -32,12 +36,12 @@ def photometric_loss(pred: torch.Tensor, target: torch.Tensor, valid: torch.Tens
     w = torch.ones(b, device=pred.device) if valid is None else valid.to(pred.device, torch.float32)
     denom = w.sum().clamp_min(1.0)
     pred32 = pred.float()
-    per_sample_mse = (pred32 - target).pow(2).flatten(1).mean(1)                      # (B,)
+    per_sample_mse = (pred32 - target).pow(2).flatten(1).mean(1)  # (B,)
     mse = (per_sample_mse * w).sum() / denom
     loss = mse
     lp_value = 0.0
     if lpips_fn is not None and lpips_weight > 0:
-        per_sample_lp = lpips_fn(pred32, target).flatten(1).mean(1)                  # (B,)
+        per_sample_lp = lpips_fn(pred32, target).flatten(1).mean(1)  # (B,)
         lp = (per_sample_lp * w).sum() / denom
         loss = loss + lpips_weight * lp
         lp_value = float(lp.detach())

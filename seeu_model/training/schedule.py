@@ -21,8 +21,10 @@ def warmup_cosine_factor(step: int, warmup_steps: int, max_steps: int, min_ratio
     return min_ratio + (1.0 - min_ratio) * 0.5 * (1.0 + math.cos(math.pi * t))
 
 
-def make_scheduler(optimizer: torch.optim.Optimizer, warmup_steps: int, max_steps: int,
-                   min_ratio: float = 0.0) -> torch.optim.lr_scheduler.LambdaLR:
+def make_scheduler(
+    optimizer: torch.optim.Optimizer, warmup_steps: int, max_steps: int, min_ratio: float = 0.0
+) -> torch.optim.lr_scheduler.LambdaLR:
     """A LambdaLR (state_dict-able) applying `warmup_cosine_factor` to every parameter group."""
     return torch.optim.lr_scheduler.LambdaLR(
-        optimizer, lambda s: warmup_cosine_factor(s, warmup_steps, max_steps, min_ratio))
+        optimizer, lambda s: warmup_cosine_factor(s, warmup_steps, max_steps, min_ratio)
+    )
