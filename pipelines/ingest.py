@@ -18,6 +18,7 @@ Example:
   seeu ingest videos/ photos/ --out data/posed --workers 2 --camera-model OPENCV
   seeu ingest trip2/images --out data/posed --name trip2
   seeu ingest walk.mp4 --out data/posed --scale metric --known-distance 4.2     # first-to-last camera: 4.2 m
+  seeu ingest videos/ --out /shared/posed --engine ray --ray-address auto --threads 2   # one scene per Ray task
   seeu validate data/posed/clip
 """
 
@@ -126,13 +127,25 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="skip the solution check (a second mapping from the next seed whose camera centres must "
         "agree within 1%% of the path; mapping takes about twice as long with it)",
     )
-    p.add_argument("--workers", type=int, default=1, help="scenes processed in parallel (default 1)")
+    p.add_argument("--workers", type=int, default=1, help="local engine: scenes processed in parallel (default 1)")
+    p.add_argument(
+        "--engine",
+        choices=["local", "ray"],
+        default="local",
+        help="local processes (default) or Ray: one scene per task, as many at once as the cluster's "
+        "CPUs allow; the same posed files",
+    )
+    p.add_argument(
+        "--ray-address",
+        default=None,
+        help="--engine ray: a running cluster (host:port, or auto); default: start a local instance",
+    )
     p.add_argument(
         "--threads",
         type=int,
         default=-1,
-        help="COLMAP threads per scene for feature extraction (default: all cores / workers); "
-        "results do not depend on it",
+        help="COLMAP threads per scene for feature extraction (default: all cores / workers; 1 with "
+        "--engine ray, where each task reserves max(--threads, --map-threads) CPUs); results do not depend on it",
     )
     p.add_argument(
         "--map-threads",
@@ -598,6 +611,10 @@ def _run(args: argparse.Namespace) -> int:
 
     if args.workers < 1:
         raise SeeUError(f"--workers must be >= 1, got {args.workers}")
+    if args.engine == "ray" and args.workers != 1:
+        raise SeeUError("--workers is for the local engine; on Ray each scene is a task that takes --threads CPUs")
+    if args.engine == "local" and args.ray_address is not None:
+        raise SeeUError("--ray-address needs --engine ray")
     ScaleConfig(args.scale, args.known_distance, args.distance_frames).check()  # before any scene starts
     SfmConfig(mapper=args.mapper, features=args.features).check()  # e.g. ALIKED without ONNX: one line, now
     sources = discover_sources(args.inputs)
@@ -612,7 +629,10 @@ def _run(args: argparse.Namespace) -> int:
     heartbeat = args.heartbeat if args.heartbeat is not None else float(os.environ.get("SEEU_HEARTBEAT_S", "10"))
     heartbeat = 0.0 if progress else heartbeat
     workers = min(args.workers, len(sources))
-    threads = args.threads if args.threads != -1 else max(1, (os.cpu_count() or 1) // workers)
+    if args.threads != -1:
+        threads = args.threads
+    else:
+        threads = 1 if args.engine == "ray" else max(1, (os.cpu_count() or 1) // workers)
     cfg = IngestConfig(
         stride=args.stride,
         target_frames=args.target_frames,
@@ -634,6 +654,22 @@ def _run(args: argparse.Namespace) -> int:
         sfm_check=not args.no_sfm_check,
         map_threads=args.map_threads,
     )
+    if args.engine == "ray":
+        from pipelines.ingest_ray import ingest_on_ray
+
+        results = ingest_on_ray(
+            sources,
+            args.out,
+            cfg,
+            scene_fn=ingest_scene,
+            address=args.ray_address,
+            force=args.force,
+            on_result=lambda r: _print_result(r.name, r.report, r.error),
+            progress=progress,
+        )
+        failures = sum(r.error is not None for r in results)
+        print(f"{len(sources) - failures}/{len(sources)} scenes ingested into {args.out}")
+        return 2 if failures else 0
     args.out.mkdir(parents=True, exist_ok=True)
     if len(sources) == 1:
         report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress, heartbeat_s=heartbeat)

@@ -11,11 +11,10 @@ the posed inputs must be on a file system every node sees (or the same path on e
 from __future__ import annotations
 
 import json
-import logging
 import os
 from pathlib import Path
 
-from .errors import SeeUError
+from .ray_cluster import ensure_ray
 
 
 def _ray_task(row: dict) -> dict:
@@ -29,25 +28,6 @@ def _ray_task(row: dict) -> dict:
     set_fsync(bool(row["fsync"]))  # the driver's fsync policy
     spec = json.loads(row["spec"])
     return {"result": json.dumps(materialise(spec, row["out_dir"]))}
-
-
-def ensure_ray(address: str | None = None) -> None:
-    """Connect to `address` (a running cluster, 'auto') or start a local instance when none is up."""
-    import ray
-
-    if ray.is_initialized():
-        return
-    repo_root = str(Path(__file__).resolve().parent.parent)
-    try:
-        ray.init(
-            address=address,
-            include_dashboard=False,
-            logging_level=logging.ERROR,
-            log_to_driver=False,
-            runtime_env={"env_vars": {"PYTHONPATH": repo_root}},
-        )
-    except (ConnectionError, ValueError, RuntimeError) as exc:
-        raise SeeUError(f"cannot start or reach Ray ({str(exc).splitlines()[0]})", address or "local") from None
 
 
 def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=None) -> list[dict]:
