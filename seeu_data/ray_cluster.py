@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import socket
 import subprocess
 import sys
@@ -66,8 +67,17 @@ def check_address(address: str, connect_s: float = CONNECT_TIMEOUT_S, join_s: fl
             address,
         ) from None
     if proc.returncode != 0:
-        lines = [ln.strip() for ln in proc.stderr.splitlines() if ln.strip() and not ln.startswith("[")]
-        raise SeeUError(f"cannot join the Ray cluster ({lines[-1] if lines else f'exit {proc.returncode}'})", address)
+        raise SeeUError(f"cannot join the Ray cluster ({_join_error(proc.stderr, proc.returncode)})", address)
+
+
+def _join_error(stderr: str, returncode: int) -> str:
+    """The child's exception in one line: the last one raised, and its first cause when that differs
+    (e.g. 'ConnectionError: Failed to connect ...; cause: ray.exceptions.AuthenticationError: ...')."""
+    raised = [ln.strip() for ln in stderr.splitlines() if re.match(r"[A-Za-z_][\w.]*(Error|Exception)\b", ln)]
+    if not raised:
+        return f"exit {returncode}"
+    first = raised[0].split(". ")[0]  # the first sentence: Ray's messages go on with advice
+    return raised[-1] if len(raised) == 1 else f"{raised[-1]}; cause: {first}"
 
 
 def ensure_ray(address: str | None = None) -> None:
