@@ -169,9 +169,10 @@ def test_unreachable_address_is_one_line_and_writes_nothing(tmp_path):
 
 
 def test_a_port_that_is_not_ray_is_refused_in_bounded_time():
-    """Something accepts the connection but never speaks Ray: the join in a child process is cut off."""
+    """Something accepts the connection but never speaks Ray: the join in a child process is cut off.
+    (Bound to every interface: Ray turns 127.0.0.1 into the node's own address.)"""
     with socket.socket() as listener:
-        listener.bind(("127.0.0.1", 0))
+        listener.bind(("", 0))
         listener.listen()
         address = f"127.0.0.1:{listener.getsockname()[1]}"
         with pytest.raises(SeeUError, match="no Ray cluster answered within 3 s"):
