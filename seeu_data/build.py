@@ -42,15 +42,14 @@ from .arrow_io import (
     commit_pending,
     fsync_enabled,
     open_ipc_file,
-    set_fsync,
     sha256_file,
-    write_table_async,
 )
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
-from .triples import PLAN_KEY, SCHEMA, ImageOptions, build_shard_table, plan_sha256
+from .triples import PLAN_KEY, SCHEMA, ImageOptions, plan_sha256
 from .schema import schema_version
+from .shard_task import materialise, materialise_json
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
 PROGRESS_NAME = ".build-progress.jsonl"  # shards completed by a running (or interrupted) build
@@ -287,7 +286,7 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
 
 
 # ---------------------------------------------------------------------------------------------
-# Materialising (the same function in every engine)
+# Resume (materialising a spec, the same task in every engine, is `shard_task.materialise`)
 # ---------------------------------------------------------------------------------------------
 
 
@@ -324,41 +323,6 @@ def resumable_shard(out: Path, spec: dict, known: dict[str, dict]) -> FileEntry 
     if not existing_shard_matches(path, spec) or sha256_file(path) != rec["sha256"]:
         return None
     return FileEntry(spec["file"], rec["rows"], rec["bytes"], rec["sha256"])
-
-
-def materialise(spec: dict, out_dir: str, commit: bool = True, wait_hash: bool = True) -> dict:
-    """Write one shard; return its manifest entry, or {"error": message}.
-
-    The shard's sha256 is computed while it is written (`arrow_io.write_table_async`). With
-    `commit=False` the shard is left at `pending_path` (`"pending": True`): the caller calls
-    `commit_pending`. With `wait_hash=False` (in-process callers only) the entry's sha256 is None and
-    `"sha256_future"` gives it once the hasher has caught up. (Which shards a re-run keeps is
-    decided before, on the driver: `resumable_shard`.)
-    """
-    out = Path(out_dir)
-    path = out / spec["file"]
-    try:
-        table = build_shard_table(spec, deferred_images=True)
-        size, digest = write_table_async(path, table, max_chunksize=spec["rows_per_batch"], commit=commit)
-        # with wait_hash=False the sha256 is filled in by the caller once its future is done
-        entry = FileEntry(path.name, table.num_rows, size, digest.result() if wait_hash else None)  # type: ignore[arg-type]
-    except SeeUError as exc:
-        return {"index": spec["index"], "error": str(exc)}
-    result = {
-        "index": spec["index"],
-        "entry": asdict(entry),
-        "resumed": False,
-        "pending": not commit,
-        "plan_sha256": spec["plan_sha256"],
-    }
-    if not wait_hash:
-        result["sha256_future"] = digest
-    return result
-
-
-def _materialise_json(args: tuple[str, str, bool]) -> dict:
-    set_fsync(args[2])  # the driver's policy (a forked worker has it already; spawned ones do not)
-    return materialise(json.loads(args[0]), args[1], commit=False)
 
 
 class ProgressJournal:
@@ -445,7 +409,7 @@ def run_local(
 
             # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
             with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futures = [pool.submit(_materialise_json, (json.dumps(s), out_dir, fsync_enabled())) for s in specs]
+                futures = [pool.submit(materialise_json, (json.dumps(s), out_dir, fsync_enabled())) for s in specs]
                 for fut in as_completed(futures):
                     collect(fut.result())
         for c in commits:

@@ -1,7 +1,7 @@
 """Ray Data engine for `seeu build --engine ray`: the same shard specs, the same materialise function.
 
 The driver plans (indices only) and cuts shard specs exactly as the local engine does; Ray Data maps
-`build.materialise` over the specs (one spec per block, JSON strings so Arrow never has to infer a
+`shard_task.materialise` over the specs (one spec per block, JSON strings so Arrow never has to infer a
 type for the nested spec), each task writes `shard-XXXXX.arrow` atomically under its deterministic
 name (fsynced first when the driver's fsync policy is on) and returns its manifest entry; the
 driver records it in the build's progress journal and writes the manifest last. The output directory and
@@ -20,9 +20,8 @@ from .ray_cluster import ensure_ray
 def _ray_task(row: dict) -> dict:
     import cv2
 
-    from .build import materialise
-
     from .arrow_io import set_fsync
+    from .shard_task import materialise
 
     cv2.setNumThreads(1)  # Ray schedules one task per CPU
     set_fsync(bool(row["fsync"]))  # the driver's fsync policy

@@ -24,7 +24,7 @@ import pytest
 import torch
 
 from pipelines.cli import main as cli_main
-from tests.test_import_formats import _colmap_fixture
+from tests.test_import_formats import colmap_fixture
 from tests.training_fixtures import synthetic_posed, synthetic_triples
 
 CASES: list = []
@@ -71,7 +71,7 @@ def ws(tmp_path_factory):
     assert cli_main(["export", "nerfstudio", str(posed), "--out", str(root / "ns")]) == 0
     assert cli_main(["export", "pixelsplat", str(posed), "--out", str(root / "ps")]) == 0
     assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "64x48"]) == 0
-    _colmap_fixture(root / "colmap", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    colmap_fixture(root / "colmap", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     assert (
         cli_main(
             [

@@ -26,7 +26,7 @@ from seeu_model.semantic import (  # noqa: E402
     export_blip2_image_part,
 )
 
-from tests.test_model import _batch  # noqa: E402
+from tests.test_model import random_batch  # noqa: E402
 
 Q = 3
 TINY_BLIP2 = {
@@ -94,7 +94,7 @@ def test_blip2_condition_forward_backward_frozen_and_out_of_the_trainable_state(
     assert isinstance(semantic, FrozenBLIP2ImageEncoder)
     assert not semantic.training and not semantic.vision_model.training and not semantic.qformer.training
     assert model.training and all(not p.requires_grad for p in semantic.parameters())
-    batch = _batch()
+    batch = random_batch()
     out = model(batch)
     assert out.encoding.condition.shape == (1, 2 * Q, 64)  # (B, V * Q, condition_dim)
     assert out.render.color.shape == (1, 1, 3, 64, 64)

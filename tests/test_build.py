@@ -367,15 +367,16 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     good = _shard_bytes(out)
     shutil.rmtree(out)
     import seeu_data.build as build_mod
+    import seeu_data.shard_task as shard_task
 
-    real = build_mod.build_shard_table
+    real = shard_task.build_shard_table
 
     def interrupted(spec, **kwargs):
         if spec["index"] == 3:
             raise KeyboardInterrupt
         return real(spec, **kwargs)
 
-    monkeypatch.setattr(build_mod, "build_shard_table", interrupted)
+    monkeypatch.setattr(shard_task, "build_shard_table", interrupted)
     assert _build(posed, out, "--workers", "1") == 130
     assert not (out / "manifest.json").exists()
     assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
@@ -384,7 +385,7 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
         "shard-00002.arrow",
     ]
     (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))  # caught before its rename
-    monkeypatch.setattr(build_mod, "build_shard_table", real)
+    monkeypatch.setattr(shard_task, "build_shard_table", real)
     assert _build(posed, out) == 0
     assert _shard_bytes(out) == good and not list(out.glob(".*"))
     assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == 2

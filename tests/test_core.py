@@ -160,9 +160,9 @@ def test_validate_missing_path_and_not_a_dataset(tmp_path, capsys):
 def test_cli_help_for_every_command():
     out = subprocess.run([sys.executable, "-m", "pipelines.cli", "--help"], capture_output=True, text=True)
     assert out.returncode == 0 and "validate" in out.stdout
-    from pipelines.cli import _available
+    from pipelines.cli import available_commands
 
-    for name in _available():
+    for name in available_commands():
         res = subprocess.run([sys.executable, "-m", "pipelines.cli", name, "--help"], capture_output=True, text=True)
         assert res.returncode == 0, (name, res.stderr)
         assert "usage: seeu" in res.stdout

@@ -24,7 +24,7 @@ from seeu_data.loader import ShardSource, make_loader
 from seeu_data.paths import OutsidePathError, contained_key, contained_path
 from seeu_data.posed import PosedDataset
 from tests.loader_fixtures import write_triples
-from tests.test_import_formats import _colmap_fixture, _nerfstudio_from_colmap
+from tests.test_import_formats import colmap_fixture, nerfstudio_from_colmap
 from tests.test_import_pixelsplat import make_example, write_chunks
 
 
@@ -145,8 +145,8 @@ def test_pixelsplat_index_entry_outside_the_stage_is_skipped(tmp_path, capsys, e
 
 @pytest.mark.parametrize("how", ["dotdot", "absolute", "symlink"])
 def test_nerfstudio_file_path_outside_its_folder_is_dropped(tmp_path, capsys, how):
-    rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
-    tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
+    rec = colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    tj = nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
     doc = json.loads(tj.read_text())
     first = sorted(doc["frames"], key=lambda f: f["file_path"])[0]
     name = Path(first["file_path"]).name
@@ -171,7 +171,7 @@ def test_nerfstudio_file_path_outside_its_folder_is_dropped(tmp_path, capsys, ho
 
 
 def test_colmap_image_name_outside_the_image_folder_is_dropped(tmp_path, capsys):
-    _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     model = tmp_path / "scene" / "sparse" / "0"
     rec = pycolmap.Reconstruction(str(model))
     txt = tmp_path / "txt"

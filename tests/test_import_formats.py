@@ -216,7 +216,7 @@ def test_dtu_bad_scan_is_skipped(tmp_path):
 # ------------------------------------------------------------------------------------------ COLMAP
 
 
-def _colmap_fixture(root: Path, model_id, params, w=96, h=64, frames=5, ext=".png"):
+def colmap_fixture(root: Path, model_id, params, w=96, h=64, frames=5, ext=".png"):
     o = pycolmap.SyntheticDatasetOptions()
     o.num_rigs, o.num_cameras_per_rig, o.num_frames_per_rig, o.num_points3D = 1, 1, frames, 60
     o.camera_width, o.camera_height = w, h
@@ -234,7 +234,7 @@ def _colmap_fixture(root: Path, model_id, params, w=96, h=64, frames=5, ext=".pn
 
 
 def test_colmap_pinhole_projects_like_pycolmap(tmp_path):
-    rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    rec = colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     rc = cli_main(
         [
             "import",
@@ -265,7 +265,7 @@ def test_colmap_pinhole_projects_like_pycolmap(tmp_path):
 
 
 def test_colmap_distorted_model_is_undistorted(tmp_path):
-    rec = _colmap_fixture(tmp_path / "s", pycolmap.CameraModelId.SIMPLE_RADIAL, [80.0, 48.0, 32.0, 0.08])
+    rec = colmap_fixture(tmp_path / "s", pycolmap.CameraModelId.SIMPLE_RADIAL, [80.0, 48.0, 32.0, 0.08])
     cfg = colmap_imp.ColmapImportConfig(model_dir=tmp_path / "s" / "sparse" / "0", images_dir=tmp_path / "s" / "images")
     _run(colmap_imp.iter_scenes(cfg), tmp_path / "out")
     scene = PosedDataset(tmp_path / "out").load_scene("s")
@@ -321,7 +321,7 @@ def test_colmap_distorted_model_is_undistorted(tmp_path):
 # ------------------------------------------------------------------------------------------ nerfstudio
 
 
-def _nerfstudio_from_colmap(rec, root: Path, images: Path) -> Path:
+def nerfstudio_from_colmap(rec, root: Path, images: Path) -> Path:
     """transforms.json exactly as nerfstudio's colmap_to_json writes it (keep_original_world_coordinate=False)."""
     frames = []
     for im in rec.images.values():
@@ -359,8 +359,8 @@ def _nerfstudio_from_colmap(rec, root: Path, images: Path) -> Path:
 
 
 def test_nerfstudio_projects_like_nerfstudio_and_matches_colmap(tmp_path):
-    rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0], ext=".jpg")
-    tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
+    rec = colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0], ext=".jpg")
+    tj = nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
     _run(ns_imp.iter_scenes(ns_imp.NerfstudioImportConfig(transforms=tj)), tmp_path / "a")
     _run(ns_imp.iter_scenes(ns_imp.NerfstudioImportConfig(transforms=tj, undo_applied_transform=False)), tmp_path / "b")
     _run(
@@ -391,8 +391,8 @@ def test_nerfstudio_projects_like_nerfstudio_and_matches_colmap(tmp_path):
 
 
 def test_nerfstudio_refuses_unknown_models_and_names_missing_frames(tmp_path, capsys):
-    rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
-    tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
+    rec = colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    tj = nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
     doc = json.loads(tj.read_text())
     for change, extra, message in (
         ({"k1": 0.1}, ["--no-undistort"], "distortion"),
@@ -666,7 +666,7 @@ def test_cli_rerun_of_dtu_and_re10k_keeps_everything(tmp_path, capsys):
 
 @pytest.mark.parametrize("fmt", ["colmap", "nerfstudio"])
 def test_single_scene_formats_resume_until_an_input_changes(tmp_path, capsys, fmt):
-    rec = _colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
+    rec = colmap_fixture(tmp_path / "scene", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     if fmt == "colmap":
         cmd = [
             "import",
@@ -677,7 +677,7 @@ def test_single_scene_formats_resume_until_an_input_changes(tmp_path, capsys, fm
         ]
         images, model_file = tmp_path / "scene" / "images", tmp_path / "scene" / "sparse" / "0" / "images.bin"
     else:
-        tj = _nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
+        tj = nerfstudio_from_colmap(rec, tmp_path / "ns", tmp_path / "scene" / "images")
         cmd = ["import", "nerfstudio", str(tj)]
         images, model_file = tmp_path / "ns" / "images", tj
     out = tmp_path / "out"

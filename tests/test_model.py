@@ -23,7 +23,7 @@ def _rot_y(deg: float) -> torch.Tensor:
     return torch.tensor([[math.cos(a), 0.0, math.sin(a)], [0.0, 1.0, 0.0], [-math.sin(a), 0.0, math.cos(a)]])
 
 
-def _batch(v: int = 2, t: int = 1, size: int = 64, seed: int = 0) -> dict:
+def random_batch(v: int = 2, t: int = 1, size: int = 64, seed: int = 0) -> dict:
     """Cameras on a small arc looking at +z, smooth random images."""
     g = torch.Generator().manual_seed(seed)
     n = v + t
@@ -67,7 +67,7 @@ def test_forward_backward_gradients_reach_every_trainable_module_and_not_the_fro
     semantic = model.condition.semantic
     assert not semantic.training and model.training  # frozen encoder stays in eval mode
     assert all(not p.requires_grad for p in semantic.parameters())
-    batch = _batch()
+    batch = random_batch()
     out = model(batch, render_coarse=True)
     b, v, t = 1, 2, 1
     ent = out.entropy.detach()
@@ -110,7 +110,7 @@ def test_ablation_refiners_and_conditions_start_at_the_coarse_gaussians(refiner,
     torch.manual_seed(0)
     model = SeeU(SeeUConfig.tiny(refiner=refiner, condition=condition)).eval()
     with torch.no_grad():
-        enc = model.encode_all(_batch()["context"])
+        enc = model.encode_all(random_batch()["context"])
     assert torch.count_nonzero(enc.residual) == 0
     assert _gaussians_equal(enc.gaussians, enc.coarse_gaussians)
     expected_tokens = 4 if condition == "cea" else 2
@@ -121,7 +121,7 @@ def test_no_refiner_builds_no_semantic_encoder():
     model = SeeU(SeeUConfig.tiny(refiner="none"))
     assert model.condition is None and model.refiner is None and model.frozen_prefixes() == []
     with torch.no_grad():
-        enc = model.encode_all(_batch()["context"])
+        enc = model.encode_all(random_batch()["context"])
     assert enc.gaussians is enc.coarse_gaussians and enc.condition is None
 
 
@@ -130,7 +130,7 @@ def test_clip_condition():
     torch.manual_seed(0)
     model = SeeU(SeeUConfig.tiny(condition="clip", clip_model_kwargs={"depth": 1}))
     with torch.no_grad():
-        enc = model.encode_all(_batch()["context"])
+        enc = model.encode_all(random_batch()["context"])
     assert enc.condition.shape == (1, 2, 64)
 
 
@@ -152,7 +152,7 @@ def test_trainable_state_dict_excludes_frozen_encoder_and_round_trips(tiny_model
 def test_latent_gaussians_are_pixel_aligned_at_the_matched_depth(tiny_model):
     """Independent check of the unprojection: projecting each coarse centre back into its own view gives
     the latent pixel centre and the plane-sweep depth."""
-    ctx = _batch()["context"]
+    ctx = random_batch()["context"]
     with torch.no_grad():
         enc = tiny_model.encode_all(ctx)
     means = enc.latent_gaussians.means.reshape(1, 2, 16 * 16, 3)
@@ -170,7 +170,7 @@ def test_permuting_context_views_permutes_gaussians_and_keeps_renders():
     with torch.no_grad():  # make the refiner non-trivial, as after training
         for lin in (model.refiner.out, model.refiner.ada_out[-1]):
             lin.weight.normal_(0, 0.05)
-    batch = _batch(v=3, t=1, size=32, seed=3)
+    batch = random_batch(v=3, t=1, size=32, seed=3)
     ctx = batch["context"]
     perm = torch.tensor([2, 0, 1])
     ctx_p = {k: val[:, perm] for k, val in ctx.items()}
@@ -191,7 +191,7 @@ def test_permuting_context_views_permutes_gaussians_and_keeps_renders():
 
 def test_rejects_bad_context():
     model = SeeU(SeeUConfig.tiny(refiner="none"))
-    ctx = _batch()["context"]
+    ctx = random_batch()["context"]
     with pytest.raises(ValueError, match="two context views"):
         model.encode({k: v[:, :1] for k, v in ctx.items()})
     with pytest.raises(ValueError, match="divisible by 16"):
@@ -258,7 +258,7 @@ def test_model_info_cli_prints_counts(capsys, tmp_path):
 def test_bf16_autocast_forward_backward_keeps_gaussians_and_renders_float32():
     torch.manual_seed(0)
     model = SeeU(SeeUConfig.tiny()).train()
-    batch = _batch(v=2, t=1, size=32, seed=2)
+    batch = random_batch(v=2, t=1, size=32, seed=2)
     with torch.autocast(device_type="cpu", dtype=torch.bfloat16):
         out = model(batch)
         loss = F.mse_loss(out.render.color, batch["target"]["image"])

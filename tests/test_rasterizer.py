@@ -16,7 +16,7 @@ from seeu_model.gaussians import Gaussians
 from seeu_model.rasterizer import gsplat_backend, rasterize, resolve_backend
 from seeu_model.rasterizer.projection import ALPHA_MIN, project_gaussians
 from seeu_model.rasterizer.sh import eval_sh_bases, sh_to_color
-from seeu_model.rasterizer.tiled import _Compositor, _TiledComposite, bin_gaussians
+from seeu_model.rasterizer.tiled import TileCompositor, TiledComposite, bin_gaussians
 from tests.helpers import look_at_cam_to_world
 
 
@@ -186,9 +186,9 @@ def test_gradcheck_tiled_compositor():
         torch.ones(1, n, dtype=torch.bool),
     )
     isect, tiles, tx, ty = bin_gaussians(proj, w, h, tile)
-    comp = _Compositor(isect, tiles, tx * ty, tx, ty, tile, 1 << 20)
+    comp = TileCompositor(isect, tiles, tx * ty, tx, ty, tile, 1 << 20)
     assert torch.autograd.gradcheck(
-        lambda m, c, o, f: _TiledComposite.apply(m, c, o, f, comp, 0.99),
+        lambda m, c, o, f: TiledComposite.apply(m, c, o, f, comp, 0.99),
         (means2d, conics, opac, feats),
         eps=1e-6,
         atol=1e-7,

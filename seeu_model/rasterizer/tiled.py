@@ -81,7 +81,7 @@ def _plan_chunks(tile_counts: torch.Tensor, pixels_per_tile: int, max_elements: 
     return chunks
 
 
-class _Compositor:
+class TileCompositor:
     """Shared forward/backward state of one render (tiles, lists, pixel grid)."""
 
     def __init__(self, isect_gauss, tile_ids, n_tiles_total, tiles_x, tiles_y, tile_size, max_elements):
@@ -151,9 +151,11 @@ def _composite_block(local, mean, conic, opac, alpha_max, need_backward):
     return alpha * trans_before, gauss, live, trans_before, one_minus[..., 1:]
 
 
-class _TiledComposite(torch.autograd.Function):
+class TiledComposite(torch.autograd.Function):
+    """Front-to-back alpha compositing of the per-tile Gaussian lists, with its own backward pass."""
+
     @staticmethod
-    def forward(ctx, means2d, conics, opacities, feats, comp: _Compositor, alpha_max: float):
+    def forward(ctx, means2d, conics, opacities, feats, comp: TileCompositor, alpha_max: float):
         """means2d (M, 2), conics (M, 3), opacities (M,), feats (M, F), M = C * N.
         Returns per-tile features (tiles, P, F) and alpha (tiles, P)."""
         n_pix = comp.tile_size**2
@@ -230,9 +232,9 @@ def render_tiled(
         raise ValueError(f"tile_size must be >= 1, got {tile_size}")
     n_cam, n = proj.depths.shape
     isect_gauss, tile_ids, tiles_x, tiles_y = bin_gaussians(proj, width, height, tile_size)
-    comp = _Compositor(isect_gauss, tile_ids, n_cam * tiles_x * tiles_y, tiles_x, tiles_y, tile_size, max_elements)
+    comp = TileCompositor(isect_gauss, tile_ids, n_cam * tiles_x * tiles_y, tiles_x, tiles_y, tile_size, max_elements)
     feats = torch.cat([proj.colors, proj.depths[..., None]], -1).reshape(n_cam * n, 4)
-    out, out_a = _TiledComposite.apply(
+    out, out_a = TiledComposite.apply(
         proj.means2d.reshape(-1, 2), proj.conics.reshape(-1, 3), proj.opacities.reshape(-1), feats, comp, alpha_max
     )
     shape = (n_cam, tiles_y, tiles_x, tile_size, tile_size)
