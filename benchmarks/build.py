@@ -51,6 +51,7 @@ import pyarrow as pa
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from pipelines.cli.options import parse_dims  # noqa: E402
 from seeu_data.arrow_io import set_fsync  # noqa: E402
 from seeu_data.build import BuildConfig, build, plan_sampled, scan_inputs, shard_specs  # noqa: E402
 from seeu_data.posed import PosedDatasetWriter, PosedScene  # noqa: E402
@@ -148,7 +149,7 @@ def main() -> int:
             f"posed data: {args.scenes} scenes x {args.frames} frames {W}x{H}, {posed_mb:.0f} MB "
             f"(made in {time.perf_counter() - t0:.1f} s)"
         )
-        resize = tuple(int(x) for x in args.resize.lower().split("x")) if args.resize else None
+        resize = parse_dims(args.resize, "--resize") if args.resize else None
         cfg = BuildConfig(
             inputs=(str(posed),),
             out=str(tmp / "seeu"),

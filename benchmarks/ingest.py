@@ -95,7 +95,7 @@ def main() -> int:
     args = ap.parse_args()
 
     from pipelines.ingest import IngestConfig, ingest_scene
-    from pipelines.options import parse_dims
+    from pipelines.cli.options import parse_dims
     from seeu_data.synthetic import ClipConfig, write_clip
     from seeu_data.video import discover_sources
 
@@ -106,7 +106,9 @@ def main() -> int:
     print(f"rendered {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s -> {video}", flush=True)
 
     # like for like with the bare calls (one mapping): without the solution check's second mapping
-    cfg = IngestConfig(camera_model=args.camera_model, sfm_check=False)
+    cfg = IngestConfig(
+        inputs=(video,), out=args.out / "posed", camera_model=args.camera_model, sfm_check=False, force=True
+    )
     (source,) = discover_sources([video])
     frames_dir = args.out / "posed" / ".work" / source.name / "decode" / "frames"
     seeu_wall, seeu_cpu, bare_wall, bare_cpu = [], [], [], []
@@ -116,7 +118,7 @@ def main() -> int:
     def run_seeu():
         nonlocal report
         c0, t0 = _cpu_s(), time.perf_counter()
-        report = ingest_scene(source, args.out / "posed", cfg, force=True, progress=False)
+        report = ingest_scene(source, cfg)
         seeu_wall.append(time.perf_counter() - t0)
         seeu_cpu.append(_cpu_s() - c0)
         print(

@@ -31,13 +31,15 @@ def _ingest(video: Path, out: Path, cfg):
     """One ingest from scratch; returns (report, seconds, sha256 of the written poses)."""
     import numpy as np
 
+    from dataclasses import replace
+
     from pipelines.ingest import ingest_scene
     from seeu_data.posed import PosedDataset
     from seeu_data.video import discover_sources
 
     (source,) = discover_sources([video])
     t0 = time.perf_counter()
-    report = ingest_scene(source, out, cfg, force=True)
+    report = ingest_scene(source, replace(cfg, inputs=(video,), out=out, force=True))
     elapsed = time.perf_counter() - t0
     ds = PosedDataset(out / source.name)
     digest = hashlib.sha256()
@@ -65,11 +67,12 @@ def main() -> int:
     args = ap.parse_args()
 
     from pipelines.ingest import IngestConfig
-    from pipelines.options import parse_dims
+    from pipelines.cli.options import parse_dims
     from seeu_data.synthetic import write_clip
 
     width, height = parse_dims(args.size, "--size", minimum=16)
-    cfg = IngestConfig(threads=os.cpu_count() or 1)  # what `seeu ingest` uses by default with one worker
+    # what `seeu ingest` uses by default with one worker (inputs and out: set per ingest)
+    cfg = IngestConfig(inputs=(), out=args.out / "posed", threads=os.cpu_count() or 1)
     print(f"{os.cpu_count()} cores; COLMAP threads {cfg.threads}; {args.frames} frames {width}x{height}", flush=True)
 
     video = args.out / "clips" / "planar_s0.mp4"

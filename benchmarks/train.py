@@ -42,8 +42,8 @@ def main() -> int:
     import torch
 
     from benchmarks.train_learning import make_data
-    from pipelines.evaluate import evaluate
-    from pipelines.train import train
+    from pipelines.evaluate import EvalConfig, evaluate
+    from pipelines.train import TrainRunConfig, train
 
     a.out.mkdir(parents=True, exist_ok=True)
     train_data, test_data = make_data(a.out, 32, a.size, 2)
@@ -57,7 +57,7 @@ def main() -> int:
     ]
     run = a.out / f"run_{int(time.time())}"
     cpu0 = time.process_time()
-    res = train(train_data, run, config=a.config, overrides=ov, progress=False)
+    res = train(TrainRunConfig(data=train_data, out=run, config=a.config, overrides=ov, progress=False))
     cpu_train = time.process_time() - cpu0
     hist = res["history"][a.warmup_steps :]
     its = len(hist) / sum(1.0 / h["it_per_s"] for h in hist) if hist else float("nan")
@@ -66,7 +66,15 @@ def main() -> int:
         torch.cuda.max_memory_allocated() / 2**20 if cuda else resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     )
     ev = evaluate(
-        res["checkpoint"], test_data, run / "eval", max_samples=a.eval_samples, lpips=False, warmup=2, progress=False
+        EvalConfig(
+            checkpoint=res["checkpoint"],
+            data=test_data,
+            out=run / "eval",
+            max_samples=a.eval_samples,
+            lpips=False,
+            warmup=2,
+            progress=False,
+        )
     )
     report = {
         "device": res["device"],

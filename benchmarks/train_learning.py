@@ -71,8 +71,8 @@ def main() -> int:
 
     import torch
 
-    from pipelines.evaluate import evaluate, evaluate_on_data
-    from pipelines.train import seed_everything, train
+    from pipelines.evaluate import EvalConfig, evaluate, evaluate_on_data
+    from pipelines.train import TrainRunConfig, seed_everything, train
     from seeu_model.evaluation import summarize
     from seeu_model.training.config import load_config
     from seeu_model.training.factory import build_model
@@ -98,8 +98,17 @@ def main() -> int:
         ).records
     )
     run = a.out / "run"
-    res = train(train_data, run, config=a.config, overrides=ov, resume=True)
-    after = evaluate(res["checkpoint"], test_data, run / "eval", max_samples=a.eval_samples, lpips=False, warmup=1)
+    res = train(TrainRunConfig(data=train_data, out=run, config=a.config, overrides=ov, resume=True))
+    after = evaluate(
+        EvalConfig(
+            checkpoint=res["checkpoint"],
+            data=test_data,
+            out=run / "eval",
+            max_samples=a.eval_samples,
+            lpips=False,
+            warmup=1,
+        )
+    )
     report = {
         "config": a.config,
         "overrides": ov,

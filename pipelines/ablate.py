@@ -1,29 +1,25 @@
-"""Run the paper's ablations with equal budgets and write one comparison table.
+"""The ablation stage: the paper's variants trained with equal budgets, evaluated alike, one table.
 
-Examples:
-  seeu ablate --config configs/cpu_small.json --data out/shards/extrap --eval out/shards/eval --out runs/ablate
-  seeu ablate --config configs/re10k_paper.json --data re10k/train_ext45 --eval re10k/test_extrap \
-      --variants full,no_refiner,unet,cls,clip,blip2 --ext-data 0=re10k/train_ext0 --ext-data 90=re10k/train_ext90 \
-      --out runs/ablate model.clip_weights=/weights/clip_b16.safetensors model.blip2_weights=/weights/blip2-image
-  seeu ablate ... --posed out/posed --ext-ranges 0,45,90        # build the extrapolation-range shards here
+`ablate(AblateConfig(...))` trains every variant (same config, seed, steps, batch size, schedule),
+evaluates each on the same shards, and writes OUT/ablation.md and OUT/ablation.csv (deltas against
+`full`); finished variants are reused on a re-run. `seeu ablate --help` describes the variants.
 
-Variants (paper tables 4-6): `full` (Conditional Gaussian Transformer + CEA), `no_refiner`
-("w/o Refinement"), `unet` ("w/ UNet Backbone"), `cls` (DINOv3 class embedding), `clip` (CLIP
-embedding; needs its weights), `blip2` (BLIP-2 embedding: ViT-g + Q-Former query tokens; needs
-`pip install -e '.[blip2]'` and its weights, from the hub `model.blip2_model=REPO` or offline
-`model.blip2_weights=DIR`), and `ext<N>` (the full model trained on shards whose extrapolated targets
-reach N frames outside the context pair; from --ext-data N=PATH or built from --posed).
-Every variant uses the same config, seed, steps, batch size and schedule (equal budgets), is
-evaluated on the same --eval shards, and lands in OUT/ablation.md and OUT/ablation.csv (deltas
-against `full`). Finished variants are reused on a re-run (delete OUT/<variant> to redo one).
+Example:
+    from pipelines.ablate import AblateConfig, ablate
+
+    rows = ablate(AblateConfig(config="cpu_small", data="out/shards/extrap", eval_data="out/shards/eval",
+                               out="runs/ablate", variants=("full", "no_refiner"), lpips=False))
+    [(r["variant"], r["psnr"]) for r in rows]
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
+from dataclasses import dataclass, field
 from pathlib import Path
+
+from seeu_data.errors import SeeUError
 
 # name -> (label as in the paper, model overrides)
 MODEL_VARIANTS: dict[str, tuple[str, dict]] = {
@@ -37,64 +33,46 @@ MODEL_VARIANTS: dict[str, tuple[str, dict]] = {
 DEFAULT_VARIANTS = ("full", "no_refiner", "unet", "cls")
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, help="the shared training config (equal budget for all)")
-    parser.add_argument("--data", required=True, help="training shards of the model variants")
-    parser.add_argument("--eval", required=True, dest="eval_data", help="evaluation shards (same for every variant)")
-    parser.add_argument("--out", required=True)
-    parser.add_argument(
-        "--variants",
-        default=",".join(DEFAULT_VARIANTS),
-        help=f"comma list of {', '.join(MODEL_VARIANTS)} (default {','.join(DEFAULT_VARIANTS)})",
-    )
-    parser.add_argument(
-        "--ext-data",
-        action="append",
-        default=[],
-        metavar="N=PATH",
-        help="training shards with extrapolation range N frames (adds variant extN)",
-    )
-    parser.add_argument("--posed", default=None, help="posed frames to build the extrapolation-range shards from")
-    parser.add_argument("--ext-ranges", default="0,45,90", help="with --posed: ranges to build (default 0,45,90)")
-    parser.add_argument("--max-eval-samples", type=int, default=0)
-    parser.add_argument("--lpips-weights", default=None, metavar="PATH")
-    parser.add_argument("--no-lpips", action="store_true", help="MSE-only training and no LPIPS in the table")
-    parser.add_argument("--device", default=None)
-    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None)
-    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every variant")
+@dataclass(frozen=True)
+class AblateConfig:
+    """One `seeu ablate` run.
+
+    config: the shared training config; data: training shards of the model variants; eval_data: the
+    evaluation shards (the same for every variant); out: the output directory; variants: names of
+    MODEL_VARIANTS; ext_data: {N: training shards with extrapolation range N} (adds variant extN);
+    posed / ext_ranges: build those shards here from posed frames; overrides: config overrides for
+    every variant; max_eval_samples: 0 = all; lpips: False trains with MSE only and leaves LPIPS out
+    of the table; progress: bars (None: the config's log.progress).
+    """
+
+    config: str | Path
+    data: str
+    eval_data: str
+    out: str | Path
+    variants: tuple[str, ...] = DEFAULT_VARIANTS
+    ext_data: dict[int, str] = field(default_factory=dict)
+    posed: str | None = None
+    ext_ranges: tuple[int, ...] = ()
+    overrides: tuple[str, ...] = ()
+    max_eval_samples: int = 0
+    lpips: bool = True
+    lpips_weights: str | None = None
+    device: str | None = None
+    progress: bool | None = None
+
+    def check(self) -> None:
+        unknown = [v for v in self.variants if v not in MODEL_VARIANTS]
+        if unknown:
+            raise SeeUError(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(MODEL_VARIANTS)}")
+        if self.max_eval_samples < 0:
+            raise SeeUError(f"--max-eval-samples must be >= 0, got {self.max_eval_samples}")
+        if any(n < 0 for n in self.ext_ranges) or any(n < 0 for n in self.ext_data):
+            raise SeeUError("extrapolation ranges must be >= 0 frames")
 
 
-def run(args: argparse.Namespace) -> int:
-    from seeu_data.errors import SeeUError
-
-    ext: dict[int, str] = {}
-    for item in args.ext_data:
-        n, _, path = item.partition("=")
-        if not n.strip().isdigit() or not path:
-            raise SeeUError(f"--ext-data {item!r} is not N=PATH")
-        ext[int(n)] = path
-    ranges = [int(x) for x in args.ext_ranges.split(",") if x.strip()] if args.posed else []
-    rows = ablate(
-        args.config,
-        args.data,
-        args.eval_data,
-        args.out,
-        variants=[v.strip() for v in args.variants.split(",") if v.strip()],
-        ext_data=ext,
-        posed=args.posed,
-        ext_ranges=ranges,
-        overrides=args.overrides,
-        max_eval_samples=args.max_eval_samples,
-        lpips=not args.no_lpips,
-        lpips_weights=args.lpips_weights,
-        device=args.device,
-        progress=args.progress,
-    )
-    print((Path(args.out) / "ablation.md").read_text())
-    return 0 if rows else 1
-
-
-def build_ext_shards(posed: str, out: Path, ranges: list[int], like: str | None = None) -> dict[int, str]:
+def build_ext_shards(
+    posed: str, out: Path, ranges: list[int], like: str | None = None, progress: bool = False
+) -> dict[int, str]:
     """Extrapolation-range training shards from posed frames (one build per range, same seed).
 
     Gap and sample counts follow the build recorded in `like`'s manifest when given (the main
@@ -119,7 +97,9 @@ def build_ext_shards(posed: str, out: Path, ranges: list[int], like: str | None 
         if not (dst / "manifest.json").exists():
             sampling = SamplingConfig(mode="extrap", extrap_frames=n, **base)
             build(
-                BuildConfig(inputs=(str(posed),), out=str(dst), mode="extrap", sampling=sampling, seed=0),
+                BuildConfig(
+                    inputs=(str(posed),), out=str(dst), mode="extrap", sampling=sampling, seed=0, progress=progress
+                ),
                 argv_command="seeu ablate",
             )
         paths[n] = str(dst)
@@ -160,41 +140,22 @@ def write_table(out: Path, rows: list[dict], budget: dict) -> None:
     atomic_write_text(out / "ablation.md", "\n".join(lines) + "\n")
 
 
-def ablate(
-    config: str,
-    data: str,
-    eval_data: str,
-    out: str | Path,
-    *,
-    variants=DEFAULT_VARIANTS,
-    ext_data: dict[int, str] | None = None,
-    posed: str | None = None,
-    ext_ranges=(),
-    overrides=(),
-    max_eval_samples: int = 0,
-    lpips: bool = True,
-    lpips_weights: str | None = None,
-    device: str | None = None,
-    progress: bool | None = None,
-) -> list[dict]:
-    """Python API of `seeu ablate`; returns the table rows."""
-    from pipelines.evaluate import evaluate
-    from pipelines.train import train
-    from seeu_data.errors import SeeUError
+def ablate(run: AblateConfig) -> list[dict]:
+    """Python API of `seeu ablate`; returns the table rows (also OUT/ablation.md and OUT/ablation.csv)."""
+    from pipelines.evaluate import EvalConfig, evaluate
+    from pipelines.train import TrainRunConfig, train
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import load_config
 
-    out = Path(out)
+    run.check()
+    out = Path(run.out)
     out.mkdir(parents=True, exist_ok=True)
-    unknown = [v for v in variants if v not in MODEL_VARIANTS]
-    if unknown:
-        raise SeeUError(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(MODEL_VARIANTS)}")
-    ext = dict(ext_data or {})
-    if posed:
-        ext.update(build_ext_shards(posed, out, list(ext_ranges), like=data))
-    base_overrides = list(overrides) + (["loss.lpips_weight=0"] if not lpips else [])
-    cfg = load_config(config, base_overrides)  # validates the shared config once
-    plan = [(v, MODEL_VARIANTS[v][0], MODEL_VARIANTS[v][1], data) for v in variants]
+    ext = dict(run.ext_data)
+    if run.posed:
+        ext.update(build_ext_shards(run.posed, out, list(run.ext_ranges), like=run.data, progress=bool(run.progress)))
+    base_overrides = list(run.overrides) + (["loss.lpips_weight=0"] if not run.lpips else [])
+    train_cfg = load_config(run.config, base_overrides)  # validates the shared config once
+    plan = [(v, MODEL_VARIANTS[v][0], MODEL_VARIANTS[v][1], run.data) for v in run.variants]
     plan += [(f"ext{n}", f"Full model, extrapolation range {n} frames", {}, path) for n, path in sorted(ext.items())]
     rows = []
     for name, label, model_ov, train_data in plan:
@@ -202,35 +163,39 @@ def ablate(
         done = vdir / "eval" / "summary.json"
         summary_path = vdir / "train_summary.json"
         ts = json.loads(summary_path.read_text()) if summary_path.exists() else None
-        if ts is None or ts.get("step", 0) < cfg.optim.max_steps:
-            print(f"[ablate] {name}: {label} -- training {cfg.optim.max_steps} steps on {train_data}", flush=True)
+        if ts is None or ts.get("step", 0) < train_cfg.optim.max_steps:
+            print(f"[ablate] {name}: {label} -- training {train_cfg.optim.max_steps} steps on {train_data}", flush=True)
             ov = base_overrides + [
                 f"model.{k}={json.dumps(v) if not isinstance(v, str) else v}" for k, v in model_ov.items()
             ]
             ts = train(
-                train_data,
-                vdir,
-                config=config,
-                overrides=ov,
-                resume=True,
-                lpips_weights=lpips_weights,
-                device=device,
-                progress=progress,
+                TrainRunConfig(
+                    data=train_data,
+                    out=vdir,
+                    config=run.config,
+                    overrides=tuple(ov),
+                    resume=True,
+                    lpips_weights=run.lpips_weights,
+                    device=run.device,
+                    progress=run.progress,
+                )
             )
             done.unlink(missing_ok=True)
         if done.exists():
             es = json.loads(done.read_text())
         else:
-            print(f"[ablate] {name}: evaluating on {eval_data}", flush=True)
+            print(f"[ablate] {name}: evaluating on {run.eval_data}", flush=True)
             es = evaluate(
-                ts["checkpoint"],
-                eval_data,
-                vdir / "eval",
-                max_samples=max_eval_samples,
-                lpips=lpips,
-                lpips_weights=lpips_weights,
-                device=device,
-                progress=progress,
+                EvalConfig(
+                    checkpoint=ts["checkpoint"],
+                    data=run.eval_data,
+                    out=vdir / "eval",
+                    max_samples=run.max_eval_samples,
+                    lpips=run.lpips,
+                    lpips_weights=run.lpips_weights,
+                    device=run.device,
+                    progress=bool(run.progress),
+                )
             )
         ck = ckpt_io.load_checkpoint(ts["checkpoint"])
         from seeu_model.training.factory import model_from_checkpoint
@@ -255,11 +220,11 @@ def ablate(
             }
         )
     budget = {
-        "steps": cfg.optim.max_steps,
-        "batch_size": cfg.data.batch_size,
-        "lr": cfg.optim.lr,
-        "seed": cfg.seed,
-        "eval": str(eval_data),
+        "steps": train_cfg.optim.max_steps,
+        "batch_size": train_cfg.data.batch_size,
+        "lr": train_cfg.optim.lr,
+        "seed": train_cfg.seed,
+        "eval": str(run.eval_data),
     }
     write_table(out, rows, budget)
     return rows

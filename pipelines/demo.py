@@ -1,92 +1,82 @@
-"""Run the whole toolkit on the built-in synthetic clip and leave a report with pictures to look at.
+"""The demo stage: the whole toolkit on the built-in synthetic clip, leaving a report with pictures.
 
-Stages (each resumable: a re-run with the same options reuses every finished stage; --force redoes):
-  1. synth   two synthetic clips with exact ground truth: the training clip (--seed) and a held-out
-             clip of an unseen scene (--heldout-seed: other textures and box layout)  -> OUT/clip/
-  2. ingest  pose both with COLMAP SfM (pycolmap) into posed chunks; the ingest reports compare the
-             poses with the ground truth                                             -> OUT/posed/
-  3. build   context-target triples at the training size: OUT/shards/train from the training clip
-             (extrap sampling with half the targets inside the pair: interpolation + extrapolation),
-             OUT/shards/eval_interp and OUT/shards/eval_extrap from the held-out clip only, and
-             contact sheets                                                          -> OUT/shards/
-  4. train   the demo preset (configs/demo.json: the cpu_small SeeU) for --steps steps on CPU -> OUT/run/
-  5. eval    PSNR / SSIM (/ LPIPS when the VGG weights are there) on the held-out shards, of the
-             initial model (the exact weights training starts from) and of the trained one -> OUT/eval/
-  6. render  interpolated and extrapolated camera paths (PNG frames, MP4) and the Gaussians (.ply)
-             from a held-out example                                                 -> OUT/render/
-  7. report  OUT/report.md: stage timings, SfM accuracy, shard counts, trajectory plot, contact
-             sheet, training curve, renders next to ground truth, metrics table (init vs trained).
+`demo(DemoConfig(out=...))` runs synth -> ingest -> build -> train -> eval -> render -> report, each
+stage resumable (a re-run with the same config reuses every finished stage; `force` redoes them), and
+writes OUT/report.md, OUT/metrics.json and OUT/figures/. `seeu demo --help` describes the stages and
+their outputs; the flags map one to one onto the fields of `DemoConfig`.
 
-About 5 minutes on 2 idle CPU cores with the defaults (SfM ~1 min, training ~3 min; more on a busy
-machine). Training length: --steps.
+Example:
+    from pathlib import Path
+    from pipelines.demo import DemoConfig, demo
 
-Examples:
-  seeu demo --out out/demo
-  seeu demo --out out/demo --steps 800          # train longer (re-uses synth, ingest and build)
-  seeu demo --out out/quick --frames 36 --size 320x180 --steps 60 --image-size 32
+    result = demo(DemoConfig(out=Path("out/quick"), frames=36, size=(320, 180), steps=60, image_size=(32, 32)))
+    result["report"], result["stages"]["eval"]["mean"]["trained_psnr"]
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import shutil
-import sys
 import time
+from dataclasses import dataclass, replace
 from pathlib import Path
-from pipelines.options import parse_dims
+
+from seeu_data.errors import SeeUError
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
 STAMP_FORMAT = 1
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", type=Path, default=Path("out/demo"), help="output directory (default out/demo)")
-    g = p.add_argument_group("synthetic clips")
-    g.add_argument("--frames", type=int, default=72, help="frames per synthetic clip (default 72)")
-    g.add_argument("--size", default="480x270", help="clip size WIDTHxHEIGHT (default 480x270)")
-    g.add_argument("--seed", type=int, default=0, help="scene seed of the training clip (default 0)")
-    g.add_argument(
-        "--heldout-seed",
-        type=int,
-        default=None,
-        help="scene seed of the held-out evaluation clip (default: --seed + 100)",
-    )
-    g = p.add_argument_group("training data and model")
-    g.add_argument(
-        "--image-size",
-        default="64",
-        metavar="HxW",
-        help="training/evaluation image size, built into the shards (default 64 = 64x64)",
-    )
-    g.add_argument(
-        "--train-samples", type=int, default=256, help="training triples drawn per posed chunk (default 256)"
-    )
-    g.add_argument(
-        "--eval-samples", type=int, default=8, help="held-out triples per evaluation set, interp and extrap (default 8)"
-    )
-    g.add_argument(
-        "--config",
-        default="demo",
-        help="training preset: a shipped preset's name or a config file (default demo = configs/demo.json)",
-    )
-    g.add_argument(
-        "--steps",
-        type=int,
-        default=None,
-        help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)",
-    )
-    g.add_argument(
-        "--lpips-weights",
-        default=None,
-        metavar="PATH",
-        help="torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; "
-        "LPIPS is skipped when it is missing)",
-    )
-    g.add_argument("--render-frames", type=int, default=30, help="frames per rendered camera path (default 30)")
-    p.add_argument("--force", action="store_true", help="redo every stage")
-    p.add_argument("--progress", action="store_true", help="show progress even when stderr is not a terminal")
+@dataclass(frozen=True)
+class DemoConfig:
+    """One `seeu demo` run.
+
+    out: the output directory; frames: frames per synthetic clip; size: the clips' (width, height);
+    seed / heldout_seed: scene seeds of the training and held-out clips (None: seed + 100);
+    image_size: training/evaluation (H, W), built into the shards; train_samples / eval_samples:
+    triples per posed chunk / per evaluation set; config: a training preset's name or a config file;
+    steps: training steps (None: the preset's optim.max_steps); lpips_weights: VGG-16 weights for
+    LPIPS (None: the torch hub cache; skipped when missing); render_frames: frames per camera path.
+    """
+
+    out: Path = Path("out/demo")
+    frames: int = 72
+    size: tuple[int, int] = (480, 270)
+    seed: int = 0
+    heldout_seed: int | None = None
+    image_size: tuple[int, int] = (64, 64)
+    train_samples: int = 256
+    eval_samples: int = 8
+    config: str | Path = "demo"
+    steps: int | None = None
+    lpips_weights: str | None = None
+    render_frames: int = 30
+    force: bool = False
+    progress: bool = False
+
+    @property
+    def heldout(self) -> int:
+        """The held-out clip's scene seed."""
+        return self.seed + 100 if self.heldout_seed is None else self.heldout_seed
+
+    def check(self) -> None:
+        if Path(self.out).exists() and not Path(self.out).is_dir():
+            raise SeeUError("--out must be a directory, but this is a file", self.out)
+        if self.frames < 24:
+            raise SeeUError(f"--frames must be at least 24 (SfM and the triple sampler need a walk), got {self.frames}")
+        if min(self.size) < 16:
+            raise SeeUError(f"--size {self.size[0]}x{self.size[1]}: sizes must be at least 16")
+        if min(self.image_size) < 16:
+            raise SeeUError(f"--image-size {self.image_size[0]}x{self.image_size[1]}: sizes must be at least 16")
+        if self.steps is not None and self.steps < 1:
+            raise SeeUError(f"--steps must be >= 1, got {self.steps}")
+        if self.train_samples < 1 or self.eval_samples < 1:
+            raise SeeUError("--train-samples and --eval-samples must be >= 1")
+        if self.render_frames < 2:
+            raise SeeUError("--render-frames must be >= 2")
+        if self.heldout == self.seed:
+            raise SeeUError("--heldout-seed must differ from --seed (the held-out scene must be unseen)")
 
 
 # ------------------------------------------------------------------------------------------------
@@ -164,10 +154,10 @@ def sampling_for(frames: int) -> dict:
 def stage_synth(ctx: dict, stages: Stages) -> dict:
     from seeu_data.synthetic import ClipConfig, write_clip
 
-    width, height = parse_dims(ctx["args"].size, "--size", minimum=16)
+    width, height = ctx["cfg"].size
     clips = {
-        "clip": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["args"].seed),
-        "heldout": ClipConfig(n_frames=ctx["args"].frames, width=width, height=height, seed=ctx["heldout_seed"]),
+        "clip": ClipConfig(n_frames=ctx["cfg"].frames, width=width, height=height, seed=ctx["cfg"].seed),
+        "heldout": ClipConfig(n_frames=ctx["cfg"].frames, width=width, height=height, seed=ctx["heldout_seed"]),
     }
 
     def fn() -> dict:
@@ -188,18 +178,15 @@ def stage_synth(ctx: dict, stages: Stages) -> dict:
     return stages.run(
         "synth",
         key,
-        f"rendering 2 clips ({ctx['args'].frames} frames at {width}x{height}): "
-        f"training scene seed {ctx['args'].seed}, held-out scene seed {ctx['heldout_seed']}",
+        f"rendering 2 clips ({ctx['cfg'].frames} frames at {width}x{height}): "
+        f"training scene seed {ctx['cfg'].seed}, held-out scene seed {ctx['heldout_seed']}",
         fn,
         lambda r: [v["video"] for v in r.values()],
     )
 
 
 def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
-    from dataclasses import asdict
-
-    from pipelines.ingest import IngestConfig, ingest_scene
-    from seeu_data.video import discover_sources
+    from pipelines.ingest import IngestConfig, ingest
 
     # The synthetic clips are rendered with an ideal pinhole camera (square pixels, centred principal
     # point), so SIMPLE_PINHOLE is the matching model. Ingest's SfM gives the same poses whatever the
@@ -207,14 +194,22 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     # differed, about one in four with ~5% camera-centre error); on 2 cores one thread costs little
     # (measured: 57-71 s vs 51-81 s per 72-frame clip).
     cfg = IngestConfig(
-        camera_model="SIMPLE_PINHOLE", threads=1, scale="median-depth"
-    )  # the demo model's tight near/far
+        inputs=(),
+        out=ctx["out"] / "posed",
+        camera_model="SIMPLE_PINHOLE",
+        threads=1,
+        scale="median-depth",  # the demo model's tight near/far
+        force=ctx["cfg"].force,
+        progress=ctx["progress"],
+        heartbeat_s=0,
+    )
 
     def fn() -> dict:
         out = {}
         for name, clip in synth.items():
-            (source,) = discover_sources([Path(clip["video"])])
-            report = ingest_scene(source, ctx["out"] / "posed", cfg, force=ctx["args"].force, progress=ctx["progress"])
+            (result,) = ingest(replace(cfg, inputs=(clip["video"],)))
+            report = result.report
+            assert report is not None  # a single input's error raises
             print(f"      {report['summary']}", flush=True)
             out[name] = {
                 "posed": report["output"],
@@ -228,7 +223,7 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
             }
         return out
 
-    key = {"synth": stages.hash("synth"), "ingest": asdict(cfg)}
+    key = {"synth": stages.hash("synth"), "ingest": cfg.params()}
     return stages.run(
         "ingest",
         key,
@@ -239,12 +234,12 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
 
 
 def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
-    from pipelines.inspect_cmd import contact_sheet
+    from pipelines.inspect_triples import contact_sheet
     from seeu_data.build import BuildConfig, build
     from seeu_data.sampling import SamplingConfig
     from seeu_data.triples import ImageOptions
 
-    a = ctx["args"]
+    a = ctx["cfg"]
     hw = ctx["image_hw"]
     s = sampling_for(a.frames)
     shards = ctx["out"] / "shards"
@@ -328,16 +323,16 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
 def train_overrides(ctx: dict) -> list[str]:
     hw = ctx["image_hw"]
     ov = [f"data.image_size=[{hw[0]},{hw[1]}]", "data.num_workers=0"]
-    if ctx["args"].steps is not None:
-        ov.append(f"optim.max_steps={ctx['args'].steps}")
+    if ctx["cfg"].steps is not None:
+        ov.append(f"optim.max_steps={ctx['cfg'].steps}")
     return ov
 
 
 def stage_train(ctx: dict, stages: Stages, build: dict) -> dict:
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
     from seeu_model.training.config import load_config, read_config_file
 
-    a = ctx["args"]
+    a = ctx["cfg"]
     ov = train_overrides(ctx)
     cfg = load_config(a.config, ov)
     steps = cfg.optim.max_steps
@@ -359,15 +354,17 @@ def stage_train(ctx: dict, stages: Stages, build: dict) -> dict:
             run_dir.mkdir(parents=True)
             atomic_write_text(key_file, key_hash(key) + "\n")
         res = train(
-            build["train"]["path"],
-            run_dir,
-            config=a.config,
-            overrides=ov_run,
-            val=build["eval_interp"]["path"],
-            resume=True,
-            no_lpips=True,
-            device="cpu",
-            progress=ctx["progress"],
+            TrainRunConfig(
+                data=build["train"]["path"],
+                out=run_dir,
+                config=a.config,
+                overrides=tuple(ov_run),
+                val=build["eval_interp"]["path"],
+                resume=True,
+                lpips=False,
+                device="cpu",
+                progress=ctx["progress"],
+            )
         )
         return {
             "run": str(run_dir),
@@ -407,7 +404,7 @@ def _lpips_module(weights: str | None, build: bool = True):
 
 
 def stage_eval(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
-    a = ctx["args"]
+    a = ctx["cfg"]
     eval_dir = ctx["out"] / "eval"
     figures = ctx["out"] / "figures"
     lpips_state = _lpips_module(a.lpips_weights, build=False)[1]
@@ -560,22 +557,24 @@ def render_grid(renders: dict, path: Path) -> None:
 
 
 def stage_render(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
-    from pipelines.render import render
+    from pipelines.render import RenderConfig, render
 
-    a = ctx["args"]
+    a = ctx["cfg"]
     out = ctx["out"] / "render"
 
     def fn() -> dict:
         _remove(out)
         rep = render(
-            trained["checkpoint"],
-            out,
-            data=build["eval_extrap"]["path"],
-            sample="0",
-            frames=a.render_frames,
-            extrapolate=0.5,
-            fps=10.0,
-            device="cpu",
+            RenderConfig(
+                checkpoint=trained["checkpoint"],
+                out=out,
+                data=build["eval_extrap"]["path"],
+                sample="0",
+                frames=a.render_frames,
+                extrapolate=0.5,
+                fps=10.0,
+                device="cpu",
+            )
         )
         return {
             "dir": str(out),
@@ -826,7 +825,7 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
     L += [
         "## Re-run",
         "",
-        f"`seeu demo --out {ctx['args'].out}` again reuses every finished stage; `--force` redoes them; "
+        f"`seeu demo --out {ctx['cfg'].out}` again reuses every finished stage; `--force` redoes them; "
         "`--steps N` retrains (and re-evaluates) while keeping the clips, poses and shards.",
         "",
     ]
@@ -838,38 +837,27 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
 # ------------------------------------------------------------------------------------------------
 
 
-def run(args: argparse.Namespace) -> int:
-    from seeu_data.errors import SeeUError
-
-    t0 = time.perf_counter()
-    if args.out.exists() and not args.out.is_dir():
-        raise SeeUError("--out must be a directory, but this is a file", args.out)
-    if args.frames < 24:
-        raise SeeUError(f"--frames must be at least 24 (SfM and the triple sampler need a walk), got {args.frames}")
-    if args.steps is not None and args.steps < 1:
-        raise SeeUError(f"--steps must be >= 1, got {args.steps}")
-    if args.train_samples < 1 or args.eval_samples < 1:
-        raise SeeUError("--train-samples and --eval-samples must be >= 1")
-    if args.render_frames < 2:
-        raise SeeUError("--render-frames must be >= 2")
+def demo(cfg: DemoConfig) -> dict:
+    """Run (or resume) every stage; returns {"report": OUT/report.md, "stages": each stage's result,
+    "seconds": this run's time}. Prints one line per stage as it goes."""
     from seeu_model.training.config import resolve_config
 
-    args.config = resolve_config(args.config)
-    heldout_seed = args.seed + 100 if args.heldout_seed is None else args.heldout_seed
-    if heldout_seed == args.seed:
-        raise SeeUError("--heldout-seed must differ from --seed (the held-out scene must be unseen)")
+    t0 = time.perf_counter()
+    cfg.check()
+    cfg = replace(cfg, config=resolve_config(cfg.config))
+    out = Path(cfg.out)
     try:
-        args.out.mkdir(parents=True, exist_ok=True)
+        out.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
-        raise SeeUError(f"cannot create the output directory ({exc.strerror})", args.out) from None
+        raise SeeUError(f"cannot create the output directory ({exc.strerror})", out) from None
     ctx = {
-        "args": args,
-        "out": args.out,
-        "progress": args.progress or sys.stderr.isatty(),
-        "image_hw": parse_dims(args.image_size, "--image-size", minimum=16),
-        "heldout_seed": heldout_seed,
+        "cfg": cfg,
+        "out": out,
+        "progress": cfg.progress,
+        "image_hw": tuple(cfg.image_size),
+        "heldout_seed": cfg.heldout,
     }
-    stages = Stages(args.out, args.force)
+    stages = Stages(out, cfg.force)
     r: dict = {}
     r["synth"] = stage_synth(ctx, stages)
     r["ingest"] = stage_ingest(ctx, stages, r["synth"])
@@ -877,26 +865,10 @@ def run(args: argparse.Namespace) -> int:
     r["train"] = stage_train(ctx, stages, r["build"])
     r["eval"] = stage_eval(ctx, stages, r["build"], r["train"])
     r["render"] = stage_render(ctx, stages, r["build"], r["train"])
-    print(f"[7/7] report: writing {args.out / 'report.md'}", flush=True)
+    print(f"[7/7] report: writing {out / 'report.md'}", flush=True)
     t_rep = time.perf_counter()
     stages.info["report"] = {"seconds": 0.0, "reused": False}
     report = write_report(ctx, stages, r)
     stages.info["report"]["seconds"] = time.perf_counter() - t_rep
     report = write_report(ctx, stages, r)  # again, with its own time in the table
-    mean = r["eval"]["mean"]
-    print(
-        f"\nHeld-out PSNR {mean['init_psnr']:.2f} dB at initialisation -> {mean['trained_psnr']:.2f} dB trained "
-        f"({mean['gain_psnr_db']:+.2f} dB) after {r['train']['step']} steps; demo took "
-        f"{time.perf_counter() - t0:.0f} s this run."
-    )
-    rows = [
-        (report, "the report: timings, SfM accuracy, shards, training curve, renders vs ground truth, metrics"),
-        (r["eval"]["metrics_json"], "held-out metrics, initial vs trained"),
-        (r["render"]["extrap_mp4"], "novel views along an extrapolated camera path"),
-        (r["render"]["ply"], "the predicted 3D Gaussians (standard 3DGS .ply)"),
-    ]
-    width = max(len(str(p)) for p, _ in rows)
-    print("Look at:")
-    for p, what in rows:
-        print(f"  {str(p):<{width}}  {what}")
-    return 0
+    return {"report": report, "stages": r, "seconds": time.perf_counter() - t0}

@@ -1,59 +1,70 @@
-"""Generate an evaluation index for your own posed data (seeded), in the peers' formats.
+"""Evaluation indices for your own posed data (`seeu index`), in the peers' JSON formats.
 
-pixelsplat: {scene: {"context": [l, r], "target": [t1, t2, t3]} | null}  (one entry per scene)
-latentsplat: {scene: [entry, ...]}  (--samples-per-scene entries per scene)
-Scenes too short for the gaps get null. With --min-overlap / --max-overlap the context pair is
-redrawn until the two views' frustum overlap (a pixel grid unprojected at --overlap-depth, default
-sqrt(near * far), seen by the other camera; the smaller of both directions) falls in the window.
-The index is read back by `seeu build --mode eval --index FILE`.
+pixelsplat: {scene: {"context": [l, r], "target": [t1, t2, t3]} | null} (one entry per scene);
+latentsplat: {scene: [entry, ...]}. The entries are drawn by `seeu_data.eval_index.generate_entries`
+(seeded; context pairs redrawn until their frustum overlap is in the window) and read back by
+`seeu build --mode eval --index FILE`.
 
-Examples:
-  seeu index data/posed/clip --out data/clip_eval.json --gap-min 30 --gap-max 60 --seed 0
-  seeu index data/posed/clip --out data/clip_extra.json --format latentsplat --mode extrap \\
-      --extrap-frames 45 --samples-per-scene 3 --min-overlap 0.3 --max-overlap 0.9
+Example:
+    from pathlib import Path
+    from pipelines.index import IndexFileConfig, write_index
+    from seeu_data.eval_index import IndexConfig
+    from seeu_data.sampling import SamplingConfig
+
+    cfg = IndexFileConfig(inputs=("data/posed/clip",), out=Path("data/clip_eval.json"),
+                          generation=IndexConfig(SamplingConfig(gap_min=30, gap_max=60), min_overlap=0.3))
+    summary = write_index(cfg)      # {"scenes": ..., "scenes_with_entries": ..., "entries": ...}
 """
 
 from __future__ import annotations
 
-import argparse
+import dataclasses
 import json
+from dataclasses import dataclass
+from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.eval_index import IndexConfig
+
+FORMATS = ("pixelsplat", "latentsplat")
 
 
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    from pipelines.build import add_sampling_arguments
+@dataclass(frozen=True)
+class IndexFileConfig:
+    """inputs: posed-frames directories; out: the JSON file; format: pixelsplat (one entry per scene)
+    or latentsplat (`generation.sampling.samples_per_scene` per scene); seed: the draw's seed."""
 
-    p.add_argument("inputs", nargs="+", help="posed-frames directories")
-    p.add_argument("--out", required=True, help="index JSON file to write")
-    p.add_argument("--format", choices=["pixelsplat", "latentsplat"], default="pixelsplat")
-    p.add_argument("--mode", choices=["interp", "extrap"], default="interp", help="where targets lie")
-    add_sampling_arguments(p)
-    g = p.add_argument_group("context overlap")
-    g.add_argument("--min-overlap", type=float, default=0.0, help="smallest allowed context view overlap (0..1)")
-    g.add_argument("--max-overlap", type=float, default=1.0, help="largest allowed context view overlap (0..1)")
-    g.add_argument(
-        "--overlap-depth", type=float, default=None, help="depth of the overlap test (default sqrt(near*far))"
-    )
+    inputs: tuple[str | Path, ...]
+    out: Path
+    generation: IndexConfig
+    format: str = "pixelsplat"
+    seed: int = 0
+
+    def check(self) -> None:
+        if self.format not in FORMATS:
+            raise SeeUError(f"--format must be one of {', '.join(FORMATS)}, got {self.format!r}")
+        g = self.generation
+        if not 0.0 <= g.min_overlap <= g.max_overlap <= 1.0:
+            raise SeeUError("need 0 <= --min-overlap <= --max-overlap <= 1")
+        if g.overlap_depth is not None and not g.overlap_depth > 0:
+            raise SeeUError(f"--overlap-depth must be > 0, got {g.overlap_depth}")
 
 
-def run(args: argparse.Namespace) -> int:
-    import dataclasses
-
+def write_index(cfg: IndexFileConfig) -> dict:
+    """Draw the entries of every scene of `cfg.inputs` and write `cfg.out` (atomically); returns counts."""
     import numpy as np
 
-    from pipelines.build import sampling_config
     from seeu_data.arrow_io import atomic_write_text, open_ipc_file
     from seeu_data.build import scan_inputs
-    from seeu_data.eval_index import IndexConfig, generate_entries, index_document
+    from seeu_data.eval_index import generate_entries, index_document
 
-    if not 0.0 <= args.min_overlap <= args.max_overlap <= 1.0:
-        raise SeeUError("need 0 <= --min-overlap <= --max-overlap <= 1")
-    sampling = sampling_config(args, args.mode)
-    if args.format == "pixelsplat":
-        sampling = dataclasses.replace(sampling, samples_per_scene=1)
-    cfg = IndexConfig(sampling, args.min_overlap, args.max_overlap, args.overlap_depth)
-    scenes = scan_inputs(args.inputs)
+    cfg.check()
+    generation = cfg.generation
+    if cfg.format == "pixelsplat":
+        generation = dataclasses.replace(
+            generation, sampling=dataclasses.replace(generation.sampling, samples_per_scene=1)
+        )
+    scenes = scan_inputs([str(p) for p in cfg.inputs])
     tables: dict = {}
     per_scene = {}
     for sid in sorted(scenes):
@@ -66,13 +77,12 @@ def run(args: argparse.Namespace) -> int:
         c2w = rows.column("cam_to_world").combine_chunks().flatten().to_numpy().reshape(-1, 4, 4)
         intr = rows.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
         near, far = float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
-        per_scene[sid] = generate_entries(cfg, sid, np.asarray(c2w), np.asarray(intr), near, far, args.seed)
-    doc = index_document(per_scene, args.format)
-    atomic_write_text(args.out, json.dumps(doc) + "\n")
+        per_scene[sid] = generate_entries(generation, sid, np.asarray(c2w), np.asarray(intr), near, far, cfg.seed)
+    doc = index_document(per_scene, cfg.format)
+    atomic_write_text(cfg.out, json.dumps(doc) + "\n")
     used = sum(1 for v in per_scene.values() if v)
-    entries = sum(len(v) for v in per_scene.values() if v)
-    print(
-        f"wrote {args.out}: {len(doc)} scenes, {used} with entries "
-        f"({entries if args.format == 'latentsplat' else used} entries), {len(doc) - used} null"
-    )
-    return 0
+    return {
+        "scenes": len(doc),
+        "scenes_with_entries": used,
+        "entries": sum(len(v) for v in per_scene.values() if v) if cfg.format == "latentsplat" else used,
+    }

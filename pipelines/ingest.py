@@ -1,219 +1,155 @@
-"""Pose a video, an image folder, or a folder of videos with COLMAP SfM and write posed chunks.
+"""The ingest stage: a video, an image folder or a folder of videos -> posed chunks (COLMAP SfM).
 
-Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parameters, so re-running
-the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
-(--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
-process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
-detection only with --vocab-tree, --mapper incremental/global/auto, mapping twice from different
-seeds for the solution check, undistortion to a pinhole camera of the same size when the model has
-distortion; the same poses whatever --threads; --size HxW crops/resizes afterwards)
--> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
-re10k, median-depth or metric, seeu_data/scale.py) -> OUT/<scene>/ posed-frames dataset
-(scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
-<scene> is the input's name or --name; OUT/<scene> holding another input's scene is an error
-unless --force. Warnings (failed solution check, low parallax) end the summary line.
+`ingest(IngestConfig(...))` runs every input (several at once with `workers`); `ingest_scene` runs
+one. Per scene, stages are kept under OUT/.work/<scene>/ with a stamp of their inputs and parameters,
+so a re-run resumes (`force` redoes them): decode -> select frames -> SfM in a child process ->
+posed chunks -> OUT/<scene>/ posed-frames dataset with report.json and trajectory.png, manifest.json
+written last. `seeu ingest --help` describes every parameter; the flags map one to one onto the
+fields of `IngestConfig` (`--max-features` -> `max_features`, `--no-sfm-check` -> `sfm_check=False`).
 
 Example:
-  seeu ingest clip.mp4 --out data/posed --target-frames 120
-  seeu ingest videos/ photos/ --out data/posed --workers 2 --camera-model OPENCV
-  seeu ingest trip2/images --out data/posed --name trip2
-  seeu ingest walk.mp4 --out data/posed --scale metric --known-distance 4.2     # first-to-last camera: 4.2 m
-  seeu ingest videos/ --out /shared/posed --engine ray --ray-address auto --threads 2   # one scene per Ray task
-  seeu validate data/posed/clip
+    from pathlib import Path
+    from pipelines.ingest import IngestConfig, ingest
+
+    (result,) = ingest(IngestConfig(inputs=("clip.mp4",), out=Path("data/posed"), target_frames=120))
+    print(result.report["summary"])          # also OUT/clip/report.json
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import os
 import re
-import sys
 import time
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-from pipelines.options import parse_dims
+from typing import Callable
 
+from pipelines.ingest_ray import SceneResult
+from seeu_data.errors import SeeUError
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
 SFM_STAGE_FORMAT = 6
 
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("inputs", nargs="+", metavar="INPUT", help="video file, folder of images, or folder of videos")
-    p.add_argument("--out", required=True, type=Path, help="output directory; one dataset per scene: OUT/<scene>/")
-    p.add_argument(
-        "--name",
-        default=None,
-        help="scene name for a single input (default: the file's or folder's name; inputs sharing a "
-        "name get their parent folder's name in front: a/images, b/images -> a-images, b-images)",
-    )
-    p.add_argument("--stride", type=int, default=1, help="keep every N-th decoded frame (default 1)")
-    p.add_argument(
-        "--target-frames", type=int, default=None, help="then keep this many frames, evenly spaced (default: all)"
-    )
-    p.add_argument(
-        "--sharpness-window",
-        type=int,
-        default=0,
-        help="drop the blurriest frame in each window of N candidates (0 = off)",
-    )
-    p.add_argument("--max-size", type=int, default=None, help="downscale so the longer side is at most N pixels")
-    p.add_argument(
-        "--size",
-        default=None,
-        metavar="HxW",
-        help="make the posed frames exactly HxW: resize to cover + centre crop after SfM (intrinsics "
-        "updated), e.g. 360x640 for the peers' RE10K loaders; default: the (undistorted) frame size",
-    )
-    p.add_argument(
-        "--camera-model",
-        default="SIMPLE_RADIAL",
-        choices=["PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
-        help="shared camera model; models with distortion are undistorted (default SIMPLE_RADIAL)",
-    )
-    p.add_argument("--overlap", type=int, default=10, help="sequential matching overlap in frames (default 10)")
-    p.add_argument(
-        "--vocab-tree", type=Path, default=None, help="vocabulary-tree file: enables loop detection (off without one)"
-    )
-    p.add_argument(
-        "--mapper",
-        choices=["incremental", "global", "auto"],
-        default="incremental",
-        help="COLMAP incremental mapping (default), GLOMAP global mapping, or auto: incremental when "
-        ">= 90%% of consecutive frames match (a video), else global (recorded in report.json)",
-    )
-    p.add_argument(
-        "--features",
-        choices=["sift", "aliked"],
-        default="sift",
-        help="feature type (default sift; aliked needs a pycolmap built with ONNX, checked up front)",
-    )
-    p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
-    p.add_argument(
-        "--scale",
-        choices=["re10k", "median-depth", "metric"],
-        default="re10k",
-        help="scale convention, recorded in each chunk's meta: re10k (default; 5th-percentile point depth "
-        "= 2, near/far 1/100 as the pixelSplat/MVSplat RealEstate10K setup), median-depth (median "
-        "point depth = 1, near/far from the points), metric (metres, needs --known-distance)",
-    )
-    p.add_argument(
-        "--known-distance",
-        type=float,
-        default=None,
-        metavar="METRES",
-        help="--scale metric: real distance between the cameras of the first and last frame (or of --distance-frames)",
-    )
-    p.add_argument(
-        "--distance-frames",
-        type=_frame_pair,
-        default=None,
-        metavar="A,B",
-        help="--scale metric: the two source frame numbers --known-distance is measured between",
-    )
-    p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
-    p.add_argument(
-        "--sfm-attempts",
-        type=int,
-        default=3,
-        help="re-run incremental mapping with the next seed while it registers < 80%% of the frames, "
-        "keeping the run that registers most (default 3 runs at most)",
-    )
-    p.add_argument(
-        "--no-sfm-check",
-        action="store_true",
-        help="skip the solution check (a second mapping from the next seed whose camera centres must "
-        "agree within 1%% of the path; mapping takes about twice as long with it)",
-    )
-    p.add_argument("--workers", type=int, default=1, help="local engine: scenes processed in parallel (default 1)")
-    p.add_argument(
-        "--engine",
-        choices=["local", "ray"],
-        default="local",
-        help="local processes (default) or Ray: one scene per task, as many at once as the cluster's "
-        "CPUs allow; the same posed files",
-    )
-    p.add_argument(
-        "--ray-address",
-        default=None,
-        help="--engine ray: a running cluster (host:port, or auto); default: start a local instance",
-    )
-    p.add_argument(
-        "--threads",
-        type=int,
-        default=-1,
-        help="COLMAP threads per scene for feature extraction (default: all cores / workers; 1 with "
-        "--engine ray, where each task reserves max(--threads, --map-threads) CPUs); results do not depend on it",
-    )
-    p.add_argument(
-        "--map-threads",
-        type=int,
-        default=1,
-        help="threads for matching and mapping (default 1: poses identical run after run; more speeds up "
-        "them on large inputs, but results then depend on thread timing; -1 = all cores)",
-    )
-    p.add_argument(
-        "--force",
-        action="store_true",
-        help="redo every stage instead of resuming, and replace OUT/<scene> even when it holds another input's scene",
-    )
-    p.add_argument(
-        "--heartbeat",
-        type=float,
-        default=None,
-        metavar="SECONDS",
-        help="when stderr is not a terminal, print a status line every SECONDS (default 10; 0 = off)",
-    )
-    p.add_argument("--progress", action="store_true", help="show progress bars even when stderr is not a terminal")
-    p.add_argument(
-        "--fsync",
-        action="store_true",
-        help="fsync every output file before its rename (durable across a power loss; slower). "
-        "Default: atomic renames only, a torn file is caught by the manifest sha256; also SEEU_FSYNC=1",
-    )
-
-
-def _frame_pair(text: str) -> tuple[int, int]:
-    try:
-        a, b = (int(v) for v in text.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"not two frame numbers A,B: {text!r}") from None
-    return a, b
+# Fields of IngestConfig that say where and how a run goes, not what it computes: not recorded in
+# the manifests' params.
+RUN_FIELDS = ("inputs", "out", "name", "engine", "ray_address", "workers", "force", "progress", "heartbeat_s", "fsync")
 
 
 @dataclass(frozen=True)
 class IngestConfig:
-    """All parameters of one ingest run (recorded in each manifest's params)."""
+    """Everything `seeu ingest` needs; `params()` (recorded in each manifest) leaves out `RUN_FIELDS`.
 
+    inputs: video files, image folders or folders of videos; out: OUT (one dataset per scene:
+    OUT/<scene>/); name: the scene name of a single input. engine: local (`workers` scenes at once in
+    worker processes) or ray (one scene per Ray task on the cluster at `ray_address`, None: a local
+    instance; `pipelines/ingest_ray.py`). threads: COLMAP extraction threads per scene (-1: all cores
+    / workers; 1 on Ray, where each task reserves max(threads, map_threads) CPUs); heartbeat_s: a status line on stderr this often while no progress
+    bars are shown (None: $SEEU_HEARTBEAT_S, else 10 s; 0: off); progress: tqdm bars.
+    """
+
+    inputs: tuple[str | Path, ...]
+    out: Path
+    name: str | None = None
+    # decode and frame selection
     stride: int = 1
     target_frames: int | None = None
     sharpness_window: int = 0
     max_size: int | None = None
+    size: tuple[int, int] | None = None  # (H, W) of the written frames: cover-resize + centre crop after SfM
+    jpeg_quality: int = 95
+    # SfM (seeu_data.sfm.SfmConfig: the same names)
     camera_model: str = "SIMPLE_RADIAL"
     overlap: int = 10
     vocab_tree: str | None = None
-    min_chunk_frames: int = 10
-    max_features: int = 8192
-    threads: int = -1
-    sfm_attempts: int = 3
-    sfm_check: bool = True
-    map_threads: int = 1
-    jpeg_quality: int = 95
-    scale: str = "re10k"
     mapper: str = "incremental"
     features: str = "sift"
+    max_features: int = 8192
+    sfm_attempts: int = 3
+    sfm_check: bool = True
+    threads: int = -1
+    map_threads: int = 1
+    # posed chunks and their scale
+    min_chunk_frames: int = 10
+    scale: str = "re10k"
     known_distance: float | None = None
     distance_frames: tuple[int, int] | None = None
-    size: tuple[int, int] | None = None
-    extra: dict = field(default_factory=dict)
+    # the run
+    engine: str = "local"
+    ray_address: str | None = None
+    workers: int = 1
+    force: bool = False
+    progress: bool = False
+    heartbeat_s: float | None = None
+    fsync: bool = False
+
+    def check(self) -> None:
+        """One-line SeeUError for a bad value, before any scene starts (e.g. ALIKED without ONNX)."""
+        if not self.inputs:
+            raise SeeUError("no input given")
+        if self.workers < 1:
+            raise SeeUError(f"--workers must be >= 1, got {self.workers}")
+        if self.engine not in ("local", "ray"):
+            raise SeeUError(f"--engine must be local or ray, got {self.engine!r}")
+        if self.engine == "ray" and self.workers != 1:
+            raise SeeUError("--workers is for the local engine; on Ray each scene is a task that takes --threads CPUs")
+        if self.engine == "local" and self.ray_address is not None:
+            raise SeeUError("--ray-address needs --engine ray")
+        if self.engine == "ray":
+            from pipelines.ingest_ray import task_cpus
+
+            task_cpus(1 if self.threads == -1 else self.threads, self.map_threads)  # positive, before Ray starts
+        if self.name is not None and not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", self.name):
+            raise SeeUError(f"--name must be letters, digits, '_', '-', '.' (not first), got {self.name!r}")
+        if not 1 <= self.jpeg_quality <= 100:
+            raise SeeUError(f"JPEG quality must be in 1..100, got {self.jpeg_quality}")
+        if self.threads == 0 or self.threads < -1:
+            raise SeeUError(f"--threads must be >= 1 or -1 (all cores / workers), got {self.threads}")
+        if self.heartbeat_s is not None and not self.heartbeat_s >= 0:
+            raise SeeUError(f"--heartbeat must be >= 0 seconds, got {self.heartbeat_s}")
+        self.select_config().check()
+        self.chunk_config().check()
+        self.sfm_config().check()
+
+    def params(self) -> dict:
+        """The processing parameters (recorded in each manifest's params)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in RUN_FIELDS}
+
+    def select_config(self):
+        from seeu_data.frame_select import SelectConfig
+
+        return SelectConfig(self.stride, self.sharpness_window, self.target_frames)
+
+    def chunk_config(self):
+        from seeu_data.chunks import ChunkConfig
+        from seeu_data.scale import ScaleConfig
+
+        return ChunkConfig(
+            min_chunk_frames=self.min_chunk_frames,
+            scale=ScaleConfig(self.scale, self.known_distance, self.distance_frames),
+        )
+
+    def sfm_config(self):
+        from seeu_data.sfm import SfmConfig
+
+        return SfmConfig(
+            camera_model=self.camera_model,
+            overlap=self.overlap,
+            vocab_tree=None if self.vocab_tree is None else str(Path(self.vocab_tree).resolve()),
+            min_model_size=max(3, min(self.min_chunk_frames, 10)),
+            max_num_features=self.max_features,
+            num_threads=self.threads,
+            mapping_attempts=self.sfm_attempts,
+            mapper=self.mapper,
+            features=self.features,
+            solution_check=self.sfm_check,
+            mapping_threads=self.map_threads,
+        )
 
 
 def _encode_jpeg(rgb, quality: int) -> bytes:
     import cv2
-
-    from seeu_data.errors import SeeUError
 
     ok, buf = cv2.imencode(".jpg", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR), [cv2.IMWRITE_JPEG_QUALITY, quality])
     if not ok:  # pragma: no cover
@@ -225,7 +161,6 @@ def _decode_stage(source, cfg: IngestConfig, prog):
     """Stage function: decode every stride-th frame, resize, write JPEGs + per-frame metadata."""
 
     from seeu_data.arrow_io import atomic_write_bytes
-    from seeu_data.errors import SeeUError
     from seeu_data.video import iter_frames, probe_video, resize_max_side, sharpness
 
     def fn(d: Path) -> dict:
@@ -233,13 +168,14 @@ def _decode_stage(source, cfg: IngestConfig, prog):
         frames_dir.mkdir()
         in_source = probe_video(source.path).frame_count if source.kind == "video" else len(source.image_files)
         total = -(-in_source // cfg.stride)
-        frames, size = [], None
+        frames: list[dict] = []
+        size: tuple[int, int] | None = None
         prog.stage("decode", total)
         for fr in iter_frames(source, cfg.stride):
             prog.advance()
             rgb = resize_max_side(fr.rgb, cfg.max_size)
             if size is None:
-                size = rgb.shape[:2]
+                size = (int(rgb.shape[0]), int(rgb.shape[1]))
             elif rgb.shape[:2] != size:
                 where = source.path / fr.source_name if fr.source_name else source.path
                 raise SeeUError(
@@ -258,7 +194,7 @@ def _decode_stage(source, cfg: IngestConfig, prog):
                     "sharpness": sharpness(rgb),
                 }
             )
-        if not frames:
+        if not frames or size is None:
             raise SeeUError("no frames decoded", source.path)
         return {"frames": frames, "width": int(size[1]), "height": int(size[0]), "frames_in_source": int(in_source)}
 
@@ -269,7 +205,6 @@ def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, 
     """Accuracy against a synthetic clip's ground-truth JSON lying beside the video, if there is one."""
     import numpy as np
 
-    from seeu_data.errors import SeeUError
     from seeu_data.pose_eval import pose_accuracy
     from seeu_data.synthetic import ground_truth_path, load_ground_truth
 
@@ -280,10 +215,11 @@ def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, 
     except (SeeUError, ValueError, KeyError):
         return None
     index = {int(f): i for i, f in enumerate(gt["frame"])}
+    per_chunk: list[dict] = []
     out = {
         "file": str(ground_truth_path(source.path)),
         "registered_pct": 100.0 * registered / max(selected, 1),
-        "chunks": [],
+        "chunks": per_chunk,
     }
     for ch in chunks:
         src = [frames[p]["source_frame"] for p in ch.frame_positions]
@@ -301,8 +237,10 @@ def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, 
                 mapped["cy"] / mapped["height"],
             ]
         )
-        acc = pose_accuracy(ch.cam_to_world, gt["cam_to_world"][rows], [intr] * len(rows), gt["intrinsics_norm"][rows])
-        out["chunks"].append({"scene_id": ch.scene_id, **acc.as_dict()})
+        acc = pose_accuracy(
+            ch.cam_to_world, gt["cam_to_world"][rows], np.tile(intr, (len(rows), 1)), gt["intrinsics_norm"][rows]
+        )
+        per_chunk.append({"scene_id": ch.scene_id, **acc.as_dict()})
     return out
 
 
@@ -318,8 +256,6 @@ def check_scene_owner(out_dir: Path, identity: dict, force: bool) -> None:
     identity is read from the scene's report.json (`input_identity`, or `input` for older reports).
     A dataset without an ingest report counts as another input's.
     """
-    from seeu_data.errors import SeeUError
-
     if force or not out_dir.exists():
         return
     report_path = out_dir / "report.json"
@@ -340,29 +276,36 @@ def check_scene_owner(out_dir: Path, identity: dict, force: bool) -> None:
     raise SeeUError(f"already holds a {what}; choose another --name or --out, or --force to replace it", out_dir)
 
 
-def ingest_scene(
-    source, out_root: Path, cfg: IngestConfig, force: bool = False, progress: bool = False, heartbeat_s: float = 0.0
-) -> dict:
-    """Run every stage for one scene; returns its report (also written to OUT/<scene>/report.json).
+def heartbeat_seconds(cfg: IngestConfig) -> float:
+    """Seconds between status lines: none while progress bars show; else `heartbeat_s`, $SEEU_HEARTBEAT_S or 10."""
+    if cfg.progress:
+        return 0.0
+    return cfg.heartbeat_s if cfg.heartbeat_s is not None else float(os.environ.get("SEEU_HEARTBEAT_S", "10"))
 
-    `progress`: tqdm bars; `heartbeat_s` > 0: a status line on stderr that often (`StageProgress`).
-    Raises SeeUError when OUT/<scene> holds another input's scene and not `force`.
+
+def ingest_scene(source, cfg: IngestConfig) -> dict:
+    """Run every stage for one scene (`source`: a `seeu_data.video.SceneSource`) into cfg.out/<name>/;
+    returns its report (also written to OUT/<scene>/report.json, with `summary`: the one-line result).
+
+    Raises SeeUError for bad input, and when OUT/<scene> holds another input's scene and not `cfg.force`.
     """
+    from seeu_data.arrow_io import fsync_policy
     from seeu_data.progress import StageProgress
 
-    out_dir = out_root / source.name
+    out_dir = Path(cfg.out) / source.name
     identity = input_identity(source)
-    check_scene_owner(out_dir, identity, force)
-    with StageProgress(f"seeu ingest: {source.name}", bar=progress, heartbeat_s=heartbeat_s) as prog:
-        return _ingest_scene(source, out_root, cfg, force, prog, identity)
+    check_scene_owner(out_dir, identity, cfg.force)
+    label = f"seeu ingest: {source.name}"
+    with fsync_policy(True if cfg.fsync else None):
+        with StageProgress(label, bar=cfg.progress, heartbeat_s=heartbeat_seconds(cfg)) as prog:
+            return _ingest_scene(source, Path(cfg.out), cfg, cfg.force, prog, identity)
 
 
 def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
     import numpy as np
 
-    from seeu_data.chunks import ChunkConfig, plan_chunks
-    from seeu_data.errors import SeeUError
-    from seeu_data.frame_select import SelectConfig, select_frames
+    from seeu_data.chunks import plan_chunks
+    from seeu_data.frame_select import select_frames
     from seeu_data.ingest_report import (
         baseline_over_depth,
         mean_reprojection_error,
@@ -375,33 +318,16 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     from seeu_data.points import write_chunk_points
     from seeu_data.posed import PosedDatasetWriter, PosedScene
     from seeu_data.resize import resize_scene
-    from seeu_data.scale import ScaleConfig, distance_frame_names
-    from seeu_data.sfm import SfmConfig, run_sfm
+    from seeu_data.scale import distance_frame_names
+    from seeu_data.sfm import run_sfm
     from seeu_data.stages import StageCache, key_hash
 
     t_start = time.perf_counter()
     out_dir = out_root / source.name
     (out_dir / MANIFEST_NAME).unlink(missing_ok=True)  # being redone: must not look complete meanwhile
-    select_cfg = SelectConfig(cfg.stride, cfg.sharpness_window, cfg.target_frames)
-    select_cfg.check()
-    chunk_cfg = ChunkConfig(
-        min_chunk_frames=cfg.min_chunk_frames, scale=ScaleConfig(cfg.scale, cfg.known_distance, cfg.distance_frames)
-    )
-    chunk_cfg.check()
-    sfm_cfg = SfmConfig(
-        camera_model=cfg.camera_model,
-        overlap=cfg.overlap,
-        vocab_tree=None if cfg.vocab_tree is None else str(Path(cfg.vocab_tree).resolve()),
-        min_model_size=max(3, min(cfg.min_chunk_frames, 10)),
-        max_num_features=cfg.max_features,
-        num_threads=cfg.threads,
-        mapping_attempts=cfg.sfm_attempts,
-        mapper=cfg.mapper,
-        features=cfg.features,
-        solution_check=cfg.sfm_check,
-        mapping_threads=cfg.map_threads,
-    )
-    sfm_cfg.check()
+    select_cfg = cfg.select_config()
+    chunk_cfg = cfg.chunk_config()
+    sfm_cfg = cfg.sfm_config()
     cache = StageCache(out_root / ".work" / source.name, force=force)
 
     decode_key = {
@@ -466,7 +392,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     for c in chunks:
         c.meta["baseline_over_depth"] = baseline_over_depth(c.cam_to_world)
         c.meta["sfm_solution_check"] = check_state
-    params = {**asdict(cfg), "inputs": [str(source.path)], "sfm": asdict(sfm_cfg)}
+    params = {**cfg.params(), "inputs": [str(source.path)], "sfm": asdict(sfm_cfg)}
     prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=identity["fingerprint"])
     report = {
         "scene": source.name,
@@ -580,130 +506,62 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     return report
 
 
-def _scene_worker(payload: tuple) -> tuple[str, dict | None, str | None]:
-    """Process-pool entry: (name, report, error line)."""
-    from seeu_data.errors import SeeUError
-
-    source, out_root, cfg, force, heartbeat_s = payload
+def _scene_worker(payload: tuple) -> SceneResult:
+    """Process-pool entry: one scene -> its SceneResult (a SeeUError becomes the result's error)."""
+    source, cfg = payload
     try:
-        return source.name, ingest_scene(source, out_root, cfg, force=force, heartbeat_s=heartbeat_s), None
+        return SceneResult(source.name, report=ingest_scene(source, cfg))
     except SeeUError as exc:
-        return source.name, None, str(exc)
+        return SceneResult(source.name, error=str(exc))
 
 
-def run(args: argparse.Namespace) -> int:
-    from seeu_data.arrow_io import fsync_policy
+def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = None) -> list[SceneResult]:
+    """Ingest every scene of `cfg.inputs` into `cfg.out`; one SceneResult per scene, in input order.
 
-    with fsync_policy(True if args.fsync else None):
-        return _run(args)
-
-
-def _run(args: argparse.Namespace) -> int:
+    A single input's error raises SeeUError (on the local engine). With several inputs, or on Ray, each
+    scene's error is kept in its result (`error`) and the others go on; `cfg.workers` scenes run at once
+    in worker processes, or every scene is a Ray task. `on_result(result)` is called as each scene
+    finishes (to print it).
+    """
     from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
 
     from tqdm import tqdm
 
-    from seeu_data.errors import SeeUError
-    from seeu_data.scale import ScaleConfig
-    from seeu_data.sfm import SfmConfig
     from seeu_data.video import discover_sources
 
-    if args.workers < 1:
-        raise SeeUError(f"--workers must be >= 1, got {args.workers}")
-    if args.engine == "ray" and args.workers != 1:
-        raise SeeUError("--workers is for the local engine; on Ray each scene is a task that takes --threads CPUs")
-    if args.engine == "local" and args.ray_address is not None:
-        raise SeeUError("--ray-address needs --engine ray")
-    ScaleConfig(args.scale, args.known_distance, args.distance_frames).check()  # before any scene starts
-    SfmConfig(mapper=args.mapper, features=args.features).check()  # e.g. ALIKED without ONNX: one line, now
-    sources = discover_sources(args.inputs)
-    if args.name is not None:
+    cfg.check()
+    sources = discover_sources(list(cfg.inputs))
+    if cfg.name is not None:
         if len(sources) != 1:
             raise SeeUError(f"--name names one scene, but the inputs hold {len(sources)}")
-        if not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", args.name):
-            raise SeeUError(f"--name must be letters, digits, '_', '-', '.' (not first), got {args.name!r}")
-        sources = [replace(sources[0], name=args.name)]
-    progress = args.progress or sys.stderr.isatty()
-    # a status line every few seconds when no terminal shows bars (CI, logs); SEEU_HEARTBEAT_S sets the default
-    heartbeat = args.heartbeat if args.heartbeat is not None else float(os.environ.get("SEEU_HEARTBEAT_S", "10"))
-    heartbeat = 0.0 if progress else heartbeat
-    workers = min(args.workers, len(sources))
-    if args.threads != -1:
-        threads = args.threads
-    else:
-        threads = 1 if args.engine == "ray" else max(1, (os.cpu_count() or 1) // workers)
-    cfg = IngestConfig(
-        stride=args.stride,
-        target_frames=args.target_frames,
-        sharpness_window=args.sharpness_window,
-        max_size=args.max_size,
-        camera_model=args.camera_model,
-        overlap=args.overlap,
-        vocab_tree=None if args.vocab_tree is None else str(args.vocab_tree),
-        min_chunk_frames=args.min_chunk_frames,
-        max_features=args.max_features,
-        threads=threads,
-        sfm_attempts=args.sfm_attempts,
-        scale=args.scale,
-        known_distance=args.known_distance,
-        distance_frames=args.distance_frames,
-        size=parse_dims(args.size, "--size") if args.size else None,
-        mapper=args.mapper,
-        features=args.features,
-        sfm_check=not args.no_sfm_check,
-        map_threads=args.map_threads,
-    )
-    if args.engine == "ray":
+        sources = [replace(sources[0], name=cfg.name)]
+    workers = min(cfg.workers, len(sources))
+    if cfg.threads == -1:  # the cores shared by the scenes running at once (on Ray: each task's own)
+        cfg = replace(cfg, threads=1 if cfg.engine == "ray" else max(1, (os.cpu_count() or 1) // workers))
+    if cfg.engine == "ray":
         from pipelines.ingest_ray import ingest_on_ray
 
-        results = ingest_on_ray(
-            sources,
-            args.out,
-            cfg,
-            scene_fn=ingest_scene,
-            address=args.ray_address,
-            force=args.force,
-            on_result=lambda r: _print_result(r.name, r.report, r.error),
-            progress=progress,
+        return ingest_on_ray(
+            sources, cfg, scene_fn=ingest_scene, address=cfg.ray_address, on_result=on_result, progress=cfg.progress
         )
-        failures = sum(r.error is not None for r in results)
-        print(f"{len(sources) - failures}/{len(sources)} scenes ingested into {args.out}")
-        return 2 if failures else 0
-    args.out.mkdir(parents=True, exist_ok=True)
+    Path(cfg.out).mkdir(parents=True, exist_ok=True)
+    report = on_result or (lambda result: None)
+    results: list[SceneResult] = []
     if len(sources) == 1:
-        report = ingest_scene(sources[0], args.out, cfg, force=args.force, progress=progress, heartbeat_s=heartbeat)
-        print(report["summary"])
-        return 0
-    failures = 0
-    if workers == 1:
-        results: list[tuple[str, dict | None, str | None]] = []
+        results.append(SceneResult(sources[0].name, report=ingest_scene(sources[0], cfg)))
+        report(results[-1])
+    elif workers == 1:
         for s in sources:
-            try:
-                results.append(
-                    (
-                        s.name,
-                        ingest_scene(s, args.out, cfg, force=args.force, progress=progress, heartbeat_s=heartbeat),
-                        None,
-                    )
-                )
-            except SeeUError as exc:
-                results.append((s.name, None, str(exc)))
-            _print_result(*results[-1])
-            failures += results[-1][2] is not None
+            results.append(_scene_worker((s, cfg)))
+            report(results[-1])
     else:
+        # no bars from the workers (they would interleave): the scenes' bar here, or their heartbeats
+        quiet = replace(cfg, progress=False, heartbeat_s=heartbeat_seconds(cfg))
         ctx = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            futures = pool.map(_scene_worker, [(s, args.out, cfg, args.force, heartbeat) for s in sources])
-            for name, report, err in tqdm(futures, total=len(sources), desc="scenes", disable=not progress):
-                _print_result(name, report, err)
-                failures += err is not None
-    print(f"{len(sources) - failures}/{len(sources)} scenes ingested into {args.out}")
-    return 2 if failures else 0
-
-
-def _print_result(name: str, report: dict | None, err: str | None) -> None:
-    if err is not None:
-        print(f"seeu ingest: error: {err}", file=sys.stderr)
-    elif report is not None:
-        print(report["summary"])
+            futures = pool.map(_scene_worker, [(s, quiet) for s in sources])
+            for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.progress):
+                results.append(result)
+                report(result)
+    return results

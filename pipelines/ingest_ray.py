@@ -1,9 +1,9 @@
 """Ray engine for `seeu ingest --engine ray`: one scene per Ray task, the same `ingest_scene` as the local engine.
 
-    results = ingest_on_ray(sources, Path("data/posed"), cfg, scene_fn=ingest_scene, address="auto")
+    results = ingest_on_ray(sources, cfg, scene_fn=ingest_scene, address="auto")
 
-Each task runs `scene_fn(source, out_root, cfg, force=...)` (pipelines/ingest.py `ingest_scene`)
-and reserves `max(cfg.threads, cfg.map_threads)` CPUs, the COLMAP threads it will use. A re-run
+`pipelines.ingest.ingest` calls it for `IngestConfig(engine="ray")`. Each task runs
+`scene_fn(source, cfg)` (pipelines/ingest.py `ingest_scene`, into cfg.out) and reserves `max(cfg.threads, cfg.map_threads)` CPUs, the COLMAP threads it will use. A re-run
 resumes the way the local engine does: every scene keeps its stages under OUT/.work/<scene>/ with a
 stamp of their inputs (`seeu_data.stages.StageCache`), so a completed scene reuses decode and SfM
 and only rewrites its posed files (the same bytes), while a failed or interrupted one redoes what
@@ -26,11 +26,11 @@ from typing import Any, Callable
 
 @dataclass(frozen=True)
 class SceneResult:
-    """One scene's outcome: its report (success) or its one-line error."""
+    """One scene's outcome (either engine): its report (also OUT/<scene>/report.json) or its one-line error."""
 
     name: str
-    report: dict | None
-    error: str | None
+    report: dict | None = None
+    error: str | None = None
 
 
 def task_cpus(threads: int, map_threads: int) -> int:
@@ -45,11 +45,10 @@ def task_cpus(threads: int, map_threads: int) -> int:
     return max(threads, map_threads)
 
 
-def _scene_task(scene_fn: Callable, source, out_root: Path, cfg, force: bool, fsync: bool, cwd: str) -> tuple:
+def _scene_task(scene_fn: Callable, source, cfg, fsync: bool, cwd: str) -> tuple:
     """Ray task body: (report, None) or (None, error line) for the errors a user can act on."""
-    from pipelines.cli import os_error_line
     from seeu_data.arrow_io import fsync_policy
-    from seeu_data.errors import SeeUError
+    from seeu_data.errors import SeeUError, os_error_line
 
     own_cwd = os.getcwd()
     try:
@@ -58,7 +57,7 @@ def _scene_task(scene_fn: Callable, source, out_root: Path, cfg, force: bool, fs
         return None, f"{source.name}: the driver's working directory {cwd} is not on this node (give absolute paths)"
     try:
         with fsync_policy(fsync):  # the driver's --fsync / SEEU_FSYNC
-            return scene_fn(source, out_root, cfg, force=force), None
+            return scene_fn(source, cfg), None
     except SeeUError as exc:
         return None, str(exc)
     except OSError as exc:
@@ -78,17 +77,16 @@ def _failure_line(name: str, exc: BaseException) -> str:
 
 def ingest_on_ray(
     sources: list,
-    out_root: Path,
     cfg: Any,
     scene_fn: Callable,
     address: str | None = None,
-    force: bool = False,
     on_result: Callable[[SceneResult], None] | None = None,
     progress: bool = False,
 ) -> list[SceneResult]:
     """Ingest every source (`seeu_data.video.SceneSource`) as one Ray task; results in `sources` order.
 
-    `cfg`: the `IngestConfig` every scene uses (its `threads` and `map_threads` set the CPUs per task).
+    `cfg`: the `IngestConfig` every scene uses (`out`, `force`; its `threads` and `map_threads` set the
+    CPUs per task).
     `scene_fn`: the local engine's `ingest_scene`. `address`: a running cluster ('host:port', 'auto');
     None starts a local instance (or uses the one this process already has). The connection is made
     before OUT is created. `on_result` is called with each scene's result as its task finishes.
@@ -102,10 +100,10 @@ def ingest_on_ray(
     from seeu_data.ray_cluster import ensure_ray
 
     ensure_ray(address)
-    out_root.mkdir(parents=True, exist_ok=True)
+    Path(cfg.out).mkdir(parents=True, exist_ok=True)
     task = ray.remote(_scene_task).options(num_cpus=cpus, name="seeu-ingest-scene")
     cwd = os.getcwd()
-    pending = {task.remote(scene_fn, s, out_root, cfg, force, fsync_enabled(), cwd): s.name for s in sources}
+    pending = {task.remote(scene_fn, s, cfg, fsync_enabled(), cwd): s.name for s in sources}
     results: dict[str, SceneResult] = {}
     with tqdm(total=len(sources), desc="scenes", disable=not progress) as bar:
         while pending:

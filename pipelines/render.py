@@ -1,71 +1,60 @@
-"""Render novel views and export the Gaussians (.ply) from a trained checkpoint.
+"""The render stage: novel views along camera paths and the Gaussians (.ply) from a trained checkpoint.
 
-Examples:
-  seeu render --checkpoint runs/cpu/checkpoints --data out/shards/eval --sample 0 --out out/render
-  seeu render --checkpoint runs/re10k/checkpoints --cameras my_views.json --out out/mine --frames 60
+Context views come from a triple shard example (`data` + `sample`: index in manifest order or
+sample_id) or from your own images with cameras (`cameras`: a JSON file, layout in `seeu render
+--help` and `load_user_views`). The camera path goes from the first to the last context camera
+(rotation along the geodesic, centre on the line): `interp` covers t in [0, 1], `extrap` t in
+[-e, 1 + e] with e = `extrapolate`. Writes OUT/frames/{interp,extrap}_NNN.png, OUT/interp.mp4,
+OUT/extrap.mp4, OUT/gaussians.ply (standard 3DGS layout) with OUT/cameras.json and OUT/gaussians.json,
+OUT/context.png, OUT/targets.png (shard examples) and OUT/render.json (written last).
 
-Context views come from a triple shard example (`--data`, `--sample` index or sample_id) or from
-your own images with cameras (`--cameras FILE.json`):
+Example:
+    from pipelines.render import RenderConfig, render
 
-  {"near": 0.5, "far": 100.0,
-   "frames": [{"image": "left.jpg",  "cam_to_world": [[...4x4...]], "intrinsics_norm": [fx/W, fy/H, cx/W, cy/H]},
-              {"image": "right.jpg", "cam_to_world": [[...]], "K": [[fx, 0, cx], [0, fy, cy], [0, 0, 1]]}]}
-
-(OpenCV camera-to-world; intrinsics normalised or as a pixel K of the image as stored; image paths
-relative to the JSON file.) Images are resized and centre-cropped to the model's input size with
-the intrinsics updated. The camera path goes from the first to the last context camera (rotation
-along the geodesic, centre on the line): `interp` covers t in [0, 1], `extrap` t in
-[-e, 1 + e] with e = --extrapolate. Writes OUT/frames/{interp,extrap}_NNN.png, OUT/interp.mp4,
-OUT/extrap.mp4, OUT/gaussians.ply (standard 3DGS layout) with OUT/cameras.json (the 3DGS viewers'
-camera layout) and OUT/gaussians.json (SH degree, count), OUT/context.png, OUT/targets.png
-(shard examples: ground truth over rendering) and OUT/render.json (written last).
+    report = render(RenderConfig(checkpoint="runs/cpu/checkpoints", out="out/render", data="out/shards/eval"))
+    report["extrap"]["mp4"], report["ply"], report["timing_s"]["encode"]
 """
 
 from __future__ import annotations
 
-import argparse
 import json
+import math
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
-
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", required=True, help="a ckpt-*.pt file or a directory (its newest checkpoint)")
-    src = parser.add_mutually_exclusive_group(required=True)
-    src.add_argument("--data", help="triple shards to take the context views from")
-    src.add_argument("--cameras", help="JSON with your own context images and cameras (see above)")
-    parser.add_argument("--sample", default="0", help="with --data: sample index (in manifest order) or sample_id")
-    parser.add_argument("--out", required=True, help="output directory")
-    parser.add_argument("--frames", type=int, default=30, help="frames per path (default 30)")
-    parser.add_argument(
-        "--extrapolate", type=float, default=0.5, help="extrapolated path runs from t=-e to 1+e (default 0.5)"
-    )
-    parser.add_argument("--fps", type=float, default=10.0)
-    parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
-    parser.add_argument("--device", default=None)
-    parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat")
+from seeu_data.errors import SeeUError
 
 
-def run(args: argparse.Namespace) -> int:
-    from pipelines.options import parse_dims
+@dataclass(frozen=True)
+class RenderConfig:
+    """One `seeu render` run: exactly one of `data` (triple shards; `sample` picks the example) and
+    `cameras` (a cameras JSON); `frames` per path; `extrapolate` e; `fps` of the MP4s; `image_size`
+    (H, W) (None: the training size); `device` (None: cuda when available); `rasterizer` auto | torch
+    | gsplat (None: the training config's)."""
 
-    hw = parse_dims(args.image_size, "--image-size") if args.image_size else None
-    report = render(
-        args.checkpoint,
-        args.out,
-        data=args.data,
-        sample=args.sample,
-        cameras=args.cameras,
-        frames=args.frames,
-        extrapolate=args.extrapolate,
-        fps=args.fps,
-        image_hw=hw,
-        device=args.device,
-        rasterizer=args.rasterizer,
-    )
-    print(json.dumps(report, indent=2))
-    return 0
+    checkpoint: str | Path
+    out: str | Path
+    data: str | None = None
+    sample: str = "0"
+    cameras: str | Path | None = None
+    frames: int = 30
+    extrapolate: float = 0.5
+    fps: float = 10.0
+    image_size: tuple[int, int] | None = None
+    device: str | None = None
+    rasterizer: str | None = None
+
+    def check(self) -> None:
+        if self.frames < 2:
+            raise SeeUError("--frames must be >= 2")
+        if not (math.isfinite(self.extrapolate) and self.extrapolate >= 0):
+            raise SeeUError(f"--extrapolate must be a finite number >= 0, got {self.extrapolate}")
+        if not (math.isfinite(self.fps) and self.fps > 0):
+            raise SeeUError(f"--fps must be a finite number > 0, got {self.fps}")
+        if (self.data is None) == (self.cameras is None):
+            raise SeeUError("give exactly one of --data (a shard example) or --cameras (your own views)")
 
 
 def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
@@ -74,7 +63,6 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
     import torch
 
     from seeu_data.cameras import intrinsics_norm_from_pixels, intrinsics_norm_matrix, rotation_orthonormality_error
-    from seeu_data.errors import SeeUError
     from seeu_data.image_ops import decode_rgb, resize_cover_crop, resized_intrinsics
 
     path = Path(path)
@@ -148,9 +136,9 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
     }
 
 
-def _shard_sample(data: str, sample: str, image_hw) -> dict:
+def shard_sample(data: str, sample: str, image_hw) -> dict:
+    """The batch (B=1) of one example of triple shards: `sample` is its index in manifest order or its sample_id."""
     from pipelines.train import make_eval_loader
-    from seeu_data.errors import SeeUError
 
     loader = make_eval_loader(data, image_hw, 1)
     index = int(sample) if sample.isdigit() else None
@@ -160,7 +148,7 @@ def _shard_sample(data: str, sample: str, image_hw) -> dict:
     raise SeeUError(f"no sample {sample!r} in this dataset", data)
 
 
-def _to_uint8(img) -> "np.ndarray":  # noqa: F821
+def _to_uint8(img):
     """(3, H, W) float in [0, 1] -> (H, W, 3) uint8 RGB."""
     return (img.clamp(0, 1) * 255.0 + 0.5).byte().permute(1, 2, 0).cpu().numpy()
 
@@ -182,7 +170,7 @@ def write_mp4(path: Path, frames: list, fps: float) -> None:
 
     h, w = frames[0].shape[:2]
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp.mp4")
-    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), float(fps), (w, h))
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), float(fps), (w, h))
     if not writer.isOpened():
         raise RuntimeError(f"OpenCV cannot write MP4 files here ({path})")
     try:
@@ -244,50 +232,34 @@ def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
     return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
 
 
-def render(
-    checkpoint: str | Path,
-    out: str | Path,
-    *,
-    data: str | None = None,
-    sample: str = "0",
-    cameras: str | Path | None = None,
-    frames: int = 30,
-    extrapolate: float = 0.5,
-    fps: float = 10.0,
-    image_hw: tuple[int, int] | None = None,
-    device: str | None = None,
-    rasterizer: str | None = None,
-) -> dict:
+def render(cfg: RenderConfig) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
     import numpy as np
     import torch
 
     from pipelines.evaluate import check_image_size
     from seeu_data.arrow_io import atomic_write_text
-    from seeu_data.errors import SeeUError
     from seeu_model.camera_path import camera_path, path_parameters
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import config_from_dict
     from seeu_model.training.factory import encode_context, model_from_checkpoint
     from seeu_model.training.loop import batch_to
 
-    if frames < 2:
-        raise SeeUError("--frames must be >= 2")
-    if not (np.isfinite(extrapolate) and extrapolate >= 0):
-        raise SeeUError(f"--extrapolate must be a finite number >= 0, got {extrapolate}")
-    if not (np.isfinite(fps) and fps > 0):
-        raise SeeUError(f"--fps must be a finite number > 0, got {fps}")
-    if (data is None) == (cameras is None):
-        raise SeeUError("give exactly one of --data (a shard example) or --cameras (your own views)")
-    ck = ckpt_io.load_checkpoint(checkpoint)
-    cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
-    hw = tuple(image_hw or cfg.data.image_size)
-    backend = rasterizer or cfg.rasterizer
-    dev = torch.device(device) if device else torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    cfg.check()
+    ck = ckpt_io.load_checkpoint(cfg.checkpoint)
+    train_cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
+    hw: tuple[int, int] = cfg.image_size or train_cfg.data.image_size
+    backend = cfg.rasterizer or train_cfg.rasterizer
+    dev = torch.device(cfg.device or ("cuda" if torch.cuda.is_available() else "cpu"))
     model = model_from_checkpoint(ck, dev)
     check_image_size(model, hw)
-    batch = _shard_sample(data, str(sample), hw) if data is not None else {"context": load_user_views(cameras, hw)}
-    out = Path(out)
+    data, cameras, frames, extrapolate, fps = cfg.data, cfg.cameras, cfg.frames, cfg.extrapolate, cfg.fps
+    if data is not None:
+        batch = shard_sample(data, str(cfg.sample), hw)
+    else:
+        assert cameras is not None  # cfg.check: one of the two
+        batch = {"context": load_user_views(cameras, hw)}
+    out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "render.json").unlink(missing_ok=True)
     batch = batch_to(batch, dev)

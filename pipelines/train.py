@@ -1,84 +1,75 @@
-"""Train SeeU on triple shards (single process, or many with torchrun).
+"""The training stage: SeeU (or any model of the config) on triple shards, one process or many (torchrun).
 
-Examples:
-  seeu train --data data/re10k/train --val data/re10k/test --config configs/re10k_paper.json --out runs/re10k
-  seeu train --data out/shards/interp --config configs/cpu_small.json --out runs/cpu optim.max_steps=200
-  seeu train --data ... --config ... --out runs/re10k --resume          # continue from the newest checkpoint
-  seeu train --data ... --config configs/re10k_paper.json --out runs/ft --init-from runs/mvsplat/checkpoints
-  torchrun --nproc_per_node=8 -m pipelines.cli train --data ... --config configs/re10k_paper.json --out runs/ddp
-  (multi-node: torchrun --nnodes=N --node_rank=R --rdzv_endpoint=HOST:PORT --nproc_per_node=G -m pipelines.cli train ...)
+`train(TrainRunConfig(data=..., out=...))` loads the config (a file or a shipped preset by name,
+then `section.key=value` overrides), streams the shards through the resumable loader and writes
+OUT/config.json, OUT/checkpoints/ckpt-*.pt (atomic, last K kept), OUT/tb (TensorBoard),
+OUT/train_summary.json and OUT/cache (the loader's verification stamps and downloads;
+$SEEU_CACHE_DIR instead when set). `seeu train --help` lists the flags; each is a field here.
 
-Overrides are `section.key=value` after the options (optim.lr=1e-4 data.batch_size=4 model.refiner=unet
-loss.lpips_weight=0). Writes OUT/config.json, OUT/checkpoints/ckpt-*.pt (atomic, last K kept),
-OUT/tb (TensorBoard: losses, PSNR, lr, rendered vs ground-truth images, validation), OUT/train_summary.json
-and OUT/cache (the loader's shard verification stamps and object-storage downloads; $SEEU_CACHE_DIR instead when set).
-LPIPS(VGG) needs torchvision's vgg16-397923af.pth in $TORCH_HOME/hub/checkpoints or --lpips-weights PATH;
---no-lpips trains with MSE only.
+Example:
+    from pipelines.train import TrainRunConfig, train
+
+    summary = train(TrainRunConfig(data="out/shards/interp", out="runs/cpu", config="cpu_small",
+                                   overrides=("optim.max_steps=200",), lpips=False))
+    summary["checkpoint"], summary["final"]["psnr"]
 """
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Any, Callable
+
+from seeu_data.errors import SeeUError
 
 
-def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="training triple shards (directory or object-storage URL)")
-    parser.add_argument("--val", default=None, help="validation triple shards (evaluated every log.val_every steps)")
-    parser.add_argument(
-        "--config",
-        default=None,
-        help="config file, or a shipped preset by name: re10k_paper, cpu_small, cpu_tiny, demo (configs/*.json)",
-    )
-    parser.add_argument("--out", required=True, help="run directory (checkpoints, TensorBoard, config)")
-    parser.add_argument(
-        "--resume",
-        nargs="?",
-        const=True,
-        default=None,
-        metavar="CKPT",
-        help="continue from the newest checkpoint in OUT (or from CKPT)",
-    )
-    parser.add_argument(
-        "--init-from",
-        default=None,
-        metavar="CKPT",
-        help="start from the weights (and model config) of a SeeU checkpoint, e.g. one written by "
-        "`seeu convert-checkpoint mvsplat`; step, optimizer and schedule start afresh",
-    )
-    parser.add_argument("--lpips-weights", default=None, metavar="PATH", help="torchvision's vgg16-397923af.pth")
-    parser.add_argument("--no-lpips", action="store_true", help="train with MSE only (loss.lpips_weight=0)")
-    parser.add_argument("--device", default=None, help="cpu, cuda, cuda:1 (default: this rank's GPU, else CPU)")
-    parser.add_argument("--max-steps", type=int, default=None, help="shortcut for optim.max_steps=N")
-    parser.add_argument(
-        "--progress", action=argparse.BooleanOptionalAction, default=None, help="progress bar (default: on a terminal)"
-    )
-    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. optim.lr=1e-4")
+@dataclass(frozen=True)
+class TrainRunConfig:
+    """One training run.
 
+    data / val: training and validation triple shards (directories or object-storage URLs); out: the
+    run directory; config: a config file or a preset name (None: the defaults, or the resumed
+    checkpoint's config); overrides: `section.key=value` strings; max_steps: shortcut for
+    `optim.max_steps`; resume: True (the newest checkpoint in OUT/checkpoints, none: start afresh) or
+    a checkpoint file; init_from: a SeeU checkpoint whose model section (`model.*` overrides still
+    apply) and weights the run starts from (ignored when resuming); lpips: False trains with MSE only
+    (`loss.lpips_weight=0`); lpips_weights: torchvision's vgg16-397923af.pth; device: cpu, cuda,
+    cuda:1 (None: this rank's GPU, else CPU); progress: a bar (None: the config's `log.progress`).
+    stop_after: stop (with a checkpoint) at that step although the schedule runs on, as an interrupted
+    run would; model_factory(model_section) -> (module, model_config_dict) replaces the SeeU model (tests).
+    """
 
-def run(args: argparse.Namespace) -> int:
-    overrides = list(args.overrides)
-    if args.max_steps is not None:
-        overrides.append(f"optim.max_steps={args.max_steps}")
-    result = train(
-        args.data,
-        args.out,
-        config=args.config,
-        overrides=overrides,
-        val=args.val,
-        resume=args.resume,
-        lpips_weights=args.lpips_weights,
-        no_lpips=args.no_lpips,
-        device=args.device,
-        progress=args.progress,
-        init_from=args.init_from,
-    )
-    if result.get("rank", 0) == 0:
-        print(json.dumps({k: result[k] for k in ("step", "checkpoint", "steps_per_s", "final")}, indent=2))
-    return 0
+    data: str
+    out: str | Path
+    config: str | Path | None = None
+    overrides: tuple[str, ...] = ()
+    max_steps: int | None = None
+    val: str | None = None
+    resume: bool | str | Path | None = None
+    init_from: str | Path | None = None
+    lpips: bool = True
+    lpips_weights: str | None = None
+    device: str | None = None
+    progress: bool | None = None
+    stop_after: int | None = None
+    model_factory: Callable | None = None
+
+    def check(self) -> None:
+        if self.stop_after is not None and self.stop_after < 1:
+            raise SeeUError(f"stop_after must be >= 1, got {self.stop_after}")
+        if isinstance(self.overrides, str):
+            raise SeeUError("overrides must be a sequence of key=value strings, not one string")
+
+    def all_overrides(self) -> list[str]:
+        """`overrides` with the shortcuts (`max_steps`, `lpips=False`) appended."""
+        out = list(self.overrides)
+        if self.max_steps is not None:
+            out.append(f"optim.max_steps={self.max_steps}")
+        if not self.lpips:
+            out.append("loss.lpips_weight=0")
+        return out
 
 
 def seed_everything(seed: int) -> None:
@@ -145,43 +136,25 @@ def make_lpips(cfg, lpips_weights: str | None = None):
     return LPIPS(weights=lpips_weights or cfg.loss.lpips_weights, random_trunk=cfg.loss.lpips_random_trunk)
 
 
-def train(
-    data: str,
-    out: str | Path,
-    config: str | Path | None = None,
-    overrides: Sequence[str] = (),
-    val: str | None = None,
-    resume: bool | str | None = None,
-    lpips_weights: str | None = None,
-    no_lpips: bool = False,
-    device: str | None = None,
-    progress: bool | None = None,
-    stop_after: int | None = None,
-    model_factory: Callable | None = None,
-    init_from: str | Path | None = None,
-) -> dict:
-    """Train and return a summary dict: step, checkpoint, steps_per_s, final (last logged scalars), history, val.
+def train(run: TrainRunConfig) -> dict:
+    """Train; returns a summary dict: rank, step, checkpoint, steps_per_s, seconds, final (last logged
+    scalars), history, val, world_size, device (also OUT/train_summary.json from rank 0).
 
-    Python API of `seeu train` (used by `seeu demo` and `seeu ablate`). `stop_after`: stop (with a
-    checkpoint) at that step although the schedule runs to optim.max_steps, as an interrupted run
-    would. `model_factory(model_section) -> (module, model_config_dict)` replaces the SeeU model (tests).
-    `init_from`: a SeeU checkpoint whose model section (``model.*`` overrides still apply) and weights the
-    run starts from; ignored when the run resumes from its own checkpoint.
+    The Python API of `seeu train` (used by `seeu demo` and `seeu ablate`).
     """
     import torch
 
     from seeu_data.arrow_io import atomic_write_text
-    from seeu_data.errors import SeeUError
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import config_from_dict, load_config, apply_overrides
     from seeu_model.training.distributed import cleanup_distributed, setup_distributed
     from seeu_model.training.factory import build_model, encode_context, make_render_fn, render_gaussians
     from seeu_model.training.loop import Trainer, autocast_context
 
-    out = Path(out)
-    overrides = list(overrides)
-    if no_lpips:
-        overrides.append("loss.lpips_weight=0")
+    run.check()
+    out = Path(run.out)
+    overrides = run.all_overrides()
+    resume, config, init_from = run.resume, run.config, run.init_from
     resume_ckpt = None
     if resume:
         location = out / "checkpoints" if resume is True else Path(resume)
@@ -197,8 +170,8 @@ def train(
         cfg = config_from_dict(apply_overrides(_strip_none(resume_ckpt["config"]), overrides))
     else:
         cfg = load_config(config, overrides)
-    if progress is not None:
-        cfg.log.progress = progress
+    if run.progress is not None:
+        cfg.log.progress = run.progress
     init_ckpt = None
     if init_from is not None and resume_ckpt is None:
         init_ckpt = ckpt_io.load_checkpoint(init_from)
@@ -206,20 +179,21 @@ def train(
         section = apply_overrides({"model": _strip_none(init_ckpt["config"]["model"])}, model_overrides)["model"]
         cfg.model = section
 
-    dist = setup_distributed(device)
+    dist = setup_distributed(run.device)
     try:
         if dist.device.type == "cuda" and cfg.precision == "bf16" and not torch.cuda.is_bf16_supported():
             raise SeeUError("precision=bf16 but this GPU does not support bfloat16 (use precision=fp32)")
-        lpips_fn = make_lpips(cfg, lpips_weights)  # fail early: missing VGG weights, bad data
-        loader = make_train_loader(data, cfg, dist, run_cache_dir(out))
+        lpips_fn = make_lpips(cfg, run.lpips_weights)  # fail early: missing VGG weights, bad data
+        loader = make_train_loader(run.data, cfg, dist, run_cache_dir(out))
         seed_everything(cfg.seed)
-        factory = model_factory or build_model
+        factory = run.model_factory or build_model
         model, model_cfg = factory(cfg.model)
         if init_ckpt is not None:
             _load_init_state(model, init_ckpt)
         seed_everything(cfg.seed + 1000 * dist.rank)
 
         eval_fn = None
+        val = run.val
         if val is not None and dist.is_main:
             from seeu_model.evaluation import evaluate_model, summarize
 
@@ -240,7 +214,7 @@ def train(
                 return {k: s[k] for k in ("psnr", "ssim", "lpips", "num_targets") if not _isnan(s[k])}
 
         trainer = Trainer(model, cfg, out, make_render_fn(cfg.rasterizer), dist, lpips_fn, model_cfg, eval_fn)
-        result = trainer.fit(loader, stop_after=stop_after, resume_from=resume_ckpt)
+        result = trainer.fit(loader, stop_after=run.stop_after, resume_from=resume_ckpt)
         summary = {
             "rank": dist.rank,
             "step": result.step,
@@ -264,8 +238,6 @@ def _load_init_state(model, ckpt: dict) -> None:
     """Load `ckpt`'s weights into a new run's model. Only a refiner (and its condition encoder) may be
     absent from the checkpoint: they keep their initialisation (the refiner's residual starts at zero, so
     step 0 renders what the checkpoint's model renders)."""
-    from seeu_data.errors import SeeUError
-
     missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)
     frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
     missing = [k for k in missing if k not in frozen and not k.startswith(("refiner.", "condition."))]

@@ -6,13 +6,15 @@ orthonormal rotations, positive focal lengths, 0 < near < far, and for posed fra
 scene's rows are where the manifest says.
 
 Example:
-  seeu validate data/posed/clip
+    from pathlib import Path
+    from pipelines.validate import validate_dataset
+
+    summary = validate_dataset(Path("data/posed/clip"))   # SeeUError on the first problem
+    print(summary["rows"], summary["files"])
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 
 import numpy as np
@@ -23,12 +25,6 @@ from seeu_data.cameras import rotation_orthonormality_error
 from seeu_data.errors import SeeUError
 from seeu_data.manifest import read_manifest, verify_file
 from seeu_data.schema import arrow_schema
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", type=Path, help="dataset directory (holds manifest.json)")
-    p.add_argument("--no-sha", action="store_true", help="skip sha256 checks (faster on large datasets)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
 
 
 def _flat_values(col: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
@@ -107,19 +103,3 @@ def validate_dataset(root: Path, check_sha: bool = True) -> dict:
         "sha256_checked": check_sha,
         "unlisted_files": stray,
     }
-
-
-def run(args: argparse.Namespace) -> int:
-    summary = validate_dataset(args.path, check_sha=not args.no_sha)
-    if args.json:
-        print(json.dumps(summary, indent=1))
-    else:
-        scenes = f", {summary['scenes']} scenes" if summary["scenes"] else ""
-        print(
-            f"OK {summary['path']}: {summary['schema']} v{summary['schema_version']}, {summary['files']} files, "
-            f"{summary['rows']} rows{scenes}, {summary['bytes'] / 1e6:.1f} MB"
-            + ("" if summary["sha256_checked"] else " (sha256 not checked)")
-        )
-        if summary["unlisted_files"]:
-            print(f"note: files not in the manifest (ignored): {', '.join(summary['unlisted_files'][:5])}")
-    return 0

@@ -41,6 +41,7 @@ from .arrow_io import (
     atomic_write_text,
     commit_pending,
     fsync_enabled,
+    fsync_policy,
     open_ipc_file,
     sha256_file,
 )
@@ -75,9 +76,37 @@ class BuildConfig:
     engine: str = "local"
     workers: int = 1
     ray_address: str | None = None
-    progress: bool = False
+    progress: bool = False  # a progress bar on stderr
     verify_inputs: bool = False
+    fsync: bool = False  # fsync every shard before its rename (also SEEU_FSYNC=1)
     near_far: tuple[float, float] | None = None  # override the posed data's near/far (None: the data's)
+
+    def check(self) -> None:
+        """One-line SeeUError for a bad value (named by its `seeu build` flag), before anything is read."""
+        if self.mode not in ("interp", "extrap", "eval"):
+            raise SeeUError(f"unknown mode {self.mode!r} (interp, extrap or eval)")
+        if not self.inputs:
+            raise SeeUError("no posed-frames directory given")
+        if self.mode == "eval" and not self.index_path:
+            raise SeeUError("--mode eval needs --index FILE")
+        if self.mode != "eval" and self.index_path:
+            raise SeeUError("--index is only used with --mode eval")
+        if self.mode != "eval" and self.sampling.mode != self.mode:
+            raise SeeUError(f"sampling config mode {self.sampling.mode!r} differs from build mode {self.mode!r}")
+        if not 0 < self.shard_bytes <= MAX_SHARD_BYTES:
+            raise SeeUError(
+                f"shard size must be in 1 byte .. {MAX_SHARD_BYTES >> 20} MiB (the image column has 32-bit offsets)"
+            )
+        if not 1 <= self.image.jpeg_quality <= 100:
+            raise SeeUError("--jpeg-quality must be in 1..100")
+        if self.rows_per_batch < 1:
+            raise SeeUError("--rows-per-batch must be >= 1")
+        if self.engine not in ("local", "ray"):
+            raise SeeUError(f"unknown engine {self.engine!r} (local or ray)")
+        if self.workers < 1:
+            raise SeeUError(f"--workers must be >= 1, got {self.workers}")
+        if self.near_far is not None and not (0 < self.near_far[0] < self.near_far[1] < float("inf")):
+            raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {self.near_far[0]} / {self.near_far[1]}")
 
     def params(self) -> dict:
         """The build parameters recorded in the manifest (engine and workers are not: they do not change bytes)."""
@@ -425,9 +454,7 @@ def run_local(
 def _progress_bar(total: int, enabled: bool):
     from tqdm import tqdm
 
-    return tqdm(
-        total=total, unit="triple", desc="seeu build", file=sys.stderr, disable=not (enabled or sys.stderr.isatty())
-    )
+    return tqdm(total=total, unit="triple", desc="seeu build", file=sys.stderr, disable=not enabled)
 
 
 def known_shards(out: Path) -> dict[str, dict]:
@@ -467,17 +494,23 @@ def remove_stale_shards(out: Path, num_shards: int) -> list[str]:
 
 
 def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
-    """Run a whole build; return the manifest document."""
-    if cfg.mode not in ("interp", "extrap", "eval"):
-        raise SeeUError(f"unknown mode {cfg.mode!r} (interp, extrap or eval)")
-    if not cfg.inputs:
-        raise SeeUError("no posed-frames directory given")
-    if cfg.mode != "eval" and cfg.sampling.mode != cfg.mode:
-        raise SeeUError(f"sampling config mode {cfg.sampling.mode!r} differs from build mode {cfg.mode!r}")
-    if not 0 < cfg.shard_bytes <= MAX_SHARD_BYTES:
-        raise SeeUError(
-            f"shard size must be in 1 byte .. {MAX_SHARD_BYTES >> 20} MiB (the image column has 32-bit offsets)"
-        )
+    """Run a whole build; return the manifest document.
+
+    Example:
+        from seeu_data.build import BuildConfig, build
+        from seeu_data.sampling import SamplingConfig
+        from seeu_data.triples import ImageOptions
+
+        cfg = BuildConfig(inputs=("data/posed/clip",), out="data/shards/extrap", mode="extrap",
+                          sampling=SamplingConfig(mode="extrap", extrap_frames=45), image=ImageOptions(resize=(256, 256)))
+        manifest = build(cfg)     # manifest["total_rows"] triples in manifest["files"]
+    """
+    cfg.check()
+    with fsync_policy(True if cfg.fsync else None):
+        return _build(cfg, argv_command)
+
+
+def _build(cfg: BuildConfig, argv_command: str) -> dict:
     out = Path(cfg.out)
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():
@@ -492,8 +525,6 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
             f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)",
             cfg.inputs[0],
         )
-    if cfg.engine not in ("local", "ray"):
-        raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
     out.mkdir(parents=True, exist_ok=True)
     known = known_shards(out)
     journal = ProgressJournal(out)

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main as cli_main
-from pipelines.inspect_cmd import triple_statistics
+from pipelines.inspect_triples import triple_statistics
 from pipelines.validate import validate_dataset
 from seeu_data.cameras import project_points
 from seeu_data.errors import SeeUError

@@ -32,11 +32,11 @@ OV = [
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory) -> tuple[Path, Path]:
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
     root = tmp_path_factory.mktemp("evalrender")
     shards = synthetic_triples(root, n_frames=16, hw=(32, 32), seeds=(0, 1), samples_per_scene=4)
-    train(str(shards), root / "run", overrides=OV)
+    train(TrainRunConfig(data=str(shards), out=root / "run", overrides=OV))
     return shards, root / "run"
 
 

@@ -183,7 +183,7 @@ def test_dtu_ground_truth_found_through_the_shards(tmp_path):
     """Ground truth the DTU importer records in the scene meta reaches seeu eval via the shards' manifest."""
     from plyfile import PlyData, PlyElement
 
-    from pipelines.evaluate import posed_ground_truth, read_pfm
+    from seeu_data.dtu_gt import posed_ground_truth, read_pfm
     from seeu_data.build import BuildConfig, build
     from seeu_data.manifest import provenance
     from seeu_data.posed import PosedDatasetWriter
@@ -226,6 +226,6 @@ def test_dtu_ground_truth_found_through_the_shards(tmp_path):
     assert found is not None
     depth_loader, points_loader, to_mm = found
     assert np.allclose(depth_loader("scan1", 5), depth * 0.005) and depth_loader("scan1", 6) is None
-    got_pts, mask, above = points_loader("scan1")
-    assert np.allclose(got_pts, pts, atol=1e-6) and mask is None and to_mm == pytest.approx(200.0)
+    got = points_loader("scan1")
+    assert np.allclose(got.points, pts, atol=1e-6) and got.observation is None and to_mm == pytest.approx(200.0)
     assert posed_ground_truth(str(tmp_path / "nope")) is None

@@ -138,7 +138,7 @@ def test_converter_refuses_what_is_not_an_mvsplat_checkpoint(tmp_path, capsys):
 
 
 def test_train_init_from_a_converted_checkpoint_adds_the_refiner_and_starts_from_its_weights(fixture, tmp_path):
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
     from seeu_model.training import checkpoint as ckpt_io
     from tests.training_fixtures import synthetic_triples
 
@@ -171,7 +171,7 @@ def test_train_init_from_a_converted_checkpoint_adds_the_refiner_and_starts_from
         "model.cgt_layers=1",
         "model.cgt_hidden=32",
     ]
-    train(str(shards), tmp_path / "run", overrides=ov, init_from=tmp_path / "converted")
+    train(TrainRunConfig(data=str(shards), out=tmp_path / "run", overrides=ov, init_from=tmp_path / "converted"))
     after = ckpt_io.load_checkpoint(tmp_path / "run" / "checkpoints")
     assert after["model_config"]["encoder"] == "mvsplat" and after["model_config"]["refiner"] == "transformer"
     assert (

@@ -65,9 +65,11 @@ def _final(run: Path) -> dict[str, torch.Tensor]:
 def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(shards, tmp_path):
     """A run killed after any step k (its newest checkpoint is ckpt-k, epoch boundaries k = 4, 8
     included) and resumed with --resume ends with the parameters of the uninterrupted run."""
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
-    full = train(str(shards), tmp_path / "full", overrides=FAST, model_factory=stand_in_factory)
+    full = train(
+        TrainRunConfig(data=str(shards), out=tmp_path / "full", overrides=FAST, model_factory=stand_in_factory)
+    )
     assert full["step"] == 8
     saved = ckpt_io.list_checkpoints(tmp_path / "full" / "checkpoints")
     assert [int(p.stem.split("-")[1]) for p in saved] == list(range(1, 9))
@@ -81,7 +83,9 @@ def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(s
         run = tmp_path / f"killed{k}"
         (run / "checkpoints").mkdir(parents=True)
         shutil.copy(saved[k - 1], run / "checkpoints")
-        rest = train(str(shards), run, overrides=FAST, resume=True, model_factory=stand_in_factory)
+        rest = train(
+            TrainRunConfig(data=str(shards), out=run, overrides=FAST, resume=True, model_factory=stand_in_factory)
+        )
         assert rest["step"] == 8, k
         got = _final(run)
         for name in ref:
@@ -90,12 +94,22 @@ def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(s
 
 def test_stop_at_epoch_end_then_resume(shards, tmp_path):
     """The issue's repro: --max-steps 4 (the end of epoch 0), then --resume to step 6."""
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
     ov = [o for o in FAST if not o.startswith("optim.max_steps")]
-    train(str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=4"], model_factory=stand_in_factory)
+    train(
+        TrainRunConfig(
+            data=str(shards), out=tmp_path / "r", overrides=ov + ["optim.max_steps=4"], model_factory=stand_in_factory
+        )
+    )
     rest = train(
-        str(shards), tmp_path / "r", overrides=ov + ["optim.max_steps=6"], resume=True, model_factory=stand_in_factory
+        TrainRunConfig(
+            data=str(shards),
+            out=tmp_path / "r",
+            overrides=ov + ["optim.max_steps=6"],
+            resume=True,
+            model_factory=stand_in_factory,
+        )
     )
     assert rest["step"] == 6
     assert ckpt_io.load_checkpoint(tmp_path / "r" / "checkpoints")["loader"]["epoch"] == 1
@@ -304,10 +318,10 @@ SEEU_OV = [
 @pytest.fixture(scope="module")
 def seeu_run(shards, tmp_path_factory) -> Path:
     """A real (tiny) SeeU checkpoint after one step."""
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
     run = tmp_path_factory.mktemp("seeu_run") / "run"
-    train(str(shards), run, overrides=SEEU_OV)
+    train(TrainRunConfig(data=str(shards), out=run, overrides=SEEU_OV))
     return run
 
 

@@ -73,7 +73,7 @@ def test_config_presets_and_overrides(tmp_path):
 
 
 def test_resume_continues_the_same_run(shards, tmp_path):
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
     ov = COMMON + [
         "data.batch_size=2",
@@ -82,12 +82,12 @@ def test_resume_continues_the_same_run(shards, tmp_path):
         "checkpoint.keep=2",
         "data.flip=true",
     ]
-    full = train(str(shards), tmp_path / "full", overrides=ov)
-    part = train(str(shards), tmp_path / "part", overrides=ov, stop_after=1)
+    full = train(TrainRunConfig(data=str(shards), out=tmp_path / "full", overrides=ov))
+    part = train(TrainRunConfig(data=str(shards), out=tmp_path / "part", overrides=ov, stop_after=1))
     assert part["step"] == 1
     with pytest.raises(SeeUError, match="--resume"):
-        train(str(shards), tmp_path / "part", overrides=ov)
-    rest = train(str(shards), tmp_path / "part", overrides=ov, resume=True)
+        train(TrainRunConfig(data=str(shards), out=tmp_path / "part", overrides=ov))
+    rest = train(TrainRunConfig(data=str(shards), out=tmp_path / "part", overrides=ov, resume=True))
     assert rest["step"] == 3
     # keep-K: only the last two checkpoints remain, no temporaries
     names = sorted(p.name for p in (tmp_path / "part" / "checkpoints").iterdir())
@@ -122,13 +122,13 @@ def _free_port() -> int:
 def test_ddp_two_processes_match_one_process_with_double_batch(shards, tmp_path):
     import torch.multiprocessing as mp
 
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
     steps = 2
     # Adam turns gradients far below eps-scale into full +-lr steps whose sign is decided by float
     # summation order; a larger eps keeps the update linear in the gradient so the comparison is fair.
     ov = COMMON + [f"optim.max_steps={steps}", f"checkpoint.every={steps}", "data.flip=true", "optim.eps=1e-3"]
-    single = train(str(shards), tmp_path / "one", overrides=ov + ["data.batch_size=4"])
+    single = train(TrainRunConfig(data=str(shards), out=tmp_path / "one", overrides=ov + ["data.batch_size=4"]))
     assert single["world_size"] == 1
     kwargs = dict(data=str(shards), out=str(tmp_path / "two"), overrides=ov + ["data.batch_size=2"])
     mp.spawn(ddp_worker, args=(2, _free_port(), kwargs), nprocs=2, join=True)

@@ -123,9 +123,9 @@ def ddp_worker(rank: int, world_size: int, port: int, kwargs: dict) -> None:
         MASTER_ADDR="127.0.0.1", MASTER_PORT=str(port), RANK=str(rank), WORLD_SIZE=str(world_size), LOCAL_RANK=str(rank)
     )
     torch.set_num_threads(1)
-    from pipelines.train import train
+    from pipelines.train import TrainRunConfig, train
 
-    train(**kwargs)
+    train(TrainRunConfig(**kwargs))
 
 
 def tiny_model_factory(section: dict):

@@ -1,32 +1,23 @@
-"""Counts and statistics of a triples directory, and a contact sheet of sample triples.
+"""Statistics of a triples directory and a contact sheet of sample triples (`seeu inspect`).
 
-Reports rows, shards, bytes, scenes, modes, views per example, the context gap distribution, the
-target offsets (inside the pair / before / after, range), image sizes and bytes per view, and the
-build report (skipped scenes, evaluation-index problems). --sheet draws N examples (evenly spaced
-over the dataset): one row per example, contexts then targets, each labelled with its frame index
-and offset, the row with mode, scene and gap.
+`triple_statistics` reports rows, shards, bytes, scenes, modes, views per example, the context gap
+distribution, the target offsets (inside the pair / before / after, range), image sizes and bytes per
+view, and the build report; it reads no image pixels. `contact_sheet` draws N evenly spaced examples,
+one row each: contexts then targets, labelled with frame index and offset.
 
-Examples:
-  seeu inspect data/shards/extrap
-  seeu inspect data/shards/extrap --json
-  seeu inspect data/shards/eval --sheet eval_sheet.png --sheet-rows 8
+Example:
+    from pathlib import Path
+    from pipelines.inspect_triples import contact_sheet, triple_statistics
+
+    stats = triple_statistics(Path("data/shards/extrap"))      # stats["gap"]["median"], stats["modes"], ...
+    contact_sheet(Path("data/shards/extrap"), Path("sheet.png"), n_rows=6)
 """
 
 from __future__ import annotations
 
-import argparse
-import json
 from pathlib import Path
 
 import numpy as np
-
-
-def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", type=Path, help="triples directory (holds manifest.json)")
-    p.add_argument("--json", action="store_true", help="print the statistics as JSON")
-    p.add_argument("--sheet", type=Path, metavar="OUT.png", help="write a contact sheet of sample triples")
-    p.add_argument("--sheet-rows", type=int, default=6, help="examples on the contact sheet (default 6)")
-    p.add_argument("--verify", action="store_true", help="check every shard's sha256 against the manifest")
 
 
 def _hist(values: np.ndarray, bins: int = 10) -> dict:
@@ -159,45 +150,3 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
     fig.savefig(buf, format="png")
     atomic_write_bytes(out, buf.getvalue())
     return [r.sample_id for r in rows]
-
-
-def _print_text(s: dict) -> None:
-    print(f"{s['path']}: {s['rows']} triples, {s['shards']} shards, {s['bytes'] / 1e6:.1f} MB, {s['scenes']} scenes")
-    print("modes: " + ", ".join(f"{m} {c}" for m, c in s["modes"].items()))
-    print(f"views: context {s['num_context']}, target {s['num_target']}")
-    g = s["gap"]
-    if g["count"]:
-        print(f"context gap: min {g['min']}, median {g['median']:g}, mean {g['mean']:g}, max {g['max']}")
-    t = s["target_offset"]
-    line = f"targets: {t['inside']} inside the pair, {t['before']} before, {t['after']} after"
-    if t["outside"]["count"]:
-        line += f" (offsets {t['outside']['min']}..{t['outside']['max']})"
-    print(line)
-    print(
-        "image sizes (WxH: views): "
-        + ", ".join(f"{k}: {v}" for k, v in s["image_sizes"].items())
-        + f"; {s['image_bytes_per_view_mean'] / 1e3:.1f} kB per view"
-    )
-    rep = s["report"]
-    if rep.get("scenes_skipped_too_short"):
-        print(
-            f"build skipped {rep['scenes_skipped_too_short']} scenes shorter than {rep.get('min_scene_frames')} frames"
-        )
-    if "index_entries" in rep:
-        print(
-            f"eval index: {rep['index_entries']} entries, {rep['index_null_skipped']} null skipped, "
-            f"{rep['not_written']} not written"
-        )
-
-
-def run(args: argparse.Namespace) -> int:
-    stats = triple_statistics(args.path, verify=args.verify)
-    if args.sheet:
-        stats["sheet"] = {"path": str(args.sheet), "samples": contact_sheet(args.path, args.sheet, args.sheet_rows)}
-    if args.json:
-        print(json.dumps(stats, indent=1))
-    else:
-        _print_text(stats)
-        if args.sheet:
-            print(f"contact sheet: {args.sheet} ({len(stats['sheet']['samples'])} examples)")
-    return 0

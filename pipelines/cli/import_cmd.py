@@ -33,26 +33,21 @@ skipped and counted; colmap and nerfstudio take --allow-outside-paths where that
 from __future__ import annotations
 
 import argparse
-import sys
 from pathlib import Path
-from pipelines.options import parse_scene_list
+
+from pipelines.cli.options import add_fsync, add_out, add_progress, parse_scene_list, progress_wanted
+from seeu_data.errors import SeeUError
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     common = argparse.ArgumentParser(add_help=False)
-    common.add_argument("--out", type=Path, required=True, help="output posed-frames directory")
+    add_out(common, "output posed-frames directory")
     common.add_argument(
         "--verify-decode", action="store_true", help="fully decode every image (slow); default: header + trailer check"
     )
     common.add_argument("--strict", action="store_true", help="fail on the first bad scene instead of skipping it")
-    common.add_argument("--progress", action="store_true", help="show a progress bar even when stderr is not a TTY")
-    common.add_argument(
-        "--fsync",
-        action="store_true",
-        help="fsync every output file before its rename (durable across a power loss; slower). "
-        "Default: atomic renames only, a torn file is caught by the manifest sha256 "
-        "(seeu validate); also SEEU_FSYNC=1",
-    )
+    add_progress(common)
+    add_fsync(common)
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
 
     f = sub.add_parser("pixelsplat", parents=[common], help="RE10K / ACID / DTU pixelSplat chunks")
@@ -67,7 +62,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     f.add_argument("--near", type=float)
     f.add_argument("--far", type=float)
-    f.set_defaults(_import=_pixelsplat)
+    f.set_defaults(source_config=pixelsplat_source)
 
     f = sub.add_parser("re10k", parents=[common], help="raw RealEstate10K / ACID text files + frames")
     f.add_argument("--cameras", type=Path, required=True, help="directory of <scene>.txt camera files")
@@ -86,7 +81,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         action="store_true",
         help="drop frames whose image is missing instead of skipping the scene",
     )
-    f.set_defaults(_import=_re10k)
+    f.set_defaults(source_config=re10k_source)
 
     f = sub.add_parser("dtu", parents=[common], help="DTU in the MVSNet layout")
     f.add_argument("root", type=Path, help="directory holding Cameras/ and Rectified/")
@@ -95,7 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("--scale", type=float, default=1 / 200, help="translation scale (default 1/200, as MVSplat)")
     f.add_argument("--near", type=float, default=2.125)
     f.add_argument("--far", type=float, default=4.525)
-    f.set_defaults(_import=_dtu)
+    f.set_defaults(source_config=dtu_source)
 
     f = sub.add_parser("colmap", parents=[common], help="a COLMAP model and its images")
     f.add_argument("model", type=Path, help="model directory (cameras/images/points3D .bin or .txt)")
@@ -114,7 +109,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     f.add_argument("--near", type=float, help="near plane (default: from the 3D points' depths)")
     f.add_argument("--far", type=float, help="far plane (default: from the 3D points' depths)")
-    f.set_defaults(_import=_colmap)
+    f.set_defaults(source_config=colmap_source)
 
     f = sub.add_parser("nerfstudio", parents=[common], help="a nerfstudio / NeRF transforms.json")
     f.add_argument("transforms", type=Path, help="transforms.json")
@@ -142,13 +137,13 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     f.add_argument("--near", type=float, help="near plane (default: from a seeu export, else 0.1)")
     f.add_argument("--far", type=float, help="far plane (default: from a seeu export, else 100)")
-    f.set_defaults(_import=_nerfstudio)
+    f.set_defaults(source_config=nerfstudio_source)
 
 
-def _pixelsplat(args):
-    from seeu_data.importers import pixelsplat as m
+def pixelsplat_source(args: argparse.Namespace):
+    from seeu_data.importers.pixelsplat import PixelSplatImportConfig
 
-    cfg = m.PixelSplatImportConfig(
+    return PixelSplatImportConfig(
         root=args.root,
         stage=args.stage,
         scenes=parse_scene_list(args.scenes),
@@ -157,26 +152,12 @@ def _pixelsplat(args):
         far=args.far,
         verify_decode=args.verify_decode,
     )
-    directory, chunks, missing, total = m.plan(cfg)
-
-    near, far = cfg.near_far()
-    params = {
-        "format": "pixelsplat",
-        "root": str(args.root),
-        "stage": args.stage,
-        "dataset": args.dataset,
-        "near": near,
-        "far": far,
-        "scenes": sorted(cfg.scenes) if cfg.scenes else None,
-        "verify_decode": args.verify_decode,
-    }
-    return m.import_plan(cfg, chunks, directory, missing), params, total, [str(directory)]
 
 
-def _re10k(args):
-    from seeu_data.importers import re10k_text as m
+def re10k_source(args: argparse.Namespace):
+    from seeu_data.importers.re10k_text import Re10kTextImportConfig
 
-    cfg = m.Re10kTextImportConfig(
+    return Re10kTextImportConfig(
         cameras_dir=args.cameras,
         frames_dir=args.frames,
         scenes=parse_scene_list(args.scenes),
@@ -186,51 +167,36 @@ def _re10k(args):
         allow_missing_frames=args.allow_missing_frames,
         verify_decode=args.verify_decode,
     )
-    files = m.camera_files(cfg)
-    params = {
-        "format": "re10k",
-        "cameras": str(args.cameras),
-        "frames": str(args.frames),
-        "dataset": args.dataset,
-        "near": args.near,
-        "far": args.far,
-        "allow_missing_frames": args.allow_missing_frames,
-        "verify_decode": args.verify_decode,
-    }
-    return m.import_plan(cfg, files), params, len(files), [str(args.cameras), str(args.frames)]
 
 
-def _dtu(args):
-    from seeu_data.importers import dtu as m
+def parse_scans(text: str | None) -> list[int] | None:
+    """`--scans 1,8,21` (or scan1,scan8) -> [1, 8, 21]; None: every scan."""
+    if text is None:
+        return None
+    try:
+        return [int(s) for s in text.replace("scan", "").split(",") if s.strip()]
+    except ValueError:
+        raise SeeUError(f"--scans {text!r} is not a list of scan numbers (e.g. 1,8,21)") from None
 
-    scans = None if args.scans is None else [int(s) for s in args.scans.replace("scan", "").split(",") if s.strip()]
-    cfg = m.DtuImportConfig(
+
+def dtu_source(args: argparse.Namespace):
+    from seeu_data.importers.dtu import DtuImportConfig
+
+    return DtuImportConfig(
         root=args.root,
-        scans=scans,
+        scans=parse_scans(args.scans),
         lighting=args.lighting,
         scale=args.scale,
         near=args.near,
         far=args.far,
         verify_decode=args.verify_decode,
     )
-    found = m.scan_list(cfg)
-    params = {
-        "format": "dtu",
-        "root": str(args.root),
-        "scans": found,
-        "lighting": args.lighting,
-        "scale": args.scale,
-        "near": args.near,
-        "far": args.far,
-        "verify_decode": args.verify_decode,
-    }
-    return m.import_plan(cfg, found), params, len(found), [str(args.root)]
 
 
-def _colmap(args):
-    from seeu_data.importers import colmap as m
+def colmap_source(args: argparse.Namespace):
+    from seeu_data.importers.colmap import ColmapImportConfig
 
-    cfg = m.ColmapImportConfig(
+    return ColmapImportConfig(
         model_dir=args.model,
         images_dir=args.images,
         scene_id=args.scene_id,
@@ -240,24 +206,12 @@ def _colmap(args):
         verify_decode=args.verify_decode,
         allow_outside_paths=args.allow_outside_paths,
     )
-    params = {
-        "format": "colmap",
-        "model": str(args.model),
-        "images": str(args.images),
-        "undistort": not args.no_undistort,
-        "near": args.near,
-        "far": args.far,
-        "scene_id": args.scene_id,
-        "verify_decode": args.verify_decode,
-        "allow_outside_paths": args.allow_outside_paths,
-    }
-    return m.import_plan(cfg), params, 1, [str(args.model), str(args.images)]
 
 
-def _nerfstudio(args):
-    from seeu_data.importers import nerfstudio as m
+def nerfstudio_source(args: argparse.Namespace):
+    from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 
-    cfg = m.NerfstudioImportConfig(
+    return NerfstudioImportConfig(
         transforms=args.transforms,
         scene_id=args.scene_id,
         undo_applied_transform=not args.keep_applied_transform,
@@ -268,39 +222,18 @@ def _nerfstudio(args):
         skip_missing=args.skip_missing,
         allow_outside_paths=args.allow_outside_paths,
     )
-    params = {
-        "format": "nerfstudio",
-        "transforms": str(args.transforms),
-        "undo_applied_transform": not args.keep_applied_transform,
-        "near": args.near,
-        "far": args.far,
-        "scene_id": args.scene_id,
-        "verify_decode": args.verify_decode,
-        "undistort": not args.no_undistort,
-        "skip_missing": args.skip_missing,
-        "allow_outside_paths": args.allow_outside_paths,
-    }
-    return m.import_plan(cfg), params, 1, [str(args.transforms)]
 
 
 def run(args: argparse.Namespace) -> int:
-    from seeu_data.arrow_io import fsync_policy
-    from seeu_data.importers import ImportReport, write_import
-    from seeu_data.manifest import provenance
+    from pipelines.import_data import ImportConfig, import_dataset
 
-    with fsync_policy(True if args.fsync else None):
-        items, params, total, inputs = args._import(args)
-        report = ImportReport(format=args.format)
-        progress = args.progress or sys.stderr.isatty()
-        write_import(
-            items,
-            args.out,
-            report,
-            params=params,
-            provenance=provenance(f"import {args.format}", inputs),
-            strict=args.strict,
-            progress=progress,
-            total=total,
-        )
+    cfg = ImportConfig(
+        source=args.source_config(args),
+        out=args.out,
+        strict=args.strict,
+        progress=progress_wanted(args),
+        fsync=args.fsync,
+    )
+    report = import_dataset(cfg)
     print(report.summary_line(args.out))
     return 0

@@ -26,8 +26,16 @@ from __future__ import annotations
 
 import argparse
 
+from pipelines.cli.options import (
+    add_fsync,
+    add_out,
+    add_progress,
+    add_workers,
+    parse_bytes,
+    parse_dims,
+    progress_wanted,
+)
 from seeu_data.errors import SeeUError
-from pipelines.options import parse_bytes, parse_dims
 
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
@@ -54,6 +62,7 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def sampling_config(args: argparse.Namespace, mode: str):
+    """The SamplingConfig of the `add_sampling_arguments` flags (a bad value: one line naming it)."""
     from seeu_data.sampling import SamplingConfig
 
     try:
@@ -73,7 +82,7 @@ def sampling_config(args: argparse.Namespace, mode: str):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("inputs", nargs="+", help="posed-frames directories (hold manifest.json)")
-    p.add_argument("--out", required=True, help="output shards directory")
+    add_out(p, "output shards directory")
     p.add_argument("--mode", choices=["interp", "extrap", "eval"], default="interp")
     p.add_argument("--index", help="eval: evaluation index JSON file")
     p.add_argument(
@@ -114,52 +123,30 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         default="local",
         help="local process pool (default) or Ray Data; identical shards",
     )
-    e.add_argument(
-        "--workers",
-        type=int,
+    add_workers(
+        e,
+        "the local engine's processes (default: the CPU count, at most 8; 1 when copying images on up to 4 "
+        "cores, where one process hashes on threads while it writes)",
         default=None,
-        help="local engine processes (default: the CPU count, at most 8; 1 when copying images "
-        "on up to 4 cores, where one process hashes on threads while it writes)",
     )
     e.add_argument("--ray-address", default=None, help="Ray cluster address (default: start a local instance)")
     e.add_argument("--verify-inputs", action="store_true", help="check the posed files' sha256 first")
-    e.add_argument("--progress", action="store_true", help="show the progress bar even when stderr is not a TTY")
-    e.add_argument(
-        "--fsync",
-        action="store_true",
-        help="fsync every shard before its rename (durable across a power loss; slower). Default: "
-        "atomic renames only, a torn shard is caught by the manifest sha256 (seeu validate) "
-        "and rebuilt by a re-run; also SEEU_FSYNC=1",
-    )
+    add_progress(e)
+    add_fsync(e)
 
 
 def run(args: argparse.Namespace) -> int:
-    from seeu_data.arrow_io import fsync_policy
     from seeu_data.build import BuildConfig, build, default_workers
     from seeu_data.sampling import SamplingConfig
     from seeu_data.triples import ImageOptions
 
-    if args.mode == "eval" and not args.index:
-        raise SeeUError("--mode eval needs --index FILE")
-    if args.mode != "eval" and args.index:
-        raise SeeUError("--index is only used with --mode eval")
-    if not 1 <= args.jpeg_quality <= 100:
-        raise SeeUError("--jpeg-quality must be in 1..100")
-    if args.rows_per_batch < 1:
-        raise SeeUError("--rows-per-batch must be >= 1")
-    near_far = None
     if (args.near is None) != (args.far is None):
         raise SeeUError("--near and --far go together")
-    if args.near is not None:
-        if not (0 < args.near < args.far < float("inf")):
-            raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {args.near} / {args.far}")
-        near_far = (args.near, args.far)
-    sampling = sampling_config(args, args.mode) if args.mode != "eval" else SamplingConfig()
     cfg = BuildConfig(
         inputs=tuple(args.inputs),
-        out=args.out,
+        out=str(args.out),
         mode=args.mode,
-        sampling=sampling,
+        sampling=sampling_config(args, args.mode) if args.mode != "eval" else SamplingConfig(),
         index_path=args.index,
         index_format=args.index_format,
         seed=args.seed,
@@ -173,12 +160,12 @@ def run(args: argparse.Namespace) -> int:
         engine=args.engine,
         workers=args.workers if args.workers is not None else default_workers(args.resize is not None),
         ray_address=args.ray_address,
-        progress=args.progress,
+        progress=progress_wanted(args),
         verify_inputs=args.verify_inputs,
-        near_far=near_far,
+        near_far=None if args.near is None else (args.near, args.far),
+        fsync=args.fsync,
     )
-    with fsync_policy(True if args.fsync else None):
-        manifest = build(cfg, "seeu build")
+    manifest = build(cfg, "seeu build")
     rep = manifest["report"]
     size = sum(f["bytes"] for f in manifest["files"]) / 1e6
     shards = len(manifest["files"])

@@ -14,15 +14,13 @@ Example:
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
-from pipelines.options import parse_dims
+from pipelines.cli.options import add_out, add_progress, parse_dims, progress_wanted
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--out", required=True, type=Path, help="output directory (clip.mp4 + clip.json)")
+    add_out(p, "output directory (clip.mp4 + clip.json)")
     p.add_argument("--frames", type=int, default=90, help="number of frames (default 90)")
-    p.add_argument("--size", default="640x360", help="WIDTHxHEIGHT (default 640x360)")
+    p.add_argument("--size", default="640x360", metavar="WxH", help="frame size WIDTHxHEIGHT (default 640x360)")
     p.add_argument("--seed", type=int, default=0, help="scene seed: textures and box layout (default 0)")
     p.add_argument(
         "--scene",
@@ -33,7 +31,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--fps", type=float, default=30.0, help="frame rate written to the video (default 30)")
     p.add_argument("--name", default="clip", help="file stem (default clip)")
-    p.add_argument("--progress", action="store_true", help="show progress even when stderr is not a terminal")
+    add_progress(p)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -42,7 +40,7 @@ def run(args: argparse.Namespace) -> int:
     width, height = parse_dims(args.size, "--size", minimum=16)  # WIDTHxHEIGHT, as video sizes are written
     cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps, scene=args.scene)
     video = args.out / f"{args.name}.mp4"
-    doc = write_clip(video, cfg, progress=args.progress or sys.stderr.isatty())
+    doc = write_clip(video, cfg, progress=progress_wanted(args))
     print(
         f"wrote {video} ({cfg.n_frames} frames, {width}x{height}, path {doc['path_length']:.2f} m) "
         f"and ground truth {video.with_suffix('.json')}"

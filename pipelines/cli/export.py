@@ -17,13 +17,15 @@ import argparse
 import sys
 from pathlib import Path
 
+from pipelines.cli.options import add_out, add_progress, parse_dims, parse_scene_list, progress_wanted
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("dataset", type=Path, help="posed-frames directory (holds manifest.json)")
-    common.add_argument("--out", type=Path, required=True, help="output directory")
+    add_out(common, "output directory")
     common.add_argument("--scenes", help="export only these scene ids: a,b,c or @file.txt")
-    common.add_argument("--progress", action="store_true", help="show a progress bar even when stderr is not a TTY")
+    add_progress(common)
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
     f = sub.add_parser("pixelsplat", parents=[common], help="pixelSplat / MVSplat chunks + index.json")
     f.add_argument("--stage", choices=["train", "test"], default="test")
@@ -46,13 +48,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.options import parse_dims, parse_scene_list
     from seeu_data.posed import PosedDataset
 
     dataset = PosedDataset(args.dataset)
     scenes = parse_scene_list(args.scenes)
     scene_ids = None if scenes is None else sorted(scenes)
-    progress = args.progress or sys.stderr.isatty()
+    progress = progress_wanted(args)
     if args.format == "pixelsplat":
         from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
 

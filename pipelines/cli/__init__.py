@@ -1,0 +1,98 @@
+"""The `seeu` command line: a thin layer over the stage libraries of `pipelines/` and `seeu_data/`.
+
+Each subcommand is a module of `pipelines.cli` exposing `add_arguments(parser)` (its flags; the ones
+many commands share come from `pipelines.cli.options`) and `run(args) -> int`, which only turns the
+flags into the stage's typed config, calls the stage function and prints its summary. Modules keep
+heavy imports inside `run`. The module docstring is the command's `--help` description.
+
+Errors the user can fix (SeeUError) print one line and exit 2; `--debug` shows tracebacks.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import importlib.util
+import os
+import sys
+
+from seeu_data import __version__
+from seeu_data.errors import SeeUError, os_error_line
+
+# name -> (module, one-line help). Commands whose module is not present are not offered.
+COMMANDS: dict[str, tuple[str, str]] = {
+    "demo": ("pipelines.cli.demo", "run the whole pipeline on the built-in synthetic clip"),
+    "synth": ("pipelines.cli.synth", "render the built-in synthetic clip (mp4 + ground-truth cameras)"),
+    "ingest": ("pipelines.cli.ingest", "pose a video / image folder with COLMAP SfM into posed chunks"),
+    "import": ("pipelines.cli.import_cmd", "import RE10K/ACID chunks, RE10K text, DTU, COLMAP, nerfstudio"),
+    "export": ("pipelines.cli.export", "export posed frames as pixelSplat chunks or nerfstudio"),
+    "build": ("pipelines.cli.build", "sample context-target triples into Arrow shards"),
+    "index": ("pipelines.cli.index", "generate an evaluation index for your own posed data"),
+    "inspect": ("pipelines.cli.inspect_cmd", "statistics and a contact sheet of a shards directory"),
+    "validate": ("pipelines.cli.validate", "check a dataset directory against its schema and manifest"),
+    "train": ("pipelines.cli.train", "train SeeU on triple shards"),
+    "eval": ("pipelines.cli.evaluate", "evaluate a checkpoint: PSNR/SSIM/LPIPS (and DTU depth/Chamfer)"),
+    "render": ("pipelines.cli.render", "render novel views and export a .ply from a checkpoint"),
+    "ablate": ("pipelines.cli.ablate", "run the paper's ablation configurations with equal budgets"),
+    "model-info": ("pipelines.cli.model_info", "parameter counts per module of the SeeU model"),
+    "convert-checkpoint": ("pipelines.cli.convert_checkpoint", "convert an MVSplat checkpoint into a SeeU checkpoint"),
+}
+
+
+def available_commands() -> dict[str, tuple[str, str]]:
+    """The commands whose module is present: name -> (module, one-line help)."""
+    return {k: v for k, v in COMMANDS.items() if importlib.util.find_spec(v[0]) is not None}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="seeu",
+        description="SeeU toolkit: posed data from videos and datasets, triple shards, and the SeeU G-3DGS model.",
+    )
+    parser.add_argument("--version", action="version", version=f"seeu {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND")
+    for name, (module, help_text) in available_commands().items():
+        mod = importlib.import_module(module)
+        p = sub.add_parser(
+            name,
+            help=help_text,
+            description=(mod.__doc__ or help_text).strip(),
+            formatter_class=argparse.RawDescriptionHelpFormatter,
+        )
+        mod.add_arguments(p)
+        p.set_defaults(_module=mod)
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "command", None):
+        parser.print_help()
+        return 2
+    debug = args.debug or os.environ.get("SEEU_DEBUG") == "1"
+    try:
+        return int(args._module.run(args) or 0)
+    except SeeUError as exc:
+        if debug:
+            raise
+        print(f"seeu {args.command}: error: {exc}", file=sys.stderr)
+        return 2
+    except OSError as exc:  # the environment (disk full, read-only, permissions, a file in the way)
+        if debug:
+            raise
+        print(f"seeu {args.command}: error: {os_error_line(exc)}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"seeu {args.command}: interrupted; re-run the same command to resume", file=sys.stderr)
+        return 130
+    except Exception as exc:  # unexpected: still one line, with a way to see more
+        if debug:
+            raise
+        msg = str(exc).splitlines()[0] if str(exc) else ""
+        print(
+            f"seeu {args.command}: internal error: {type(exc).__name__}: {msg} (re-run with --debug for the traceback)",
+            file=sys.stderr,
+        )
+        return 1
