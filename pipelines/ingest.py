@@ -138,13 +138,13 @@ class IngestConfig:
             overlap=self.overlap,
             vocab_tree=None if self.vocab_tree is None else str(Path(self.vocab_tree).resolve()),
             min_model_size=max(3, min(self.min_chunk_frames, 10)),
-            max_num_features=self.max_features,
-            num_threads=self.threads,
-            mapping_attempts=self.sfm_attempts,
+            max_features=self.max_features,
+            threads=self.threads,
+            sfm_attempts=self.sfm_attempts,
             mapper=self.mapper,
             features=self.features,
-            solution_check=self.sfm_check,
-            mapping_threads=self.map_threads,
+            sfm_check=self.sfm_check,
+            map_threads=self.map_threads,
         )
 
 
@@ -357,7 +357,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
 
     names = [f["name"] for f in frames]
     # the thread count does not change the results (image ids and RANSAC seeds are fixed by the frames)
-    sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "num_threads"}
+    sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "threads"}
     sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
     sfm_result, _ = cache.run(
         "sfm", sfm_key, lambda d: run_sfm(cache.stage_dir("decode") / "frames", names, d, sfm_cfg, source.path, prog)

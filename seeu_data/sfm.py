@@ -26,8 +26,8 @@ Output directory layout::
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
 "verified_pairs"}, "timings": {...}} or {"error": "..."}.
 
-Determinism: the same frames give the same database and the same poses whatever `num_threads`
-(tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `mapping_threads` = 1. COLMAP's parallel extractor would number images in completion
+Determinism: the same frames give the same database and the same poses whatever `threads`
+(tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `map_threads` = 1. COLMAP's parallel extractor would number images in completion
 order and each matching thread's RANSAC state would carry over between the pairs it happens to
 verify; both are fixed here (`_create_database`, `ransac.random_seed`). Progress comes from COLMAP's
 log lines, not from polling the database: in testing, a second SQLite connection counting rows while
@@ -69,20 +69,20 @@ class SfmConfig:
     overlap: int = 10
     vocab_tree: str | None = None
     min_model_size: int = 10
-    max_num_features: int = 8192
-    num_threads: int = -1
+    max_features: int = 8192
+    threads: int = -1
     # Incremental mapping's threads (bundle adjustment of models above 50,000 residuals, and more):
     # with more than one, re-mapping the same database differed in 1 of 15 runs (2 threads, 20-frame
-    # clip); with one, never. Extraction and matching use `num_threads` and stay deterministic.
-    mapping_threads: int = 1
+    # clip); with one, never. Matching runs on these threads too; extraction uses `threads` and stays deterministic.
+    map_threads: int = 1
     random_seed: int = 0
     # Incremental mapping is re-run with the next seed (up to this many runs in all) while its usable
     # models register fewer than `retry_below` of the frames; the run registering most is kept.
-    mapping_attempts: int = 3
+    sfm_attempts: int = 3
     retry_below: float = 0.8
     # The solution check: map again from the next seed and require two runs whose camera centres agree
-    # (Sim(3)-aligned) within this % of the path; see `map_with_retries`. Needs mapping_attempts >= 2.
-    solution_check: bool = True
+    # (Sim(3)-aligned) within this % of the path; see `map_with_retries`. Needs sfm_attempts >= 2.
+    sfm_check: bool = True
     max_disagreement_pct: float = 1.0
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
@@ -94,10 +94,10 @@ class SfmConfig:
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
             raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
-        if self.mapping_attempts < 1:
-            raise SeeUError(f"--sfm-attempts must be >= 1, got {self.mapping_attempts}")
-        if self.mapping_threads == 0 or self.mapping_threads < -1:
-            raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.mapping_threads}")
+        if self.sfm_attempts < 1:
+            raise SeeUError(f"--sfm-attempts must be >= 1, got {self.sfm_attempts}")
+        if self.map_threads == 0 or self.map_threads < -1:
+            raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.map_threads}")
         if self.overlap < 1:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
@@ -251,7 +251,7 @@ def map_with_retries(
     map_once, num_frames: int, cfg: SfmConfig, check: bool = False
 ) -> tuple[dict, list[dict], list[dict], dict]:
     """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
-    cfg.random_seed, +1, ... at most `cfg.mapping_attempts` times, until a run registers enough frames
+    cfg.random_seed, +1, ... at most `cfg.sfm_attempts` times, until a run registers enough frames
     and, with `check`, agrees with an earlier such run.
 
     Registers enough: its usable models register at least `cfg.retry_below` of the `num_frames` frames.
@@ -274,7 +274,7 @@ def map_with_retries(
     good: list[int] = []  # indices of runs registering enough
     agreed: int | None = None
     smallest = None
-    for i in range(cfg.mapping_attempts):
+    for i in range(cfg.sfm_attempts):
         seed = cfg.random_seed + i
         if i:
             _emit("stage", f"map-retry-{i}", num_frames)
@@ -484,8 +484,8 @@ def _child(job_path: str) -> int:
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
-    extraction.sift.max_num_features = cfg.max_num_features
-    extraction.num_threads = cfg.num_threads
+    extraction.sift.max_num_features = cfg.max_features
+    extraction.num_threads = cfg.threads
     extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
     pycolmap.extract_features(
         db_path,
@@ -512,7 +512,7 @@ def _child(job_path: str) -> int:
     matching = pycolmap.FeatureMatchingOptions()
     # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
     # still gave a different database in 1 of ~10 full CI runs (a loaded machine); one thread never did.
-    matching.num_threads = cfg.mapping_threads
+    matching.num_threads = cfg.map_threads
     if cfg.features != "sift":
         matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
     verification = pycolmap.TwoViewGeometryOptions()
@@ -542,12 +542,12 @@ def _child(job_path: str) -> int:
         if mapper == "global":
             global_options = pycolmap.GlobalPipelineOptions()
             global_options.min_model_size = cfg.min_model_size
-            global_options.num_threads = cfg.mapping_threads
+            global_options.num_threads = cfg.map_threads
             global_options.random_seed = seed
             return pycolmap.global_mapping(db_path, image_dir, sparse, options=global_options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
-        options.num_threads = cfg.mapping_threads
+        options.num_threads = cfg.map_threads
         options.random_seed = seed
         return pycolmap.incremental_mapping(
             db_path, image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
@@ -555,7 +555,7 @@ def _child(job_path: str) -> int:
 
     pairs = geometry_counts(db_path)
     recs, attempts, rejected, check = map_with_retries(
-        map_once, len(names), cfg, check=cfg.solution_check and cfg.mapping_attempts >= 2
+        map_once, len(names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
     )
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]

@@ -455,7 +455,7 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
         return recs
 
     n = len(job["image_names"])
-    models, attempts, rejected, _ = map_with_retries(map_once, n, SfmConfig(random_seed=5, num_threads=1))
+    models, attempts, rejected, _ = map_with_retries(map_once, n, SfmConfig(random_seed=5, threads=1))
     assert seeds == [5, 6]
     assert attempts[0] == {"seed": 5, "registered": 0, "models": 0}
     assert attempts[1] == {"seed": 6, "registered": n, "models": 1}
@@ -463,7 +463,7 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
     assert sum(rec.num_reg_images() for rec in models.values()) == n
 
     seeds.clear()
-    models, attempts, rejected, _ = map_with_retries(map_once, n, SfmConfig(random_seed=5, mapping_attempts=1))
+    models, attempts, rejected, _ = map_with_retries(map_once, n, SfmConfig(random_seed=5, sfm_attempts=1))
     assert seeds == [5] and models == {} and len(attempts) == 1
     assert max(r["registered"] for r in rejected) == n
     assert all("implausible camera parameters" in r["reason"] and ", 1.7" in r["reason"] for r in rejected)

@@ -92,7 +92,7 @@ def test_sfm_is_identical_run_after_run_with_two_threads(tmp_path):
     rec = _Recorder()
     for r, threads in enumerate((2, 2, 2, 1)):
         out = tmp_path / f"sfm{r}"
-        cfg = SfmConfig(num_threads=threads, solution_check=False, min_model_size=5)
+        cfg = SfmConfig(threads=threads, sfm_check=False, min_model_size=5)
         results.append(run_sfm(frames, names, out, cfg, frames, progress=rec if r == 0 else False))
         dbs.append(_db_rows(out / "database.db"))
     assert dbs[0]["images"] == [(i + 1, name) for i, name in enumerate(names)]
@@ -191,7 +191,7 @@ def test_solution_check_maps_again_until_two_runs_agree_and_flags_when_none_do()
         seeds.append(seed)
         return {0: _Rec(runs[seed])}
 
-    cfg = SfmConfig(mapping_attempts=3)
+    cfg = SfmConfig(sfm_attempts=3)
     models, attempts, _, check = map_with_retries(map_once, 30, cfg, check=True)
     assert seeds == [0, 1, 2]
     assert check["passed"] is True and check["kept_seed"] == 0
