@@ -13,10 +13,12 @@ Stages:
    soon as it is complete.
 4. Materialise every spec with `triples.build_shard_table` and write `shard-XXXXX.arrow` atomically
    (the local process pool and Ray run the same function: byte-identical shards); each shard's
-   sha256 is computed on a thread of its own while the next shards are written. Resume: a shard
-   already on disk is kept when a previous run recorded it (its manifest, or the progress journal
-   `.build-progress.jsonl` of an interrupted run) and it still has the recorded size and sha256,
-   the spec's plan hash in its metadata and the planned row count (`resumable_shard`).
+   sha256 is computed on a thread of its own while the next shards are written. Resume
+   (`seeu_data.resume`): a shard already on disk is kept when a previous run recorded it (its
+   manifest, or the journal `.build-progress.jsonl` of an interrupted run: one unit per shard,
+   stamped with its plan hash) and it still has the recorded size and sha256, the spec's plan hash
+   in its metadata and the planned row count (`resumable_shard`). Shards no run recorded, shards
+   the plan no longer has and partial writes are swept (`resume.sweep`).
 5. Write `manifest.json` last (files with rows/bytes/sha256, full build parameters, report), then
    drop the journal. Files are renamed into place atomically; fsync before the rename only with the
    fsync policy on (`arrow_io.set_fsync`, `--fsync`, `SEEU_FSYNC=1`).
@@ -28,7 +30,6 @@ import hashlib
 import json
 import os
 import sys
-import threading
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator
@@ -38,21 +39,21 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from .arrow_io import (
-    atomic_write_text,
     commit_pending,
     fsync_enabled,
     open_ipc_file,
     set_fsync,
-    sha256_file,
     write_table_async,
 )
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
+from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
 from .triples import PLAN_KEY, SCHEMA, ImageOptions, build_shard_table, plan_sha256
 from .schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
+SHARD_FILES = "shard-*.arrow"
 PROGRESS_NAME = ".build-progress.jsonl"  # shards completed by a running (or interrupted) build
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
@@ -307,23 +308,24 @@ def existing_shard_matches(path: Path, spec: dict) -> bool:
 def resumable_shard(out: Path, spec: dict, known: dict[str, dict]) -> FileEntry | None:
     """The manifest entry of a shard a previous run completed for this very spec, or None.
 
-    Not trusted blindly: the shard must be recorded (`known`: the previous manifest's files and the
-    progress journal of an interrupted run), with the spec's plan hash when the record has one, and
-    the file must still have the recorded size and sha256 (a torn write after a power loss without
-    --fsync keeps its size but not its hash), the plan hash in its metadata and the planned rows.
+    Not trusted blindly: the shard must be recorded (`known`: journal records by file name, from the
+    previous manifest's files and the journal of an interrupted run), with the spec's plan hash as
+    its stamp when the record has one, and the file must still have the recorded size and sha256,
+    the plan hash in its metadata and the planned rows.
     """
     rec = known.get(spec["file"])
+    if rec is None or rec.get("stamp", spec["plan_sha256"]) != spec["plan_sha256"]:
+        return None
+    entry = FileEntry(**rec["file"])
     path = out / spec["file"]
-    if rec is None or rec.get("plan_sha256", spec["plan_sha256"]) != spec["plan_sha256"]:
+    if entry.rows != len(spec["samples"]) or not existing_shard_matches(path, spec):
         return None
-    try:
-        if path.stat().st_size != rec["bytes"] or rec["rows"] != len(spec["samples"]):
-            return None
-    except OSError:
-        return None
-    if not existing_shard_matches(path, spec) or sha256_file(path) != rec["sha256"]:
-        return None
-    return FileEntry(spec["file"], rec["rows"], rec["bytes"], rec["sha256"])
+    return entry if file_intact(path, entry.bytes, entry.sha256) else None
+
+
+def shard_record(result: dict) -> dict:
+    """The journal record of a shard `materialise` wrote: unit = its file, stamp = its plan hash."""
+    return {"unit": result["entry"]["path"], "stamp": result["plan_sha256"], "file": result["entry"]}
 
 
 def materialise(spec: dict, out_dir: str, commit: bool = True, wait_hash: bool = True) -> dict:
@@ -361,46 +363,12 @@ def _materialise_json(args: tuple[str, str, bool]) -> dict:
     return materialise(json.loads(args[0]), args[1], commit=False)
 
 
-class ProgressJournal:
-    """`.build-progress.jsonl`: one line per shard in place (file, rows, bytes, sha256, plan hash),
-    appended as shards are committed, so a re-run after an interruption knows what to verify and
-    keep. Removed once the manifest is written (the manifest then holds the same)."""
-
-    def __init__(self, out: Path):
-        self.path = out / PROGRESS_NAME
-        self._lock = threading.Lock()
-
-    def read(self) -> dict[str, dict]:
-        known: dict[str, dict] = {}
-        if self.path.exists():
-            for line in self.path.read_text(errors="replace").splitlines():
-                try:
-                    rec = json.loads(line)
-                    known[rec["path"]] = rec
-                except (json.JSONDecodeError, KeyError, TypeError):
-                    break  # a torn last line
-        return known
-
-    def reset(self, records: list[dict]) -> None:
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in records))
-
-    def add(self, result: dict) -> None:
-        rec = dict(result["entry"], plan_sha256=result["plan_sha256"])
-        with self._lock, open(self.path, "a") as fh:  # one write per line: a torn last line is ignored
-            fh.write(json.dumps(rec) + "\n")
-
-    def remove(self) -> None:
-        self.path.unlink(missing_ok=True)
-
-
 # Shards written whose sha256 is still being computed (one hashing thread each, reading the shard
 # back from the page cache: they hold no memory) before the writer waits for the oldest.
 _PENDING_SHARDS = 4
 
 
-def run_local(
-    specs: Iterable[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
-) -> list[dict]:
+def run_local(specs: Iterable[dict], out_dir: str, workers: int, bar, journal: Journal | None = None) -> list[dict]:
     """Materialise the specs (taken from `specs` as they are needed) in this process (workers <= 1)
     or in a process pool.
 
@@ -418,7 +386,7 @@ def run_local(
             result["entry"]["sha256"] = result.pop("sha256_future").result()
         commit_pending(out / result["entry"]["path"])
         if journal is not None:
-            journal.add(result)
+            journal.add(shard_record(result))
 
     with ThreadPoolExecutor(max_workers=1) as committer:
         commits = []
@@ -467,39 +435,17 @@ def _progress_bar(total: int, enabled: bool):
 
 
 def known_shards(out: Path) -> dict[str, dict]:
-    """Shards a previous run recorded as complete: its manifest's files, then its progress journal."""
+    """Shards a previous run recorded as complete, as journal records by file name: its manifest's
+    files (no stamp: the plan hash is checked in the shard's metadata), then its journal."""
     known: dict[str, dict] = {}
     if (out / MANIFEST_NAME).exists():
         try:
             doc = read_manifest(out, expect_schema=SCHEMA)
-            known.update({f["path"]: f for f in doc["files"]})
+            known.update({f["path"]: {"unit": f["path"], "file": f} for f in doc["files"]})
         except SeeUError:
             pass
-    known.update(ProgressJournal(out).read())
+    known.update({rec["unit"]: rec for rec in Journal(out / PROGRESS_NAME).read()})
     return known
-
-
-def prepare_output(out: Path) -> None:
-    """Mark the output incomplete (manifest removed) and drop the partial writes of an interrupted run."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / MANIFEST_NAME).unlink(missing_ok=True)
-    for pattern in (".shard-*.tmp", ".shard-*.pending"):
-        for p in out.glob(pattern):
-            p.unlink(missing_ok=True)
-
-
-def remove_stale_shards(out: Path, num_shards: int) -> list[str]:
-    """Remove the shards of an earlier, larger build (index >= `num_shards`); their names."""
-    removed = []
-    for p in sorted(out.glob("shard-*.arrow")):
-        try:
-            idx = int(p.stem.split("-")[1])
-        except (IndexError, ValueError):
-            continue
-        if idx >= num_shards:
-            p.unlink()
-            removed.append(p.name)
-    return removed
 
 
 def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
@@ -532,11 +478,12 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         raise SeeUError(f"unknown engine {cfg.engine!r} (local or ray)")
     out.mkdir(parents=True, exist_ok=True)
     known = known_shards(out)
-    journal = ProgressJournal(out)
+    journal = Journal(out / PROGRESS_NAME)
     # Before the manifest goes: what a previous run completed stays known if this one is interrupted
     # (every record is verified again before a shard is kept: `resumable_shard`).
-    journal.reset(list(known.values()))
-    prepare_output(out)
+    journal.reset(known.values())
+    (out / MANIFEST_NAME).unlink(missing_ok=True)  # incomplete from here on
+    removed = sweep(out, SHARD_FILES, keep=known)  # shards no run recorded, partial writes
     results: list[dict] = []
     plan_hashes: list[str] = []
 
@@ -558,10 +505,10 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 
             specs = list(todo(bar))
             if specs:
-                results += run_ray(specs, str(out), cfg.ray_address, bar, journal)
+                results += run_ray(specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r)))
         else:
             results += run_local(todo(bar), str(out), cfg.workers, bar, journal)
-    removed = remove_stale_shards(out, len(plan_hashes))
+    removed += sweep(out, SHARD_FILES, keep={SHARD_PATTERN.format(i) for i in range(len(plan_hashes))})
     results.sort(key=lambda r: r["index"])
     errors = [r["error"] for r in results if "error" in r]
     if errors:
@@ -571,7 +518,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     report.update(
         shards=len(files),
         shards_resumed=sum(1 for r in results if r["resumed"]),
-        stale_files_removed=removed,
+        stale_files_removed=sorted(removed),
         plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest(),
     )
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)

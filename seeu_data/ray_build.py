@@ -4,7 +4,7 @@ The driver plans (indices only) and cuts shard specs exactly as the local engine
 `build.materialise` over the specs (one spec per block, JSON strings so Arrow never has to infer a
 type for the nested spec), each task writes `shard-XXXXX.arrow` atomically under its deterministic
 name (fsynced first when the driver's fsync policy is on) and returns its manifest entry; the
-driver records it in the build's progress journal and writes the manifest last. The output directory and
+driver records it in the build's journal and writes the manifest last. The output directory and
 the posed inputs must be on a file system every node sees (or the same path on each node).
 """
 
@@ -13,6 +13,7 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 from .ray_cluster import ensure_ray
 
@@ -30,9 +31,11 @@ def _ray_task(row: dict) -> dict:
     return {"result": json.dumps(materialise(spec, row["out_dir"]))}
 
 
-def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=None) -> list[dict]:
-    """Materialise every spec on the Ray cluster; results in spec order (each recorded in the build's
-    progress `journal` as it arrives: the task has renamed the shard into place by then)."""
+def run_ray(
+    specs: list[dict], out_dir: str, address: str | None, bar, on_shard: Callable[[dict], None] | None = None
+) -> list[dict]:
+    """Materialise every spec on the Ray cluster; results in spec order. `on_shard(result)` is called
+    for each shard written, as it arrives (the task has renamed the shard into place by then)."""
     import ray
 
     from .arrow_io import fsync_enabled
@@ -50,7 +53,7 @@ def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=N
     for row in ds.iter_rows():
         result = json.loads(row["result"])
         results.append(result)
-        if journal is not None and "entry" in result:
-            journal.add(result)
+        if on_shard is not None and "entry" in result:
+            on_shard(result)
         bar.update(result["entry"]["rows"] if "entry" in result else 0)
     return sorted(results, key=lambda r: r["index"])

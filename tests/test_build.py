@@ -378,7 +378,7 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     monkeypatch.setattr(build_mod, "build_shard_table", interrupted)
     assert _build(posed, out, "--workers", "1") == 130
     assert not (out / "manifest.json").exists()
-    assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
+    assert [json.loads(line)["unit"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
         "shard-00000.arrow",
         "shard-00001.arrow",
         "shard-00002.arrow",
