@@ -31,6 +31,7 @@ from .arrow_io import deferred_binary, map_readonly, open_ipc_file, populate
 from .errors import SeeUError
 from .manifest import read_manifest
 from .schema import arrow_schema
+from .triple_row import TripleRow
 
 SCHEMA = "seeu.triples"
 PLAN_KEY = b"seeu.shard_plan_sha256"
@@ -343,61 +344,6 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
 # ---------------------------------------------------------------------------------------------
 # Reading
 # ---------------------------------------------------------------------------------------------
-
-
-@dataclass
-class TripleRow:
-    """One decoded-metadata row. L = V + T views (contexts first). Images stay encoded.
-
-    frame_index/source_frame/width/height/near/far: (L,); intrinsics_norm: (L, 4);
-    cam_to_world: (L, 4, 4); target_offset: (T,).
-    """
-
-    sample_id: str
-    scene_id: str
-    mode: str
-    num_context: int
-    frame_index: np.ndarray
-    source_frame: np.ndarray
-    images: list[bytes]
-    image_format: str
-    width: np.ndarray
-    height: np.ndarray
-    intrinsics_norm: np.ndarray
-    cam_to_world: np.ndarray
-    near: np.ndarray
-    far: np.ndarray
-    gap: int
-    target_offset: np.ndarray
-
-    @property
-    def context(self) -> list[int]:
-        return self.frame_index[: self.num_context].tolist()
-
-    @property
-    def target(self) -> list[int]:
-        return self.frame_index[self.num_context :].tolist()
-
-    @classmethod
-    def from_pydict(cls, d: dict) -> "TripleRow":
-        return cls(
-            sample_id=d["sample_id"],
-            scene_id=d["scene_id"],
-            mode=d["mode"],
-            num_context=int(d["num_context"]),
-            frame_index=np.asarray(d["frame_index"], np.int64),
-            source_frame=np.asarray(d["source_frame"], np.int64),
-            images=list(d["image"]),
-            image_format=d["image_format"],
-            width=np.asarray(d["width"], np.int64),
-            height=np.asarray(d["height"], np.int64),
-            intrinsics_norm=np.asarray(d["intrinsics_norm"], np.float64).reshape(-1, 4),
-            cam_to_world=np.asarray(d["cam_to_world"], np.float64).reshape(-1, 4, 4),
-            near=np.asarray(d["near"], np.float32),
-            far=np.asarray(d["far"], np.float32),
-            gap=int(d["gap"]),
-            target_offset=np.asarray(d["target_offset"], np.int64),
-        )
 
 
 class TripleShards:
