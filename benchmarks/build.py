@@ -56,7 +56,7 @@ from seeu_data.arrow_io import set_fsync  # noqa: E402
 from seeu_data.build import BuildConfig, build, plan_sampled, scan_inputs, shard_specs  # noqa: E402
 from seeu_data.posed import PosedDatasetWriter, PosedScene  # noqa: E402
 from seeu_data.sampling import SamplingConfig  # noqa: E402
-from seeu_data.triples import ImageOptions  # noqa: E402
+from seeu_data.triples import ImageOptions, ShardSpec  # noqa: E402
 
 H, W = 360, 640
 
@@ -93,27 +93,27 @@ def photo_like_scene(scene_id: str, n: int, seed: int) -> PosedScene:
     )
 
 
-def bare_copy(specs: list[dict], out: Path, fsync: bool = False) -> None:
+def bare_copy(specs: list[ShardSpec], out: Path, fsync: bool = False) -> None:
     """The bare cost: same views taken from the mmapped posed files, written as list<binary> IPC files."""
     out.mkdir(parents=True, exist_ok=True)
     tables: dict[str, pa.Table] = {}
     for spec in specs:
         parts, base = [], {}
-        for sid, src in spec["sources"].items():
-            if src["path"] not in tables:
-                tables[src["path"]] = pa.ipc.open_file(pa.memory_map(src["path"], "r")).read_all()
+        for sid, src in spec.sources.items():
+            if src.path not in tables:
+                tables[src.path] = pa.ipc.open_file(pa.memory_map(src.path, "r")).read_all()
             base[sid] = sum(p.num_rows for p in parts)
-            parts.append(tables[src["path"]].slice(src["row_start"], src["num_frames"]).select(["image"]))
+            parts.append(tables[src.path].slice(src.row_start, src.num_frames).select(["image"]))
         posed = pa.concat_tables(parts)
-        flat = [base[s["scene_id"]] + v for s in spec["samples"] for v in s["context"] + s["target"]]
+        flat = [base[s.scene_id] + v for s in spec.samples for v in s.views]
         images = posed.column("image").take(pa.array(flat)).combine_chunks()
-        counts = [len(s["context"]) + len(s["target"]) for s in spec["samples"]]
+        counts = [len(s.views) for s in spec.samples]
         offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
         table = pa.table({"image": pa.ListArray.from_arrays(offsets, images)})
-        with pa.OSFile(str(out / spec["file"]), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
-            writer.write_table(table, max_chunksize=spec["rows_per_batch"])
+        with pa.OSFile(str(out / spec.file), "wb") as sink, pa.ipc.new_file(sink, table.schema) as writer:
+            writer.write_table(table, max_chunksize=spec.rows_per_batch)
         if fsync:  # the same durability as seeu's writes: data on disk before the file counts as written
-            with open(out / spec["file"], "rb") as fh:
+            with open(out / spec.file, "rb") as fh:
                 os.fsync(fh.fileno())
 
 
@@ -161,7 +161,7 @@ def main() -> int:
         )
         scenes = scan_inputs(cfg.inputs)
         specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
-        n = sum(len(s["samples"]) for s in specs)
+        n = sum(len(s.samples) for s in specs)
         est_mb = n * 5 * posed_mb / (args.scenes * args.frames)  # the shards: 5 views per triple
         prefault_mb = int(2 * est_mb) if args.prefault_mb is None else args.prefault_mb
         print(

@@ -50,6 +50,7 @@ from seeu_data import cameras  # noqa: E402
 from seeu_data.arrow_io import write_table  # noqa: E402
 from seeu_data.loader import make_loader  # noqa: E402
 from seeu_data.manifest import FileEntry, provenance, write_manifest  # noqa: E402
+from seeu_data.triple_row import TripleRow  # noqa: E402
 from seeu_data.schema import arrow_schema, schema_version  # noqa: E402
 
 H, W, OUT = 360, 640, (256, 256)
@@ -108,24 +109,24 @@ def write_seeu_shards(shards: Path, triples: list[list[bytes]], shard_rows: int 
     samples = len(triples)
     for k, start in enumerate(range(0, samples, shard_rows)):
         rows = [
-            {
-                "sample_id": f"scene{i}/interp/0",
-                "scene_id": f"scene{i}",
-                "mode": "interp",
-                "num_context": CONTEXT,
-                "frame_index": list(range(VIEWS)),
-                "source_frame": list(range(VIEWS)),
-                "image": triples[i],
-                "image_format": "jpeg",
-                "width": [W] * VIEWS,
-                "height": [H] * VIEWS,
-                "intrinsics_norm": [intr] * VIEWS,
-                "cam_to_world": [p.reshape(-1).tolist() for p in poses],
-                "near": [1.0] * VIEWS,
-                "far": [100.0] * VIEWS,
-                "gap": VIEWS - 1,
-                "target_offset": [0] * (VIEWS - CONTEXT),
-            }
+            TripleRow(
+                sample_id=f"scene{i}/interp/0",
+                scene_id=f"scene{i}",
+                mode="interp",
+                num_context=CONTEXT,
+                frame_index=np.arange(VIEWS),
+                source_frame=np.arange(VIEWS),
+                images=[memoryview(b) for b in triples[i]],
+                image_format="jpeg",
+                width=np.full(VIEWS, W),
+                height=np.full(VIEWS, H),
+                intrinsics_norm=np.array([intr] * VIEWS),
+                cam_to_world=np.stack(poses),
+                near=np.ones(VIEWS),
+                far=np.full(VIEWS, 100.0),
+                gap=VIEWS - 1,
+                target_offset=np.zeros(VIEWS - CONTEXT, np.int64),
+            ).to_pydict()
             for i in range(start, min(samples, start + shard_rows))
         ]
         path = shards / f"shard-{k:05d}.arrow"

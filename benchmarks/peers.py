@@ -64,7 +64,7 @@ sys.path.insert(0, str(ROOT))
 from benchmarks.loader import CONTEXT, OUT, VIEWS, W, H, INTRINSICS, camera_poses, make_triples, write_seeu_shards  # noqa: E402
 from benchmarks.results_md import write_section  # noqa: E402
 from seeu_data.loader import make_loader  # noqa: E402
-from seeu_data.loader.shard_reader import RawSample  # noqa: E402
+from seeu_data.triple_row import TripleRow  # noqa: E402
 from seeu_data.loader.transforms import transform_sample  # noqa: E402
 
 SHARD_ROWS = 60
@@ -100,19 +100,23 @@ class LitItem:
 
 def lit_transform(item: dict) -> dict:
     """A LitData item -> images (V, 3, 256, 256) uint8 + cameras, by the seeu loader's own decode/resize."""
-    raw = RawSample(
+    raw = TripleRow(
         sample_id=str(item["index"]),
         scene_id="",
+        mode="interp",
         num_context=CONTEXT,
-        images=[np.frombuffer(item[f"img{v}"], np.uint8) for v in range(VIEWS)],
-        width=np.full(VIEWS, W),
-        height=np.full(VIEWS, H),
+        frame_index=np.arange(VIEWS),
+        source_frame=np.arange(VIEWS),
+        images=[memoryview(item[f"img{v}"]) for v in range(VIEWS)],
+        image_format="jpeg",
+        width=np.full(VIEWS, W, np.int32),
+        height=np.full(VIEWS, H, np.int32),
         intrinsics_norm=item["intrinsics_norm"],
         cam_to_world=item["cam_to_world"],
         near=item["near"],
         far=item["far"],
-        frame_index=np.arange(VIEWS),
         gap=VIEWS - 1,
+        target_offset=np.zeros(VIEWS - CONTEXT, np.int64),
     )
     s = transform_sample(raw, OUT, where="litdata")
     return {

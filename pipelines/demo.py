@@ -17,7 +17,6 @@ from __future__ import annotations
 
 import json
 import math
-import shutil
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -80,63 +79,36 @@ class DemoConfig:
 
 
 # ------------------------------------------------------------------------------------------------
-# Stage bookkeeping: OUT/.stages/<name>.json holds the stage's key hash, result and time
+# Stage bookkeeping: seeu_data.resume.StageCache, its journal in OUT/.stages/; here the [n/7] lines
 # ------------------------------------------------------------------------------------------------
 
 
 class Stages:
     def __init__(self, out: Path, force: bool):
-        self.out = out
-        self.dir = out / ".stages"
-        self.force = force
-        self.info: dict[str, dict] = {}  # name -> {"seconds", "reused", "key"}
+        from seeu_data.resume import StageCache
 
-    def _stamp(self, name: str) -> Path:
-        return self.dir / f"{name}.json"
+        self.cache = StageCache(out / ".stages", force)
+        self.info: dict[str, dict] = {}  # name -> {"seconds" (when it ran), "reused"}
 
-    def run(self, name: str, key: dict, what: str, fn, outputs=lambda r: []) -> dict:
-        """Reuse stage `name` when its stamp matches `key` and its outputs exist, else run `fn()`."""
-        from seeu_data.arrow_io import atomic_write_text
-        from seeu_data.stages import key_hash
-
+    def run(self, name: str, key: dict, what: str, fn, outputs=lambda r: [], directory: Path | None = None) -> dict:
+        """Reuse stage `name` when it completed with `key` and its outputs exist, else run `fn()`
+        (`directory`: the stage's own output directory, emptied first)."""
         n = STAGES.index(name) + 1
         full_key = {"stage": name, "format": STAMP_FORMAT, **key}
-        h = key_hash(full_key)
-        stamp = self._stamp(name)
-        if not self.force and stamp.exists():
-            try:
-                doc = json.loads(stamp.read_text())
-            except (OSError, json.JSONDecodeError):
-                doc = {}
-            if doc.get("key_hash") == h and all(Path(p).exists() for p in outputs(doc.get("result", {}))):
-                print(f"[{n}/{len(STAGES)}] {name}: reused ({doc['seconds']:.1f} s when it ran)", flush=True)
-                self.info[name] = {"seconds": doc["seconds"], "reused": True, "hash": h}
-                return doc["result"]
-        stamp.unlink(missing_ok=True)
-        print(f"[{n}/{len(STAGES)}] {name}: {what}", flush=True)
-        t0 = time.perf_counter()
-        result = fn()
-        seconds = time.perf_counter() - t0
-        self.dir.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(
-            stamp,
-            json.dumps({"key_hash": h, "key": full_key, "seconds": seconds, "result": result}, indent=1, default=str)
-            + "\n",
-        )
-        self.info[name] = {"seconds": seconds, "reused": False, "hash": h}
-        print(f"      {name} done in {seconds:.1f} s", flush=True)
+        found = self.cache.lookup(name, full_key, outputs, directory)
+        if found is not None:
+            print(f"[{n}/{len(STAGES)}] {name}: reused ({found['seconds']:.1f} s when it ran)", flush=True)
+        else:
+            print(f"[{n}/{len(STAGES)}] {name}: {what}", flush=True)
+        result, reused = self.cache.run(name, full_key, fn, directory, outputs)
+        seconds = self.cache.records[name]["seconds"]
+        self.info[name] = {"seconds": seconds, "reused": reused}
+        if not reused:
+            print(f"      {name} done in {seconds:.1f} s", flush=True)
         return result
 
     def hash(self, name: str) -> str:
-        return self.info[name]["hash"]
-
-
-def _remove(path: Path) -> None:
-    """Remove a directory this demo created (stage output being redone)."""
-    if path.is_dir():
-        shutil.rmtree(path)
-    elif path.exists():
-        path.unlink()
+        return self.cache.stamp(name)
 
 
 def sampling_for(frames: int) -> dict:
@@ -256,7 +228,6 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
         out = {}
         for name, (posed, mode, ratio, n, seed) in sets.items():
             d = shards / name
-            _remove(d)
             sampling = SamplingConfig(
                 mode=mode,
                 gap_min=s["gap_min"],
@@ -317,6 +288,7 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
         "eval_interp / eval_extrap from the held-out clip",
         fn,
         lambda r: [Path(v["path"]) / "manifest.json" for v in r.values()] + [v["sheet"] for v in r.values()],
+        directory=shards,
     )
 
 
@@ -343,16 +315,10 @@ def stage_train(ctx: dict, stages: Stages, build: dict) -> dict:
     key = {"build": stages.hash("build"), "config": preset, "overrides": ov_run}
 
     def fn() -> dict:
-        from seeu_data.arrow_io import atomic_write_text
-        from seeu_data.stages import key_hash
+        from seeu_data.resume import claim_dir, stamp_of
 
         # An interrupted run with the same key continues from its newest checkpoint; any other is redone.
-        key_file = run_dir / "demo_key.json"
-        same = key_file.exists() and key_file.read_text().strip() == key_hash(key) and not a.force
-        if not same:
-            _remove(run_dir)
-            run_dir.mkdir(parents=True)
-            atomic_write_text(key_file, key_hash(key) + "\n")
+        claim_dir(run_dir, stamp_of(key), a.force)
         res = train(
             TrainRunConfig(
                 data=build["train"]["path"],
@@ -563,7 +529,6 @@ def stage_render(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
     out = ctx["out"] / "render"
 
     def fn() -> dict:
-        _remove(out)
         rep = render(
             RenderConfig(
                 checkpoint=trained["checkpoint"],
@@ -596,6 +561,7 @@ def stage_render(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
         "the Gaussians (.ply) from a held-out example",
         fn,
         lambda r: [r["interp_mp4"], r["extrap_mp4"], r["ply"]],
+        directory=out,
     )
 
 

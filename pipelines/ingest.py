@@ -315,12 +315,12 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         write_report,
     )
     from seeu_data.manifest import MANIFEST_NAME, provenance
-    from seeu_data.points import write_chunk_points
-    from seeu_data.posed import PosedDatasetWriter, PosedScene
+    from seeu_data.points import POINTS_DIR, write_chunk_points
+    from seeu_data.posed import POSED_FILES, PosedDatasetWriter, PosedScene
     from seeu_data.resize import resize_scene
     from seeu_data.scale import distance_frame_names
     from seeu_data.sfm import run_sfm
-    from seeu_data.stages import StageCache, key_hash
+    from seeu_data.resume import StageCache, stamp_of, sweep
 
     t_start = time.perf_counter()
     out_dir = out_root / source.name
@@ -339,7 +339,8 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         "jpeg_quality": cfg.jpeg_quality,
         "format": DECODE_STAGE_FORMAT,
     }
-    decoded, _ = cache.run("decode", decode_key, _decode_stage(source, cfg, prog))
+    decode_dir = cache.stage_dir("decode")
+    decoded, _ = cache.run("decode", decode_key, lambda: _decode_stage(source, cfg, prog)(decode_dir), decode_dir)
     frames_all = decoded["frames"]
 
     t0 = time.perf_counter()
@@ -358,9 +359,10 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     names = [f["name"] for f in frames]
     # the thread count does not change the results (image ids and RANSAC seeds are fixed by the frames)
     sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "threads"}
-    sfm_key = {"decode": key_hash(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
+    sfm_key = {"decode": stamp_of(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
+    sfm_dir = cache.stage_dir("sfm")
     sfm_result, _ = cache.run(
-        "sfm", sfm_key, lambda d: run_sfm(cache.stage_dir("decode") / "frames", names, d, sfm_cfg, source.path, prog)
+        "sfm", sfm_key, lambda: run_sfm(decode_dir / "frames", names, sfm_dir, sfm_cfg, source.path, prog), sfm_dir
     )
     prog.stage("write")
 
@@ -450,6 +452,8 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     if gt is not None:
         report["ground_truth"] = gt
 
+    sweep(out_dir, POSED_FILES, keep=())  # an earlier run's files: this run writes its own
+    sweep(out_dir / POINTS_DIR, "*.ply", keep=())
     with PosedDatasetWriter(out_dir, params=params, provenance=prov) as writer:
         for c in chunks:
             imgs = []

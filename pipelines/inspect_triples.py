@@ -100,7 +100,8 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
     from seeu_data.arrow_io import atomic_write_bytes
     from seeu_data.errors import SeeUError
     from seeu_data.image_ops import decode_rgb
-    from seeu_data.triples import TripleRow, TripleShards
+    from seeu_data.triple_row import TripleRow
+    from seeu_data.triples import TripleShards
 
     shards = TripleShards(root)
     total = len(shards)

@@ -9,14 +9,17 @@ Stages:
    planned), or the entries of an evaluation index (file order; entries naming a missing scene or
    frame are reported and not written).
 3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
-   (scaled by the pixel ratio when resizing); each shard spec is a JSON-able dict, handed on as
-   soon as it is complete.
+   (scaled by the pixel ratio when resizing); each `triples.ShardSpec` is handed on as soon as it is
+   complete.
 4. Materialise every spec with `triples.build_shard_table` and write `shard-XXXXX.arrow` atomically
-   (the local process pool and Ray run the same function: byte-identical shards); each shard's
-   sha256 is computed on a thread of its own while the next shards are written. Resume: a shard
-   already on disk is kept when a previous run recorded it (its manifest, or the progress journal
-   `.build-progress.jsonl` of an interrupted run) and it still has the recorded size and sha256,
-   the spec's plan hash in its metadata and the planned row count (`resumable_shard`).
+   (the local process pool and Ray run the same function: byte-identical shards; a `ShardResult`
+   each); each shard's
+   sha256 is computed on a thread of its own while the next shards are written. Resume
+   (`seeu_data.resume`): a shard already on disk is kept when a previous run recorded it (its
+   manifest, or the journal `.build-progress.jsonl` of an interrupted run: one unit per shard,
+   stamped with its plan hash) and it still has the recorded size and sha256, the spec's plan hash
+   in its metadata and the planned row count (`resumable_shard`). Shards no run recorded, shards
+   the plan no longer has and partial writes are swept (`resume.sweep`).
 5. Write `manifest.json` last (files with rows/bytes/sha256, full build parameters, report), then
    drop the journal. Files are renamed into place atomically; fsync before the rename only with the
    fsync policy on (`arrow_io.set_fsync`, `--fsync`, `SEEU_FSYNC=1`).
@@ -25,11 +28,9 @@ Stages:
 from __future__ import annotations
 
 import hashlib
-import json
 import os
 import sys
-import threading
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Iterable, Iterator
 
@@ -38,21 +39,21 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from .arrow_io import (
-    atomic_write_text,
     commit_pending,
     fsync_enabled,
     fsync_policy,
     open_ipc_file,
-    sha256_file,
 )
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
+from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
-from .triples import PLAN_KEY, SCHEMA, ImageOptions, plan_sha256
+from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from .schema import schema_version
-from .shard_task import materialise, materialise_json
+from .shard_task import ShardResult, materialise, materialise_in_pool
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
+SHARD_FILES = "shard-*.arrow"
 PROGRESS_NAME = ".build-progress.jsonl"  # shards completed by a running (or interrupted) build
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
@@ -129,26 +130,9 @@ class BuildConfig:
         return out
 
 
-@dataclass
-class SceneSource:
-    scene_id: str
-    path: str  # absolute path of the posed Arrow file holding the scene
-    row_start: int
-    num_frames: int
-    file_sha256: str
-
-    def as_spec(self) -> dict:
-        return {
-            "path": self.path,
-            "row_start": self.row_start,
-            "num_frames": self.num_frames,
-            "file_sha256": self.file_sha256,
-        }
-
-
-def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> dict[str, SceneSource]:
+def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> dict[str, SceneRows]:
     """Scene id -> where its rows are, over all posed directories (duplicates refused)."""
-    scenes: dict[str, SceneSource] = {}
+    scenes: dict[str, SceneRows] = {}
     for root in inputs:
         root_p = Path(root)
         manifest = read_manifest(root_p, expect_schema="seeu.posed_frames")
@@ -167,8 +151,7 @@ def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> di
                 raise SeeUError(
                     f"scene {s['scene_id']!r} points at {s['file']}, which the manifest does not list", root_p
                 )
-            scenes[s["scene_id"]] = SceneSource(
-                s["scene_id"],
+            scenes[s["scene_id"]] = SceneRows(
                 str((root_p / s["file"]).resolve()),
                 int(s["row_start"]),
                 int(s["num_frames"]),
@@ -189,7 +172,7 @@ class Plan:
     report: dict
 
 
-def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
+def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
     """interp / extrap: `samples_per_scene` samples of every long-enough scene, scenes sorted by id.
     The samples are drawn lazily, scene by scene, so the first shards are written while the rest of
     the plan is drawn (its counts are known up front: a scene gives all its samples or none)."""
@@ -209,7 +192,7 @@ def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
     return Plan(draws, len(used) * s.samples_per_scene, report)
 
 
-def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneSource]) -> Plan:
+def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
     """eval: exactly the entries of the index, in file order; problems reported per entry."""
     from .eval_index import read_index
 
@@ -260,7 +243,7 @@ class _ViewBytes:
     """Estimated stored bytes per frame of a scene (read once per scene from its posed file): the
     image size, pixel-scaled when resizing, plus the row's other columns."""
 
-    def __init__(self, scenes: dict[str, SceneSource], resize: tuple[int, int] | None):
+    def __init__(self, scenes: dict[str, SceneRows], resize: tuple[int, int] | None):
         self.scenes, self.resize = scenes, resize
         self._tables: dict[str, pa.Table] = {}
         self._sizes: dict[str, np.ndarray] = {}
@@ -271,7 +254,7 @@ class _ViewBytes:
             sizes = self._sizes[sample.scene_id] = self._scene(self.scenes[sample.scene_id])
         return float(sizes[list(sample.views)].sum())
 
-    def _scene(self, src: SceneSource) -> np.ndarray:
+    def _scene(self, src: SceneRows) -> np.ndarray:
         if src.path not in self._tables:
             self._tables[src.path] = open_ipc_file(src.path).read_all().select(["image", "width", "height"])
         rows = self._tables[src.path].slice(src.row_start, src.num_frames)
@@ -282,24 +265,21 @@ class _ViewBytes:
         return nbytes + _VIEW_OVERHEAD_BYTES
 
 
-def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) -> Iterator[dict]:
-    """Cut the plan (in order) into shards of about `shard_bytes` each; JSON-able specs, yielded as
-    soon as each shard is complete."""
+def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneRows]) -> Iterator[ShardSpec]:
+    """Cut the plan (in order) into shards of about `shard_bytes` each; the specs are yielded as soon
+    as each shard is complete."""
     view_bytes = _ViewBytes(scenes, cfg.image.resize)
 
-    def spec(index: int, group: list[Sample]) -> dict:
-        out = {
-            "index": index,
-            "file": SHARD_PATTERN.format(index),
-            "samples": [s.as_dict() for s in group],
-            "sources": {sid: scenes[sid].as_spec() for sid in sorted({s.scene_id for s in group})},
-            "image": cfg.image.as_dict(),
-            "rows_per_batch": cfg.rows_per_batch,
-        }
-        if cfg.near_far is not None:
-            out["near_far"] = list(cfg.near_far)
-        out["plan_sha256"] = plan_sha256(out)
-        return out
+    def spec(index: int, group: list[Sample]) -> ShardSpec:
+        return ShardSpec(
+            index=index,
+            file=SHARD_PATTERN.format(index),
+            samples=tuple(group),
+            sources={sid: scenes[sid] for sid in sorted({s.scene_id for s in group})},
+            image=cfg.image,
+            rows_per_batch=cfg.rows_per_batch,
+            near_far=cfg.near_far,
+        )
 
     group: list[Sample] = []
     acc = 0.0
@@ -319,7 +299,7 @@ def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneSource]) ->
 # ---------------------------------------------------------------------------------------------
 
 
-def existing_shard_matches(path: Path, spec: dict) -> bool:
+def existing_shard_matches(path: Path, spec: ShardSpec) -> bool:
     """True when `path` is a complete shard written from this very spec (plan hash and row count)."""
     if not path.exists():
         return False
@@ -329,61 +309,31 @@ def existing_shard_matches(path: Path, spec: dict) -> bool:
         rows = sum(reader.get_batch(i).num_rows for i in range(reader.num_record_batches))
     except (pa.ArrowInvalid, OSError):
         return False
-    return meta.get(PLAN_KEY) == spec["plan_sha256"].encode() and rows == len(spec["samples"])
+    return meta.get(PLAN_KEY) == spec.plan_sha256.encode() and rows == len(spec.samples)
 
 
-def resumable_shard(out: Path, spec: dict, known: dict[str, dict]) -> FileEntry | None:
+def resumable_shard(out: Path, spec: ShardSpec, known: dict[str, dict]) -> FileEntry | None:
     """The manifest entry of a shard a previous run completed for this very spec, or None.
 
-    Not trusted blindly: the shard must be recorded (`known`: the previous manifest's files and the
-    progress journal of an interrupted run), with the spec's plan hash when the record has one, and
-    the file must still have the recorded size and sha256 (a torn write after a power loss without
-    --fsync keeps its size but not its hash), the plan hash in its metadata and the planned rows.
+    Not trusted blindly: the shard must be recorded (`known`: journal records by file name, from the
+    previous manifest's files and the journal of an interrupted run), with the spec's plan hash as
+    its stamp when the record has one, and the file must still have the recorded size and sha256,
+    the plan hash in its metadata and the planned rows.
     """
-    rec = known.get(spec["file"])
-    path = out / spec["file"]
-    if rec is None or rec.get("plan_sha256", spec["plan_sha256"]) != spec["plan_sha256"]:
+    rec = known.get(spec.file)
+    if rec is None or rec.get("stamp", spec.plan_sha256) != spec.plan_sha256:
         return None
-    try:
-        if path.stat().st_size != rec["bytes"] or rec["rows"] != len(spec["samples"]):
-            return None
-    except OSError:
+    entry = FileEntry(**rec["file"])
+    path = out / spec.file
+    if entry.rows != len(spec.samples) or not existing_shard_matches(path, spec):
         return None
-    if not existing_shard_matches(path, spec) or sha256_file(path) != rec["sha256"]:
-        return None
-    return FileEntry(spec["file"], rec["rows"], rec["bytes"], rec["sha256"])
+    return entry if file_intact(path, entry.bytes, entry.sha256) else None
 
 
-class ProgressJournal:
-    """`.build-progress.jsonl`: one line per shard in place (file, rows, bytes, sha256, plan hash),
-    appended as shards are committed, so a re-run after an interruption knows what to verify and
-    keep. Removed once the manifest is written (the manifest then holds the same)."""
-
-    def __init__(self, out: Path):
-        self.path = out / PROGRESS_NAME
-        self._lock = threading.Lock()
-
-    def read(self) -> dict[str, dict]:
-        known: dict[str, dict] = {}
-        if self.path.exists():
-            for line in self.path.read_text(errors="replace").splitlines():
-                try:
-                    rec = json.loads(line)
-                    known[rec["path"]] = rec
-                except (json.JSONDecodeError, KeyError, TypeError):
-                    break  # a torn last line
-        return known
-
-    def reset(self, records: list[dict]) -> None:
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in records))
-
-    def add(self, result: dict) -> None:
-        rec = dict(result["entry"], plan_sha256=result["plan_sha256"])
-        with self._lock, open(self.path, "a") as fh:  # one write per line: a torn last line is ignored
-            fh.write(json.dumps(rec) + "\n")
-
-    def remove(self) -> None:
-        self.path.unlink(missing_ok=True)
+def shard_record(result: ShardResult) -> dict:
+    """The journal record of a shard in place: unit = its file, stamp = its plan hash."""
+    assert result.entry is not None
+    return {"unit": result.entry.path, "stamp": result.plan_sha256, "file": asdict(result.entry)}
 
 
 # Shards written whose sha256 is still being computed (one hashing thread each, reading the shard
@@ -392,8 +342,8 @@ _PENDING_SHARDS = 4
 
 
 def run_local(
-    specs: Iterable[dict], out_dir: str, workers: int, bar, journal: ProgressJournal | None = None
-) -> list[dict]:
+    specs: Iterable[ShardSpec], out_dir: str, workers: int, bar, journal: Journal | None = None
+) -> list[ShardResult]:
     """Materialise the specs (taken from `specs` as they are needed) in this process (workers <= 1)
     or in a process pool.
 
@@ -403,26 +353,29 @@ def run_local(
     """
     from concurrent.futures import ThreadPoolExecutor
 
-    results = []
+    results: list[ShardResult] = []
     out = Path(out_dir)
 
-    def commit(result: dict) -> None:
-        if "sha256_future" in result:
-            result["entry"]["sha256"] = result.pop("sha256_future").result()
-        commit_pending(out / result["entry"]["path"])
+    def commit(result: ShardResult) -> None:
+        assert result.entry is not None
+        if result.sha256_future is not None:
+            result.entry = replace(result.entry, sha256=result.sha256_future.result())
+            result.sha256_future = None
+        commit_pending(out / result.entry.path)
+        result.pending = False
         if journal is not None:
-            journal.add(result)
+            journal.add(shard_record(result))
 
     with ThreadPoolExecutor(max_workers=1) as committer:
         commits = []
 
-        def collect(result: dict) -> None:
+        def collect(result: ShardResult) -> None:
             results.append(result)
-            if result.get("pending"):
+            if result.pending:
                 commits.append(committer.submit(commit, result))
                 if len(commits) > _PENDING_SHARDS:
                     commits[-_PENDING_SHARDS - 1].result()
-            bar.update(result["entry"]["rows"] if "entry" in result else 0)
+            bar.update(result.entry.rows if result.entry is not None else 0)
 
         if workers <= 1:
             for spec in specs:  # the next shard is built while the hasher finishes the last one
@@ -438,7 +391,7 @@ def run_local(
 
             # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
             with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futures = [pool.submit(materialise_json, (json.dumps(s), out_dir, fsync_enabled())) for s in specs]
+                futures = [pool.submit(materialise_in_pool, s, out_dir, fsync_enabled()) for s in specs]
                 for fut in as_completed(futures):
                     collect(fut.result())
         for c in commits:
@@ -458,39 +411,17 @@ def _progress_bar(total: int, enabled: bool):
 
 
 def known_shards(out: Path) -> dict[str, dict]:
-    """Shards a previous run recorded as complete: its manifest's files, then its progress journal."""
+    """Shards a previous run recorded as complete, as journal records by file name: its manifest's
+    files (no stamp: the plan hash is checked in the shard's metadata), then its journal."""
     known: dict[str, dict] = {}
     if (out / MANIFEST_NAME).exists():
         try:
             doc = read_manifest(out, expect_schema=SCHEMA)
-            known.update({f["path"]: f for f in doc["files"]})
+            known.update({f["path"]: {"unit": f["path"], "file": f} for f in doc["files"]})
         except SeeUError:
             pass
-    known.update(ProgressJournal(out).read())
+    known.update({rec["unit"]: rec for rec in Journal(out / PROGRESS_NAME).read()})
     return known
-
-
-def prepare_output(out: Path) -> None:
-    """Mark the output incomplete (manifest removed) and drop the partial writes of an interrupted run."""
-    out.mkdir(parents=True, exist_ok=True)
-    (out / MANIFEST_NAME).unlink(missing_ok=True)
-    for pattern in (".shard-*.tmp", ".shard-*.pending"):
-        for p in out.glob(pattern):
-            p.unlink(missing_ok=True)
-
-
-def remove_stale_shards(out: Path, num_shards: int) -> list[str]:
-    """Remove the shards of an earlier, larger build (index >= `num_shards`); their names."""
-    removed = []
-    for p in sorted(out.glob("shard-*.arrow")):
-        try:
-            idx = int(p.stem.split("-")[1])
-        except (IndexError, ValueError):
-            continue
-        if idx >= num_shards:
-            p.unlink()
-            removed.append(p.name)
-    return removed
 
 
 def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
@@ -527,24 +458,25 @@ def _build(cfg: BuildConfig, argv_command: str) -> dict:
         )
     out.mkdir(parents=True, exist_ok=True)
     known = known_shards(out)
-    journal = ProgressJournal(out)
+    journal = Journal(out / PROGRESS_NAME)
     # Before the manifest goes: what a previous run completed stays known if this one is interrupted
     # (every record is verified again before a shard is kept: `resumable_shard`).
-    journal.reset(list(known.values()))
-    prepare_output(out)
-    results: list[dict] = []
+    journal.reset(known.values())
+    (out / MANIFEST_NAME).unlink(missing_ok=True)  # incomplete from here on
+    removed = sweep(out, SHARD_FILES, keep=known)  # shards no run recorded, partial writes
+    results: list[ShardResult] = []
     plan_hashes: list[str] = []
 
-    def todo(bar) -> Iterator[dict]:
+    def todo(bar) -> Iterator[ShardSpec]:
         """The shard specs, planned as they are taken; the shards a previous run completed are kept."""
         for spec in shard_specs(cfg, plan, scenes):
-            plan_hashes.append(spec["plan_sha256"])
+            plan_hashes.append(spec.plan_sha256)
             entry = resumable_shard(out, spec, known)
             if entry is None:
-                (out / spec["file"]).unlink(missing_ok=True)  # not resumable: never served from a stale file
+                (out / spec.file).unlink(missing_ok=True)  # not resumable: never served from a stale file
                 yield spec
             else:
-                results.append({"index": spec["index"], "entry": asdict(entry), "resumed": True})
+                results.append(ShardResult(spec.index, spec.plan_sha256, entry, resumed=True))
                 bar.update(entry.rows)
 
     with _progress_bar(plan.total, cfg.progress) as bar:
@@ -553,20 +485,20 @@ def _build(cfg: BuildConfig, argv_command: str) -> dict:
 
             specs = list(todo(bar))
             if specs:
-                results += run_ray(specs, str(out), cfg.ray_address, bar, journal)
+                results += run_ray(specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r)))
         else:
             results += run_local(todo(bar), str(out), cfg.workers, bar, journal)
-    removed = remove_stale_shards(out, len(plan_hashes))
-    results.sort(key=lambda r: r["index"])
-    errors = [r["error"] for r in results if "error" in r]
+    removed += sweep(out, SHARD_FILES, keep={SHARD_PATTERN.format(i) for i in range(len(plan_hashes))})
+    results.sort(key=lambda r: r.index)
+    errors = [r.error for r in results if r.error is not None]
     if errors:
         raise SeeUError(errors[0] + (f" (and {len(errors) - 1} more shard errors)" if len(errors) > 1 else ""))
-    files = [FileEntry(**r["entry"]) for r in results]
+    files = [r.entry for r in results if r.entry is not None]
     report = dict(plan.report)
     report.update(
         shards=len(files),
-        shards_resumed=sum(1 for r in results if r["resumed"]),
-        stale_files_removed=removed,
+        shards_resumed=sum(1 for r in results if r.resumed),
+        stale_files_removed=sorted(removed),
         plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest(),
     )
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)

@@ -23,7 +23,7 @@ INTERPOLATIONS = {
 }
 
 
-def decode_rgb(data: bytes) -> np.ndarray:
+def decode_rgb(data: bytes | memoryview) -> np.ndarray:
     """Encoded JPEG/PNG bytes -> (H, W, 3) uint8 RGB. Raises ValueError when undecodable."""
     arr = np.frombuffer(data, dtype=np.uint8)
     img = cv2.imdecode(arr, cv2.IMREAD_COLOR) if arr.size else None

@@ -24,6 +24,7 @@ from .manifest import FileEntry, read_manifest, write_manifest
 from .schema import arrow_schema, schema_version
 
 SCHEMA = "seeu.posed_frames"
+POSED_FILES = "posed-*.arrow"  # glob of the files `PosedDatasetWriter` writes (default prefix)
 
 
 @dataclass

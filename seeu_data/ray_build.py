@@ -1,10 +1,11 @@
 """Ray Data engine for `seeu build --engine ray`: the same shard specs, the same materialise function.
 
 The driver plans (indices only) and cuts shard specs exactly as the local engine does; Ray Data maps
-`shard_task.materialise` over the specs (one spec per block, JSON strings so Arrow never has to infer a
-type for the nested spec), each task writes `shard-XXXXX.arrow` atomically under its deterministic
-name (fsynced first when the driver's fsync policy is on) and returns its manifest entry; the
-driver records it in the build's progress journal and writes the manifest last. The output directory and
+`shard_task.materialise` over the specs (one spec per block; rows carry the `ShardSpec` and the
+`ShardResult` as JSON strings, so Arrow never has to infer a type for them: the only place they are
+dicts). Each task writes `shard-XXXXX.arrow` atomically under its deterministic name (fsynced first
+when the driver's fsync policy is on) and returns its manifest entry; the driver records it in the
+build's journal and writes the manifest last. The output directory and
 the posed inputs must be on a file system every node sees (or the same path on each node).
 """
 
@@ -13,25 +14,33 @@ from __future__ import annotations
 import json
 import os
 from pathlib import Path
+from typing import Callable
 
 from .ray_cluster import ensure_ray
+from .shard_task import ShardResult, materialise
+from .triples import ShardSpec
 
 
 def _ray_task(row: dict) -> dict:
     import cv2
 
     from .arrow_io import set_fsync
-    from .shard_task import materialise
 
     cv2.setNumThreads(1)  # Ray schedules one task per CPU
     set_fsync(bool(row["fsync"]))  # the driver's fsync policy
-    spec = json.loads(row["spec"])
-    return {"result": json.dumps(materialise(spec, row["out_dir"]))}
+    spec = ShardSpec.from_dict(json.loads(row["spec"]))
+    return {"result": json.dumps(materialise(spec, row["out_dir"]).as_dict())}
 
 
-def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=None) -> list[dict]:
-    """Materialise every spec on the Ray cluster; results in spec order (each recorded in the build's
-    progress `journal` as it arrives: the task has renamed the shard into place by then)."""
+def run_ray(
+    specs: list[ShardSpec],
+    out_dir: str,
+    address: str | None,
+    bar,
+    on_shard: Callable[[ShardResult], None] | None = None,
+) -> list[ShardResult]:
+    """Materialise every spec on the Ray cluster; results in spec order. `on_shard(result)` is called
+    for each shard written, as it arrives (the task has renamed the shard into place by then)."""
     import ray
 
     from .arrow_io import fsync_enabled
@@ -43,13 +52,16 @@ def run_ray(specs: list[dict], out_dir: str, address: str | None, bar, journal=N
     os.environ.setdefault("RAY_DATA_LOG_LEVEL", "ERROR")
     ctx = ray.data.DataContext.get_current()
     ctx.enable_progress_bars = False
-    items = [{"spec": json.dumps(s), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync_enabled()} for s in specs]
+    items = [
+        {"spec": json.dumps(s.as_dict()), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync_enabled()}
+        for s in specs
+    ]
     ds = ray.data.from_items(items, override_num_blocks=len(items)).map(_ray_task, num_cpus=1)
     results = []
     for row in ds.iter_rows():
-        result = json.loads(row["result"])
+        result = ShardResult.from_dict(json.loads(row["result"]))
         results.append(result)
-        if journal is not None and "entry" in result:
-            journal.add(result)
-        bar.update(result["entry"]["rows"] if "entry" in result else 0)
-    return sorted(results, key=lambda r: r["index"])
+        if on_shard is not None and result.entry is not None:
+            on_shard(result)
+        bar.update(result.entry.rows if result.entry is not None else 0)
+    return sorted(results, key=lambda r: r.index)

@@ -10,9 +10,9 @@ Each row is self-contained: V context views then T target views, every per-view 
 V + T entries (frame_index, source_frame, image, width, height, intrinsics_norm, cam_to_world,
 near, far), plus `gap` and per-target `target_offset`.
 
-`build_shard_table(spec)` is a pure function of its JSON-able shard spec (samples, posed sources,
-image options): the local process pool and the Ray engine both call it, which is why their shards
-are byte-identical.
+`build_shard_table(spec)` is a pure function of its `ShardSpec` (samples, where their posed rows
+are, image options): the local process pool and the Ray engine both call it, which is why their
+shards are byte-identical.
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ from __future__ import annotations
 import hashlib
 import json
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
@@ -30,7 +30,9 @@ import pyarrow as pa
 from .arrow_io import deferred_binary, map_readonly, open_ipc_file, populate
 from .errors import SeeUError
 from .manifest import read_manifest
+from .sampling import Sample, make_sample
 from .schema import arrow_schema
+from .triple_row import TripleRow
 
 SCHEMA = "seeu.triples"
 PLAN_KEY = b"seeu.shard_plan_sha256"
@@ -82,14 +84,79 @@ def shard_schema(plan_sha256: str) -> pa.Schema:
     return schema.with_metadata(meta)
 
 
-def plan_sha256(spec: dict) -> str:
-    """Hash of everything a shard's bytes depend on (samples, inputs' fingerprints, image options)."""
-    content = {k: spec[k] for k in ("samples", "image", "rows_per_batch")}
-    if spec.get("near_far") is not None:  # absent unless overridden: older plans keep their hashes
-        content["near_far"] = list(spec["near_far"])
-    # inputs by content (file sha256 + rows), not by path: moving the posed data does not invalidate shards
-    content["sources"] = {sid: {k: v for k, v in src.items() if k != "path"} for sid, src in spec["sources"].items()}
-    return hashlib.sha256(json.dumps(content, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+@dataclass(frozen=True)
+class SceneRows:
+    """Where one scene's posed frames are: `num_frames` rows from `row_start` of the posed Arrow file
+    `path` (absolute), whose sha256 is `file_sha256`."""
+
+    path: str
+    row_start: int
+    num_frames: int
+    file_sha256: str
+
+
+@dataclass(frozen=True)
+class ShardSpec:
+    """One shard's plan, made on the build driver: its `samples` in row order, where their scenes'
+    rows are (`sources`, by scene id), the image options, rows per record batch and the user's
+    near/far override (None: the data's).
+
+    `plan_sha256` (computed) hashes everything the shard's bytes depend on, the posed files by content
+    (sha256 and rows), not by path: moving the posed data does not invalidate shards. `as_dict` /
+    `from_dict`: its JSON form, for the Ray engine's rows.
+    """
+
+    index: int
+    file: str
+    samples: tuple[Sample, ...]
+    sources: dict[str, SceneRows]
+    image: ImageOptions
+    rows_per_batch: int
+    near_far: tuple[float, float] | None = None
+    plan_sha256: str = field(init=False)
+
+    def __post_init__(self) -> None:
+        content: dict = {
+            "samples": [s.as_dict() for s in self.samples],
+            "image": self.image.as_dict(),
+            "rows_per_batch": self.rows_per_batch,
+            "sources": {
+                sid: {"row_start": r.row_start, "num_frames": r.num_frames, "file_sha256": r.file_sha256}
+                for sid, r in self.sources.items()
+            },
+        }
+        if self.near_far is not None:  # absent unless overridden: older plans keep their hashes
+            content["near_far"] = list(self.near_far)
+        text = json.dumps(content, sort_keys=True, separators=(",", ":"))
+        object.__setattr__(self, "plan_sha256", hashlib.sha256(text.encode()).hexdigest())
+
+    def as_dict(self) -> dict:
+        return {
+            "index": self.index,
+            "file": self.file,
+            "samples": [s.as_dict() for s in self.samples],
+            "sources": {sid: vars(r) for sid, r in self.sources.items()},
+            "image": self.image.as_dict(),
+            "rows_per_batch": self.rows_per_batch,
+            "near_far": list(self.near_far) if self.near_far is not None else None,
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ShardSpec:
+        image = d["image"]
+        return cls(
+            index=int(d["index"]),
+            file=d["file"],
+            samples=tuple(
+                make_sample(s["scene_id"], s["mode"], s["k"], s["context"], s["target"]) for s in d["samples"]
+            ),
+            sources={sid: SceneRows(**r) for sid, r in d["sources"].items()},
+            image=ImageOptions(
+                tuple(image["resize"]) if image["resize"] else None, image["interpolation"], image["jpeg_quality"]
+            ),
+            rows_per_batch=int(d["rows_per_batch"]),
+            near_far=tuple(d["near_far"]) if d.get("near_far") is not None else None,
+        )
 
 
 # ---------------------------------------------------------------------------------------------
@@ -147,27 +214,27 @@ def _mapped(path: str) -> _MappedFile:
 class _SceneTables:
     """Posed rows per scene for one shard, from the process's mapped posed files (zero-copy reads)."""
 
-    def __init__(self, sources: dict[str, dict]):
+    def __init__(self, sources: dict[str, SceneRows]):
         self.sources = sources
         self._files: dict[str, _MappedFile] = {}  # the same mapping for every scene of the shard
 
     def _file(self, scene_id: str) -> _MappedFile:
-        path = self.sources[scene_id]["path"]
+        path = self.sources[scene_id].path
         if path not in self._files:
             self._files[path] = _mapped(path)
         return self._files[path]
 
     def table(self, scene_id: str) -> pa.Table:
         src = self.sources[scene_id]
-        path = src["path"]
+        path = src.path
         full = self._file(scene_id).table
-        if src["row_start"] + src["num_frames"] > full.num_rows:
+        if src.row_start + src.num_frames > full.num_rows:
             raise SeeUError(
-                f"scene {scene_id!r} rows {src['row_start']}..{src['row_start'] + src['num_frames']} "
+                f"scene {scene_id!r} rows {src.row_start}..{src.row_start + src.num_frames} "
                 f"exceed the file's {full.num_rows} rows",
                 path,
             )
-        rows = full.slice(src["row_start"], src["num_frames"])
+        rows = full.slice(src.row_start, src.num_frames)
         first = rows.column("scene_id")[0].as_py()
         if first != scene_id:
             raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", path)
@@ -197,7 +264,7 @@ def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.
 
 
 def _resize_views(
-    taken: pa.Table, view_scene: list[str], view_frame: np.ndarray, opts: ImageOptions, sources: dict[str, dict]
+    taken: pa.Table, view_scene: list[str], view_frame: np.ndarray, opts: ImageOptions, sources: dict[str, SceneRows]
 ) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
     """Decode, resize + centre-crop and re-encode every view (cached per scene frame within the shard)."""
     from .image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
@@ -218,13 +285,13 @@ def _resize_views(
                 img = decode_rgb(images[i])
             except ValueError:
                 raise SeeUError(
-                    f"scene {sid!r} frame {int(f)}: image bytes cannot be decoded", sources[sid]["path"]
+                    f"scene {sid!r} frame {int(f)}: image bytes cannot be decoded", sources[sid].path
                 ) from None
             if img.shape[:2] != (heights[i], widths[i]):
                 raise SeeUError(
                     f"scene {sid!r} frame {int(f)}: image is {img.shape[1]}x{img.shape[0]}, "
                     f"the table says {widths[i]}x{heights[i]}",
-                    sources[sid]["path"],
+                    sources[sid].path,
                 )
             img = resize_cover_crop(img, (out_h, out_w), opts.interpolation)
             cache[key] = encode_png(img) if fmts[i] == "png" else encode_jpeg(img, opts.jpeg_quality)
@@ -240,26 +307,16 @@ def _resize_views(
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
 
 
-def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
-    """Rows of one shard from its spec.
+def build_shard_table(spec: ShardSpec, deferred_images: bool = False) -> pa.Table:
+    """Rows of one shard from its spec (one row per sample, in order; schema `shard_schema`).
 
     `deferred_images=True` (copy path only, i.e. no resize): the image column is an
     `arrow_io.deferred_binary` over views into the mapped posed files, for a table that is only
     written with `arrow_io.write_table*` (the bytes go from the posed files to the shard in one copy).
-
-    spec = {"samples": [{"scene_id", "mode", "k", "context": [...], "target": [...]}, ...],
-            "sources": {scene_id: {"path", "row_start", "num_frames", ...}},
-            "image": ImageOptions.as_dict(), "rows_per_batch": int, "plan_sha256": str}
     """
-    from .sampling import make_sample
-
-    samples = [make_sample(s["scene_id"], s["mode"], s["k"], s["context"], s["target"]) for s in spec["samples"]]
-    opts = ImageOptions(
-        resize=tuple(spec["image"]["resize"]) if spec["image"]["resize"] else None,
-        interpolation=spec["image"]["interpolation"],
-        jpeg_quality=spec["image"]["jpeg_quality"],
-    )
-    tables = _SceneTables(spec["sources"])
+    samples = spec.samples
+    opts = spec.image
+    tables = _SceneTables(spec.sources)
     scene_order: list[str] = []
     base: dict[str, int] = {}
     parts: list[pa.Table] = []
@@ -269,12 +326,10 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
             base[s.scene_id] = sum(p.num_rows for p in parts)
             parts.append(t)
             scene_order.append(s.scene_id)
-        n = spec["sources"][s.scene_id]["num_frames"]
+        n = spec.sources[s.scene_id].num_frames
         if any(not 0 <= v < n for v in s.views):
-            raise SeeUError(
-                f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec["sources"][s.scene_id]["path"]
-            )
-    schema = shard_schema(spec["plan_sha256"])
+            raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec.sources[s.scene_id].path)
+    schema = shard_schema(spec.plan_sha256)
     if not samples:
         return schema.empty_table()
     posed = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
@@ -295,7 +350,7 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
         width, height = taken.column("width"), taken.column("height")
         intr = taken.column("intrinsics_norm")
     else:
-        imgs, w, h, intr_np = _resize_views(taken, view_scene, view_frame, opts, spec["sources"])
+        imgs, w, h, intr_np = _resize_views(taken, view_scene, view_frame, opts, spec.sources)
         images = pa.array(imgs, pa.binary())
         width, height = pa.array(w), pa.array(h)
         intr = pa.FixedSizeListArray.from_arrays(pa.array(intr_np.reshape(-1)), 4)
@@ -310,8 +365,8 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
         "near": taken.column("near"),
         "far": taken.column("far"),
     }
-    if spec.get("near_far") is not None:  # `seeu build --near/--far`: the user's bounds instead of the data's
-        for key, value in zip(("near", "far"), spec["near_far"]):
+    if spec.near_far is not None:  # `seeu build --near/--far`: the user's bounds instead of the data's
+        for key, value in zip(("near", "far"), spec.near_far):
             per_view[key] = pa.array(np.full(len(flat), value), per_view[key].type)
     fmt_col = taken.column("image_format")
     first_view = np.concatenate([[0], np.cumsum(counts)[:-1]])
@@ -343,61 +398,6 @@ def build_shard_table(spec: dict, deferred_images: bool = False) -> pa.Table:
 # ---------------------------------------------------------------------------------------------
 # Reading
 # ---------------------------------------------------------------------------------------------
-
-
-@dataclass
-class TripleRow:
-    """One decoded-metadata row. L = V + T views (contexts first). Images stay encoded.
-
-    frame_index/source_frame/width/height/near/far: (L,); intrinsics_norm: (L, 4);
-    cam_to_world: (L, 4, 4); target_offset: (T,).
-    """
-
-    sample_id: str
-    scene_id: str
-    mode: str
-    num_context: int
-    frame_index: np.ndarray
-    source_frame: np.ndarray
-    images: list[bytes]
-    image_format: str
-    width: np.ndarray
-    height: np.ndarray
-    intrinsics_norm: np.ndarray
-    cam_to_world: np.ndarray
-    near: np.ndarray
-    far: np.ndarray
-    gap: int
-    target_offset: np.ndarray
-
-    @property
-    def context(self) -> list[int]:
-        return self.frame_index[: self.num_context].tolist()
-
-    @property
-    def target(self) -> list[int]:
-        return self.frame_index[self.num_context :].tolist()
-
-    @classmethod
-    def from_pydict(cls, d: dict) -> "TripleRow":
-        return cls(
-            sample_id=d["sample_id"],
-            scene_id=d["scene_id"],
-            mode=d["mode"],
-            num_context=int(d["num_context"]),
-            frame_index=np.asarray(d["frame_index"], np.int64),
-            source_frame=np.asarray(d["source_frame"], np.int64),
-            images=list(d["image"]),
-            image_format=d["image_format"],
-            width=np.asarray(d["width"], np.int64),
-            height=np.asarray(d["height"], np.int64),
-            intrinsics_norm=np.asarray(d["intrinsics_norm"], np.float64).reshape(-1, 4),
-            cam_to_world=np.asarray(d["cam_to_world"], np.float64).reshape(-1, 4, 4),
-            near=np.asarray(d["near"], np.float32),
-            far=np.asarray(d["far"], np.float32),
-            gap=int(d["gap"]),
-            target_offset=np.asarray(d["target_offset"], np.int64),
-        )
 
 
 class TripleShards:

@@ -16,6 +16,7 @@ import pyarrow as pa
 from seeu_data.arrow_io import write_table
 from seeu_data.manifest import FileEntry, provenance, write_manifest
 from seeu_data.schema import arrow_schema, schema_version
+from seeu_data.triple_row import TripleRow
 from tests.helpers import look_at_cam_to_world
 
 SCHEMA = "seeu.triples"
@@ -41,7 +42,7 @@ def row_dict(
     image_fn: Callable[[int, int, int], bytes] | None = None,
     ext: str = ".jpg",
 ) -> dict:
-    """One triples row with V = num_context + num_target views of size hw."""
+    """One triples row (`TripleRow.to_pydict`) with V = num_context + num_target views of size hw."""
     v = num_context + num_target
     h, w = hw
     frames = [row + i for i in range(v)]
@@ -56,24 +57,24 @@ def row_dict(
     poses = [
         look_at_cam_to_world(np.array([0.1 * f, 0.02 * shard, -2.0]), np.array([0.1 * f, 0.0, 0.0])) for f in frames
     ]
-    return {
-        "sample_id": f"s{shard}/interp/{row}",
-        "scene_id": f"s{shard}",
-        "mode": "interp",
-        "num_context": num_context,
-        "frame_index": frames,
-        "source_frame": [3 * f for f in frames],
-        "image": images,
-        "image_format": "jpeg" if ext == ".jpg" else "png",
-        "width": [w] * v,
-        "height": [h] * v,
-        "intrinsics_norm": [[0.9 + 0.01 * k, 1.2, 0.5 + 0.01 * k, 0.48] for k in range(v)],
-        "cam_to_world": [p.reshape(-1).tolist() for p in poses],
-        "near": [0.5] * v,
-        "far": [10.0 + shard] * v,
-        "gap": gap,
-        "target_offset": [0] * num_target,
-    }
+    return TripleRow(
+        sample_id=f"s{shard}/interp/{row}",
+        scene_id=f"s{shard}",
+        mode="interp",
+        num_context=num_context,
+        frame_index=np.array(frames),
+        source_frame=3 * np.array(frames),
+        images=[memoryview(b) for b in images],
+        image_format="jpeg" if ext == ".jpg" else "png",
+        width=np.full(v, w),
+        height=np.full(v, h),
+        intrinsics_norm=np.array([[0.9 + 0.01 * k, 1.2, 0.5 + 0.01 * k, 0.48] for k in range(v)]),
+        cam_to_world=np.stack(poses),
+        near=np.full(v, 0.5),
+        far=np.full(v, 10.0 + shard),
+        gap=gap,
+        target_offset=np.zeros(num_target, np.int64),
+    ).to_pydict()
 
 
 def write_triples(

@@ -25,7 +25,6 @@ import torch
 
 from pipelines.cli import main as cli_main
 from tests.test_import_formats import colmap_fixture
-from tests.training_fixtures import synthetic_posed, synthetic_triples
 
 CASES: list = []
 
@@ -63,14 +62,12 @@ def _sentinel_check(sentinel: Path):
 
 
 @pytest.fixture(scope="module")
-def ws(tmp_path_factory):
-    """A workspace of valid inputs the cases damage copies of."""
+def ws(workspace, tmp_path_factory):
+    """The shared valid inputs (conftest `workspace`), and a pixelSplat export, a COLMAP model and a
+    one-step training run; the cases damage copies."""
     root = tmp_path_factory.mktemp("ws")
-    tri = synthetic_triples(root, n_frames=12, hw=(32, 32), samples_per_scene=4, gap=(3, 5))
-    posed = synthetic_posed(root, n_frames=12, hw=(32, 32))
-    assert cli_main(["export", "nerfstudio", str(posed), "--out", str(root / "ns")]) == 0
+    tri, posed = workspace["triples"], workspace["posed"]
     assert cli_main(["export", "pixelsplat", str(posed), "--out", str(root / "ps")]) == 0
-    assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "64x48"]) == 0
     colmap_fixture(root / "colmap", pycolmap.CameraModelId.PINHOLE, [90.0, 85.0, 47.0, 33.0])
     assert (
         cli_main(
@@ -91,16 +88,7 @@ def ws(tmp_path_factory):
         == 0
     )
     ckpt = sorted((root / "run" / "checkpoints").glob("ckpt-*.pt"))[-1]
-    return {
-        "root": root,
-        "triples": tri,
-        "posed": posed,
-        "ns": next((root / "ns").rglob("transforms.json")),
-        "ps": root / "ps",
-        "clip": root / "clip" / "clip.mp4",
-        "colmap": root / "colmap",
-        "ckpt": ckpt,
-    }
+    return {**workspace, "ps": root / "ps", "colmap": root / "colmap", "ckpt": ckpt}
 
 
 def _copy(src: Path, tmp: Path, name: str = "copy") -> Path:
@@ -111,7 +99,7 @@ def _copy(src: Path, tmp: Path, name: str = "copy") -> Path:
 
 def _ns(ws, tmp, change) -> list[str]:
     """A copy of the nerfstudio export with `change(doc)` applied to its transforms.json."""
-    folder = _copy(ws["ns"].parent, tmp, "ns")
+    folder = _copy(ws["transforms"].parent, tmp, "ns")
     doc = json.loads((folder / "transforms.json").read_text())
     change(doc)
     (folder / "transforms.json").write_text(json.dumps(doc))
@@ -283,7 +271,7 @@ case("import-nerfstudio-file-path-number", text="file_path must be a non-empty s
     lambda ws, tmp: _ns(ws, tmp, lambda d: d["frames"][0].update(file_path=7))
 )
 case("import-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["import", "nerfstudio", str(ws["ns"]), "--out", str(tmp / "f")]
+    lambda ws, tmp: _put(tmp / "f", "") or ["import", "nerfstudio", str(ws["transforms"]), "--out", str(tmp / "f")]
 )
 
 # ------------------------------------------------------------------------------------------ export

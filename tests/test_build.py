@@ -258,20 +258,18 @@ def test_skipped_scenes_and_bad_inputs(posed, tmp_path, capsys):
 
 
 def test_shard_spec_out_of_range_and_missing_file_are_errors(posed):
+    from dataclasses import replace
+
     from seeu_data.build import scan_inputs
-    from seeu_data.triples import build_shard_table
+    from seeu_data.sampling import make_sample
+    from seeu_data.triples import ImageOptions, ShardSpec, build_shard_table
 
     src = scan_inputs([str(posed)])["alpha"]
-    spec = {
-        "samples": [{"scene_id": "alpha", "mode": "interp", "k": 0, "context": [0, 5], "target": [30]}],
-        "sources": {"alpha": src.as_spec()},
-        "image": {"resize": None, "interpolation": "area", "jpeg_quality": 95},
-        "rows_per_batch": 8,
-        "plan_sha256": "0",
-    }
+    sample = make_sample("alpha", "interp", 0, [0, 5], [30])
+    spec = ShardSpec(0, "shard-00000.arrow", (sample,), {"alpha": src}, ImageOptions(), rows_per_batch=8)
     with pytest.raises(SeeUError, match="frame index out of range 0..29"):
         build_shard_table(spec)
-    spec["sources"]["alpha"] = dict(src.as_spec(), path="/nonexistent.arrow")
+    spec = replace(spec, sources={"alpha": replace(src, path="/nonexistent.arrow")})
     with pytest.raises(SeeUError, match="file not found"):
         build_shard_table(spec)
 
@@ -322,7 +320,7 @@ def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeyp
     real = build_mod.resumable_shard
 
     def interrupted(out_dir, spec, known):
-        if spec["index"] == 2:
+        if spec.index == 2:
             raise KeyboardInterrupt
         return real(out_dir, spec, known)
 
@@ -372,14 +370,14 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     real = shard_task.build_shard_table
 
     def interrupted(spec, **kwargs):
-        if spec["index"] == 3:
+        if spec.index == 3:
             raise KeyboardInterrupt
         return real(spec, **kwargs)
 
     monkeypatch.setattr(shard_task, "build_shard_table", interrupted)
     assert _build(posed, out, "--workers", "1") == 130
     assert not (out / "manifest.json").exists()
-    assert [json.loads(line)["path"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
+    assert [json.loads(line)["unit"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
         "shard-00000.arrow",
         "shard-00001.arrow",
         "shard-00002.arrow",
@@ -426,7 +424,7 @@ def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
     )
     scenes = scan_inputs(cfg.inputs)
     specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
-    assert len(specs) > 1 and max(len(s["sources"]) for s in specs) > 1
+    assert len(specs) > 1 and max(len(s.sources) for s in specs) > 1
     for spec in specs:
         plain = write_table(tmp_path / "plain.arrow", build_shard_table(spec), max_chunksize=3)
         deferred = write_table(
@@ -460,3 +458,41 @@ def test_default_workers(monkeypatch, cores, copy, resize):
 
     monkeypatch.setattr(os, "cpu_count", lambda: cores)
     assert (default_workers(), default_workers(resize=True)) == (copy, resize)
+
+
+def test_shard_spec_and_result_round_trip_as_json_and_the_plan_hash(posed, tmp_path):
+    """The Ray engine's rows carry specs and results as JSON: both come back equal. The plan hash
+    covers the samples and the posed files' content, not their paths."""
+    from dataclasses import replace
+
+    from seeu_data.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
+    from seeu_data.sampling import SamplingConfig
+    from seeu_data.shard_task import ShardResult, materialise
+    from seeu_data.triples import ShardSpec
+
+    cfg = BuildConfig(
+        inputs=(str(posed),),
+        out=str(tmp_path / "o"),
+        shard_bytes=60_000,
+        near_far=(0.5, 20.0),
+        sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=5),
+    )
+    scenes = scan_inputs(cfg.inputs)
+    specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
+    for spec in specs:
+        back = ShardSpec.from_dict(json.loads(json.dumps(spec.as_dict())))
+        assert back == spec and back.plan_sha256 == spec.plan_sha256
+    spec = specs[0]
+    sid = spec.samples[0].scene_id
+    moved = replace(spec, sources={**spec.sources, sid: replace(spec.sources[sid], path="/elsewhere.arrow")})
+    assert moved.plan_sha256 == spec.plan_sha256
+    other = replace(spec, samples=spec.samples[1:])
+    edited = replace(spec, sources={**spec.sources, sid: replace(spec.sources[sid], file_sha256="0" * 64)})
+    assert len({spec.plan_sha256, other.plan_sha256, edited.plan_sha256, replace(spec, near_far=None).plan_sha256}) == 4
+    (tmp_path / "o").mkdir()
+    result = materialise(spec, str(tmp_path / "o"))
+    assert result.entry is not None and result.entry.rows == len(spec.samples) and result.error is None
+    assert ShardResult.from_dict(json.loads(json.dumps(result.as_dict()))) == result
+    failed = materialise(moved, str(tmp_path / "o"))
+    assert failed.entry is None and "file not found" in failed.error
+    assert ShardResult.from_dict(json.loads(json.dumps(failed.as_dict()))) == failed

@@ -35,10 +35,7 @@ from seeu_data.video import discover_sources, iter_frames, sharpness
 W, H, N = 320, 180, 36
 
 
-@pytest.fixture(autouse=True)
-def _no_heartbeat(monkeypatch):
-    """Heartbeat lines (stderr is not a terminal under pytest) would break the one-line error checks."""
-    monkeypatch.setenv("SEEU_HEARTBEAT_S", "0")
+pytestmark = pytest.mark.usefixtures("no_heartbeat")  # conftest: one-line error checks
 
 
 @pytest.fixture(scope="module")

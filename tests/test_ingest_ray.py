@@ -19,6 +19,7 @@ from pipelines.cli import main as cli_main
 from pipelines.validate import validate_dataset
 from seeu_data.errors import SeeUError
 from seeu_data.ray_cluster import check_address
+from seeu_data.resume import STAGES_JOURNAL, Journal
 from seeu_data.synthetic import write_clip
 
 ray = pytest.importorskip("ray")
@@ -131,10 +132,11 @@ def test_ray_matches_the_local_engine_and_lists_failures(runs):
 
 def test_ray_rerun_resumes_each_scene(runs):
     """A re-run reuses the stages of complete scenes and redoes what an interrupted one lacks (c1 here,
-    stopped during SfM: its stamp and manifest gone); the posed files come out the same."""
+    stopped during SfM: its journal record and manifest gone); the posed files come out the same."""
     root = runs["root"]
     (root / "ray" / "c1" / "manifest.json").unlink()
-    (root / "ray" / ".work" / "c1" / "sfm" / "stamp.json").unlink()
+    journal = Journal(root / "ray" / ".work" / "c1" / STAGES_JOURNAL)  # as SfM left it when stopped
+    journal.reset([r for r in journal.read() if r["unit"] != "sfm"])
     with _in(root):
         rc, out, err = _ingest(["videos", "--out", "ray", "--engine", "ray", *COMMON])
     assert rc == 0 and err == "", err

@@ -30,9 +30,7 @@ from seeu_data.video import SceneSource, discover_sources, unique_scene_names
 W, H = 320, 180
 
 
-@pytest.fixture(autouse=True)
-def _no_heartbeat(monkeypatch):
-    monkeypatch.setenv("SEEU_HEARTBEAT_S", "0")
+pytestmark = pytest.mark.usefixtures("no_heartbeat")  # conftest: one-line error checks
 
 
 # ---------------------------------------------------------------------------------------------

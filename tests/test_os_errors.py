@@ -19,7 +19,6 @@ import pytest
 
 from pipelines.cli import main as cli_main, os_error_line
 from seeu_data import arrow_io
-from tests.training_fixtures import synthetic_posed, synthetic_triples
 
 
 def _one_line(capsys) -> str:
@@ -59,26 +58,15 @@ def _fail_writes(monkeypatch, code: int) -> None:
     monkeypatch.setattr(Path, "write_bytes", write_bytes)
 
 
-@pytest.fixture(scope="module")
-def data(tmp_path_factory):
-    root = tmp_path_factory.mktemp("data")
-    tri = synthetic_triples(root, n_frames=12, hw=(32, 32), samples_per_scene=4, gap=(3, 5))
-    posed = synthetic_posed(root, n_frames=12, hw=(32, 32))
-    assert cli_main(["export", "nerfstudio", str(posed), "--out", str(root / "ns")]) == 0
-    transforms = next((root / "ns").rglob("transforms.json"))
-    assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "64x48"]) == 0
-    return {"posed": posed, "triples": tri, "transforms": transforms, "clip": root / "clip" / "clip.mp4"}
-
-
-def _argv(command: str, data: dict, out: Path) -> list[str]:
+def _argv(command: str, ws: dict, out: Path) -> list[str]:
     return {
-        "ingest": ["ingest", str(data["clip"]), "--out", str(out), "--threads", "1"],
-        "build": ["build", str(data["posed"]), "--out", str(out), "--gap-min", "3", "--gap-max", "5", "--workers", "1"],
-        "import": ["import", "nerfstudio", str(data["transforms"]), "--out", str(out)],
+        "ingest": ["ingest", str(ws["clip"]), "--out", str(out), "--threads", "1"],
+        "build": ["build", str(ws["posed"]), "--out", str(out), "--gap-min", "3", "--gap-max", "5", "--workers", "1"],
+        "import": ["import", "nerfstudio", str(ws["transforms"]), "--out", str(out)],
         "train": [
             "train",
             "--data",
-            str(data["triples"]),
+            str(ws["triples"]),
             "--config",
             "configs/cpu_tiny.json",
             "--out",
@@ -94,20 +82,20 @@ COMMANDS = ["ingest", "build", "import", "train"]
 
 
 @pytest.mark.parametrize("command", COMMANDS)
-def test_out_an_existing_file(tmp_path, capsys, data, command):
+def test_out_an_existing_file(tmp_path, capsys, workspace, command):
     out = tmp_path / "taken"
     out.write_text("not a directory")
-    assert cli_main(_argv(command, data, out)) == 2
+    assert cli_main(_argv(command, workspace, out)) == 2
     line = _one_line(capsys)
     assert line.startswith(f"seeu {command}: error: {out}: is a file, a directory is needed here ("), line
     assert out.read_text() == "not a directory"
 
 
 @pytest.mark.parametrize("command", COMMANDS)
-def test_disk_full(tmp_path, capsys, monkeypatch, data, command):
+def test_disk_full(tmp_path, capsys, monkeypatch, workspace, command):
     _fail_writes(monkeypatch, errno.ENOSPC)
     out = tmp_path / "out"
-    assert cli_main(_argv(command, data, out)) == 2
+    assert cli_main(_argv(command, workspace, out)) == 2
     line = _one_line(capsys)
     assert f"seeu {command}: error: {out}" in line, line
     assert line.endswith(": cannot write: no space left on the device (No space left on device)"), line
@@ -115,16 +103,16 @@ def test_disk_full(tmp_path, capsys, monkeypatch, data, command):
 
 
 @pytest.mark.parametrize("command", COMMANDS)
-def test_read_only_file_system(tmp_path, capsys, monkeypatch, data, command):
+def test_read_only_file_system(tmp_path, capsys, monkeypatch, workspace, command):
     _fail_writes(monkeypatch, errno.EROFS)
     out = tmp_path / "out"
-    assert cli_main(_argv(command, data, out)) == 2
+    assert cli_main(_argv(command, workspace, out)) == 2
     assert _one_line(capsys).endswith(": cannot write: the file system is read-only (Read-only file system)")
     assert _leftovers(tmp_path) == []
 
 
 @pytest.mark.parametrize("command", COMMANDS)
-def test_permission_denied_creating_the_output(tmp_path, capsys, monkeypatch, data, command):
+def test_permission_denied_creating_the_output(tmp_path, capsys, monkeypatch, workspace, command):
     real_mkdir = os.mkdir
     locked = tmp_path / "locked"
 
@@ -134,7 +122,7 @@ def test_permission_denied_creating_the_output(tmp_path, capsys, monkeypatch, da
         return real_mkdir(path, *a, **kw)
 
     monkeypatch.setattr(os, "mkdir", mkdir)
-    assert cli_main(_argv(command, data, locked / "out")) == 2
+    assert cli_main(_argv(command, workspace, locked / "out")) == 2
     line = _one_line(capsys)
     assert line.startswith(f"seeu {command}: error: {locked}") and line.endswith(
         ": permission denied (Permission denied)"

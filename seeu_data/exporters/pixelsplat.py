@@ -22,7 +22,6 @@ index.json and the sidecar last, so a stage directory without index.json is an u
 from __future__ import annotations
 
 import json
-import re
 import sys
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,9 +33,10 @@ from ..cameras import world_to_cam_from_cam_to_world
 from ..errors import SeeUError
 from ..posed import PosedDataset, PosedScene
 from ..resize import resize_scene
+from ..resume import sweep
 
 SIDECAR_NAME = "seeu_posed.json"
-_CHUNK_NAME = re.compile(r"^\d{6}\.torch$")
+CHUNK_FILES = "[0-9]" * 6 + ".torch"  # glob of the chunk files (000000.torch, ...)
 
 
 PEER_HW = (360, 640)
@@ -181,9 +181,7 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
             flush()
     if chunk:
         flush()
-    for stale in directory.glob("*.torch"):  # chunks of an earlier, larger export into the same place
-        if _CHUNK_NAME.match(stale.name) and stale.name not in written:
-            stale.unlink()
+    sweep(directory, CHUNK_FILES, keep=written)  # chunks of an earlier, larger export into the same place
     atomic_write_text(directory / SIDECAR_NAME, json.dumps(sidecar))
     atomic_write_text(directory / "index.json", json.dumps(index))
     return {

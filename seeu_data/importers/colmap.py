@@ -243,7 +243,8 @@ def iter_scenes(cfg: ColmapImportConfig) -> Iterator[PosedScene | SkippedScene]:
 def import_plan(cfg: ColmapImportConfig):
     """The import as one resumable unit (`importers.common.ImportPlan`) whose fingerprint covers the
     model's files and the registered images it names. Reads the model (SeeUError when unusable)."""
-    from .common import ImportPlan, ImportUnit, files_fingerprint
+    from ..resume import files_fingerprint
+    from .common import ImportPlan, ImportUnit
 
     rec = _check_and_read(cfg)
     model_files = sorted(p for p in Path(cfg.model_dir).iterdir() if p.is_file())

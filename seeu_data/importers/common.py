@@ -2,21 +2,19 @@
 
 from __future__ import annotations
 
-import hashlib
-import json
-import os
 import sys
+from itertools import takewhile
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
-from ..arrow_io import atomic_write_text, sha256_file
 from ..errors import SeeUError
 from ..image_header import decode_check, image_info
 from ..manifest import FileEntry, read_manifest
-from ..posed import PosedDatasetWriter, PosedScene
+from ..posed import POSED_FILES, PosedDatasetWriter, PosedScene
+from ..resume import Journal, file_intact, stamp_of, sweep
 from .prefetch import prefetch
 
 RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
@@ -105,7 +103,7 @@ class ImportUnit:
     a RE10K camera file, a DTU scan, a whole COLMAP / nerfstudio scene).
 
     `key` names it (a chunk file name), `fingerprint` changes when its content may have (size and
-    mtime of every file it reads, `file_fingerprint` / `files_fingerprint`), `read()` yields its
+    mtime of every file it reads, `resume.file_fingerprint` / `files_fingerprint`), `read()` yields its
     scenes and skips. A unit with key None is read on every run (bookkeeping such as scenes asked
     for but not found); when it yields scenes, the file holding them is not resumable.
     """
@@ -128,30 +126,6 @@ class ImportPlan:
     seen: set[str] = field(default_factory=set)
     fingerprint: str = ""
     prefetch: bool = True  # read units on a background thread (False: reading is cheaper than the hand-off)
-
-
-def file_fingerprint(path: str | Path) -> str:
-    """`size:mtime_ns` of a file ("missing" when absent): changes when the file is replaced or edited."""
-    try:
-        st = os.stat(path)
-    except OSError:
-        return "missing"
-    return f"{st.st_size}:{st.st_mtime_ns}"
-
-
-def files_fingerprint(paths: Iterable[str | Path]) -> str:
-    """One fingerprint for the files a unit reads (`file_fingerprint` of each, with its path, in
-    order): changes when any of them is replaced, edited, appears, disappears or the list changes."""
-    h = hashlib.sha256()
-    for p in paths:
-        h.update(f"{p}={file_fingerprint(p)}\n".encode())
-    return h.hexdigest()
-
-
-def resume_key(params: dict, fingerprint: str = "") -> str:
-    """What an output must have been written with to be resumed: the import parameters and input fingerprint."""
-    text = json.dumps({"params": params, "inputs": fingerprint}, sort_keys=True, default=str)
-    return hashlib.sha256(text.encode()).hexdigest()
 
 
 class _ImportWriter(PosedDatasetWriter):
@@ -187,20 +161,11 @@ def _prepare(item: PosedScene | SkippedScene):
 
 
 def _read_records(out_dir: Path, key: str) -> list[dict]:
-    """Files a previous run completed: the journal of an interrupted run, else the manifest's report."""
-    journal = out_dir / RESUME_JOURNAL
-    records: list[dict] = []
-    if journal.exists():
-        for line in journal.read_text(errors="replace").splitlines():
-            try:
-                rec = json.loads(line)
-            except json.JSONDecodeError:
-                break  # a torn last line
-            if not isinstance(rec, dict) or rec.get("key") != key:
-                break
-            records.append(rec)
-        if records:
-            return records
+    """Files a previous run with the same stamp `key` completed, as journal records: the journal of
+    an interrupted run, else the manifest's report."""
+    records = list(takewhile(lambda r: r.get("stamp") == key, Journal(out_dir / RESUME_JOURNAL).read()))
+    if records:
+        return records
     try:
         doc = read_manifest(out_dir, expect_schema="seeu.posed_frames")
     except SeeUError:
@@ -214,7 +179,8 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
             break
         records.append(
             {
-                "key": key,
+                "unit": rec["file"],
+                "stamp": key,
                 "file": entries[rec["file"]],
                 "units": rec["units"],
                 "skipped": rec["skipped"],
@@ -235,12 +201,7 @@ def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit
         n = len(rec.get("units") or [])
         if n == 0 or rec["units"] != keyed[pos : pos + n] or entry.get("path") != name_of(i):
             break
-        path = out_dir / entry["path"]
-        try:
-            intact = path.stat().st_size == entry["bytes"] and sha256_file(path) == entry["sha256"]
-        except OSError:
-            intact = False
-        if not intact:
+        if not file_intact(out_dir / entry["path"], entry["bytes"], entry["sha256"]):
             break
         done.append(rec)
         pos += n
@@ -268,8 +229,8 @@ def write_import(
 
     Resume: given an `ImportPlan` (units, e.g. pixelSplat chunks), files close only at unit ends, and
     each finished file is recorded (units covered, scenes, skips, bytes, sha256) in a journal
-    (`RESUME_JOURNAL`, removed when the manifest is written; the manifest's `report.resume` keeps the
-    same for a later re-run). A re-run with the same parameters and inputs keeps the leading files
+    (`RESUME_JOURNAL`, a `resume.Journal` stamped with the parameters and input fingerprint; removed
+    when the manifest is written, the manifest's `report.resume` keeps the same for a later re-run). A re-run with the same parameters and inputs keeps the leading files
     whose units are unchanged and whose bytes still have the recorded size and sha256, and reads only
     the units after them.
     """
@@ -279,26 +240,18 @@ def write_import(
     plan = items if isinstance(items, ImportPlan) else ImportPlan([ImportUnit(None, "", lambda: items)])
     units = plan.units
     resumable = any(u.key is not None for u in units)
-    key = resume_key(params, plan.fingerprint)
+    key = stamp_of({"params": params, "inputs": plan.fingerprint})
     out_dir.mkdir(parents=True, exist_ok=True)
     records = _read_records(out_dir, key) if resumable else []
     name_of = lambda i: f"posed-{i:05d}.arrow"  # noqa: E731  (PosedDatasetWriter's file names)
     done, covered = _resumable_prefix(out_dir, records, units, name_of)
-    journal = out_dir / RESUME_JOURNAL
+    journal = Journal(out_dir / RESUME_JOURNAL)
     if resumable:
-        atomic_write_text(journal, "".join(json.dumps(r) + "\n" for r in done))  # before the manifest goes
+        journal.reset(done)  # before the manifest goes
     else:
-        journal.unlink(missing_ok=True)
+        journal.remove()
     writer = _ImportWriter(out_dir, params=params, provenance=provenance, target_file_bytes=target_file_bytes)
-    for p in out_dir.glob(".posed-*.tmp"):  # partial files of an interrupted run
-        p.unlink(missing_ok=True)
-    for p in out_dir.glob("posed-*.arrow"):  # files of a previous run that are not kept
-        try:
-            stale = int(p.stem.split("-")[1]) >= len(done)
-        except (IndexError, ValueError):
-            continue
-        if stale:
-            p.unlink()
+    sweep(out_dir, POSED_FILES, keep={r["file"]["path"] for r in done})  # files not kept, partial writes
     for rec in done:
         writer.restore(rec)
         report.scenes += len(rec["scenes"])
@@ -347,15 +300,15 @@ def write_import(
             return
         if resumable and recordable and cur_units:
             rec = {
-                "key": key,
+                "unit": entry.path,
+                "stamp": key,
                 "file": asdict(entry),
                 "units": cur_units,
                 "skipped": cur_skipped,
                 "scenes": [s for s in writer.scenes if s["file"] == entry.path],
             }
             new_records.append(rec)
-            with open(journal, "a") as fh:  # one write per line: a torn last line is ignored
-                fh.write(json.dumps(rec) + "\n")
+            journal.add(rec)
         else:
             recordable = False  # a file not recorded ends what a re-run can resume
         cur_units, cur_skipped = [], []
@@ -407,5 +360,5 @@ def write_import(
     finally:
         bar.close()
     writer.close()
-    journal.unlink(missing_ok=True)
+    journal.remove()
     return report

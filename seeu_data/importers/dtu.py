@@ -231,7 +231,8 @@ def import_plan(cfg: DtuImportConfig, scans: list[int] | None = None):
     """The import as resumable units (`importers.common.ImportPlan`): one unit per scan (fingerprint:
     its images and ground-truth files); the camera files, shared by every scan, are the plan's
     fingerprint and are read once, by the first scan not resumed."""
-    from .common import ImportPlan, ImportUnit, files_fingerprint
+    from ..resume import files_fingerprint
+    from .common import ImportPlan, ImportUnit
 
     scans = scans if scans is not None else scan_list(cfg)
     root = Path(cfg.root)

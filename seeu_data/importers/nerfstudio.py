@@ -263,7 +263,8 @@ def undistort_frames(
 def import_plan(cfg: NerfstudioImportConfig):
     """The import as one resumable unit (`importers.common.ImportPlan`) whose fingerprint covers
     transforms.json and the frame images it names."""
-    from .common import ImportPlan, ImportUnit, files_fingerprint
+    from ..resume import files_fingerprint
+    from .common import ImportPlan, ImportUnit
 
     path = Path(cfg.transforms)
     doc = load_transforms(path)

@@ -285,7 +285,8 @@ def import_plan(
     scenes asked for that no chunk held last. index.json and the sidecar are the plan's fingerprint."""
     from functools import partial
 
-    from .common import ImportPlan, ImportUnit, file_fingerprint
+    from ..resume import file_fingerprint
+    from .common import ImportPlan, ImportUnit
 
     if chunks is None or directory is None:
         directory, chunks, missing, _ = plan(cfg)

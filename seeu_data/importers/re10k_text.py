@@ -186,7 +186,8 @@ def import_plan(cfg: Re10kTextImportConfig, files: list[Path] | None = None):
     have no camera file (reported on every run)."""
     from functools import partial
 
-    from .common import ImportPlan, ImportUnit, files_fingerprint
+    from ..resume import files_fingerprint
+    from .common import ImportPlan, ImportUnit
 
     files = files if files is not None else camera_files(cfg)
     missing = [

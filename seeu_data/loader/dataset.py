@@ -46,7 +46,8 @@ from .order import (
     rank_worker_batches,
     shard_offsets,
 )
-from .shard_reader import RawSample, ShardReader
+from ..triple_row import TripleRow
+from .shard_reader import ShardReader
 from .source import DEFAULT_CACHE_LIMIT, ShardSource
 from .transforms import ViewsSample, transform_sample
 
@@ -238,7 +239,7 @@ class TripleStream(IterableDataset):
             self._readers.popitem(last=False)
         return reader
 
-    def read_row(self, row_id: int) -> RawSample:
+    def read_row(self, row_id: int) -> TripleRow:
         """The stored sample with global row id `row_id`."""
         k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
         return self._reader(k).sample(int(row_id - self.offsets[k]))

@@ -2,12 +2,12 @@
 
 A shard holds record batches of `seeu.triples` rows (`schemas/triples.v1.json`). The reader keeps
 a row -> (batch, row in batch) table and, per record batch it has touched, the per-view columns as
-flat numpy arrays; encoded images are numpy views straight into the memory map (no copy).
+flat numpy arrays. A row comes back as a `triple_row.TripleRow`, its encoded images memoryviews
+straight into the memory map (no copy).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -16,32 +16,20 @@ import pyarrow as pa
 from ..arrow_io import open_ipc_file
 from ..errors import SeeUError
 from ..schema import check_version
+from ..triple_row import TripleRow
 
-_PER_VIEW = ("frame_index", "image", "width", "height", "intrinsics_norm", "cam_to_world", "near", "far")
-_REQUIRED = ("sample_id", "scene_id", "num_context", "gap") + _PER_VIEW
-
-
-@dataclass
-class RawSample:
-    """One stored triple, V views (the `num_context` contexts first, then the targets).
-
-    images: V encoded images as 1-D uint8 arrays (views into the shard); width, height: (V,) int;
-    intrinsics_norm: (V, 4) float64; cam_to_world: (V, 4, 4) float64; near, far: (V,) float32;
-    frame_index: (V,) int64; gap: the context gap.
-    """
-
-    sample_id: str
-    scene_id: str
-    num_context: int
-    images: list[np.ndarray]
-    width: np.ndarray
-    height: np.ndarray
-    intrinsics_norm: np.ndarray
-    cam_to_world: np.ndarray
-    near: np.ndarray
-    far: np.ndarray
-    frame_index: np.ndarray
-    gap: int
+_PER_VIEW = (
+    "frame_index",
+    "source_frame",
+    "image",
+    "width",
+    "height",
+    "intrinsics_norm",
+    "cam_to_world",
+    "near",
+    "far",
+)
+_REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + _PER_VIEW
 
 
 def _binary_parts(arr: pa.Array) -> tuple[np.ndarray, np.ndarray]:
@@ -60,8 +48,12 @@ class _BatchColumns:
         col = batch.column
         self.sample_id = col("sample_id").to_pylist()
         self.scene_id = col("scene_id").to_pylist()
+        self.mode = col("mode").to_pylist()
+        self.image_format = col("image_format").to_pylist()
         self.num_context = col("num_context").to_numpy()
         self.gap = col("gap").to_numpy()
+        self.target_offsets = np.asarray(col("target_offset").offsets).astype(np.int64)
+        self.target_offset = col("target_offset").values.to_numpy(zero_copy_only=False).astype(np.int64)
         self.view_offsets = np.asarray(col("frame_index").offsets).astype(np.int64)
         for name in _PER_VIEW[1:]:
             if not np.array_equal(np.asarray(col(name).offsets), self.view_offsets):
@@ -71,6 +63,7 @@ class _BatchColumns:
             return col(name).values.to_numpy(zero_copy_only=False)
 
         self.frame_index = flat("frame_index").astype(np.int64)
+        self.source_frame = flat("source_frame").astype(np.int64)
         self.width = flat("width")
         self.height = flat("height")
         self.near = flat("near").astype(np.float32)
@@ -79,22 +72,26 @@ class _BatchColumns:
         self.cam_to_world = col("cam_to_world").values.flatten().to_numpy().reshape(-1, 4, 4)
         self.image_offsets, self.image_data = _binary_parts(col("image").values)
 
-    def sample(self, j: int) -> RawSample:
+    def sample(self, j: int) -> TripleRow:
         lo, hi = int(self.view_offsets[j]), int(self.view_offsets[j + 1])
         io, data = self.image_offsets, self.image_data
-        return RawSample(
+        return TripleRow(
             sample_id=self.sample_id[j],
             scene_id=self.scene_id[j],
+            mode=self.mode[j],
             num_context=int(self.num_context[j]),
-            images=[data[io[k] : io[k + 1]] for k in range(lo, hi)],
+            frame_index=self.frame_index[lo:hi],
+            source_frame=self.source_frame[lo:hi],
+            images=[data[io[k] : io[k + 1]].data for k in range(lo, hi)],
+            image_format=self.image_format[j],
             width=self.width[lo:hi],
             height=self.height[lo:hi],
             intrinsics_norm=self.intrinsics[lo:hi],
             cam_to_world=self.cam_to_world[lo:hi],
             near=self.near[lo:hi],
             far=self.far[lo:hi],
-            frame_index=self.frame_index[lo:hi],
             gap=int(self.gap[j]),
+            target_offset=self.target_offset[self.target_offsets[j] : self.target_offsets[j + 1]],
         )
 
 
@@ -137,7 +134,7 @@ class ShardReader:
             self._batches[b] = cols
         return cols
 
-    def sample(self, row: int) -> RawSample:
+    def sample(self, row: int) -> TripleRow:
         """Row `row` of the shard (0-based)."""
         if not 0 <= row < self.num_rows:
             raise IndexError(f"row {row} outside [0, {self.num_rows}) in {self.name}")

@@ -27,7 +27,7 @@ import numpy as np
 from .. import cameras
 from ..image_ops import INTERPOLATIONS, resize_cover_crop
 from ..errors import SeeUError
-from .shard_reader import RawSample
+from ..triple_row import TripleRow
 
 
 @dataclass
@@ -51,9 +51,10 @@ class ViewsSample:
     gap: int
 
 
-def decode_bgr(buf: np.ndarray, where: str) -> np.ndarray:
-    """Encoded JPEG/PNG bytes (1-D uint8) -> (H, W, 3) uint8 BGR; SeeUError naming `where` if undecodable."""
-    img = cv2.imdecode(buf, cv2.IMREAD_COLOR) if len(buf) else None
+def decode_bgr(buf, where: str) -> np.ndarray:
+    """Encoded JPEG/PNG bytes (bytes-like) -> (H, W, 3) uint8 BGR; SeeUError naming `where` if undecodable."""
+    arr = np.frombuffer(buf, np.uint8)
+    img = cv2.imdecode(arr, cv2.IMREAD_COLOR) if len(arr) else None
     if img is None:
         raise SeeUError("image does not decode (corrupt or truncated)", where)
     return img
@@ -63,7 +64,7 @@ _BGR_TO_PLANAR_RGB = [2, 0, 1, 1, 0, 2]
 
 
 def transform_sample(
-    raw: RawSample,
+    raw: TripleRow,
     out_hw: tuple[int, int],
     flip: bool = False,
     interpolation: str = "linear",

@@ -1,0 +1,40 @@
+"""Fixtures shared by several test modules (helpers that are plain functions live in tests/helpers.py,
+tests/loader_fixtures.py and tests/training_fixtures.py). Imports stay inside the fixtures, so that
+collecting a test module loads only what it uses."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+
+@pytest.fixture(scope="session")
+def workspace(tmp_path_factory) -> dict[str, Path]:
+    """Valid inputs of every kind, made once per session; tests damage copies, never these.
+
+    posed: a posed-frames dataset (synthetic corridor, 12 frames at 32x32); triples: shards built
+    from it (4 samples per scene, gap 3-5); transforms: its nerfstudio export's transforms.json;
+    clip: a 6-frame 64x48 synthetic video.
+    """
+    from pipelines.cli import main as cli_main
+    from tests.training_fixtures import synthetic_posed, synthetic_triples
+
+    root = tmp_path_factory.mktemp("workspace")
+    triples = synthetic_triples(root, n_frames=12, hw=(32, 32), samples_per_scene=4, gap=(3, 5))
+    posed = synthetic_posed(root, n_frames=12, hw=(32, 32))
+    assert cli_main(["export", "nerfstudio", str(posed), "--out", str(root / "ns")]) == 0
+    assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "64x48"]) == 0
+    return {
+        "posed": posed,
+        "triples": triples,
+        "transforms": next((root / "ns").rglob("transforms.json")),
+        "clip": root / "clip" / "clip.mp4",
+    }
+
+
+@pytest.fixture
+def no_heartbeat(monkeypatch) -> None:
+    """No ingest heartbeat lines (stderr is not a terminal under pytest): they would break the
+    one-line error checks. Use with `pytestmark = pytest.mark.usefixtures("no_heartbeat")`."""
+    monkeypatch.setenv("SEEU_HEARTBEAT_S", "0")
