@@ -151,7 +151,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         type=float,
         default=None,
         metavar="SECONDS",
-        help="when stderr is not a terminal, print a status line every SECONDS (default 10; 0 = off)",
+        help="while no progress bars show (no terminal, or --no-progress), print a status line every SECONDS "
+        "(default 10, or $SEEU_HEARTBEAT_S; 0 = off)",
     )
     add_progress(p)
     add_fsync(p)
