@@ -12,13 +12,13 @@ Creates a posed-frames dataset in a temporary directory (`--scenes` scenes x `--
         encoded images and write them as a `list<binary>` column with `pyarrow.ipc.new_file`,
         cut into the same number of files -- no cameras, no hashing, no manifest, no atomic rename.
 
-* seeu+fsync: the same build with the opt-in `--fsync` policy (every shard fsynced before its rename);
+* seeu+fsync: the same build with `--fsync` (`BuildConfig.fsync`: every shard fsynced before its rename);
 * bare+fsync: the bare copy with an fsync per file (the baseline for seeu+fsync).
 
 Prints triples/s and MB/s (median run), the process CPU time, and the ratios seeu/bare (target
 >= 0.8; seeu's default policy: atomic renames, no fsync) and seeu+fsync/bare+fsync. seeu also
-hashes every shard (sha256 for the manifest) -- on threads beside the writer, so it is hidden only
-when a core is free: on a machine loaded by other work the ratio drops towards bare / (bare + sha256). With
+hashes every shard (sha256 for the manifest) as it writes it, on the writer's thread, so the ratio
+is bounded by bare / (bare + sha256). With
 `--resize 256x256` the seeu build decodes, resizes, crops and re-encodes (reported for information;
 the bare baseline stays the copy). On a shared machine, re-measure when it is quiet.
 
@@ -52,7 +52,6 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipelines.cli.options import parse_dims  # noqa: E402
-from seeu_data.arrow_io import set_fsync  # noqa: E402
 from seeu_data.build import BuildConfig, build, plan_sampled, scan_inputs, shard_specs  # noqa: E402
 from seeu_data.posed import PosedDatasetWriter, PosedScene  # noqa: E402
 from seeu_data.sampling import SamplingConfig  # noqa: E402
@@ -182,8 +181,7 @@ def main() -> int:
                     np.ones(prefault_mb << 20, dtype=np.uint8)
                 t, c = time.perf_counter(), time.process_time()
                 if name.startswith("seeu"):
-                    set_fsync(name == "seeu+fsync")
-                    build(replace(cfg, out=str(out)))
+                    build(replace(cfg, out=str(out), fsync=name == "seeu+fsync"))
                 else:
                     bare_copy(specs, out, fsync=name == "bare+fsync")
                 if r >= 0:

@@ -11,14 +11,15 @@ interleaved, in fresh child processes:
 * sha256 alone: hashing the same number of bytes (what the manifest's per-file sha256 costs);
 * import:   `seeu import pixelsplat` with the default policy (all of the above, then write + sha256
             the Arrow files, atomic renames, manifest; no fsync);
-* import --fsync: the same with the opt-in fsync policy (every file fsynced before its rename).
+* import --fsync: the same with `--fsync` (every file fsynced before its rename).
 
 Prints wall time, MB/s, frames/s and CPU time of each, the ratios against torch.load (target: import
 >= 0.8x) and each child's peak RSS, also as growth over the RSS after the library imports: torch.load
-holds a whole chunk in memory; the import maps chunks (page cache, not process memory) and writes the
-images from the mapping into the posed file, so it holds little beyond the mapped chunk.
-The import overlaps reading and writing (one thread) with sha256 hashing (a second thread), so it
-needs the 2 cores free to reach the target: on a contended machine, read the CPU-time column too.
+holds a whole chunk in memory; the import maps chunks (page cache, not process memory) and copies
+one scene's images at a time into the posed file's batch, so it holds little beyond the mapped chunk.
+The import reads chunks on one thread while it writes and hashes (sha256, in the writer's sink) on
+another, so it needs the 2 cores free to reach the target: on a contended machine, read the CPU-time
+column too.
 
 Fresh memory on a VM: on a virtual machine whose balloon driver reports free pages to the host
 (this project's machines: virtio_balloon), memory freed more than a second or two ago has been handed
@@ -149,12 +150,10 @@ def child(mode: str, data: Path, out: Path, prefault_mb: int) -> None:
             pass
         seconds = time.perf_counter() - t0
     else:  # what `seeu import pixelsplat [--fsync]` runs
-        from seeu_data.arrow_io import set_fsync
-
-        set_fsync(mode == "import_fsync")
         t0 = time.perf_counter()
         cfg = ps.PixelSplatImportConfig(root=data, stage="test")
-        write_import(ps.import_plan(cfg), out, ImportReport("pixelsplat"), params={}, provenance={})
+        plan = ps.import_plan(cfg)
+        write_import(plan, out, ImportReport("pixelsplat"), params={}, provenance={}, fsync=mode == "import_fsync")
         seconds = time.perf_counter() - t0
     peak = _rss_mb("VmHWM:")
     print(

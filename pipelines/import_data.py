@@ -166,22 +166,21 @@ _PLANNERS = {
 def import_dataset(cfg: ImportConfig):
     """Import `cfg.source` into `cfg.out`; returns the `seeu_data.importers.ImportReport` (also in the
     manifest's `report`). Raises SeeUError when the input as a whole is unusable or no scene remains."""
-    from seeu_data.arrow_io import fsync_policy
     from seeu_data.importers import ImportReport, write_import
     from seeu_data.manifest import provenance
 
     cfg.check()
-    with fsync_policy(True if cfg.fsync else None):
-        items, params, total, inputs = _PLANNERS[cfg.format](cfg.source)  # type: ignore[operator]
-        report = ImportReport(format=cfg.format)
-        write_import(
-            items,
-            cfg.out,
-            report,
-            params=params,
-            provenance=provenance(f"import {cfg.format}", inputs),
-            strict=cfg.strict,
-            progress=cfg.progress,
-            total=total,
-        )
+    items, params, total, inputs = _PLANNERS[cfg.format](cfg.source)  # type: ignore[operator]
+    report = ImportReport(format=cfg.format)
+    write_import(
+        items,
+        cfg.out,
+        report,
+        params=params,
+        provenance=provenance(f"import {cfg.format}", inputs),
+        strict=cfg.strict,
+        progress=cfg.progress,
+        total=total,
+        fsync=cfg.fsync,
+    )
     return report

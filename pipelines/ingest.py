@@ -184,7 +184,8 @@ def _decode_stage(source, cfg: IngestConfig, prog):
                     where,
                 )
             name = f"{fr.source_frame:06d}.jpg"
-            atomic_write_bytes(frames_dir / name, _encode_jpeg(rgb, cfg.jpeg_quality))  # OS errors name the file
+            # OS errors name the file
+            atomic_write_bytes(frames_dir / name, _encode_jpeg(rgb, cfg.jpeg_quality), cfg.fsync)
             frames.append(
                 {
                     "name": name,
@@ -289,16 +290,14 @@ def ingest_scene(source, cfg: IngestConfig) -> dict:
 
     Raises SeeUError for bad input, and when OUT/<scene> holds another input's scene and not `cfg.force`.
     """
-    from seeu_data.arrow_io import fsync_policy
     from seeu_data.progress import StageProgress
 
     out_dir = Path(cfg.out) / source.name
     identity = input_identity(source)
     check_scene_owner(out_dir, identity, cfg.force)
     label = f"seeu ingest: {source.name}"
-    with fsync_policy(True if cfg.fsync else None):
-        with StageProgress(label, bar=cfg.progress, heartbeat_s=heartbeat_seconds(cfg)) as prog:
-            return _ingest_scene(source, Path(cfg.out), cfg, cfg.force, prog, identity)
+    with StageProgress(label, bar=cfg.progress, heartbeat_s=heartbeat_seconds(cfg)) as prog:
+        return _ingest_scene(source, Path(cfg.out), cfg, cfg.force, prog, identity)
 
 
 def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
@@ -454,7 +453,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
 
     sweep(out_dir, POSED_FILES, keep=())  # an earlier run's files: this run writes its own
     sweep(out_dir / POINTS_DIR, "*.ply", keep=())
-    with PosedDatasetWriter(out_dir, params=params, provenance=prov) as writer:
+    with PosedDatasetWriter(out_dir, params=params, provenance=prov, fsync=cfg.fsync) as writer:
         for c in chunks:
             imgs = []
             for path in c.image_paths:
@@ -480,7 +479,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
                     **c.meta,
                     "source": str(source.path),
                     **write_chunk_points(
-                        cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir, c.scene_id
+                        cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir, c.scene_id, cfg.fsync
                     ),
                 },
             )
@@ -500,11 +499,12 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         }
         writer.report["dropped_frames"] = len(dropped)
         writer.report["warnings"] = report["warnings"]
-        write_report(out_dir / "report.json", report)
+        write_report(out_dir / "report.json", report, cfg.fsync)
         plot_trajectory(
             out_dir / "trajectory.png",
             chunks,
             f"{source.name}: {registered}/{len(frames)} registered, {len(chunks)} chunk(s)",
+            cfg.fsync,
         )
     report["summary"] = summary_line(report)
     return report

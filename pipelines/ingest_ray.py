@@ -45,9 +45,9 @@ def task_cpus(threads: int, map_threads: int) -> int:
     return max(threads, map_threads)
 
 
-def _scene_task(scene_fn: Callable, source, cfg, fsync: bool, cwd: str) -> tuple:
-    """Ray task body: (report, None) or (None, error line) for the errors a user can act on."""
-    from seeu_data.arrow_io import fsync_policy
+def _scene_task(scene_fn: Callable, source, cfg, cwd: str) -> tuple:
+    """Ray task body: (report, None) or (None, error line) for the errors a user can act on (`cfg`
+    carries the driver's settings, `fsync` included)."""
     from seeu_data.errors import SeeUError, os_error_line
 
     own_cwd = os.getcwd()
@@ -56,8 +56,7 @@ def _scene_task(scene_fn: Callable, source, cfg, fsync: bool, cwd: str) -> tuple
     except OSError:
         return None, f"{source.name}: the driver's working directory {cwd} is not on this node (give absolute paths)"
     try:
-        with fsync_policy(fsync):  # the driver's --fsync / SEEU_FSYNC
-            return scene_fn(source, cfg), None
+        return scene_fn(source, cfg), None
     except SeeUError as exc:
         return None, str(exc)
     except OSError as exc:
@@ -96,14 +95,13 @@ def ingest_on_ray(
     import ray
     from tqdm import tqdm
 
-    from seeu_data.arrow_io import fsync_enabled
     from seeu_data.ray_cluster import ensure_ray
 
     ensure_ray(address)
     Path(cfg.out).mkdir(parents=True, exist_ok=True)
     task = ray.remote(_scene_task).options(num_cpus=cpus, name="seeu-ingest-scene")
     cwd = os.getcwd()
-    pending = {task.remote(scene_fn, s, cfg, fsync_enabled(), cwd): s.name for s in sources}
+    pending = {task.remote(scene_fn, s, cfg, cwd): s.name for s in sources}
     results: dict[str, SceneResult] = {}
     with tqdm(total=len(sources), desc="scenes", disable=not progress) as bar:
         while pending:

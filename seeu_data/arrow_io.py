@@ -1,26 +1,15 @@
 """File IO: Arrow IPC files (uncompressed) and other outputs written to a temporary name and renamed
 when complete; JSON inputs read with a one-line error.
 
-Durability policy (decided here, in one place): every write is atomic (temporary name, rename when
-complete, manifests written last with bytes + sha256 per file), so a crash, Ctrl-C or kill never
-leaves a half-written file under its final name. fsync is opt-in: with it off (the default) data
-reaches the page cache and a file torn by a power loss is caught by its manifest sha256
-(`read_manifest(verify=True)`, `seeu validate`, the size/sha256 checks before a resume keeps a file);
-with it on (`set_fsync(True)`, set by the `--fsync` flag of `seeu import/build/ingest`, or the
-environment variable `SEEU_FSYNC=1`) every file is fsynced before its rename.
+Durability: every write is atomic (temporary name, rename when complete, manifests written last with
+bytes + sha256 per file), so a crash, Ctrl-C or kill never leaves a half-written file under its final
+name. fsync is a parameter of every writer here (`fsync=True`: the file is fsynced before its rename);
+the commands' `--fsync` flag reaches it through their configs. Without it data reaches the page cache
+and a file torn by a power loss is caught by its manifest sha256 (`read_manifest(verify=True)`,
+`seeu validate`, the size/sha256 checks before a resume keeps a file).
 
-Every IPC file written here is hashed while it is written: `AtomicIpcWriter` hands each 8 MB the
-file grows by to a sha256 on a helper thread, which maps that range of the file (the page-cache
-pages just written) and hashes it in one call, overlapping the writes (hashlib and file writes both
-release the GIL), so the manifest's (bytes, sha256) come without a second pass over the file.
-
-Encoded images are written without being copied into Arrow buffers first: `deferred_binary(pieces)`
-makes a binary column whose data buffer is a placeholder (untouched anonymous memory) standing for
-the concatenation of `pieces` (bytes, or read-only views into memory-mapped input files). When
-pyarrow's IPC writer hands that buffer, or a slice of it, to `AtomicIpcWriter`'s sink, the sink
-writes the pieces themselves (`os.writev`, one system call for up to 1024 images).
-The file's bytes are exactly those pyarrow writes for the same column with its data copied into
-one buffer (tested), in one copy of the image bytes instead of two.
+IPC files are written by pyarrow's own writer into a sink that hashes (sha256) every buffer it writes,
+so the manifest's (bytes, sha256) come in the same pass, without reading the file back.
 """
 
 from __future__ import annotations
@@ -30,81 +19,30 @@ import hashlib
 import json
 import mmap
 import os
-import threading
-import weakref
-from concurrent.futures import Future
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Sequence
+from typing import Callable, Iterator, Sequence
 
 import numpy as np
-
 import pyarrow as pa
 
 from .errors import SeeUError
 
+# An encoded value (image) as the writers take it: bytes, or a view (a memoryview, a numpy uint8 view
+# into a memory-mapped input) that must not change until it is written.
+BytesLike = bytes | bytearray | memoryview | np.ndarray
+
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
-_BIG_WRITE = 1 << 20  # smaller writes are staged and written together
-_HASH_BLOCK = 8 << 20  # the hasher takes the written bytes in ranges of about this size
-
-
-_FSYNC = os.environ.get("SEEU_FSYNC", "").strip().lower() in ("1", "true", "yes", "on")
-
-
-def set_fsync(enabled: bool) -> None:
-    """Turn fsync-before-rename on or off for every write of this process (and of workers forked later)."""
-    global _FSYNC
-    _FSYNC = bool(enabled)
-
-
-@contextmanager
-def fsync_policy(enabled: bool | None) -> Iterator[None]:
-    """Within the block, fsync on/off as `enabled` (None: unchanged); the previous policy is restored after.
-
-    What the `--fsync` flags use: `with fsync_policy(True if args.fsync else None): ...`. The
-    environment variable is set too, so worker processes started in the block (spawned or forked)
-    follow the same policy.
-    """
-    previous, previous_env = _FSYNC, os.environ.get("SEEU_FSYNC")
-    if enabled is not None:
-        set_fsync(enabled)
-        os.environ["SEEU_FSYNC"] = "1" if enabled else "0"
-    try:
-        yield
-    finally:
-        set_fsync(previous)
-        if previous_env is None:
-            os.environ.pop("SEEU_FSYNC", None)
-        else:
-            os.environ["SEEU_FSYNC"] = previous_env
-
-
-def fsync_enabled() -> bool:
-    """Whether files are fsynced before their rename (`--fsync` / `SEEU_FSYNC=1`; default off)."""
-    return _FSYNC
 
 
 def tmp_path_for(path: Path) -> Path:
     return path.with_name(f".{path.name}.{os.getpid()}.tmp")
 
 
-def pending_path(path: Path) -> Path:
-    """Where a file written with `commit=False` waits, complete but not yet in place, until `commit_pending`."""
-    return path.with_name(f".{path.name}.pending")
-
-
-def _fsync_replace(src: Path, dst: Path) -> None:
-    """Make the written file `src` durable when the fsync policy is on, then rename it to `dst` (the atomic step)."""
-    if _FSYNC:
-        with open(src, "rb") as fh:
-            os.fsync(fh.fileno())
-    os.replace(src, dst)
-
-
-def commit_pending(path: Path) -> None:
-    """Rename the pending file of `path` into place (fsynced first when the fsync policy is on)."""
-    _fsync_replace(pending_path(path), path)
+def _fsync_file(path: Path) -> None:
+    with open(path, "rb") as fh:
+        os.fsync(fh.fileno())
 
 
 @contextmanager
@@ -120,11 +58,11 @@ def naming_os_errors(path: str | Path) -> Iterator[None]:
 
 
 @contextmanager
-def atomic_path(path: str | Path) -> Iterator[Path]:
+def atomic_path(path: str | Path, fsync: bool = False) -> Iterator[Path]:
     """A temporary name beside `path` for a writer that takes a file name (torch.save, ...).
 
-    When the block succeeds the file is renamed to `path` (fsynced first with the fsync policy on);
-    when it raises, it is removed.
+    When the block succeeds the file is renamed to `path` (fsynced first when `fsync`); when it
+    raises, it is removed.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -132,227 +70,123 @@ def atomic_path(path: str | Path) -> Iterator[Path]:
     try:
         with naming_os_errors(path):
             yield tmp
-            _fsync_replace(tmp, path)
+            if fsync:
+                _fsync_file(tmp)
+            os.replace(tmp, path)
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
 
 
-class _Placeholder(mmap.mmap):
-    """Anonymous memory without access rights, never read or written, standing for the
-    concatenation of `pieces` (`offsets[i]`: where piece i starts; `offsets[-1]`: total bytes)."""
-
-    pieces: list[memoryview]
-    offsets: list[int]
+def atomic_write_bytes(path: str | Path, data: bytes, fsync: bool = False) -> None:
+    with atomic_path(path, fsync) as tmp:
+        tmp.write_bytes(data)
 
 
-_PLACEHOLDERS: dict[int, weakref.ref] = {}  # base address -> placeholder, while an array still uses it
-_PLACEHOLDERS_LOCK = threading.Lock()
+def atomic_write_text(path: str | Path, text: str, fsync: bool = False) -> None:
+    atomic_write_bytes(path, text.encode("utf-8"), fsync)
 
 
-def deferred_binary(pieces: Sequence) -> pa.BinaryArray:
-    """A binary array of `len(pieces)` values whose bytes are not copied: they are written straight
-    from `pieces` when the array is written by `AtomicIpcWriter` (or `write_table`).
+def _byte_view(value: BytesLike) -> memoryview:
+    """A flat view of `value`'s bytes (no copy)."""
+    return memoryview(value).cast("B")  # type: ignore[arg-type]  # numpy's stubs lack the buffer protocol
 
-    `pieces`: bytes-like objects (bytes, numpy uint8 views into a memory-mapped file, pyarrow
-    buffers) that must not change until the file is closed. The array is for writing only: reading
-    its values anywhere else faults (`deferred` arrays never leave the write paths that make them).
-    """
-    views = [memoryview(p).cast("B") for p in pieces]
+
+def _offsets(views: list[memoryview]) -> np.ndarray:
+    """Offsets (int64, len(views) + 1) of `views` laid end to end; SeeUError past a binary column's 2 GB."""
     offsets = np.zeros(len(views) + 1, dtype=np.int64)
     np.cumsum([v.nbytes for v in views], out=offsets[1:])
-    total = int(offsets[-1])
-    if total >= 2**31:
-        raise SeeUError(f"{total / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow")
-    # Private and without access rights (where the platform has them): never backed by memory nor
-    # charged to the commit limit, and a read by anything but the writer's sink faults loudly.
-    placeholder = (
-        _Placeholder(-1, max(total, 1), flags=mmap.MAP_PRIVATE | getattr(mmap, "MAP_NORESERVE", 0), prot=0)
-        if hasattr(mmap, "MAP_PRIVATE")
-        else _Placeholder(-1, max(total, 1))
-    )
-    placeholder.pieces, placeholder.offsets = views, offsets.tolist()
-    data = pa.py_buffer(placeholder)[:total]
-    base = data.address
-    with _PLACEHOLDERS_LOCK:
-        _PLACEHOLDERS[base] = weakref.ref(placeholder)
-    weakref.finalize(placeholder, _forget_placeholder, base)
+    if offsets[-1] >= 2**31:
+        raise SeeUError(
+            f"{offsets[-1] / 1e9:.1f} GB of values in one binary column, over the 2 GB its 32-bit offsets allow"
+        )
+    return offsets
+
+
+def binary_array(values: Sequence[BytesLike]) -> pa.BinaryArray:
+    """A binary array of bytes-like `values` (bytes, memoryviews, numpy uint8 views), copied once into one buffer."""
+    views = [_byte_view(v) for v in values]
+    offsets = _offsets(views)
+    data = pa.py_buffer(b"".join(views))
     return pa.BinaryArray.from_buffers(pa.binary(), len(views), [None, pa.py_buffer(offsets.astype(np.int32)), data])
 
 
-def _forget_placeholder(base: int) -> None:
-    # Only a dead entry: the memory is unmapped before this runs, and a placeholder made meanwhile on
-    # another thread may already be registered at the same address.
-    with _PLACEHOLDERS_LOCK:
-        ref = _PLACEHOLDERS.get(base)
-        if ref is not None and ref() is None:
-            del _PLACEHOLDERS[base]
+class _Views:
+    """Encoded values (bytes-like views) that a binary column stands for, without their bytes being
+    copied: `column` is a binary array over anonymous memory that is never touched (it reads as zeros
+    and costs no memory); when pyarrow's writer hands the sink that column's data buffer, or a slice of
+    it, the sink writes the views instead (`pieces`)."""
 
+    def __init__(self, views: Sequence[BytesLike]):
+        self.views = [_byte_view(v) for v in views]
+        starts = _offsets(self.views)
+        self.total = int(starts[-1])
+        self.starts = starts.tolist()
+        private = {"flags": mmap.MAP_PRIVATE, "prot": mmap.PROT_READ} if hasattr(mmap, "MAP_PRIVATE") else {}
+        self._memory = mmap.mmap(-1, max(self.total, 1), **private)
+        data = pa.py_buffer(self._memory)[: self.total]
+        self.base = data.address
+        self.column = pa.BinaryArray.from_buffers(
+            pa.binary(), len(self.views), [None, pa.py_buffer(starts.astype(np.int32)), data]
+        )
+        self.covered = 0  # the sink has written the column's bytes [0, covered) from the views, in order
 
-def _deferred_pieces(address: int, size: int) -> list[memoryview] | None:
-    """The pieces (sliced at the ends) a buffer at `address` of `size` bytes stands for, or None
-    when it is not (a slice of) a `deferred_binary` placeholder."""
-    with _PLACEHOLDERS_LOCK:
-        if not _PLACEHOLDERS:
+    def pieces(self, buffer: pa.Buffer) -> list[memoryview] | None:
+        """The views (cut at the ends) that `buffer` stands for; None when it is not (a slice of) the column's data."""
+        start = buffer.address - self.base
+        end = start + buffer.size
+        if not (0 <= start and end <= self.total and buffer.size):
             return None
-        found = None
-        for base, ref in _PLACEHOLDERS.items():
-            ph = ref()
-            if ph is not None and base <= address < base + len(ph):
-                found = (base, ph)
-                break
-    if found is None:
-        return None
-    base, ph = found
-    start, end = address - base, address - base + size
-    if end > ph.offsets[-1]:
-        raise AssertionError("a write reaches past the end of a deferred binary column")
-    out = []
-    i = bisect.bisect_right(ph.offsets, start) - 1
-    while start < end:
-        piece, lo = ph.pieces[i], ph.offsets[i]
-        a, b = start - lo, min(end - lo, piece.nbytes)
-        if b > a:
-            out.append(piece[a:b] if (a, b) != (0, piece.nbytes) else piece)
-        start = lo + b
-        i += 1
-    return out
-
-
-def _writev_all(fd: int, views: list[memoryview]) -> None:
-    """Write every view in order (os.writev in groups of 1024, retrying short writes)."""
-    if not hasattr(os, "writev"):  # not POSIX
-        for v in views:
-            written = 0
-            while written < v.nbytes:
-                written += os.write(fd, v[written:])
-        return
-    i = 0
-    while i < len(views):
-        group = views[i : i + 1024]
-        written = os.writev(fd, group)
-        for v in group:
-            if written < v.nbytes:  # a short write: go on from inside this view
-                views = [v[written:]] + views[i + 1 :]
-                i = 0
-                break
-            written -= v.nbytes
+        if start <= self.covered:  # pyarrow pads a batch's slice with the bytes after it, when there are any
+            self.covered = max(self.covered, end)
+        out = []
+        i = bisect.bisect_right(self.starts, start) - 1
+        while start < end:
+            view, lo = self.views[i], self.starts[i]
+            a, b = start - lo, min(end - lo, view.nbytes)
+            if b > a:
+                out.append(view[a:b])
+            start = lo + b
             i += 1
+        return out
 
 
-class _HashingFile:
-    """Raw write-only file object that hashes (sha256) every byte it writes (used through pa.PythonFile).
-
-    The hash is computed on one helper thread, from the file itself: once every `_HASH_BLOCK` bytes
-    written, that range is memory-mapped (from the page cache the writes just filled) and hashed in
-    one `update`, so hashing overlaps the writes and building the next batch without holding on to
-    any written buffer. One `update` per block matters: hashlib releases the GIL only inside each
-    call, and hashing the written buffers one image at a time (~50 KB) made the hasher wait for the
-    GIL once per image while the writer's thread held it (measured: up to 5 ms, the switch interval,
-    per call under a busy thread). Small writes (IPC metadata, padding, small columns) are staged
-    and written in one piece when they grow large, before the next large write and at the end: far
-    fewer system calls. (Starting write-back early with sync_file_range was measured and made the
-    import slower: it moves the kernel's write-back work into this thread.)
-    """
+class _HashingSink:
+    """Raw write-only file object (for `pa.PythonFile`) that writes to `path` and hashes (sha256)
+    every byte it writes; with `views` set, the column those stand for is written from them."""
 
     def __init__(self, path: Path):
-        from concurrent.futures import ThreadPoolExecutor
-
-        self._fh = open(path, "wb", buffering=0)
-        self._reader = open(path, "rb", buffering=0)  # the hasher's: stays valid across the rename
-        self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="seeu-sha256")
+        self._fh = open(path, "wb")  # buffered: pyarrow's many small metadata writes go out together
         self._sha256 = hashlib.sha256()
-        self._small = bytearray()
-        self._hash_submitted = 0  # bytes handed to the hasher so far
-        self._hash_error: BaseException | None = None
-        self._digest_requested = False
         self.size = 0
         self.closed = False
+        self.views: _Views | None = None
 
-    def _hash_range(self, start: int, length: int) -> None:
-        """Hash file bytes [start, start + length) (runs on the hasher's thread, in order)."""
-        if self._hash_error is not None:
-            return
-        aligned = start - start % mmap.ALLOCATIONGRANULARITY
-        try:
-            try:
-                m = mmap.mmap(self._reader.fileno(), start + length - aligned, access=mmap.ACCESS_READ, offset=aligned)
-            except (OSError, ValueError):  # a file system that can't map files: read the range back
-                self._reader.seek(start)
-                left = length
-                while left:
-                    block = self._reader.read(min(_HASH_BLOCK, left))
-                    if not block:
-                        raise OSError(f"the file ends {left} bytes before what was written") from None
-                    self._sha256.update(block)
-                    left -= len(block)
-                return
-            with m, memoryview(m) as view:
-                self._sha256.update(view[start - aligned :])
-        except BaseException as exc:  # reported by the digest, never a digest of part of the file
-            self._hash_error = exc
-
-    def _digest(self) -> str:
-        try:
-            if self._hash_error is not None:
-                raise SeeUError(f"could not hash {self._fh.name} as it was written: {self._hash_error}")
-            return self._sha256.hexdigest()
-        finally:
-            self._reader.close()
-
-    def _submit_written(self, final: bool = False) -> None:
-        """Queue the written bytes not yet hashed, once they fill a block (or all of them, `final`)."""
-        pending = self.size - self._hash_submitted
-        if pending >= _HASH_BLOCK or (final and pending):
-            self._pool.submit(self._hash_range, self._hash_submitted, pending)
-            self._hash_submitted = self.size
-
-    def _write_all(self, view: memoryview) -> None:
-        written = 0
-        while written < view.nbytes:
-            written += self._fh.write(view[written:])
-
-    def _flush_small(self) -> None:
-        if self._small:
-            self._write_all(memoryview(self._small))
-            self.size += len(self._small)
-            self._small = bytearray()
+    def _write(self, view: memoryview) -> None:
+        """The one place where bytes reach the file."""
+        self._sha256.update(view)
+        self._fh.write(view)
+        self.size += view.nbytes
 
     def write(self, data) -> int:
-        if isinstance(data, pa.Buffer) and (pieces := _deferred_pieces(data.address, data.size)) is not None:
-            self._flush_small()  # a deferred_binary column: write the pieces it stands for
-            _writev_all(self._fh.fileno(), pieces)
-            nbytes = data.size
-        else:
-            view = memoryview(data).cast("B")
-            nbytes = view.nbytes
-            if nbytes < _BIG_WRITE:  # staged: one system call for many small buffers
-                self._small += view
-                if len(self._small) >= _BIG_WRITE:
-                    self._flush_small()
-                    self._submit_written()
-                return nbytes
-            self._flush_small()
-            self._write_all(view)
-        self.size += nbytes
-        self._submit_written()
-        return nbytes
+        if self.views is not None and isinstance(data, pa.Buffer):
+            pieces = self.views.pieces(data)
+            if pieces is not None:
+                for piece in pieces:
+                    self._write(piece)
+                return data.size
+        view = memoryview(data).cast("B")
+        self._write(view)
+        return view.nbytes
+
+    def hexdigest(self) -> str:
+        return self._sha256.hexdigest()
 
     def tell(self) -> int:
-        return self.size + len(self._small)
-
-    def digest_future(self) -> Future:
-        """The sha256 (hex) of every byte written, as a future: queued after the pending ranges, so
-        the caller can go on (the next shard) while the hasher finishes. No writes after this."""
-        self._flush_small()
-        self._submit_written(final=True)
-        future = self._pool.submit(self._digest)
-        self._pool.shutdown(wait=False)
-        self._digest_requested = True
-        return future
+        return self.size
 
     def flush(self) -> None:
-        pass
+        self._fh.flush()
 
     def writable(self) -> bool:
         return True
@@ -361,39 +195,33 @@ class _HashingFile:
         return False
 
     def fsync(self) -> None:
+        self._fh.flush()
         os.fsync(self._fh.fileno())
 
     def close(self) -> None:
         if not self.closed:
-            try:
-                self._fh.close()
-            finally:
-                if not self._digest_requested:  # abandoned: stop hashing
-                    self._pool.shutdown(wait=True, cancel_futures=True)
-                    self._reader.close()
-                self.closed = True
+            self.closed = True
+            self._fh.close()
 
 
 class AtomicIpcWriter:
-    """An Arrow IPC *file* writer (uncompressed) on a temporary name, hashing the bytes as it writes.
+    """An Arrow IPC *file* writer (pyarrow's, uncompressed) on a temporary name, hashing as it writes.
 
-    `write_batch` / `write_table` as pyarrow's writer; `close()` finishes the file, fsyncs it when the
-    fsync policy is on (`set_fsync`), renames it to `path` and returns `(bytes, sha256)` (also kept as `.size` / `.sha256`). With
-    `commit=False` the finished file is left at `pending_path(path)` and the caller calls
-    `commit_pending(path)` later (`seeu build` does that on a background thread, so a disk flush
-    overlaps building the next shard). `abort()` removes the partial file. As a context manager: the
-    file is closed when the block succeeds and removed when it raises. The bytes equal those of any
-    pyarrow IPC file writer with the same options.
+    `write(table or batch)` as pyarrow's writer; `close()` finishes the file, fsyncs it when `fsync`,
+    renames it to `path` and returns `(bytes, sha256)` (also kept as `.size` / `.sha256`). `abort()`
+    removes the partial file. As a context manager: the file is closed when the block succeeds and
+    removed when it raises.
     """
 
-    def __init__(self, path: str | Path, schema: pa.Schema, commit: bool = True):
+    def __init__(self, path: str | Path, schema: pa.Schema, fsync: bool = False):
         self.path = Path(path)
-        self.commit = commit
-        self.tmp = tmp_path_for(self.path) if commit else pending_path(self.path)
+        self.fsync = fsync
+        self.tmp = tmp_path_for(self.path)
         self.size = 0
         self.sha256: str | None = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        self._raw = _HashingFile(self.tmp)
+        with naming_os_errors(self.path):
+            self._raw = _HashingSink(self.tmp)
         try:
             with naming_os_errors(self.path):
                 self._sink = pa.PythonFile(self._raw, mode="w")
@@ -402,46 +230,65 @@ class AtomicIpcWriter:
             self.abort()
             raise
 
-    def write_batch(self, batch: pa.RecordBatch) -> None:
+    def write(self, data: pa.Table | pa.RecordBatch, max_chunksize: int | None = None) -> None:
+        """Append a table (cut into record batches of at most `max_chunksize` rows) or one record batch."""
         with naming_os_errors(self.path):
-            self._writer.write_batch(batch)
+            if isinstance(data, pa.Table):
+                self._writer.write_table(data, max_chunksize=max_chunksize)
+            else:
+                self._writer.write_batch(data)
 
-    def write_table(self, table: pa.Table, max_chunksize: int | None = None) -> None:
-        with naming_os_errors(self.path):
-            self._writer.write_table(table, max_chunksize=max_chunksize)
+    def write_with_views(
+        self,
+        views: Sequence[BytesLike],
+        make: Callable[[pa.BinaryArray], pa.Table | pa.RecordBatch],
+        max_chunksize: int | None = None,
+    ) -> None:
+        """`write(make(column))`, where `column` is a binary array of the bytes-like `views` (bytes,
+        memoryviews, numpy uint8 views into a memory-mapped input) whose bytes are not copied in
+        memory: the sink writes each view into the file where pyarrow writes the column's data.
+
+        `column` only stands for the views (its own memory reads as zeros): use it only to build the
+        table or batch that `make` returns, which must hold every value of it, and keep no reference
+        to either.
+        """
+        # The one trick kept in this writer (benchmarks/RESULTS.md, plain I/O): copying the images into
+        # the shard's column first made `seeu build` 1.36x slower (1.25x copying per batch), 1.39x
+        # slower than the code before the plain I/O; from their views they are copied once, by write.
+        stand_in = _Views(views)
+        self._raw.views = stand_in
+        try:
+            self.write(make(stand_in.column), max_chunksize)
+        finally:
+            self._raw.views = None
+        if stand_in.covered != stand_in.total:  # never a file with the stand-in's zeros in it
+            raise SeeUError(
+                f"pyarrow {pa.__version__} did not hand the sink the column's data as it is (bytes 0..{stand_in.covered} "
+                f"of {stand_in.total} seen); this writer cannot write it without a copy",
+                self.path,
+            )
 
     def close(self) -> tuple[int, str]:
-        """Finish the file and put it in place (or leave it pending); return (bytes, sha256)."""
-        size, digest = self.close_async()
-        try:
-            self.sha256 = digest.result()
-        except BaseException:
-            (self.path if self.commit else self.tmp).unlink(missing_ok=True)  # never a file without its hash
-            raise
-        return size, self.sha256
-
-    def close_async(self) -> tuple[int, Future]:
-        """`close` without waiting for the hasher: (bytes, future of the sha256). The file is complete
-        (and in place unless `commit=False`) when this returns; the digest follows."""
+        """Finish the file and put it in place; return (bytes, sha256)."""
         try:
             with naming_os_errors(self.path):
                 self._writer.close()
-                digest = self._raw.digest_future()
-                if self.commit and _FSYNC:
+                if self.fsync:
                     self._raw.fsync()
                 self._sink.close()  # closes self._raw too (pa.PythonFile closes its file object)
-                if self.commit:
-                    os.replace(self.tmp, self.path)
+                os.replace(self.tmp, self.path)
         except BaseException:
             self.abort()
             raise
-        self.size = self._raw.size
-        return self.size, digest
+        self.size, self.sha256 = self._raw.size, self._raw.hexdigest()
+        return self.size, self.sha256
 
     def abort(self) -> None:
         """Abandon the unfinished file: close it and remove it."""
         try:
             self._raw.close()
+        except OSError:
+            pass  # the buffered tail could not be written either: the file goes anyway
         finally:
             self.tmp.unlink(missing_ok=True)
 
@@ -455,57 +302,14 @@ class AtomicIpcWriter:
             self.abort()
 
 
-atomic_ipc_writer = AtomicIpcWriter  # `with atomic_ipc_writer(path, schema) as w: w.write_table(...)`
-
-
 def write_table(
-    path: str | Path, table: pa.Table, max_chunksize: int | None = None, commit: bool = True
+    path: str | Path, table: pa.Table, max_chunksize: int | None = None, fsync: bool = False
 ) -> tuple[int, str]:
     """Write a whole table atomically as an Arrow IPC file; return (bytes, sha256) of the file."""
-    with AtomicIpcWriter(path, table.schema, commit=commit) as writer:
-        writer.write_table(table, max_chunksize=max_chunksize)
+    with AtomicIpcWriter(path, table.schema, fsync=fsync) as writer:
+        writer.write(table, max_chunksize=max_chunksize)
     assert writer.sha256 is not None
     return writer.size, writer.sha256
-
-
-def write_table_async(
-    path: str | Path, table: pa.Table, max_chunksize: int | None = None, commit: bool = True
-) -> tuple[int, Future]:
-    """`write_table` returning (bytes, future of the sha256) as soon as the file is written: the
-    hashing of its last buffers overlaps whatever the caller does next."""
-    writer = AtomicIpcWriter(path, table.schema, commit=commit)
-    try:
-        writer.write_table(table, max_chunksize=max_chunksize)
-    except BaseException:
-        writer.abort()
-        raise
-    return writer.close_async()
-
-
-_MADV_POPULATE_READ = 22  # Linux >= 5.14 (not yet a constant in Python 3.11's mmap module)
-
-
-def map_readonly(path: str | Path, populate: bool = False) -> mmap.mmap:
-    """A read-only shared memory map of the whole file. `populate=True` fills its page tables at once
-    (MAP_POPULATE on Linux): for a file that will be read whole, one call instead of a page fault
-    per 64 KB, several times faster on a VM (writing 100 MB from a mapped file: 0.03 s vs 0.08 s)."""
-    with open(path, "rb") as fh:
-        if populate and hasattr(mmap, "MAP_POPULATE"):
-            return mmap.mmap(fh.fileno(), 0, flags=mmap.MAP_SHARED | mmap.MAP_POPULATE, prot=mmap.PROT_READ)
-        return mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
-
-
-def populate(mapping: mmap.mmap, start: int, length: int) -> None:
-    """Fill the page tables of `mapping[start:start + length]` now (MADV_POPULATE_READ), for a part of
-    a mapped file about to be read whole. Best effort: a no-op where the kernel lacks it."""
-    page = mmap.PAGESIZE
-    lo = start // page * page
-    hi = min(len(mapping), start + length)
-    if hi > lo and hasattr(mapping, "madvise"):
-        try:
-            mapping.madvise(_MADV_POPULATE_READ, lo, hi - lo)
-        except OSError:
-            pass
 
 
 def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:
@@ -532,15 +336,6 @@ def sha256_file(path: str | Path, chunk: int = 1 << 22) -> str:
         while block := fh.read(chunk):
             digest.update(block)
     return digest.hexdigest()
-
-
-def atomic_write_bytes(path: str | Path, data: bytes) -> None:
-    with atomic_path(path) as tmp:
-        tmp.write_bytes(data)
-
-
-def atomic_write_text(path: str | Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode("utf-8"))
 
 
 def read_json(path: str | Path, what: str = ""):

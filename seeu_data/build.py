@@ -11,18 +11,17 @@ Stages:
 3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
    (scaled by the pixel ratio when resizing); each `triples.ShardSpec` is handed on as soon as it is
    complete.
-4. Materialise every spec with `triples.build_shard_table` and write `shard-XXXXX.arrow` atomically
+4. Materialise every spec with `triples.write_shard`: `shard-XXXXX.arrow`, written atomically
    (the local process pool and Ray run the same function: byte-identical shards; a `ShardResult`
-   each); each shard's
-   sha256 is computed on a thread of its own while the next shards are written. Resume
+   each), its sha256 computed as it is written. Resume
    (`seeu_data.resume`): a shard already on disk is kept when a previous run recorded it (its
    manifest, or the journal `.build-progress.jsonl` of an interrupted run: one unit per shard,
    stamped with its plan hash) and it still has the recorded size and sha256, the spec's plan hash
    in its metadata and the planned row count (`resumable_shard`). Shards no run recorded, shards
    the plan no longer has and partial writes are swept (`resume.sweep`).
 5. Write `manifest.json` last (files with rows/bytes/sha256, full build parameters, report), then
-   drop the journal. Files are renamed into place atomically; fsync before the rename only with the
-   fsync policy on (`arrow_io.set_fsync`, `--fsync`, `SEEU_FSYNC=1`).
+   drop the journal. Files are renamed into place atomically; fsynced before the rename only with
+   `BuildConfig.fsync` (`--fsync`).
 """
 
 from __future__ import annotations
@@ -30,7 +29,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Iterable, Iterator
 
@@ -38,19 +37,14 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .arrow_io import (
-    commit_pending,
-    fsync_enabled,
-    fsync_policy,
-    open_ipc_file,
-)
+from .arrow_io import open_ipc_file
 from .errors import SeeUError
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
 from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from .schema import schema_version
-from .shard_task import ShardResult, materialise, materialise_in_pool
+from .shard_task import ShardResult, materialise
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
 SHARD_FILES = "shard-*.arrow"
@@ -79,7 +73,7 @@ class BuildConfig:
     ray_address: str | None = None
     progress: bool = False  # a progress bar on stderr
     verify_inputs: bool = False
-    fsync: bool = False  # fsync every shard before its rename (also SEEU_FSYNC=1)
+    fsync: bool = False  # fsync every shard and the manifest before its rename (`--fsync`)
     near_far: tuple[float, float] | None = None  # override the posed data's near/far (None: the data's)
 
     def check(self) -> None:
@@ -336,66 +330,36 @@ def shard_record(result: ShardResult) -> dict:
     return {"unit": result.entry.path, "stamp": result.plan_sha256, "file": asdict(result.entry)}
 
 
-# Shards written whose sha256 is still being computed (one hashing thread each, reading the shard
-# back from the page cache: they hold no memory) before the writer waits for the oldest.
-_PENDING_SHARDS = 4
-
-
 def run_local(
-    specs: Iterable[ShardSpec], out_dir: str, workers: int, bar, journal: Journal | None = None
+    specs: Iterable[ShardSpec], out_dir: str, workers: int, bar, journal: Journal | None = None, fsync: bool = False
 ) -> list[ShardResult]:
     """Materialise the specs (taken from `specs` as they are needed) in this process (workers <= 1)
-    or in a process pool.
-
-    Shards are written pending; one background thread commits them (waits for the shard's sha256,
-    renames it, fsyncs first with the fsync policy on) while the next shards are built, and records
-    each in the journal; every commit has finished when this returns (before the manifest).
-    """
-    from concurrent.futures import ThreadPoolExecutor
-
+    or in a process pool; each shard is recorded in the journal once it is in place."""
     results: list[ShardResult] = []
-    out = Path(out_dir)
 
-    def commit(result: ShardResult) -> None:
-        assert result.entry is not None
-        if result.sha256_future is not None:
-            result.entry = replace(result.entry, sha256=result.sha256_future.result())
-            result.sha256_future = None
-        commit_pending(out / result.entry.path)
-        result.pending = False
-        if journal is not None:
+    def collect(result: ShardResult) -> None:
+        results.append(result)
+        if journal is not None and result.entry is not None:
             journal.add(shard_record(result))
+        bar.update(result.entry.rows if result.entry is not None else 0)
 
-    with ThreadPoolExecutor(max_workers=1) as committer:
-        commits = []
+    if workers <= 1:
+        for spec in specs:
+            collect(materialise(spec, out_dir, fsync))
+    else:
+        import multiprocessing as mp
+        from concurrent.futures import ProcessPoolExecutor, as_completed
 
-        def collect(result: ShardResult) -> None:
-            results.append(result)
-            if result.pending:
-                commits.append(committer.submit(commit, result))
-                if len(commits) > _PENDING_SHARDS:
-                    commits[-_PENDING_SHARDS - 1].result()
-            bar.update(result.entry.rows if result.entry is not None else 0)
+        # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
+        # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
+        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
+        from .image_ops import single_threaded_cv2
 
-        if workers <= 1:
-            for spec in specs:  # the next shard is built while the hasher finishes the last one
-                collect(materialise(spec, out_dir, commit=False, wait_hash=False))
-        else:
-            import multiprocessing as mp
-            from concurrent.futures import ProcessPoolExecutor, as_completed
-
-            # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
-            # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
-            ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-            from .image_ops import single_threaded_cv2
-
-            # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
-            with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-                futures = [pool.submit(materialise_in_pool, s, out_dir, fsync_enabled()) for s in specs]
-                for fut in as_completed(futures):
-                    collect(fut.result())
-        for c in commits:
-            c.result()
+        # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
+        with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+            futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
+            for fut in as_completed(futures):
+                collect(fut.result())
     return results
 
 
@@ -437,11 +401,6 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         manifest = build(cfg)     # manifest["total_rows"] triples in manifest["files"]
     """
     cfg.check()
-    with fsync_policy(True if cfg.fsync else None):
-        return _build(cfg, argv_command)
-
-
-def _build(cfg: BuildConfig, argv_command: str) -> dict:
     out = Path(cfg.out)
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():
@@ -485,9 +444,11 @@ def _build(cfg: BuildConfig, argv_command: str) -> dict:
 
             specs = list(todo(bar))
             if specs:
-                results += run_ray(specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r)))
+                results += run_ray(
+                    specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r)), fsync=cfg.fsync
+                )
         else:
-            results += run_local(todo(bar), str(out), cfg.workers, bar, journal)
+            results += run_local(todo(bar), str(out), cfg.workers, bar, journal, fsync=cfg.fsync)
     removed += sweep(out, SHARD_FILES, keep={SHARD_PATTERN.format(i) for i in range(len(plan_hashes))})
     results.sort(key=lambda r: r.index)
     errors = [r.error for r in results if r.error is not None]
@@ -502,16 +463,14 @@ def _build(cfg: BuildConfig, argv_command: str) -> dict:
         plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest(),
     )
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)
-    doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report)
+    doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report, fsync=cfg.fsync)
     journal.remove()
     return doc
 
 
 def default_workers(resize: bool = False) -> int:
     """Local engine processes for this machine: one per core, at most 8, except when copying images
-    (no resize) on up to 4 cores. There one process is faster: it writes the next shard while the
-    shards it wrote are hashed on threads of their own (sha256 costs about three times the write),
-    where a process pool's workers each wait for their shard's hash (measured on 2 cores: 0.8-0.9x
-    the bare copy in one process, 0.6x with two)."""
+    (no resize) on up to 4 cores, where one process was faster (measured on 2 cores: two processes
+    took 1.0-1.2x the time of one; benchmarks/RESULTS.md, plain I/O)."""
     cores = os.cpu_count() or 1
     return 1 if not resize and cores <= 4 else max(1, min(8, cores))

@@ -31,11 +31,11 @@ def mean_reprojection_error(models: list[dict]) -> float:
     return float((w * e).sum() / w.sum())
 
 
-def write_report(path: str | Path, report: dict) -> None:
-    atomic_write_text(path, json.dumps(report, indent=1, default=float) + "\n")
+def write_report(path: str | Path, report: dict, fsync: bool = False) -> None:
+    atomic_write_text(path, json.dumps(report, indent=1, default=float) + "\n", fsync)
 
 
-def plot_trajectory(path: str | Path, chunks: list, title: str) -> None:
+def plot_trajectory(path: str | Path, chunks: list, title: str, fsync: bool = False) -> None:
     """Top view (x-z) and side view (z-y) of every chunk's camera centres, with viewing directions.
 
     `chunks`: objects with `scene_id` and `cam_to_world (N, 4, 4)`; each chunk in its own frame.
@@ -79,7 +79,7 @@ def plot_trajectory(path: str | Path, chunks: list, title: str) -> None:
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    atomic_write_bytes(path, buf.getvalue(), fsync)
 
 
 # Low parallax: the widest baseline b of a chunk over the median scene depth d. Two views b apart see a

@@ -81,8 +81,10 @@ def write_manifest(
     provenance: dict,
     scenes: list[dict] | None = None,
     report: dict | None = None,
+    fsync: bool = False,
 ) -> dict:
-    """Validate and atomically write `root/manifest.json`. Call after every data file is in place."""
+    """Validate and atomically write `root/manifest.json` (fsynced first when `fsync`). Call after
+    every data file is in place."""
     root = Path(root)
     doc: dict[str, Any] = {
         "manifest_version": MANIFEST_VERSION,
@@ -98,7 +100,7 @@ def write_manifest(
     if report is not None:
         doc["report"] = report
     _validate(doc)
-    atomic_write_text(root / MANIFEST_NAME, json.dumps(doc, indent=1, sort_keys=False) + "\n")
+    atomic_write_text(root / MANIFEST_NAME, json.dumps(doc, indent=1, sort_keys=False) + "\n", fsync=fsync)
     return doc
 
 

@@ -19,8 +19,9 @@ from .errors import SeeUError
 POINTS_DIR = "points3d"
 
 
-def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> Path:
-    """Write (P, 3) points with (P, 3) 0-255 colours as a binary little-endian .ply (atomic)."""
+def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray, fsync: bool = False) -> Path:
+    """Write (P, 3) points with (P, 3) 0-255 colours as a binary little-endian .ply (atomic; fsynced
+    before its rename when `fsync`)."""
     from plyfile import PlyData, PlyElement
 
     from .arrow_io import atomic_path
@@ -36,7 +37,7 @@ def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray) -> Path
         vertex[k] = rgb[:, i]
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
-    with atomic_path(path) as tmp:
+    with atomic_path(path, fsync) as tmp:
         PlyData([PlyElement.describe(vertex, "vertex")], byte_order="<").write(str(tmp))
     return path
 
@@ -55,7 +56,12 @@ def read_points_ply(path: str | Path) -> tuple[np.ndarray, np.ndarray]:
 
 
 def write_chunk_points(
-    sfm_dir: str | Path, model_index: int, sfm_to_chunk: np.ndarray, dataset_dir: str | Path, scene_id: str
+    sfm_dir: str | Path,
+    model_index: int,
+    sfm_to_chunk: np.ndarray,
+    dataset_dir: str | Path,
+    scene_id: str,
+    fsync: bool = False,
 ) -> dict:
     """Write the SfM points of model `model_index` (`points3d_<k>.npy` in `sfm_dir`), moved into a
     chunk's frame by the (4, 4) similarity `sfm_to_chunk`, to `dataset_dir/points3d/<scene_id>.ply`.
@@ -67,5 +73,5 @@ def write_chunk_points(
     m = np.asarray(sfm_to_chunk, np.float64)
     xyz = pts[:, :3] @ m[:3, :3].T + m[:3, 3]
     rel = f"{POINTS_DIR}/{scene_id}.ply"
-    write_points_ply(Path(dataset_dir) / rel, xyz, pts[:, 3:6])
+    write_points_ply(Path(dataset_dir) / rel, xyz, pts[:, 3:6], fsync)
     return {"points3d": rel, "points3d_count": len(pts)}

@@ -13,12 +13,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterable, Iterator
+from typing import Iterable, Iterator, Sequence
 
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import AtomicIpcWriter, deferred_binary, open_ipc_file
+from .arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
 from .errors import SeeUError
 from .manifest import FileEntry, read_manifest, write_manifest
 from .schema import arrow_schema, schema_version
@@ -38,7 +38,7 @@ class PosedScene:
     """
 
     scene_id: str
-    images: list[bytes]
+    images: Sequence[BytesLike]
     image_format: str
     width: np.ndarray
     height: np.ndarray
@@ -81,9 +81,8 @@ class PosedScene:
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
 
-    def to_record_batch(self, deferred: bool = False) -> pa.RecordBatch:
-        """The scene's rows. `deferred=True`: the image column is `arrow_io.deferred_binary` (written
-        straight from `images`, no copy), for a batch that goes only to `PosedDatasetWriter.add_batch`."""
+    def to_record_batch(self) -> pa.RecordBatch:
+        """The scene's rows (its images copied into one column)."""
         n = len(self)
         schema = arrow_schema(SCHEMA)
         names = self.source_name or [""] * n
@@ -93,9 +92,7 @@ class PosedScene:
             "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
             "source_name": pa.array(names, pa.string()),
             "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
-            "image": deferred_binary(self.images)
-            if deferred
-            else pa.array([b if isinstance(b, bytes) else bytes(memoryview(b)) for b in self.images], pa.binary()),
+            "image": binary_array(self.images),
             "image_format": pa.array([self.image_format] * n, pa.string()),
             "width": pa.array(np.asarray(self.width, dtype=np.int32)),
             "height": pa.array(np.asarray(self.height, dtype=np.int32)),
@@ -153,8 +150,10 @@ class PosedDatasetWriter:
         provenance: dict,
         target_file_bytes: int = 256 << 20,
         prefix: str = "posed",
+        fsync: bool = False,
     ):
         self.out_dir = Path(out_dir)
+        self.fsync = fsync
         self.params = params
         self.provenance = provenance
         self.target_file_bytes = target_file_bytes
@@ -180,21 +179,24 @@ class PosedDatasetWriter:
             self._writer.abort()  # removes the temporary file
             self._writer = None
 
-    def add(self, scene: PosedScene) -> None:
+    def add(self, scene: PosedScene, may_close: bool = True) -> None:
+        """Check the scene (`PosedScene.check`) and append it to the open file. `may_close=False` keeps
+        the file open past the target size (importers close files only at unit ends)."""
         scene.check()
-        self.add_batch(scene, scene.to_record_batch(deferred=True))
+        self.add_checked(scene, may_close)
 
-    def add_batch(self, scene: PosedScene, batch: pa.RecordBatch, may_close: bool = True) -> None:
-        """`add` for a scene already `check()`ed, with its `to_record_batch(deferred=True)` made (written
-        here at once, so the images it points at stay valid). `may_close=False`
-        keeps the file open past the target size (importers close files only at unit ends)."""
+    def add_checked(self, scene: PosedScene, may_close: bool = True) -> None:
+        """`add` for a scene already `check()`ed. Its images are copied into one column of the batch
+        written (one scene at a time: a copy into memory the allocator reuses, measured as fast as
+        writing them from their views in `benchmarks/import.py`)."""
         if scene.scene_id in self._seen:
             raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
         self._seen.add(scene.scene_id)
         if self._writer is None:
             self._open()
         assert self._path is not None and self._writer is not None
-        self._writer.write_batch(batch)
+        batch = scene.to_record_batch()
+        self._writer.write(batch)
         entry = {
             "scene_id": scene.scene_id,
             "file": self._path.name,
@@ -213,7 +215,7 @@ class PosedDatasetWriter:
 
     def _open(self) -> None:
         self._path = self.out_dir / f"{self.prefix}-{len(self.files):05d}.arrow"
-        self._writer = AtomicIpcWriter(self._path, arrow_schema(SCHEMA))
+        self._writer = AtomicIpcWriter(self._path, arrow_schema(SCHEMA), fsync=self.fsync)
         self._rows = 0
         self._bytes = 0
 
@@ -238,6 +240,7 @@ class PosedDatasetWriter:
             self.provenance,
             scenes=self.scenes,
             report=self.report or None,
+            fsync=self.fsync,
         )
 
 

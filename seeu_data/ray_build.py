@@ -4,7 +4,7 @@ The driver plans (indices only) and cuts shard specs exactly as the local engine
 `shard_task.materialise` over the specs (one spec per block; rows carry the `ShardSpec` and the
 `ShardResult` as JSON strings, so Arrow never has to infer a type for them: the only place they are
 dicts). Each task writes `shard-XXXXX.arrow` atomically under its deterministic name (fsynced first
-when the driver's fsync policy is on) and returns its manifest entry; the driver records it in the
+with `BuildConfig.fsync`) and returns its manifest entry; the driver records it in the
 build's journal and writes the manifest last. The output directory and
 the posed inputs must be on a file system every node sees (or the same path on each node).
 """
@@ -24,12 +24,9 @@ from .triples import ShardSpec
 def _ray_task(row: dict) -> dict:
     import cv2
 
-    from .arrow_io import set_fsync
-
     cv2.setNumThreads(1)  # Ray schedules one task per CPU
-    set_fsync(bool(row["fsync"]))  # the driver's fsync policy
     spec = ShardSpec.from_dict(json.loads(row["spec"]))
-    return {"result": json.dumps(materialise(spec, row["out_dir"]).as_dict())}
+    return {"result": json.dumps(materialise(spec, row["out_dir"], bool(row["fsync"])).as_dict())}
 
 
 def run_ray(
@@ -38,12 +35,11 @@ def run_ray(
     address: str | None,
     bar,
     on_shard: Callable[[ShardResult], None] | None = None,
+    fsync: bool = False,
 ) -> list[ShardResult]:
     """Materialise every spec on the Ray cluster; results in spec order. `on_shard(result)` is called
     for each shard written, as it arrives (the task has renamed the shard into place by then)."""
     import ray
-
-    from .arrow_io import fsync_enabled
 
     ensure_ray(address)
     # Ray Data re-reads its logging level whenever a dataset runs; its INFO and WARNING lines (one
@@ -52,10 +48,7 @@ def run_ray(
     os.environ.setdefault("RAY_DATA_LOG_LEVEL", "ERROR")
     ctx = ray.data.DataContext.get_current()
     ctx.enable_progress_bars = False
-    items = [
-        {"spec": json.dumps(s.as_dict()), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync_enabled()}
-        for s in specs
-    ]
+    items = [{"spec": json.dumps(s.as_dict()), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync} for s in specs]
     ds = ray.data.from_items(items, override_num_blocks=len(items)).map(_ray_task, num_cpus=1)
     results = []
     for row in ds.iter_rows():

@@ -10,16 +10,15 @@ Each row is self-contained: V context views then T target views, every per-view 
 V + T entries (frame_index, source_frame, image, width, height, intrinsics_norm, cam_to_world,
 near, far), plus `gap` and per-target `target_offset`.
 
-`build_shard_table(spec)` is a pure function of its `ShardSpec` (samples, where their posed rows
-are, image options): the local process pool and the Ray engine both call it, which is why their
-shards are byte-identical.
+`write_shard(spec, path)` writes the shard of a `ShardSpec` (samples, where their posed rows are,
+image options), a pure function of it: the local process pool and the Ray engine both call it,
+which is why their shards are byte-identical.
 """
 
 from __future__ import annotations
 
 import hashlib
 import json
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
@@ -27,7 +26,7 @@ from typing import Iterator
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import deferred_binary, map_readonly, open_ipc_file, populate
+from .arrow_io import AtomicIpcWriter, binary_array, open_ipc_file
 from .errors import SeeUError
 from .manifest import read_manifest
 from .sampling import Sample, make_sample
@@ -164,97 +163,35 @@ class ShardSpec:
 # ---------------------------------------------------------------------------------------------
 
 
-class _MappedFile:
-    """A posed Arrow file mapped once per process: the table (zero-copy over the mapping) and which
-    scenes' image pages are already populated."""
-
-    def __init__(self, path: str):
-        if not Path(path).exists():
-            raise SeeUError("file not found", path)
-        self.key = _file_key(path)
-        self.mapping = map_readonly(path)
-        buf = pa.py_buffer(self.mapping)
-        self.base = buf.address
-        try:
-            self.table = pa.ipc.open_file(pa.BufferReader(buf)).read_all()
-        except (pa.ArrowInvalid, OSError) as exc:
-            raise SeeUError(
-                f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0], path
-            ) from None
-        self.populated: set[str] = set()
-
-
-_MAPPED: dict[str, _MappedFile] = {}  # path -> mapping, kept across shards: no map/unmap per shard
-_MAX_MAPPED = 64
+def _posed_rows(spec: ShardSpec, scene_id: str, files: dict[str, pa.Table]) -> pa.Table:
+    """The posed rows of one scene (`_POSED_COLUMNS`), zero-copy over its memory-mapped file (opened
+    once per shard: `files`, path -> table)."""
+    src = spec.sources[scene_id]
+    if src.path not in files:
+        files[src.path] = open_ipc_file(src.path).read_all()
+    full = files[src.path]
+    if src.row_start + src.num_frames > full.num_rows:
+        raise SeeUError(
+            f"scene {scene_id!r} rows {src.row_start}..{src.row_start + src.num_frames} "
+            f"exceed the file's {full.num_rows} rows",
+            src.path,
+        )
+    rows = full.slice(src.row_start, src.num_frames)
+    first = rows.column("scene_id")[0].as_py()
+    if first != scene_id:
+        raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", src.path)
+    return rows.select(_POSED_COLUMNS)
 
 
-def _file_key(path: str) -> tuple[int, ...]:
-    """Identity of a file's content for the mapping cache: a rewrite (a new inode: our writes rename
-    a new file into place), a size or a modification time change maps it again."""
-    st = os.stat(path)
-    return (st.st_dev, st.st_ino, st.st_size, st.st_mtime_ns)
-
-
-def _mapped(path: str) -> _MappedFile:
-    entry = _MAPPED.get(path)
-    try:
-        fresh = entry is not None and entry.key == _file_key(path)
-    except OSError:
-        fresh = False
-    if not fresh:
-        _MAPPED.pop(path, None)
-        entry = _MappedFile(path)
-        if len(_MAPPED) >= _MAX_MAPPED:
-            _MAPPED.pop(next(iter(_MAPPED)))
-        _MAPPED[path] = entry
-    assert entry is not None
-    return entry
-
-
-class _SceneTables:
-    """Posed rows per scene for one shard, from the process's mapped posed files (zero-copy reads)."""
-
-    def __init__(self, sources: dict[str, SceneRows]):
-        self.sources = sources
-        self._files: dict[str, _MappedFile] = {}  # the same mapping for every scene of the shard
-
-    def _file(self, scene_id: str) -> _MappedFile:
-        path = self.sources[scene_id].path
-        if path not in self._files:
-            self._files[path] = _mapped(path)
-        return self._files[path]
-
-    def table(self, scene_id: str) -> pa.Table:
-        src = self.sources[scene_id]
-        path = src.path
-        full = self._file(scene_id).table
-        if src.row_start + src.num_frames > full.num_rows:
-            raise SeeUError(
-                f"scene {scene_id!r} rows {src.row_start}..{src.row_start + src.num_frames} "
-                f"exceed the file's {full.num_rows} rows",
-                path,
-            )
-        rows = full.slice(src.row_start, src.num_frames)
-        first = rows.column("scene_id")[0].as_py()
-        if first != scene_id:
-            raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", path)
-        return rows.select(_POSED_COLUMNS)
-
-    def image_views(self, scene_id: str, rows: pa.Table) -> list[memoryview]:
-        """The scene's encoded images as views into the mapped file (no copy), their pages mapped at once."""
-        mapped = self._file(scene_id)
-        views: list[memoryview] = []
-        for chunk in rows.column("image").chunks:
-            _, offsets_buf, data_buf = chunk.buffers()
-            offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset : chunk.offset + len(chunk) + 1]
-            if len(chunk) and scene_id not in mapped.populated:
-                populate(
-                    mapped.mapping, data_buf.address - mapped.base + int(offsets[0]), int(offsets[-1] - offsets[0])
-                )
-            data = memoryview(data_buf)
-            views.extend(data[a:b] for a, b in zip(offsets[:-1].tolist(), offsets[1:].tolist()))
-        mapped.populated.add(scene_id)
-        return views
+def _value_views(column: pa.ChunkedArray) -> list[memoryview]:
+    """The values of a binary column as views into its buffers (no copy)."""
+    views: list[memoryview] = []
+    for chunk in column.chunks:
+        _, offsets_buf, data_buf = chunk.buffers()
+        offsets = np.frombuffer(offsets_buf, dtype=np.int32)[chunk.offset : chunk.offset + len(chunk) + 1].tolist()
+        data = memoryview(data_buf)
+        views.extend(data[a:b] for a, b in zip(offsets[:-1], offsets[1:]))
+    return views
 
 
 def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.DataType) -> pa.Array:
@@ -264,14 +201,18 @@ def _list_column(offsets: pa.Array, values: pa.Array | pa.ChunkedArray, typ: pa.
 
 
 def _resize_views(
-    taken: pa.Table, view_scene: list[str], view_frame: np.ndarray, opts: ImageOptions, sources: dict[str, SceneRows]
+    taken: pa.Table,
+    images: list[memoryview],
+    view_scene: list[str],
+    view_frame: np.ndarray,
+    opts: ImageOptions,
+    sources: dict[str, SceneRows],
 ) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
     """Decode, resize + centre-crop and re-encode every view (cached per scene frame within the shard)."""
     from .image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
 
     assert opts.resize is not None
     out_h, out_w = opts.resize
-    images = taken.column("image").to_pylist()
     fmts = taken.column("image_format").to_pylist()
     heights = taken.column("height").to_numpy()
     widths = taken.column("width").to_numpy()
@@ -307,57 +248,69 @@ def _resize_views(
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
 
 
-def build_shard_table(spec: ShardSpec, deferred_images: bool = False) -> pa.Table:
-    """Rows of one shard from its spec (one row per sample, in order; schema `shard_schema`).
+@dataclass
+class ShardRows:
+    """The rows of one shard before their image column is made: `images` (L views in row order:
+    views into the memory-mapped posed files, or re-encoded bytes when resizing) and `table(column)`,
+    which makes the shard's table around a binary column of them."""
 
-    `deferred_images=True` (copy path only, i.e. no resize): the image column is an
-    `arrow_io.deferred_binary` over views into the mapped posed files, for a table that is only
-    written with `arrow_io.write_table*` (the bytes go from the posed files to the shard in one copy).
-    """
+    schema: pa.Schema
+    images: list
+    _columns: dict = field(repr=False)
+    _offsets: pa.Array | None = field(repr=False)
+
+    def table(self, images: pa.BinaryArray) -> pa.Table:
+        if self._offsets is None:
+            return self.schema.empty_table()
+        cols = dict(self._columns)
+        cols["image"] = _list_column(self._offsets, images, self.schema.field("image").type)
+        arrays = []
+        for f in self.schema:
+            col = cols[f.name]
+            if col.type != f.type:  # e.g. list field nullability: cast to the schema's exact type
+                col = col.cast(f.type)
+            arrays.append(col)
+        return pa.Table.from_arrays(arrays, schema=self.schema)
+
+
+def shard_rows(spec: ShardSpec) -> ShardRows:
+    """The rows of one shard from its spec (one row per sample, in order; `build_shard_table` /
+    `write_shard` make the table, schema `shard_schema`)."""
     samples = spec.samples
     opts = spec.image
-    tables = _SceneTables(spec.sources)
-    scene_order: list[str] = []
+    files: dict[str, pa.Table] = {}
     base: dict[str, int] = {}
     parts: list[pa.Table] = []
     for s in samples:
         if s.scene_id not in base:
-            t = tables.table(s.scene_id)
             base[s.scene_id] = sum(p.num_rows for p in parts)
-            parts.append(t)
-            scene_order.append(s.scene_id)
+            parts.append(_posed_rows(spec, s.scene_id, files))
         n = spec.sources[s.scene_id].num_frames
         if any(not 0 <= v < n for v in s.views):
             raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec.sources[s.scene_id].path)
     schema = shard_schema(spec.plan_sha256)
     if not samples:
-        return schema.empty_table()
+        return ShardRows(schema, [], {}, None)
     posed = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
     view_scene = [s.scene_id for s in samples for _ in s.views]
     view_frame = np.array([v for s in samples for v in s.views], dtype=np.int64)
     flat = np.array([base[s.scene_id] + v for s in samples for v in s.views], dtype=np.int64)
-    deferred = deferred_images and opts.resize is None
-    taken = posed.drop_columns(["image"]).take(pa.array(flat)) if deferred else posed.take(pa.array(flat))
+    taken = posed.drop_columns(["image"]).take(pa.array(flat))
+    posed_images = _value_views(posed.column("image"))
+    images: list = [posed_images[i] for i in flat.tolist()]
     counts = np.array([len(s.views) for s in samples], dtype=np.int32)
     offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
 
     if opts.resize is None:
-        if deferred:
-            scene_views = {sid: tables.image_views(sid, part) for sid, part in zip(scene_order, parts)}
-            images = deferred_binary([scene_views[sid][int(f)] for sid, f in zip(view_scene, view_frame)])
-        else:
-            images = taken.column("image")
         width, height = taken.column("width"), taken.column("height")
         intr = taken.column("intrinsics_norm")
     else:
-        imgs, w, h, intr_np = _resize_views(taken, view_scene, view_frame, opts, spec.sources)
-        images = pa.array(imgs, pa.binary())
+        images, w, h, intr_np = _resize_views(taken, images, view_scene, view_frame, opts, spec.sources)
         width, height = pa.array(w), pa.array(h)
         intr = pa.FixedSizeListArray.from_arrays(pa.array(intr_np.reshape(-1)), 4)
     per_view = {
         "frame_index": pa.array(view_frame.astype(np.int32)),
         "source_frame": taken.column("source_frame"),
-        "image": images,
         "width": width,
         "height": height,
         "intrinsics_norm": intr,
@@ -384,15 +337,26 @@ def build_shard_table(spec: ShardSpec, deferred_images: bool = False) -> pa.Tabl
             pa.array(np.array([o for s in samples for o in s.target_offset], dtype=np.int32)),
         ),
     }
-    for name in _PER_VIEW:
-        cols[name] = _list_column(offsets, per_view[name], schema.field(name).type)
-    arrays = []
-    for f in schema:
-        col = cols[f.name]
-        if col.type != f.type:  # e.g. list field nullability: cast to the schema's exact type
-            col = col.cast(f.type)
-        arrays.append(col)
-    return pa.Table.from_arrays(arrays, schema=schema)
+    for name, values in per_view.items():
+        cols[name] = _list_column(offsets, values, schema.field(name).type)
+    return ShardRows(schema, images, cols, offsets)
+
+
+def build_shard_table(spec: ShardSpec) -> pa.Table:
+    """The table of one shard, its images copied into one column (`write_shard` writes it without that copy)."""
+    rows = shard_rows(spec)
+    return rows.table(binary_array(rows.images))
+
+
+def write_shard(spec: ShardSpec, path: str | Path, fsync: bool = False) -> tuple[int, int, str]:
+    """Write the shard of `spec` atomically to `path`; return (rows, bytes, sha256). The encoded
+    images go from the posed files into the shard without a copy in memory
+    (`AtomicIpcWriter.write_with_views`); the bytes equal those of `build_shard_table`'s table."""
+    rows = shard_rows(spec)
+    with AtomicIpcWriter(path, rows.schema, fsync=fsync) as writer:
+        writer.write_with_views(rows.images, rows.table, max_chunksize=spec.rows_per_batch)
+    assert writer.sha256 is not None
+    return len(spec.samples), writer.size, writer.sha256
 
 
 # ---------------------------------------------------------------------------------------------

@@ -1,13 +1,12 @@
-"""Output durability policy (seeu_data.arrow_io): atomic writes always, fsync only when asked for
-(`set_fsync` / `fsync_policy`, `--fsync` on import/build, SEEU_FSYNC=1); the sha256 recorded while
-writing equals the file's."""
+"""Writes of seeu_data.arrow_io: atomic always, fsynced before the rename only when a writer is told
+to (`fsync=True`, what `--fsync` on ingest/import/build passes down); the sha256 recorded while
+writing equals the file's; a column written from views gives the bytes pyarrow writes for it."""
 
 from __future__ import annotations
 
 import hashlib
 import os
-import subprocess
-import sys
+from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
@@ -15,23 +14,33 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data import arrow_io
-from seeu_data.arrow_io import atomic_write_text, commit_pending, fsync_enabled, fsync_policy, sha256_file, write_table
+from seeu_data.arrow_io import AtomicIpcWriter, atomic_write_text, sha256_file, write_table
+from seeu_data.errors import SeeUError
 from seeu_data.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
 
 @pytest.fixture
 def fsyncs(monkeypatch):
-    """Count os.fsync calls (the real call still runs)."""
+    """Record os.fsync and os.replace calls in order (the real calls still run)."""
     calls = []
-    real = os.fsync
+    real_fsync, real_replace = os.fsync, os.replace
 
-    def counting(fd):
-        calls.append(fd)
-        return real(fd)
+    def fsync(fd):
+        calls.append(("fsync", os.readlink(f"/proc/self/fd/{fd}") if os.path.exists("/proc/self/fd") else fd))
+        return real_fsync(fd)
 
-    monkeypatch.setattr(os, "fsync", counting)
+    def replace(src, dst):
+        calls.append(("replace", str(src)))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
     return calls
+
+
+def _fsynced(calls) -> list:
+    return [c for c in calls if c[0] == "fsync"]
 
 
 def _table(n=3000):
@@ -41,97 +50,41 @@ def _table(n=3000):
 
 
 def test_default_is_atomic_without_fsync(tmp_path, fsyncs):
-    assert not fsync_enabled()
     size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
     atomic_write_text(tmp_path / "m.json", "{}")
-    write_table(tmp_path / "p.arrow", _table(), commit=False)
-    commit_pending(tmp_path / "p.arrow")
-    assert fsyncs == []
+    assert _fsynced(fsyncs) == [] and len(fsyncs) == 2
     assert digest == sha256_file(tmp_path / "x.arrow") and size == (tmp_path / "x.arrow").stat().st_size
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "p.arrow", "x.arrow"]  # no temporary left
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["m.json", "x.arrow"]  # no temporary left
 
 
-def test_fsync_policy_fsyncs_every_file_before_its_rename(tmp_path, fsyncs):
-    with fsync_policy(True):
-        assert fsync_enabled() and os.environ["SEEU_FSYNC"] == "1"
-        size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100)
-        atomic_write_text(tmp_path / "m.json", "{}")
-        write_table(tmp_path / "p.arrow", _table(), commit=False)  # pending: fsynced at commit
-        assert len(fsyncs) == 2
-        commit_pending(tmp_path / "p.arrow")
-    assert len(fsyncs) == 3 and not fsync_enabled() and "SEEU_FSYNC" not in os.environ
-    assert digest == sha256_file(tmp_path / "x.arrow")
-    with fsync_policy(None):  # unchanged
-        assert not fsync_enabled()
-
-
-def test_env_var_turns_fsync_on():
-    code = "import seeu_data.arrow_io as a; print(a.fsync_enabled())"
-    env = dict(os.environ, SEEU_FSYNC="1", PYTHONPATH=os.getcwd())
-    assert (
-        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "True"
-    )
-    env["SEEU_FSYNC"] = "0"
-    assert (
-        subprocess.run([sys.executable, "-c", code], env=env, capture_output=True, text=True).stdout.strip() == "False"
-    )
+def test_fsync_parameter_fsyncs_each_file_before_its_rename(tmp_path, fsyncs):
+    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=100, fsync=True)
+    atomic_write_text(tmp_path / "m.json", "{}", fsync=True)
+    write_table(tmp_path / "y.arrow", _table(), fsync=False)  # a parameter of each write, no state left behind
+    kinds = [kind for kind, _ in fsyncs]
+    assert kinds == ["fsync", "replace", "fsync", "replace", "replace"]
+    if os.path.exists("/proc/self/fd"):  # the file fsynced is the one renamed next
+        assert fsyncs[0][1] == fsyncs[1][1] and fsyncs[2][1] == fsyncs[3][1]
+    assert digest == sha256_file(tmp_path / "x.arrow") and size == (tmp_path / "x.arrow").stat().st_size
 
 
 def test_failed_write_leaves_nothing(tmp_path):
     writer = arrow_io.AtomicIpcWriter(tmp_path / "x.arrow", _table().schema)
-    writer.write_table(_table())
+    writer.write(_table())
     writer.abort()
     assert list(tmp_path.iterdir()) == []
-
-
-@pytest.mark.parametrize("block", [10_007, 1 << 20])
-def test_hash_in_ranges_of_the_written_file(tmp_path, monkeypatch, block):
-    """The hasher takes the file in ranges at any (unaligned) offsets: the digest is the file's."""
-    monkeypatch.setattr(arrow_io, "_HASH_BLOCK", block)
-    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=77)
-    assert (size, digest) == ((tmp_path / "x.arrow").stat().st_size, sha256_file(tmp_path / "x.arrow"))
-
-
-def test_hash_reads_back_where_files_cannot_be_mapped(tmp_path, monkeypatch):
-    def no_mmap(*args, **kwargs):
-        raise OSError(19, "No such device")
-
-    monkeypatch.setattr(arrow_io, "_HASH_BLOCK", 100_003)
-    monkeypatch.setattr(arrow_io.mmap, "mmap", no_mmap)
-    size, digest = write_table(tmp_path / "x.arrow", _table(), max_chunksize=500)
-    assert digest == sha256_file(tmp_path / "x.arrow")
-
-
-def test_a_failed_hash_is_an_error_and_leaves_no_file(tmp_path, monkeypatch):
-    def fail(*args, **kwargs):
-        raise OSError(5, "Input/output error")
-
-    monkeypatch.setattr(arrow_io.mmap, "mmap", fail)
-    real_open = open
-
-    class FailingReads:
-        def __init__(self, fh):
-            self.fileno, self.seek, self.close = fh.fileno, fh.seek, fh.close
-
-        def read(self, n):
-            raise OSError(5, "Input/output error")
-
-    def open_failing_reads(path, mode="r", **kwargs):
-        fh = real_open(path, mode, **kwargs)
-        return FailingReads(fh) if mode == "rb" else fh
-
-    monkeypatch.setattr(arrow_io, "open", open_failing_reads, raising=False)
-    with pytest.raises(arrow_io.SeeUError, match="could not hash .*Input/output error"):
-        write_table(tmp_path / "x.arrow", _table())
+    with pytest.raises(KeyboardInterrupt), AtomicIpcWriter(tmp_path / "y.arrow", _table().schema) as w:
+        w.write(_table())
+        raise KeyboardInterrupt
     assert list(tmp_path.iterdir()) == []
 
 
-def test_build_and_import_fsync_flag(tmp_path, fsyncs):
+def test_build_fsync_flag(tmp_path, fsyncs):
     posed = tmp_path / "posed"
     with PosedDatasetWriter(posed, params={}, provenance={}, target_file_bytes=30_000) as w:
         for i in range(3):
             w.add(make_posed_scene(f"s{i}", n=30, height=24, width=32, seed=i))
-    assert fsyncs == []
+    assert _fsynced(fsyncs) == []
     cmd = [
         "build",
         str(posed),
@@ -147,11 +100,13 @@ def test_build_and_import_fsync_flag(tmp_path, fsyncs):
         "1",
     ]
     assert cli_main([*cmd, "--out", str(tmp_path / "a")]) == 0
-    assert fsyncs == []
+    assert _fsynced(fsyncs) == []
     assert cli_main([*cmd, "--out", str(tmp_path / "b"), "--fsync"]) == 0
-    shards = len(list((tmp_path / "b").glob("shard-*.arrow")))
-    assert shards > 1 and len(fsyncs) == shards + 2  # every shard, the progress journal, the manifest
-    assert not fsync_enabled()
+    shards = sorted((tmp_path / "b").glob("shard-*.arrow"))
+    fsynced = [Path(f).name for _, f in _fsynced(fsyncs)]
+    assert len(shards) > 1 and len(fsynced) == len(shards) + 1  # every shard, the manifest (not the journal)
+    if os.path.exists("/proc/self/fd"):
+        assert {f.split(".")[1] for f in fsynced} == {"manifest"} | {p.stem for p in shards}
     assert sorted(os.listdir(tmp_path / "a")) == sorted(os.listdir(tmp_path / "b"))
     for name in os.listdir(tmp_path / "a"):
         if name.endswith(".arrow"):
@@ -166,22 +121,26 @@ def _plain_ipc_bytes(table: pa.Table, max_chunksize: int) -> bytes:
 
 
 @pytest.mark.parametrize("max_chunksize", [1, 7, 64, 10_000])
-def test_deferred_binary_writes_the_bytes_pyarrow_writes(tmp_path, max_chunksize):
-    """A deferred column (pieces: numpy views into a mapped file, bytes, memoryviews, empty values;
+def test_views_write_the_bytes_pyarrow_writes(tmp_path, max_chunksize):
+    """A column written from views (numpy views into a mapped file, bytes, memoryviews, empty values;
     as a plain and as a list<binary> column, cut into batches at any row) gives exactly the file
     pyarrow writes for the same values copied into one buffer, and the sha256 of that file."""
+    import mmap
+
     rng = np.random.default_rng(1)
     blob = rng.integers(0, 256, 3 << 20, dtype=np.uint8)
     (tmp_path / "src.bin").write_bytes(blob.tobytes())
-    mapped = np.frombuffer(arrow_io.map_readonly(tmp_path / "src.bin", populate=True), dtype=np.uint8)
+    with open(tmp_path / "src.bin", "rb") as fh:
+        mapped = np.frombuffer(mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ), dtype=np.uint8)
     cuts = np.sort(rng.integers(0, blob.size, 600))
     pieces = []
     for i, (a, b) in enumerate(zip(cuts[:-1], cuts[1:])):
         view = mapped[a:b]
         pieces.append([view, view.tobytes(), memoryview(view.tobytes())][i % 3])
     pieces[5] = b""
+    pieces = pieces[: len(pieces) // 3 * 3]  # the list column holds every value
     values = [bytes(memoryview(p)) for p in pieces]
-    offsets = pa.array(np.arange(0, len(pieces) + 1, 3)[: len(pieces) // 3 + 1].astype(np.int32))
+    offsets = pa.array(np.arange(0, len(pieces) + 1, 3).astype(np.int32))
     n_rows = len(offsets) - 1
 
     def table(images):
@@ -193,41 +152,29 @@ def test_deferred_binary_writes_the_bytes_pyarrow_writes(tmp_path, max_chunksize
             }
         )
 
-    expected = _plain_ipc_bytes(table(pa.array(values, pa.binary())), max_chunksize)
-    size, digest = write_table(
-        tmp_path / "d.arrow", table(arrow_io.deferred_binary(pieces)), max_chunksize=max_chunksize
-    )
+    plain = table(pa.array(values, pa.binary()))
+    expected = _plain_ipc_bytes(plain, max_chunksize)
+    assert _plain_ipc_bytes(table(arrow_io.binary_array(pieces)), max_chunksize) == expected
+    with AtomicIpcWriter(tmp_path / "d.arrow", plain.schema) as writer:
+        writer.write_with_views(pieces, table, max_chunksize=max_chunksize)
     assert (tmp_path / "d.arrow").read_bytes() == expected
-    assert (size, digest) == (len(expected), hashlib.sha256(expected).hexdigest())
+    assert (writer.size, writer.sha256) == (len(expected), hashlib.sha256(expected).hexdigest())
     assert pa.ipc.open_file(str(tmp_path / "d.arrow")).read_all().column("views").to_pylist() == [
         values[i : i + 3] for i in range(0, 3 * n_rows, 3)
     ]
 
 
-def test_deferred_binary_placeholders_are_released_and_short_writes_resume(tmp_path, monkeypatch):
-    import gc
+def test_a_column_pyarrow_copies_is_refused_not_written(tmp_path):
+    """The stand-in column reads as zeros (no crash); a table that does not hand its data buffer to
+    the sink as it is (here: copied) is an error, and the file is removed, never written with zeros."""
+    schema = pa.schema([("x", pa.binary())])
+    seen = []
 
-    arr = arrow_io.deferred_binary([b"abc", b"", b"defgh"])
-    base = arr.buffers()[2].address
-    # the finalizer of a dead placeholder that had the same address never drops a live one
-    arrow_io._forget_placeholder(base)
-    assert [bytes(v) for v in arrow_io._deferred_pieces(base, 8)] == [b"abc", b"defgh"]
-    real = os.writev
-    monkeypatch.setattr(os, "writev", lambda fd, views: real(fd, [bytes(memoryview(views[0]))[:2]]))  # 2 bytes a call
-    size, digest = write_table(tmp_path / "s.arrow", pa.table({"x": arr}))
-    monkeypatch.undo()
-    plain = _plain_ipc_bytes(pa.table({"x": pa.array([b"abc", b"", b"defgh"])}), 10_000)
-    assert (tmp_path / "s.arrow").read_bytes() == plain and digest == hashlib.sha256(plain).hexdigest()
-    del arr
-    gc.collect()
-    assert not arrow_io._PLACEHOLDERS
-    assert arrow_io._deferred_pieces(12345, 10) is None
+    def copied(column):
+        seen.append(column.to_pylist())
+        return pa.table({"x": pa.concat_arrays([column, pa.array([b"z"])])})
 
-
-def test_reading_a_deferred_column_outside_the_writer_faults():
-    """A deferred column read anywhere but the writer's sink must fail loudly, never give zeros."""
-    code = "from seeu_data.arrow_io import deferred_binary\nprint(deferred_binary([b'abc', b'de']).to_pylist())\n"
-    res = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, env=dict(os.environ, PYTHONPATH=os.getcwd())
-    )
-    assert res.returncode != 0 and "abc" not in res.stdout and "\\x00" not in res.stdout
+    with pytest.raises(SeeUError, match="cannot write it without a copy"):
+        with AtomicIpcWriter(tmp_path / "c.arrow", schema) as writer:
+            writer.write_with_views([b"abc", b"de"], copied)
+    assert seen == [[b"\0\0\0", b"\0\0"]] and list(tmp_path.iterdir()) == []

@@ -332,12 +332,12 @@ def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeyp
     assert _shard_bytes(out) == good
 
 
-def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed, tmp_path, monkeypatch):
+def test_hashed_writer_matches_plain_ipc_and_leftovers_are_cleared(posed, tmp_path, monkeypatch):
     import pyarrow as pa
 
-    from seeu_data.arrow_io import commit_pending, pending_path, sha256_file, write_table
+    from seeu_data.arrow_io import sha256_file, write_table
 
-    # large values too, so that the file spans several of the hasher's ranges and the big-write path
+    # large values too, so that the file has big writes as well as small ones
     table = pa.table(
         {
             "a": np.arange(5000),
@@ -351,15 +351,9 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
             w.write_table(table, max_chunksize=64)
     assert (tmp_path / "x.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
     assert size == (tmp_path / "x.arrow").stat().st_size and digest == sha256_file(tmp_path / "x.arrow")
-    assert not pending_path(tmp_path / "x.arrow").exists() and not list(tmp_path.glob(".*"))
-    # deferred commit: complete but pending until commit_pending, then the same bytes in place
-    assert write_table(tmp_path / "z.arrow", table, max_chunksize=64, commit=False) == (size, digest)
-    assert not (tmp_path / "z.arrow").exists() and pending_path(tmp_path / "z.arrow").exists()
-    commit_pending(tmp_path / "z.arrow")
-    assert (tmp_path / "z.arrow").read_bytes() == (tmp_path / "y.arrow").read_bytes()
     assert not list(tmp_path.glob(".*"))
     # an interrupted run leaves no manifest, a progress journal of the shards in place (and maybe a
-    # pending shard); the re-run keeps the recorded shards, clears the leftovers and completes
+    # temporary shard); the re-run keeps the recorded shards, clears the leftovers and completes
     out = tmp_path / "b"
     assert _build(posed, out) == 0
     good = _shard_bytes(out)
@@ -367,14 +361,14 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
     import seeu_data.build as build_mod
     import seeu_data.shard_task as shard_task
 
-    real = shard_task.build_shard_table
+    real = shard_task.write_shard
 
-    def interrupted(spec, **kwargs):
+    def interrupted(spec, *args, **kwargs):
         if spec.index == 3:
             raise KeyboardInterrupt
-        return real(spec, **kwargs)
+        return real(spec, *args, **kwargs)
 
-    monkeypatch.setattr(shard_task, "build_shard_table", interrupted)
+    monkeypatch.setattr(shard_task, "write_shard", interrupted)
     assert _build(posed, out, "--workers", "1") == 130
     assert not (out / "manifest.json").exists()
     assert [json.loads(line)["unit"] for line in (out / build_mod.PROGRESS_NAME).read_text().splitlines()] == [
@@ -382,8 +376,9 @@ def test_hashed_writer_matches_plain_ipc_and_pending_leftovers_are_cleared(posed
         "shard-00001.arrow",
         "shard-00002.arrow",
     ]
-    (out / "shard-00002.arrow").rename(pending_path(out / "shard-00002.arrow"))  # caught before its rename
-    monkeypatch.setattr(shard_task, "build_shard_table", real)
+    (out / "shard-00002.arrow").rename(out / ".shard-00002.arrow.12345.tmp")  # caught before its rename
+    (out / ".shard-00003.arrow.pending").write_bytes(b"left by an older version")
+    monkeypatch.setattr(shard_task, "write_shard", real)
     assert _build(posed, out) == 0
     assert _shard_bytes(out) == good and not list(out.glob(".*"))
     assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == 2
@@ -406,37 +401,42 @@ def test_undecodable_image_names_file_scene_and_frame(tmp_path, capsys):
     assert cli_main(args) == 0  # without --resize the bytes are copied as they are (validated by the loader)
 
 
-def test_deferred_images_give_the_same_shard_bytes(posed, tmp_path):
-    """What `materialise` writes (images straight from the mapped posed files) equals the shard
-    written from the table with its images taken into Arrow buffers, shard by shard, several
-    scenes per shard and several batches per shard."""
-    from seeu_data.arrow_io import write_table
+def test_written_shards_equal_their_tables(posed, tmp_path):
+    """What `materialise` writes (`write_shard`: images from the mapped posed files, not copied) equals
+    the file pyarrow writes for `build_shard_table`'s table (images copied into one column), shard by
+    shard, several scenes per shard and several batches per shard, with and without resizing."""
+    import pyarrow as pa
+
+    from seeu_data.arrow_io import sha256_file
     from seeu_data.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
     from seeu_data.sampling import SamplingConfig
-    from seeu_data.triples import build_shard_table
+    from seeu_data.triples import ImageOptions, build_shard_table, write_shard
 
-    cfg = BuildConfig(
-        inputs=(str(posed),),
-        out=str(tmp_path / "o"),
-        rows_per_batch=3,
-        shard_bytes=60_000,
-        sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9),
-    )
-    scenes = scan_inputs(cfg.inputs)
-    specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
-    assert len(specs) > 1 and max(len(s.sources) for s in specs) > 1
-    for spec in specs:
-        plain = write_table(tmp_path / "plain.arrow", build_shard_table(spec), max_chunksize=3)
-        deferred = write_table(
-            tmp_path / "deferred.arrow", build_shard_table(spec, deferred_images=True), max_chunksize=3
+    for resize in (None, (8, 12)):
+        cfg = BuildConfig(
+            inputs=(str(posed),),
+            out=str(tmp_path / "o"),
+            rows_per_batch=3,
+            shard_bytes=60_000,
+            sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=9),
+            image=ImageOptions(resize=resize),
         )
-        assert plain == deferred
-        assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "deferred.arrow").read_bytes()
+        scenes = scan_inputs(cfg.inputs)
+        specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
+        assert len(specs) > 1 and max(len(s.sources) for s in specs) > 1
+        for spec in specs:
+            table = build_shard_table(spec)
+            with pa.OSFile(str(tmp_path / "plain.arrow"), "wb") as sink:
+                with pa.ipc.new_file(sink, table.schema, options=pa.ipc.IpcWriteOptions(compression=None)) as w:
+                    w.write_table(table, max_chunksize=3)
+            rows, size, digest = write_shard(spec, tmp_path / "shard.arrow")
+            assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "shard.arrow").read_bytes()
+            plain = tmp_path / "plain.arrow"
+            assert (rows, size, digest) == (table.num_rows, plain.stat().st_size, sha256_file(plain))
 
 
 def test_rewritten_posed_data_is_mapped_again(tmp_path):
-    """Posed files are mapped once per process and kept across builds; a rewritten posed directory
-    (same paths, other images) must be read afresh, never served from the old mapping."""
+    """A rewritten posed directory (same paths, other images) is read afresh by the next build."""
 
     def write(seed: int) -> None:
         with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:

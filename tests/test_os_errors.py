@@ -40,21 +40,17 @@ def _leftovers(root: Path) -> list[str]:
 def _fail_writes(monkeypatch, code: int) -> None:
     """Every write of file data fails after half of its bytes with OSError(code), as `write(2)`
     fails on a full disk (the error names no file: the writer must say which)."""
-    real_write_all, real_write_bytes = arrow_io._HashingFile._write_all, Path.write_bytes
+    real_write, real_write_bytes = arrow_io._HashingSink._write, Path.write_bytes
 
-    def write_all(self, view):
-        real_write_all(self, view[: view.nbytes // 2])
-        raise OSError(code, os.strerror(code))
-
-    def writev_all(fd, views):
+    def write(self, view):
+        real_write(self, view[: view.nbytes // 2])
         raise OSError(code, os.strerror(code))
 
     def write_bytes(self, data):
         real_write_bytes(self, bytes(data)[: len(data) // 2])
         raise OSError(code, os.strerror(code))
 
-    monkeypatch.setattr(arrow_io._HashingFile, "_write_all", write_all)
-    monkeypatch.setattr(arrow_io, "_writev_all", writev_all)
+    monkeypatch.setattr(arrow_io._HashingSink, "_write", write)
     monkeypatch.setattr(Path, "write_bytes", write_bytes)
 
 

@@ -11,7 +11,7 @@ Modes:
 The same inputs and seed give byte-identical shards with either engine; a re-run resumes (shards
 already written for the same plan are kept once their recorded size and sha256 check out). Scenes
 too short for the gaps are skipped and counted. Writes are atomic (temporary name, rename, manifest
-last); --fsync (or SEEU_FSYNC=1) also fsyncs every shard before its rename, for durability across
+last); --fsync also fsyncs every shard and the manifest before their rename, for durability across
 a power loss.
 
 Examples:

@@ -13,7 +13,7 @@ non-finite or non-orthonormal poses) are skipped, counted and named in the manif
 A re-run resumes: output files already complete for the same options and unchanged inputs
 (pixelsplat chunks, re10k camera files with their frames, dtu scans, the colmap or nerfstudio
 scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
-Writes are atomic (temporary name, rename, manifest last); --fsync (or SEEU_FSYNC=1) also fsyncs
+Writes are atomic (temporary name, rename, manifest last); --fsync also fsyncs
 every file before its rename, for durability across a power loss.
 
 Examples:

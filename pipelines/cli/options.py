@@ -66,7 +66,7 @@ def add_fsync(p: Flags) -> None:
         "--fsync",
         action="store_true",
         help="fsync every output file before its rename (durable across a power loss; slower). Default: "
-        "atomic renames only, a torn file is caught by the manifest sha256 (seeu validate); also SEEU_FSYNC=1",
+        "atomic renames only, a torn file is caught by the manifest sha256 (seeu validate)",
     )
 
 

@@ -10,6 +10,7 @@ from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
+from ..arrow_io import BytesLike
 from ..errors import SeeUError
 from ..image_header import decode_check, image_info
 from ..manifest import FileEntry, read_manifest
@@ -72,7 +73,7 @@ class ImportReport:
 
 
 def probe_images(
-    images: Sequence[bytes], names: Sequence[str], verify_decode: bool = False
+    images: Sequence[BytesLike], names: Sequence[str], verify_decode: bool = False
 ) -> tuple[str, np.ndarray, np.ndarray]:
     """Format and sizes of a scene's encoded frames: `(format, width (N,), height (N,))`.
 
@@ -125,7 +126,6 @@ class ImportPlan:
     units: list[ImportUnit]
     seen: set[str] = field(default_factory=set)
     fingerprint: str = ""
-    prefetch: bool = True  # read units on a background thread (False: reading is cheaper than the hand-off)
 
 
 class _ImportWriter(PosedDatasetWriter):
@@ -149,15 +149,14 @@ class _ImportWriter(PosedDatasetWriter):
         self._seen.update(s["scene_id"] for s in record["scenes"])
 
 
-def _prepare(item: PosedScene | SkippedScene):
-    """On the reading thread: check a scene and make its record batch (a SkippedScene when it fails)."""
+def _prepare(item: PosedScene | SkippedScene) -> PosedScene | SkippedScene:
+    """On the reading thread: check a scene (a SkippedScene when it fails)."""
     if isinstance(item, PosedScene):
         try:
             item.check()
-            return item, item.to_record_batch(deferred=True)
         except SeeUError as exc:
-            return SkippedScene(item.scene_id, str(exc)), None
-    return item, None
+            return SkippedScene(item.scene_id, str(exc))
+    return item
 
 
 def _read_records(out_dir: Path, key: str) -> list[dict]:
@@ -218,14 +217,16 @@ def write_import(
     progress: bool = False,
     total: int | None = None,
     target_file_bytes: int = 256 << 20,
+    fsync: bool = False,
 ) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
     The importer runs in a background thread a few scenes ahead (`prefetch.prefetch`), where each
-    scene is also checked (`PosedScene.check`: finite, orthonormal poses, valid near/far) and
-    converted to its record batch, so reading the input overlaps with writing and hashing the output.
-    A scene that fails the check is skipped like the importer's own skips. `strict` turns the first
-    skip into an error. Raises SeeUError, leaving no manifest, when nothing usable remains.
+    scene is also checked (`PosedScene.check`: finite, orthonormal poses, valid near/far), so reading
+    the input overlaps with writing and hashing the output. A scene that fails the check is skipped
+    like the importer's own skips. `strict` turns the first skip into an error. `fsync`: every posed
+    file and the manifest are fsynced before their rename. Raises SeeUError, leaving no manifest,
+    when nothing usable remains.
 
     Resume: given an `ImportPlan` (units, e.g. pixelSplat chunks), files close only at unit ends, and
     each finished file is recorded (units covered, scenes, skips, bytes, sha256) in a journal
@@ -250,7 +251,9 @@ def write_import(
         journal.reset(done)  # before the manifest goes
     else:
         journal.remove()
-    writer = _ImportWriter(out_dir, params=params, provenance=provenance, target_file_bytes=target_file_bytes)
+    writer = _ImportWriter(
+        out_dir, params=params, provenance=provenance, target_file_bytes=target_file_bytes, fsync=fsync
+    )
     sweep(out_dir, POSED_FILES, keep={r["file"]["path"] for r in done})  # files not kept, partial writes
     for rec in done:
         writer.restore(rec)
@@ -277,8 +280,8 @@ def write_import(
             if i in skip_units:
                 continue
             for item in u.read():
-                yield (i, *_prepare(item))
-            yield (i, _UNIT_END, None)
+                yield i, _prepare(item)
+            yield i, _UNIT_END
 
     bar = tqdm(
         total=total,
@@ -314,7 +317,7 @@ def write_import(
         cur_units, cur_skipped = [], []
 
     try:
-        for i, item, batch in prefetch(stream()) if plan.prefetch else stream():
+        for i, item in prefetch(stream()):
             unit = units[i]
             if item is _UNIT_END:
                 if unit.key is not None:
@@ -324,7 +327,7 @@ def write_import(
             bar.update(1)
             if isinstance(item, PosedScene):
                 try:
-                    writer.add_batch(item, batch, may_close=not resumable or unit.key is None)
+                    writer.add_checked(item, may_close=not resumable or unit.key is None)
                 except SeeUError as exc:
                     item = SkippedScene(item.scene_id, str(exc))
                 else:

@@ -22,6 +22,7 @@ by `scale` for scene units).
 from __future__ import annotations
 
 import re
+from functools import partial
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Iterator
@@ -252,7 +253,7 @@ def import_plan(cfg: DtuImportConfig, scans: list[int] | None = None):
         ImportUnit(
             f"scan{scan}",
             files_fingerprint(_scan_inputs(root, scan, views, cfg.lighting)),
-            lambda scan=scan: read(scan),
+            partial(read, scan),
         )
         for scan in scans
     ]

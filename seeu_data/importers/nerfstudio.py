@@ -145,7 +145,8 @@ def frame_paths(cfg: NerfstudioImportConfig, doc: dict) -> tuple[list[Path | Non
                 contained_path(base, str(image.relative_to(base)), "frame file_path", path)
             except SeeUError as exc:
                 outside[name] = str(exc)
-                image = None
+                paths.append(None)
+                continue
         paths.append(image)
     return paths, outside
 
@@ -228,8 +229,8 @@ def undistort_frames(
 
     from .colmap import undistort_model
 
-    with tempfile.TemporaryDirectory(prefix="seeu-ns-undistort-") as tmp:
-        tmp = Path(tmp)
+    with tempfile.TemporaryDirectory(prefix="seeu-ns-undistort-") as tmp_name:
+        tmp = Path(tmp_name)
         model, images, out = tmp / "model", tmp / "images", tmp / "out"
         model.mkdir()
         images.mkdir()
@@ -350,10 +351,10 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
     except SeeUError as exc:
         yield SkippedScene(str(scene_id), str(exc))
         return
-    c2w_gl = np.stack(c2w_gl)
+    c2w_gl_n4 = np.stack(c2w_gl)  # (N, 4, 4) OpenGL camera-to-world
     if applied is not None and cfg.undo_applied_transform:
-        c2w_gl = invert_rigid(applied) @ c2w_gl
-    meta = {
+        c2w_gl_n4 = invert_rigid(applied) @ c2w_gl_n4
+    meta: dict[str, object] = {
         "dataset": "nerfstudio",
         "transforms": str(path.resolve()),
         "world": "nerfstudio (applied_transform kept)"
@@ -376,7 +377,7 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
         width=width,
         height=height,
         intrinsics_norm=np.stack(intr),
-        cam_to_world=opencv_from_opengl(c2w_gl),
+        cam_to_world=opencv_from_opengl(c2w_gl_n4),
         near=near,
         far=far,
         source_frame=source_frame,

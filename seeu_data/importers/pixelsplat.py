@@ -12,8 +12,8 @@ bytes are kept as they are; width/height come from the image headers. Scene id =
 dataset name, stage and chunk name go into the scene's meta. `source_frame` is the frame's position
 in the example. Chunks are read one at a time, memory-mapped (`torch_chunk.load_plain`, a restricted
 reader that is several times faster than `torch.load` and copies nothing; `torch.load(weights_only
-=True)` is the fallback), and the images are written from the mapping straight into the posed file
-(`arrow_io.deferred_binary`), so the process holds one chunk in the page cache and no image copies.
+=True)` is the fallback), and each scene's images are copied from the mapping into its record
+batch when it is written, so the process holds one chunk in the page cache and one scene's images.
 
 A `seeu_posed.json` next to `index.json` (written by `seeu export pixelsplat`) restores what the
 chunk format cannot carry (near/far, source frame numbers and names, meta); peer loaders ignore it.
@@ -24,7 +24,7 @@ from __future__ import annotations
 import struct
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator, Sequence
 
 import numpy as np
 
@@ -164,8 +164,8 @@ def _torch_load(path: Path):
 def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: str, sidecar: dict | None) -> PosedScene:
     """One chunk example -> PosedScene (SeeUError when the example is malformed).
 
-    The scene's `images` are read-only numpy views into the memory-mapped chunk, not copies: the
-    writer writes them straight into the posed file (`arrow_io.deferred_binary`).
+    The scene's `images` are read-only numpy views into the memory-mapped chunk, not copies (the
+    writer copies them into the scene's record batch).
     """
     key = example["key"]
     where = f"{chunk_name}:{key}"
@@ -188,7 +188,7 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
     cam_to_world = cam_to_world_from_world_to_cam(homogeneous_from_3x4(cams[:, 6:].reshape(n, 3, 4)))
     data = image_views(images)
     names = [f"{where}#{i}" for i in range(n)]
-    fmt, width, height = probe_images([memoryview(a) for a in data], names, cfg.verify_decode)
+    fmt, width, height = probe_images(data, names, cfg.verify_decode)
     near, far = cfg.near_far()
     meta = {"url": str(example["url"]), "dataset": cfg.dataset, "stage": cfg.stage, "chunk": chunk_name}
     source_frame = np.arange(n, dtype=np.int64)
@@ -219,7 +219,7 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
     )
 
 
-def image_views(images: list) -> list[np.ndarray]:
+def image_views(images: Sequence[Any]) -> list[np.ndarray]:
     """N encoded images (uint8 1-D tensors or arrays) -> numpy uint8 views of them (no copy)."""
     arrays = []
     for t in images:
@@ -306,9 +306,7 @@ def import_plan(
 
         units.append(ImportUnit(None, "", not_found))
     fingerprint = f"{file_fingerprint(directory / 'index.json')}|{file_fingerprint(directory / SIDECAR_NAME)}"
-    # No prefetch thread: reading a mapped chunk costs a quarter of writing it, and a second thread
-    # mapping and unmapping chunks while the writer copies from them made the writes 2-5x slower.
-    return ImportPlan(units, seen, fingerprint, prefetch=False)
+    return ImportPlan(units, seen, fingerprint)
 
 
 def iter_scenes(

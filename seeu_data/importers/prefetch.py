@@ -1,11 +1,9 @@
 """A bounded background prefetcher for the importers.
 
-`prefetch` runs an importer (reading image files, decoding checks, conversion) in a background
-thread a few scenes ahead of the writer; the posed-frames writer hashes the bytes as it writes them
-(`seeu_data.arrow_io.AtomicIpcWriter`), and file reads, hashlib and file writes release the GIL,
-so reading the next scene overlaps writing and hashing this one. The pixelSplat importer does not
-use it (`ImportPlan.prefetch=False`): its reading maps the chunk and copies nothing, and mapping
-chunks on a second thread slowed the writer's copies out of the mapping.
+`prefetch` runs an importer (reading image files or chunks, header checks, conversion) in a
+background thread a few scenes ahead of the writer; the posed-frames writer hashes the bytes as it
+writes them (`seeu_data.arrow_io.AtomicIpcWriter`), and file reads, hashlib and file writes release
+the GIL, so reading the next scene overlaps writing and hashing this one.
 """
 
 from __future__ import annotations

@@ -142,7 +142,7 @@ def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
     except OSError as exc:
         raise SeeUError(f"unreadable frame ({exc})", scene_dir) from None
     fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
-    meta = {"url": cams.url, "dataset": cfg.dataset, "camera_file": str(cam_file)}
+    meta: dict[str, object] = {"url": cams.url, "dataset": cfg.dataset, "camera_file": str(cam_file)}
     if len(idx) < len(keep):
         meta["dropped_frames_without_image"] = int(len(keep) - len(idx))
     return PosedScene(
