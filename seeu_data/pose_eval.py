@@ -2,6 +2,8 @@
 
     sim = umeyama(src (N, 3), dst (N, 3))            # dst ~ s * R @ src + t
     acc = pose_accuracy(est_c2w (N, 4, 4), gt_c2w (N, 4, 4), est_intr (N, 4), gt_intr (N, 4))
+    sim = similarity_from_cameras(est_c2w, gt_c2w)    # gt ~ s R est + t, from orientations + centres
+    sim = fit_projection_similarity(pts_gt (P, 3), uv_gt (N, P, 2), valid (N, P), project, sim)
 
 Metrics (the issue's "Must show"): camera-centre RMSE after a similarity alignment (absolute and as
 a percentage of the ground-truth path length), mean and max frame-to-frame relative rotation error
@@ -10,6 +12,7 @@ in degrees (invariant to the world frame), and the relative focal-length error.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 
 import numpy as np
@@ -28,6 +31,10 @@ class Similarity:
     def apply(self, points: np.ndarray) -> np.ndarray:
         """`(N, 3) -> (N, 3)`."""
         return self.scale * points @ self.rotation.T + self.translation
+
+    def inverse_apply(self, points: np.ndarray) -> np.ndarray:
+        """The inverse map, `(N, 3) -> (N, 3)`."""
+        return (points - self.translation) @ self.rotation / self.scale
 
 
 def umeyama(src: np.ndarray, dst: np.ndarray, with_scale: bool = True) -> Similarity:
@@ -104,3 +111,85 @@ def pose_accuracy(
         focal,
         sim.scale,
     )
+
+
+def _rotation_from_vector(w: np.ndarray) -> np.ndarray:
+    """Rodrigues: rotation vector `(3,)` (axis * angle, radians) -> `(3, 3)`."""
+    angle = float(np.linalg.norm(w))
+    if angle < 1e-15:
+        return np.eye(3)
+    k = np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]]) / angle
+    return np.eye(3) + np.sin(angle) * k + (1.0 - np.cos(angle)) * k @ k
+
+
+def similarity_from_cameras(est_c2w: np.ndarray, gt_c2w: np.ndarray) -> Similarity:
+    """Similarity `gt ~ s R est + t` from cameras of the same frames `(N, 4, 4)`: the rotation from the
+    camera orientations (their chordal mean; the centres alone leave the roll about a straight path
+    undetermined), then scale and translation from the centres by least squares."""
+    est = np.asarray(est_c2w, np.float64)
+    gt = np.asarray(gt_c2w, np.float64)
+    u, _, vt = np.linalg.svd((gt[:, :3, :3] @ np.swapaxes(est[:, :3, :3], -1, -2)).sum(0))
+    rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
+    a, b = est[:, :3, 3], gt[:, :3, 3]
+    a0, b0 = a - a.mean(0), b - b.mean(0)
+    scale = float(((a0 @ rot.T) * b0).sum() / (a0**2).sum())
+    return Similarity(scale, rot, b.mean(0) - scale * rot @ a.mean(0))
+
+
+def fit_projection_similarity(
+    points_gt: np.ndarray,
+    uv_target: np.ndarray,
+    valid: np.ndarray,
+    project: Callable[[np.ndarray], np.ndarray],
+    init: Similarity,
+    iterations: int = 20,
+) -> Similarity:
+    """The world frame (similarity `gt ~ s R est + t`) in which the estimated cameras put ground-truth
+    points closest to where they should be, in pixels.
+
+    SfM fixes its cameras only up to a similarity of the world; comparing them with ground truth needs
+    one, and a choice not made on the image measurement itself (e.g. from the camera centres) adds its
+    own error to it. This one minimises the sum over frames i and points p with valid[i, p] of
+    |project(points mapped into the estimated world)[i, p] - uv_target[i, p]|^2 by Levenberg-Marquardt
+    from `init` (central-difference Jacobian; log scale, a rotation vector and a translation, about the
+    points' centre). Fit it on some ground-truth points and measure on others (7 numbers fitted to a
+    few thousand pixel positions: on the synthetic clip 0.064 px median on the fitted points, 0.066 px
+    on the held-out ones).
+
+    Shapes: points_gt `(P, 3)` ground-truth world; uv_target `(N, P, 2)` pixels; valid `(N, P)` bool;
+    project: estimated-world points `(P, 3)` -> pixels `(N, P, 2)` in the N estimated cameras.
+    """
+    pts = np.asarray(points_gt, np.float64)
+    target = np.asarray(uv_target, np.float64)[valid]
+    centre = pts.mean(0)
+    extent = float(np.linalg.norm(pts - centre, axis=1).max()) or 1.0
+
+    def similarity(x: np.ndarray) -> Similarity:
+        # init, then scaled by exp(a), rotated by Q (x[1:4]) about the points' centre c and moved by
+        # d = x[4:] * extent: gt = exp(a) Q (s0 R0 est + t0 - c) + c + d (steps of similar size)
+        q = _rotation_from_vector(x[1:4])
+        factor = float(np.exp(x[0]))
+        translation = factor * q @ (init.translation - centre) + centre + x[4:] * extent
+        return Similarity(init.scale * factor, q @ init.rotation, translation)
+
+    def residuals(x: np.ndarray) -> np.ndarray:
+        return (project(similarity(x).inverse_apply(pts))[valid] - target).ravel()
+
+    x = np.zeros(7)
+    r = residuals(x)
+    step, damping = 1e-6, 1e-3
+    for _ in range(iterations):
+        jac = np.stack([(residuals(x + step * e) - residuals(x - step * e)) / (2 * step) for e in np.eye(7)], 1)
+        jtj, jtr = jac.T @ jac, jac.T @ r
+        while damping < 1e8:  # Levenberg-Marquardt: damp until the step lowers the error
+            dx = np.linalg.solve(jtj + damping * np.diag(np.diag(jtj)), -jtr)
+            r_new = residuals(x + dx)
+            if (r_new**2).sum() < (r**2).sum():
+                break
+            damping *= 10
+        else:
+            break
+        x, r, damping = x + dx, r_new, damping / 10
+        if np.abs(dx).max() < 1e-12:
+            break
+    return similarity(x)

@@ -17,6 +17,7 @@ Lambertian with a fixed light, constant per face (view-independent, as SfM assum
     write_clip("clip.mp4", n_frames=90, width=640, height=360, seed=0)   # + clip.json ground truth
     write_clip("wall.mp4", n_frames=30, width=320, height=180, scene="planar")  # one dominant plane
     posed = synthetic_posed_scene(24, 90, 160, seed=0)                    # PosedScene, no SfM
+    pts = surface_points(scene, poses[:3], np.tile(intr, (3, 1)), 640, 360)  # (180, 3) exact surface points
 """
 
 from __future__ import annotations
@@ -28,7 +29,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .cameras import intrinsics_pixels, project_points
+from .cameras import intrinsics_pixels, project_points, unproject_pixels
 from .errors import SeeUError
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
@@ -370,6 +371,33 @@ def render_view(
         v = (origin[b1] + t * flat_dirs[b1, idx] - scene.lo[k, 1]) * TEXELS_PER_METRE
         flat_rgb[idx] = _bilinear(scene.textures[k], u, v) * scene.shade[k]
     return np.clip(rgb + 0.5, 0, 255).astype(np.uint8), depth
+
+
+def surface_points(
+    scene: Scene,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int,
+    height: int,
+    grid: tuple[int, int] = (6, 10),
+    margin: float = 8.0,
+) -> np.ndarray:
+    """Exact world points on the scene's surfaces: a `grid` (rows, columns) of pixels of each view,
+    `margin` pixels from the border, lifted by the view's rendered depth at the pixel's centre.
+
+    cam_to_world `(N, 4, 4)`, intrinsics_norm `(N, 4)` -> `(N * rows * columns, 3)`.
+    """
+    ys, xs = np.meshgrid(
+        np.linspace(margin, height - margin, grid[0]), np.linspace(margin, width - margin, grid[1]), indexing="ij"
+    )
+    pixel = np.stack([xs.ravel(), ys.ravel()], -1).astype(int)
+    centre = pixel + 0.5  # the depth is that of the ray through the pixel's centre
+    out = []
+    for c2w, intr in zip(np.asarray(cam_to_world, np.float64), np.asarray(intrinsics_norm, np.float64)):
+        _, depth = render_view(scene, c2w, intr, width, height)
+        d = depth[pixel[:, 1], pixel[:, 0]].astype(np.float64)
+        out.append(unproject_pixels(centre, d, c2w, intr, width, height))
+    return np.concatenate(out)
 
 
 # ---------------------------------------------------------------------------------------------

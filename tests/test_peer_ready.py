@@ -1,6 +1,8 @@
 """A user's video made ready for the peers' RE10K loaders by default (issue 15): `seeu synth` ->
 `seeu ingest` (default options) -> `seeu export pixelsplat` gives 360x640 frames whose 18-number
-cameras put ground-truth 3-D points where the ground-truth camera puts them, within 0.05 px."""
+cameras put ground-truth 3-D points where the ground-truth camera puts them: within 0.05 px for the
+layout itself (exact cameras), within SfM's own precision end to end (0.066 px median on this clip;
+0.05 px is below what COLMAP reaches on it, see the first test)."""
 
 from __future__ import annotations
 
@@ -16,27 +18,17 @@ from PIL import Image
 from pipelines.cli import main as cli_main
 from seeu_data import cameras as cam
 from seeu_data.exporters.pixelsplat import peer_fov_deg
-from seeu_data.pose_eval import umeyama
+from seeu_data.pose_eval import fit_projection_similarity, similarity_from_cameras, umeyama
 from seeu_data.posed import PosedDataset
-from seeu_data.synthetic import load_ground_truth, make_scene, render_view, write_clip
+from seeu_data.synthetic import load_ground_truth, make_scene, render_view, surface_points, write_clip
 
 W, H, N = 640, 360, 24
 
 
-def _gt_points(gt: dict, rows: list[int], per_frame: int = 60) -> np.ndarray:
-    """World points on the synthetic room's surfaces: a pixel grid of a few ground-truth views lifted
-    by the exact rendered depth. (P, 3)."""
-    scene = make_scene(gt["config"]["seed"])
-    ys, xs = np.meshgrid(np.linspace(8, H - 8, 6), np.linspace(8, W - 8, per_frame // 6), indexing="ij")
-    uv = np.stack([xs.ravel(), ys.ravel()], -1)
-    pts = []
-    for r in rows:
-        _, depth = render_view(scene, gt["cam_to_world"][r], gt["intrinsics_norm"][r], W, H)
-        d = depth[uv[:, 1].astype(int), uv[:, 0].astype(int)].astype(np.float64)
-        # the depth is that of the pixel's centre: lift the centre
-        centre = np.floor(uv) + 0.5
-        pts.append(cam.unproject_pixels(centre, d, gt["cam_to_world"][r], gt["intrinsics_norm"][r], W, H))
-    return np.concatenate(pts)
+def _gt_points(gt: dict, rows: list[int]) -> np.ndarray:
+    """World points on the synthetic room's surfaces: a 6 x 10 pixel grid of the ground-truth views
+    `rows`, lifted by the exact rendered depth. (60 len(rows), 3)."""
+    return surface_points(make_scene(gt["config"]["seed"]), gt["cam_to_world"][rows], gt["intrinsics_norm"][rows], W, H)
 
 
 @pytest.fixture(scope="module")
@@ -62,26 +54,45 @@ def _peer_cameras(ex: dict) -> tuple[np.ndarray, np.ndarray]:
     return w2c.inverse().double().numpy(), cams[:, :4].double().numpy()
 
 
-def _align(est_c2w: np.ndarray, gt_c2w: np.ndarray):
-    """Sim(3) of the estimated world onto the ground truth's: rotation from the camera orientations
-    (a nearly straight path leaves the roll about it undetermined by the centres alone), then scale
-    and translation from the centres by least squares. Returns (s, R, t): gt = s R est + t."""
-    m = sum(g[:3, :3] @ e[:3, :3].T for g, e in zip(gt_c2w, est_c2w))
-    u, _, vt = np.linalg.svd(m)
-    rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-    a, b = est_c2w[:, :3, 3], gt_c2w[:, :3, 3]
-    a0, b0 = a - a.mean(0), b - b.mean(0)
-    s = float(((a0 @ rot.T) * b0).sum() / (a0**2).sum())
-    return s, rot, b.mean(0) - s * rot @ a.mean(0)
+def _gt_pixels(pts_gt: np.ndarray, gt: dict, rows: list[int], intr: np.ndarray, meta: dict):
+    """Where the ground-truth cameras put `pts_gt (P, 3)` in the exported frames: `(N, P, 2)` pixels and
+    `(N, P)` in front and inside. An undistorted chunk's frames were resampled through the lens SfM
+    fitted (SIMPLE_RADIAL f, cx, cy, k = OpenCV's model with distCoeffs (k, 0, 0, 0)): the ground-truth
+    pixel in the clip is mapped through it into the undistorted frame."""
+    uv, depth = cam.project_points(pts_gt, gt["cam_to_world"][rows], gt["intrinsics_norm"][rows], W, H)
+    inside = (depth > 0) & (uv[..., 0] > 0) & (uv[..., 0] < W) & (uv[..., 1] > 0) & (uv[..., 1] < H)
+    if meta["undistorted"]:
+        f, cx, cy, k = meta["camera_as_mapped"]["params"]
+        K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
+        for i in range(len(rows)):
+            xy = cv2.undistortPoints(uv[i].reshape(-1, 1, 2), K, np.array([k, 0, 0, 0.0])).reshape(-1, 2)
+            Kn = cam.intrinsics_pixels(intr[i], W, H)
+            uv[i] = xy * [Kn[0, 0], Kn[1, 1]] + [Kn[0, 2], Kn[1, 2]]
+    return uv, inside
+
+
+def _projection_errors(pts_gt, uv_gt, inside, sim, project) -> np.ndarray:
+    """Pixel distances between the exported cameras' projections of `pts_gt` (mapped into their world by
+    the similarity `gt = s R est + t`) and the ground-truth pixels, over the points inside: `(M,)`."""
+    return np.linalg.norm(project(sim.inverse_apply(pts_gt)) - uv_gt, axis=-1)[inside]
 
 
 def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(exported):
     """Default options end to end. The frames are exactly what the loaders accept; ground-truth points
-    through the exported 18 numbers land within the SfM's own accuracy of where the ground-truth camera
-    puts them (measured in three runs of this clip: median 0.12-0.26 px, p95 0.31-0.34 px where printed;
-    multi-threaded SfM differs from run to run). SfM's focal length is 0.08 % off here (0.14 % with 90
-    frames), which alone moves a border pixel by 0.26 px, so 0.05 px is out of reach of SfM on this
-    clip; the layout itself is exact to 0.05 px: the next test."""
+    through the exported 18 numbers land where the ground-truth camera puts them, to SfM's precision.
+
+    The world frame SfM leaves free (a similarity) is fitted on every other ground-truth point by pixel
+    error (`fit_projection_similarity`) and the error is measured on the others: this clip 0.066 px
+    median, p95 0.17 px. The frame fitted to the camera centres and orientations (the earlier measure,
+    still checked) adds its own error: 0.109 px. Not 0.05 px, and not a convention error: COLMAP fed the
+    exact projections of the same 3,715 tracks is exact (0.0003 px); with Gaussian noise of the size
+    SIFT's residuals have here (0.50 px per coordinate) it gives 0.044-0.148 px median, p95 0.11-0.27
+    px, over 8 draws; COLMAP's own covariance puts this 24-frame clip's focal length at +-0.15 % (1
+    sigma; correlation with the radial k 0.95). `benchmarks/projection_floor.py`, RESULTS.md. The
+    pixel-fitted bounds sit above that spread, so a consistent solution at SIFT's precision passes (the
+    centre-frame measure is printed, not asserted: one of the 8 draws gave 0.419 px against the earlier
+    0.4 px bound); the focal length scaled by 1.002 after SfM fails them (0.25 px median), as does any
+    layout error (next test)."""
     root = exported
     index = json.loads((root / "ps" / "test" / "index.json").read_text())
     sidecar = json.loads((root / "ps" / "test" / "seeu_posed.json").read_text())
@@ -97,32 +108,59 @@ def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(export
         c2w, intr = _peer_cameras(ex)
         assert (peer_fov_deg(intr) <= 100).all()
         rows = [int(np.nonzero(gt["frame"] == f)[0][0]) for f in sidecar[key]["source_frame"]]
-        s, rot, t = _align(c2w, gt["cam_to_world"][rows])
         pts_gt = _gt_points(gt, rows[:: max(1, len(rows) // 3)])
-        pts_ex = (pts_gt - t) @ rot / s
-        meta = sidecar[key]["meta"]
-        errs = []
-        for i, r in enumerate(rows):
-            uv_ex, _ = cam.project_points(pts_ex, c2w[i], intr[i], W, H)
-            uv_gt, d_gt = cam.project_points(pts_gt, gt["cam_to_world"][r], gt["intrinsics_norm"][r], W, H)
-            if meta["undistorted"]:
-                # The ground-truth pixel in the clip -> the undistorted frame, through the lens SfM
-                # fitted (SIMPLE_RADIAL f, cx, cy, k = OpenCV's model with distCoeffs (k, 0, 0, 0)).
-                f, cx, cy, k = meta["camera_as_mapped"]["params"]
-                K = np.array([[f, 0, cx], [0, f, cy], [0, 0, 1.0]])
-                xy = cv2.undistortPoints(uv_gt.reshape(-1, 1, 2), K, np.array([k, 0, 0, 0.0])).reshape(-1, 2)
-                Kn = cam.intrinsics_pixels(intr[i], W, H)
-                uv_gt = xy * [Kn[0, 0], Kn[1, 1]] + [Kn[0, 2], Kn[1, 2]]
-            inside = (d_gt > 0) & (uv_gt[:, 0] > 0) & (uv_gt[:, 0] < W) & (uv_gt[:, 1] > 0) & (uv_gt[:, 1] < H)
-            errs.append(np.linalg.norm(uv_ex - uv_gt, axis=1)[inside])
-        errs = np.concatenate(errs)
+        uv_gt, inside = _gt_pixels(pts_gt, gt, rows, intr, sidecar[key]["meta"])
+
+        def project(pts, c2w=c2w, intr=intr):  # exported-world points (P, 3) -> pixels (N, P, 2)
+            return cam.project_points(pts, c2w, intr, W, H)[0]
+
+        first_guess = similarity_from_cameras(c2w, gt["cam_to_world"][rows])
+        fit = np.arange(len(pts_gt)) % 2 == 0  # every other grid point fits the world frame, the rest measure
+        sim = fit_projection_similarity(pts_gt[fit], uv_gt[:, fit], inside[:, fit], project, first_guess)
+        errs = _projection_errors(pts_gt[~fit], uv_gt[:, ~fit], inside[:, ~fit], sim, project)
+        by_centres = _projection_errors(pts_gt, uv_gt, inside, first_guess, project)
         checked += len(errs)
         print(
-            f"{key}: undistorted {meta['undistorted']}, projection error vs ground truth: median "
-            f"{np.median(errs):.3f} px, p95 {np.percentile(errs, 95):.3f} px, max {errs.max():.3f} px"
+            f"{key}: undistorted {sidecar[key]['meta']['undistorted']}, projection error vs ground truth "
+            f"(held-out points): median {np.median(errs):.3f} px, p95 {np.percentile(errs, 95):.3f} px, max "
+            f"{errs.max():.3f} px; world frame from the camera centres instead: median {np.median(by_centres):.3f} px"
         )
-        assert np.median(errs) < 0.4 and np.percentile(errs, 95) < 1.0, (np.median(errs), np.percentile(errs, 95))
+        assert np.median(errs) < 0.2 and np.percentile(errs, 95) < 0.4, (np.median(errs), np.percentile(errs, 95))
     assert checked > 500
+
+
+def test_fit_projection_similarity_recovers_the_world_frame():
+    """Exact cameras in a world scaled, rotated and moved by a known similarity: from the camera-fitted
+    first guess, disturbed, the pixel fit finds the similarity again and the projections agree to 1e-6 px."""
+    from seeu_data.pose_eval import Similarity
+    from seeu_data.synthetic import camera_path, default_intrinsics_norm
+
+    gt_c2w = camera_path(8)
+    intr = np.tile(default_intrinsics_norm(W, H), (8, 1))
+    pts = surface_points(make_scene(0), gt_c2w[[1, 5]], intr[:2], W, H)
+    axis = np.array([0.3, -0.8, 0.5]) / np.linalg.norm([0.3, -0.8, 0.5])
+    k = np.array([[0, -axis[2], axis[1]], [axis[2], 0, -axis[0]], [-axis[1], axis[0], 0]])
+    rot = np.eye(3) + np.sin(0.7) * k + (1 - np.cos(0.7)) * k @ k
+    truth = Similarity(2.5, rot, np.array([1.0, -2.0, 0.5]))  # gt = s R est + t
+    est_c2w = np.tile(np.eye(4), (8, 1, 1))
+    est_c2w[:, :3, :3] = rot.T @ gt_c2w[:, :3, :3]
+    est_c2w[:, :3, 3] = truth.inverse_apply(gt_c2w[:, :3, 3])
+    uv_gt, depth = cam.project_points(pts, gt_c2w, intr, W, H)
+
+    def project(p):
+        return cam.project_points(p, est_c2w, intr, W, H)[0]
+
+    guess = similarity_from_cameras(est_c2w, gt_c2w)
+    off = Similarity(guess.scale * 1.01, _rot_z(0.01) @ guess.rotation, guess.translation + 0.05)
+    inside = (depth > 0) & (uv_gt[..., 0] > 0) & (uv_gt[..., 0] < W) & (uv_gt[..., 1] > 0) & (uv_gt[..., 1] < H)
+    assert np.abs(project(off.inverse_apply(pts)) - uv_gt)[inside].max() > 10  # a poor first guess
+    sim = fit_projection_similarity(pts, uv_gt, inside, project, off)
+    assert abs(sim.scale / truth.scale - 1) < 1e-7 and np.abs(sim.rotation - rot).max() < 1e-7
+    assert np.abs(project(sim.inverse_apply(pts)) - uv_gt)[inside].max() < 1e-6
+
+
+def _rot_z(a: float) -> np.ndarray:
+    return np.array([[np.cos(a), -np.sin(a), 0.0], [np.sin(a), np.cos(a), 0.0], [0.0, 0.0, 1.0]])
 
 
 def test_pixelsplat_layout_projects_ground_truth_within_005_px(tmp_path):
@@ -150,6 +188,32 @@ def test_pixelsplat_layout_projects_ground_truth_within_005_px(tmp_path):
         uv_gt, d_gt = cam.project_points(pts, scene.cam_to_world[i], scene.intrinsics_norm[i], W, H)
         front = d_gt > 0.1
         assert front.sum() > 50 and np.abs(uv - uv_gt)[front].max() < 0.05
+
+
+def test_colmap_keypoints_use_the_pixel_convention_of_the_cameras_module():
+    """Ingest keeps COLMAP's principal point (W/2, H/2, not refined) for a camera rendered with the
+    principal point at the image centre in seeu_data.cameras' convention (top-left corner at (0, 0),
+    pixel centres at +0.5). That is right only if COLMAP's SIFT keypoints use the same convention; a
+    half-pixel mismatch would be absorbed by the focal length and poses. Gaussian blobs drawn at known
+    sub-pixel positions in that convention: COLMAP's keypoints land on them (measured 0.004 px)."""
+    import pycolmap
+
+    rng = np.random.default_rng(0)
+    centres = np.stack([rng.uniform(30, W - 30, 40), rng.uniform(30, H - 30, 40)], 1)
+    apart = np.linalg.norm(centres[:, None] - centres[None], axis=-1) + 1e3 * np.eye(len(centres)) > 25
+    centres = centres[apart.all(1)]
+    x, y = np.arange(W) + 0.5, np.arange(H) + 0.5  # pixel centres
+    img = 40.0 + sum(180 * np.exp(-((x[None] - cx) ** 2 + (y[:, None] - cy) ** 2) / (2 * 2.5**2)) for cx, cy in centres)
+    options = pycolmap.FeatureExtractionOptions()
+    options.num_threads = 1
+    keypoints, _ = pycolmap.FeatureExtractor.create(options).extract_from_uint8_array(
+        np.clip(img, 0, 255).round().astype(np.uint8)
+    )
+    kp = np.array([[k.x, k.y] for k in keypoints])
+    offset = kp - centres[np.linalg.norm(kp[:, None] - centres[None], axis=-1).argmin(1)]
+    near = np.linalg.norm(offset, axis=1) < 1.0
+    assert near.sum() >= len(centres)
+    assert np.abs(offset[near].mean(0)).max() < 0.02, offset[near].mean(0)
 
 
 def test_peer_fov_rule_closed_form():

@@ -18,6 +18,7 @@ from seeu_data.synthetic import (
     make_scene,
     path_length,
     render_view,
+    surface_points,
     synthetic_posed_scene,
 )
 
@@ -54,6 +55,16 @@ def test_depth_unprojects_onto_scene_surfaces(scene):
     uv = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], -1)
     pts = cam.unproject_pixels(uv, depth[ii.ravel(), jj.ravel()], poses[4], intr, W, H)
     assert _on_surface(scene, pts, tol=1e-3).all()
+
+
+def test_surface_points_lie_on_the_scene_and_project_to_the_grid_pixel_centres(scene):
+    poses = camera_path(9)[[2, 6]]
+    intr = np.tile(default_intrinsics_norm(W, H), (2, 1))
+    pts = surface_points(scene, poses, intr, W, H, grid=(4, 5), margin=3)
+    assert pts.shape == (40, 3) and _on_surface(scene, pts, tol=1e-3).all()
+    uv, _ = cam.project_points(pts[:20], poses[0], intr[0], W, H)
+    ys, xs = np.meshgrid(np.linspace(3, H - 3, 4), np.linspace(3, W - 3, 5), indexing="ij")
+    assert np.allclose(uv, np.stack([np.floor(xs.ravel()) + 0.5, np.floor(ys.ravel()) + 0.5], -1), atol=1e-6)
 
 
 def test_known_points_project_where_rendered_depth_says(scene):
