@@ -411,6 +411,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             "num_keypoints": sfm_result.get("num_keypoints"),
             "num_verified_pairs": sfm_result.get("num_verified_pairs"),
             "timings_s": sfm_result.get("timings", {}),
+            "cpu_timings_s": sfm_result.get("cpu_timings", {}),
             "models": [
                 {
                     "index": m["index"],

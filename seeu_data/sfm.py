@@ -22,9 +22,11 @@ Output directory layout::
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
 "world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
-"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models"[, "disagreement_pct"]}],
+"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
-"verified_pairs"}, "timings": {...}} or {"error": "..."}.
+"verified_pairs"}, "timings": {"extract_s", "match_s", "map_s" (every mapping run), "undistort_s" (when
+undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings": the same in CPU
+seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
 
 Determinism: the same frames give the same database and the same poses whatever `threads`
 (tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `map_threads` = 1. COLMAP's parallel extractor would number images in completion
@@ -265,8 +267,8 @@ def map_with_retries(
     elsewhere. Two runs agree when their largest models' camera centres, Sim(3)-aligned, differ by at
     most `cfg.max_disagreement_pct` of the path length (`model_disagreement_pct`). The first run of the
     first agreeing pair is kept; when no two runs agree, the run registering most is kept and the check
-    fails. Returns (usable models of the kept run, every run's {seed, registered, models[,
-    disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
+    fails. Returns (usable models of the kept run, every run's {seed, registered, models, seconds
+    (wall, of `map_once`)[, disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
     {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"}).
     """
     runs: list[tuple[int, dict, list]] = []  # (registered, usable, rejected)
@@ -279,7 +281,10 @@ def map_with_retries(
         if i:
             _emit("stage", f"map-retry-{i}", num_frames)
         usable, rejected = {}, []
-        for k, rec in map_once(seed).items():
+        t0 = time.perf_counter()
+        mapped = map_once(seed)
+        seconds = time.perf_counter() - t0
+        for k, rec in mapped.items():
             n = rec.num_reg_images()
             camera = next(iter(rec.cameras.values()))
             if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
@@ -296,7 +301,7 @@ def map_with_retries(
             usable[k] = rec
         registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
         runs.append((registered, usable, rejected))
-        attempts.append({"seed": seed, "registered": registered, "models": len(usable)})
+        attempts.append({"seed": seed, "registered": registered, "models": len(usable), "seconds": seconds})
         if registered < cfg.retry_below * num_frames:
             continue
         if not check:
@@ -389,6 +394,26 @@ def _emit(*parts) -> None:
     print(_PROGRESS, *parts, flush=True)
 
 
+class _Clock:
+    """Wall and CPU seconds (CPU: every thread of this process) per stage of the child, summed by name.
+
+    `wall` / `cpu`: {"extract_s", "match_s", "map_s", "undistort_s", "export_s"}; a machine shared with
+    other work stretches the wall times, much less the CPU times."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+
+    @staticmethod
+    def mark() -> tuple[float, float]:
+        return time.perf_counter(), time.process_time()
+
+    def add(self, name: str, since: tuple[float, float]) -> None:
+        wall, cpu = self.mark()
+        self.wall[name] = self.wall.get(name, 0.0) + wall - since[0]
+        self.cpu[name] = self.cpu.get(name, 0.0) + cpu - since[1]
+
+
 def _camera_dict(camera) -> dict:
     K = camera.calibration_matrix()
     return {
@@ -472,14 +497,14 @@ def _child(job_path: str) -> int:
     db_path = out / "database.db"
     for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
         stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
-    timings: dict[str, float] = {}
+    clock = _Clock()
 
     def fail(msg: str) -> int:
-        (out / "result.json").write_text(json.dumps({"error": msg, "timings": timings}))
+        (out / "result.json").write_text(json.dumps({"error": msg, "timings": clock.wall, "cpu_timings": clock.cpu}))
         return 0
 
     _emit("stage", "extract", len(names))
-    t0 = time.perf_counter()
+    t0 = clock.mark()
     _create_database(db_path, Path(image_dir) / names[0], names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
@@ -495,7 +520,7 @@ def _child(job_path: str) -> int:
         reader_options=reader,
         extraction_options=extraction,
     )
-    timings["extract_s"] = time.perf_counter() - t0
+    clock.add("extract_s", t0)
     db = pycolmap.Database.open(db_path)
     num_kp = int(db.num_keypoints())
     db.close()
@@ -508,7 +533,7 @@ def _child(job_path: str) -> int:
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
     _emit("stage", "match", len(names))
-    t0 = time.perf_counter()
+    t0 = clock.mark()
     matching = pycolmap.FeatureMatchingOptions()
     # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
     # still gave a different database in 1 of ~10 full CI runs (a loaded machine); one thread never did.
@@ -522,7 +547,7 @@ def _child(job_path: str) -> int:
     pycolmap.match_sequential(
         db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
     )
-    timings["match_s"] = time.perf_counter() - t0
+    clock.add("match_s", t0)
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
     graph = match_graph_stats(db, names)
@@ -533,7 +558,7 @@ def _child(job_path: str) -> int:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
     _emit("stage", "map", len(names))
-    t0 = time.perf_counter()
+    t0 = clock.mark()
     sparse = out / "sparse"
 
     def map_once(seed: int) -> dict:
@@ -559,7 +584,7 @@ def _child(job_path: str) -> int:
     )
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]
-    timings["map_s"] = time.perf_counter() - t0
+    clock.add("map_s", t0)
     if not recs:
         return fail(
             "SfM found no model: no frame pair with enough parallax "
@@ -583,10 +608,10 @@ def _child(job_path: str) -> int:
         kept.append(k)
 
     _emit("stage", "export")
-    t0 = time.perf_counter()
     models = []
     for k in sorted(kept):
         rec = recs[k]
+        t0 = clock.mark()
         model_dir = sparse / str(k)
         model_dir.mkdir(exist_ok=True)
         rec.write(model_dir)
@@ -597,17 +622,22 @@ def _child(job_path: str) -> int:
             # used as they are (no resampling, no crop, no second JPEG generation).
             models.append(_export_model(rec, k, image_dir, out, undistorted=False))
             models[-1]["distortion_max_px"] = distortion
+            clock.add("export_s", t0)
             continue
         # Same-size undistortion (seeu_data.undistort): the frames keep W x H, only the focal changes.
         und = out / "undistorted" / str(k) / "images"
         reg_names = sorted(rec.image(i).name for i in rec.reg_image_ids())
+        clock.add("export_s", t0)
+        t0 = clock.mark()
         pinhole = undistort_files(camera, image_dir, reg_names, und, jpeg_quality=95)
+        clock.add("undistort_s", t0)
+        t0 = clock.mark()
         models.append(_export_model(rec, k, str(und), out, undistorted=True))
         models[-1]["camera"] = pinhole.as_dict()
         models[-1]["camera_distorted"] = _camera_dict(camera)
         models[-1]["distortion_max_px"] = distortion
         models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
-    timings["export_s"] = time.perf_counter() - t0
+        clock.add("export_s", t0)
     (out / "result.json").write_text(
         json.dumps(
             {
@@ -618,7 +648,8 @@ def _child(job_path: str) -> int:
                 "mapping_attempts": attempts,
                 "mapper": mapper_info,
                 "solution_check": check,
-                "timings": timings,
+                "timings": clock.wall,
+                "cpu_timings": clock.cpu,
             }
         )
     )
