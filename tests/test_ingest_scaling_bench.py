@@ -41,7 +41,14 @@ def _report(map_runs: list[float], undistort: float | None = 0.4) -> dict:
         sfm["undistort_s"] = undistort
     inside = 10.0 + 8.0 + sfm["map_s"] + (undistort or 0.0)
     return {
-        "timings_s": {"decode": 2.0, "select": 0.1, "sfm": inside + 0.2 + 1.3, "chunks": 0.05, "write": 0.9, "total": 0.0},
+        "timings_s": {
+            "decode": 2.0,
+            "select": 0.1,
+            "sfm": inside + 0.2 + 1.3,
+            "chunks": 0.05,
+            "write": 0.9,
+            "total": 0.0,
+        },
         "sfm": {"timings_s": sfm, "mapping_attempts": [{"seed": i, "seconds": s} for i, s in enumerate(map_runs)]},
     }
 
