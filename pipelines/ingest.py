@@ -70,6 +70,7 @@ class IngestConfig:
     sfm_check: bool = True
     threads: int = -1
     map_threads: int = 1
+    keyframe_motion: float = 20.0
     # posed chunks and their scale
     min_chunk_frames: int = 10
     scale: str = "re10k"
@@ -145,6 +146,7 @@ class IngestConfig:
             features=self.features,
             sfm_check=self.sfm_check,
             map_threads=self.map_threads,
+            keyframe_motion=self.keyframe_motion,
         )
 
 
@@ -428,6 +430,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             "mapping_attempts": sfm_result.get("mapping_attempts", []),
             "mapper": sfm_result.get("mapper"),
             "solution_check": {**check, "state": check_state},
+            "keyframes": sfm_result.get("keyframes"),
         },
         "chunks": [
             {

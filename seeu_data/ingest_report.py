@@ -4,7 +4,8 @@ report.json keys: scene, input, frames_decoded (frames in the source), frames_ca
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
 mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, cpu_timings_s (the SfM child's
 stages: extract_s, match_s, map_s, undistort_s, export_s), models: [...], discarded_models: [...],
-mapping_attempts: [{seed, registered, models, seconds, disagreement_pct}],
+mapping_attempts: [{seed, registered, models, seconds, disagreement_pct}], keyframes {stride, count, motion_px,
+target_px, registered_after},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
 planar_or_panoramic_pairs, verified_pairs}}, input_identity {path, fingerprint},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth}],

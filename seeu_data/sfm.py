@@ -3,10 +3,12 @@
 COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop detection without a
 vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
 into a SeeUError. The child runs: the database's camera and images written in frame order ->
-SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`; loop detection
-only with a vocabulary-tree file; verification RANSAC seeded per pair) -> mapping (`mapper`:
-incremental, or global; possibly several models; re-run with the next seed while it registers too few
-frames, and mapped twice for the solution check, see `map_with_retries`) -> undistortion of every model
+SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`: frames 1, 2, 4,
+..., 2**(overlap-1) apart; loop detection only with a vocabulary-tree file; verification RANSAC seeded
+per pair) -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.keyframes`)
+-> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
+it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`) ->
+the other frames registered into the kept models (COLMAP's incremental-mapper step) -> undistortion of every model
 whose camera has distortion of at least `max_negligible_distortion_px` at the image border (to a
 pinhole camera of the same W x H, `seeu_data.undistort`; below that the frames are used as they are
 with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
@@ -24,9 +26,11 @@ Output directory layout::
 "world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
 "num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
-"verified_pairs"}, "timings": {"extract_s", "match_s", "map_s" (every mapping run), "undistort_s" (when
-undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings": the same in CPU
-seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
+"verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
+frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
+"timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
+"undistort_s" (when undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings":
+the same in CPU seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
 
 Determinism: the same frames give the same database and the same poses whatever `threads`
 (tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `map_threads` = 1. COLMAP's parallel extractor would number images in completion
@@ -39,6 +43,7 @@ COLMAP wrote coincided with one image's keypoints missing, silently.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import shutil
@@ -92,6 +97,11 @@ class SfmConfig:
     # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.match_graph)
     mapper: str = "incremental"
     features: str = "sift"
+    # Keyframes (seeu_data.keyframes): a video is mapped on every s-th frame, s the largest power of two
+    # keeping the median image motion between keyframes <= keyframe_motion pixels and >= min_keyframes
+    # of them; the other frames are registered into the model afterwards. 0: map every frame.
+    keyframe_motion: float = 20.0
+    min_keyframes: int = 30
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -102,6 +112,10 @@ class SfmConfig:
             raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.map_threads}")
         if self.overlap < 1:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
+        if not (self.keyframe_motion >= 0 and math.isfinite(self.keyframe_motion)):
+            raise SeeUError(f"--keyframe-motion must be a finite number >= 0, got {self.keyframe_motion}")
+        if self.min_keyframes < 3:
+            raise SeeUError(f"min_keyframes must be >= 3, got {self.min_keyframes}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
             raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
         if self.mapper not in MAPPERS:
@@ -397,7 +411,7 @@ def _emit(*parts) -> None:
 class _Clock:
     """Wall and CPU seconds (CPU: every thread of this process) per stage of the child, summed by name.
 
-    `wall` / `cpu`: {"extract_s", "match_s", "map_s", "undistort_s", "export_s"}; a machine shared with
+    `wall` / `cpu`: {"extract_s", "match_s", "map_s", "register_s", "undistort_s", "export_s"}; a machine shared with
     other work stretches the wall times, much less the CPU times."""
 
     def __init__(self) -> None:
@@ -486,6 +500,7 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
 def _child(job_path: str) -> int:
     import pycolmap
 
+    from seeu_data.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride, register_frames
     from seeu_data.match_graph import choose_mapper, match_graph_stats
     from seeu_data.undistort import undistort_files
 
@@ -529,6 +544,8 @@ def _child(job_path: str) -> int:
 
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = cfg.overlap
+    # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it)
+    pairing.quadratic_overlap = True
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
@@ -548,16 +565,23 @@ def _child(job_path: str) -> int:
         db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
     )
     clock.add("match_s", t0)
+    t0 = clock.mark()
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
     graph = match_graph_stats(db, names)
+    motion = consecutive_motion_px(db, names) if cfg.keyframe_motion > 0 else None
     db.close()
+    # keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart
+    stride = keyframe_stride(len(names), motion, cfg.keyframe_motion, cfg.min_keyframes, 2 ** max(cfg.overlap - 3, 0))
+    keys = keyframe_names(names, stride)
+    keyframes = {"stride": stride, "count": len(keys), "motion_px": motion, "target_px": cfg.keyframe_motion}
+    clock.add("map_s", t0)
     mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(graph)
     mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": graph}
     if num_pairs == 0:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
-    _emit("stage", "map", len(names))
+    _emit("stage", "map", len(keys))
     t0 = clock.mark()
     sparse = out / "sparse"
 
@@ -569,18 +593,20 @@ def _child(job_path: str) -> int:
             global_options.min_model_size = cfg.min_model_size
             global_options.num_threads = cfg.map_threads
             global_options.random_seed = seed
+            global_options.image_names = keys if stride > 1 else []
             return pycolmap.global_mapping(db_path, image_dir, sparse, options=global_options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.map_threads
         options.random_seed = seed
+        options.image_names = keys if stride > 1 else []
         return pycolmap.incremental_mapping(
             db_path, image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
         )
 
     pairs = geometry_counts(db_path)
     recs, attempts, rejected, check = map_with_retries(
-        map_once, len(names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
+        map_once, len(keys), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
     )
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]
@@ -593,6 +619,13 @@ def _child(job_path: str) -> int:
         )
     shutil.rmtree(sparse)  # the models kept are written again below, under their own index
     sparse.mkdir()
+    if stride > 1:
+        _emit("stage", "register", len(names) - len(keys))
+        t0 = clock.mark()
+        keyframes["registered_after"] = register_frames(
+            db_path, recs, names, keys, check["kept_seed"], cfg.map_threads, on_frame=lambda: _emit("step")
+        )
+        clock.add("register_s", t0)
 
     # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
     # poor initial pair, with an implausible focal length): keep only models adding new frames.
@@ -648,6 +681,7 @@ def _child(job_path: str) -> int:
                 "mapping_attempts": attempts,
                 "mapper": mapper_info,
                 "solution_check": check,
+                "keyframes": keyframes,
                 "timings": clock.wall,
                 "cpu_timings": clock.cpu,
             }
