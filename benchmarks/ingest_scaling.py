@@ -136,7 +136,7 @@ def run_one(video: Path, out_root: Path, mapper: str) -> dict:
     (source,) = discover_sources([video])
     load_before = _loadavg()
     c0, t0 = _cpu_s(), time.perf_counter()
-    report = ingest_scene(source, out_root, IngestConfig(mapper=mapper), force=True, progress=False)
+    report = ingest_scene(source, IngestConfig(inputs=(video,), out=out_root, mapper=mapper, force=True))
     wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
     acc = accuracy_vs_truth(report)
     best = acc["largest"]

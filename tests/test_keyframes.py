@@ -94,7 +94,7 @@ def test_video_is_mapped_on_keyframes_and_every_frame_registered_identically(tmp
         rgb, _ = render_view(scene, poses[i], intr, w, h)
         cv2.imwrite(str(frames / f"{i:06d}.jpg"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     names = [f"{i:06d}.jpg" for i in range(n)]
-    cfg = SfmConfig(min_keyframes=8, min_model_size=5, solution_check=False, mapping_attempts=1)
+    cfg = SfmConfig(min_keyframes=8, min_model_size=5, sfm_check=False, sfm_attempts=1)
     results = [run_sfm(frames, names, tmp_path / f"sfm{r}", cfg, frames) for r in range(2)]
     kf = results[0]["keyframes"]
     assert kf["stride"] == 2 and kf["count"] == 25 and 5.0 < kf["motion_px"] < 15.0
