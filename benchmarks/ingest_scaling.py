@@ -33,6 +33,7 @@ import platform
 import resource
 import sys
 import time
+from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -127,8 +128,9 @@ def _clip(out: Path, frames: int, width: int, height: int, seed: int) -> Path:
     return video
 
 
-def run_one(video: Path, out_root: Path, mapper: str) -> dict:
-    """One default `seeu ingest` of `video` with `mapper`, from scratch; returns the benchmark's row."""
+def run_one(video: Path, out_root: Path, mapper: str, keyframe_motion: float | None = None) -> dict:
+    """One default `seeu ingest` of `video` with `mapper` (and `keyframe_motion` unless None), from
+    scratch; returns the benchmark's row."""
     from pipelines.ingest import IngestConfig, ingest_scene
     from seeu_data.ingest_report import accuracy_vs_truth
     from seeu_data.video import discover_sources
@@ -136,14 +138,18 @@ def run_one(video: Path, out_root: Path, mapper: str) -> dict:
     (source,) = discover_sources([video])
     load_before = _loadavg()
     c0, t0 = _cpu_s(), time.perf_counter()
-    report = ingest_scene(source, IngestConfig(inputs=(video,), out=out_root, mapper=mapper, force=True))
+    cfg = IngestConfig(inputs=(video,), out=out_root, mapper=mapper, force=True)
+    if keyframe_motion is not None:
+        cfg = replace(cfg, keyframe_motion=keyframe_motion)
+    report = ingest_scene(source, cfg)
     wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
     acc = accuracy_vs_truth(report)
     best = acc["largest"]
     check = report["sfm"].get("solution_check", {})
     return {
         "frames": report["frames_selected"],
-        "mapper": mapper,
+        "mapper": mapper if keyframe_motion is None else f"{mapper}, --keyframe-motion {keyframe_motion:g}",
+        "keyframes": report["sfm"].get("keyframes"),
         "mapper_used": (report["sfm"].get("mapper") or {}).get("used", mapper),
         "wall_s": wall,
         "cpu_s": cpu,
@@ -160,13 +166,27 @@ def run_one(video: Path, out_root: Path, mapper: str) -> dict:
     }
 
 
+def _keyframes(kf: dict | None) -> str:
+    """`count (every s-th)` of a report's sfm.keyframes."""
+    return "—" if not kf else f"{kf['count']} (every {kf['stride']})"
+
+
 def _fmt(v: float) -> str:
     return "—" if not math.isfinite(v) else (f"{v:.1f}" if v < 100 else f"{v:.0f}")
 
 
 def tables(rows: list[dict], lo: int, hi: int) -> list[str]:
     """Markdown: the stage table (one row per run) and the exponent table (one row per mapper)."""
-    head = ["mapper", "frames", *(label for _, label in STAGES), "total wall", "CPU", "registered", "RMSE % path"]
+    head = [
+        "mapper",
+        "frames",
+        "keyframes",
+        *(label for _, label in STAGES),
+        "total wall",
+        "CPU",
+        "registered",
+        "RMSE % path",
+    ]
     lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
     for r in rows:
         s = r["stages_s"]
@@ -176,6 +196,7 @@ def tables(rows: list[dict], lo: int, hi: int) -> list[str]:
                 [
                     r["mapper"],
                     str(r["frames"]),
+                    _keyframes(r.get("keyframes")),
                     *(_fmt(s[k]) for k, _ in STAGES),
                     f"**{_fmt(s['total'])}**",
                     _fmt(r["cpu_s"]),
@@ -218,6 +239,14 @@ def main() -> int:
     ap.add_argument("--mappers", default="incremental,global", help="mappers, comma-separated")
     ap.add_argument("--size", default="640x360", help="clip WIDTHxHEIGHT (default 640x360)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--keyframe-motion",
+        type=float,
+        default=None,
+        metavar="PX",
+        help="ingest's --keyframe-motion for every run (default: ingest's default; 0 = map every frame, as "
+        "before keyframes); the RESULTS.md section is then ingest-scaling-kf<PX>",
+    )
     ap.add_argument("--fit-range", default="100,400", help="LO,HI frame counts of the exponent fit")
     ap.add_argument("--out", type=Path, default=Path("out/bench_ingest_scaling"))
     ap.add_argument("--write", action="store_true", help="write the results into benchmarks/RESULTS.md")
@@ -237,7 +266,8 @@ def main() -> int:
     for n in frames:
         video = _clip(args.out, n, width, height, args.seed)
         for mapper in mappers:
-            row = run_one(video, args.out / "runs" / f"{mapper}_{n}", mapper)
+            tag = "" if args.keyframe_motion is None else f"_kf{args.keyframe_motion:g}"
+            row = run_one(video, args.out / "runs" / f"{mapper}{tag}_{n}", mapper, args.keyframe_motion)
             rows.append(row)
             print(
                 f"{mapper:11s} {n:4d} frames: {row['wall_s']:7.1f} s wall, {row['cpu_s']:7.1f} s CPU, "
@@ -254,7 +284,12 @@ def main() -> int:
     if args.write:
         text = [
             f"## Ingest scaling (`benchmarks/ingest_scaling.py`): the synthetic clip at {', '.join(map(str, frames))} "
-            f"frames, {width}x{height}, default `seeu ingest` per mapper",
+            f"frames, {width}x{height}, "
+            + (
+                "default `seeu ingest` per mapper"
+                if args.keyframe_motion is None
+                else f"`seeu ingest --keyframe-motion {args.keyframe_motion:g}` per mapper"
+            ),
             "",
             f"Measured {time.strftime('%Y-%m-%d')} on {platform.machine()} with {_cpu_count()} cores, one ingest at a "
             f"time; load average (1/5/15 min) {load_start} before, {load_end} after ({minutes:.0f} min in all). "
@@ -263,7 +298,8 @@ def main() -> int:
             "",
             *lines,
         ]
-        write_section("ingest-scaling", "\n".join(text))
+        section = "ingest-scaling" if args.keyframe_motion is None else f"ingest-scaling-kf{args.keyframe_motion:g}"
+        write_section(section, "\n".join(text))
         print("wrote the ingest-scaling section of benchmarks/RESULTS.md")
     print("note: wall times depend on machine load; re-measure on a quiet machine.")
     return 0

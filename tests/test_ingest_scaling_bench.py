@@ -85,9 +85,11 @@ def test_tables_give_one_row_per_run_and_an_exponent_per_mapper():
                     "sfm_cpu_s": {"map_s": stages["map_first"]},
                     "registered_pct": 100.0,
                     "centre_rmse_pct_path": 0.03,
+                    "keyframes": {"count": 51, "stride": n // 50},
                 }
             )
     lines = tables(rows, 100, 400)
     assert sum(line.startswith("| incremental |") for line in lines) == 5  # 4 runs + the exponent row
+    assert "| incremental | 400 | 51 (every 8) |" in "\n".join(lines)
     exp = {line.split("|")[1].strip(): line for line in lines[-2:]}
     assert "**1.50**" in exp["incremental"] and "**1.10**" in exp["global"]
