@@ -94,32 +94,35 @@ def register_frames(
     num_threads: int,
     on_frame=None,
 ) -> int:
-    """Register the frames of `names` that are not keyframes into `models` ({index: pycolmap.Reconstruction}
-    mapped from `keys`), in place; returns how many were registered.
+    """Register the frames of `names` that the mapping of `keys` left out into `models` ({index:
+    pycolmap.Reconstruction}), in place: the other frames, and keyframes the mapper could not register;
+    returns how many were registered.
 
-    Each frame goes into the model holding the keyframe before it, else the one holding the keyframe
-    after it (frames whose keyframes are both unregistered stay unregistered). COLMAP's incremental
+    Each frame goes into the model holding the nearest registered keyframe before it, else the one
+    holding the nearest after it. COLMAP's incremental
     mapper registers it: 2D-3D correspondences through the verified matches to registered frames,
     RANSAC (seeded with `seed`) and pose refinement, its inlier observations appended to the tracks.
     The shared camera is not refined again. `on_frame()` is called after each frame tried.
     """
     import pycolmap
 
-    key_set = set(keys)
-    home = {rec.image(i).name: k for k, rec in models.items() for i in rec.reg_image_ids()}  # keyframe -> model
-    following: dict[str, str | None] = {}  # frame -> the keyframe after it
+    # keyframe the mapper registered -> its model; every other frame (keyframes the mapper could not
+    # register included) is tried next to the registered keyframes before and after it
+    home = {rec.image(i).name: k for k, rec in models.items() for i in rec.reg_image_ids()}
+    anchors = set(keys) & set(home)
+    following: dict[str, str | None] = {}  # frame -> the registered keyframe after it
     nxt = None
     for n in reversed(names):
-        if n in key_set:
+        if n in anchors:
             nxt = n
         else:
             following[n] = nxt
     pending, prev = [], None  # (frame, [model indices to try in turn])
     for n in names:
-        if n in key_set:
+        if n in anchors:
             prev = n
         else:
-            choices = list(dict.fromkeys(home[c] for c in (prev, following[n]) if c in home))
+            choices = list(dict.fromkeys(home[c] for c in (prev, following[n]) if c is not None))
             if choices:
                 pending.append((n, choices))
     db = pycolmap.Database.open(Path(db_path))

@@ -620,7 +620,8 @@ def _child(job_path: str) -> int:
     shutil.rmtree(sparse)  # the models kept are written again below, under their own index
     sparse.mkdir()
     if stride > 1:
-        _emit("stage", "register", len(names) - len(keys))
+        mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+        _emit("stage", "register", len(names) - len(mapped))
         t0 = clock.mark()
         keyframes["registered_after"] = register_frames(
             db_path, recs, names, keys, check["kept_seed"], cfg.map_threads, on_frame=lambda: _emit("step")
