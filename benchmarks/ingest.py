@@ -96,6 +96,7 @@ def main() -> int:
 
     from pipelines.ingest import IngestConfig, ingest_scene
     from pipelines.cli.options import parse_dims
+    from seeu_data.ingest_report import accuracy_vs_truth
     from seeu_data.synthetic import ClipConfig, write_clip
     from seeu_data.video import discover_sources
 
@@ -177,9 +178,8 @@ def main() -> int:
         f"(last) seeu run"
     )
 
-    gt = report.get("ground_truth", {})
-    best = max(gt.get("chunks", []), key=lambda c: c["num_frames"], default=None)
-    reg_pct = 100.0 * report["registered"] / n
+    acc = accuracy_vs_truth(report)
+    best, reg_pct = acc["largest"], acc["registered_pct"]
     checks = [("registered", reg_pct, ">=", 95.0, "%")]
     if best is not None:
         checks += [
@@ -188,7 +188,7 @@ def main() -> int:
             ("focal length error", best["focal_err_pct"], "<=", 1.0, "%"),
         ]
     print(
-        f"accuracy vs ground truth ({len(gt.get('chunks', []))} chunk(s); largest: "
+        f"accuracy vs ground truth ({acc['num_chunks']} chunk(s); largest: "
         f"{best['num_frames'] if best else 0} frames, path {best['path_length'] if best else 0:.2f} m):"
     )
     ok = True

@@ -70,6 +70,7 @@ class IngestConfig:
     sfm_check: bool = True
     threads: int = -1
     map_threads: int = 1
+    keyframe_motion: float = 20.0
     # posed chunks and their scale
     min_chunk_frames: int = 10
     scale: str = "re10k"
@@ -145,6 +146,7 @@ class IngestConfig:
             features=self.features,
             sfm_check=self.sfm_check,
             map_threads=self.map_threads,
+            keyframe_motion=self.keyframe_motion,
         )
 
 
@@ -411,6 +413,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             "num_keypoints": sfm_result.get("num_keypoints"),
             "num_verified_pairs": sfm_result.get("num_verified_pairs"),
             "timings_s": sfm_result.get("timings", {}),
+            "cpu_timings_s": sfm_result.get("cpu_timings", {}),
             "models": [
                 {
                     "index": m["index"],
@@ -427,6 +430,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             "mapping_attempts": sfm_result.get("mapping_attempts", []),
             "mapper": sfm_result.get("mapper"),
             "solution_check": {**check, "state": check_state},
+            "keyframes": sfm_result.get("keyframes"),
         },
         "chunks": [
             {

@@ -2,8 +2,10 @@
 
 report.json keys: scene, input, frames_decoded (frames in the source), frames_candidates (after --stride),
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
-mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, models: [...], discarded_models: [...],
-mapping_attempts: [{seed, registered, models, disagreement_pct}],
+mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, cpu_timings_s (the SfM child's
+stages: extract_s, match_s, map_s, undistort_s, export_s), models: [...], discarded_models: [...],
+mapping_attempts: [{seed, registered, models, seconds, disagreement_pct}], keyframes {stride, count, motion_px,
+target_px, registered_after},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
 planar_or_panoramic_pairs, verified_pairs}}, input_identity {path, fingerprint},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth}],
@@ -122,6 +124,20 @@ def scene_warnings(report: dict) -> list[str]:
     return out
 
 
+def accuracy_vs_truth(report: dict) -> dict:
+    """The accuracy figures of a report against a synthetic clip's ground truth (benchmarks, the summary).
+
+    Returns {"registered_pct": registered / selected frames in %, "num_chunks": chunks compared with the
+    truth, "largest": the `ground_truth.chunks` entry (`PoseAccuracy.as_dict()` + scene_id) of the chunk
+    with most frames, or None when the report has no ground truth}."""
+    chunks = report.get("ground_truth", {}).get("chunks", [])
+    return {
+        "registered_pct": 100.0 * report["registered"] / max(report["frames_selected"], 1),
+        "num_chunks": len(chunks),
+        "largest": max(chunks, key=lambda c: c["num_frames"]) if chunks else None,
+    }
+
+
 def summary_line(report: dict) -> str:
     """One line for the terminal."""
     rate = 100 * report["registration_rate"]
@@ -141,9 +157,8 @@ def summary_line(report: dict) -> str:
         )
         + f"{report['timings_s']['total']:.1f} s -> {report['output']}"
     )
-    gt = report.get("ground_truth")
-    if gt and gt.get("chunks"):
-        best = max(gt["chunks"], key=lambda c: c["num_frames"])
+    best = accuracy_vs_truth(report)["largest"]
+    if best is not None:
         line += (
             f" | vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
             f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%"

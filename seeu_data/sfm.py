@@ -3,10 +3,12 @@
 COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop detection without a
 vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
 into a SeeUError. The child runs: the database's camera and images written in frame order ->
-SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`; loop detection
-only with a vocabulary-tree file; verification RANSAC seeded per pair) -> mapping (`mapper`:
-incremental, or global; possibly several models; re-run with the next seed while it registers too few
-frames, and mapped twice for the solution check, see `map_with_retries`) -> undistortion of every model
+SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`: frames 1, 2, 4,
+..., 2**(overlap-1) apart; loop detection only with a vocabulary-tree file; verification RANSAC seeded
+per pair) -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.keyframes`)
+-> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
+it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`) ->
+the other frames registered into the kept models (COLMAP's incremental-mapper step) -> undistortion of every model
 whose camera has distortion of at least `max_negligible_distortion_px` at the image border (to a
 pinhole camera of the same W x H, `seeu_data.undistort`; below that the frames are used as they are
 with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
@@ -22,9 +24,13 @@ Output directory layout::
 `result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
 "world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
-"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models"[, "disagreement_pct"]}],
+"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
-"verified_pairs"}, "timings": {...}} or {"error": "..."}.
+"verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
+frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
+"timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
+"undistort_s" (when undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings":
+the same in CPU seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
 
 Determinism: the same frames give the same database and the same poses whatever `threads`
 (tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `map_threads` = 1. COLMAP's parallel extractor would number images in completion
@@ -37,6 +43,7 @@ COLMAP wrote coincided with one image's keypoints missing, silently.
 from __future__ import annotations
 
 import json
+import math
 import os
 import re
 import shutil
@@ -90,6 +97,11 @@ class SfmConfig:
     # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.match_graph)
     mapper: str = "incremental"
     features: str = "sift"
+    # Keyframes (seeu_data.keyframes): a video is mapped on every s-th frame, s the largest power of two
+    # keeping the median image motion between keyframes <= keyframe_motion pixels and >= min_keyframes
+    # of them; the other frames are registered into the model afterwards. 0: map every frame.
+    keyframe_motion: float = 20.0
+    min_keyframes: int = 30
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -100,6 +112,10 @@ class SfmConfig:
             raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.map_threads}")
         if self.overlap < 1:
             raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
+        if not (self.keyframe_motion >= 0 and math.isfinite(self.keyframe_motion)):
+            raise SeeUError(f"--keyframe-motion must be a finite number >= 0, got {self.keyframe_motion}")
+        if self.min_keyframes < 3:
+            raise SeeUError(f"min_keyframes must be >= 3, got {self.min_keyframes}")
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
             raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
         if self.mapper not in MAPPERS:
@@ -265,8 +281,8 @@ def map_with_retries(
     elsewhere. Two runs agree when their largest models' camera centres, Sim(3)-aligned, differ by at
     most `cfg.max_disagreement_pct` of the path length (`model_disagreement_pct`). The first run of the
     first agreeing pair is kept; when no two runs agree, the run registering most is kept and the check
-    fails. Returns (usable models of the kept run, every run's {seed, registered, models[,
-    disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
+    fails. Returns (usable models of the kept run, every run's {seed, registered, models, seconds
+    (wall, of `map_once`)[, disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
     {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"}).
     """
     runs: list[tuple[int, dict, list]] = []  # (registered, usable, rejected)
@@ -279,7 +295,10 @@ def map_with_retries(
         if i:
             _emit("stage", f"map-retry-{i}", num_frames)
         usable, rejected = {}, []
-        for k, rec in map_once(seed).items():
+        t0 = time.perf_counter()
+        mapped = map_once(seed)
+        seconds = time.perf_counter() - t0
+        for k, rec in mapped.items():
             n = rec.num_reg_images()
             camera = next(iter(rec.cameras.values()))
             if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
@@ -296,7 +315,7 @@ def map_with_retries(
             usable[k] = rec
         registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
         runs.append((registered, usable, rejected))
-        attempts.append({"seed": seed, "registered": registered, "models": len(usable)})
+        attempts.append({"seed": seed, "registered": registered, "models": len(usable), "seconds": seconds})
         if registered < cfg.retry_below * num_frames:
             continue
         if not check:
@@ -389,6 +408,26 @@ def _emit(*parts) -> None:
     print(_PROGRESS, *parts, flush=True)
 
 
+class _Clock:
+    """Wall and CPU seconds (CPU: every thread of this process) per stage of the child, summed by name.
+
+    `wall` / `cpu`: {"extract_s", "match_s", "map_s", "register_s", "undistort_s", "export_s"}; a machine shared with
+    other work stretches the wall times, much less the CPU times."""
+
+    def __init__(self) -> None:
+        self.wall: dict[str, float] = {}
+        self.cpu: dict[str, float] = {}
+
+    @staticmethod
+    def mark() -> tuple[float, float]:
+        return time.perf_counter(), time.process_time()
+
+    def add(self, name: str, since: tuple[float, float]) -> None:
+        wall, cpu = self.mark()
+        self.wall[name] = self.wall.get(name, 0.0) + wall - since[0]
+        self.cpu[name] = self.cpu.get(name, 0.0) + cpu - since[1]
+
+
 def _camera_dict(camera) -> dict:
     K = camera.calibration_matrix()
     return {
@@ -461,6 +500,7 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
 def _child(job_path: str) -> int:
     import pycolmap
 
+    from seeu_data.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride, register_frames
     from seeu_data.match_graph import choose_mapper, match_graph_stats
     from seeu_data.undistort import undistort_files
 
@@ -472,14 +512,14 @@ def _child(job_path: str) -> int:
     db_path = out / "database.db"
     for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
         stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
-    timings: dict[str, float] = {}
+    clock = _Clock()
 
     def fail(msg: str) -> int:
-        (out / "result.json").write_text(json.dumps({"error": msg, "timings": timings}))
+        (out / "result.json").write_text(json.dumps({"error": msg, "timings": clock.wall, "cpu_timings": clock.cpu}))
         return 0
 
     _emit("stage", "extract", len(names))
-    t0 = time.perf_counter()
+    t0 = clock.mark()
     _create_database(db_path, Path(image_dir) / names[0], names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
@@ -495,7 +535,7 @@ def _child(job_path: str) -> int:
         reader_options=reader,
         extraction_options=extraction,
     )
-    timings["extract_s"] = time.perf_counter() - t0
+    clock.add("extract_s", t0)
     db = pycolmap.Database.open(db_path)
     num_kp = int(db.num_keypoints())
     db.close()
@@ -504,11 +544,13 @@ def _child(job_path: str) -> int:
 
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = cfg.overlap
+    # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it)
+    pairing.quadratic_overlap = True
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
     _emit("stage", "match", len(names))
-    t0 = time.perf_counter()
+    t0 = clock.mark()
     matching = pycolmap.FeatureMatchingOptions()
     # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
     # still gave a different database in 1 of ~10 full CI runs (a loaded machine); one thread never did.
@@ -522,18 +564,25 @@ def _child(job_path: str) -> int:
     pycolmap.match_sequential(
         db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
     )
-    timings["match_s"] = time.perf_counter() - t0
+    clock.add("match_s", t0)
+    t0 = clock.mark()
     db = pycolmap.Database.open(db_path)
     num_pairs = int(db.num_verified_image_pairs())
     graph = match_graph_stats(db, names)
+    motion = consecutive_motion_px(db, names) if cfg.keyframe_motion > 0 else None
     db.close()
+    # keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart
+    stride = keyframe_stride(len(names), motion, cfg.keyframe_motion, cfg.min_keyframes, 2 ** max(cfg.overlap - 3, 0))
+    keys = keyframe_names(names, stride)
+    keyframes = {"stride": stride, "count": len(keys), "motion_px": motion, "target_px": cfg.keyframe_motion}
+    clock.add("map_s", t0)
     mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(graph)
     mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": graph}
     if num_pairs == 0:
         return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
 
-    _emit("stage", "map", len(names))
-    t0 = time.perf_counter()
+    _emit("stage", "map", len(keys))
+    t0 = clock.mark()
     sparse = out / "sparse"
 
     def map_once(seed: int) -> dict:
@@ -544,22 +593,24 @@ def _child(job_path: str) -> int:
             global_options.min_model_size = cfg.min_model_size
             global_options.num_threads = cfg.map_threads
             global_options.random_seed = seed
+            global_options.image_names = keys if stride > 1 else []
             return pycolmap.global_mapping(db_path, image_dir, sparse, options=global_options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.map_threads
         options.random_seed = seed
+        options.image_names = keys if stride > 1 else []
         return pycolmap.incremental_mapping(
             db_path, image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
         )
 
     pairs = geometry_counts(db_path)
     recs, attempts, rejected, check = map_with_retries(
-        map_once, len(names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
+        map_once, len(keys), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
     )
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]
-    timings["map_s"] = time.perf_counter() - t0
+    clock.add("map_s", t0)
     if not recs:
         return fail(
             "SfM found no model: no frame pair with enough parallax "
@@ -568,6 +619,14 @@ def _child(job_path: str) -> int:
         )
     shutil.rmtree(sparse)  # the models kept are written again below, under their own index
     sparse.mkdir()
+    if stride > 1:
+        mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+        _emit("stage", "register", len(names) - len(mapped))
+        t0 = clock.mark()
+        keyframes["registered_after"] = register_frames(
+            db_path, recs, names, keys, check["kept_seed"], cfg.map_threads, on_frame=lambda: _emit("step")
+        )
+        clock.add("register_s", t0)
 
     # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
     # poor initial pair, with an implausible focal length): keep only models adding new frames.
@@ -583,10 +642,10 @@ def _child(job_path: str) -> int:
         kept.append(k)
 
     _emit("stage", "export")
-    t0 = time.perf_counter()
     models = []
     for k in sorted(kept):
         rec = recs[k]
+        t0 = clock.mark()
         model_dir = sparse / str(k)
         model_dir.mkdir(exist_ok=True)
         rec.write(model_dir)
@@ -597,17 +656,22 @@ def _child(job_path: str) -> int:
             # used as they are (no resampling, no crop, no second JPEG generation).
             models.append(_export_model(rec, k, image_dir, out, undistorted=False))
             models[-1]["distortion_max_px"] = distortion
+            clock.add("export_s", t0)
             continue
         # Same-size undistortion (seeu_data.undistort): the frames keep W x H, only the focal changes.
         und = out / "undistorted" / str(k) / "images"
         reg_names = sorted(rec.image(i).name for i in rec.reg_image_ids())
+        clock.add("export_s", t0)
+        t0 = clock.mark()
         pinhole = undistort_files(camera, image_dir, reg_names, und, jpeg_quality=95)
+        clock.add("undistort_s", t0)
+        t0 = clock.mark()
         models.append(_export_model(rec, k, str(und), out, undistorted=True))
         models[-1]["camera"] = pinhole.as_dict()
         models[-1]["camera_distorted"] = _camera_dict(camera)
         models[-1]["distortion_max_px"] = distortion
         models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
-    timings["export_s"] = time.perf_counter() - t0
+        clock.add("export_s", t0)
     (out / "result.json").write_text(
         json.dumps(
             {
@@ -618,7 +682,9 @@ def _child(job_path: str) -> int:
                 "mapping_attempts": attempts,
                 "mapper": mapper_info,
                 "solution_check": check,
-                "timings": timings,
+                "keyframes": keyframes,
+                "timings": clock.wall,
+                "cpu_timings": clock.cpu,
             }
         )
     )

@@ -173,6 +173,12 @@ case("ingest-out-is-a-file", text="is a file")(
     lambda ws, tmp: _put(tmp / "f", "") or ["ingest", str(ws["clip"]), "--out", str(tmp / "f")]
 )
 case("ingest-stride-zero")(lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--stride", "0"])
+case("ingest-keyframe-motion-negative", text="--keyframe-motion")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--keyframe-motion", "-1"]
+)
+case("ingest-keyframe-motion-nan", text="--keyframe-motion")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--keyframe-motion", "nan"]
+)
 
 # ------------------------------------------------------------------------------------------ import
 case("import-pixelsplat-missing-dir")(

@@ -4,7 +4,8 @@ Stages (each kept under OUT/.work/<scene>/ with a stamp of its inputs and parame
 the same command resumes; --force redoes them): decode (--stride, --max-size) -> select frames
 (--sharpness-window, --target-frames; every frame keeps its source frame number) -> SfM in a child
 process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
-detection only with --vocab-tree, --mapper incremental/global/auto, mapping twice from different
+detection only with --vocab-tree, a video mapped on keyframes (--keyframe-motion) and its other
+frames registered after, --mapper incremental/global/auto, mapping twice from different
 seeds for the solution check, undistortion to a pinhole camera of the same size when the model has
 distortion; the same poses whatever --threads; --size HxW crops/resizes afterwards)
 -> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
@@ -80,6 +81,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         choices=["sift", "aliked"],
         default="sift",
         help="feature type (default sift; aliked needs a pycolmap built with ONNX, checked up front)",
+    )
+    p.add_argument(
+        "--keyframe-motion",
+        type=float,
+        default=20.0,
+        metavar="PX",
+        help="map a video on keyframes every 2, 4, 8, ... frames, as far apart as keeps the median image "
+        "motion between keyframes <= PX pixels (at least 30 keyframes), then register the other frames "
+        "into the model; mapping time then grows with the frame count, not its square (default 20; 0 = "
+        "map every frame)",
     )
     p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
     p.add_argument(
@@ -196,6 +207,7 @@ def run(args: argparse.Namespace) -> int:
         workers=args.workers,
         threads=args.threads,
         map_threads=args.map_threads,
+        keyframe_motion=args.keyframe_motion,
         force=args.force,
         heartbeat_s=args.heartbeat,
         progress=progress_wanted(args),
