@@ -246,7 +246,7 @@ def test_chunks_split_runs_claim_frames_and_normalise_scale(tmp_path):
 
 def _write_video(path: Path, frames: list[np.ndarray]) -> Path:
     h, w = frames[0].shape[:2]
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, (w, h))
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), 30, (w, h))
     for f in frames:
         vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
     vw.release()
