@@ -17,7 +17,7 @@ The growth exponent of a stage is the least-squares slope of log(seconds) on log
 runs with 100 <= frames <= 400 (`--fit-range`): 1 is linear, 2 quadratic. Wall times depend on the
 machine's load (recorded: /proc/loadavg before and after); the CPU-time exponent depends on it less.
 
-Example (about 40 min on a quiet 2-core machine; one ingest at a time):
+Example (about 16 min on a quiet 2-core machine; one ingest at a time):
   .venv/bin/python benchmarks/ingest_scaling.py --frames 50,100,200,400 --mappers incremental,global \\
       --out out/bench_ingest_scaling --write
 --write replaces the <!-- ingest-scaling:begin/end --> section of benchmarks/RESULTS.md.

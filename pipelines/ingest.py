@@ -329,7 +329,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     select_cfg = cfg.select_config()
     chunk_cfg = cfg.chunk_config()
     sfm_cfg = cfg.sfm_config()
-    cache = StageCache(out_root / ".work" / source.name, force=force)
+    cache = StageCache(out_root / ".work" / source.name, force=force, fsync=cfg.fsync)
 
     decode_key = {
         "input": identity["path"],

@@ -417,7 +417,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         )
     out.mkdir(parents=True, exist_ok=True)
     known = known_shards(out)
-    journal = Journal(out / PROGRESS_NAME)
+    journal = Journal(out / PROGRESS_NAME, cfg.fsync)
     # Before the manifest goes: what a previous run completed stays known if this one is interrupted
     # (every record is verified again before a shard is kept: `resumable_shard`).
     journal.reset(known.values())

@@ -88,10 +88,12 @@ def file_intact(path: Path, size: int, sha256: str) -> bool:
 
 
 class Journal:
-    """An append-only record of the completed units of one output (a JSON-lines file)."""
+    """An append-only record of the completed units of one output (a JSON-lines file); with `fsync`
+    every record reaches the disk before `add` / `reset` returns (the outputs' `--fsync`)."""
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, fsync: bool = False):
         self.path = Path(path)
+        self.fsync = fsync
         self._lock = threading.Lock()
 
     def read(self) -> list[dict]:
@@ -115,13 +117,16 @@ class Journal:
     def reset(self, records: Iterable[dict]) -> None:
         """Replace the journal with `records`, atomically."""
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in records))
+        atomic_write_text(self.path, "".join(json.dumps(r) + "\n" for r in records), self.fsync)
 
     def add(self, record: dict) -> None:
         """Append one completed unit (`record["unit"]` names it); safe from several threads."""
         line = json.dumps(record) + "\n"
         with self._lock, open(self.path, "a") as fh:  # one write per line: a torn last line is ignored
             fh.write(line)
+            if self.fsync:
+                fh.flush()
+                os.fsync(fh.fileno())
 
     def remove(self) -> None:
         self.path.unlink(missing_ok=True)
@@ -171,13 +176,14 @@ class StageCache:
     Each record: `{"unit": stage, "stamp": stamp_of(key), "key": key, "seconds": s, "result": r}`,
     `result` being the stage function's JSON-able result, `seconds` how long it took when it ran.
     `force=True` redoes every stage. `timings` holds the seconds spent on each stage in this run,
-    `reused` whether it was reused, `records` the records of the stages run or reused.
+    `reused` whether it was reused, `records` the records of the stages run or reused. `fsync`: the
+    journal's records are fsynced (`Journal`).
     """
 
-    def __init__(self, work_dir: str | Path, force: bool = False):
+    def __init__(self, work_dir: str | Path, force: bool = False, fsync: bool = False):
         self.work_dir = Path(work_dir)
         self.force = force
-        self.journal = Journal(self.work_dir / STAGES_JOURNAL)
+        self.journal = Journal(self.work_dir / STAGES_JOURNAL, fsync)
         self.timings: dict[str, float] = {}
         self.reused: dict[str, bool] = {}
         self.records: dict[str, dict] = {}

@@ -452,7 +452,7 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
         scene, poses = make_scene(cfg.seed), camera_path(cfg.n_frames, cfg.path_length_m)
     intr = default_intrinsics_norm(cfg.width, cfg.height, cfg.hfov_deg)
     tmp = tmp_path_for(video_path).with_suffix(".tmp.mp4")
-    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter_fourcc(*"mp4v"), cfg.fps, (cfg.width, cfg.height))
+    writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), cfg.fps, (cfg.width, cfg.height))
     if not writer.isOpened():
         raise SeeUError("OpenCV cannot write mp4v video here", video_path)
     frames = []

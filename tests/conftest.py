@@ -38,3 +38,25 @@ def no_heartbeat(monkeypatch) -> None:
     """No ingest heartbeat lines (stderr is not a terminal under pytest): they would break the
     one-line error checks. Use with `pytestmark = pytest.mark.usefixtures("no_heartbeat")`."""
     monkeypatch.setenv("SEEU_HEARTBEAT_S", "0")
+
+
+@pytest.fixture
+def fsyncs(monkeypatch):
+    """Record os.fsync and os.replace calls in order (the real calls still run): ("fsync", path of
+    the file descriptor) and ("replace", source path)."""
+    import os
+
+    calls = []
+    real_fsync, real_replace = os.fsync, os.replace
+
+    def fsync(fd):
+        calls.append(("fsync", os.readlink(f"/proc/self/fd/{fd}") if os.path.exists("/proc/self/fd") else fd))
+        return real_fsync(fd)
+
+    def replace(src, dst):
+        calls.append(("replace", str(src)))
+        return real_replace(src, dst)
+
+    monkeypatch.setattr(os, "fsync", fsync)
+    monkeypatch.setattr(os, "replace", replace)
+    return calls

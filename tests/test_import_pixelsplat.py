@@ -417,18 +417,21 @@ def test_cli_rerun_resumes_and_reports_skips_again(tmp_path, capsys):
     assert validate_dataset(tmp_path / "o")["unlisted_files"] == []
 
 
-def test_import_fsyncs_only_with_the_flag(tmp_path, monkeypatch):
+def test_import_fsyncs_only_with_the_flag(tmp_path, fsyncs):
+    from seeu_data.importers.common import RESUME_JOURNAL
+
     rng = np.random.default_rng(13)
     write_chunks(tmp_path / "ds", "test", [[make_example("a", 2, rng)], [make_example("b", 2, rng)]])
-    calls = []
-    real = os.fsync
-    monkeypatch.setattr(os, "fsync", lambda fd: calls.append(fd) or real(fd))
     cmd = ["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test"]
     assert cli_main([*cmd, "--out", str(tmp_path / "a")]) == 0
-    assert calls == []
+    assert [c for c in fsyncs if c[0] == "fsync"] == []
     assert cli_main([*cmd, "--out", str(tmp_path / "b"), "--fsync"]) == 0
-    assert len(calls) == 2  # the posed file, the manifest (the resume journal is checked before use)
-    calls.clear()
+    synced = [Path(p).name for kind, p in fsyncs if kind == "fsync"]
+    # the posed file and the manifest before their renames, the resume journal's records as written
+    assert any(n.startswith(".posed-00000.arrow.") for n in synced), synced
+    assert any(n.startswith(".manifest.json.") for n in synced), synced
+    assert RESUME_JOURNAL in synced, synced
+    fsyncs.clear()
     assert cli_main([*cmd, "--out", str(tmp_path / "c")]) == 0
-    assert calls == []  # --fsync is a parameter of that one import, nothing stays switched on
+    assert [c for c in fsyncs if c[0] == "fsync"] == []  # --fsync is a parameter of that one import
     assert _files(tmp_path / "a") == _files(tmp_path / "b")

@@ -246,7 +246,7 @@ def test_chunks_split_runs_claim_frames_and_normalise_scale(tmp_path):
 
 def _write_video(path: Path, frames: list[np.ndarray]) -> Path:
     h, w = frames[0].shape[:2]
-    vw = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), 30, (w, h))
+    vw = cv2.VideoWriter(str(path), cv2.VideoWriter.fourcc(*"mp4v"), 30, (w, h))
     for f in frames:
         vw.write(cv2.cvtColor(f, cv2.COLOR_RGB2BGR))
     vw.release()
@@ -400,9 +400,11 @@ def test_colmap_abort_in_child_is_one_line(clip, tmp_path, capsys):
     _no_complete_output(tmp_path / "out")
 
 
-def test_split_clip_gives_two_chunks_and_reports_dropped_frames(tmp_path):
+def test_split_clip_gives_two_chunks_and_reports_dropped_frames(tmp_path, fsyncs):
     """Frames 16-21 of a 38-frame walk are blank: SfM cannot register them, the run splits into two
-    chunks, each accurate against the ground truth, and the report names the dropped frames."""
+    chunks, each accurate against the ground truth, and the report names the dropped frames. Run
+    with --fsync: the posed file, the manifest, the report and the stage journal's records are
+    fsynced (before their renames, the journal as each record is written)."""
     n, blank = 38, range(16, 22)
     scene = make_scene(0)
     poses = camera_path(n)
@@ -412,7 +414,11 @@ def test_split_clip_gives_two_chunks_and_reports_dropped_frames(tmp_path):
         for i in range(n)
     ]
     vid = _write_video(tmp_path / "split.mp4", frames)
-    assert cli_main(["ingest", str(vid), "--out", str(tmp_path / "out")]) == 0
+    assert cli_main(["ingest", str(vid), "--out", str(tmp_path / "out"), "--fsync"]) == 0
+    synced = [Path(p).name for kind, p in fsyncs if kind == "fsync"]
+    for name in ("posed-00000.arrow", "manifest.json", "report.json"):
+        assert any(n.startswith(f".{name}.") for n in synced), (name, synced)
+    assert "stages.jsonl" in synced, synced
     report = json.loads((tmp_path / "out" / "split" / "report.json").read_text())
     assert [c["scene_id"] for c in report["chunks"]] == ["split_c0", "split_c1"]
     assert report["chunks"][0]["source_frames"][1] < 16 and report["chunks"][1]["source_frames"][0] > 21

@@ -246,7 +246,7 @@ def write_import(
     records = _read_records(out_dir, key) if resumable else []
     name_of = lambda i: f"posed-{i:05d}.arrow"  # noqa: E731  (PosedDatasetWriter's file names)
     done, covered = _resumable_prefix(out_dir, records, units, name_of)
-    journal = Journal(out_dir / RESUME_JOURNAL)
+    journal = Journal(out_dir / RESUME_JOURNAL, fsync)
     if resumable:
         journal.reset(done)  # before the manifest goes
     else:
