@@ -40,6 +40,10 @@ class PinholeCamera:
     height: int
     scale: float
 
+    def matrix(self) -> np.ndarray:
+        """The calibration matrix K `(3, 3)` in pixels."""
+        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
+
     def as_dict(self) -> dict:
         return {
             "model": "PINHOLE",

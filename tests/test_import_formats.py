@@ -269,7 +269,8 @@ def test_colmap_distorted_model_is_undistorted(tmp_path):
     cfg = colmap_imp.ColmapImportConfig(model_dir=tmp_path / "s" / "sparse" / "0", images_dir=tmp_path / "s" / "images")
     _run(colmap_imp.iter_scenes(cfg), tmp_path / "out")
     scene = PosedDataset(tmp_path / "out").load_scene("s")
-    assert scene.meta["undistorted"] == "pycolmap.undistort_images"
+    assert scene.meta["undistorted"].startswith("same-size pinhole")
+    assert (scene.width == 96).all() and (scene.height == 64).all()  # the frame size kept (peer loaders)
     names = sorted(im.name for im in rec.images.values())
     checked = 0
     for k, name in enumerate(names):
@@ -489,11 +490,11 @@ def test_nerfstudio_distorted_frames_are_undistorted_like_opencv_projects(tmp_pa
         == 0
     )
     scene = PosedDataset(tmp_path / "out").load_scene("ns")
-    assert scene.meta["undistorted"].startswith("pycolmap.undistort_images")
+    assert scene.meta["undistorted"].startswith("same-size pinhole")
     for k in range(3):
         img = cv2.imdecode(np.frombuffer(scene.images[k], np.uint8), cv2.IMREAD_GRAYSCALE)
         sw, sh = int(scene.width[k]), int(scene.height[k])
-        assert img.shape == (sh, sw)
+        assert img.shape == (sh, sw) == (h, w)  # the frame size kept
         uv, depth = cam.project_points(points, scene.cam_to_world[k], scene.intrinsics_norm[k], sw, sh)
         for p in range(len(points)):
             assert depth[p] > 0 and 6 <= uv[p, 0] < sw - 6 and 6 <= uv[p, 1] < sh - 6

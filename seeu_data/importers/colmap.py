@@ -1,11 +1,13 @@
 """A COLMAP model (binary or text, read with pycolmap) and its image folder -> one posed scene.
 
 Cameras: PINHOLE and SIMPLE_PINHOLE are used directly, as are distortion models whose distortion
-parameters are all zero. Other models with distortion (SIMPLE_RADIAL, RADIAL, OPENCV, FULL_OPENCV,
-the fisheye models, ...) are undistorted first with `pycolmap.undistort_images` into a temporary
-folder, and the undistorted model (PINHOLE; sizes can change by a pixel) and images are imported
-(`undistort=False` refuses them with an error instead). Spherical models (EQUIRECTANGULAR) cannot
-be made pinhole and are refused.
+parameters are all zero. The frames of cameras with distortion (SIMPLE_RADIAL, RADIAL, OPENCV,
+FULL_OPENCV, the fisheye models, ...) are undistorted first, as `seeu ingest` does it
+(`seeu_data.undistort`): into a temporary folder, to a pinhole camera of the SAME width x height and
+principal point, only the focal length scaled (what the peers' RE10K loaders need; COLMAP's own
+undistorter changes the size by a pixel or more); poses do not change (`undistort=False` refuses such
+cameras with an error instead). Spherical models (EQUIRECTANGULAR) cannot be made pinhole and are
+refused.
 
 Conversion: `image.cam_from_world()` (world-to-camera) -> camera-to-world with
 `cameras.cam_to_world_from_world_to_cam`; `camera.calibration_matrix()` (pixels) -> normalised with
@@ -22,7 +24,7 @@ import re
 import tempfile
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
+from typing import Any, Iterator
 
 import numpy as np
 
@@ -30,6 +32,7 @@ from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intr
 from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
+from ..undistort import PinholeCamera, undistort_files
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
@@ -157,11 +160,19 @@ def outside_images(rec, cfg: ColmapImportConfig) -> dict[str, str]:
 
 
 def scene_from_model(
-    rec, images_dir: Path, cfg: ColmapImportConfig, meta: dict, skip: dict[str, str] | None = None
+    rec,
+    images_dir: Path,
+    cfg: ColmapImportConfig,
+    meta: dict,
+    skip: dict[str, str] | None = None,
+    undistorted: tuple[Path, dict[int, PinholeCamera]] | None = None,
 ) -> PosedScene:
-    """`skip`: image names to leave out -> reason (kept in `meta["skipped_frames"]`)."""
+    """`skip`: image names to leave out -> reason (kept in `meta["skipped_frames"]`). `undistorted`:
+    (folder, {camera id: pinhole camera}) from `undistort_cameras`: the frames of those cameras are
+    read from that folder, with the pinhole camera's intrinsics."""
     images_dir = Path(images_dir)
     skip = skip or {}
+    und_dir, pinholes = undistorted or (images_dir, {})
     ids = sorted((i for i in rec.reg_image_ids() if rec.image(i).name not in skip), key=lambda i: rec.image(i).name)
     if skip:
         meta["skipped_frames"] = [{"frame": n, "reason": r} for n, r in sorted(skip.items())]
@@ -170,12 +181,8 @@ def scene_from_model(
             "the model has no registered images" + (" inside the image directory" if skip else ""), cfg.model_dir
         )
     names = [rec.image(i).name for i in ids]
-    paths = [images_dir / n for n in names]
-    missing = [n for n, p in zip(names, paths) if not p.is_file()]
-    if missing:
-        raise SeeUError(
-            f"{len(missing)} of {len(names)} registered images are missing (first: {missing[0]})", images_dir
-        )
+    _check_present(names, images_dir)
+    paths = [(und_dir if rec.image(i).camera_id in pinholes else images_dir) / n for i, n in zip(ids, names)]
     data = [p.read_bytes() for p in paths]
     fmt, width, height = probe_images(data, [str(p) for p in paths], cfg.verify_decode)
     w2c, intr = [], []
@@ -185,9 +192,9 @@ def scene_from_model(
         if abs(width[k] / height[k] - cam.width / cam.height) > 1e-2 * cam.width / cam.height:
             raise SeeUError(f"image is {width[k]}x{height[k]} but its camera is {cam.width}x{cam.height}", paths[k])
         w2c.append(np.asarray(img.cam_from_world().matrix(), dtype=np.float64))
-        intr.append(
-            intrinsics_norm_from_pixels(np.asarray(cam.calibration_matrix(), dtype=np.float64), cam.width, cam.height)
-        )
+        pin = pinholes.get(img.camera_id)
+        K = pin.matrix() if pin is not None else np.asarray(cam.calibration_matrix(), dtype=np.float64)
+        intr.append(intrinsics_norm_from_pixels(K, cam.width, cam.height))
     near, far = cfg.near, cfg.far
     if near is None or far is None:
         est = _near_far_from_points(rec, ids)
@@ -216,17 +223,33 @@ def scene_from_model(
     )
 
 
-def undistort_model(model_dir: Path, images_dir: Path, out_dir: Path, image_names: list[str] | None = None):
-    """`pycolmap.undistort_images`: the model's images (`image_names` only, when given) undistorted
-    into `out_dir/images`, their PINHOLE model returned (a pycolmap.Reconstruction, also written
-    to `out_dir/sparse`). SeeUError naming `model_dir` when COLMAP fails."""
-    import pycolmap
+def undistort_cameras(rec, images_dir: Path, out_dir: Path, names: list[str]) -> dict[int, PinholeCamera]:
+    """The registered frames `names` whose camera has lens distortion, undistorted from `images_dir`
+    into `out_dir` (same relative names and encoding) with `seeu_data.undistort`: per camera, a pinhole
+    camera of the same size. Returns {camera id: its PinholeCamera}; SeeUError when a frame is missing,
+    unreadable or not its camera's size."""
+    wanted = set(names)
+    by_camera: dict[int, list[str]] = {}
+    for i in rec.reg_image_ids():
+        img = rec.image(i)
+        if img.name in wanted and not _distortion_free(rec.camera(img.camera_id)):
+            by_camera.setdefault(img.camera_id, []).append(img.name)
+    _check_present(sorted(n for ns in by_camera.values() for n in ns), Path(images_dir))
+    pinholes = {}
+    for cid, frames in sorted(by_camera.items()):
+        try:
+            pinholes[cid] = undistort_files(rec.camera(cid), images_dir, sorted(frames), out_dir)
+        except ValueError as exc:
+            raise SeeUError(f"undistortion of camera {cid} failed ({str(exc)[:160]})", images_dir) from None
+    return pinholes
 
-    try:
-        pycolmap.undistort_images(str(out_dir), str(model_dir), str(images_dir), image_names=list(image_names or []))
-        return pycolmap.Reconstruction(str(Path(out_dir) / "sparse"))
-    except Exception as exc:
-        raise SeeUError(f"undistortion failed ({str(exc).splitlines()[0][:160]})", model_dir) from None
+
+def _check_present(names: list[str], images_dir: Path) -> None:
+    missing = [n for n in names if not (images_dir / n).is_file()]
+    if missing:
+        raise SeeUError(
+            f"{len(missing)} of {len(names)} registered images are missing (first: {missing[0]})", images_dir
+        )
 
 
 def _check_and_read(cfg: ColmapImportConfig):
@@ -258,7 +281,7 @@ def import_plan(cfg: ColmapImportConfig):
 
 def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedScene]:
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
-    meta = {
+    meta: dict[str, Any] = {
         "dataset": "colmap",
         "model": str(Path(cfg.model_dir).resolve()),
         "camera_models": sorted({rec.camera(rec.image(i).camera_id).model.name for i in rec.reg_image_ids()}),
@@ -277,9 +300,12 @@ def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedS
             with tempfile.TemporaryDirectory(prefix="seeu-undistort-") as tmp:
                 if not kept:
                     raise SeeUError("the model has no registered images inside the image directory", cfg.model_dir)
-                und = undistort_model(cfg.model_dir, cfg.images_dir, Path(tmp), image_names=kept if outside else None)
-                meta["undistorted"] = "pycolmap.undistort_images"
-                scene = scene_from_model(und, Path(tmp) / "images", cfg, meta, skip=outside)
+                pinholes = undistort_cameras(rec, cfg.images_dir, Path(tmp), kept)
+                meta["undistorted"] = "same-size pinhole, focal x scale (seeu_data.undistort)"
+                meta["undistortion_scale"] = {str(cid): pin.scale for cid, pin in pinholes.items()}
+                scene = scene_from_model(
+                    rec, cfg.images_dir, cfg, meta, skip=outside, undistorted=(Path(tmp), pinholes)
+                )
         else:
             scene = scene_from_model(rec, cfg.images_dir, cfg, meta, skip=outside)
     except SeeUError as exc:

@@ -15,9 +15,9 @@ the nerfstudio folder made from it gives the same cameras. `keep_applied_transfo
 nerfstudio's world instead. Axes: `cameras.opencv_from_opengl`; intrinsics:
 `cameras.intrinsics_norm_from_pixels` at (w, h). Frames are sorted by file path (as nerfstudio's
 dataparser does); image bytes are kept as they are, except for frames with lens distortion: those
-are undistorted as the COLMAP importer does it (`colmap.undistort_model`, i.e.
-`pycolmap.undistort_images`, camera OPENCV / FULL_OPENCV / OPENCV_FISHEYE with nerfstudio's
-parameters; the result is PINHOLE, sizes can change by a few pixels; poses do not change).
+are undistorted as the COLMAP importer and `seeu ingest` do it (`seeu_data.undistort`, camera OPENCV /
+FULL_OPENCV / OPENCV_FISHEYE with nerfstudio's parameters): to a pinhole camera of the same width x
+height and principal point, only the focal length scaled; poses do not change.
 nerfstudio's OPENCV `k4` (an r^8 radial term) has no COLMAP counterpart and is refused.
 
 Bad entries: a frame whose image is missing skips the scene unless `skip_missing` (then the frame
@@ -42,6 +42,7 @@ from ..arrow_io import read_json
 from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
+from ..undistort import undistort_files
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "OPENCV_FISHEYE"}
@@ -217,48 +218,38 @@ def colmap_camera(K: np.ndarray, model: str, dist: dict) -> tuple[str, list[floa
 
 
 def undistort_frames(
-    paths: list[Path], cameras: list[tuple[str, list[float], int, int]], model_ref: Path
+    paths: list[Path], cameras: list[tuple[str, list[float], int, int]]
 ) -> tuple[list[bytes], list[np.ndarray], list[tuple[int, int]]]:
-    """Undistort frames with the COLMAP importer's undistortion (`colmap.undistort_model`).
+    """Undistort frames as the COLMAP importer does (`seeu_data.undistort`: same size, focal scaled).
 
-    `cameras[k]`: (COLMAP model, params, w, h) of frame k. A one-image-per-frame COLMAP text model
-    (identity poses: undistortion does not depend on them) is written to a temporary folder beside
-    links to the images. Returns the undistorted encoded images, pixel K (3, 3) and (w, h) per frame.
+    `cameras[k]`: (COLMAP model, params, w, h) of frame k. The frames of each distinct camera are linked
+    into a temporary folder and undistorted together. Returns the undistorted encoded images (the
+    frame's own format), pixel K (3, 3) and (w, h) per frame.
     """
     import tempfile
 
-    from .colmap import undistort_model
+    import pycolmap
 
+    data: list[bytes] = [b""] * len(paths)
+    Ks: list[np.ndarray] = [np.eye(3)] * len(paths)
+    groups: dict[tuple, list[int]] = {}
+    for k, (name, params, w, h) in enumerate(cameras):
+        groups.setdefault((name, tuple(params), w, h), []).append(k)
     with tempfile.TemporaryDirectory(prefix="seeu-ns-undistort-") as tmp_name:
-        tmp = Path(tmp_name)
-        model, images, out = tmp / "model", tmp / "images", tmp / "out"
-        model.mkdir()
-        images.mkdir()
-        cam_ids: dict[tuple, int] = {}
-        cam_lines, image_lines = [], []
-        for k, (p, (name, params, w, h)) in enumerate(zip(paths, cameras)):
-            key = (name, tuple(params), w, h)
-            if key not in cam_ids:
-                cam_ids[key] = len(cam_ids) + 1
-                cam_lines.append(f"{cam_ids[key]} {name} {w} {h} " + " ".join(repr(float(v)) for v in params))
-            link = f"{k:06d}{p.suffix.lower()}"
-            (images / link).symlink_to(Path(p).resolve())
-            image_lines.append(f"{k + 1} 1 0 0 0 0 0 0 {cam_ids[key]} {link}\n")
-        (model / "cameras.txt").write_text("\n".join(cam_lines) + "\n")
-        (model / "images.txt").write_text("\n".join(image_lines) + "\n")
-        (model / "points3D.txt").write_text("")
-        rec = undistort_model(model, images, out)
-        by_name = {im.name: im for im in rec.images.values()}
-        data, Ks, sizes = [], [], []
+        links, out = Path(tmp_name) / "in", Path(tmp_name) / "out"
+        links.mkdir()
+        link = lambda k: f"{k:06d}{paths[k].suffix.lower()}"  # noqa: E731
         for k, p in enumerate(paths):
-            link = f"{k:06d}{p.suffix.lower()}"
-            if link not in by_name or not (out / "images" / link).is_file():
-                raise SeeUError("undistortion wrote no image for this frame", p)
-            cam = rec.camera(by_name[link].camera_id)
-            data.append((out / "images" / link).read_bytes())
-            Ks.append(np.asarray(cam.calibration_matrix(), dtype=np.float64))
-            sizes.append((int(cam.width), int(cam.height)))
-    return data, Ks, sizes
+            (links / link(k)).symlink_to(Path(p).resolve())
+        for (name, params, w, h), ks in groups.items():
+            camera = pycolmap.Camera(model=name, width=w, height=h, params=list(params))
+            try:
+                pin = undistort_files(camera, links, [link(k) for k in ks], out)
+            except ValueError as exc:
+                raise SeeUError(f"undistortion failed ({str(exc)[:160]})", paths[ks[0]]) from None
+            for k in ks:
+                data[k], Ks[k] = (out / link(k)).read_bytes(), pin.matrix()
+    return data, Ks, [(w, h) for _, _, w, h in cameras]
 
 
 def import_plan(cfg: NerfstudioImportConfig):
@@ -325,7 +316,7 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
             c2w_gl.append(_matrix(f["transform_matrix"], (3, 4), f"transform_matrix of {f['file_path']}", path))
         if distorted:
             keys = sorted(distorted)
-            data, und_K, und_sizes = undistort_frames([paths[k] for k in keys], [distorted[k] for k in keys], path)
+            data, und_K, und_sizes = undistort_frames([paths[k] for k in keys], [distorted[k] for k in keys])
             for j, k in enumerate(keys):
                 images[k], Ks[k], sizes[k] = data[j], und_K[j], und_sizes[j]
             fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
@@ -365,7 +356,7 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
     }
     meta.update(extra.get("meta", {}))
     if distorted:
-        meta["undistorted"] = f"pycolmap.undistort_images ({len(distorted)} frames)"
+        meta["undistorted"] = f"same-size pinhole, focal x scale (seeu_data.undistort; {len(distorted)} frames)"
     if dropped:
         meta["skipped_frames"] = dropped
     near = float(cfg.near if cfg.near is not None else extra.get("near", DEFAULT_NEAR_FAR[0]))
