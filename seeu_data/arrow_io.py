@@ -159,7 +159,7 @@ class _Sha256Thread:
 
     Why a thread: hashing as fast as the writes go (~1.4 GB/s here) doubles a build's or an import's
     time when it runs on the writer's thread; hashlib releases the GIL while it hashes, so on a second
-    core it costs no wall time (quiet 2-core machine: `seeu build` 0.51 s -> see benchmarks/RESULTS.md).
+    core it costs little wall time (quiet 2-core machine: `seeu build` 0.51 s -> 0.35 s, 1.49x; RESULTS.md).
     A buffer must keep its bytes until hashed: the sink passes the objects pyarrow gave it (bytes, or a
     `pa.Buffer` owning immutable Arrow memory) and views of `write_with_views`, which waits (`wait`)
     before the views can go.
