@@ -37,6 +37,7 @@ BytesLike = bytes | bytearray | memoryview | np.ndarray
 
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
+_HASH_SLICE = 8 << 20  # bytes written (and handed to the hash thread) at a time
 
 
 def tmp_path_for(path: Path) -> Path:
@@ -157,12 +158,11 @@ class _Views:
 class _Sha256Thread:
     """sha256 of the buffers given to `add`, in order, computed on a thread of its own.
 
-    Why a thread: hashing as fast as the writes go (~1.4 GB/s here) doubles a build's or an import's
-    time when it runs on the writer's thread; hashlib releases the GIL while it hashes, so on a second
-    core it costs little wall time (quiet 2-core machine: `seeu build` 0.51 s -> 0.35 s, 1.49x; RESULTS.md).
-    A buffer must keep its bytes until hashed: the sink passes the objects pyarrow gave it (bytes, or a
-    `pa.Buffer` owning immutable Arrow memory) and views of `write_with_views`, which waits (`wait`)
-    before the views can go.
+    Why a thread: hashing as fast as the writes go (~1.3 GB/s here) on the writer's thread made a quiet
+    2-core machine's `seeu build` 0.51 s instead of 0.35 s (1.49x; benchmarks/RESULTS.md); hashlib
+    releases the GIL while it hashes, so the second core takes it. The sink adds memoryviews of what it
+    writes (each keeps its bytes alive) and waits (`wait`) before each write call returns, so a view of
+    the caller's memory is never read after the call and memory stays bounded by one call's data.
     """
 
     def __init__(self) -> None:
@@ -209,10 +209,13 @@ class _HashingSink:
         self.closed = False
         self.views: _Views | None = None
 
-    def _write(self, view: memoryview, owner) -> None:
-        """The one place where bytes reach the file; `owner` keeps `view`'s bytes alive until hashed."""
-        self._fh.write(view)
-        self._sha256.add(owner)
+    def _write(self, view: memoryview) -> None:
+        """The one place where bytes reach the file: in slices of at most _HASH_SLICE bytes, each hashed
+        (on the hash thread) while the next is written."""
+        for start in range(0, view.nbytes, _HASH_SLICE):
+            piece = view[start : start + _HASH_SLICE]
+            self._fh.write(piece)
+            self._sha256.add(piece)
         self.size += view.nbytes
 
     def write(self, data) -> int:
@@ -220,10 +223,10 @@ class _HashingSink:
             pieces = self.views.pieces(data)
             if pieces is not None:
                 for piece in pieces:
-                    self._write(piece, piece)
+                    self._write(piece)
                 return data.size
         view = memoryview(data).cast("B")
-        self._write(view, view)
+        self._write(view)
         return view.nbytes
 
     def wait_hashed(self) -> None:
@@ -283,11 +286,14 @@ class AtomicIpcWriter:
 
     def write(self, data: pa.Table | pa.RecordBatch, max_chunksize: int | None = None) -> None:
         """Append a table (cut into record batches of at most `max_chunksize` rows) or one record batch."""
-        with naming_os_errors(self.path):
-            if isinstance(data, pa.Table):
-                self._writer.write_table(data, max_chunksize=max_chunksize)
-            else:
-                self._writer.write_batch(data)
+        try:
+            with naming_os_errors(self.path):
+                if isinstance(data, pa.Table):
+                    self._writer.write_table(data, max_chunksize=max_chunksize)
+                else:
+                    self._writer.write_batch(data)
+        finally:
+            self._raw.wait_hashed()  # nothing of `data` is read after this returns
 
     def write_with_views(
         self,
@@ -311,7 +317,6 @@ class AtomicIpcWriter:
         try:
             self.write(make(stand_in.column), max_chunksize)
         finally:
-            self._raw.wait_hashed()  # the views may go once this returns
             self._raw.views = None
         if stand_in.covered != stand_in.total:  # never a file with the stand-in's zeros in it
             raise SeeUError(
