@@ -89,10 +89,15 @@ def _posed_files(scene_dir: Path) -> dict[str, bytes]:
     return {str(p.relative_to(scene_dir)): p.read_bytes() for p in files}
 
 
-def _without_timings(report: dict) -> dict:
-    report = {k: v for k, v in report.items() if k not in ("timings_s", "output", "reused")}
-    report["sfm"] = {k: v for k, v in report["sfm"].items() if k != "timings_s"}
-    return report
+def _without_timings(report):
+    """The report without what differs between runs: every duration (keys `*_s`, `seconds`), at any
+    depth, and where the output went and what was reused."""
+    if isinstance(report, list):
+        return [_without_timings(v) for v in report]
+    if not isinstance(report, dict):
+        return report
+    skip = ("output", "reused", "seconds")
+    return {k: _without_timings(v) for k, v in report.items() if k not in skip and not k.endswith("_s")}
 
 
 def _json(path: Path) -> dict:
