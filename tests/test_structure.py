@@ -144,6 +144,15 @@ def test_stage_libraries_do_not_import_the_cli():
     assert not bad, "\n".join(bad)
 
 
+def test_architecture_page_places_every_module():
+    """docs/ARCHITECTURE.md is the map of the stages: every module of seeu_data and every stage library
+    of pipelines is named there (by file name), so a new module cannot be left off it."""
+    page = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
+    modules = sorted((ROOT / "seeu_data").glob("*.py")) + sorted((ROOT / "pipelines").glob("*.py"))
+    missing = [str(p.relative_to(ROOT)) for p in modules if p.name != "__init__.py" and p.name not in page]
+    assert not missing, f"not in docs/ARCHITECTURE.md: {missing}"
+
+
 def _write(root: Path, files: dict[str, str]) -> None:
     for name, text in files.items():
         path = root / name
