@@ -277,17 +277,25 @@ def cpu_seconds() -> float:
 
 
 def one_pass(
-    name: str, where: dict, workers: int, batch: int, cache: Path, samples: int, memory: set[int] | None = None
+    name: str,
+    where: dict,
+    workers: int,
+    batch: int,
+    cache: Path,
+    samples: int,
+    memory: set[int] | None = None,
+    maker=make,
 ) -> dict:
     """A full epoch: samples/s, time to first batch, CPU ms per sample of the process tree; checks that
     every sample came exactly once. `memory`: sample the peak memory, these pids left out (costly:
-    reading smaps_rollup about doubles the CPU per sample, so throughput passes run without it)."""
+    reading smaps_rollup about doubles the CPU per sample, so throughput passes run without it).
+    `maker(name, where, workers, batch, cache)` makes the loader (`make`: seeu or litdata)."""
     seen: list[int] = []
     with PeakMemory(memory) if memory is not None else _NoSampling() as mem:
         c0 = cpu_seconds()
         t0 = time.perf_counter()
         first = None
-        for b in make(name, where, workers, batch, cache):
+        for b in maker(name, where, workers, batch, cache):
             if first is None:
                 first = time.perf_counter() - t0
                 assert images_of(name, b).shape[1:] == (VIEWS, 3) + OUT and images_of(name, b).dtype == torch.uint8
@@ -333,12 +341,14 @@ def resume_counts(
     workers_before: int,
     workers_after: int,
     edit_state=None,
+    maker=make,
 ) -> dict:
     """Stop after `stop_after` batches, save the state, resume with other workers: duplicates and losses,
     and whether the epoch came in the order of an uninterrupted one (with `workers_before`).
 
-    `edit_state(state) -> state`, if given, alters the saved state (the tests use it to check the counting)."""
-    loader = make(name, where, workers_before, batch, cache)
+    `edit_state(state) -> state`, if given, alters the saved state (the tests use it to check the counting);
+    `maker` makes the loaders, as for `one_pass`."""
+    loader = maker(name, where, workers_before, batch, cache)
     seen: list[int] = []
     for k, b in enumerate(loader):
         seen += ids_of(name, b)
@@ -349,11 +359,11 @@ def resume_counts(
     state = json.loads(json.dumps(state))  # as a checkpoint would carry it
     if edit_state is not None:
         state = edit_state(state)
-    resumed = make(name, where, workers_after, batch, cache)
+    resumed = maker(name, where, workers_after, batch, cache)
     resumed.load_state_dict(state)
     after = [i for b in resumed for i in ids_of(name, b)]
     got = seen + after
-    uninterrupted = [i for b in make(name, where, workers_before, batch, cache) for i in ids_of(name, b)]
+    uninterrupted = [i for b in maker(name, where, workers_before, batch, cache) for i in ids_of(name, b)]
     return {
         "before": len(seen),
         "after": len(after),
@@ -411,13 +421,13 @@ def loadavg() -> str:
     return Path("/proc/loadavg").read_text().split()[:3].__str__().replace("'", "")
 
 
-def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def common_args(doc: str) -> argparse.ArgumentParser:
+    """The options this script shares with `benchmarks/peers_mosaic.py`."""
+    ap = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--samples", type=int, default=240)
     ap.add_argument("--batch", type=int, default=4)
     ap.add_argument("--repeats", type=int, default=3)
     ap.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--no-s3", action="store_true", help="local disk only")
     ap.add_argument(
         "--stop-after",
         type=int,
@@ -425,6 +435,12 @@ def main() -> int:
         default=[7, 37],
         help="resume test: batches before the stop (one test each)",
     )
+    return ap
+
+
+def main() -> int:
+    ap = common_args(__doc__)
+    ap.add_argument("--no-s3", action="store_true", help="local disk only")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
     ap.add_argument("--write", action="store_true", help="write the peers section of benchmarks/RESULTS.md")
     args = ap.parse_args()

@@ -30,7 +30,6 @@ for local disk).
 
 from __future__ import annotations
 
-import argparse
 import os
 import statistics
 import sys
@@ -50,7 +49,6 @@ from benchmarks import peers  # noqa: E402
 from benchmarks.loader import VIEWS, make_triples, write_seeu_shards  # noqa: E402
 
 SHARD_ROWS = peers.SHARD_ROWS
-make_seeu_or_litdata = peers.make
 
 
 def build_mosaic(out: Path, triples: list[list[bytes]]) -> None:
@@ -78,21 +76,14 @@ def mosaic_loader(local: str, workers: int, batch: int):
 
 def make(name: str, where: dict, workers: int, batch: int, cache: Path):
     if name == "seeu":
-        return make_seeu_or_litdata(name, where, workers, batch, cache)
+        return peers.make(name, where, workers, batch, cache)
     return mosaic_loader(where["mosaic"], workers, batch)
 
 
 def main() -> int:
-    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--samples", type=int, default=240)
-    ap.add_argument("--batch", type=int, default=4)
-    ap.add_argument("--repeats", type=int, default=3)
-    ap.add_argument("--workers", type=int, nargs="+", default=[0, 1, 2])
-    ap.add_argument("--stop-after", type=int, nargs="+", default=[7, 37])
-    args = ap.parse_args()
+    args = peers.common_args(__doc__).parse_args()
     import streaming
 
-    peers.make = make  # peers.one_pass / resume_counts build their loaders through `make`
     # MDS hands ndarray columns over read-only; lit_transform's torch.from_numpy warns on each
     warnings.filterwarnings("ignore", message="The given NumPy array is not writable")
     torch.set_num_threads(1)
@@ -119,12 +110,14 @@ def main() -> int:
         where = {"seeu": str(root / "seeu"), "mosaic": str(root / "mosaic")}
         cache = root / "cache"
         for name in ("seeu", "mosaic"):  # page cache and sha256 stamps, for both
-            peers.in_child(peers.one_pass, name, where, 0, 16, cache, args.samples)
+            peers.in_child(peers.one_pass, name, where, 0, 16, cache, args.samples, maker=make)
         runs: dict[tuple, list[dict]] = {}
         for r in range(args.repeats):
             for workers in args.workers:
                 for name in ("seeu", "mosaic") if r % 2 == 0 else ("mosaic", "seeu"):
-                    res = peers.in_child(peers.one_pass, name, where, workers, args.batch, cache, args.samples)
+                    res = peers.in_child(
+                        peers.one_pass, name, where, workers, args.batch, cache, args.samples, maker=make
+                    )
                     runs.setdefault((workers, name), []).append(res)
         print(
             "| workers | seeu samples/s | mosaic samples/s | seeu/mosaic | CPU ms/sample (seeu / mosaic) | first batch s (seeu / mosaic) |"
@@ -150,7 +143,16 @@ def main() -> int:
                 for name in ("seeu", "mosaic"):
                     try:
                         c = peers.in_child(
-                            peers.resume_counts, name, where, args.batch, cache, args.samples, stop, before, after
+                            peers.resume_counts,
+                            name,
+                            where,
+                            args.batch,
+                            cache,
+                            args.samples,
+                            stop,
+                            before,
+                            after,
+                            maker=make,
                         )
                         print(
                             f"| {name} | {stop} | {before} -> {after} | {c['before']} + {c['after']} | {c['duplicates']} | "
