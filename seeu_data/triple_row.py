@@ -15,6 +15,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# The columns holding one value per view (L per row, list columns of equal lengths); frame_index first.
+PER_VIEW_COLUMNS = (
+    "frame_index",
+    "source_frame",
+    "image",
+    "width",
+    "height",
+    "intrinsics_norm",
+    "cam_to_world",
+    "near",
+    "far",
+)
+
 
 @dataclass
 class TripleRow:

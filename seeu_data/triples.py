@@ -46,17 +46,6 @@ _POSED_COLUMNS = [
     "near",
     "far",
 ]
-_PER_VIEW = (
-    "frame_index",
-    "source_frame",
-    "image",
-    "width",
-    "height",
-    "intrinsics_norm",
-    "cam_to_world",
-    "near",
-    "far",
-)
 
 
 @dataclass(frozen=True)

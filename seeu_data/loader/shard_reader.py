@@ -16,20 +16,9 @@ import pyarrow as pa
 from ..arrow_io import open_ipc_file
 from ..errors import SeeUError
 from ..schema import check_version
-from ..triple_row import TripleRow
+from ..triple_row import PER_VIEW_COLUMNS, TripleRow
 
-_PER_VIEW = (
-    "frame_index",
-    "source_frame",
-    "image",
-    "width",
-    "height",
-    "intrinsics_norm",
-    "cam_to_world",
-    "near",
-    "far",
-)
-_REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + _PER_VIEW
+_REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + PER_VIEW_COLUMNS
 
 
 def _binary_parts(arr: pa.Array) -> tuple[np.ndarray, np.ndarray]:
@@ -55,7 +44,7 @@ class _BatchColumns:
         self.target_offsets = np.asarray(col("target_offset").offsets).astype(np.int64)
         self.target_offset = col("target_offset").values.to_numpy(zero_copy_only=False).astype(np.int64)
         self.view_offsets = np.asarray(col("frame_index").offsets).astype(np.int64)
-        for name in _PER_VIEW[1:]:
+        for name in PER_VIEW_COLUMNS[1:]:
             if not np.array_equal(np.asarray(col(name).offsets), self.view_offsets):
                 raise SeeUError(f"column {name} has a different number of views than frame_index", where)
 
