@@ -1,0 +1,419 @@
+"""Our exports read by the peers' own code: MVSplat's RE10K dataset, the 3DGS (INRIA) `.ply` loader and
+`cameras.json` writer, nerfstudio's dataparser. Not a test (it needs the peers' sources, fetched by
+hand), so it is not run by CI; the tests re-implement these readers (tests/test_peer_ready.py,
+test_export.py, test_ply.py, test_cameras_json.py) and this script checks them against the real ones.
+
+Our side, made in a temporary folder (or `--work DIR`, kept and reused) with our own CLI and writers:
+`seeu synth` (24 frames, 640x360) -> `seeu ingest` -> `seeu export pixelsplat` (stages test and train)
+and `seeu export nerfstudio`; random Gaussians (SH degree 3) + the scene's cameras through
+`seeu_model.ply.save_ply_bundle` (`gaussians.ply`, `cameras.json`, `gaussians.json`, what `seeu render`
+writes). "Ours" below is the posed dataset as our reader (`PosedDataset`) gives it, float64.
+
+Checks, one line each with PASS/FAIL and the figures (exit 1 on any FAIL, 0 otherwise; a peer whose
+folder is not given is skipped with a line):
+
+* mvsplat: `src.dataset.get_dataset` (DatasetRE10k, torch.load of our chunk as it is written, torch's
+  default `weights_only`) at stage "test" with the evaluation view sampler (an index naming the
+  scene: context first/last frame, every frame a target) and `image_shape` 360x640 (the crop shim is
+  then the identity): one example per scene, not skipped, 360x640 images, and the extrinsics /
+  intrinsics equal ours; then the settings of MVSplat's `+experiment=re10k` (config/dataset/re10k.yaml,
+  view_sampler/bounded.yaml, experiment/re10k.yaml's dataset block; read from the checkout) at stage
+  "train": it yields examples (3x256x256).
+* gaussian-splatting: `scene.gaussian_model.GaussianModel(sh_degree).load_ply` on our `gaussians.ply`
+  gives back our means, opacities, scales, rotations and SH; `utils.camera_utils.camera_to_JSON` of the
+  same cameras, as its `readColmapCameras` builds them (R = world-to-camera rotation transposed, T = its
+  translation, FoV from the focal length in pixels), equals our `cameras.json` (keys, order, values).
+* nerfstudio: `NerfstudioDataParserConfig(data=..., load_3D_points=True).setup().get_dataparser_outputs`
+  for the train and val splits (default settings: orientation "up", centre "poses", auto scale): every
+  frame parsed with our intrinsics and image size; `ply_file_path` read (open3d, as nerfstudio does) to
+  our SfM points in its world; and the rays its `Cameras.generate_rays` casts through the pixels where
+  our cameras project those points pass through them (distance in pixels).
+
+Stubbed, and why (nothing that reads data): MVSplat's view-sampler package imports the evaluation
+index generator, which imports `pytorch_lightning` (LightningModule, for its training-time index
+generation) and `skvideo.io` (video writing) -- both replaced by empty modules. The 3DGS
+`scene.gaussian_model` imports the CUDA extension `simple_knn._C` (`distCUDA2`, used only when a model
+is made from a point cloud) -- replaced by an empty module; its optional `diff_gaussian_rasterization`
+import is in the peer's own try/except. Its `load_ply` puts the tensors on device "cuda": without a GPU
+`torch.tensor(..., device="cuda")` is redirected to the CPU for that call (values untouched).
+
+How to run (Python 3.11; the peers' sources as checked out below, their code as it is):
+
+    # sources: the GitHub repositories donydchen/mvsplat, graphdeco-inria/gaussian-splatting (or a fork
+    # holding its commits: check out the upstream commit) and nerfstudio-project/nerfstudio, each checked
+    # out (git clone / git archive) into /tmp/peers/{mvsplat,gaussian-splatting,nerfstudio}; the commits
+    # used for RESULTS.md are listed there
+    # a virtualenv that sees ours, plus what the peers' imports need (open3d-cpu is the one large wheel)
+    python -m venv /tmp/venv-peers
+    S=$(.venv/bin/python -c "import site; print(site.getsitepackages()[0])")
+    echo "import site; site.addsitedir('$S')" > /tmp/venv-peers/lib/python3.11/site-packages/seeu_venv.pth
+    /tmp/venv-peers/bin/pip install jaxtyping einops dacite                        # MVSplat
+    /tmp/venv-peers/bin/pip install --no-deps viser==1.0.0 msgspec websockets tyro docstring_parser \\
+        open3d-cpu plotly narwhals dash janus                                      # nerfstudio (+ open3d)
+    apt-get install libusb-1.0-0                                                   # open3d's shared library
+    PYTHONPATH=. /tmp/venv-peers/bin/python benchmarks/peer_loaders.py \\
+        --mvsplat /tmp/peers/mvsplat --gaussian-splatting /tmp/peers/gaussian-splatting \\
+        --nerfstudio /tmp/peers/nerfstudio [--work /tmp/peer-work]
+
+(`--no-deps` because nerfstudio's and viser's pins, e.g. opencv-python 4.10 and rich < 15, conflict
+with ours; only what the imports need is installed.) Results: benchmarks/RESULTS.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import io
+import json
+import sys
+import tempfile
+import types
+import warnings
+from pathlib import Path
+from typing import Any
+from unittest import mock
+
+import numpy as np
+import torch
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from pipelines.cli import main as cli_main  # noqa: E402
+from seeu_data import cameras as cam  # noqa: E402
+from seeu_data.points import read_points_ply  # noqa: E402
+from seeu_data.posed import PosedDataset, PosedScene  # noqa: E402
+from seeu_model.gaussians import Gaussians  # noqa: E402
+from seeu_model.ply import save_ply_bundle  # noqa: E402
+
+N_FRAMES, W, H = 24, 640, 360
+SH_DEGREE, N_GAUSSIANS = 3, 2000
+RESULTS: list[bool] = []
+
+
+def report(ok: bool, name: str, detail: str) -> None:
+    RESULTS.append(ok)
+    print(f"{'PASS' if ok else 'FAIL'} {name}: {detail}", flush=True)
+
+
+def run_cli(args: list[str]) -> None:
+    code = cli_main([*args, "--no-progress"])
+    if code != 0:
+        raise SystemExit(f"seeu {' '.join(args)} exited {code}")
+
+
+def make_outputs(work: Path) -> None:
+    """Our outputs with our own CLI (skipped where `work` already has them)."""
+    posed = work / "posed" / "clip"
+    if not (posed / "manifest.json").exists():
+        run_cli(["synth", "--out", str(work), "--frames", str(N_FRAMES), "--size", f"{W}x{H}"])
+        run_cli(["ingest", str(work / "clip.mp4"), "--out", str(work / "posed")])
+    for stage in ("test", "train"):
+        if not (work / "ps" / stage / "index.json").exists():
+            run_cli(["export", "pixelsplat", str(posed), "--out", str(work / "ps"), "--stage", stage])
+    if not (work / "ns").exists():
+        run_cli(["export", "nerfstudio", str(posed), "--out", str(work / "ns")])
+
+
+def our_scene(work: Path) -> PosedScene:
+    ds = PosedDataset(work / "posed" / "clip")
+    (scene_id,) = ds.scene_ids
+    return ds.load_scene(scene_id)
+
+
+def random_gaussians(seed: int = 0) -> Gaussians:
+    """SH degree 3 Gaussians spread over the scene's depth range, opacities and scales far from the clamps."""
+    g = torch.Generator().manual_seed(seed)
+    n, k = N_GAUSSIANS, (SH_DEGREE + 1) ** 2
+    return Gaussians(
+        means=(torch.rand(1, n, 3, generator=g, dtype=torch.float64) - 0.5) * torch.tensor([8.0, 4.0, 30.0]),
+        scales=torch.exp(torch.empty(1, n, 3, dtype=torch.float64).uniform_(-6.0, 0.5, generator=g)),
+        rotations=torch.randn(1, n, 4, generator=g, dtype=torch.float64),
+        opacities=torch.empty(1, n, dtype=torch.float64).uniform_(0.01, 0.99, generator=g),
+        sh=torch.randn(1, n, k, 3, generator=g, dtype=torch.float64) * 0.5,
+    )
+
+
+def stub_modules(names: list[str]) -> None:
+    for name in names:
+        sys.modules.setdefault(name, types.ModuleType(name))
+
+
+def maxabs(a: Any, b: Any) -> float:
+    return float(np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64)).max())
+
+
+# ---------------------------------------------------------------- MVSplat
+
+
+def check_mvsplat(src: Path, work: Path, ours: PosedScene) -> None:
+    import yaml
+
+    # unrelated to reading: see the module docstring
+    stub_modules(["pytorch_lightning", "skvideo", "skvideo.io"])
+    sys.modules["pytorch_lightning"].LightningModule = object  # type: ignore[attr-defined]
+    sys.path.insert(0, str(src))
+    from src.dataset import get_dataset
+    from src.dataset.dataset_re10k import DatasetRE10kCfg
+    from src.dataset.view_sampler.view_sampler_bounded import (
+        ViewSamplerBoundedCfg,
+    )
+    from src.dataset.view_sampler.view_sampler_evaluation import (
+        ViewSamplerEvaluationCfg,
+    )
+
+    conf = src / "config"
+    dataset = yaml.safe_load((conf / "dataset" / "re10k.yaml").read_text())
+    dataset.pop("defaults")
+    dataset.update(yaml.safe_load((conf / "experiment" / "re10k.yaml").read_text())["dataset"])
+    bounded = yaml.safe_load((conf / "dataset" / "view_sampler" / "bounded.yaml").read_text())
+    dataset.update(roots=[work / "ps"], overfit_to_scene=None)
+    n = len(ours)
+    index = work / "mvsplat_eval_index.json"
+    key = json.loads((work / "ps" / "test" / "index.json").read_text())
+    index.write_text(json.dumps({k: {"context": [0, n - 1], "target": list(range(n))} for k in key}))
+
+    def examples(stage: str, cfg: Any) -> tuple[list[dict], str]:
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            got = list(get_dataset(cfg, stage, None))
+        return got, out.getvalue().strip()
+
+    # stage test: evaluation sampler, native size (crop shim = identity), every frame a target
+    cfg = DatasetRE10kCfg(
+        **{**dataset, "image_shape": [H, W]},
+        view_sampler=ViewSamplerEvaluationCfg(name="evaluation", index_path=index, num_context_views=2),
+    )
+    got, printed = examples("test", cfg)
+    shapes = [tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")]
+    ok = len(got) == len(key) and shapes == [(2, 3, H, W), (n, 3, H, W)] * len(key)
+    report(
+        ok,
+        "mvsplat test stage",
+        f"{len(got)} example(s) of {len(key)} scene(s), images {shapes}"
+        + (f"; printed: {printed!r}" if printed else ""),
+    )
+    if got:
+        ex = got[0]["target"]
+        ext = ex["extrinsics"].double().numpy()
+        intr = ex["intrinsics"].double().numpy()
+        d_rot = maxabs(ext[:, :3, :3], ours.cam_to_world[:, :3, :3])
+        d_pos = maxabs(ext[:, :3, 3], ours.cam_to_world[:, :3, 3])
+        d_k = maxabs(intr, cam.intrinsics_norm_matrix(ours.intrinsics_norm))
+        report(
+            max(d_rot, d_pos) < 1e-4 and d_k < 1e-6,
+            "mvsplat cameras",
+            f"{len(ext)} cameras vs ours: max |d| rotation {d_rot:.2e}, camera centre {d_pos:.2e} "
+            f"(scene extent {np.ptp(ours.cam_to_world[:, :3, 3], 0).max():.2f}), normalised K {d_k:.2e}; "
+            f"near/far {float(ex['near'][0]):g}/{float(ex['far'][0]):g} (ours {ours.near:g}/{ours.far:g})",
+        )
+        pixels = np.stack([np.asarray(Image.open(io.BytesIO(bytes(b))).convert("RGB")) for b in ours.images])
+        d_px = maxabs(ex["image"].permute(0, 2, 3, 1).numpy() * 255.0, pixels)
+        report(d_px <= 1.0 + 1e-3, "mvsplat images", f"vs our decode of the same JPEGs: max |d| {d_px:.3f} / 255")
+
+    # stage train with MVSplat's own +experiment=re10k dataset settings (bounded sampler, 256x256, augment)
+    torch.manual_seed(0)
+    cfg = DatasetRE10kCfg(**dataset, view_sampler=ViewSamplerBoundedCfg(**bounded))
+    got = []
+    for _ in range(4):
+        more, printed = examples("train", cfg)
+        got += more
+    shapes = sorted({tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")})
+    ok = len(got) == 4 and shapes == [(1, 3, 256, 256), (2, 3, 256, 256)]
+    report(
+        ok,
+        "mvsplat train stage (experiment re10k: bounded sampler, 256x256, augment)",
+        f"{len(got)} example(s) in 4 passes over 1 scene, images {shapes}"
+        + (f"; printed: {printed!r}" if printed else ""),
+    )
+
+
+# ---------------------------------------------------------------- 3DGS (INRIA)
+
+
+def check_gaussian_splatting(src: Path, work: Path, ours: PosedScene) -> None:
+    gauss = random_gaussians()
+    names = [f"frame_{int(f):05d}" for f in ours.source_frame]
+    bundle = work / "bundle"
+    save_ply_bundle(gauss, bundle, ours.cam_to_world, ours.intrinsics_norm, W, H, names)
+    sidecar = json.loads((bundle / "gaussians.json").read_text())
+
+    stub_modules(["simple_knn", "simple_knn._C"])  # CUDA extension: see the module docstring
+
+    def no_cuda_knn(*args: Any) -> None:
+        raise NotImplementedError("simple_knn is a CUDA extension, stubbed: not needed to read a .ply")
+
+    sys.modules["simple_knn._C"].distCUDA2 = no_cuda_knn  # type: ignore[attr-defined]
+    sys.path.insert(0, str(src))
+    from scene.dataset_readers import CameraInfo
+    from scene.gaussian_model import GaussianModel
+    from utils.camera_utils import camera_to_JSON
+    from utils.graphics_utils import focal2fov
+
+    model = GaussianModel(sidecar["sh_degree"])
+    tensor = torch.tensor
+
+    def on_cpu(*args: Any, **kwargs: Any) -> torch.Tensor:
+        if kwargs.get("device") == "cuda" and not torch.cuda.is_available():
+            kwargs["device"] = "cpu"
+        return tensor(*args, **kwargs)
+
+    with mock.patch.object(torch, "tensor", on_cpu):
+        model.load_ply(str(bundle / "gaussians.ply"))
+    g = gauss.map(lambda t: t[0])
+    with torch.no_grad():
+        diffs = {
+            "means": maxabs(model.get_xyz, g.means),
+            "opacities": maxabs(model.get_opacity[:, 0], g.opacities),
+            "scales": maxabs(model.get_scaling, g.scales),
+            "rotations": maxabs(model.get_rotation, g.rotations / g.rotations.norm(dim=-1, keepdim=True)),
+            "sh": maxabs(model.get_features, g.sh),
+        }
+    report(
+        max(diffs.values()) < 1e-5 and model.get_xyz.shape[0] == N_GAUSSIANS,
+        "3dgs load_ply",
+        f"{model.get_xyz.shape[0]} Gaussians, SH degree {model.max_sh_degree}; max |d| vs ours: "
+        + ", ".join(f"{k} {v:.1e}" for k, v in diffs.items()),
+    )
+
+    theirs = []
+    for i in range(len(ours)):
+        w2c = cam.world_to_cam_from_cam_to_world(ours.cam_to_world[i])
+        k = cam.intrinsics_pixels(ours.intrinsics_norm[i], W, H)
+        info = CameraInfo(
+            uid=i,
+            R=np.transpose(w2c[:3, :3]),
+            T=np.array(w2c[:3, 3]),
+            FovY=focal2fov(k[1, 1], H),
+            FovX=focal2fov(k[0, 0], W),
+            depth_params=None,
+            image_path="",
+            image_name=names[i],
+            depth_path="",
+            width=W,
+            height=H,
+            is_test=False,
+        )
+        theirs.append(camera_to_JSON(i, info))
+    mine = json.loads((bundle / "cameras.json").read_text())
+    keys_ok = [list(a) for a in mine] == [list(b) for b in theirs]
+    same = all(a[x] == b[x] for a, b in zip(mine, theirs) for x in ("id", "img_name", "width", "height"))
+    d = {x: max(maxabs(a[x], b[x]) for a, b in zip(mine, theirs)) for x in ("position", "rotation", "fx", "fy")}
+    report(
+        keys_ok and same and len(mine) == len(theirs) and max(d.values()) < 1e-6,
+        "3dgs cameras.json",
+        f"{len(mine)} cameras, keys {'in the same order' if keys_ok else 'DIFFER'} ({', '.join(theirs[0])}), "
+        f"id/img_name/width/height {'equal' if same else 'DIFFER'}; max |d| "
+        + ", ".join(f"{k} {v:.1e}" for k, v in d.items()),
+    )
+
+
+# ---------------------------------------------------------------- nerfstudio
+
+
+def check_nerfstudio(src: Path, work: Path, ours: PosedScene) -> None:
+    # nerfstudio's own deprecation warnings under our torch (torch.jit.script; a list used as a
+    # multi-dimensional index in cameras.py, still read the old way): its results are checked below
+    warnings.filterwarnings("ignore", message=".*torch.jit.script. is deprecated")
+    warnings.filterwarnings("ignore", message="Using a non-tuple sequence for multidimensional indexing")
+    sys.path.insert(0, str(src))
+    from nerfstudio.data.dataparsers.nerfstudio_dataparser import (
+        NerfstudioDataParserConfig,
+    )
+
+    folder = work / "ns" / ours.scene_id
+    parser = NerfstudioDataParserConfig(data=folder, load_3D_points=True).setup()
+    out = io.StringIO()
+    with contextlib.redirect_stdout(out):
+        splits = {split: parser.get_dataparser_outputs(split=split) for split in ("train", "val")}
+    frame_of = {f"frame_{int(f):05d}": i for i, f in enumerate(ours.source_frame)}
+    rows = {s: [frame_of[Path(p).stem] for p in o.image_filenames] for s, o in splits.items()}
+    every = sorted(r for s in rows.values() for r in s) == list(range(len(ours)))
+    d_k, sizes_ok = 0.0, True
+    for s, o in splits.items():
+        c = o.cameras
+        k = cam.intrinsics_pixels(ours.intrinsics_norm[rows[s]], W, H)
+        theirs = torch.stack([c.fx[:, 0], c.fy[:, 0], c.cx[:, 0], c.cy[:, 0]], -1).double().numpy()
+        d_k = max(d_k, maxabs(theirs, k[:, [0, 1, 0, 1], [0, 1, 2, 2]]))
+        sizes_ok &= bool((c.width == W).all() and (c.height == H).all())
+        sizes_ok &= all(Image.open(p).size == (W, H) for p in o.image_filenames)
+    report(
+        every and sizes_ok and d_k < 1e-3,
+        "nerfstudio dataparser",
+        f"train {len(rows['train'])} + val {len(rows['val'])} frames ({'all' if every else 'NOT all'} of "
+        f"{len(ours)}), camera type {splits['train'].cameras.camera_type[0].item()} (perspective = 1), "
+        f"images {W}x{H} {'found' if sizes_ok else 'WRONG'}, fx fy cx cy max |d| {d_k:.1e} px",
+    )
+
+    o = splits["train"]
+    pts_ns = o.metadata.get("points3D_xyz")
+    pts, _ = read_points_ply(work / "posed" / "clip" / ours.meta["points3d"])
+    if pts_ns is None:
+        report(False, "nerfstudio ply_file_path", "no points3D_xyz in the dataparser outputs")
+        return
+    tf = o.dataparser_transform.double().numpy()
+    mapped = (pts @ tf[:, :3].T + tf[:, 3]) * o.dataparser_scale
+    d_pts = maxabs(pts_ns, mapped)
+    report(
+        len(pts_ns) == len(pts) and d_pts < 1e-4,
+        "nerfstudio ply_file_path",
+        f"{len(pts_ns)} points read (ours {len(pts)}); vs ours through its dataparser transform and scale "
+        f"{o.dataparser_scale:.4f}: max |d| {d_pts:.1e}",
+    )
+
+    # rays its cameras cast through the pixels where our cameras project our points
+    errs = []
+    for s, o in splits.items():
+        for j, row in enumerate(rows[s]):
+            uv, depth = cam.project_points(pts, ours.cam_to_world[row], ours.intrinsics_norm[row], W, H)
+            seen = (depth > 0) & (uv[:, 0] > 0) & (uv[:, 0] < W) & (uv[:, 1] > 0) & (uv[:, 1] < H)
+            coords = torch.from_numpy(uv[seen][:, ::-1].copy()).float()  # (y, x)
+            rays = o.cameras.generate_rays(camera_indices=torch.full((len(coords), 1), j), coords=coords)
+            target = o.metadata["points3D_xyz"][torch.from_numpy(seen)].double()
+            to_pt = target - rays.origins.double()
+            dirs = rays.directions.double()
+            along = (to_pt * dirs).sum(-1)
+            off = torch.linalg.norm(torch.linalg.cross(to_pt, dirs, dim=-1), dim=-1) / along
+            errs.append((off * float(o.cameras.fx[j, 0])).numpy())  # tangent of the angle x focal length = px
+            errs[-1][along.numpy() <= 0] = np.inf
+    e = np.concatenate(errs)
+    report(
+        len(e) > 1000 and float(e.max()) < 0.01,
+        "nerfstudio projection",
+        f"{len(e)} point-in-view pairs over {len(ours)} cameras: its ray through our pixel misses the point by "
+        f"median {np.median(e):.1e} px, max {e.max():.1e} px",
+    )
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--mvsplat", type=Path, help="checkout of donydchen/mvsplat")
+    ap.add_argument("--gaussian-splatting", type=Path, help="checkout of graphdeco-inria/gaussian-splatting")
+    ap.add_argument("--nerfstudio", type=Path, help="checkout of nerfstudio-project/nerfstudio")
+    ap.add_argument("--work", type=Path, help="keep (and reuse) our outputs here instead of a temporary folder")
+    args = ap.parse_args()
+    with contextlib.ExitStack() as stack:
+        work = args.work or Path(stack.enter_context(tempfile.TemporaryDirectory(prefix="seeu-peers-")))
+        work.mkdir(parents=True, exist_ok=True)
+        make_outputs(work)
+        ours = our_scene(work)
+        print(f"ours: {work} scene {ours.scene_id}, {len(ours)} frames {W}x{H}", flush=True)
+        for name, path, check in (
+            ("mvsplat", args.mvsplat, check_mvsplat),
+            ("gaussian-splatting", args.gaussian_splatting, check_gaussian_splatting),
+            ("nerfstudio", args.nerfstudio, check_nerfstudio),
+        ):
+            if path is None or not path.is_dir():
+                print(
+                    f"SKIP {name}: no checkout ({'not a folder: ' + str(path) if path else 'no --' + name + ' DIR'})",
+                    flush=True,
+                )
+                continue
+            check(path, work, ours)
+    print(f"{sum(RESULTS)} passed, {len(RESULTS) - sum(RESULTS)} failed")
+    return 0 if all(RESULTS) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
