@@ -1,7 +1,8 @@
-"""Our exports read by the peers' own code: MVSplat's RE10K dataset, the 3DGS (INRIA) `.ply` loader and
-`cameras.json` writer, nerfstudio's dataparser. Not a test (it needs the peers' sources, fetched by
-hand), so it is not run by CI; the tests re-implement these readers (tests/test_peer_ready.py,
-test_export.py, test_ply.py, test_cameras_json.py) and this script checks them against the real ones.
+"""Our exports read by the peers' own code: pixelSplat's and MVSplat's RE10K datasets, the 3DGS (INRIA)
+`.ply` loader and `cameras.json` writer, nerfstudio's dataparser. Not a test (it needs the peers'
+sources, fetched by hand), so it is not run by CI; the tests re-implement these readers
+(tests/test_peer_ready.py, test_export.py, test_ply.py, test_cameras_json.py) and this script checks
+them against the real ones.
 
 Our side, made in a temporary folder (or `--work DIR`, kept and reused) with our own CLI and writers:
 `seeu synth` (24 frames, 640x360) -> `seeu ingest` -> `seeu export pixelsplat` (stages test and train)
@@ -12,13 +13,17 @@ writes). "Ours" below is the posed dataset as our reader (`PosedDataset`) gives 
 Checks, one line each with PASS/FAIL and the figures (exit 1 on any FAIL, 0 otherwise; a peer whose
 folder is not given is skipped with a line):
 
-* mvsplat: `src.dataset.get_dataset` (DatasetRE10k, torch.load of our chunk as it is written, torch's
-  default `weights_only`) at stage "test" with the evaluation view sampler (an index naming the
-  scene: context first/last frame, every frame a target) and `image_shape` 360x640 (the crop shim is
-  then the identity): one example per scene, not skipped, 360x640 images, and the extrinsics /
-  intrinsics equal ours; then the settings of MVSplat's `+experiment=re10k` (config/dataset/re10k.yaml,
-  view_sampler/bounded.yaml, experiment/re10k.yaml's dataset block; read from the checkout) at stage
-  "train": it yields examples (3x256x256).
+* mvsplat, pixelsplat (one function, `check_re10k`: MVSplat's `src/dataset` is pixelSplat's with options
+  added; `Re10kPeer` holds what differs): `src.dataset.get_dataset` (DatasetRE10k, torch.load of our chunk
+  as it is written, torch's default `weights_only`) with the peer's `+experiment=re10k` dataset settings
+  (config/dataset/re10k.yaml, view_sampler/bounded.yaml, experiment/re10k.yaml's dataset block; read
+  from the checkout with OmegaConf, as Hydra reads them) at stage "test" with the evaluation view
+  sampler (an index naming the scene: context first/last frame, every frame a target) and `image_shape`
+  360x640 (the crop shim is then the identity): one example per scene, not skipped, 360x640 images, and
+  the extrinsics / intrinsics equal ours (pixelSplat's `make_baseline_1`, off in MVSplat's experiment:
+  translations divided by the distance between the two context cameras); then the same settings at
+  stage "train" with the bounded sampler and the experiment's 256x256: it yields examples (3x256x256).
+  The two checkouts both name their package `src`: each is imported alone and forgotten afterwards.
 * gaussian-splatting: `scene.gaussian_model.GaussianModel(sh_degree).load_ply` on our `gaussians.ply`
   gives back our means, opacities, scales, rotations and SH; `utils.camera_utils.camera_to_JSON` of the
   same cameras, as its `readColmapCameras` builds them (R = world-to-camera rotation transposed, T = its
@@ -31,28 +36,34 @@ folder is not given is skipped with a line):
 
 Stubbed, and why (nothing that reads data): MVSplat's view-sampler package imports the evaluation
 index generator, which imports `pytorch_lightning` (LightningModule, for its training-time index
-generation) and `skvideo.io` (video writing) -- both replaced by empty modules. The 3DGS
-`scene.gaussian_model` imports the CUDA extension `simple_knn._C` (`distCUDA2`, used only when a model
-is made from a point cloud) -- replaced by an empty module; its optional `diff_gaussian_rasterization`
-import is in the peer's own try/except. Its `load_ply` puts the tensors on device "cuda": without a GPU
-`torch.tensor(..., device="cuda")` is redirected to the CPU for that call (values untouched).
+generation) and `skvideo.io` (video writing) -- both replaced by empty modules; pixelSplat's imports
+the same generator, which imports `lightning.pytorch` (LightningModule) -- replaced likewise. Not
+stubbed: pixelSplat's evaluation sampler reads `num_context_views` from its global config
+(`src.global_cfg`, set by its `main` from the Hydra config): set here the same way (an OmegaConf
+config holding the dataset block). The 3DGS `scene.gaussian_model` imports the CUDA extension
+`simple_knn._C` (`distCUDA2`, used only when a model is made from a point cloud) -- replaced by an
+empty module; its optional `diff_gaussian_rasterization` import is in the peer's own try/except. Its
+`load_ply` puts the tensors on device "cuda": without a GPU `torch.tensor(..., device="cuda")` is
+redirected to the CPU for that call (values untouched).
 
 How to run (Python 3.11; the peers' sources as checked out below, their code as it is):
 
-    # sources: the GitHub repositories donydchen/mvsplat, graphdeco-inria/gaussian-splatting (or a fork
-    # holding its commits: check out the upstream commit) and nerfstudio-project/nerfstudio, each checked
-    # out (git clone / git archive) into /tmp/peers/{mvsplat,gaussian-splatting,nerfstudio}; the commits
-    # used for RESULTS.md are listed there
+    # sources: the GitHub repositories donydchen/mvsplat, dcharatan/pixelsplat,
+    # graphdeco-inria/gaussian-splatting (or a fork holding its commits: check out the upstream commit) and
+    # nerfstudio-project/nerfstudio, each checked out (git clone / git archive) into
+    # /tmp/peers/{mvsplat,pixelsplat,gaussian-splatting,nerfstudio}; the commits used for RESULTS.md are
+    # listed there
     # a virtualenv that sees ours, plus what the peers' imports need (open3d-cpu is the one large wheel)
     python -m venv /tmp/venv-peers
     S=$(.venv/bin/python -c "import site; print(site.getsitepackages()[0])")
     echo "import site; site.addsitedir('$S')" > /tmp/venv-peers/lib/python3.11/site-packages/seeu_venv.pth
-    /tmp/venv-peers/bin/pip install jaxtyping einops dacite                        # MVSplat
+    /tmp/venv-peers/bin/pip install jaxtyping einops dacite omegaconf              # pixelSplat, MVSplat
     /tmp/venv-peers/bin/pip install --no-deps viser==1.0.0 msgspec websockets tyro docstring_parser \\
         open3d-cpu plotly narwhals dash janus                                      # nerfstudio (+ open3d)
     apt-get install libusb-1.0-0                                                   # open3d's shared library
     PYTHONPATH=. /tmp/venv-peers/bin/python benchmarks/peer_loaders.py \\
-        --mvsplat /tmp/peers/mvsplat --gaussian-splatting /tmp/peers/gaussian-splatting \\
+        --mvsplat /tmp/peers/mvsplat --pixelsplat /tmp/peers/pixelsplat \\
+        --gaussian-splatting /tmp/peers/gaussian-splatting \\
         --nerfstudio /tmp/peers/nerfstudio [--work /tmp/peer-work]
 
 (`--no-deps` because nerfstudio's and viser's pins, e.g. opencv-python 4.10 and rich < 15, conflict
@@ -63,12 +74,15 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import functools
 import io
 import json
 import sys
 import tempfile
 import types
 import warnings
+from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from unittest import mock
@@ -144,16 +158,59 @@ def maxabs(a: Any, b: Any) -> float:
     return float(np.abs(np.asarray(a, np.float64) - np.asarray(b, np.float64)).max())
 
 
-# ---------------------------------------------------------------- MVSplat
+# ---------------------------------------------------------------- pixelSplat and MVSplat (RE10K)
 
 
-def check_mvsplat(src: Path, work: Path, ours: PosedScene) -> None:
-    import yaml
+@dataclass(frozen=True)
+class Re10kPeer:
+    """What differs between the two checkouts' RE10K reading (MVSplat's `src/dataset` is pixelSplat's with
+    options added): the modules stubbed (unrelated to reading: see the module docstring) and whether its
+    evaluation sampler reads `num_context_views` from the global config its `main` sets."""
 
-    # unrelated to reading: see the module docstring
-    stub_modules(["pytorch_lightning", "skvideo", "skvideo.io"])
-    sys.modules["pytorch_lightning"].LightningModule = object  # type: ignore[attr-defined]
+    name: str
+    stubs: dict[str, dict[str, Any]]
+    global_cfg: bool
+
+
+MVSPLAT = Re10kPeer(
+    "mvsplat", {"pytorch_lightning": {"LightningModule": object}, "skvideo": {}, "skvideo.io": {}}, False
+)
+PIXELSPLAT = Re10kPeer("pixelsplat", {"lightning": {}, "lightning.pytorch": {"LightningModule": object}}, True)
+
+
+@contextlib.contextmanager
+def peer_src(src: Path) -> Iterator[None]:
+    """The checkout's top-level `src` package (both repositories name it so): imported from `src` alone,
+    forgotten afterwards so that the other checkout's `src` is not mixed in."""
+
+    def forget() -> None:
+        for name in [m for m in sys.modules if m == "src" or m.startswith("src.")]:
+            del sys.modules[name]
+
+    forget()
     sys.path.insert(0, str(src))
+    try:
+        yield
+    finally:
+        sys.path.remove(str(src))
+        forget()
+
+
+def check_re10k(peer: Re10kPeer, src: Path, work: Path, ours: PosedScene) -> None:
+    with peer_src(src):
+        read_re10k(peer, src, work, ours)
+
+
+def read_re10k(peer: Re10kPeer, src: Path, work: Path, ours: PosedScene) -> None:
+    from omegaconf import OmegaConf
+
+    def conf(*parts: str) -> dict[str, Any]:  # a config file as Hydra reads it (YAML 1.2 numbers: 1e-3)
+        return OmegaConf.to_container(OmegaConf.load(src.joinpath("config", *parts)))  # type: ignore[return-value]
+
+    for module, attrs in peer.stubs.items():  # unrelated to reading: see the module docstring
+        stub_modules([module])
+        for attr, value in attrs.items():
+            setattr(sys.modules[module], attr, value)
     from src.dataset import get_dataset
     from src.dataset.dataset_re10k import DatasetRE10kCfg
     from src.dataset.view_sampler.view_sampler_bounded import (
@@ -163,34 +220,42 @@ def check_mvsplat(src: Path, work: Path, ours: PosedScene) -> None:
         ViewSamplerEvaluationCfg,
     )
 
-    conf = src / "config"
-    dataset = yaml.safe_load((conf / "dataset" / "re10k.yaml").read_text())
+    dataset = conf("dataset", "re10k.yaml")
     dataset.pop("defaults")
-    dataset.update(yaml.safe_load((conf / "experiment" / "re10k.yaml").read_text())["dataset"])
-    bounded = yaml.safe_load((conf / "dataset" / "view_sampler" / "bounded.yaml").read_text())
+    dataset.update(conf("experiment", "re10k.yaml")["dataset"])
+    bounded = conf("dataset", "view_sampler", "bounded.yaml")
     dataset.update(roots=[work / "ps"], overfit_to_scene=None)
     n = len(ours)
-    index = work / "mvsplat_eval_index.json"
+    index = work / "re10k_eval_index.json"
     key = json.loads((work / "ps" / "test" / "index.json").read_text())
     index.write_text(json.dumps({k: {"context": [0, n - 1], "target": list(range(n))} for k in key}))
 
-    def examples(stage: str, cfg: Any) -> tuple[list[dict], str]:
+    def examples(stage: str, cfg: Any, sampler: dict[str, Any]) -> tuple[list[dict], str]:
+        if peer.global_cfg:  # as its main does with the composed config (here the dataset block)
+            from src.global_cfg import set_cfg
+
+            set_cfg(
+                OmegaConf.create(
+                    {"dataset": {**dataset, "roots": [str(r) for r in dataset["roots"]], "view_sampler": sampler}}
+                )
+            )
         out = io.StringIO()
         with contextlib.redirect_stdout(out):
             got = list(get_dataset(cfg, stage, None))
         return got, out.getvalue().strip()
 
     # stage test: evaluation sampler, native size (crop shim = identity), every frame a target
+    evaluation = {"name": "evaluation", "index_path": str(index), "num_context_views": 2}
     cfg = DatasetRE10kCfg(
         **{**dataset, "image_shape": [H, W]},
-        view_sampler=ViewSamplerEvaluationCfg(name="evaluation", index_path=index, num_context_views=2),
+        view_sampler=ViewSamplerEvaluationCfg(**{**evaluation, "index_path": index}),
     )
-    got, printed = examples("test", cfg)
+    got, printed = examples("test", cfg, evaluation)
     shapes = [tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")]
     ok = len(got) == len(key) and shapes == [(2, 3, H, W), (n, 3, H, W)] * len(key)
     report(
         ok,
-        "mvsplat test stage",
+        f"{peer.name} test stage",
         f"{len(got)} example(s) of {len(key)} scene(s), images {shapes}"
         + (f"; printed: {printed!r}" if printed else ""),
     )
@@ -198,32 +263,40 @@ def check_mvsplat(src: Path, work: Path, ours: PosedScene) -> None:
         ex = got[0]["target"]
         ext = ex["extrinsics"].double().numpy()
         intr = ex["intrinsics"].double().numpy()
+        centres = ours.cam_to_world[:, :3, 3]
+        # make_baseline_1: its world scaled so that the two context cameras (frames 0 and n-1) are 1 apart
+        baseline = float(np.linalg.norm(centres[0] - centres[n - 1])) if dataset["make_baseline_1"] else 1.0
         d_rot = maxabs(ext[:, :3, :3], ours.cam_to_world[:, :3, :3])
-        d_pos = maxabs(ext[:, :3, 3], ours.cam_to_world[:, :3, 3])
+        d_pos = maxabs(ext[:, :3, 3], centres / baseline)
         d_k = maxabs(intr, cam.intrinsics_norm_matrix(ours.intrinsics_norm))
         report(
             max(d_rot, d_pos) < 1e-4 and d_k < 1e-6,
-            "mvsplat cameras",
+            f"{peer.name} cameras",
             f"{len(ext)} cameras vs ours: max |d| rotation {d_rot:.2e}, camera centre {d_pos:.2e} "
-            f"(scene extent {np.ptp(ours.cam_to_world[:, :3, 3], 0).max():.2f}), normalised K {d_k:.2e}; "
-            f"near/far {float(ex['near'][0]):g}/{float(ex['far'][0]):g} (ours {ours.near:g}/{ours.far:g})",
+            f"(scene extent {np.ptp(centres, 0).max():.2f}"
+            + (f"; ours / {baseline:.4f}, the context cameras' distance: make_baseline_1" if baseline != 1.0 else "")
+            + f"), normalised K {d_k:.2e}; near/far {float(ex['near'][0]):g}/{float(ex['far'][0]):g} (ours {ours.near:g}/{ours.far:g})",
         )
         pixels = np.stack([np.asarray(Image.open(io.BytesIO(bytes(b))).convert("RGB")) for b in ours.images])
         d_px = maxabs(ex["image"].permute(0, 2, 3, 1).numpy() * 255.0, pixels)
-        report(d_px <= 1.0 + 1e-3, "mvsplat images", f"vs our decode of the same JPEGs: max |d| {d_px:.3f} / 255")
+        report(
+            d_px <= 1.0 + 1e-3,
+            f"{peer.name} images",
+            f"vs our decode of the same JPEGs: max |d| {d_px:.3f} / 255",
+        )
 
-    # stage train with MVSplat's own +experiment=re10k dataset settings (bounded sampler, 256x256, augment)
+    # stage train with the peer's own +experiment=re10k dataset settings (bounded sampler, 256x256, augment)
     torch.manual_seed(0)
     cfg = DatasetRE10kCfg(**dataset, view_sampler=ViewSamplerBoundedCfg(**bounded))
     got = []
     for _ in range(4):
-        more, printed = examples("train", cfg)
+        more, printed = examples("train", cfg, bounded)
         got += more
     shapes = sorted({tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")})
     ok = len(got) == 4 and shapes == [(1, 3, 256, 256), (2, 3, 256, 256)]
     report(
         ok,
-        "mvsplat train stage (experiment re10k: bounded sampler, 256x256, augment)",
+        f"{peer.name} train stage (experiment re10k: bounded sampler, 256x256, augment)",
         f"{len(got)} example(s) in 4 passes over 1 scene, images {shapes}"
         + (f"; printed: {printed!r}" if printed else ""),
     )
@@ -389,6 +462,7 @@ def check_nerfstudio(src: Path, work: Path, ours: PosedScene) -> None:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mvsplat", type=Path, help="checkout of donydchen/mvsplat")
+    ap.add_argument("--pixelsplat", type=Path, help="checkout of dcharatan/pixelsplat")
     ap.add_argument("--gaussian-splatting", type=Path, help="checkout of graphdeco-inria/gaussian-splatting")
     ap.add_argument("--nerfstudio", type=Path, help="checkout of nerfstudio-project/nerfstudio")
     ap.add_argument("--work", type=Path, help="keep (and reuse) our outputs here instead of a temporary folder")
@@ -400,7 +474,8 @@ def main() -> int:
         ours = our_scene(work)
         print(f"ours: {work} scene {ours.scene_id}, {len(ours)} frames {W}x{H}", flush=True)
         for name, path, check in (
-            ("mvsplat", args.mvsplat, check_mvsplat),
+            ("mvsplat", args.mvsplat, functools.partial(check_re10k, MVSPLAT)),
+            ("pixelsplat", args.pixelsplat, functools.partial(check_re10k, PIXELSPLAT)),
             ("gaussian-splatting", args.gaussian_splatting, check_gaussian_splatting),
             ("nerfstudio", args.nerfstudio, check_nerfstudio),
         ):
