@@ -71,7 +71,6 @@ class IngestConfig:
     threads: int = -1
     map_threads: int = 1
     keyframe_motion: float = 20.0
-    sift_peak_threshold: float = 0.02 / 3
     final_ba_loss: str = "soft_l1"
     final_ba_loss_scale: float = 0.5
     # posed chunks and their scale
@@ -150,7 +149,6 @@ class IngestConfig:
             sfm_check=self.sfm_check,
             map_threads=self.map_threads,
             keyframe_motion=self.keyframe_motion,
-            sift_peak_threshold=self.sift_peak_threshold,
             final_ba_loss=self.final_ba_loss,
             final_ba_loss_scale=self.final_ba_loss_scale,
         )

@@ -107,9 +107,6 @@ class SfmConfig:
     # of them; the other frames are registered into the model afterwards. 0: map every frame.
     keyframe_motion: float = 20.0
     min_keyframes: int = 30
-    # SIFT's difference-of-Gaussians peak threshold (COLMAP's default 0.02 / 3): lower keeps weaker,
-    # more numerous features (still at most max_features per frame).
-    sift_peak_threshold: float = 0.02 / 3
     # A last global bundle adjustment of every kept model after mapping and registration, with this
     # robust loss (none, soft_l1, cauchy, huber) of scale final_ba_loss_scale pixels; see `final_bundle_adjustment`.
     final_ba_loss: str = "soft_l1"
@@ -134,8 +131,6 @@ class SfmConfig:
             raise SeeUError(f"--mapper must be one of {', '.join(MAPPERS)}, got {self.mapper!r}")
         if self.features not in FEATURES:
             raise SeeUError(f"--features must be one of {', '.join(FEATURES)}, got {self.features!r}")
-        if not (self.sift_peak_threshold > 0 and math.isfinite(self.sift_peak_threshold)):
-            raise SeeUError(f"--sift-peak-threshold must be a finite number > 0, got {self.sift_peak_threshold}")
         if self.final_ba_loss not in FINAL_BA_LOSSES:
             raise SeeUError(f"--final-ba-loss must be one of {', '.join(FINAL_BA_LOSSES)}, got {self.final_ba_loss!r}")
         if not (self.final_ba_loss_scale > 0 and math.isfinite(self.final_ba_loss_scale)):
@@ -584,7 +579,6 @@ def _child(job_path: str) -> int:
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
     extraction.sift.max_num_features = cfg.max_features
-    extraction.sift.peak_threshold = cfg.sift_peak_threshold
     extraction.num_threads = cfg.threads
     extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
     pycolmap.extract_features(

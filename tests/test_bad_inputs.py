@@ -182,9 +182,6 @@ case("ingest-keyframe-motion-nan", text="--keyframe-motion")(
 case("ingest-final-ba-loss-scale-zero", text="--final-ba-loss-scale")(
     lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--final-ba-loss-scale", "0"]
 )
-case("ingest-sift-peak-threshold-nan", text="--sift-peak-threshold")(
-    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--sift-peak-threshold", "nan"]
-)
 
 # ------------------------------------------------------------------------------------------ import
 case("import-pixelsplat-missing-dir")(

@@ -118,13 +118,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
     p.add_argument(
-        "--sift-peak-threshold",
-        type=float,
-        default=0.02 / 3,
-        metavar="T",
-        help="SIFT difference-of-Gaussians peak threshold; lower finds more, weaker features (default 0.00667, COLMAP's)",
-    )
-    p.add_argument(
         "--final-ba-loss",
         choices=["none", "soft_l1", "cauchy", "huber"],
         default="soft_l1",
@@ -230,7 +223,6 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         map_threads=args.map_threads,
         keyframe_motion=args.keyframe_motion,
-        sift_peak_threshold=args.sift_peak_threshold,
         final_ba_loss=args.final_ba_loss,
         final_ba_loss_scale=args.final_ba_loss_scale,
         force=args.force,
