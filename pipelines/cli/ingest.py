@@ -121,7 +121,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         "--final-ba-loss",
         choices=["none", "soft_l1", "cauchy", "huber"],
         default="soft_l1",
-        help="a last global bundle adjustment of each model after mapping and registration, with this robust "
+        help="a last global bundle adjustment of each model after mapping (a video: of its keyframes), with this robust "
         "loss, so that the few large SIFT residuals pull the camera less (default soft_l1; none = off)",
     )
     p.add_argument(
