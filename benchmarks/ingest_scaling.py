@@ -7,7 +7,7 @@ OUT/clips/; then, for each mapper (`--mapper incremental` and `--mapper global`)
 
 - wall seconds per stage: decode + select, feature extraction, matching, the first mapping run
   (with the keyframe choice), the solution check's further mapping run(s), registering the frames
-  that are not keyframes, undistortion, the rest of the SfM child (start-up,
+  that are not keyframes, the final robust bundle adjustment, undistortion, the rest of the SfM child (start-up,
   database reads, model export), chunk planning + writing, and the total; CPU seconds of the whole
   run (this process and the SfM child) and of the child's stages;
 - accuracy against the clip's ground truth: % of frames registered, camera-centre RMSE (after a
@@ -49,6 +49,7 @@ STAGES = (
     ("map_first", "map (1st run)"),
     ("map_check", "map (check, retries)"),
     ("register", "register"),
+    ("final_ba", "final BA"),
     ("undistort", "undistort"),
     ("sfm_other", "SfM other"),
     ("write", "chunks+write"),
@@ -81,7 +82,7 @@ def stage_seconds(report: dict) -> dict[str, float]:
     attempts = report["sfm"].get("mapping_attempts", [])
     map_all = sfm.get("map_s", float("nan"))
     first = attempts[0].get("seconds", float("nan")) if attempts else float("nan")
-    inside = sum(sfm.get(k, 0.0) for k in ("extract_s", "match_s", "map_s", "register_s", "undistort_s"))
+    inside = sum(sfm.get(k, 0.0) for k in ("extract_s", "match_s", "map_s", "register_s", "final_ba_s", "undistort_s"))
     return {
         "decode": t.get("decode", 0.0) + t.get("select", 0.0),
         "extract": sfm.get("extract_s", float("nan")),
@@ -89,6 +90,7 @@ def stage_seconds(report: dict) -> dict[str, float]:
         "map_first": first,
         "map_check": map_all - first,
         "register": sfm.get("register_s", 0.0),
+        "final_ba": sfm.get("final_ba_s", 0.0),
         "undistort": sfm.get("undistort_s", 0.0),
         "sfm_other": t["sfm"] - inside,
         "write": t.get("chunks", 0.0) + t.get("write", 0.0),

@@ -71,6 +71,8 @@ class IngestConfig:
     threads: int = -1
     map_threads: int = 1
     keyframe_motion: float = 20.0
+    final_ba_loss: str = "soft_l1"
+    final_ba_loss_scale: float = 0.5
     # posed chunks and their scale
     min_chunk_frames: int = 10
     scale: str = "re10k"
@@ -147,6 +149,8 @@ class IngestConfig:
             sfm_check=self.sfm_check,
             map_threads=self.map_threads,
             keyframe_motion=self.keyframe_motion,
+            final_ba_loss=self.final_ba_loss,
+            final_ba_loss_scale=self.final_ba_loss_scale,
         )
 
 
@@ -431,6 +435,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             "mapper": sfm_result.get("mapper"),
             "solution_check": {**check, "state": check_state},
             "keyframes": sfm_result.get("keyframes"),
+            "final_ba": sfm_result.get("final_ba"),
         },
         "chunks": [
             {

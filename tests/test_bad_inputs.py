@@ -179,6 +179,9 @@ case("ingest-keyframe-motion-negative", text="--keyframe-motion")(
 case("ingest-keyframe-motion-nan", text="--keyframe-motion")(
     lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--keyframe-motion", "nan"]
 )
+case("ingest-final-ba-loss-scale-zero", text="--final-ba-loss-scale")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--final-ba-loss-scale", "0"]
+)
 
 # ------------------------------------------------------------------------------------------ import
 case("import-pixelsplat-missing-dir")(

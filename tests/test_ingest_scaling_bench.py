@@ -36,10 +36,17 @@ def test_growth_exponent_needs_two_frame_counts_and_positive_times():
 
 
 def _report(map_runs: list[float], undistort: float | None = 0.4) -> dict:
-    sfm = {"extract_s": 10.0, "match_s": 8.0, "map_s": sum(map_runs) + 0.3, "register_s": 0.7, "export_s": 0.2}
+    sfm = {
+        "extract_s": 10.0,
+        "match_s": 8.0,
+        "map_s": sum(map_runs) + 0.3,
+        "register_s": 0.7,
+        "final_ba_s": 0.6,
+        "export_s": 0.2,
+    }
     if undistort is not None:
         sfm["undistort_s"] = undistort
-    inside = 10.0 + 8.0 + sfm["map_s"] + 0.7 + (undistort or 0.0)
+    inside = 10.0 + 8.0 + sfm["map_s"] + 0.7 + 0.6 + (undistort or 0.0)
     return {
         "timings_s": {
             "decode": 2.0,
@@ -61,7 +68,7 @@ def test_stage_seconds_split_the_sfm_stage_and_add_up_to_the_run():
     assert s["decode"] == pytest.approx(2.1)
     assert s["map_first"] == 20.0
     assert s["map_check"] == pytest.approx(22.3)  # the second run + the agreement test around it
-    assert s["undistort"] == 0.4 and s["register"] == 0.7
+    assert s["undistort"] == 0.4 and s["register"] == 0.7 and s["final_ba"] == 0.6
     assert s["sfm_other"] == pytest.approx(1.3 + 0.2)  # start-up and database reads, model export
     assert s["write"] == pytest.approx(0.95)
     assert sum(s[k] for k, _ in STAGES) == pytest.approx(s["total"])

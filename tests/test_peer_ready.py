@@ -1,8 +1,8 @@
 """A user's video made ready for the peers' RE10K loaders by default (issue 15): `seeu synth` ->
 `seeu ingest` (default options) -> `seeu export pixelsplat` gives 360x640 frames whose 18-number
 cameras put ground-truth 3-D points where the ground-truth camera puts them: within 0.05 px for the
-layout itself (exact cameras), within SfM's own precision end to end (0.066 px median on this clip;
-0.05 px is below what COLMAP reaches on it, see the first test)."""
+layout itself (exact cameras), and within 0.05 px median end to end (0.044 px on this clip, p95 0.123
+px, since ingest's last bundle adjustment uses a robust loss; 0.066 px without it, see the first test)."""
 
 from __future__ import annotations
 
@@ -79,20 +79,23 @@ def _projection_errors(pts_gt, uv_gt, inside, sim, project) -> np.ndarray:
 
 def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(exported):
     """Default options end to end. The frames are exactly what the loaders accept; ground-truth points
-    through the exported 18 numbers land where the ground-truth camera puts them, to SfM's precision.
+    through the exported 18 numbers land within 0.05 px (median) of where the ground-truth camera puts them.
 
     The world frame SfM leaves free (a similarity) is fitted on every other ground-truth point by pixel
-    error (`fit_projection_similarity`) and the error is measured on the others: this clip 0.066 px
-    median, p95 0.17 px. The frame fitted to the camera centres and orientations (the earlier measure,
-    still checked) adds its own error: 0.109 px. Not 0.05 px, and not a convention error: COLMAP fed the
-    exact projections of the same 3,715 tracks is exact (0.0003 px); with Gaussian noise of the size
-    SIFT's residuals have here (0.50 px per coordinate) it gives 0.044-0.148 px median, p95 0.11-0.27
-    px, over 8 draws; COLMAP's own covariance puts this 24-frame clip's focal length at +-0.15 % (1
-    sigma; correlation with the radial k 0.95). `benchmarks/projection_floor.py`, RESULTS.md. The
-    pixel-fitted bounds sit above that spread, so a consistent solution at SIFT's precision passes (the
-    centre-frame measure is printed, not asserted: one of the 8 draws gave 0.419 px against the earlier
-    0.4 px bound); the focal length scaled by 1.002 after SfM fails them (0.25 px median), as does any
-    layout error (next test)."""
+    error (`fit_projection_similarity`) and the error is measured on the others: this clip 0.044 px
+    median, p95 0.123 px (the frame fitted to the camera centres and orientations, the earlier measure,
+    adds its own error; printed, not asserted). What gets it under 0.05 px is ingest's last bundle
+    adjustment with a soft-L1 loss at 0.5 px (`SfmConfig.final_ba_loss`): COLMAP's own adjustments
+    use a squared loss, and the 9 % of SIFT's observations above 1 px from the truth carry 62 % of
+    its squared error. Without it: 0.066 px median, p95 0.167 px. Scene seeds 1-3 of the same clip go
+    from 0.330 / 0.071 / 0.070 px to 0.228 / 0.059 / 0.051 px, so 0.05 px is not reached on every clip:
+    the rest is SIFT's noise (COLMAP fed the exact projections of the same tracks is exact, 0.0003 px;
+    with Gaussian noise of SIFT's residual size, 0.50 px per coordinate, it gives 0.044-0.148 px
+    median over 8 draws). `benchmarks/projection_floor.py`, RESULTS.md. The figure does not hang on this
+    machine: with OpenBLAS forced to other CPU kernels (OPENBLAS_CORETYPE Haswell, Sandybridge, Prescott)
+    it is the same to 1e-12 px, and with the frames left distorted (the fitted lens moves the border by
+    0.108 px, just over the 0.1 px undistortion threshold) it is 0.047 px. The focal length scaled by
+    1.002 after SfM fails the bounds (0.25 px median), as does any layout error (next test)."""
     root = exported
     index = json.loads((root / "ps" / "test" / "index.json").read_text())
     sidecar = json.loads((root / "ps" / "test" / "seeu_posed.json").read_text())
@@ -125,7 +128,7 @@ def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(export
             f"(held-out points): median {np.median(errs):.3f} px, p95 {np.percentile(errs, 95):.3f} px, max "
             f"{errs.max():.3f} px; world frame from the camera centres instead: median {np.median(by_centres):.3f} px"
         )
-        assert np.median(errs) < 0.2 and np.percentile(errs, 95) < 0.4, (np.median(errs), np.percentile(errs, 95))
+        assert np.median(errs) < 0.05 and np.percentile(errs, 95) < 0.2, (np.median(errs), np.percentile(errs, 95))
     assert checked > 500
 
 

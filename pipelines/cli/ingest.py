@@ -6,8 +6,9 @@ the same command resumes; --force redoes them): decode (--stride, --max-size) ->
 process (SIFT, one shared camera of --camera-model, sequential matching with --overlap, loop
 detection only with --vocab-tree, a video mapped on keyframes (--keyframe-motion) and its other
 frames registered after, --mapper incremental/global/auto, mapping twice from different
-seeds for the solution check, undistortion to a pinhole camera of the same size when the model has
-distortion; the same poses whatever --threads; --size HxW crops/resizes afterwards)
+seeds for the solution check, a last bundle adjustment with a robust loss (--final-ba-loss),
+undistortion to a pinhole camera of the same size when the model has distortion; the same poses
+whatever --threads; --size HxW crops/resizes afterwards)
 -> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
 re10k, median-depth or metric, seeu_data/scale.py) -> OUT/<scene>/ posed-frames dataset
 (scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
@@ -117,6 +118,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
     p.add_argument(
+        "--final-ba-loss",
+        choices=["none", "soft_l1", "cauchy", "huber"],
+        default="soft_l1",
+        help="a last global bundle adjustment of each model after mapping (a video: of its keyframes), with this robust "
+        "loss, so that the few large SIFT residuals pull the camera less (default soft_l1; none = off)",
+    )
+    p.add_argument(
+        "--final-ba-loss-scale",
+        type=float,
+        default=0.5,
+        metavar="PX",
+        help="scale of --final-ba-loss in pixels (default 0.5)",
+    )
+    p.add_argument(
         "--sfm-attempts",
         type=int,
         default=3,
@@ -208,6 +223,8 @@ def run(args: argparse.Namespace) -> int:
         threads=args.threads,
         map_threads=args.map_threads,
         keyframe_motion=args.keyframe_motion,
+        final_ba_loss=args.final_ba_loss,
+        final_ba_loss_scale=args.final_ba_loss_scale,
         force=args.force,
         heartbeat_s=args.heartbeat,
         progress=progress_wanted(args),
