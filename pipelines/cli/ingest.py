@@ -30,6 +30,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from seeu_data.scale import SCALES
+from seeu_data.sfm import CAMERA_MODELS, FEATURES, FINAL_BA_LOSSES, MAPPERS
+
 from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, add_workers, parse_dims, progress_wanted
 
 
@@ -63,7 +66,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument(
         "--camera-model",
         default="SIMPLE_RADIAL",
-        choices=["PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV"],
+        choices=CAMERA_MODELS,
         help="shared camera model; models with distortion are undistorted (default SIMPLE_RADIAL)",
     )
     p.add_argument("--overlap", type=int, default=10, help="sequential matching overlap in frames (default 10)")
@@ -72,14 +75,14 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     p.add_argument(
         "--mapper",
-        choices=["incremental", "global", "auto"],
+        choices=MAPPERS,
         default="incremental",
         help="COLMAP incremental mapping (default), GLOMAP global mapping, or auto: incremental when "
         ">= 90%% of consecutive frames match (a video), else global (recorded in report.json)",
     )
     p.add_argument(
         "--features",
-        choices=["sift", "aliked"],
+        choices=list(FEATURES),
         default="sift",
         help="feature type (default sift; aliked needs a pycolmap built with ONNX, checked up front)",
     )
@@ -96,7 +99,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--min-chunk-frames", type=int, default=10, help="shortest posed chunk kept (default 10)")
     p.add_argument(
         "--scale",
-        choices=["re10k", "median-depth", "metric"],
+        choices=SCALES,
         default="re10k",
         help="scale convention, recorded in each chunk's meta: re10k (default; 5th-percentile point depth "
         "= 2, near/far 1/100 as the pixelSplat/MVSplat RealEstate10K setup), median-depth (median "
@@ -119,7 +122,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--max-features", type=int, default=8192, help="SIFT features per frame (default 8192)")
     p.add_argument(
         "--final-ba-loss",
-        choices=["none", "soft_l1", "cauchy", "huber"],
+        choices=FINAL_BA_LOSSES,
         default="soft_l1",
         help="a last global bundle adjustment of each model after mapping (a video: of its keyframes), with this robust "
         "loss, so that the few large SIFT residuals pull the camera less (default soft_l1; none = off)",
