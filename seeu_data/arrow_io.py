@@ -8,19 +8,19 @@ the commands' `--fsync` flag reaches it through their configs. Without it data r
 and a file torn by a power loss is caught by its manifest sha256 (`read_manifest(verify=True)`,
 `seeu validate`, the size/sha256 checks before a resume keeps a file).
 
-IPC files are written by pyarrow's own writer into a sink that hashes (sha256) every buffer it writes,
-so the manifest's (bytes, sha256) come in the same pass, without reading the file back. The hash runs
-on a thread of the sink's own, fed the written buffers in order (`_Sha256Thread`).
+IPC files are written by pyarrow's own writer into a buffered sink; the manifest's sha256 of each file
+is computed while it is written, on a thread of its own that trails the writes through the page cache
+(`_TrailingSha256`), so the file is not read again from disk and the writer does not wait for it.
 """
 
 from __future__ import annotations
 
 import bisect
 import hashlib
+import io
 import json
 import mmap
 import os
-import queue
 import threading
 from contextlib import contextmanager
 from pathlib import Path
@@ -37,7 +37,8 @@ BytesLike = bytes | bytearray | memoryview | np.ndarray
 
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
-_HASH_SLICE = 8 << 20  # bytes written (and handed to the hash thread) at a time
+_WRITE_BUFFER = 4 << 20  # bytes collected before a write reaches the file (fewer, larger page-cache writes)
+_HASH_RANGE = 8 << 20  # bytes of a file hashed in one call (mapped from the page cache)
 
 
 def tmp_path_for(path: Path) -> Path:
@@ -155,68 +156,90 @@ class _Views:
         return out
 
 
-class _Sha256Thread:
-    """sha256 of the buffers given to `add`, in order, computed on a thread of its own.
+class _TrailingSha256:
+    """sha256 of a file while it is being written, computed on a thread of its own from the file's
+    pages: the writer reports how many bytes have reached the file (`advance`); the thread maps each
+    whole `_HASH_RANGE` behind that from the page cache and hashes it in one call; `hexdigest()`
+    waits for the rest. The thread reads the file through its own descriptor, never the writer's
+    buffers, so the writer never waits for it and a finished file's hash can still be running while
+    the next file is written.
 
-    Why a thread: hashing as fast as the writes go (~1.3 GB/s here) on the writer's thread made a quiet
-    2-core machine's `seeu build` 0.51 s instead of 0.35 s (1.49x; benchmarks/RESULTS.md); hashlib
-    releases the GIL while it hashes, so the second core takes it. The sink adds memoryviews of what it
-    writes (each keeps its bytes alive) and waits (`wait`) before each write call returns, so a view of
-    the caller's memory is never read after the call and memory stays bounded by one call's data.
+    Why (benchmarks/RESULTS.md, plain I/O): hashing the written buffers on a thread the writer waited
+    for at each write made a quiet 2-core machine's `seeu build` 1.3-1.45x and `seeu import
+    pixelsplat` 1.45-1.5x the time of the code before the plain I/O; trailing the writes from the
+    page cache brings them to 1.07-1.22x and 0.99-1.12x of it. hashlib releases the GIL while it
+    hashes, so the second core takes the hash.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, path: Path):
+        self._fd = os.open(path, os.O_RDONLY)
+        self._cond = threading.Condition()
+        self._written = 0
+        self._closed = False
+        self._error: BaseException | None = None
         self._sha256 = hashlib.sha256()
-        self._queue: queue.SimpleQueue = queue.SimpleQueue()
         self._thread = threading.Thread(target=self._run, name="seeu-sha256", daemon=True)
         self._thread.start()
 
+    def advance(self, written: int) -> None:
+        """The file's first `written` bytes are written (they may be hashed)."""
+        with self._cond:
+            if written // _HASH_RANGE > self._written // _HASH_RANGE:  # a whole range more to hash
+                self._cond.notify()
+            self._written = written
+
     def _run(self) -> None:
-        while (item := self._queue.get()) is not None:
-            if isinstance(item, threading.Event):
-                item.set()
-            else:
-                self._sha256.update(item)
-
-    def add(self, data) -> None:
-        self._queue.put(data)
-
-    def wait(self) -> None:
-        """Return once every buffer added so far is hashed."""
-        if self._thread.is_alive():
-            done = threading.Event()
-            self._queue.put(done)
-            done.wait()
+        done = 0  # a multiple of _HASH_RANGE until the last range (offsets of mapped ranges stay aligned)
+        try:
+            while True:
+                with self._cond:
+                    while not self._closed and self._written - done < _HASH_RANGE:
+                        self._cond.wait()
+                    last = self._closed
+                    end = self._written if last else done + (self._written - done) // _HASH_RANGE * _HASH_RANGE
+                while done < end:
+                    size = min(_HASH_RANGE, end - done)
+                    with mmap.mmap(self._fd, size, access=mmap.ACCESS_READ, offset=done) as pages:
+                        self._sha256.update(pages)
+                    done += size
+                if last:
+                    return
+        except BaseException as exc:  # raised again by hexdigest, on the writer's thread
+            self._error = exc
+        finally:
+            os.close(self._fd)
 
     def stop(self) -> None:
-        if self._thread.is_alive():
-            self._queue.put(None)
-            self._thread.join()
+        """No more bytes: hash what is left and end the thread."""
+        with self._cond:
+            self._closed = True
+            self._cond.notify()
+        self._thread.join()
 
     def hexdigest(self) -> str:
         self.stop()
+        if self._error is not None:
+            raise self._error
         return self._sha256.hexdigest()
 
 
 class _HashingSink:
-    """Raw write-only file object (for `pa.PythonFile`) that writes to `path` and hashes (sha256)
-    every byte it writes; with `views` set, the column those stand for is written from them."""
+    """Raw write-only file object (for `pa.PythonFile`) that writes to `path` through a buffer of
+    `_WRITE_BUFFER` bytes and hashes (sha256) the file as it grows (`_TrailingSha256`); with `views`
+    set, the column those stand for is written from them."""
 
     def __init__(self, path: Path):
-        self._fh = open(path, "wb")  # buffered: pyarrow's many small metadata writes go out together
-        self._sha256 = _Sha256Thread()
+        self._fh = io.BufferedWriter(io.FileIO(path, "wb"), _WRITE_BUFFER)
+        self.sha256 = _TrailingSha256(path)
         self.size = 0
         self.closed = False
         self.views: _Views | None = None
 
     def _write(self, view: memoryview) -> None:
-        """The one place where bytes reach the file: in slices of at most _HASH_SLICE bytes, each hashed
-        (on the hash thread) while the next is written."""
-        for start in range(0, view.nbytes, _HASH_SLICE):
-            piece = view[start : start + _HASH_SLICE]
-            self._fh.write(piece)
-            self._sha256.add(piece)
+        """The one place where bytes reach the file."""
+        self._fh.write(view)
         self.size += view.nbytes
+        self.sha256.advance(self._fh.raw.tell())  # what left the buffer
 
     def write(self, data) -> int:
         if self.views is not None and isinstance(data, pa.Buffer):
@@ -229,17 +252,12 @@ class _HashingSink:
         self._write(view)
         return view.nbytes
 
-    def wait_hashed(self) -> None:
-        self._sha256.wait()
-
-    def hexdigest(self) -> str:
-        return self._sha256.hexdigest()
-
     def tell(self) -> int:
         return self.size
 
     def flush(self) -> None:
         self._fh.flush()
+        self.sha256.advance(self.size)
 
     def writable(self) -> bool:
         return True
@@ -248,21 +266,22 @@ class _HashingSink:
         return False
 
     def fsync(self) -> None:
-        self._fh.flush()
+        self.flush()
         os.fsync(self._fh.fileno())
 
     def close(self) -> None:
         if not self.closed:
             self.closed = True
-            self._sha256.stop()
             self._fh.close()
+            self.sha256.advance(self.size)  # only once every byte is in the file: the hash maps no page past its end
 
 
 class AtomicIpcWriter:
     """An Arrow IPC *file* writer (pyarrow's, uncompressed) on a temporary name, hashing as it writes.
 
     `write(table or batch)` as pyarrow's writer; `close()` finishes the file, fsyncs it when `fsync`,
-    renames it to `path` and returns `(bytes, sha256)` (also kept as `.size` / `.sha256`). `abort()`
+    renames it to `path` and returns its size in bytes (also `.size`); `sha256()` returns its sha256,
+    waiting for the hash, which trails the writes and may still be running after `close()`. `abort()`
     removes the partial file. As a context manager: the file is closed when the block succeeds and
     removed when it raises.
     """
@@ -272,7 +291,6 @@ class AtomicIpcWriter:
         self.fsync = fsync
         self.tmp = tmp_path_for(self.path)
         self.size = 0
-        self.sha256: str | None = None
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with naming_os_errors(self.path):
             self._raw = _HashingSink(self.tmp)
@@ -286,36 +304,35 @@ class AtomicIpcWriter:
 
     def write(self, data: pa.Table | pa.RecordBatch, max_chunksize: int | None = None) -> None:
         """Append a table (cut into record batches of at most `max_chunksize` rows) or one record batch."""
-        try:
-            with naming_os_errors(self.path):
-                if isinstance(data, pa.Table):
-                    self._writer.write_table(data, max_chunksize=max_chunksize)
-                else:
-                    self._writer.write_batch(data)
-        finally:
-            self._raw.wait_hashed()  # nothing of `data` is read after this returns
+        with naming_os_errors(self.path):
+            if isinstance(data, pa.Table):
+                self._writer.write_table(data, max_chunksize=max_chunksize)
+            else:
+                self._writer.write_batch(data)
 
     def write_with_views(
         self,
         views: Sequence[BytesLike],
         make: Callable[[pa.BinaryArray], pa.Table | pa.RecordBatch],
         max_chunksize: int | None = None,
-    ) -> None:
+    ) -> pa.Table | pa.RecordBatch:
         """`write(make(column))`, where `column` is a binary array of the bytes-like `views` (bytes,
-        memoryviews, numpy uint8 views into a memory-mapped input) whose bytes are not copied in
-        memory: the sink writes each view into the file where pyarrow writes the column's data.
+        memoryviews, numpy uint8 views into a memory-mapped input) whose bytes are not copied into a
+        new column: the sink writes each view into the file where pyarrow writes the column's data.
+        Returns what `make` returned, for its `num_rows` and `nbytes`.
 
         `column` only stands for the views (its own memory reads as zeros): use it only to build the
-        table or batch that `make` returns, which must hold every value of it, and keep no reference
-        to either.
+        table or batch that `make` returns, which must hold every value of it, and read no value of
+        either.
         """
-        # The one trick kept in this writer (benchmarks/RESULTS.md, plain I/O): copying the images into
-        # the shard's column first made `seeu build` 1.36x slower (1.25x copying per batch), 1.39x
-        # slower than the code before the plain I/O; from their views they are copied once, by write.
+        # A trick kept for its measured gain (benchmarks/RESULTS.md, plain I/O): copying the images
+        # into the shard's column first made `seeu build` 1.36x slower, and a copy per scene made
+        # `seeu import pixelsplat` 1.1-1.25x slower; from their views they go through the write buffer.
         stand_in = _Views(views)
         self._raw.views = stand_in
         try:
-            self.write(make(stand_in.column), max_chunksize)
+            made = make(stand_in.column)
+            self.write(made, max_chunksize)
         finally:
             self._raw.views = None
         if stand_in.covered != stand_in.total:  # never a file with the stand-in's zeros in it
@@ -324,9 +341,10 @@ class AtomicIpcWriter:
                 f"of {stand_in.total} seen); this writer cannot write it without a copy",
                 self.path,
             )
+        return made
 
-    def close(self) -> tuple[int, str]:
-        """Finish the file and put it in place; return (bytes, sha256)."""
+    def close(self) -> int:
+        """Finish the file and put it in place; return its size in bytes."""
         try:
             with naming_os_errors(self.path):
                 self._writer.close()
@@ -337,8 +355,13 @@ class AtomicIpcWriter:
         except BaseException:
             self.abort()
             raise
-        self.size, self.sha256 = self._raw.size, self._raw.hexdigest()
-        return self.size, self.sha256
+        self.size = self._raw.size
+        return self.size
+
+    def sha256(self) -> str:
+        """The sha256 of the file `close()` put in place (waits for the hash to finish)."""
+        with naming_os_errors(self.path):
+            return self._raw.sha256.hexdigest()
 
     def abort(self) -> None:
         """Abandon the unfinished file: close it and remove it."""
@@ -347,6 +370,7 @@ class AtomicIpcWriter:
         except OSError:
             pass  # the buffered tail could not be written either: the file goes anyway
         finally:
+            self._raw.sha256.stop()
             self.tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> "AtomicIpcWriter":
@@ -365,8 +389,7 @@ def write_table(
     """Write a whole table atomically as an Arrow IPC file; return (bytes, sha256) of the file."""
     with AtomicIpcWriter(path, table.schema, fsync=fsync) as writer:
         writer.write(table, max_chunksize=max_chunksize)
-    assert writer.sha256 is not None
-    return writer.size, writer.sha256
+    return writer.size, writer.sha256()
 
 
 def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:

@@ -11,9 +11,9 @@ Rows follow `schemas/posed_frames.v1.json`; cameras follow `seeu_data.cameras`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Iterable, Iterator, Sequence
+from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -81,8 +81,8 @@ class PosedScene:
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
 
-    def to_record_batch(self) -> pa.RecordBatch:
-        """The scene's rows (its images copied into one column)."""
+    def to_record_batch(self, images: pa.BinaryArray | None = None) -> pa.RecordBatch:
+        """The scene's rows (its images copied into one column, or `images` when given)."""
         n = len(self)
         schema = arrow_schema(SCHEMA)
         names = self.source_name or [""] * n
@@ -92,7 +92,7 @@ class PosedScene:
             "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
             "source_name": pa.array(names, pa.string()),
             "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
-            "image": binary_array(self.images),
+            "image": binary_array(self.images) if images is None else images,
             "image_format": pa.array([self.image_format] * n, pa.string()),
             "width": pa.array(np.asarray(self.width, dtype=np.int32)),
             "height": pa.array(np.asarray(self.height, dtype=np.int32)),
@@ -138,8 +138,8 @@ class PosedDatasetWriter:
     """Stream scenes into a posed-frames directory with bounded memory.
 
     Scenes are appended to the current file until it exceeds `target_file_bytes`; each file is
-    written under a temporary name and renamed when closed, its sha256 computed from the bytes as
-    they are written (`arrow_io.AtomicIpcWriter`); `close()` writes the manifest last.
+    written under a temporary name and renamed when closed, its sha256 computed as it is written
+    (`arrow_io.AtomicIpcWriter`); `close()` writes the manifest last.
     Use as a context manager: an exception leaves no manifest, so the output never looks complete.
     """
 
@@ -158,7 +158,8 @@ class PosedDatasetWriter:
         self.provenance = provenance
         self.target_file_bytes = target_file_bytes
         self.prefix = prefix
-        self.files: list[FileEntry] = []
+        self.files: list[FileEntry] = []  # closed files; the sha256 of the last ones may be "" (`hashed_files`)
+        self._hashing: list[tuple[int, Callable[[], str]]] = []  # (index in files, its sha256 when done)
         self.scenes: list[dict] = []
         self._seen: set[str] = set()
         self._writer: AtomicIpcWriter | None = None
@@ -186,17 +187,15 @@ class PosedDatasetWriter:
         self.add_checked(scene, may_close)
 
     def add_checked(self, scene: PosedScene, may_close: bool = True) -> None:
-        """`add` for a scene already `check()`ed. Its images are copied into one column of the batch
-        written (one scene at a time: a copy into memory the allocator reuses, measured as fast as
-        writing them from their views in `benchmarks/import.py`)."""
+        """`add` for a scene already `check()`ed. Its images are written from where they are (chunk
+        pages, bytes), not copied into a new column first (`AtomicIpcWriter.write_with_views`)."""
         if scene.scene_id in self._seen:
             raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
         self._seen.add(scene.scene_id)
         if self._writer is None:
             self._open()
         assert self._path is not None and self._writer is not None
-        batch = scene.to_record_batch()
-        self._writer.write(batch)
+        batch = self._writer.write_with_views(scene.images, scene.to_record_batch)
         entry = {
             "scene_id": scene.scene_id,
             "file": self._path.name,
@@ -223,9 +222,18 @@ class PosedDatasetWriter:
         if self._writer is None:
             return
         writer, self._writer = self._writer, None
-        size, sha256 = writer.close()
+        size = writer.close()
         assert self._path is not None
-        self.files.append(FileEntry(str(self._path.relative_to(self.out_dir)), int(self._rows), size, sha256))
+        self.files.append(FileEntry(str(self._path.relative_to(self.out_dir)), int(self._rows), size, sha256=""))
+        self._hashing.append((len(self.files) - 1, writer.sha256))
+
+    def hashed_files(self) -> list[FileEntry]:
+        """The closed files with their sha256, waiting for the hashes still running (a file's hash
+        trails its writes and may end after the file is closed, while the next one is written)."""
+        for i, sha256 in self._hashing:
+            self.files[i] = replace(self.files[i], sha256=sha256())
+        self._hashing.clear()
+        return self.files
 
     def close(self) -> dict:
         self._finish_file()
@@ -235,7 +243,7 @@ class PosedDatasetWriter:
             self.out_dir,
             SCHEMA,
             schema_version(SCHEMA),
-            self.files,
+            self.hashed_files(),
             self.params,
             self.provenance,
             scenes=self.scenes,

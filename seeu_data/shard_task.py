@@ -8,6 +8,7 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Callable
 
 from .errors import SeeUError
 from .manifest import FileEntry
@@ -43,13 +44,20 @@ class ShardResult:
         return cls(d["index"], d["plan_sha256"], entry, d.get("error"), d["resumed"])
 
 
-def materialise(spec: ShardSpec, out_dir: str, fsync: bool = False) -> ShardResult:
-    """Write one shard (`triples.write_shard`: in place, its sha256 computed as it is written, fsynced
-    before its rename when `fsync`); its manifest entry, or the error (a SeeUError's message).
-    (Which shards a re-run keeps is decided before, on the driver: `resumable_shard`.)"""
+def write_pending(spec: ShardSpec, out_dir: str, fsync: bool = False) -> Callable[[], ShardResult]:
+    """Write one shard (`triples.write_shard`: in place, fsynced before its rename when `fsync`);
+    return a function that gives its result: its manifest entry once its sha256 (which trails the
+    writes) is done, or the error (a SeeUError's message). (Which shards a re-run keeps is decided
+    before, on the driver: `resumable_shard`.)"""
     path = Path(out_dir) / spec.file
     try:
         rows, size, sha256 = write_shard(spec, path, fsync)
     except SeeUError as exc:
-        return ShardResult(spec.index, spec.plan_sha256, error=str(exc))
-    return ShardResult(spec.index, spec.plan_sha256, FileEntry(path.name, rows, size, sha256))
+        failed = ShardResult(spec.index, spec.plan_sha256, error=str(exc))
+        return lambda: failed
+    return lambda: ShardResult(spec.index, spec.plan_sha256, FileEntry(path.name, rows, size, sha256()))
+
+
+def materialise(spec: ShardSpec, out_dir: str, fsync: bool = False) -> ShardResult:
+    """Write one shard and wait for its result (`write_pending`)."""
+    return write_pending(spec, out_dir, fsync)()

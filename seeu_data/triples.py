@@ -21,7 +21,7 @@ import hashlib
 import json
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Iterator
+from typing import Callable, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -337,14 +337,14 @@ def build_shard_table(spec: ShardSpec) -> pa.Table:
     return rows.table(binary_array(rows.images))
 
 
-def write_shard(spec: ShardSpec, path: str | Path, fsync: bool = False) -> tuple[int, int, str]:
-    """Write the shard of `spec` atomically to `path`; return (rows, bytes, sha256). The encoded
-    images go from the posed files into the shard without a copy in memory
+def write_shard(spec: ShardSpec, path: str | Path, fsync: bool = False) -> tuple[int, int, Callable[[], str]]:
+    """Write the shard of `spec` atomically to `path`; return (rows, bytes, sha256), where `sha256()`
+    gives the file's sha256 once its hash, which trails the writes, is done (`AtomicIpcWriter.sha256`).
+    The encoded images go from the posed files into the shard without a copy in memory
     (`AtomicIpcWriter.write_with_views`); the bytes equal those of `build_shard_table`'s table."""
     rows = shard_rows(spec)
     with AtomicIpcWriter(path, rows.schema, fsync=fsync) as writer:
         writer.write_with_views(rows.images, rows.table, max_chunksize=spec.rows_per_batch)
-    assert writer.sha256 is not None
     return len(spec.samples), writer.size, writer.sha256
 
 

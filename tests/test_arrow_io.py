@@ -5,6 +5,7 @@ writing equals the file's; a column written from views gives the bytes pyarrow w
 from __future__ import annotations
 
 import hashlib
+import mmap
 import os
 from pathlib import Path
 
@@ -142,7 +143,7 @@ def test_views_write_the_bytes_pyarrow_writes(tmp_path, max_chunksize):
     with AtomicIpcWriter(tmp_path / "d.arrow", plain.schema) as writer:
         writer.write_with_views(pieces, table, max_chunksize=max_chunksize)
     assert (tmp_path / "d.arrow").read_bytes() == expected
-    assert (writer.size, writer.sha256) == (len(expected), hashlib.sha256(expected).hexdigest())
+    assert (writer.size, writer.sha256()) == (len(expected), hashlib.sha256(expected).hexdigest())
     assert pa.ipc.open_file(str(tmp_path / "d.arrow")).read_all().column("views").to_pylist() == [
         values[i : i + 3] for i in range(0, 3 * n_rows, 3)
     ]
@@ -162,3 +163,53 @@ def test_a_column_pyarrow_copies_is_refused_not_written(tmp_path):
         with AtomicIpcWriter(tmp_path / "c.arrow", schema) as writer:
             writer.write_with_views([b"abc", b"de"], copied)
     assert seen == [[b"\0\0\0", b"\0\0"]] and list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize(
+    "hash_range, write_buffer", [(3 * mmap.ALLOCATIONGRANULARITY, 1000), (mmap.ALLOCATIONGRANULARITY, 1 << 20)]
+)
+def test_the_hash_trailing_the_writes_is_the_files_sha256(tmp_path, monkeypatch, hash_range, write_buffer):
+    """The sha256 computed while a file is written (mapped ranges of what reached the file, a range
+    at a time, behind a write buffer) equals hashlib's of the finished file; the hash may finish after
+    `close()`, and each of several files open at once gets its own."""
+    monkeypatch.setattr(arrow_io, "_HASH_RANGE", hash_range)
+    monkeypatch.setattr(arrow_io, "_WRITE_BUFFER", write_buffer)
+    rng = np.random.default_rng(0)
+    schema = pa.schema([("x", pa.binary())])
+    writers = [AtomicIpcWriter(tmp_path / f"{i}.arrow", schema) for i in range(3)]
+    for _ in range(5):  # batches of odd sizes, interleaved across the files
+        for w in writers:
+            n = int(rng.integers(1, 40))
+            w.write(pa.table({"x": [rng.bytes(int(rng.integers(0, 9000))) for _ in range(n)]}))
+    sizes = [w.close() for w in writers]
+    for i, (w, size) in enumerate(zip(writers, sizes)):
+        data = (tmp_path / f"{i}.arrow").read_bytes()
+        assert size == len(data) > 3 * hash_range
+        assert w.sha256() == hashlib.sha256(data).hexdigest()
+
+
+def test_posed_files_are_the_bytes_pyarrow_writes_for_the_scenes(tmp_path):
+    """The posed writer writes each scene's images from where they are (bytes here; chunk pages in the
+    pixelSplat import), not copied into the batch: its files equal pyarrow's own writer's for the same
+    batches, and the manifest's sha256 is the file's."""
+    from seeu_data.manifest import read_manifest
+    from seeu_data.posed import SCHEMA
+    from seeu_data.schema import arrow_schema
+
+    scenes = [make_posed_scene(f"s{i}", n=5 + i, height=24, width=32, seed=i) for i in range(3)]
+    with PosedDatasetWriter(tmp_path / "p", params={}, provenance={}, target_file_bytes=10_000) as w:
+        for scene in scenes:
+            w.add(scene)
+    files = read_manifest(tmp_path / "p")["files"]
+    assert len(files) > 1
+    start = 0
+    for entry in files:
+        n = entry["rows"]
+        batches = []
+        while n:
+            batches.append(scenes[start].to_record_batch())
+            n -= len(scenes[start])
+            start += 1
+        expected = _plain_ipc_bytes(pa.Table.from_batches(batches, arrow_schema(SCHEMA)), max_chunksize=10_000)
+        data = (tmp_path / "p" / entry["path"]).read_bytes()
+        assert data == expected and entry["sha256"] == hashlib.sha256(data).hexdigest()

@@ -432,7 +432,7 @@ def test_written_shards_equal_their_tables(posed, tmp_path):
             rows, size, digest = write_shard(spec, tmp_path / "shard.arrow")
             assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "shard.arrow").read_bytes()
             plain = tmp_path / "plain.arrow"
-            assert (rows, size, digest) == (table.num_rows, plain.stat().st_size, sha256_file(plain))
+            assert (rows, size, digest()) == (table.num_rows, plain.stat().st_size, sha256_file(plain))
 
 
 def test_rewritten_posed_data_is_mapped_again(tmp_path):
