@@ -167,7 +167,7 @@ class _TrailingSha256:
     Why (benchmarks/RESULTS.md, plain I/O): hashing the written buffers on a thread the writer waited
     for at each write made a quiet 2-core machine's `seeu build` 1.3-1.45x and `seeu import
     pixelsplat` 1.45-1.5x the time of the code before the plain I/O; trailing the writes from the
-    page cache brings them to 1.07-1.22x and 0.99-1.12x of it. hashlib releases the GIL while it
+    page cache brings them to 1.07-1.22x and 0.95-1.12x of it. hashlib releases the GIL while it
     hashes, so the second core takes the hash.
     """
 
