@@ -230,7 +230,11 @@ class _HashingSink:
 
     def __init__(self, path: Path):
         self._fh = io.BufferedWriter(io.FileIO(path, "wb"), _WRITE_BUFFER)
-        self.sha256 = _TrailingSha256(path)
+        try:
+            self.sha256 = _TrailingSha256(path)
+        except BaseException:
+            self._fh.close()
+            raise
         self.size = 0
         self.closed = False
         self.views: _Views | None = None
@@ -292,8 +296,12 @@ class AtomicIpcWriter:
         self.tmp = tmp_path_for(self.path)
         self.size = 0
         self.path.parent.mkdir(parents=True, exist_ok=True)
-        with naming_os_errors(self.path):
-            self._raw = _HashingSink(self.tmp)
+        try:
+            with naming_os_errors(self.path):
+                self._raw = _HashingSink(self.tmp)
+        except BaseException:
+            self.tmp.unlink(missing_ok=True)  # created before its hash could start (EMFILE, ...)
+            raise
         try:
             with naming_os_errors(self.path):
                 self._sink = pa.PythonFile(self._raw, mode="w")

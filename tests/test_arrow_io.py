@@ -213,3 +213,17 @@ def test_posed_files_are_the_bytes_pyarrow_writes_for_the_scenes(tmp_path):
         expected = _plain_ipc_bytes(pa.Table.from_batches(batches, arrow_schema(SCHEMA)), max_chunksize=10_000)
         data = (tmp_path / "p" / entry["path"]).read_bytes()
         assert data == expected and entry["sha256"] == hashlib.sha256(data).hexdigest()
+
+
+def test_a_writer_whose_hash_cannot_start_leaves_no_file(tmp_path, monkeypatch):
+    """When the hash thread's descriptor cannot be opened (too many open files), the error names the
+    file and the temporary file just created is gone."""
+    import errno
+
+    def no_descriptor(self, path):
+        raise OSError(errno.EMFILE, os.strerror(errno.EMFILE))
+
+    monkeypatch.setattr(arrow_io._TrailingSha256, "__init__", no_descriptor)
+    with pytest.raises(OSError) as info:
+        write_table(tmp_path / "x.arrow", _table())
+    assert info.value.filename == str(tmp_path / "x.arrow") and list(tmp_path.iterdir()) == []
