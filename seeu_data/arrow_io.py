@@ -18,7 +18,6 @@ from __future__ import annotations
 import bisect
 import hashlib
 import io
-import json
 import mmap
 import os
 import threading
@@ -424,12 +423,3 @@ def sha256_file(path: str | Path, chunk: int = 1 << 22) -> str:
         while block := fh.read(chunk):
             digest.update(block)
     return digest.hexdigest()
-
-
-def read_json(path: str | Path, what: str = ""):
-    """Parse a JSON file; SeeUError naming the file (and `what` it is) when it is not valid JSON."""
-    path = Path(path)
-    try:
-        return json.loads(path.read_text())
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"{what} is not valid JSON ({exc})" if what else f"not valid JSON ({exc})", path) from None

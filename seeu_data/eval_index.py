@@ -21,7 +21,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .arrow_io import read_json
+from .json_file import read_json
 from .errors import SeeUError
 from .sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 

@@ -17,7 +17,8 @@ from typing import Any
 import jsonschema
 
 from . import __version__
-from .arrow_io import atomic_write_text, open_ipc_file, read_json, sha256_file
+from .arrow_io import atomic_write_text, open_ipc_file, sha256_file
+from .json_file import read_json
 from .errors import SeeUError
 from .paths import contained_key, contained_path
 from .schema import MANIFEST_VERSION, check_version, manifest_json_schema

@@ -38,7 +38,7 @@ from typing import Iterator
 import numpy as np
 
 from ..cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels, invert_rigid, opencv_from_opengl
-from ..arrow_io import read_json
+from ..json_file import read_json
 from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
@@ -105,7 +105,7 @@ def load_transforms(path: Path) -> dict:
     path = Path(path)
     if not path.is_file():
         raise SeeUError("transforms.json not found", path)
-    doc = read_json(path)
+    doc = read_json(path, "transforms.json")
     if not isinstance(doc, dict) or not isinstance(doc.get("frames"), list) or not doc["frames"]:
         raise SeeUError("no 'frames' list", path)
     for k, f in enumerate(doc["frames"]):

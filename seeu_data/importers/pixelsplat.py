@@ -29,7 +29,7 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
-from ..arrow_io import read_json
+from ..json_file import read_json
 from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
@@ -236,7 +236,7 @@ def read_sidecar(directory: Path) -> dict | None:
     path = directory / SIDECAR_NAME
     if not path.exists():
         return None
-    return read_json(path)
+    return read_json(path, SIDECAR_NAME)
 
 
 def _chunk_items(

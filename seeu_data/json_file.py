@@ -1,0 +1,67 @@
+"""The one way the toolkit reads a JSON document a user hands it: bounded in size and depth.
+
+Manifests, configs, cameras files, transforms.json, evaluation indices and journals are read through
+`read_json` (a file) or `parse_json` (text already in memory). A document over `MAX_JSON_BYTES`, or
+nested deeper than `MAX_JSON_DEPTH`, or not valid JSON is one SeeUError line naming the file and the
+limit; never a RecursionError or a MemoryError. Our own documents nest 6 deep at most.
+
+Example:
+    from seeu_data.json_file import read_json
+    doc = read_json("data/posed/clip/manifest.json", "manifest")
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+from .errors import SeeUError
+
+MAX_JSON_BYTES = 256 * 1024 * 1024  # a transforms.json of 100k frames is ~60 MB
+MAX_JSON_DEPTH = 64
+
+
+def _depth_exceeds(doc: Any, limit: int) -> bool:
+    """Whether containers nest deeper than `limit` (iterative: no recursion on hostile input)."""
+    stack = [(doc, 1)]
+    while stack:
+        node, depth = stack.pop()
+        if isinstance(node, dict):
+            node = list(node.values())
+        if isinstance(node, list):
+            if depth > limit:
+                return True
+            stack.extend((child, depth + 1) for child in node if isinstance(child, (dict, list)))
+    return False
+
+
+def parse_json(text: str | bytes, what: str = "JSON", path: str | Path | None = None) -> Any:
+    """Parse JSON text; SeeUError (naming `path` and `what`) when invalid, too large or too deep."""
+    if len(text) > MAX_JSON_BYTES:
+        raise SeeUError(f"{what} is {len(text)} bytes, over the {MAX_JSON_BYTES} bytes a JSON file may have", path)
+    try:
+        doc = json.loads(text)
+    except RecursionError:
+        doc = None
+        deep = True
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"{what} is not valid JSON ({exc})", path) from None
+    else:
+        deep = _depth_exceeds(doc, MAX_JSON_DEPTH)
+    if deep:
+        raise SeeUError(
+            f"{what} nests deeper than {MAX_JSON_DEPTH} levels (not a file this toolkit writes or reads)", path
+        )
+    return doc
+
+
+def read_json(path: str | Path, what: str = "JSON") -> Any:
+    """Read and parse a JSON file under the size and depth bounds (see the module docstring)."""
+    path = Path(path)
+    if not path.is_file():
+        raise SeeUError(f"{what} is not a regular file" if path.exists() else f"{what} not found", path)
+    size = path.stat().st_size
+    if size > MAX_JSON_BYTES:
+        raise SeeUError(f"{what} is {size} bytes, over the {MAX_JSON_BYTES} bytes a JSON file may have", path)
+    return parse_json(path.read_bytes(), what, path)
