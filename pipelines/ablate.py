@@ -20,6 +20,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.json_file import read_json
+from seeu_data.limits import MAX_FRAMES, MAX_SAMPLES, check_range
 
 # name -> (label as in the paper, model overrides)
 MODEL_VARIANTS: dict[str, tuple[str, dict]] = {
@@ -64,10 +66,9 @@ class AblateConfig:
         unknown = [v for v in self.variants if v not in MODEL_VARIANTS]
         if unknown:
             raise SeeUError(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(MODEL_VARIANTS)}")
-        if self.max_eval_samples < 0:
-            raise SeeUError(f"--max-eval-samples must be >= 0, got {self.max_eval_samples}")
-        if any(n < 0 for n in self.ext_ranges) or any(n < 0 for n in self.ext_data):
-            raise SeeUError("extrapolation ranges must be >= 0 frames")
+        check_range(self.max_eval_samples, "--max-eval-samples", 0, MAX_SAMPLES)
+        for n in (*self.ext_ranges, *self.ext_data):
+            check_range(n, "extrapolation range (frames)", 0, MAX_FRAMES)
 
 
 def build_ext_shards(
@@ -84,7 +85,7 @@ def build_ext_shards(
 
     base = {}
     if like is not None and (Path(like) / "manifest.json").exists():
-        params = json.loads((Path(like) / "manifest.json").read_text()).get("params", {})
+        params = read_json(Path(like) / "manifest.json", "manifest").get("params", {})
         base = {
             k: v for k, v in (params.get("sampling") or {}).items() if k in {f.name for f in fields(SamplingConfig)}
         }
@@ -162,7 +163,7 @@ def ablate(run: AblateConfig) -> list[dict]:
         vdir = out / name
         done = vdir / "eval" / "summary.json"
         summary_path = vdir / "train_summary.json"
-        ts = json.loads(summary_path.read_text()) if summary_path.exists() else None
+        ts = read_json(summary_path, "training summary") if summary_path.exists() else None
         if ts is None or ts.get("step", 0) < train_cfg.optim.max_steps:
             print(f"[ablate] {name}: {label} -- training {train_cfg.optim.max_steps} steps on {train_data}", flush=True)
             ov = base_overrides + [
@@ -182,7 +183,7 @@ def ablate(run: AblateConfig) -> list[dict]:
             )
             done.unlink(missing_ok=True)
         if done.exists():
-            es = json.loads(done.read_text())
+            es = read_json(done, "evaluation summary")
         else:
             print(f"[ablate] {name}: evaluating on {run.eval_data}", flush=True)
             es = evaluate(

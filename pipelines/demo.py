@@ -22,6 +22,15 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.limits import (
+    MAX_IMAGE_SIDE,
+    MAX_RENDER_FRAMES,
+    MAX_SAMPLES,
+    MAX_STEPS,
+    MAX_VIDEO_FRAMES,
+    MAX_VIDEO_SIDE,
+    check_range,
+)
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
 STAMP_FORMAT = 1
@@ -62,18 +71,16 @@ class DemoConfig:
     def check(self) -> None:
         if Path(self.out).exists() and not Path(self.out).is_dir():
             raise SeeUError("--out must be a directory, but this is a file", self.out)
-        if self.frames < 24:
-            raise SeeUError(f"--frames must be at least 24 (SfM and the triple sampler need a walk), got {self.frames}")
-        if min(self.size) < 16:
-            raise SeeUError(f"--size {self.size[0]}x{self.size[1]}: sizes must be at least 16")
-        if min(self.image_size) < 16:
-            raise SeeUError(f"--image-size {self.image_size[0]}x{self.image_size[1]}: sizes must be at least 16")
-        if self.steps is not None and self.steps < 1:
-            raise SeeUError(f"--steps must be >= 1, got {self.steps}")
-        if self.train_samples < 1 or self.eval_samples < 1:
-            raise SeeUError("--train-samples and --eval-samples must be >= 1")
-        if self.render_frames < 2:
-            raise SeeUError("--render-frames must be >= 2")
+        check_range(self.frames, "--frames", 24, MAX_VIDEO_FRAMES)  # SfM and the triple sampler need a walk
+        for side in self.size:
+            check_range(side, "--size", 16, MAX_VIDEO_SIDE)
+        for side in self.image_size:
+            check_range(side, "--image-size", 16, MAX_IMAGE_SIDE)
+        if self.steps is not None:
+            check_range(self.steps, "--steps", 1, MAX_STEPS)
+        check_range(self.train_samples, "--train-samples", 1, MAX_SAMPLES)
+        check_range(self.eval_samples, "--eval-samples", 1, MAX_SAMPLES)
+        check_range(self.render_frames, "--render-frames", 2, MAX_RENDER_FRAMES)
         if self.heldout == self.seed:
             raise SeeUError("--heldout-seed must differ from --seed (the held-out scene must be unseen)")
 

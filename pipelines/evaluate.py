@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_BATCH_SIZE, MAX_IMAGE_SIDE, MAX_SAMPLES, MAX_WORKERS, check_range
 
 
 @dataclass(frozen=True)
@@ -61,10 +62,12 @@ class EvalConfig:
     geometry_scale: float = 1.0
 
     def check(self) -> None:
-        if self.batch_size < 1:
-            raise SeeUError("--batch-size must be >= 1")
-        if self.max_samples < 0 or self.warmup < 0 or self.num_workers < 0:
-            raise SeeUError("--max-samples, --warmup and --num-workers must be >= 0")
+        check_range(self.batch_size, "--batch-size", 1, MAX_BATCH_SIZE)
+        check_range(self.max_samples, "--max-samples", 0, MAX_SAMPLES)
+        check_range(self.warmup, "--warmup", 0, MAX_SAMPLES)
+        check_range(self.num_workers, "--num-workers", 0, MAX_WORKERS)
+        for side in self.image_size or ():
+            check_range(side, "--image-size", 1, MAX_IMAGE_SIDE)
         if not (math.isfinite(self.geometry_scale) and self.geometry_scale > 0):
             raise SeeUError(f"--geometry-scale must be a finite number > 0, got {self.geometry_scale}")
 

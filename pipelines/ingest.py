@@ -17,7 +17,6 @@ Example:
 
 from __future__ import annotations
 
-import json
 import os
 import re
 import time
@@ -27,6 +26,8 @@ from typing import Callable
 
 from pipelines.ingest_ray import SceneResult
 from seeu_data.errors import SeeUError
+from seeu_data.json_file import read_json
+from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
@@ -91,8 +92,11 @@ class IngestConfig:
         """One-line SeeUError for a bad value, before any scene starts (e.g. ALIKED without ONNX)."""
         if not self.inputs:
             raise SeeUError("no input given")
-        if self.workers < 1:
-            raise SeeUError(f"--workers must be >= 1, got {self.workers}")
+        check_range(self.workers, "--workers", 1, MAX_WORKERS)
+        if self.max_size is not None:
+            check_range(self.max_size, "--max-size", 1, MAX_IMAGE_SIDE)
+        for side in self.size or ():
+            check_range(side, "--size", 1, MAX_IMAGE_SIDE)
         if self.engine not in ("local", "ray"):
             raise SeeUError(f"--engine must be local or ray, got {self.engine!r}")
         if self.engine == "ray" and self.workers != 1:
@@ -269,9 +273,9 @@ def check_scene_owner(out_dir: Path, identity: dict, force: bool) -> None:
     recorded = None
     if report_path.exists():
         try:
-            doc = json.loads(report_path.read_text())
+            doc = read_json(report_path, "ingest report")
             recorded = doc.get("input_identity") or {"path": str(Path(doc["input"]).resolve())}
-        except (OSError, ValueError, KeyError, TypeError):
+        except (SeeUError, OSError, ValueError, KeyError, TypeError, AttributeError):
             recorded = None
     elif not (out_dir / "manifest.json").exists():
         return  # nothing finished there (an interrupted run): nothing to lose

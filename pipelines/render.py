@@ -25,6 +25,8 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.json_file import read_json
+from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_RENDER_FRAMES, check_range
 
 
 @dataclass(frozen=True)
@@ -47,8 +49,10 @@ class RenderConfig:
     rasterizer: str | None = None
 
     def check(self) -> None:
-        if self.frames < 2:
-            raise SeeUError("--frames must be >= 2")
+        check_range(self.frames, "--frames", 2, MAX_RENDER_FRAMES)
+        if self.image_size is not None:
+            for side in self.image_size:
+                check_range(side, "--image-size", 1, MAX_IMAGE_SIDE)
         if not (math.isfinite(self.extrapolate) and self.extrapolate >= 0):
             raise SeeUError(f"--extrapolate must be a finite number >= 0, got {self.extrapolate}")
         if not (math.isfinite(self.fps) and self.fps > 0):
@@ -68,13 +72,11 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
     path = Path(path)
     if not path.is_file():
         raise SeeUError("cameras file not found", path)
-    try:
-        doc = json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise SeeUError(f"not valid JSON: {exc}", path) from None
+    doc = read_json(path, "cameras file")
     frames = doc.get("frames") if isinstance(doc, dict) else None
     if not isinstance(frames, list) or len(frames) < 2:
         raise SeeUError("need a 'frames' list with at least two context views", path)
+    check_range(len(frames), "context views in 'frames'", 2, MAX_CONTEXT_VIEWS, path)
     try:
         near, far = float(doc["near"]), float(doc["far"])
     except (KeyError, TypeError, ValueError):

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_STEPS, check_range
 
 
 @dataclass(frozen=True)
@@ -57,8 +58,10 @@ class TrainRunConfig:
     model_factory: Callable | None = None
 
     def check(self) -> None:
-        if self.stop_after is not None and self.stop_after < 1:
-            raise SeeUError(f"stop_after must be >= 1, got {self.stop_after}")
+        if self.stop_after is not None:
+            check_range(self.stop_after, "stop_after", 1, MAX_STEPS)
+        if self.max_steps is not None:
+            check_range(self.max_steps, "--max-steps", 1, MAX_STEPS)
         if isinstance(self.overrides, str):
             raise SeeUError("overrides must be a sequence of key=value strings, not one string")
 

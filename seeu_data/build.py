@@ -41,6 +41,13 @@ import pyarrow.compute as pc
 
 from .arrow_io import open_ipc_file
 from .errors import SeeUError
+from .limits import (
+    MAX_IMAGE_SIDE,
+    MAX_ROWS_PER_BATCH,
+    MAX_SEED,
+    MAX_WORKERS,
+    check_range,
+)
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
 from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
@@ -97,12 +104,13 @@ class BuildConfig:
             )
         if not 1 <= self.image.jpeg_quality <= 100:
             raise SeeUError("--jpeg-quality must be in 1..100")
-        if self.rows_per_batch < 1:
-            raise SeeUError("--rows-per-batch must be >= 1")
+        check_range(self.rows_per_batch, "--rows-per-batch", 1, MAX_ROWS_PER_BATCH)
         if self.engine not in ("local", "ray"):
             raise SeeUError(f"unknown engine {self.engine!r} (local or ray)")
-        if self.workers < 1:
-            raise SeeUError(f"--workers must be >= 1, got {self.workers}")
+        check_range(self.workers, "--workers", 1, MAX_WORKERS)
+        for side in self.image.resize or ():
+            check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
+        check_range(self.seed, "--seed", 0, MAX_SEED)
         if self.near_far is not None and not (0 < self.near_far[0] < self.near_far[1] < float("inf")):
             raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {self.near_far[0]} / {self.near_far[1]}")
 

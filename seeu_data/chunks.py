@@ -23,6 +23,7 @@ import numpy as np
 
 from .cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, invert_rigid
 from .errors import SeeUError
+from .limits import MAX_FRAMES, check_range
 from .scale import ScaleConfig, chunk_scale
 
 NEAR_FAR_METHOD = (
@@ -42,8 +43,7 @@ class ChunkConfig:
     scale: ScaleConfig = field(default_factory=ScaleConfig)
 
     def check(self) -> None:
-        if self.min_chunk_frames < 2:
-            raise SeeUError(f"--min-chunk-frames must be >= 2, got {self.min_chunk_frames}")
+        check_range(self.min_chunk_frames, "--min-chunk-frames", 2, MAX_FRAMES)
         self.scale.check()
 
 

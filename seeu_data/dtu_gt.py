@@ -19,12 +19,14 @@ Example:
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
 
 import numpy as np
+
+from .errors import SeeUError
+from .json_file import read_json
 
 
 @dataclass
@@ -123,8 +125,8 @@ def posed_ground_truth(
     if not manifest.is_file():
         return None
     try:
-        inputs = json.loads(manifest.read_text()).get("params", {}).get("inputs", []) or []
-    except json.JSONDecodeError:
+        inputs = read_json(manifest, "manifest").get("params", {}).get("inputs", []) or []
+    except (SeeUError, AttributeError):
         return None
     scenes: dict[str, tuple] = {}
     for inp in inputs:

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SeeUError
+from .limits import MAX_FRAMES, check_range
 
 
 @dataclass(frozen=True)
@@ -25,12 +25,10 @@ class SelectConfig:
     target_frames: int | None = None
 
     def check(self) -> None:
-        if self.stride < 1:
-            raise SeeUError(f"--stride must be >= 1, got {self.stride}")
-        if self.sharpness_window < 0:
-            raise SeeUError(f"--sharpness-window must be >= 0, got {self.sharpness_window}")
-        if self.target_frames is not None and self.target_frames < 2:
-            raise SeeUError(f"--target-frames must be >= 2, got {self.target_frames}")
+        check_range(self.stride, "--stride", 1, MAX_FRAMES)
+        check_range(self.sharpness_window, "--sharpness-window", 0, MAX_FRAMES)
+        if self.target_frames is not None:
+            check_range(self.target_frames, "--target-frames", 2, MAX_FRAMES)
 
 
 def drop_blurriest_per_window(sharpness: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:

@@ -36,32 +36,49 @@ def _depth_exceeds(doc: Any, limit: int) -> bool:
     return False
 
 
-def parse_json(text: str | bytes, what: str = "JSON", path: str | Path | None = None) -> Any:
-    """Parse JSON text; SeeUError (naming `path` and `what`) when invalid, too large or too deep."""
-    if len(text) > MAX_JSON_BYTES:
-        raise SeeUError(f"{what} is {len(text)} bytes, over the {MAX_JSON_BYTES} bytes a JSON file may have", path)
-    try:
-        doc = json.loads(text)
-    except RecursionError:
-        doc = None
-        deep = True
-    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
-        raise SeeUError(f"{what} is not valid JSON ({exc})", path) from None
-    else:
-        deep = _depth_exceeds(doc, MAX_JSON_DEPTH)
-    if deep:
-        raise SeeUError(
-            f"{what} nests deeper than {MAX_JSON_DEPTH} levels (not a file this toolkit writes or reads)", path
-        )
+def check_nesting(doc: Any, what: str = "JSON", path: str | Path | None = None) -> Any:
+    """`doc` unchanged, or SeeUError when its containers nest deeper than `MAX_JSON_DEPTH` (also used
+    for a parsed YAML config)."""
+    if _depth_exceeds(doc, MAX_JSON_DEPTH):
+        raise too_deep_error(what, path)
     return doc
 
 
-def read_json(path: str | Path, what: str = "JSON") -> Any:
-    """Read and parse a JSON file under the size and depth bounds (see the module docstring)."""
+def too_deep_error(what: str, path: str | Path | None = None) -> SeeUError:
+    """The error of a document nested deeper than `MAX_JSON_DEPTH` (or one its parser recursed too deep on)."""
+    return SeeUError(
+        f"{what} nests deeper than {MAX_JSON_DEPTH} levels (not a file this toolkit writes or reads)", path
+    )
+
+
+def parse_json(text: str | bytes, what: str = "JSON", path: str | Path | None = None) -> Any:
+    """Parse JSON text; SeeUError (naming `path` and `what`) when invalid, too large or too deep."""
+    if len(text) > MAX_JSON_BYTES:
+        raise SeeUError(
+            f"{what} is {len(text)} bytes, over the {MAX_JSON_BYTES} bytes a JSON or YAML document may have", path
+        )
+    try:
+        doc = json.loads(text)
+    except RecursionError:
+        raise too_deep_error(what, path) from None
+    except (json.JSONDecodeError, UnicodeDecodeError) as exc:
+        raise SeeUError(f"{what} is not valid JSON ({exc})", path) from None
+    return check_nesting(doc, what, path)
+
+
+def read_document(path: str | Path, what: str = "JSON") -> bytes:
+    """The bytes of a document file (JSON or YAML), SeeUError when missing or over `MAX_JSON_BYTES`."""
     path = Path(path)
     if not path.is_file():
         raise SeeUError(f"{what} is not a regular file" if path.exists() else f"{what} not found", path)
     size = path.stat().st_size
     if size > MAX_JSON_BYTES:
-        raise SeeUError(f"{what} is {size} bytes, over the {MAX_JSON_BYTES} bytes a JSON file may have", path)
-    return parse_json(path.read_bytes(), what, path)
+        raise SeeUError(
+            f"{what} is {size} bytes, over the {MAX_JSON_BYTES} bytes a JSON or YAML document may have", path
+        )
+    return path.read_bytes()
+
+
+def read_json(path: str | Path, what: str = "JSON") -> Any:
+    """Read and parse a JSON file under the size and depth bounds (see the module docstring)."""
+    return parse_json(read_document(path, what), what, path)

@@ -48,6 +48,8 @@ from pathlib import Path
 from typing import Callable, Collection, Iterable
 
 from .arrow_io import atomic_write_text, sha256_file
+from .errors import SeeUError
+from .json_file import parse_json
 
 STAGES_JOURNAL = "stages.jsonl"
 CLAIM_NAME = ".stamp"  # in a directory given to a unit that resumes inside itself (`claim_dir`)
@@ -106,8 +108,8 @@ class Journal:
             return records
         for line in text.splitlines():
             try:
-                rec = json.loads(line)
-            except json.JSONDecodeError:
+                rec = parse_json(line, "journal line", self.path)
+            except SeeUError:
                 break
             if not isinstance(rec, dict) or not isinstance(rec.get("unit"), str):
                 break

@@ -33,6 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .limits import MAX_CONTEXT_VIEWS, MAX_FRAMES, MAX_SAMPLES, MAX_TARGET_VIEWS, check_range
+
 MODES = ("interp", "extrap")
 
 
@@ -52,20 +54,19 @@ class SamplingConfig:
     def __post_init__(self) -> None:
         if self.mode not in MODES:
             raise ValueError(f"mode must be one of {MODES}, got {self.mode!r}")
-        if self.num_context < 2:
-            raise ValueError("num_context must be >= 2 for sampled triples")
-        if self.num_target < 1:
-            raise ValueError("num_target must be >= 1")
+        # each count in its range (SeeUError naming the `seeu build` flag): a huge count would plan forever
+        check_range(self.num_context, "--num-context", 2, MAX_CONTEXT_VIEWS)
+        check_range(self.num_target, "--num-target", 1, MAX_TARGET_VIEWS)
+        check_range(self.samples_per_scene, "--samples-per-scene", 1, MAX_SAMPLES)
+        check_range(self.gap_min, "--gap-min", 1, MAX_FRAMES)
+        check_range(self.gap_max, "--gap-max", 1, MAX_FRAMES)
+        check_range(self.extrap_frames, "--extrap-frames", 0, MAX_FRAMES)
         if self.gap_min < self.num_context - 1:
             raise ValueError(f"gap_min must be >= num_context - 1 = {self.num_context - 1}")
         if self.gap_max < self.gap_min:
             raise ValueError("gap_max must be >= gap_min")
-        if self.extrap_frames < 0:
-            raise ValueError("extrap_frames must be >= 0")
         if not 0.0 <= self.interp_ratio <= 1.0:
             raise ValueError("interp_ratio must be in [0, 1]")
-        if self.samples_per_scene < 1:
-            raise ValueError("samples_per_scene must be >= 1")
 
     @property
     def wants_outside(self) -> bool:

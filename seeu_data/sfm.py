@@ -59,6 +59,7 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .errors import SeeUError
+from .limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
@@ -115,16 +116,16 @@ class SfmConfig:
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
             raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
-        if self.sfm_attempts < 1:
-            raise SeeUError(f"--sfm-attempts must be >= 1, got {self.sfm_attempts}")
-        if self.map_threads == 0 or self.map_threads < -1:
+        check_range(self.sfm_attempts, "--sfm-attempts", 1, MAX_ATTEMPTS)
+        check_range(self.map_threads, "--map-threads", -1, MAX_WORKERS)
+        if self.map_threads == 0:
             raise SeeUError(f"--map-threads must be >= 1 or -1 (all cores), got {self.map_threads}")
-        if self.overlap < 1:
-            raise SeeUError(f"--overlap must be >= 1, got {self.overlap}")
+        check_range(self.threads, "--threads", -1, MAX_WORKERS)
+        check_range(self.overlap, "--overlap", 1, MAX_FRAMES)
+        check_range(self.max_features, "--max-features", 1, MAX_FEATURES)
         if not (self.keyframe_motion >= 0 and math.isfinite(self.keyframe_motion)):
             raise SeeUError(f"--keyframe-motion must be a finite number >= 0, got {self.keyframe_motion}")
-        if self.min_keyframes < 3:
-            raise SeeUError(f"min_keyframes must be >= 3, got {self.min_keyframes}")
+        check_range(self.min_keyframes, "min_keyframes", 3, MAX_FRAMES)
         if self.vocab_tree is not None and not Path(self.vocab_tree).is_file():
             raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
         if self.mapper not in MAPPERS:

@@ -31,6 +31,8 @@ import numpy as np
 
 from .cameras import intrinsics_pixels, project_points, unproject_pixels
 from .errors import SeeUError
+from .json_file import read_json
+from .limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE, check_range
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
 SCENES = ("corridor", "planar")
@@ -437,8 +439,9 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     cfg = config or ClipConfig()
     if overrides:
         cfg = ClipConfig(**{**cfg.__dict__, **overrides})
-    if cfg.n_frames < 1 or cfg.width < 16 or cfg.height < 16:
-        raise SeeUError(f"invalid clip size {cfg.n_frames} frames of {cfg.width}x{cfg.height}")
+    check_range(cfg.n_frames, "--frames", 1, MAX_VIDEO_FRAMES)
+    check_range(cfg.width, "--size", 16, MAX_VIDEO_SIDE)
+    check_range(cfg.height, "--size", 16, MAX_VIDEO_SIDE)
     video_path = Path(video_path)
     video_path.parent.mkdir(parents=True, exist_ok=True)
     if cfg.scene not in SCENES:
@@ -496,9 +499,14 @@ def load_ground_truth(path: str | Path) -> dict:
         path = ground_truth_path(path)
     if not path.exists():
         raise SeeUError("ground-truth JSON not found", path)
-    doc = json.loads(path.read_text())
-    if doc.get("format") != GT_FORMAT:
-        raise SeeUError(f"not a synthetic ground-truth file (format {doc.get('format')!r})", path)
+    doc = read_json(path, "ground-truth JSON")
+    if not isinstance(doc, dict) or doc.get("format") != GT_FORMAT:
+        raise SeeUError(
+            "not a synthetic ground-truth file (format {!r})".format(
+                doc.get("format") if isinstance(doc, dict) else None
+            ),
+            path,
+        )
     doc["cam_to_world"] = np.array([f["cam_to_world"] for f in doc["frames"]], np.float64)
     doc["intrinsics_norm"] = np.array([f["intrinsics_norm"] for f in doc["frames"]], np.float64)
     doc["frame"] = np.array([f["frame"] for f in doc["frames"]], np.int64)

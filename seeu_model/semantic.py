@@ -11,7 +11,6 @@ leaves its weights out of checkpoints.
 
 from __future__ import annotations
 
-import json
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Any, Callable, Iterator
@@ -21,6 +20,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seeu_data.errors import SeeUError
+from seeu_data.json_file import read_json
 from seeu_model.safe_load import safe_torch_load
 
 
@@ -214,8 +214,8 @@ def _image_side_files(resolve: Callable[[str], Path | None], where: str, hub: bo
     index = resolve(single + ".index.json")
     if index is not None:
         try:
-            weight_map = json.loads(index.read_text()).get("weight_map", {})
-        except (OSError, ValueError) as exc:
+            weight_map = read_json(index, "weight index").get("weight_map", {})
+        except (OSError, ValueError, AttributeError) as exc:
             raise SeeUError(f"unreadable weight index ({_first_line(exc)})", index) from None
         names = sorted({f for k, f in weight_map.items() if k.startswith(BLIP2_PREFIXES)})
     elif hub:
@@ -238,7 +238,9 @@ def load_blip2_image_state(
     if cfg_path is None:
         raise SeeUError("no config.json in the BLIP-2 weights" + ("" if hub else " directory"), where)
     try:
-        cfg_dict = json.loads(cfg_path.read_text())
+        cfg_dict = read_json(cfg_path, "BLIP-2 config.json")
+        if not isinstance(cfg_dict, dict):
+            raise ValueError("not a JSON object")
     except (OSError, ValueError) as exc:
         raise SeeUError(f"unreadable BLIP-2 config.json ({_first_line(exc)})", cfg_path) from None
     if cfg_dict.get("model_type") != "blip-2":

@@ -84,12 +84,15 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.demo import DemoConfig, demo
+    from seeu_data.limits import MAX_VIDEO_SIDE
 
     result = demo(
         DemoConfig(
             out=args.out,
             frames=args.frames,
-            size=parse_dims(args.size, "--size", minimum=16),  # WIDTHxHEIGHT, as video sizes are written
+            size=parse_dims(
+                args.size, "--size", minimum=16, maximum=MAX_VIDEO_SIDE
+            ),  # WIDTHxHEIGHT, as video sizes are written
             seed=args.seed,
             heldout_seed=args.heldout_seed,
             image_size=parse_dims(args.image_size, "--image-size", minimum=16),

@@ -14,8 +14,11 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import math
 import sys
 from pathlib import Path
+
+from seeu_data.limits import MAX_CHUNK_BYTES
 
 from pipelines.cli.options import add_out, add_progress, parse_dims, parse_scene_list, progress_wanted
 
@@ -29,7 +32,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
     f = sub.add_parser("pixelsplat", parents=[common], help="pixelSplat / MVSplat chunks + index.json")
     f.add_argument("--stage", choices=["train", "test"], default="test")
-    f.add_argument("--chunk-mb", type=float, default=100.0, help="image megabytes per chunk (peers: 100)")
+    f.add_argument(
+        "--chunk-mb",
+        type=float,
+        default=100.0,
+        help=f"image megabytes per chunk (peers: 100; at most {MAX_CHUNK_BYTES / 1e6:g})",
+    )
     f.add_argument(
         "--resize",
         metavar="HxW",
@@ -60,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
         cfg = PixelSplatExportConfig(
             out=args.out,
             stage=args.stage,
-            chunk_bytes=int(args.chunk_mb * 1e6),
+            chunk_bytes=int(args.chunk_mb * 1e6) if math.isfinite(args.chunk_mb) else 0,
             scenes=scene_ids,
             resize=parse_dims(args.resize, "--resize") if args.resize else None,
             size_check=args.size_check,

@@ -4,7 +4,7 @@ kind of value given on the command line.
 Shared flags (`add_*`): `--out` (where the command writes), `--force` (redo every stage instead of
 resuming), `--progress` / `--no-progress` (progress bars even when stderr is not a terminal / none;
 default: bars on a terminal), `--fsync` (fsync every output file before its rename), `--workers N`
-(worker processes, >= 1).
+(worker processes, 1..MAX_WORKERS).
 
 Value parsers (`parse_*`) raise SeeUError naming the flag, so a bad value is one line and exit 2
 wherever it is parsed. Flags take these values as strings; the command's `run` parses them while it
@@ -20,6 +20,7 @@ from pathlib import Path
 from typing import Any, Protocol
 
 from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
 
 _BYTE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "kib": 1 << 10, "mib": 1 << 20, "gib": 1 << 30}
 
@@ -71,8 +72,11 @@ def add_fsync(p: Flags) -> None:
 
 
 def add_workers(p: Flags, what: str, default: int | None) -> None:
-    """`--workers N`: worker processes (`what` they do and the default, for the help); checked >= 1 by the stage."""
-    p.add_argument("--workers", type=int, default=default, metavar="N", help=f"worker processes: {what}")
+    """`--workers N`: worker processes (`what` they do and the default, for the help); checked 1..MAX_WORKERS
+    by the stage."""
+    p.add_argument(
+        "--workers", type=int, default=default, metavar="N", help=f"worker processes (at most {MAX_WORKERS}): {what}"
+    )
 
 
 # ------------------------------------------------------------------------------------------------
@@ -80,17 +84,16 @@ def add_workers(p: Flags, what: str, default: int | None) -> None:
 # ------------------------------------------------------------------------------------------------
 
 
-def parse_dims(text: str, flag: str, minimum: int = 1) -> tuple[int, int]:
+def parse_dims(text: str, flag: str, minimum: int = 1, maximum: int = MAX_IMAGE_SIDE) -> tuple[int, int]:
     """'256x384' -> (256, 384), '256' -> (256, 256): two sizes in the order written (the one size
-    parser). Image sizes are written HxW (`--image-size`, `--resize`, `--size` of ingest/export); a
-    video's frame size WIDTHxHEIGHT, as video sizes are (`seeu synth --size 640x360`)."""
-    m = re.fullmatch(r"\s*(\d+)\s*(?:[xX,]\s*(\d+))?\s*", str(text))
+    parser), each in minimum..maximum (`check_range`; image sides: at most `MAX_IMAGE_SIDE`). Image
+    sizes are written HxW (`--image-size`, `--resize`, `--size` of ingest/export); a video's frame size
+    WIDTHxHEIGHT, as video sizes are (`seeu synth --size 640x360`, at most `MAX_VIDEO_SIDE`)."""
+    m = re.fullmatch(r"\s*(\d{1,18})\s*(?:[xX,]\s*(\d{1,18}))?\s*", str(text))
     if not m:
         raise SeeUError(f"{flag} {text!r} is not two sizes AxB (e.g. 256x256)")
     a, b = int(m.group(1)), int(m.group(2) or m.group(1))
-    if min(a, b) < minimum:
-        raise SeeUError(f"{flag} {text!r}: sizes must be " + ("positive" if minimum <= 1 else f"at least {minimum}"))
-    return a, b
+    return check_range(a, flag, minimum, maximum), check_range(b, flag, minimum, maximum)
 
 
 def parse_bytes(text: str, flag: str) -> int:
@@ -98,7 +101,7 @@ def parse_bytes(text: str, flag: str) -> int:
     m = re.fullmatch(r"\s*([0-9.eE+]+)\s*([a-zA-Z]*)\s*", str(text))
     try:
         value = int(float(m.group(1)) * _BYTE_UNITS[m.group(2).lower()]) if m else 0
-    except (KeyError, ValueError):
+    except (KeyError, ValueError, OverflowError):
         value = 0
     if value <= 0:
         raise SeeUError(f"{flag} {text!r} is not a positive size (e.g. 128MB, 64MiB)")

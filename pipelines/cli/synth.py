@@ -14,13 +14,20 @@ Example:
 from __future__ import annotations
 
 import argparse
+from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE
+
 from pipelines.cli.options import add_out, add_progress, parse_dims, progress_wanted
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     add_out(p, "output directory (clip.mp4 + clip.json)")
-    p.add_argument("--frames", type=int, default=90, help="number of frames (default 90)")
-    p.add_argument("--size", default="640x360", metavar="WxH", help="frame size WIDTHxHEIGHT (default 640x360)")
+    p.add_argument("--frames", type=int, default=90, help=f"number of frames (default 90, at most {MAX_VIDEO_FRAMES})")
+    p.add_argument(
+        "--size",
+        default="640x360",
+        metavar="WxH",
+        help=f"frame size WIDTHxHEIGHT (default 640x360; sides 16..{MAX_VIDEO_SIDE})",
+    )
     p.add_argument("--seed", type=int, default=0, help="scene seed: textures and box layout (default 0)")
     p.add_argument(
         "--scene",
@@ -37,7 +44,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from seeu_data.synthetic import ClipConfig, write_clip
 
-    width, height = parse_dims(args.size, "--size", minimum=16)  # WIDTHxHEIGHT, as video sizes are written
+    width, height = parse_dims(
+        args.size, "--size", minimum=16, maximum=MAX_VIDEO_SIDE
+    )  # WIDTHxHEIGHT, as video sizes are written
     cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps, scene=args.scene)
     video = args.out / f"{args.name}.mp4"
     doc = write_clip(video, cfg, progress=progress_wanted(args))

@@ -31,6 +31,7 @@ import numpy as np
 from ..arrow_io import atomic_path, atomic_write_text
 from ..cameras import world_to_cam_from_cam_to_world
 from ..errors import SeeUError
+from ..limits import MAX_CHUNK_BYTES, MAX_IMAGE_SIDE, check_range
 from ..posed import PosedDataset, PosedScene
 from ..resize import resize_scene
 from ..resume import sweep
@@ -61,8 +62,10 @@ class PixelSplatExportConfig:
     def check(self) -> None:
         if self.size_check not in SIZE_CHECKS:
             raise SeeUError(f"--size-check must be one of {', '.join(SIZE_CHECKS)}, got {self.size_check!r}")
-        if self.resize is not None and min(self.resize) < 1:
-            raise SeeUError(f"--resize must be positive, got {self.resize[0]}x{self.resize[1]}")
+        for side in self.resize or ():
+            check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
+        check_range(self.chunk_bytes, "--chunk-mb in bytes", 1, MAX_CHUNK_BYTES)
+        check_range(self.jpeg_quality, "JPEG quality", 1, 100)
 
 
 def peer_fov_deg(intrinsics_norm: np.ndarray) -> np.ndarray:

@@ -23,6 +23,16 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
+from seeu_data.json_file import check_nesting, parse_json, read_document, read_json, too_deep_error
+from seeu_data.limits import (
+    MAX_BATCH_SIZE,
+    MAX_IMAGE_SIDE,
+    MAX_SAMPLES,
+    MAX_SEED,
+    MAX_STEPS,
+    MAX_WORKERS,
+    check_range,
+)
 
 PRESETS_DIR = files("seeu_model") / "presets"
 
@@ -190,11 +200,13 @@ def config_from_dict(data: dict) -> TrainConfig:
     return cfg
 
 
-def _parse_scalar(text: str) -> Any:
+def _parse_scalar(text: str, what: str = "override value") -> Any:
     """CLI override value: JSON when it parses (numbers, true/false, null, lists), else the string."""
     try:
-        return json.loads(text)
-    except json.JSONDecodeError:
+        return parse_json(text, what)
+    except SeeUError:
+        if text.lstrip()[:1] in ("[", "{"):  # meant as a JSON list or mapping: its error stands
+            raise
         return text
 
 
@@ -210,7 +222,7 @@ def apply_overrides(data: dict, overrides: list[str]) -> dict:
             node = node.setdefault(p, {})
             if not isinstance(node, dict):
                 raise SeeUError(f"override {item!r}: {p} is not a section")
-        node[parts[-1]] = _parse_scalar(text)
+        node[parts[-1]] = _parse_scalar(text, f"override {key.strip()}")
     return data
 
 
@@ -231,22 +243,22 @@ def resolve_config(path_or_preset: str | Path) -> Path:
 
 
 def read_config_file(path: str | Path) -> dict:
+    """A config file's sections (JSON, or YAML with PyYAML), bounded in size and depth as every JSON document."""
     path = resolve_config(path)
-    text = path.read_text()
     if path.suffix in (".yaml", ".yml"):
         try:
             import yaml
         except ImportError:
             raise SeeUError("YAML configs need PyYAML (pip install pyyaml), or use the .json preset", path) from None
+        text = read_document(path, "config file")
         try:
-            data = yaml.safe_load(text) or {}
+            data = check_nesting(yaml.safe_load(text) or {}, "config file", path)
+        except RecursionError:
+            raise too_deep_error("config file", path) from None
         except yaml.YAMLError as exc:
             raise SeeUError(f"not valid YAML: {str(exc).splitlines()[0]}", path) from None
     else:
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise SeeUError(f"not valid JSON: {exc}", path) from None
+        data = read_json(path, "config file")
     if not isinstance(data, dict):
         raise SeeUError("a config file must hold a mapping of sections", path)
     return data
@@ -265,30 +277,36 @@ def load_config(path: str | Path | None = None, overrides: list[str] | None = No
 
 
 def validate(cfg: TrainConfig) -> None:
-    """Value checks of a built config (types and finiteness are checked by `_coerce`); one line each."""
+    """Value checks of a built config (types and finiteness are checked by `_coerce`); one line each.
+    Sizes and counts are checked by `check_range` against the limits of `seeu_data.limits`."""
     o, d, c, lg = cfg.optim, cfg.data, cfg.checkpoint, cfg.log
+    counts = [
+        ("data.batch_size", d.batch_size, 1, MAX_BATCH_SIZE),
+        ("data.image_size", d.image_size[0], 1, MAX_IMAGE_SIDE),
+        ("data.image_size", d.image_size[1], 1, MAX_IMAGE_SIDE),
+        ("data.num_workers", d.num_workers, 0, MAX_WORKERS),
+        ("data.seed", d.seed, 0, MAX_SEED),
+        ("data.val_batch_size", d.val_batch_size, 1, MAX_BATCH_SIZE),
+        ("data.val_max_samples", d.val_max_samples, 0, MAX_SAMPLES),
+        ("optim.max_steps", o.max_steps, 1, MAX_STEPS),
+        ("optim.warmup_steps", o.warmup_steps, 0, MAX_STEPS),
+        ("checkpoint.every", c.every, 1, MAX_STEPS),
+        ("checkpoint.keep", c.keep, 1, MAX_STEPS),
+        ("log.every", lg.every, 1, MAX_STEPS),
+        ("log.image_every", lg.image_every, 1, MAX_STEPS),
+        ("log.val_every", lg.val_every, 0, MAX_STEPS),
+        ("seed", cfg.seed, 0, MAX_SEED),
+    ]
+    for name, value, lo, hi in counts:
+        check_range(value, f"config {name}", lo, hi)
     checks = [
         (o.lr > 0, "optim.lr must be > 0"),
-        (o.max_steps > 0, "optim.max_steps must be > 0"),
-        (o.warmup_steps >= 0, "optim.warmup_steps must be >= 0"),
         (0 <= o.min_lr_ratio <= 1, "optim.min_lr_ratio must be in [0, 1]"),
         (all(0 <= b < 1 for b in o.betas), "optim.betas must be in [0, 1)"),
         (o.eps > 0, "optim.eps must be > 0"),
         (o.weight_decay >= 0, "optim.weight_decay must be >= 0"),
         (o.grad_clip >= 0, "optim.grad_clip must be >= 0 (0 = off)"),
-        (d.batch_size > 0, "data.batch_size must be > 0"),
-        (min(d.image_size) > 0, "data.image_size must be positive"),
-        (d.num_workers >= 0, "data.num_workers must be >= 0"),
-        (d.seed >= 0, "data.seed must be >= 0"),
-        (d.val_batch_size > 0, "data.val_batch_size must be > 0"),
-        (d.val_max_samples >= 0, "data.val_max_samples must be >= 0 (0 = all)"),
-        (c.every > 0, "checkpoint.every must be > 0"),
-        (c.keep > 0, "checkpoint.keep must be > 0"),
-        (lg.every > 0, "log.every must be > 0"),
-        (lg.image_every > 0, "log.image_every must be > 0"),
-        (lg.val_every >= 0, "log.val_every must be >= 0 (0 = only at the end)"),
         (cfg.loss.lpips_weight >= 0, "loss.lpips_weight must be >= 0"),
-        (cfg.seed >= 0, "seed must be >= 0"),
     ]
     for ok, message in checks:
         if not ok:
