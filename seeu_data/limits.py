@@ -66,8 +66,9 @@ def check_range(value: Any, name: str, lo: int, hi: int, path: str | Path | None
     """
     if isinstance(value, bool) or not isinstance(value, numbers.Integral):
         raise SeeUError(f"{name}: expected an integer, got {value!r}", path)
+    value = int(value)
     if value < lo:
         raise SeeUError(f"{name} must be >= {lo}, got {value}", path)
     if value > hi:
         raise SeeUError(f"{name} {value} is over the limit {hi}", path)
-    return int(value)
+    return value

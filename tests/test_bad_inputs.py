@@ -563,6 +563,119 @@ case("render-camera-negative-focal")(
 )
 
 
+# ---- limits ----
+# Deeply nested JSON anywhere a JSON document is read, and sizes / counts over their declared limit
+# (seeu_data/limits.py): one line, exit 2, before any work.
+DEEP = "[" * 100_000 + "]" * 100_000  # past Python's recursion limit
+DEEP_OBJ = '{"a": ' * 100 + "1" + "}" * 100  # parses, but nests past MAX_JSON_DEPTH
+
+
+def _deep_config(tmp, name="deep.json", text=DEEP) -> list[str]:
+    _put(tmp / name, text)
+    return ["--config", str(tmp / name)]
+
+
+def _train(ws, tmp, *extra) -> list[str]:
+    return ["train", "--data", str(ws["triples"]), "--out", str(tmp / "r"), *extra]
+
+
+def _render(ws, tmp, *extra) -> list[str]:
+    return ["render", "--checkpoint", str(ws["ckpt"]), "--out", str(tmp / "r"), *extra]
+
+
+case("validate-manifest-deep", text="nests deeper")(
+    lambda ws, tmp: _put(_manifest(ws, tmp) / "manifest.json", DEEP) or ["validate", str(tmp / "ds")]
+)
+case("inspect-manifest-deep-objects", text="nests deeper")(
+    lambda ws, tmp: _put(_manifest(ws, tmp) / "manifest.json", DEEP_OBJ) or ["inspect", str(tmp / "ds")]
+)
+case("train-config-deep", text="nests deeper")(lambda ws, tmp: _train(ws, tmp, *_deep_config(tmp)))
+case("train-config-yaml-deep", text="nests deeper")(
+    lambda ws, tmp: _train(ws, tmp, *_deep_config(tmp, "deep.yaml", "a: " + "[" * 1000 + "]" * 1000))
+)
+case("train-override-deep", text="nests deeper")(lambda ws, tmp: _train(ws, tmp, *TRAIN, "model.x=" + DEEP))
+case("render-cameras-deep", text="nests deeper")(
+    lambda ws, tmp: _put(tmp / "c.json", DEEP) or _render(ws, tmp, "--cameras", str(tmp / "c.json"))
+)
+case("import-nerfstudio-transforms-deep", text="nests deeper")(
+    lambda ws, tmp: _put(tmp / "t.json", DEEP) or ["import", "nerfstudio", str(tmp / "t.json"), "--out", str(tmp / "o")]
+)
+case("import-pixelsplat-index-deep", text="nests deeper")(lambda ws, tmp: _ps(ws, tmp, index=DEEP_OBJ))
+case("build-eval-index-deep", text="nests deeper")(
+    lambda ws, tmp: (
+        _put(tmp / "i.json", DEEP)
+        or ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--mode", "eval", "--index", str(tmp / "i.json")]
+    )
+)
+case("train-batch-size-huge", text="data.batch_size 100000000 is over the limit 1024")(
+    lambda ws, tmp: _train(ws, tmp, *TRAIN, "data.batch_size=100000000")
+)
+case("train-image-size-huge", text="data.image_size 100000 is over the limit 8192")(
+    lambda ws, tmp: _train(ws, tmp, *TRAIN, "data.image_size=100000x100000")
+)
+case("train-num-workers-huge", text="over the limit 256")(
+    lambda ws, tmp: _train(ws, tmp, *TRAIN, "data.num_workers=100000")
+)
+case("train-max-steps-huge", text="--max-steps 10000000000 is over the limit 1000000000")(
+    lambda ws, tmp: _train(ws, tmp, "--max-steps", "10000000000")
+)
+case("train-batch-size-zero", text="data.batch_size must be >= 1, got 0")(
+    lambda ws, tmp: _train(ws, tmp, *TRAIN, "data.batch_size=0")
+)
+case("train-config-batch-size-string", text="data.batch_size: expected an integer, got 'eight'")(
+    lambda ws, tmp: _train(ws, tmp, *_deep_config(tmp, "c.json", json.dumps({"data": {"batch_size": "eight"}})))
+)
+case("render-frames-huge", text="--frames 100000000 is over the limit 10000")(
+    lambda ws, tmp: _render(ws, tmp, "--cameras", str(tmp / "none.json"), "--frames", "100000000")
+)
+case("render-image-size-huge", text="over the limit 8192")(
+    lambda ws, tmp: _render(ws, tmp, "--cameras", str(tmp / "none.json"), "--image-size", "65536x65536")
+)
+case("eval-batch-size-huge", text="--batch-size 100000 is over the limit 1024")(
+    lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]), "--batch-size", "100000"]
+)
+case("synth-size-huge", text="--size 100000 is over the limit 4096")(
+    lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--size", "100000x100000"]
+)
+case("synth-frames-huge", text="over the limit 100000")(
+    lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--frames", "1000000000"]
+)
+case("synth-size-absurd-digits")(lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--size", "9" * 5000])
+case("export-resize-huge", text="--resize 100000 is over the limit 8192")(
+    lambda ws, tmp: ["export", "pixelsplat", str(ws["posed"]), "--out", str(tmp / "o"), "--resize", "100000x100000"]
+)
+case("export-chunk-mb-inf", text="--chunk-mb")(
+    lambda ws, tmp: ["export", "pixelsplat", str(ws["posed"]), "--out", str(tmp / "o"), "--chunk-mb", "inf"]
+)
+case("ingest-size-huge", text="--size 100000 is over the limit 8192")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--size", "100000x100000"]
+)
+case("ingest-workers-huge", text="--workers 100000 is over the limit 256")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--workers", "100000"]
+)
+case("ingest-threads-huge", text="--threads 100000 is over the limit 256")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--threads", "100000"]
+)
+case("ingest-workers-zero", text="--workers must be >= 1, got 0")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--workers", "0"]
+)
+case("build-samples-per-scene-huge", text="--samples-per-scene 1000000000000 is over the limit")(
+    lambda ws, tmp: ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--samples-per-scene", "1000000000000"]
+)
+case("build-num-context-huge", text="--num-context 1000 is over the limit 16")(
+    lambda ws, tmp: ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--num-context", "1000"]
+)
+case("build-num-target-negative", text="--num-target must be >= 1, got -1")(
+    lambda ws, tmp: ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--num-target", "-1"]
+)
+case("build-rows-per-batch-huge", text="--rows-per-batch 100000000 is over the limit")(
+    lambda ws, tmp: ["build", str(ws["posed"]), "--out", str(tmp / "o"), "--rows-per-batch", "100000000"]
+)
+case("demo-size-huge", text="--size 100000 is over the limit 4096")(
+    lambda ws, tmp: ["demo", "--out", str(tmp / "o"), "--size", "100000x100000"]
+)
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)
