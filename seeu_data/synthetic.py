@@ -23,6 +23,7 @@ Lambertian with a fixed light, constant per face (view-independent, as SfM assum
 from __future__ import annotations
 
 import json
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -442,6 +443,8 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     check_range(cfg.n_frames, "--frames", 1, MAX_VIDEO_FRAMES)
     check_range(cfg.width, "--size", 16, MAX_VIDEO_SIDE)
     check_range(cfg.height, "--size", 16, MAX_VIDEO_SIDE)
+    if not (math.isfinite(cfg.fps) and cfg.fps > 0):
+        raise SeeUError(f"--fps must be a finite number > 0, got {cfg.fps}")
     video_path = Path(video_path)
     video_path.parent.mkdir(parents=True, exist_ok=True)
     if cfg.scene not in SCENES:
