@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -37,7 +38,8 @@ class TrainRunConfig:
     a checkpoint file; init_from: a SeeU checkpoint whose model section (`model.*` overrides still
     apply) and weights the run starts from (ignored when resuming); lpips: False trains with MSE only
     (`loss.lpips_weight=0`); lpips_weights: torchvision's vgg16-397923af.pth; device: cpu, cuda,
-    cuda:1 (None: this rank's GPU, else CPU); progress: a bar (None: the config's `log.progress`).
+    cuda:1 (None: this rank's GPU, else CPU); progress: a bar (None: the config's `log.progress`);
+    on_nonfinite: shortcut for the config's `on_nonfinite` ("stop" or "skip-batch"; None: the config's).
     stop_after: stop (with a checkpoint) at that step although the schedule runs on, as an interrupted
     run would; model_factory(model_section) -> (module, model_config_dict) replaces the SeeU model (tests).
     """
@@ -56,22 +58,33 @@ class TrainRunConfig:
     progress: bool | None = None
     stop_after: int | None = None
     model_factory: Callable | None = None
+    on_nonfinite: str | None = None
 
     def check(self) -> None:
         if self.stop_after is not None:
             check_range(self.stop_after, "stop_after", 1, MAX_STEPS)
         if self.max_steps is not None:
             check_range(self.max_steps, "--max-steps", 1, MAX_STEPS)
+        resume = self.resume
+        if resume is not None and not isinstance(resume, (bool, str, Path)):
+            raise SeeUError(f"resume must be True or a checkpoint path, got {resume!r}")
+        if isinstance(resume, str) and re.fullmatch(r"[+-]?\d+", resume.strip()) and not Path(resume).exists():
+            raise SeeUError(
+                f"--resume takes a checkpoint file or directory (or nothing: the newest in OUT/checkpoints), "
+                f"not a step number: {resume!r}"
+            )
         if isinstance(self.overrides, str):
             raise SeeUError("overrides must be a sequence of key=value strings, not one string")
 
     def all_overrides(self) -> list[str]:
-        """`overrides` with the shortcuts (`max_steps`, `lpips=False`) appended."""
+        """`overrides` with the shortcuts (`max_steps`, `lpips=False`, `on_nonfinite`) appended."""
         out = list(self.overrides)
         if self.max_steps is not None:
             out.append(f"optim.max_steps={self.max_steps}")
         if not self.lpips:
             out.append("loss.lpips_weight=0")
+        if self.on_nonfinite is not None:
+            out.append(f"on_nonfinite={self.on_nonfinite}")
         return out
 
 
@@ -227,6 +240,7 @@ def train(run: TrainRunConfig) -> dict:
             "final": result.history[-1] if result.history else {},
             "history": result.history,
             "val": result.val,
+            "skipped_batches": result.skipped_batches,
             "world_size": dist.world_size,
             "device": str(dist.device),
         }
@@ -240,7 +254,11 @@ def train(run: TrainRunConfig) -> dict:
 def _load_init_state(model, ckpt: dict) -> None:
     """Load `ckpt`'s weights into a new run's model. Only a refiner (and its condition encoder) may be
     absent from the checkpoint: they keep their initialisation (the refiner's residual starts at zero, so
-    step 0 renders what the checkpoint's model renders)."""
+    step 0 renders what the checkpoint's model renders). Every tensor must be finite and of the model's
+    shape (`checkpoint.check_tensors`)."""
+    from seeu_model.training.checkpoint import check_tensors
+
+    check_tensors(ckpt["model"], ckpt.get("path"), model.state_dict(), prefix="model")
     missing, unexpected = model.load_state_dict(ckpt["model"], strict=False)
     frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
     missing = [k for k in missing if k not in frozen and not k.startswith(("refiner.", "condition."))]

@@ -676,6 +676,135 @@ case("demo-size-huge", text="--size 100000 is over the limit 4096")(
 )
 
 
+# ---- train-guard ----
+def _nan_camera_triples(ws, tmp) -> Path:
+    """A copy of the workspace triples whose first sample holds one NaN camera value, with the
+    manifest's bytes and sha256 of the rewritten shard made to match (the checksum is consistent)."""
+    import pyarrow as pa
+    import pyarrow.ipc as ipc
+
+    from seeu_data.arrow_io import sha256_file
+
+    root = _copy(ws["triples"], tmp, "nan_triples")
+    doc = json.loads((root / "manifest.json").read_text())
+    entry = doc["files"][0]
+    shard = root / entry["path"]
+    table = ipc.open_file(pa.BufferReader(shard.read_bytes())).read_all()  # not mapped: rewritten below
+    cams = table.column("cam_to_world").to_pylist()
+    cams[0][0][3] = float("nan")
+    i = table.schema.get_field_index("cam_to_world")
+    table = table.set_column(i, table.schema.field(i), pa.array(cams, table.schema.field(i).type))
+    with pa.OSFile(str(shard), "wb") as sink, ipc.new_file(sink, table.schema) as writer:
+        writer.write_table(table)
+    entry["bytes"], entry["sha256"] = shard.stat().st_size, sha256_file(shard)
+    (root / "manifest.json").write_text(json.dumps(doc))
+    return root
+
+
+def _all_checkpoints_finite(run: Path):
+    def check():
+        from seeu_model.training.checkpoint import first_nonfinite
+
+        for p in sorted((run / "checkpoints").glob("*.pt")):
+            assert first_nonfinite(torch.load(p, weights_only=True)) is None, f"{p} holds a non-finite tensor"
+
+    return check
+
+
+def _edited_ckpt(ws, tmp, edit) -> Path:
+    """A copy of the workspace run's checkpoint with `edit(ckpt)` applied."""
+    ck = torch.load(ws["ckpt"], weights_only=True)
+    edit(ck)
+    path = tmp / "edited" / ws["ckpt"].name
+    path.parent.mkdir(parents=True, exist_ok=True)
+    torch.save(ck, path)
+    return path
+
+
+def _first_weight(ck: dict) -> str:
+    return next(k for k, v in ck["model"].items() if v.is_floating_point() and v.dim() >= 2)
+
+
+def _nan_weight(ck: dict) -> None:
+    ck["model"][_first_weight(ck)].view(-1)[0] = float("nan")
+
+
+def _wrong_shape(ck: dict) -> None:
+    k = _first_weight(ck)
+    ck["model"][k] = torch.zeros(ck["model"][k].shape[0] + 1, *ck["model"][k].shape[1:])
+
+
+def _train_argv(ws, tmp, *extra: str, data: Path | None = None) -> list[str]:
+    return ["train", "--data", str(data or ws["triples"]), "--out", str(tmp / "r"), *TRAIN, *extra]
+
+
+GUARD = ["--max-steps", "4", "checkpoint.every=1", "log.val_every=0"]  # after TRAIN: the later --max-steps wins
+NAN_CKPT = "holds NaN or inf values"
+case("train-nan-camera-shard-stops")(
+    lambda ws, tmp: (
+        _train_argv(ws, tmp, *GUARD, data=_nan_camera_triples(ws, tmp)),
+        _all_checkpoints_finite(tmp / "r"),
+    )
+)
+case("train-nan-camera-shard-skip-batch", rc=None)(
+    lambda ws, tmp: (
+        _train_argv(ws, tmp, *GUARD, "--on-nonfinite", "skip-batch", data=_nan_camera_triples(ws, tmp)),
+        _all_checkpoints_finite(tmp / "r"),
+    )
+)
+case("train-lr-diverges-without-clipping", text=": step ")(
+    lambda ws, tmp: (
+        _train_argv(ws, tmp, *GUARD, "optim.lr=1e8", "optim.grad_clip=0"),
+        _all_checkpoints_finite(tmp / "r"),
+    )
+)
+case("train-on-nonfinite-unknown")(lambda ws, tmp: _train_argv(ws, tmp, "on_nonfinite=ignore"))
+case("train-resume-nan-checkpoint", text=NAN_CKPT)(
+    lambda ws, tmp: _train_argv(ws, tmp, "--resume", str(_edited_ckpt(ws, tmp, _nan_weight)))
+)
+case("train-resume-nan-optimizer-state", text=NAN_CKPT)(
+    lambda ws, tmp: _train_argv(
+        ws,
+        tmp,
+        "--resume",
+        str(_edited_ckpt(ws, tmp, lambda ck: next(iter(ck["optimizer"]["state"].values()))["exp_avg"].fill_(np.inf))),
+    )
+)
+case("train-init-from-nan-checkpoint", text=NAN_CKPT)(
+    lambda ws, tmp: _train_argv(ws, tmp, "--init-from", str(_edited_ckpt(ws, tmp, _nan_weight)))
+)
+case("train-init-from-wrong-shape", text="has shape")(
+    lambda ws, tmp: _train_argv(ws, tmp, "--init-from", str(_edited_ckpt(ws, tmp, _wrong_shape)))
+)
+case("train-resume-negative-step", text="negative")(
+    lambda ws, tmp: _train_argv(ws, tmp, "--resume", str(_edited_ckpt(ws, tmp, lambda ck: ck.update(step=-3))))
+)
+case("train-resume-step-number", text="not a step number")(lambda ws, tmp: _train_argv(ws, tmp, "--resume", "-1"))
+case("eval-nan-checkpoint", text=NAN_CKPT)(
+    lambda ws, tmp: [
+        "eval",
+        "--checkpoint",
+        str(_edited_ckpt(ws, tmp, _nan_weight)),
+        "--data",
+        str(ws["triples"]),
+        "--no-lpips",
+        "--out",
+        str(tmp / "e"),
+    ]
+)
+case("render-nan-checkpoint", text=NAN_CKPT)(
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(_edited_ckpt(ws, tmp, _nan_weight)),
+        "--data",
+        str(ws["triples"]),
+        "--out",
+        str(tmp / "r"),
+    ]
+)
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)

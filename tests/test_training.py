@@ -142,3 +142,96 @@ def test_ddp_two_processes_match_one_process_with_double_batch(shards, tmp_path)
     assert moved > 1e-4  # training changed the parameters, so the comparison means something
     for k in a:
         assert torch.allclose(a[k], b[k], atol=1e-5, rtol=1e-4), (k, (a[k] - b[k]).abs().max().item())
+
+
+# ------------------------------------------------------------------------------------------------
+# Non-finite guard (Trainer level: a batch whose camera holds a NaN, weights that overflow)
+# ------------------------------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def good_and_nan_batch(workspace) -> tuple[dict, dict]:
+    """Two loader batches of the workspace triples: as read, and the same with one NaN camera value."""
+    from seeu_data.loader import make_loader
+
+    good = next(iter(make_loader(workspace["triples"], 2, image_hw=(32, 32), flip_p=0.0, shuffle=False)))
+    cams = good["context"]["cam_to_world"].clone()
+    cams[0, 0, 0, 3] = float("nan")
+    return good, {**good, "context": {**good["context"], "cam_to_world": cams}}
+
+
+def _trainer(tmp_path: Path, *overrides: str):
+    from seeu_model.training.factory import make_render_fn
+    from seeu_model.training.loop import Trainer
+    from tests.training_fixtures import tiny_model_factory
+
+    cfg = load_config(
+        None,
+        [
+            "optim.max_steps=3",
+            "optim.warmup_steps=0",
+            "optim.lr=1e-3",
+            "loss.lpips_weight=0",
+            "checkpoint.every=1",
+            "checkpoint.keep=5",
+            "log.every=1",
+            "log.progress=false",
+            "precision=fp32",
+            *overrides,
+        ],
+    )
+    return Trainer(tiny_model_factory({})[0], cfg, tmp_path / "run", make_render_fn("torch"))
+
+
+def _saved_are_finite(run: Path) -> list[str]:
+    saved = ckpt_io.list_checkpoints(run / "checkpoints")
+    for p in saved:
+        assert ckpt_io.first_nonfinite(torch.load(p, weights_only=True)) is None, p
+    return [p.name for p in saved]
+
+
+def test_nan_camera_batch_stops_at_its_step_and_saves_nothing_of_it(good_and_nan_batch, tmp_path):
+    good, bad = good_and_nan_batch
+    trainer = _trainer(tmp_path)
+    with pytest.raises(SeeUError) as err:
+        trainer.fit([good, bad])
+    msg = str(err.value)
+    assert "step 2: non-finite" in msg and ", ".join(bad["sample_id"]) in msg and "\n" not in msg
+    assert _saved_are_finite(tmp_path / "run") == ["ckpt-00000001.pt"]  # the last good one stays the newest
+    assert trainer.step == 1 and all(torch.isfinite(p).all() for p in trainer.model.parameters())
+
+
+def test_skip_batch_drops_the_nan_batch_and_goes_on(good_and_nan_batch, tmp_path, capsys):
+    good, bad = good_and_nan_batch
+    trainer = _trainer(tmp_path, "on_nonfinite=skip-batch")
+    result = trainer.fit([good, bad])
+    assert (result.step, result.skipped_batches) == (3, 2)  # good, bad, good, bad, good
+    assert "step 2: skipped a batch with non-finite" in capsys.readouterr().err
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+    assert _saved_are_finite(tmp_path / "run")[-1] == "ckpt-00000003.pt"
+
+
+def test_skip_batch_stops_after_too_many_in_a_row(good_and_nan_batch, tmp_path, monkeypatch):
+    from seeu_model.training import loop
+
+    monkeypatch.setattr(loop, "MAX_CONSECUTIVE_SKIPS", 3)  # the bound of 20, cheaper
+    trainer = _trainer(tmp_path, "on_nonfinite=skip-batch")
+    with pytest.raises(
+        SeeUError, match=r"step 1: non-finite .* in 3 batches in a row, the last on the batch of samples"
+    ):
+        trainer.fit([good_and_nan_batch[1]])
+    assert trainer.skipped_batches == 2 and _saved_are_finite(tmp_path / "run") == []
+
+
+def test_weights_overflowing_in_the_optimizer_step_stop_even_with_skip_batch(good_and_nan_batch, tmp_path):
+    # finite gradients, but the decoupled decay factor 1 - lr * weight_decay = -3e38 takes a weight of 2
+    # past the float32 range (3.4e38) in the optimizer step
+    trainer = _trainer(tmp_path, "on_nonfinite=skip-batch", "optim.lr=3e37", "optim.weight_decay=10")
+    with torch.no_grad():
+        trainer.model.net[0].weight[0, 0, 0, 0] = 2.0
+    with pytest.raises(SeeUError, match="step 1: the weights became non-finite"):
+        trainer.fit([good_and_nan_batch[0]])
+    assert _saved_are_finite(tmp_path / "run") == []
+    with pytest.raises(SeeUError, match="refusing to write a checkpoint whose tensor model.net.0.weight"):
+        trainer.save(None)
+    assert _saved_are_finite(tmp_path / "run") == []

@@ -14,6 +14,10 @@ OUT/tb (TensorBoard: losses, PSNR, lr, rendered vs ground-truth images, validati
 and OUT/cache (the loader's shard verification stamps and object-storage downloads; $SEEU_CACHE_DIR instead when set).
 LPIPS(VGG) needs torchvision's vgg16-397923af.pth in $TORCH_HOME/hub/checkpoints or --lpips-weights PATH;
 --no-lpips trains with MSE only.
+A step whose loss, gradients or weights hold NaN/inf stops the run (exit 2, one line naming the step and
+the batch's samples; no checkpoint holding a non-finite value is ever written), or with
+--on-nonfinite skip-batch drops that batch's update and goes on. Checkpoints read by --resume and
+--init-from (and by eval / render) must hold finite tensors of the model's shapes.
 """
 
 from __future__ import annotations
@@ -22,6 +26,7 @@ import argparse
 import json
 
 from pipelines.cli.options import add_out, add_progress
+from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, NONFINITE_POLICIES, TrainConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -52,6 +57,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-lpips", action="store_true", help="train with MSE only (loss.lpips_weight=0)")
     parser.add_argument("--device", default=None, help="cpu, cuda, cuda:1 (default: this rank's GPU, else CPU)")
     parser.add_argument("--max-steps", type=int, default=None, help="shortcut for optim.max_steps=N")
+    parser.add_argument(
+        "--on-nonfinite",
+        choices=NONFINITE_POLICIES,
+        default=None,
+        help="a step whose loss, gradients or weights hold NaN/inf: stop = exit 2 naming the step and the "
+        "batch's samples, the last good checkpoint stays the newest; skip-batch = drop that batch's update "
+        f"and go on ({MAX_CONSECUTIVE_SKIPS} such batches in a row stop the run as well; weights that went "
+        f"non-finite always stop). Default: the config's on_nonfinite ({TrainConfig.on_nonfinite})",
+    )
     add_progress(parser)
     parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. optim.lr=1e-4")
 
@@ -73,6 +87,7 @@ def run(args: argparse.Namespace) -> int:
             lpips_weights=args.lpips_weights,
             device=args.device,
             progress=args.progress,  # None: the config's log.progress (default: on a terminal)
+            on_nonfinite=args.on_nonfinite,  # None: the config's on_nonfinite (default: stop)
         )
     )
     if result.get("rank", 0) == 0:

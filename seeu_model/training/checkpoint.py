@@ -13,6 +13,10 @@ A checkpoint ``ckpt-{step:08d}.pt`` is one ``torch.save`` dict of tensors and pl
          cached_gaussian], "python": random.getstate()}, ...}
 ```
 
+Every tensor of a checkpoint is finite: `save_checkpoint` refuses to write one holding NaN or inf,
+and `load_checkpoint` (every reader: eval, render, demo, --resume, --init-from) refuses to read one;
+`check_tensors` is that check, and with the model's state it also checks every shape.
+
 Version 1 stored numpy's RNG state as a numpy array; v1 files are still read, with exactly the numpy
 globals that array needs allow-listed (array reconstruction and the uint32 dtype, nothing callable
 beyond them).
@@ -24,6 +28,7 @@ import io
 import os
 import random
 import re
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -98,9 +103,63 @@ def trainable_state_dict(model: torch.nn.Module) -> dict[str, torch.Tensor]:
     return {k: v.detach().cpu() for k, v in model.state_dict().items() if k not in frozen}
 
 
+def first_nonfinite(tree: Any, prefix: str = "") -> str | None:
+    """The dotted name of the first floating-point tensor in a nested dict/list/tuple that holds a NaN
+    or an infinity (e.g. ``model.backbone.stem.0.weight``, ``optimizer.state.3.exp_avg``), or None."""
+    if isinstance(tree, torch.Tensor):
+        if (tree.is_floating_point() or tree.is_complex()) and not bool(torch.isfinite(tree).all()):
+            return prefix or "<tensor>"
+        return None
+    if isinstance(tree, Mapping):
+        items: Any = tree.items()
+    elif isinstance(tree, (list, tuple)):
+        items = enumerate(tree)
+    else:
+        return None
+    for key, value in items:
+        found = first_nonfinite(value, f"{prefix}.{key}" if prefix else str(key))
+        if found is not None:
+            return found
+    return None
+
+
+def check_tensors(
+    tree: Any, where: str | Path | None, model_state: Mapping[str, torch.Tensor] | None = None, prefix: str = ""
+) -> None:
+    """The one check of a checkpoint's tensors before anything uses them: every floating-point tensor
+    of `tree` (a checkpoint dict, or its ``model`` state dict) is finite; with `model_state` (the
+    model's ``state_dict()``) `tree` is a state dict of tensors and each one the model has is of the
+    model's shape. Raises SeeUError naming `where` (the file) and the first offending tensor
+    (``prefix.name``, e.g. ``model.backbone.stem.0.weight``)."""
+    if model_state is not None and (
+        not isinstance(tree, Mapping) or not all(isinstance(v, torch.Tensor) for v in tree.values())
+    ):
+        raise SeeUError(f"checkpoint {prefix or 'model'!r} is not a state dict of tensors", where)
+    bad = first_nonfinite(tree, prefix)
+    if bad is not None:
+        raise SeeUError(
+            f"checkpoint tensor {bad} holds NaN or inf values (a diverged run?): refused; "
+            "use an earlier checkpoint of the run",
+            where,
+        )
+    for name, value in tree.items() if model_state is not None else ():
+        own = model_state.get(name)  # type: ignore[union-attr]
+        if own is not None and tuple(value.shape) != tuple(own.shape):
+            raise SeeUError(
+                f"checkpoint tensor {prefix + '.' if prefix else ''}{name} has shape {tuple(value.shape)}, "
+                f"the model's is {tuple(own.shape)}: the checkpoint weights do not match its model config "
+                "(was the config edited, or are these the weights of another model?)",
+                where,
+            )
+
+
 def save_checkpoint(directory: str | Path, step: int, payload: dict[str, Any], keep: int) -> Path:
-    """Write ``ckpt-{step}.pt`` atomically, then delete all but the newest `keep` checkpoints."""
+    """Write ``ckpt-{step}.pt`` atomically, then delete all but the newest `keep` checkpoints.
+    A payload holding a non-finite tensor is refused (SeeUError) before anything is written."""
     path = checkpoint_path(directory, step)
+    bad = first_nonfinite(payload)
+    if bad is not None:
+        raise SeeUError(f"refusing to write a checkpoint whose tensor {bad} holds NaN or inf values", path)
     buf = io.BytesIO()
     torch.save({"format": FORMAT, "version": VERSION, "step": step, **payload}, buf)
     atomic_write_bytes(path, buf.getvalue())
@@ -110,7 +169,8 @@ def save_checkpoint(directory: str | Path, step: int, payload: dict[str, Any], k
 
 
 def load_checkpoint(path: str | Path) -> dict:
-    """Read a checkpoint written by `save_checkpoint` (or a directory: its newest checkpoint)."""
+    """Read a checkpoint written by `save_checkpoint` (or a directory: its newest checkpoint).
+    Refused (SeeUError naming the file): a file that is not one, a negative step, a non-finite tensor."""
     p = Path(path)
     if p.is_dir():
         latest = latest_checkpoint(p)
@@ -126,12 +186,16 @@ def load_checkpoint(path: str | Path) -> dict:
     if (
         not isinstance(ckpt.get("version", 0), int)
         or not isinstance(ckpt["step"], int)
+        or isinstance(ckpt["step"], bool)
         or not isinstance(ckpt["config"], dict)
         or not isinstance(ckpt["model"], dict)
     ):
         raise SeeUError("not a valid SeeU training checkpoint (version, step, config or model of the wrong type)", p)
     if int(ckpt.get("version", 0)) > VERSION:
         raise SeeUError(f"checkpoint version {ckpt.get('version')} is newer than this toolkit reads ({VERSION})", p)
+    if ckpt["step"] < 0:
+        raise SeeUError(f"checkpoint step {ckpt['step']} is negative: not a checkpoint a run wrote", p)
+    check_tensors(ckpt, p)
     ckpt["path"] = str(p)
     return ckpt
 

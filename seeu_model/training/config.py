@@ -35,6 +35,13 @@ from seeu_data.limits import (
 )
 
 PRESETS_DIR = files("seeu_model") / "presets"
+# What a step whose loss, gradients or weights are not finite (NaN / inf) does (TrainConfig.on_nonfinite):
+# "stop": exit 2 naming the step and the batch's samples, nothing saved from that step on (the last good
+# checkpoint stays the newest); "skip-batch": that batch's update is not applied and the run goes on,
+# until MAX_CONSECUTIVE_SKIPS batches in a row were skipped (then it stops as "stop" does). Weights that
+# became non-finite in an optimizer step cannot be restored: that always stops.
+NONFINITE_POLICIES = ("stop", "skip-batch")
+MAX_CONSECUTIVE_SKIPS = 20
 
 
 @dataclass
@@ -99,6 +106,7 @@ class TrainConfig:
     precision: str = "auto"  # "auto" (bf16 autocast on CUDA, fp32 on CPU) | "bf16" | "fp32"
     rasterizer: str = "auto"  # "auto" | "torch" | "gsplat"
     seed: int = 0  # model init and training RNG
+    on_nonfinite: str = "stop"  # one of NONFINITE_POLICIES: a non-finite loss / gradient / weight
 
     def to_dict(self) -> dict:
         return asdict(self)
@@ -315,6 +323,8 @@ def validate(cfg: TrainConfig) -> None:
         raise SeeUError(f"config precision: {cfg.precision!r} is not auto, bf16 or fp32")
     if cfg.rasterizer not in ("auto", "torch", "gsplat", "dense"):
         raise SeeUError(f"config rasterizer: {cfg.rasterizer!r} is not auto, torch, gsplat or dense")
+    if cfg.on_nonfinite not in NONFINITE_POLICIES:
+        raise SeeUError(f"config on_nonfinite: {cfg.on_nonfinite!r} is not {' or '.join(NONFINITE_POLICIES)}")
 
 
 def save_config(cfg: TrainConfig, path: str | Path) -> None:

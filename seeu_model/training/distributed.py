@@ -87,3 +87,14 @@ def mean_across(value: float, info: DistInfo) -> float:
         t = t.to(info.device)
     dist.all_reduce(t)
     return float(t.item()) / info.world_size
+
+
+def max_across(value: int, info: DistInfo) -> int:
+    """The largest of an integer over the ranks (a decision every rank must take alike)."""
+    if not info.enabled:
+        return value
+    t = torch.tensor([value], dtype=torch.int64)
+    if dist.get_backend() == "nccl":
+        t = t.to(info.device)
+    dist.all_reduce(t, op=dist.ReduceOp.MAX)
+    return int(t.item())

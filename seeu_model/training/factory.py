@@ -14,6 +14,7 @@ import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
+from seeu_model.training.checkpoint import check_tensors
 
 
 def resolve_model_config(section: dict[str, Any]):
@@ -81,21 +82,9 @@ def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str
 
 
 def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: str | None = None) -> None:
-    """Load a `model_state_for_checkpoint` dict; parameters of frozen modules may be absent."""
-    if not isinstance(state, dict) or not all(isinstance(v, torch.Tensor) for v in state.values()):
-        raise SeeUError("checkpoint 'model' is not a state dict of tensors", where)
-    own = model.state_dict()
-    wrong = [
-        f"{k} {tuple(v.shape)} vs the config's {tuple(own[k].shape)}"
-        for k, v in state.items()
-        if k in own and tuple(v.shape) != tuple(own[k].shape)
-    ]
-    if wrong:
-        raise SeeUError(
-            f"checkpoint weights do not match its model config ({len(wrong)} tensor(s) of another shape, "
-            f"e.g. {wrong[0]}): was the config edited, or the weights of another model?",
-            where,
-        )
+    """Load a `model_state_for_checkpoint` dict; parameters of frozen modules may be absent. Every
+    tensor must be finite and of the model's shape (`checkpoint.check_tensors`)."""
+    check_tensors(state, where, model.state_dict(), prefix="model")
     try:
         missing, unexpected = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself

@@ -6,6 +6,14 @@ or anything with ``__iter__``, ``state_dict()`` and ``load_state_dict()``) from 
 ``render_fn(model, batch) -> (B, T, 3, H, W)`` that runs the model on a loader batch and returns
 the rendered target views.
 
+Non-finite guard: a step whose loss or gradients hold NaN / inf is found before the optimizer step
+(the gradient norm the clipping computes anyway; the max-norm of the gradients only when that one is not
+finite), and weights that became non-finite in the optimizer step right after it (one max-norm over the
+parameters). `cfg.on_nonfinite` says what follows: "stop" raises SeeUError (one line naming the step
+and the batch's sample ids; nothing of that step is saved), "skip-batch" drops the batch's update and
+goes on, until `MAX_CONSECUTIVE_SKIPS` batches in a row were skipped. `save_checkpoint` refuses a
+non-finite tensor as well.
+
 Resume restores model, optimizer, scheduler, step, the loader position and the RNG states of
 torch / CUDA / numpy / python of every rank, so a resumed run follows the same loss curve as an
 uninterrupted one (tested in tests/test_training.py).
@@ -27,9 +35,9 @@ from torch import nn
 from seeu_data.errors import SeeUError
 from seeu_data.loader.collate import batch_to_device
 from seeu_model.training import checkpoint as ckpt_io
-from seeu_model.training.config import TrainConfig, save_config
+from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, TrainConfig, save_config
 from seeu_model.training.factory import load_model_state, model_state_for_checkpoint
-from seeu_model.training.distributed import DistInfo, all_gather_objects, mean_across
+from seeu_model.training.distributed import DistInfo, all_gather_objects, max_across, mean_across
 from seeu_model.training.loss import LossParts, photometric_loss
 from seeu_model.training.schedule import make_scheduler
 
@@ -46,6 +54,33 @@ class TrainResult:
     val: list[dict] = field(default_factory=list)  # validation summaries (rank 0)
     seconds: float = 0.0
     steps_per_s: float = 0.0
+    skipped_batches: int = 0  # batches whose update was dropped (on_nonfinite="skip-batch")
+
+
+class NonFiniteStep(Exception):
+    """A training step whose `what` ("loss", "gradients" or "weights") is not finite.
+
+    step: the step it would have been (1-based); samples: the sample ids of the batch on every rank;
+    applied: whether the optimizer step had already changed the weights (then it cannot be undone)."""
+
+    def __init__(self, what: str, step: int, samples: list[str], applied: bool):
+        super().__init__(f"non-finite {what} at step {step}")
+        self.what, self.step, self.samples, self.applied = what, step, samples, applied
+
+
+_NONFINITE_WHAT = ("", "gradients", "loss")  # codes agreed across ranks (the larger wins)
+
+
+def batch_sample_ids(batch: Any, limit: int = 8) -> str:
+    """The batch's sample ids (padding left out) as one short text: "a, b, c (+5 more)"."""
+    ids = list(batch.get("sample_id") or []) if isinstance(batch, dict) else []
+    pad = batch.get("is_padding") if isinstance(batch, dict) else None
+    if pad is not None and len(pad) == len(ids):
+        ids = [i for i, p in zip(ids, pad.tolist()) if not p]
+    if not ids:
+        return "unknown"
+    more = f" (+{len(ids) - limit} more)" if len(ids) > limit else ""
+    return ", ".join(str(i) for i in ids[:limit]) + more
 
 
 def batch_to(batch: Any, device: torch.device) -> Any:
@@ -69,6 +104,13 @@ def parameter_groups(model: nn.Module, weight_decay: float) -> list[dict]:
             continue
         (decay if p.dim() >= 2 else no_decay).append(p)
     return [{"params": decay, "weight_decay": weight_decay}, {"params": no_decay, "weight_decay": 0.0}]
+
+
+def _finite_max(tensors: Iterable[torch.Tensor | None]) -> bool:
+    """Whether every value of `tensors` is finite: one fused max-norm (NaN and inf propagate; finite
+    values cannot overflow it), one host sync."""
+    ts = [t for t in tensors if t is not None]
+    return not ts or bool(torch.isfinite(torch.nn.utils.get_total_norm(ts, float("inf"))))
 
 
 def _progress_enabled(flag: bool | None) -> bool:
@@ -127,6 +169,8 @@ class Trainer:
         self.history: list[dict] = []
         self.val_history: list[dict] = []
         self.last_checkpoint: str | None = None
+        self.skipped_batches = 0  # in the whole run (kept across resume)
+        self.skipped_in_a_row = 0
 
     # ------------------------------------------------------------------ checkpoints
     def _payload(self, loader) -> dict:
@@ -142,6 +186,7 @@ class Trainer:
             "rng_per_rank": rngs,
             "world_size": self.dist.world_size,
             "history_tail": self.history[-20:],
+            "skipped_batches": self.skipped_batches,
         }
 
     def save(self, loader) -> str | None:
@@ -174,12 +219,18 @@ class Trainer:
             ) from None
         self.step = int(ck["step"])
         self.history = list(ck.get("history_tail", []))
+        self.skipped_batches = int(ck.get("skipped_batches", 0))
         return self.step
 
     # ------------------------------------------------------------------ one step
     def train_step(self, batch: dict) -> tuple[LossParts, float]:
-        """One optimizer step on a loader batch; returns the loss parts and the pre-clip grad norm."""
+        """One optimizer step on a loader batch; returns the loss parts and the pre-clip grad norm.
+
+        Raises NonFiniteStep when the loss or the gradients are not finite (the update is not applied:
+        gradients zeroed, no optimizer or scheduler step, `self.step` unchanged) or when the weights are
+        not finite after the optimizer step (applied=True)."""
         self.ddp.train()
+        ids = batch_sample_ids(batch)
         batch = batch_to(batch, self.device)
         gt = batch["target"]["image"]
         valid = ~batch["is_padding"] if "is_padding" in batch else None
@@ -190,13 +241,61 @@ class Trainer:
         loss.backward()
         params = [p for g in self.optimizer.param_groups for p in g["params"]]
         clip = self.cfg.optim.grad_clip
-        grad_norm = torch.nn.utils.clip_grad_norm_(params, clip if clip > 0 else float("inf"))
+        grad_norm = float(torch.nn.utils.clip_grad_norm_(params, clip if clip > 0 else float("inf")))
+        code = 2 if not math.isfinite(parts.loss) else 0
+        if code == 0 and not math.isfinite(grad_norm) and not _finite_max(p.grad for p in params):
+            code = 1  # not just a 2-norm overflowing: a gradient holds NaN / inf
+        code = max_across(code, self.dist)  # a rank's bad loss stops (or skips) every rank
+        if code:
+            self.optimizer.zero_grad(set_to_none=True)
+            raise NonFiniteStep(_NONFINITE_WHAT[code], self.step + 1, self._gather_ids(ids), applied=False)
         self.optimizer.step()
+        if not _finite_max(params):
+            raise NonFiniteStep("weights", self.step + 1, self._gather_ids(ids), applied=True)
         self.scheduler.step()
         self.step += 1
         self._last_pred = pred.detach()
         self._last_gt = gt
-        return parts, float(grad_norm)
+        return parts, grad_norm
+
+    def _gather_ids(self, ids: str) -> list[str]:
+        return [i for i in all_gather_objects(ids, self.dist) if i != "unknown"] or ["unknown"]
+
+    def _nonfinite(self, bad: NonFiniteStep, writer, bar) -> None:
+        """Skip the batch of `bad` (on_nonfinite="skip-batch", weights untouched, fewer than
+        MAX_CONSECUTIVE_SKIPS in a row) or raise SeeUError: one line naming the step and the samples."""
+        samples = ", ".join(bad.samples)
+        self.skipped_in_a_row += 1
+        if self.cfg.on_nonfinite == "skip-batch" and not bad.applied and self.skipped_in_a_row < MAX_CONSECUTIVE_SKIPS:
+            self.skipped_batches += 1
+            if self.dist.is_main:
+                line = (
+                    f"train: step {bad.step}: skipped a batch with non-finite {bad.what} (samples {samples}); "
+                    f"{self.skipped_batches} batch(es) skipped so far"
+                )
+                if bar is not None:
+                    bar.write(line, file=sys.stderr)
+                else:
+                    print(line, file=sys.stderr, flush=True)
+                if writer is not None:
+                    writer.add_scalar("train/skipped_batches", self.skipped_batches, self.step)
+            return
+        latest = ckpt_io.latest_checkpoint(self.ckpt_dir)
+        kept = f"the newest checkpoint {latest.name} is the last good one" if latest else "no checkpoint was written"
+        if bad.applied:
+            what = "the weights became non-finite (NaN or inf) in the optimizer step"
+            hint = "lower optim.lr, keep optim.grad_clip > 0"
+        else:
+            what = f"non-finite {bad.what} (NaN or inf)"
+            hint = "check these samples (seeu validate), lower optim.lr, or --on-nonfinite skip-batch"
+        if self.cfg.on_nonfinite == "skip-batch" and not bad.applied:  # the limit of skips in a row
+            what += f" in {self.skipped_in_a_row} batches in a row, the last"
+            hint = "check the data (seeu validate) and optim.lr"
+        raise SeeUError(
+            f"step {bad.step}: {what} on the batch of samples {samples}; stopped, nothing saved from this "
+            f"step ({kept}; {hint})",
+            self.out_dir,
+        )
 
     # ------------------------------------------------------------------ the loop
     def fit(
@@ -245,12 +344,15 @@ class Trainer:
                 for batch in loader:
                     got_batch = True
                     empty_passes = 0
-                    parts, gnorm = self.train_step(batch)
+                    try:
+                        parts, gnorm = self.train_step(batch)
+                    except NonFiniteStep as bad:
+                        self._nonfinite(bad, writer, bar)  # returns only when the batch is skipped
+                        continue
+                    self.skipped_in_a_row = 0
                     if bar is not None:
                         bar.update(1)
                         bar.set_postfix(loss=f"{parts.loss:.4f}", psnr=f"{parts.psnr:.2f}", refresh=False)
-                    if not math.isfinite(parts.loss):
-                        raise SeeUError(f"loss became {parts.loss} at step {self.step} (lower optim.lr?)", self.out_dir)
                     if self.step % cfg.log.every == 0 or self.step == target:
                         now = time.perf_counter()
                         rec = {
@@ -309,6 +411,7 @@ class Trainer:
             self.val_history,
             seconds,
             (self.step - start_step) / max(seconds, 1e-9),
+            self.skipped_batches,
         )
 
     def _validate(self, writer) -> None:
