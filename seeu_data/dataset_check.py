@@ -14,7 +14,8 @@ What is checked:
 * each file's own Arrow schema metadata (`seeu.schema`, `seeu.schema_version`): the same schema as
   the manifest, a major version this seeu reads. Every writer has put it there since the first
   release (`schema.arrow_schema`), so a file without it is refused;
-* column names and types against `schemas/`;
+* column names and types against `schemas/`, and Arrow's full validation of the data (offsets
+  inside their buffers, strings valid UTF-8: a damaged file is caught without its sha256);
 * cameras: finite, cam_to_world's last row (0, 0, 0, 1), orthonormal rotations, positive focal
   lengths, finite 0 < near < far;
 * posed frames: each scene's rows lie inside its file, hold that scene id, and number their frames
@@ -176,9 +177,11 @@ def check_columns(schema: pa.Schema, expected: pa.Schema, where: str | Path) -> 
 
 
 def check_table(table: pa.Table, expected: pa.Schema, where: Path, max_pixels: int = MAX_PIXELS) -> None:
-    """One file's table: schema metadata, columns, cameras, images (headers against recorded sizes)."""
+    """One file's table: schema metadata, columns, Arrow's full validation (offsets, UTF-8), cameras,
+    images (headers against recorded sizes)."""
     check_file_schema(table.schema, expected.metadata[b"seeu.schema"].decode(), where)
     check_columns(table.schema, expected, where)
+    table.validate(full=True)  # offsets in range, strings valid UTF-8 (a damaged file: pa.ArrowInvalid)
     if table.num_rows:
         check_table_cameras(table, where)
         check_table_images(table, max_pixels, where)
