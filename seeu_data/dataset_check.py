@@ -106,7 +106,19 @@ def check_table_images(table: pa.Table, max_pixels: int, where: Path) -> None:
     offsets = np.frombuffer(bufs[1], np.int32)[images.offset : images.offset + len(images) + 1]
     data = memoryview(bufs[2]) if bufs[2] is not None else memoryview(b"")
     for i in range(len(images)):
-        check_image(data[offsets[i] : offsets[i + 1]], width[i], height[i], f"{where} image {i}", max_pixels)
+        try:
+            check_image(data[offsets[i] : offsets[i + 1]], width[i], height[i], None, max_pixels)
+        except SeeUError as exc:
+            raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
+
+
+def _image_label(table: pa.Table, i: int) -> str:
+    """What to call image `i` of a table: its posed scene and frame, or its row and view in a shard."""
+    if pa.types.is_list(table.schema.field("image").type):
+        offsets = table.column("image").combine_chunks().offsets.to_numpy()
+        row = int(np.searchsorted(offsets, i, side="right") - 1)
+        return f"sample {table.column('sample_id')[row].as_py()!r} view {i - int(offsets[row])}"
+    return f"scene {table.column('scene_id')[i].as_py()!r} frame {table.column('frame_index')[i].as_py()}"
 
 
 # ------------------------------------------------------------------------------------------------
