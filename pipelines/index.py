@@ -23,6 +23,7 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from seeu_data.limits import MAX_PIXELS
 from seeu_data.errors import SeeUError
 from seeu_data.eval_index import IndexConfig
 
@@ -39,6 +40,7 @@ class IndexFileConfig:
     generation: IndexConfig
     format: str = "pixelsplat"
     seed: int = 0
+    max_pixels: int = MAX_PIXELS  # largest input image, `--max-pixels` (the inputs are checked)
 
     def check(self) -> None:
         if self.format not in FORMATS:
@@ -51,12 +53,16 @@ class IndexFileConfig:
 
 
 def write_index(cfg: IndexFileConfig) -> dict:
-    """Draw the entries of every scene of `cfg.inputs` and write `cfg.out` (atomically); returns counts."""
+    """Draw the entries of every scene of `cfg.inputs` and write `cfg.out` (atomically); returns counts.
+
+    The inputs are checked first (`build.scan_inputs`: `dataset_check.check_dataset`). When no scene
+    yields an entry, SeeUError naming the scenes and why (too short for the gap, no pair in the
+    overlap window), and nothing is written."""
     import numpy as np
 
     from seeu_data.arrow_io import atomic_write_text, open_ipc_file
     from seeu_data.build import scan_inputs
-    from seeu_data.eval_index import generate_entries, index_document
+    from seeu_data.eval_index import generate_entries, index_document, no_entry_reason
 
     cfg.check()
     generation = cfg.generation
@@ -64,7 +70,7 @@ def write_index(cfg: IndexFileConfig) -> dict:
         generation = dataclasses.replace(
             generation, sampling=dataclasses.replace(generation.sampling, samples_per_scene=1)
         )
-    scenes = scan_inputs([str(p) for p in cfg.inputs])
+    scenes = scan_inputs([str(p) for p in cfg.inputs], max_pixels=cfg.max_pixels)
     tables: dict = {}
     per_scene = {}
     for sid in sorted(scenes):
@@ -78,6 +84,11 @@ def write_index(cfg: IndexFileConfig) -> dict:
         intr = rows.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
         near, far = float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
         per_scene[sid] = generate_entries(generation, sid, np.asarray(c2w), np.asarray(intr), near, far, cfg.seed)
+    empty = [sid for sid, entries in per_scene.items() if not entries]
+    if len(empty) == len(per_scene):  # nothing written: the index would be useless
+        reasons = "; ".join(no_entry_reason(generation, sid, scenes[sid].num_frames) for sid in empty[:3])
+        more = f" (and {len(empty) - 3} more scenes)" if len(empty) > 3 else ""
+        raise SeeUError(f"no scene yields an index entry: {reasons}{more}", cfg.inputs[0])
     doc = index_document(per_scene, cfg.format)
     atomic_write_text(cfg.out, json.dumps(doc) + "\n")
     used = sum(1 for v in per_scene.values() if v)

@@ -2,8 +2,11 @@
 
 Stages:
 
-1. Scan the posed-frames directories (manifests checked, files present with the listed size and
-   rows; sha256 too with `verify_inputs`). Scene ids must be unique across inputs.
+1. Scan the posed-frames directories with the one dataset validator (`dataset_check.check_dataset`:
+   manifest, files present with the listed size, rows and schema metadata, finite rigid cameras,
+   frames numbered 0..n-1 per scene, scene rows inside their files, image headers equal to the
+   recorded sizes and under `max_pixels`; sha256 too with `verify_inputs`), before anything is
+   written. Scene ids must be unique across inputs.
 2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.sampling`,
    scenes in sorted order, drawn lazily so that the first shards are written while the rest is
    planned), or the entries of an evaluation index (file order; entries naming a missing scene or
@@ -40,15 +43,17 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from .arrow_io import open_ipc_file
+from .dataset_check import check_dataset
 from .errors import SeeUError
 from .limits import (
     MAX_IMAGE_SIDE,
+    MAX_PIXELS,
     MAX_ROWS_PER_BATCH,
     MAX_SEED,
     MAX_WORKERS,
     check_range,
 )
-from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, verify_file, write_manifest
+from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
 from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
 from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
@@ -85,6 +90,7 @@ class BuildConfig:
     verify_inputs: bool = False
     fsync: bool = False  # fsync every shard and the manifest before its rename (`--fsync`)
     near_far: tuple[float, float] | None = None  # override the posed data's near/far (None: the data's)
+    max_pixels: int = MAX_PIXELS  # largest input image (width x height), `--max-pixels`
 
     def check(self) -> None:
         """One-line SeeUError for a bad value (named by its `seeu build` flag), before anything is read."""
@@ -111,6 +117,8 @@ class BuildConfig:
         for side in self.image.resize or ():
             check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
         check_range(self.seed, "--seed", 0, MAX_SEED)
+        if self.max_pixels < 1:
+            raise SeeUError(f"--max-pixels must be >= 1, got {self.max_pixels}")
         if self.near_far is not None and not (0 < self.near_far[0] < self.near_far[1] < float("inf")):
             raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {self.near_far[0]} / {self.near_far[1]}")
 
@@ -135,16 +143,18 @@ class BuildConfig:
         return out
 
 
-def scan_inputs(inputs: tuple[str, ...] | list[str], verify: bool = False) -> dict[str, SceneRows]:
-    """Scene id -> where its rows are, over all posed directories (duplicates refused)."""
+def scan_inputs(
+    inputs: tuple[str, ...] | list[str], verify: bool = False, max_pixels: int = MAX_PIXELS
+) -> dict[str, SceneRows]:
+    """Scene id -> where its rows are, over all posed directories (duplicates refused), each checked
+    by `dataset_check.check_dataset` (sha256 only with `verify`)."""
     scenes: dict[str, SceneRows] = {}
     for root in inputs:
         root_p = Path(root)
-        manifest = read_manifest(root_p, expect_schema="seeu.posed_frames")
-        sha = {}
-        for entry in manifest["files"]:
-            verify_file(root_p, entry, check_sha=verify)
-            sha[entry["path"]] = entry["sha256"]
+        manifest = check_dataset(root_p, check_sha=verify, max_pixels=max_pixels, expect_schema="seeu.posed_frames")[
+            "manifest"
+        ]
+        sha = {entry["path"]: entry["sha256"] for entry in manifest["files"]}
         for s in manifest.get("scenes", []):
             if s["scene_id"] in scenes:
                 raise SeeUError(
@@ -429,7 +439,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():
             raise SeeUError("the output directory is also an input", out)
-    scenes = scan_inputs(cfg.inputs, cfg.verify_inputs)
+    scenes = scan_inputs(cfg.inputs, cfg.verify_inputs, cfg.max_pixels)
     if not scenes:
         raise SeeUError("the inputs hold no scenes", cfg.inputs[0])
     plan = plan_eval(cfg, scenes) if cfg.mode == "eval" else plan_sampled(cfg, scenes)

@@ -175,6 +175,21 @@ def generate_entries(
     return out or None
 
 
+def no_entry_reason(cfg: IndexConfig, scene_id: str, num_frames: int) -> str:
+    """Why `generate_entries` gave a scene of `num_frames` frames no entry, in words."""
+    from .sampling import min_scene_length
+
+    s = cfg.sampling
+    need = min_scene_length(s)
+    if num_frames < need:
+        outside = " and one frame outside the pair" if s.wants_outside else ""
+        return f"scene {scene_id!r} has {num_frames} frames, a gap of {s.gap_min}{outside} needs {need}"
+    return (
+        f"scene {scene_id!r}: no context pair with overlap in [{cfg.min_overlap:g}, {cfg.max_overlap:g}] "
+        f"in {cfg.max_tries} draws"
+    )
+
+
 def index_document(per_scene: dict[str, list[dict] | None], fmt: str) -> dict:
     """Assemble the JSON document: pixelsplat keeps the first entry per scene (null if none)."""
     if fmt == "latentsplat":

@@ -19,6 +19,7 @@ from typing import Any
 
 from .errors import SeeUError
 
+MAX_PIXELS = 64_000_000  # pixels (width x height) of an image any stage reads; --max-pixels raises it
 MAX_IMAGE_SIDE = 8192  # px: image sides of training, evaluation, render, ingest --size/--max-size, --resize
 MAX_VIDEO_SIDE = 4096  # px: the frame sides of a synthetic video (seeu synth / demo --size)
 MAX_VIDEO_FRAMES = 100_000  # frames of a synthetic video (seeu synth / demo --frames)
@@ -38,6 +39,7 @@ MAX_SEED = 2**63 - 1  # random seeds (--seed, data.seed, seed)
 
 # (what, limit) for README.md's "Limits" paragraph; tests/test_limits.py checks the README lists them.
 LIMITS = {
+    "pixels per image read (default of --max-pixels)": MAX_PIXELS,
     "image side (px)": MAX_IMAGE_SIDE,
     "synthetic video side (px)": MAX_VIDEO_SIDE,
     "synthetic video frames": MAX_VIDEO_FRAMES,

@@ -139,11 +139,21 @@ def read_manifest(root: str | Path, expect_schema: str | None = None, verify: bo
 
 def check_entries(root: Path, doc: dict, where: Path) -> None:
     """Every file a manifest names stays inside its dataset directory (`paths.contained_path`, and
-    `paths.contained_key` for object-storage copies), and `total_rows` is the sum of the files' rows."""
+    `paths.contained_key` for object-storage copies) and is listed once (a shard listed twice would be
+    read twice an epoch), no scene is listed twice, and `total_rows` is the sum of the files' rows."""
+    seen: set[str] = set()
     for entry in doc["files"]:
         contained_key(entry["path"], "manifest entry", where)
         contained_path(root, entry["path"], "manifest entry", where)
+        key = str(Path(entry["path"]))  # `a.arrow` and `./a.arrow` are one file
+        if key in seen:
+            raise SeeUError(f"file {entry['path']!r} is listed twice", where)
+        seen.add(key)
+    scene_ids: set[str] = set()
     for scene in doc.get("scenes", []):
+        if scene.get("scene_id") in scene_ids:
+            raise SeeUError(f"scene {scene.get('scene_id')!r} is listed twice", where)
+        scene_ids.add(scene.get("scene_id"))
         contained_key(scene["file"], f"scene {scene.get('scene_id')!r} file", where)
         contained_path(root, scene["file"], f"scene {scene.get('scene_id')!r} file", where)
     rows = sum(int(e["rows"]) for e in doc["files"])

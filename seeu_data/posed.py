@@ -55,8 +55,9 @@ class PosedScene:
         return len(self.images)
 
     def check(self) -> None:
-        """Raise SeeUError when the scene is inconsistent or its cameras are not finite rigid poses."""
-        from .cameras import rotation_orthonormality_error
+        """Raise SeeUError when the scene is inconsistent or its cameras are not finite rigid poses
+        (`dataset_check.check_cameras`)."""
+        from .dataset_check import check_cameras
 
         n = len(self.images)
         where = f"scene {self.scene_id}"
@@ -71,13 +72,9 @@ class PosedScene:
             raise SeeUError(
                 f"{where}: cameras have shapes {np.shape(self.intrinsics_norm)} / {np.shape(self.cam_to_world)}, expected ({n}, 4) / ({n}, 4, 4)"
             )
-        if not (np.isfinite(self.cam_to_world).all() and np.isfinite(self.intrinsics_norm).all()):
-            raise SeeUError(f"{where}: non-finite camera values")
-        err = rotation_orthonormality_error(self.cam_to_world).max()
-        if err > 1e-4:
-            raise SeeUError(f"{where}: a camera rotation is not orthonormal (error {err:.2e})")
         if not (0 < self.near < self.far and np.isfinite(self.far)):
             raise SeeUError(f"{where}: invalid near/far {self.near}/{self.far}")
+        check_cameras(self.cam_to_world, self.intrinsics_norm, np.array([self.near]), np.array([self.far]), where)
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
 

@@ -13,12 +13,14 @@ import collections
 import json
 import os
 import shutil
+import struct
 import subprocess
 import sys
 from pathlib import Path
 
 import cv2  # noqa: F401  (before pycolmap: the other import order breaks OpenCV's PNG encoder)
 import numpy as np
+import pyarrow as pa
 import pycolmap
 import pytest
 import torch
@@ -697,6 +699,31 @@ def _nan_camera_triples(ws, tmp) -> Path:
     with pa.OSFile(str(shard), "wb") as sink, ipc.new_file(sink, table.schema) as writer:
         writer.write_table(table)
     entry["bytes"], entry["sha256"] = shard.stat().st_size, sha256_file(shard)
+
+
+# ---- one dataset validator (dataset_check) ----
+def _bomb_jpeg(size: int = 60000) -> bytes:
+    """A 25-byte JPEG whose frame header declares `size` x `size` pixels (a header bomb)."""
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, size, size, 3) + b"\x01\x22\x00\x02\x11\x01\x03\x11\x01"
+    return b"\xff\xd8" + sof + b"\xff\xd9"
+
+
+def _rewrite(ws, tmp, key, change=None, meta=None, manifest=None) -> Path:
+    """A copy of dataset `key` whose first file's table is `change(table)` (and its schema metadata
+    updated by `meta`), the manifest's sizes/sha256 kept true, then `manifest(doc)` applied."""
+    from seeu_data.arrow_io import read_table, write_table
+
+    root = _copy(ws[key], tmp, "ds")
+    doc = json.loads((root / "manifest.json").read_text())
+    entry = doc["files"][0]
+    table = read_table(root / entry["path"]).combine_chunks()
+    if change is not None:
+        table = change(table)
+    if meta is not None:
+        table = table.replace_schema_metadata({**table.schema.metadata, **meta})
+    entry["bytes"], entry["sha256"] = write_table(root / entry["path"], table)
+    if manifest is not None:
+        manifest(doc)
     (root / "manifest.json").write_text(json.dumps(doc))
     return root
 
@@ -707,6 +734,37 @@ def _all_checkpoints_finite(run: Path):
 
         for p in sorted((run / "checkpoints").glob("*.pt")):
             assert first_nonfinite(torch.load(p, weights_only=True)) is None, f"{p} holds a non-finite tensor"
+
+
+def _set_column(name, make):
+    """change(table): column `name` replaced by `make(table)` (an Arrow array)."""
+    return lambda t: t.set_column(t.schema.get_field_index(name), t.schema.field(name), make(t))
+
+
+def _nan_camera(t):
+    c2w = t.column("cam_to_world").combine_chunks().flatten().to_numpy().copy()
+    c2w[3] = np.nan
+    return pa.FixedSizeListArray.from_arrays(pa.array(c2w), 16)
+
+
+def _first_image(data: bytes):
+    return lambda t: pa.array([data] + t.column("image").to_pylist()[1:], pa.binary())
+
+
+NAN_CAMERA = _set_column("cam_to_world", _nan_camera)
+SAME_FRAME_INDEX = _set_column("frame_index", lambda t: pa.array(np.zeros(t.num_rows, np.int32)))
+WIDER = _set_column("width", lambda t: pa.array(t.column("width").to_numpy() + 1))
+BOMB = _set_column("image", _first_image(_bomb_jpeg()))
+OTHER_VERSION = {b"seeu.schema_version": b"2.0"}
+
+
+def _build(root: Path, tmp: Path, *more: str) -> list[str]:
+    return ["build", str(root), "--out", str(tmp / "o"), "--gap-min", "3", "--gap-max", "5", *more]
+
+
+def _nothing_written(path: Path):
+    def check():
+        assert not path.exists(), f"{path} was written"
 
     return check
 
@@ -803,6 +861,131 @@ case("render-nan-checkpoint", text=NAN_CKPT)(
         str(tmp / "r"),
     ]
 )
+
+
+case("build-posed-non-finite-camera", text="non-finite camera")(
+    lambda ws, tmp: (_build(_rewrite(ws, tmp, "posed", NAN_CAMERA), tmp), _nothing_written(tmp / "o"))
+)
+case("validate-posed-non-finite-camera", text="non-finite camera")(
+    lambda ws, tmp: ["validate", str(_rewrite(ws, tmp, "posed", NAN_CAMERA))]
+)
+case("build-posed-frame-index-all-equal", text="frame_index repeats")(
+    lambda ws, tmp: (_build(_rewrite(ws, tmp, "posed", SAME_FRAME_INDEX), tmp), _nothing_written(tmp / "o"))
+)
+case("validate-posed-frame-index-all-equal", text="frame_index repeats")(
+    lambda ws, tmp: ["validate", str(_rewrite(ws, tmp, "posed", SAME_FRAME_INDEX))]
+)
+case("build-manifest-claims-more-frames", text="the file holds 12")(
+    lambda ws, tmp: _build(_manifest(ws, tmp, "posed", lambda d: d["scenes"][0].update(num_frames=20)), tmp)
+)
+case("validate-manifest-claims-more-frames", text="the file holds 12")(
+    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, "posed", lambda d: d["scenes"][0].update(num_frames=20)))]
+)
+case("build-manifest-claims-more-rows", text="12 rows, the manifest says 13")(
+    lambda ws, tmp: _build(
+        _manifest(ws, tmp, "posed", lambda d: d["files"][0].update(rows=13) or d.update(total_rows=13)), tmp
+    )
+)
+
+
+def _listed_twice(doc: dict) -> None:
+    doc["files"].append(dict(doc["files"][0]))
+    doc["total_rows"] *= 2
+
+
+case("validate-file-listed-twice", text="listed twice")(
+    lambda ws, tmp: ["validate", str(_manifest(ws, tmp, change=_listed_twice))]
+)
+case("train-file-listed-twice", text="listed twice")(
+    lambda ws, tmp: ["train", "--data", str(_manifest(ws, tmp, change=_listed_twice)), "--out", str(tmp / "r")] + TRAIN
+)
+case("build-file-listed-twice", text="listed twice")(
+    lambda ws, tmp: _build(_manifest(ws, tmp, "posed", _listed_twice), tmp)
+)
+case("validate-file-schema-version-2", text="schema version 2.0 is not supported")(
+    lambda ws, tmp: ["validate", "--no-sha", str(_rewrite(ws, tmp, "triples", meta=OTHER_VERSION))]
+)
+case("train-file-schema-version-2", text="schema version 2.0 is not supported")(
+    lambda ws, tmp: (
+        ["train", "--data", str(_rewrite(ws, tmp, "triples", meta=OTHER_VERSION)), "--out", str(tmp / "r")] + TRAIN
+    )
+)
+case("build-posed-file-names-other-schema", text="names schema 'seeu.triples'")(
+    lambda ws, tmp: _build(_rewrite(ws, tmp, "posed", meta={b"seeu.schema": b"seeu.triples"}), tmp)
+)
+case("build-posed-header-bomb", text="over the 64 MP limit")(
+    lambda ws, tmp: (_build(_rewrite(ws, tmp, "posed", BOMB), tmp), _nothing_written(tmp / "o"))
+)
+case("validate-posed-header-bomb", text="60000x60000")(
+    lambda ws, tmp: ["validate", str(_rewrite(ws, tmp, "posed", BOMB))]
+)
+case("build-posed-header-bomb-max-pixels-raised", text="the row records 32x32")(
+    lambda ws, tmp: _build(_rewrite(ws, tmp, "posed", BOMB), tmp, "--max-pixels", "4e9")
+)
+case("build-posed-header-dims-differ", text="image header declares 32x32, the row records 33x32")(
+    lambda ws, tmp: _build(_rewrite(ws, tmp, "posed", WIDER), tmp)
+)
+case("export-posed-header-bomb", text="over the 64 MP limit")(
+    lambda ws, tmp: ["export", "nerfstudio", str(_rewrite(ws, tmp, "posed", BOMB)), "--out", str(tmp / "e")]
+)
+case("index-posed-header-bomb", text="over the 64 MP limit")(
+    lambda ws, tmp: ["index", str(_rewrite(ws, tmp, "posed", BOMB)), "--out", str(tmp / "i.json")]
+)
+case("validate-triples-over-max-pixels", text="over the 0.0001 MP limit")(
+    lambda ws, tmp: ["validate", "--no-sha", str(ws["triples"]), "--max-pixels", "100"]
+)
+case("validate-max-pixels-not-a-number", text="--max-pixels")(
+    lambda ws, tmp: ["validate", str(ws["triples"]), "--max-pixels", "lots"]
+)
+
+
+def _ps_bomb(ws, tmp) -> list[str]:
+    """The pixelSplat export with its first frame's JPEG replaced by a header bomb."""
+    chunk = torch.load(next((ws["ps"] / "test").glob("*.torch")), weights_only=True)
+    chunk[0]["images"][0] = torch.frombuffer(bytearray(_bomb_jpeg()), dtype=torch.uint8)
+    return _ps(ws, tmp, chunk=chunk) + ["--strict"]
+
+
+case("import-pixelsplat-header-bomb", text="over the 64 MP limit")(_ps_bomb)
+
+
+def _damage_scene_ids(ws, tmp) -> list[str]:
+    """A posed file whose scene_id strings are no longer UTF-8 (same size: only the sha256 would see it)."""
+    root = _copy(ws["posed"], tmp, "ds")
+    path = sorted(root.glob("*.arrow"))[0]
+    data = bytearray(path.read_bytes())
+    data[data.find(b"syn0syn0") + 4] = 0x82
+    path.write_bytes(bytes(data))
+    return ["validate", "--no-sha", str(root)]
+
+
+case("validate-no-sha-damaged-strings", text="corrupt")(_damage_scene_ids)
+case("index-gap-no-scene-holds", text="scene 'syn0' has 12 frames, a gap of 40 needs 41")(
+    lambda ws, tmp: (
+        ["index", str(ws["posed"]), "--out", str(tmp / "i.json"), "--gap-min", "40", "--gap-max", "45"],
+        _nothing_written(tmp / "i.json"),
+    )
+)
+
+
+_PEAK_RSS = (
+    "import resource, subprocess, sys; r = subprocess.run(sys.argv[1:]); "
+    "print(resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss, r.returncode)"
+)
+
+
+def test_header_bomb_refused_in_little_memory(ws, tmp_path):
+    """A JPEG declaring 60000x60000 (10.8 GB of pixels) in posed data (build) and in a pixelSplat chunk
+    (import): refused in one line by a real `seeu` process whose peak RSS stays under 1 GB."""
+    (tmp_path / "ps").mkdir()
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    for argv in (_build(_rewrite(ws, tmp_path, "posed", BOMB), tmp_path), _ps_bomb(ws, tmp_path / "ps")):
+        cmd = [sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "pipelines.cli", *argv]
+        done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
+        peak_kb, rc = (int(v) for v in done.stdout.split()[-2:])
+        errors = [ln for ln in done.stderr.splitlines() if ": error: " in ln]
+        assert rc == 2 and len(errors) == 1 and "over the 64 MP limit" in errors[0], done.stderr[-600:]
+        assert peak_kb < 1 << 20, f"peak RSS {peak_kb / 1024:.0f} MB"
 
 
 @pytest.mark.parametrize("make,rc,text", CASES)

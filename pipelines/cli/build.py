@@ -28,9 +28,11 @@ import argparse
 
 from pipelines.cli.options import (
     add_fsync,
+    add_max_pixels,
     add_out,
     add_progress,
     add_workers,
+    max_pixels,
     parse_bytes,
     parse_dims,
     progress_wanted,
@@ -133,6 +135,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     e.add_argument("--verify-inputs", action="store_true", help="check the posed files' sha256 first")
     add_progress(e)
     add_fsync(e)
+    add_max_pixels(e)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -164,6 +167,7 @@ def run(args: argparse.Namespace) -> int:
         verify_inputs=args.verify_inputs,
         near_far=None if args.near is None else (args.near, args.far),
         fsync=args.fsync,
+        max_pixels=max_pixels(args),
     )
     manifest = build(cfg, "seeu build")
     rep = manifest["report"]

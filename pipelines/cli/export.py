@@ -20,7 +20,15 @@ from pathlib import Path
 
 from seeu_data.limits import MAX_CHUNK_BYTES
 
-from pipelines.cli.options import add_out, add_progress, parse_dims, parse_scene_list, progress_wanted
+from pipelines.cli.options import (
+    add_max_pixels,
+    add_out,
+    add_progress,
+    max_pixels,
+    parse_dims,
+    parse_scene_list,
+    progress_wanted,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -29,6 +37,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_out(common, "output directory")
     common.add_argument("--scenes", help="export only these scene ids: a,b,c or @file.txt")
     add_progress(common)
+    add_max_pixels(common)
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
     f = sub.add_parser("pixelsplat", parents=[common], help="pixelSplat / MVSplat chunks + index.json")
     f.add_argument("--stage", choices=["train", "test"], default="test")
@@ -56,8 +65,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from seeu_data.posed import PosedDataset
+    from seeu_data.dataset_check import check_dataset
+    from seeu_data.posed import SCHEMA, PosedDataset
 
+    check_dataset(args.dataset, check_sha=False, max_pixels=max_pixels(args), expect_schema=SCHEMA)
     dataset = PosedDataset(args.dataset)
     scenes = parse_scene_list(args.scenes)
     scene_ids = None if scenes is None else sorted(scenes)

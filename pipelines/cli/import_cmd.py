@@ -35,7 +35,15 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipelines.cli.options import add_fsync, add_out, add_progress, parse_scene_list, progress_wanted
+from pipelines.cli.options import (
+    add_fsync,
+    add_max_pixels,
+    add_out,
+    add_progress,
+    max_pixels,
+    parse_scene_list,
+    progress_wanted,
+)
 from seeu_data.errors import SeeUError
 
 
@@ -48,6 +56,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     common.add_argument("--strict", action="store_true", help="fail on the first bad scene instead of skipping it")
     add_progress(common)
     add_fsync(common)
+    add_max_pixels(common)
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
 
     f = sub.add_parser("pixelsplat", parents=[common], help="RE10K / ACID / DTU pixelSplat chunks")
@@ -151,6 +160,7 @@ def pixelsplat_source(args: argparse.Namespace):
         near=args.near,
         far=args.far,
         verify_decode=args.verify_decode,
+        max_pixels=max_pixels(args),
     )
 
 
@@ -166,6 +176,7 @@ def re10k_source(args: argparse.Namespace):
         far=args.far,
         allow_missing_frames=args.allow_missing_frames,
         verify_decode=args.verify_decode,
+        max_pixels=max_pixels(args),
     )
 
 
@@ -190,6 +201,7 @@ def dtu_source(args: argparse.Namespace):
         near=args.near,
         far=args.far,
         verify_decode=args.verify_decode,
+        max_pixels=max_pixels(args),
     )
 
 
@@ -204,6 +216,7 @@ def colmap_source(args: argparse.Namespace):
         near=args.near,
         far=args.far,
         verify_decode=args.verify_decode,
+        max_pixels=max_pixels(args),
         allow_outside_paths=args.allow_outside_paths,
     )
 
@@ -218,6 +231,7 @@ def nerfstudio_source(args: argparse.Namespace):
         near=args.near,
         far=args.far,
         verify_decode=args.verify_decode,
+        max_pixels=max_pixels(args),
         undistort=not args.no_undistort,
         skip_missing=args.skip_missing,
         allow_outside_paths=args.allow_outside_paths,

@@ -18,7 +18,7 @@ from __future__ import annotations
 import argparse
 
 from pipelines.cli.build import add_sampling_arguments, sampling_config
-from pipelines.cli.options import add_out
+from pipelines.cli.options import add_max_pixels, add_out, max_pixels
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -27,6 +27,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--format", choices=["pixelsplat", "latentsplat"], default="pixelsplat")
     p.add_argument("--mode", choices=["interp", "extrap"], default="interp", help="where targets lie")
     add_sampling_arguments(p)
+    add_max_pixels(p)
     g = p.add_argument_group("context overlap")
     g.add_argument("--min-overlap", type=float, default=0.0, help="smallest allowed context view overlap (0..1)")
     g.add_argument("--max-overlap", type=float, default=1.0, help="largest allowed context view overlap (0..1)")
@@ -47,6 +48,7 @@ def run(args: argparse.Namespace) -> int:
             sampling_config(args, args.mode), args.min_overlap, args.max_overlap, args.overlap_depth
         ),
         seed=args.seed,
+        max_pixels=max_pixels(args),
     )
     s = write_index(cfg)
     print(

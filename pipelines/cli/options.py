@@ -4,7 +4,7 @@ kind of value given on the command line.
 Shared flags (`add_*`): `--out` (where the command writes), `--force` (redo every stage instead of
 resuming), `--progress` / `--no-progress` (progress bars even when stderr is not a terminal / none;
 default: bars on a terminal), `--fsync` (fsync every output file before its rename), `--workers N`
-(worker processes, 1..MAX_WORKERS).
+(worker processes, 1..MAX_WORKERS), `--max-pixels N` (largest image a command reads, `limits.MAX_PIXELS`).
 
 Value parsers (`parse_*`) raise SeeUError naming the flag, so a bad value is one line and exit 2
 wherever it is parsed. Flags take these values as strings; the command's `run` parses them while it
@@ -69,6 +69,35 @@ def add_fsync(p: Flags) -> None:
         help="fsync every output file before its rename (durable across a power loss; slower). Default: "
         "atomic renames only, a torn file is caught by the manifest sha256 (seeu validate)",
     )
+
+
+def add_max_pixels(p: Flags) -> None:
+    """`--max-pixels N`: the largest image (width x height) the command reads; read back with `max_pixels`."""
+    from seeu_data.limits import MAX_PIXELS
+
+    p.add_argument(
+        "--max-pixels",
+        default=None,
+        metavar="N",
+        help=f"refuse images whose header declares more than N pixels (width x height; default {MAX_PIXELS:,}, "
+        "64 MP): a tiny file declaring 60000x60000 would make later stages allocate gigabytes",
+    )
+
+
+def max_pixels(args: argparse.Namespace) -> int:
+    """The `--max-pixels` value (`limits.MAX_PIXELS` when not given); SeeUError unless a positive integer."""
+    from seeu_data.limits import MAX_PIXELS
+
+    text = getattr(args, "max_pixels", None)
+    if text is None:
+        return MAX_PIXELS
+    try:
+        value = int(float(text)) if re.fullmatch(r"\s*[0-9.eE+]+\s*", str(text)) else 0
+    except ValueError:
+        value = 0
+    if value <= 0:
+        raise SeeUError(f"--max-pixels {text!r} is not a positive number of pixels (e.g. 64000000, 1e8)")
+    return value
 
 
 def add_workers(p: Flags, what: str, default: int | None) -> None:

@@ -33,6 +33,7 @@ from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
 from ..undistort import PinholeCamera, undistort_files
+from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
@@ -64,6 +65,7 @@ class ColmapImportConfig:
     near: float | None = None
     far: float | None = None
     verify_decode: bool = False
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
     allow_outside_paths: bool = False  # image names may lead outside images_dir (`../x.jpg`, absolute, links)
 
 
@@ -184,7 +186,7 @@ def scene_from_model(
     _check_present(names, images_dir)
     paths = [(und_dir if rec.image(i).camera_id in pinholes else images_dir) / n for i, n in zip(ids, names)]
     data = [p.read_bytes() for p in paths]
-    fmt, width, height = probe_images(data, [str(p) for p in paths], cfg.verify_decode)
+    fmt, width, height = probe_images(data, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
     w2c, intr = [], []
     for k, iid in enumerate(ids):
         img = rec.image(iid)

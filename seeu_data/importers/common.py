@@ -13,7 +13,9 @@ import numpy as np
 
 from ..arrow_io import BytesLike
 from ..errors import SeeUError
-from ..image_header import decode_check, image_info
+from ..limits import MAX_PIXELS
+from ..dataset_check import check_image
+from ..image_header import decode_check
 from ..manifest import FileEntry, read_manifest
 from ..posed import POSED_FILES, PosedDatasetWriter, PosedScene
 from ..resume import Journal, file_intact, stamp_of, sweep
@@ -74,21 +76,23 @@ class ImportReport:
 
 
 def probe_images(
-    images: Sequence[BytesLike], names: Sequence[str], verify_decode: bool = False
+    images: Sequence[BytesLike], names: Sequence[str], verify_decode: bool = False, max_pixels: int = MAX_PIXELS
 ) -> tuple[str, np.ndarray, np.ndarray]:
     """Format and sizes of a scene's encoded frames: `(format, width (N,), height (N,))`.
 
-    Header parse plus trailer check per image (see `seeu_data.image_header`); a full OpenCV decode
-    when `verify_decode`. Raises SeeUError naming the frame when one fails, or when a scene mixes
+    Header parse plus trailer check per image (`dataset_check.check_image`: also refuses a header
+    declaring more than `max_pixels`, so nothing decodes a header bomb); a full OpenCV decode after
+    it when `verify_decode`. Raises SeeUError naming the frame when one fails, or when a scene mixes
     JPEG and PNG (a posed scene holds one format).
     """
-    check = decode_check if verify_decode else image_info
     n = len(images)
     width = np.empty(n, dtype=np.int32)
     height = np.empty(n, dtype=np.int32)
     fmt = None
     for i, (data, name) in enumerate(zip(images, names)):
-        info = check(data, name)
+        info = check_image(data, None, None, name, max_pixels)
+        if verify_decode:
+            decode_check(data, name)
         if fmt is None:
             fmt = info.format
         elif info.format != fmt:

@@ -32,6 +32,7 @@ import numpy as np
 from ..cameras import cam_to_world_from_world_to_cam
 from ..errors import SeeUError
 from ..posed import PosedScene
+from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 CAM_FILE_SIZE = (160, 128)  # width, height the Cameras/train K is given for
@@ -47,6 +48,7 @@ class DtuImportConfig:
     near: float = 2.125
     far: float = 4.525
     verify_decode: bool = False
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
 
 
 @dataclass
@@ -164,7 +166,7 @@ def scene_for_scan(scan: int, cams: dict[int, DtuCamera], cfg: DtuImportConfig) 
             scan_dir,
         )
     images = [p.read_bytes() for p in paths]
-    fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
+    fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
     w0, h0 = CAM_FILE_SIZE
     if not np.allclose(width / height, w0 / h0, rtol=1e-3):
         raise SeeUError(f"images are {width[0]}x{height[0]}; the cameras are for a {w0}x{h0} aspect", scan_dir)

@@ -43,6 +43,7 @@ from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
 from ..undistort import undistort_files
+from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "OPENCV_FISHEYE"}
@@ -57,6 +58,7 @@ class NerfstudioImportConfig:
     near: float | None = None  # None: the `seeu` block's value (our exports), else DEFAULT_NEAR_FAR
     far: float | None = None
     verify_decode: bool = False
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
     undistort: bool = True  # False: frames with lens distortion are refused
     skip_missing: bool = False  # drop frames whose image is missing instead of skipping the scene
     allow_outside_paths: bool = False  # file_paths may lead outside the JSON's folder
@@ -295,7 +297,7 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
         frames = [f for f, _ in pairs]
         paths = [p for _, p in pairs]
         images = [p.read_bytes() for p in paths]
-        fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
+        fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
         Ks, sizes, c2w_gl, distorted = [], [], [], {}
         for k, f in enumerate(frames):
             K, w, h, model, dist = _camera(doc, f, path, (int(width[k]), int(height[k])))
@@ -319,7 +321,7 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
             data, und_K, und_sizes = undistort_frames([paths[k] for k in keys], [distorted[k] for k in keys])
             for j, k in enumerate(keys):
                 images[k], Ks[k], sizes[k] = data[j], und_K[j], und_sizes[j]
-            fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
+            fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
         intr = [intrinsics_norm_from_pixels(K, w, h) for K, (w, h) in zip(Ks, sizes)]
         names = [f["file_path"] for f in frames]
         if all("seeu_source_frame" in f for f in frames):

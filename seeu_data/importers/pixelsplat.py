@@ -33,6 +33,7 @@ from ..json_file import read_json
 from ..errors import SeeUError
 from ..paths import contained_path
 from ..posed import PosedScene
+from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 SIDECAR_NAME = "seeu_posed.json"
@@ -53,6 +54,7 @@ class PixelSplatImportConfig:
     near: float | None = None
     far: float | None = None
     verify_decode: bool = False
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
 
     def near_far(self) -> tuple[float, float]:
         near, far = NEAR_FAR[self.dataset]
@@ -188,7 +190,7 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
     cam_to_world = cam_to_world_from_world_to_cam(homogeneous_from_3x4(cams[:, 6:].reshape(n, 3, 4)))
     data = image_views(images)
     names = [f"{where}#{i}" for i in range(n)]
-    fmt, width, height = probe_images(data, names, cfg.verify_decode)
+    fmt, width, height = probe_images(data, names, cfg.verify_decode, cfg.max_pixels)
     near, far = cfg.near_far()
     meta = {"url": str(example["url"]), "dataset": cfg.dataset, "stage": cfg.stage, "chunk": chunk_name}
     source_frame = np.arange(n, dtype=np.int64)

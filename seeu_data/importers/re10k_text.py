@@ -26,6 +26,7 @@ import numpy as np
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from ..errors import SeeUError
 from ..posed import PosedScene
+from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg")
@@ -41,6 +42,7 @@ class Re10kTextImportConfig:
     far: float = 100.0
     allow_missing_frames: bool = False
     verify_decode: bool = False
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
 
 
 @dataclass
@@ -141,7 +143,7 @@ def scene_from_files(cam_file: Path, cfg: Re10kTextImportConfig) -> PosedScene:
         images = [p.read_bytes() for p in paths]
     except OSError as exc:
         raise SeeUError(f"unreadable frame ({exc})", scene_dir) from None
-    fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode)
+    fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
     meta: dict[str, object] = {"url": cams.url, "dataset": cfg.dataset, "camera_file": str(cam_file)}
     if len(idx) < len(keep):
         meta["dropped_frames_without_image"] = int(len(keep) - len(idx))

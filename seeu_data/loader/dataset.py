@@ -47,6 +47,7 @@ from .order import (
     shard_offsets,
 )
 from ..triple_row import TripleRow
+from ..limits import MAX_PIXELS
 from .shard_reader import ShardReader
 from .source import DEFAULT_CACHE_LIMIT, ShardSource
 from .transforms import ViewsSample, transform_sample
@@ -71,6 +72,7 @@ class LoaderConfig:
     cache_limit_bytes: int = DEFAULT_CACHE_LIMIT
     curriculum: GapCurriculum | None = None
     max_open_shards: int = 16  # per worker
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) read, `--max-pixels` (`dataset_check`)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_hw", tuple(int(x) for x in self.image_hw))
@@ -230,7 +232,7 @@ class TripleStream(IterableDataset):
             raise SeeUError(self._bad_shards[k], self.source.name(k))
         try:
             path = self.source.local_path(k)
-            reader = ShardReader(path, self.source.name(k), self.source.shards[k].rows)
+            reader = ShardReader(path, self.source.name(k), self.source.shards[k].rows, self.config.max_pixels)
         except SeeUError as exc:
             self._bad_shards[k] = str(exc)
             raise
@@ -269,6 +271,7 @@ class TripleStream(IterableDataset):
             self.config.interpolation,
             where=self.source.name(k),
             out=self._scratch[slot],
+            max_pixels=self.config.max_pixels,
         )
 
     def make_batch(self, positions: np.ndarray, is_padding: np.ndarray, epoch: int) -> dict:

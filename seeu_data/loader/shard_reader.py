@@ -15,7 +15,8 @@ import pyarrow as pa
 
 from ..arrow_io import open_ipc_file
 from ..errors import SeeUError
-from ..schema import check_version
+from ..limits import MAX_PIXELS
+from ..dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
 from ..triple_row import PER_VIEW_COLUMNS, TripleRow
 
 _REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + PER_VIEW_COLUMNS
@@ -85,20 +86,21 @@ class _BatchColumns:
 
 
 class ShardReader:
-    """Rows of one shard by index. `name` is what errors call the shard (its URL or path)."""
+    """Rows of one shard by index. `name` is what errors call the shard (its URL or path).
 
-    def __init__(self, path: str | Path, name: str, expected_rows: int | None = None):
+    Opening a shard runs the cheap per-file checks of `seeu_data.dataset_check`: the file's schema
+    metadata (`seeu.triples`, a major version this seeu reads), its row count against the manifest's,
+    finite rigid cameras with 0 < near < far, recorded image sizes under `max_pixels` (each image's
+    header is checked against them when it is decoded: `transforms.transform_sample`)."""
+
+    def __init__(self, path: str | Path, name: str, expected_rows: int | None = None, max_pixels: int = MAX_PIXELS):
         self.path = Path(path)
         self.name = name
         try:
             self._reader = open_ipc_file(self.path)
         except SeeUError as exc:
             raise SeeUError(str(exc).split(": ", 1)[-1], name) from None
-        meta = self._reader.schema.metadata or {}
-        schema_name = meta.get(b"seeu.schema", b"").decode()
-        if schema_name != "seeu.triples":
-            raise SeeUError(f"not a seeu.triples shard (schema {schema_name or 'missing'!r})", name)
-        check_version(schema_name, meta.get(b"seeu.schema_version", b"").decode(), name)
+        check_file_schema(self._reader.schema, "seeu.triples", name)
         missing = [c for c in _REQUIRED if c not in self._reader.schema.names]
         if missing:
             raise SeeUError(f"missing columns: {', '.join(missing)}", name)
@@ -110,6 +112,15 @@ class ShardReader:
         self.num_rows = int(self.batch_starts[-1])
         if expected_rows is not None and self.num_rows != expected_rows:
             raise SeeUError(f"{self.num_rows} rows, the manifest says {expected_rows}", name)
+        try:  # the per-view camera and size columns only (memory-mapped): a few ms per shard
+            for i in range(self._reader.num_record_batches):
+                batch = self._reader.get_batch(i)
+                check_table_cameras(batch, name)
+                w = batch.column("width").values.to_numpy(zero_copy_only=False)
+                h = batch.column("height").values.to_numpy(zero_copy_only=False)
+                check_recorded_sizes(w, h, max_pixels, name)
+        except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, ValueError) as exc:
+            raise SeeUError(f"unreadable record batch (corrupt?): {exc}".splitlines()[0], name) from None
         self._batches: dict[int, _BatchColumns] = {}
 
     def _columns(self, b: int) -> _BatchColumns:

@@ -26,6 +26,8 @@ import numpy as np
 
 from .. import cameras
 from ..image_ops import INTERPOLATIONS, resize_cover_crop
+from ..limits import MAX_PIXELS
+from ..dataset_check import check_image
 from ..errors import SeeUError
 from ..triple_row import TripleRow
 
@@ -70,10 +72,13 @@ def transform_sample(
     interpolation: str = "linear",
     where: str = "",
     out: np.ndarray | None = None,
+    max_pixels: int = MAX_PIXELS,
 ) -> ViewsSample:
     """Decode, resize/crop (and optionally mirror) every view of a stored sample.
 
     `out`, if given, is a (V, 3, H, W) uint8 array the images are written into (a batch buffer row).
+    Each image's header is checked before it is decoded (`dataset_check.check_image`: the recorded
+    size, at most `max_pixels`).
     Cameras: intrinsics via `cameras.crop_intrinsics_norm`, mirrored with `cameras.flip_horizontal`.
     """
     if interpolation not in INTERPOLATIONS:
@@ -86,6 +91,8 @@ def transform_sample(
     images = out if out is not None else np.empty((num_views, 3, oh, ow), dtype=np.uint8)
     sizes = []
     for v in range(num_views):
+        # the header first (microseconds): a tiny file declaring 60000x60000 must not reach the decoder
+        check_image(raw.images[v], raw.width[v], raw.height[v], f"{name} view {v}", max_pixels)
         bgr = decode_bgr(raw.images[v], f"{name} view {v}")
         h, w = bgr.shape[:2]
         if h != raw.height[v] or w != raw.width[v]:

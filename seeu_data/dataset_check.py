@@ -1,0 +1,267 @@
+"""The checks of a dataset (posed frames or triple shards) that every stage applies to what it reads.
+
+One validator, used by `seeu validate` (`check_dataset`: everything), `seeu build` / `seeu index` on
+their posed inputs (`build.scan_inputs` calls `check_dataset` before anything is written),
+`seeu export`, the importers on what they write (`check_image`), and the streaming loader on the
+shards it opens (`check_file_schema`, `check_table_cameras`, `check_recorded_sizes` per file;
+`check_image` on every image before it is decoded).
+
+What is checked:
+
+* the manifest (`manifest.read_manifest`: JSON shape, known schema and major version, entries inside
+  the directory, no file listed twice, no scene listed twice, `total_rows`);
+* every listed file: present, byte size, sha256 (unless skipped), row count equal to the manifest's;
+* each file's own Arrow schema metadata (`seeu.schema`, `seeu.schema_version`): the same schema as
+  the manifest, a major version this seeu reads. Every writer has put it there since the first
+  release (`schema.arrow_schema`), so a file without it is refused;
+* column names and types against `schemas/`, and Arrow's full validation of the data (offsets
+  inside their buffers, strings valid UTF-8: a damaged file is caught without its sha256);
+* cameras: finite, cam_to_world's last row (0, 0, 0, 1), orthonormal rotations, positive focal
+  lengths, finite 0 < near < far;
+* posed frames: each scene's rows lie inside its file, hold that scene id, and number their frames
+  0, 1, ..., n - 1 (unique and in order: `seeu build` samples by that position);
+* images: the size in the JPEG/PNG header (`image_header.image_info`, no decode) equals the
+  recorded width/height and is at most `max_pixels` (`MAX_PIXELS`, 64 MP, raised with `--max-pixels`),
+  so a tiny file whose header declares 60000x60000 is refused before anything allocates for it.
+
+Every problem is a `SeeUError` naming the file: one line at the CLI, exit 2.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pyarrow as pa
+
+from .arrow_io import open_ipc_file
+from .cameras import rotation_orthonormality_error
+from .errors import SeeUError
+from .image_header import ImageInfo, image_info
+from .limits import MAX_PIXELS
+from .manifest import read_manifest, verify_file
+from .schema import arrow_schema, check_version
+
+_ORTHONORMAL_TOL = 1e-4
+
+
+# ------------------------------------------------------------------------------------------------
+# Images
+# ------------------------------------------------------------------------------------------------
+
+
+def check_pixels(width: int, height: int, max_pixels: int, what: str, where: str | Path | None) -> None:
+    """Refuse an image of `width` x `height` over `max_pixels`."""
+    if int(width) * int(height) > max_pixels:
+        raise SeeUError(
+            f"{what} {int(width)}x{int(height)} ({int(width) * int(height) / 1e6:.1f} MP) is over the "
+            f"{max_pixels / 1e6:g} MP limit (--max-pixels)",
+            where,
+        )
+
+
+def check_image(
+    data, width: int | None, height: int | None, where: str | Path | None, max_pixels: int = MAX_PIXELS
+) -> ImageInfo:
+    """Header check of one encoded image (microseconds, no decode): a JPEG/PNG (`image_info`), at most
+    `max_pixels`, and of the recorded `width` x `height` (None: not recorded yet, as in importers)."""
+    info = image_info(data, None if where is None else str(where))
+    check_pixels(info.width, info.height, max_pixels, "image header declares", where)
+    if width is not None and height is not None and (info.width, info.height) != (int(width), int(height)):
+        raise SeeUError(
+            f"image header declares {info.width}x{info.height}, the row records {int(width)}x{int(height)}", where
+        )
+    return info
+
+
+def check_recorded_sizes(width: np.ndarray, height: np.ndarray, max_pixels: int, where: str | Path) -> None:
+    """Refuse recorded sizes `(M,)` that are not positive or are over `max_pixels`."""
+    w = np.asarray(width, np.int64)
+    h = np.asarray(height, np.int64)
+    if len(w) == 0:
+        return
+    if (w <= 0).any() or (h <= 0).any():
+        raise SeeUError("a recorded image width/height is not positive", where)
+    i = int(np.argmax(w * h))
+    check_pixels(int(w[i]), int(h[i]), max_pixels, "recorded image size", where)
+
+
+def _binary_values(col: pa.ChunkedArray | pa.Array) -> pa.Array:
+    """The values of a binary or list<binary> column as one binary array."""
+    arr = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
+    while pa.types.is_list(arr.type):
+        arr = arr.flatten()
+    return arr
+
+
+def check_table_images(table: pa.Table, max_pixels: int, where: Path) -> None:
+    """`check_image` on every image of a table (posed or triples) against its recorded size."""
+    images = _binary_values(table.column("image"))
+    width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
+    height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
+    if len(images) != len(width):
+        raise SeeUError(f"{len(images)} images for {len(width)} recorded sizes", where)
+    check_recorded_sizes(width, height, max_pixels, where)
+    bufs = images.buffers()
+    offsets = np.frombuffer(bufs[1], np.int32)[images.offset : images.offset + len(images) + 1]
+    data = memoryview(bufs[2]) if bufs[2] is not None else memoryview(b"")
+    for i in range(len(images)):
+        try:
+            check_image(data[offsets[i] : offsets[i + 1]], width[i], height[i], None, max_pixels)
+        except SeeUError as exc:
+            raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
+
+
+def _image_label(table: pa.Table, i: int) -> str:
+    """What to call image `i` of a table: its posed scene and frame, or its row and view in a shard."""
+    if pa.types.is_list(table.schema.field("image").type):
+        offsets = table.column("image").combine_chunks().offsets.to_numpy()
+        row = int(np.searchsorted(offsets, i, side="right") - 1)
+        return f"sample {table.column('sample_id')[row].as_py()!r} view {i - int(offsets[row])}"
+    return f"scene {table.column('scene_id')[i].as_py()!r} frame {table.column('frame_index')[i].as_py()}"
+
+
+# ------------------------------------------------------------------------------------------------
+# Cameras and tables
+# ------------------------------------------------------------------------------------------------
+
+
+def _flat_values(col: pa.ChunkedArray | pa.Array, width: int) -> np.ndarray:
+    """Flatten (list of) fixed-size-list columns to `(M, width)` float64."""
+    arr = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
+    while pa.types.is_list(arr.type) or pa.types.is_fixed_size_list(arr.type):
+        arr = arr.flatten()
+    return arr.to_numpy(zero_copy_only=False).reshape(-1, width).astype(np.float64)
+
+
+def check_cameras(
+    cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, near: np.ndarray, far: np.ndarray, where: str | Path
+) -> None:
+    """Cameras `(M, 4, 4)` cam_to_world, `(M, 4)` intrinsics_norm, `(M,)` near/far: finite rigid poses,
+    positive focal lengths, finite 0 < near < far."""
+    c2w = np.asarray(cam_to_world, np.float64).reshape(-1, 4, 4)
+    intr = np.asarray(intrinsics_norm, np.float64).reshape(-1, 4)
+    if not (np.isfinite(c2w).all() and np.isfinite(intr).all()):
+        raise SeeUError("non-finite camera values", where)
+    if len(c2w) == 0:
+        return
+    if not np.allclose(c2w[:, 3], [0, 0, 0, 1]):
+        raise SeeUError("cam_to_world last row is not (0, 0, 0, 1)", where)
+    err = float(rotation_orthonormality_error(c2w).max())
+    if err > _ORTHONORMAL_TOL:
+        raise SeeUError(f"a camera rotation is not orthonormal (max error {err:.2e})", where)
+    if (intr[:, :2] <= 0).any():
+        raise SeeUError("non-positive focal length in intrinsics_norm", where)
+    near = np.asarray(near, np.float64)
+    far = np.asarray(far, np.float64)
+    if not (np.isfinite(near).all() and np.isfinite(far).all() and (near > 0).all() and (far > near).all()):
+        raise SeeUError("near/far must be finite with 0 < near < far", where)
+
+
+def check_table_cameras(table: pa.Table | pa.RecordBatch, where: str | Path) -> None:
+    """`check_cameras` on a table's (posed or triples) camera columns."""
+    check_cameras(
+        _flat_values(table.column("cam_to_world"), 16),
+        _flat_values(table.column("intrinsics_norm"), 4),
+        _flat_values(table.column("near"), 1).reshape(-1),
+        _flat_values(table.column("far"), 1).reshape(-1),
+        where,
+    )
+
+
+def check_file_schema(schema: pa.Schema, expect: str, where: str | Path) -> None:
+    """A file's own Arrow schema metadata names schema `expect` at a major version this seeu reads."""
+    meta = schema.metadata or {}
+    name = meta.get(b"seeu.schema", b"").decode("utf-8", "replace")
+    if name != expect:
+        raise SeeUError(f"the file's metadata names schema {name or 'none'!r}, the dataset is {expect}", where)
+    check_version(name, meta.get(b"seeu.schema_version", b"").decode("utf-8", "replace"), where)
+
+
+def check_columns(schema: pa.Schema, expected: pa.Schema, where: str | Path) -> None:
+    """Column names and types against the schema file's."""
+    got = {f.name: f.type for f in schema}
+    for f in expected:
+        if f.name not in got:
+            raise SeeUError(f"column {f.name!r} is missing", where)
+        if got[f.name] != f.type:
+            raise SeeUError(f"column {f.name!r} has type {got[f.name]}, the schema says {f.type}", where)
+
+
+def check_table(table: pa.Table, expected: pa.Schema, where: Path, max_pixels: int = MAX_PIXELS) -> None:
+    """One file's table: schema metadata, columns, Arrow's full validation (offsets, UTF-8), cameras,
+    images (headers against recorded sizes)."""
+    check_file_schema(table.schema, expected.metadata[b"seeu.schema"].decode(), where)
+    check_columns(table.schema, expected, where)
+    table.validate(full=True)  # offsets in range, strings valid UTF-8 (a damaged file: pa.ArrowInvalid)
+    if table.num_rows:
+        check_table_cameras(table, where)
+        check_table_images(table, max_pixels, where)
+
+
+def check_frame_order(frame_index: np.ndarray, scene_id: str, where: str | Path) -> None:
+    """A posed scene numbers its frames 0, 1, ..., n - 1: unique, in order (build samples by position)."""
+    idx = np.asarray(frame_index, np.int64)
+    if not np.array_equal(idx, np.arange(len(idx))):
+        dup = len(np.unique(idx)) < len(idx)
+        why = "repeats indices" if dup else "is not in order"
+        raise SeeUError(f"scene {scene_id!r}: frame_index {why} (must be 0..{len(idx) - 1})", where)
+
+
+# ------------------------------------------------------------------------------------------------
+# A whole dataset
+# ------------------------------------------------------------------------------------------------
+
+
+def _unreadable(exc: Exception, where: Path) -> SeeUError:
+    return SeeUError(f"unreadable (corrupt?): {type(exc).__name__}: {str(exc).splitlines()[0][:160]}", where)
+
+
+def check_dataset(
+    root: str | Path, check_sha: bool = True, max_pixels: int = MAX_PIXELS, expect_schema: str | None = None
+) -> dict:
+    """Every check above on a dataset directory; SeeUError on the first problem; returns a summary
+    (path, schema, schema_version, files, rows, scenes, bytes, sha256_checked, unlisted_files)."""
+    root = Path(root)
+    manifest = read_manifest(root, expect_schema=expect_schema)
+    expected = arrow_schema(manifest["schema"], int(manifest["schema_version"].split(".")[0]))
+    tables: dict[str, pa.Table] = {}
+    for entry in manifest["files"]:
+        where = root / entry["path"]
+        try:
+            verify_file(root, entry, check_sha=check_sha)
+            table = open_ipc_file(where).read_all()
+            check_table(table, expected, where, max_pixels)
+        except (pa.ArrowException, UnicodeDecodeError, ValueError, IndexError, TypeError, OverflowError) as exc:
+            raise _unreadable(exc, where) from None  # corrupt bytes (seen with --no-sha)
+        tables[entry["path"]] = table
+    for scene in manifest.get("scenes", []):
+        sid, where = scene["scene_id"], root / scene["file"]
+        if scene["file"] not in tables:
+            raise SeeUError(f"scene {sid!r} points at a file the manifest does not list", where)
+        table = tables[scene["file"]]
+        end = scene["row_start"] + scene["num_frames"]
+        if end > table.num_rows:
+            raise SeeUError(
+                f"scene {sid!r}: the manifest claims rows {scene['row_start']}..{end}, the file holds {table.num_rows}",
+                where,
+            )
+        rows = table.slice(scene["row_start"], scene["num_frames"])
+        ids = set(rows.column("scene_id").to_pylist())
+        if ids != {sid}:
+            raise SeeUError(f"rows of scene {sid!r} hold scene ids {sorted(ids)[:3]}", where)
+        check_frame_order(rows.column("frame_index").to_numpy(), sid, where)
+    listed = {e["path"] for e in manifest["files"]}
+    stray = sorted(p.name for p in root.glob("*.arrow") if p.name not in listed)
+    return {
+        "path": str(root),
+        "schema": manifest["schema"],
+        "schema_version": manifest["schema_version"],
+        "files": len(manifest["files"]),
+        "rows": manifest["total_rows"],
+        "scenes": len(manifest.get("scenes", [])) or None,
+        "bytes": int(sum(e["bytes"] for e in manifest["files"])),
+        "sha256_checked": check_sha,
+        "unlisted_files": stray,
+        "manifest": manifest,
+    }
