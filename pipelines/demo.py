@@ -22,6 +22,7 @@ from dataclasses import dataclass, replace
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.out_lock import locks_output
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
 STAMP_FORMAT = 1
@@ -803,6 +804,7 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
 # ------------------------------------------------------------------------------------------------
 
 
+@locks_output(lambda cfg: cfg.out)
 def demo(cfg: DemoConfig) -> dict:
     """Run (or resume) every stage; returns {"report": OUT/report.md, "stages": each stage's result,
     "seconds": this run's time}. Prints one line per stage as it goes."""

@@ -27,6 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
+from seeu_data.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,7 @@ def evaluate_on_data(
     )
 
 
+@locks_output(lambda out, *_: out)
 def write_results(out: Path, res, extra: dict) -> dict:
     """per_target.csv, per_scene.csv, then summary.json (last). Returns the summary document."""
     from dataclasses import asdict

@@ -25,6 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -232,6 +233,7 @@ def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
     return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
 
 
+@locks_output(lambda cfg: cfg.out)
 def render(cfg: RenderConfig) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
     import numpy as np
