@@ -563,6 +563,45 @@ case("render-camera-negative-focal")(
 )
 
 
+# ---- locks: image-folder entries that cannot be read as images ----
+def _folder_with(tmp: Path, ws, *bad: str) -> Path:
+    """An image folder: one real frame (from the workspace clip) and entries named `bad` that are
+    not readable images ("pipe.jpg": a FIFO, "dir.png": a directory, anything else: text bytes)."""
+    folder = tmp / "images"
+    folder.mkdir()
+    cap = cv2.VideoCapture(str(ws["clip"]))
+    ok, bgr = cap.read()
+    cap.release()
+    assert ok and cv2.imwrite(str(folder / "f000.jpg"), bgr)
+    for name in bad:
+        if name.startswith("pipe"):
+            os.mkfifo(folder / name)
+        elif name.startswith("dir"):
+            (folder / name).mkdir()
+        else:
+            _put(folder / name, "not an image")
+    return folder
+
+
+case("ingest-strict-fifo", text="pipe.jpg: cannot be read as an image: a FIFO (--strict)")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "pipe.jpg")), "--out", str(tmp / "o"), "--strict"]
+)
+case("ingest-strict-text-as-jpeg", text="notes.jpg: cannot be read as an image: not an image")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "notes.jpg")), "--out", str(tmp / "o"), "--strict"]
+)
+case("ingest-strict-directory-named-png", text="a directory (--strict)")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "dir.png")), "--out", str(tmp / "o"), "--strict"]
+)
+case("ingest-only-unreadable-images", text="no readable images (skipped: 2 (dir.png: a directory; pipe.jpg: a FIFO))")(
+    lambda ws, tmp: (
+        (tmp / "only").mkdir()
+        or os.mkfifo(tmp / "only" / "pipe.jpg")
+        or (tmp / "only" / "dir.png").mkdir()
+        or ["ingest", str(tmp / "only"), "--out", str(tmp / "o")]
+    )
+)
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)
