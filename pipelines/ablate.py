@@ -22,6 +22,7 @@ from pathlib import Path
 from seeu_data.errors import SeeUError
 from seeu_data.json_file import read_json
 from seeu_data.limits import MAX_FRAMES, MAX_SAMPLES, check_range
+from seeu_data.out_lock import locks_output
 
 # name -> (label as in the paper, model overrides)
 MODEL_VARIANTS: dict[str, tuple[str, dict]] = {
@@ -141,6 +142,7 @@ def write_table(out: Path, rows: list[dict], budget: dict) -> None:
     atomic_write_text(out / "ablation.md", "\n".join(lines) + "\n")
 
 
+@locks_output(lambda run: run.out)
 def ablate(run: AblateConfig) -> list[dict]:
     """Python API of `seeu ablate`; returns the table rows (also OUT/ablation.md and OUT/ablation.csv)."""
     from pipelines.evaluate import EvalConfig, evaluate

@@ -31,6 +31,7 @@ from seeu_data.limits import (
     MAX_VIDEO_SIDE,
     check_range,
 )
+from seeu_data.out_lock import locks_output
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
 STAMP_FORMAT = 1
@@ -810,6 +811,7 @@ def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
 # ------------------------------------------------------------------------------------------------
 
 
+@locks_output(lambda cfg: cfg.out)
 def demo(cfg: DemoConfig) -> dict:
     """Run (or resume) every stage; returns {"report": OUT/report.md, "stages": each stage's result,
     "seconds": this run's time}. Prints one line per stage as it goes."""

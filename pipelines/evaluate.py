@@ -28,6 +28,7 @@ from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_BATCH_SIZE, MAX_IMAGE_SIDE, MAX_SAMPLES, MAX_WORKERS, check_range
+from seeu_data.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -157,6 +158,7 @@ def evaluate_on_data(
     )
 
 
+@locks_output(lambda out, *_: out)
 def write_results(out: Path, res, extra: dict) -> dict:
     """per_target.csv, per_scene.csv, then summary.json (last). Returns the summary document."""
     from dataclasses import asdict

@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any, Union
 
 from seeu_data.errors import SeeUError
+from seeu_data.out_lock import locks_output
 from seeu_data.importers.colmap import ColmapImportConfig
 from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
@@ -163,6 +164,7 @@ _PLANNERS = {
 }
 
 
+@locks_output(lambda cfg: cfg.out)
 def import_dataset(cfg: ImportConfig):
     """Import `cfg.source` into `cfg.out`; returns the `seeu_data.importers.ImportReport` (also in the
     manifest's `report`). Raises SeeUError when the input as a whole is unusable or no scene remains."""

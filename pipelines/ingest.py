@@ -28,6 +28,7 @@ from pipelines.ingest_ray import SceneResult
 from seeu_data.errors import SeeUError
 from seeu_data.json_file import read_json
 from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
+from seeu_data.out_lock import locks_output
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
@@ -35,7 +36,19 @@ SFM_STAGE_FORMAT = 6
 
 # Fields of IngestConfig that say where and how a run goes, not what it computes: not recorded in
 # the manifests' params.
-RUN_FIELDS = ("inputs", "out", "name", "engine", "ray_address", "workers", "force", "progress", "heartbeat_s", "fsync")
+RUN_FIELDS = (
+    "inputs",
+    "out",
+    "name",
+    "engine",
+    "ray_address",
+    "workers",
+    "force",
+    "progress",
+    "heartbeat_s",
+    "fsync",
+    "strict",
+)
 
 
 @dataclass(frozen=True)
@@ -47,7 +60,8 @@ class IngestConfig:
     worker processes) or ray (one scene per Ray task on the cluster at `ray_address`, None: a local
     instance; `pipelines/ingest_ray.py`). threads: COLMAP extraction threads per scene (-1: all cores
     / workers; 1 on Ray, where each task reserves max(threads, map_threads) CPUs); heartbeat_s: a status line on stderr this often while no progress
-    bars are shown (None: $SEEU_HEARTBEAT_S, else 10 s; 0: off); progress: tqdm bars.
+    bars are shown (None: $SEEU_HEARTBEAT_S, else 10 s; 0: off); progress: tqdm bars. strict: an entry
+    of an image folder that cannot be read as an image is an error (else it is skipped and counted).
     """
 
     inputs: tuple[str | Path, ...]
@@ -87,6 +101,7 @@ class IngestConfig:
     progress: bool = False
     heartbeat_s: float | None = None
     fsync: bool = False
+    strict: bool = False
 
     def check(self) -> None:
         """One-line SeeUError for a bad value, before any scene starts (e.g. ALIKED without ONNX)."""
@@ -411,6 +426,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         "input_kind": source.kind,
         "input_identity": identity,
         "frames_decoded": decoded["frames_in_source"],
+        "skipped_files": [{"name": name, "reason": reason} for name, reason in source.skipped],
         "frames_candidates": len(frames_all),
         "frames_selected": len(frames),
         "registered": registered,
@@ -511,6 +527,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             )
         }
         writer.report["dropped_frames"] = len(dropped)
+        writer.report["skipped_files"] = len(source.skipped)
         writer.report["warnings"] = report["warnings"]
         write_report(out_dir / "report.json", report, cfg.fsync)
         plot_trajectory(
@@ -532,6 +549,7 @@ def _scene_worker(payload: tuple) -> SceneResult:
         return SceneResult(source.name, error=str(exc))
 
 
+@locks_output(lambda cfg, *_, **__: cfg.out)
 def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = None) -> list[SceneResult]:
     """Ingest every scene of `cfg.inputs` into `cfg.out`; one SceneResult per scene, in input order.
 
@@ -545,10 +563,11 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
 
     from tqdm import tqdm
 
+    from seeu_data.interrupts import end_pool, raise_on_sigterm
     from seeu_data.video import discover_sources
 
     cfg.check()
-    sources = discover_sources(list(cfg.inputs))
+    sources = discover_sources(list(cfg.inputs), cfg.strict)
     if cfg.name is not None:
         if len(sources) != 1:
             raise SeeUError(f"--name names one scene, but the inputs hold {len(sources)}")
@@ -576,9 +595,14 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
         # no bars from the workers (they would interleave): the scenes' bar here, or their heartbeats
         quiet = replace(cfg, progress=False, heartbeat_s=heartbeat_seconds(cfg))
         ctx = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(workers, mp_context=ctx) as pool:
-            futures = pool.map(_scene_worker, [(s, quiet) for s in sources])
-            for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.progress):
-                results.append(result)
-                report(result)
+        # workers end their SfM child on SIGTERM (`end_pool` sends it) before they go
+        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=raise_on_sigterm) as pool:
+            try:
+                futures = pool.map(_scene_worker, [(s, quiet) for s in sources])
+                for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.progress):
+                    results.append(result)
+                    report(result)
+            except BaseException:  # Ctrl-C, SIGTERM, an error: no worker outlives the ingest
+                end_pool(pool)
+                raise
     return results

@@ -27,6 +27,7 @@ from pathlib import Path
 from seeu_data.errors import SeeUError
 from seeu_data.json_file import read_json
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_RENDER_FRAMES, check_range
+from seeu_data.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -234,6 +235,7 @@ def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
     return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
 
 
+@locks_output(lambda cfg: cfg.out)
 def render(cfg: RenderConfig) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
     import numpy as np

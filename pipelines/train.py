@@ -19,12 +19,14 @@ from __future__ import annotations
 import json
 import math
 import re
+import os
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_STEPS, check_range
+from seeu_data.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -152,6 +154,7 @@ def make_lpips(cfg, lpips_weights: str | None = None):
     return LPIPS(weights=lpips_weights or cfg.loss.lpips_weights, random_trunk=cfg.loss.lpips_random_trunk)
 
 
+@locks_output(lambda run: run.out if os.environ.get("RANK", "0") == "0" else None)  # rank 0 holds it
 def train(run: TrainRunConfig) -> dict:
     """Train; returns a summary dict: rank, step, checkpoint, steps_per_s, seconds, final (last logged
     scalars), history, val, world_size, device (also OUT/train_summary.json from rank 0).

@@ -54,6 +54,8 @@ from .limits import (
     check_range,
 )
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
+from .interrupts import end_pool
+from .out_lock import locks_output
 from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
 from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
@@ -391,9 +393,13 @@ def run_local(
 
         # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
         with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
-            futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
-            for fut in as_completed(futures):
-                collect(fut.result())
+            try:
+                futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
+                for fut in as_completed(futures):
+                    collect(fut.result())
+            except BaseException:  # Ctrl-C, SIGTERM, an error: no worker outlives the build
+                end_pool(pool)
+                raise
     return results
 
 
@@ -422,6 +428,7 @@ def known_shards(out: Path) -> dict[str, dict]:
     return known
 
 
+@locks_output(lambda cfg, *_, **__: cfg.out)
 def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     """Run a whole build; return the manifest document.
 

@@ -22,6 +22,7 @@ from pathlib import Path
 import numpy as np
 
 from .arrow_io import atomic_write_bytes, atomic_write_text
+from .video import skipped_line
 
 
 def mean_reprojection_error(models: list[dict]) -> float:
@@ -144,11 +145,13 @@ def summary_line(report: dict) -> str:
     attempts = len(report["sfm"].get("mapping_attempts", []))
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
+    skipped = skipped_line([(f["name"], f["reason"]) for f in report.get("skipped_files", [])])
     line = (
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
         + (f" after {attempts} mapping runs" if attempts > expected else "")
         + "), "
-        f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
+        + (f"{skipped}, " if skipped else "")
+        + f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
         f"reprojection {report['mean_reprojection_error_px']:.2f} px, "
         + (
             f"solution check passed ({check['disagreement_pct']:.2g}% apart), "

@@ -60,6 +60,7 @@ from pathlib import Path
 
 from .errors import SeeUError
 from .limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
+from .interrupts import end_process
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
@@ -197,20 +198,24 @@ def run_sfm(
                 env=env,
             )
             assert proc.stdout is not None
-            for raw in proc.stdout:
-                line = raw.decode(errors="replace").strip()
-                if not line.startswith(_PROGRESS):
-                    log.write(raw)
-                    m = _COLMAP_PROGRESS.search(line)
-                    if m and prog.name in ("sfm extract", "sfm match"):
-                        prog.set(int(m.group(1)))
-                    continue
-                parts = line.split()
-                if parts[1] == "stage":
-                    prog.stage(f"sfm {parts[2]}", int(parts[3]) if len(parts) > 3 else None)
-                elif parts[1] == "step":
-                    prog.advance()
-            rc = proc.wait()
+            try:
+                for raw in proc.stdout:
+                    line = raw.decode(errors="replace").strip()
+                    if not line.startswith(_PROGRESS):
+                        log.write(raw)
+                        m = _COLMAP_PROGRESS.search(line)
+                        if m and prog.name in ("sfm extract", "sfm match"):
+                            prog.set(int(m.group(1)))
+                        continue
+                    parts = line.split()
+                    if parts[1] == "stage":
+                        prog.stage(f"sfm {parts[2]}", int(parts[3]) if len(parts) > 3 else None)
+                    elif parts[1] == "step":
+                        prog.advance()
+                rc = proc.wait()
+            except BaseException:  # Ctrl-C, SIGTERM (interrupts.Terminated), an error: the child goes too
+                end_process(proc)
+                raise
     finally:
         if own:
             prog.close()

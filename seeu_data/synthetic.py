@@ -34,6 +34,7 @@ from .cameras import intrinsics_pixels, project_points, unproject_pixels
 from .errors import SeeUError
 from .json_file import read_json
 from .limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE, check_range
+from .out_lock import locks_output
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
 SCENES = ("corridor", "planar")
@@ -427,6 +428,7 @@ def ground_truth_path(video_path: str | Path) -> Path:
     return Path(video_path).with_suffix(".json")
 
 
+@locks_output(lambda video_path, *_, **__: Path(video_path).parent)
 def write_clip(video_path: str | Path, config: ClipConfig | None = None, progress: bool = False, **overrides) -> dict:
     """Render the clip to `video_path` (mp4v) and its ground truth to `<stem>.json`; both atomically.
 

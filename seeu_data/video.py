@@ -6,7 +6,8 @@
 
 Bad input raises SeeUError naming the file: missing path, a file that is not a video (or an
 unknown extension), a video OpenCV cannot open, or one that stops decoding early (truncated or
-corrupt). A folder of videos gives one scene per video; a folder of images is one scene.
+corrupt). A folder of videos gives one scene per video; a folder of images is one scene (entries
+with an image name that cannot be read as images are left out and named: `SceneSource.skipped`).
 """
 
 from __future__ import annotations
@@ -14,6 +15,7 @@ from __future__ import annotations
 import hashlib
 import os
 import re
+import stat
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator
@@ -29,6 +31,8 @@ os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 VIDEO_EXTENSIONS = {".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm"}
 IMAGE_EXTENSIONS = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
+# The first bytes of the formats of IMAGE_EXTENSIONS (WebP: RIFF....WEBP, checked apart)
+_IMAGE_MAGIC = (b"\xff\xd8\xff", b"\x89PNG\r\n\x1a\n", b"BM", b"II*\x00", b"MM\x00*")
 # A video that decodes fewer frames than its header promises by more than this is truncated.
 _MISSING_FRAMES_TOLERANCE = 2
 
@@ -41,6 +45,7 @@ class SceneSource:
     path: Path
     kind: str
     image_files: tuple[Path, ...] = ()
+    skipped: tuple[tuple[str, str], ...] = ()  # (file name, reason): image-named entries that cannot be read
 
     def fingerprint(self) -> str:
         """Cheap content fingerprint: sizes, mtimes and the first/last MiB of each file."""
@@ -80,15 +85,70 @@ def _scene_name(path: Path) -> str:
     return name or "scene"
 
 
-def _sorted_images(folder: Path) -> list[Path]:
+def _image_magic(head: bytes) -> bool:
+    """True when `head` (a file's first bytes) starts like one of IMAGE_EXTENSIONS' formats."""
+    return head.startswith(_IMAGE_MAGIC) or (head[:4] == b"RIFF" and head[8:12] == b"WEBP")
+
+
+def unreadable_reason(path: Path) -> str | None:
+    """Why the entry `path` of an image folder cannot be read as an image, or None when it can be.
+
+    Never blocks: the type is checked (stat) before the file is opened, so a FIFO is never opened.
+    Only the first bytes are read (the format's signature); a file that then fails to decode is
+    still an error of the decode stage.
+    """
+    try:
+        st = path.stat()
+    except OSError as exc:
+        return f"cannot be read ({exc.strerror})"
+    if stat.S_ISDIR(st.st_mode):
+        return "a directory"
+    if stat.S_ISFIFO(st.st_mode):
+        return "a FIFO"
+    if not stat.S_ISREG(st.st_mode):
+        return "not a regular file"
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(16)
+    except OSError as exc:
+        return f"unreadable ({exc.strerror})"
+    if not head:
+        return "empty"
+    return None if _image_magic(head) else "not an image (unknown bytes)"
+
+
+def _sorted_images(folder: Path) -> tuple[list[Path], list[tuple[str, str]]]:
+    """The image files of `folder` in natural order, and (name, reason) of the entries with an image
+    name that cannot be read as images (see `unreadable_reason`)."""
+
     def key(p: Path):  # natural sort: frame2 before frame10
         return [int(t) if t.isdigit() else t.lower() for t in re.split(r"(\d+)", p.name)]
 
-    return sorted((p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_EXTENSIONS), key=key)
+    images, skipped = [], []
+    for p in sorted((p for p in folder.iterdir() if p.suffix.lower() in IMAGE_EXTENSIONS), key=key):
+        reason = unreadable_reason(p)
+        if reason is None:
+            images.append(p)
+        else:
+            skipped.append((p.name, reason))
+    return images, skipped
 
 
-def discover_sources(inputs: list[str | Path]) -> list[SceneSource]:
-    """Resolve the command line's INPUT... into scenes. Raises SeeUError for unusable inputs."""
+def skipped_line(skipped: tuple[tuple[str, str], ...] | list[tuple[str, str]], most: int = 3) -> str:
+    """`skipped: N (name: reason; ...)`, naming the first `most` entries; "" when there are none."""
+    if not skipped:
+        return ""
+    named = "; ".join(f"{name}: {reason}" for name, reason in skipped[:most])
+    return f"skipped: {len(skipped)} ({named}{'; ...' if len(skipped) > most else ''})"
+
+
+def discover_sources(inputs: list[str | Path], strict: bool = False) -> list[SceneSource]:
+    """Resolve the command line's INPUT... into scenes. Raises SeeUError for unusable inputs.
+
+    Entries of an image folder that cannot be read as images (a FIFO, a directory or an unreadable
+    file with an image name, other bytes) are left out and listed in the scene's `skipped`; with
+    `strict` the first of them is an error instead.
+    """
     sources: list[SceneSource] = []
     for raw in inputs:
         path = Path(raw)
@@ -101,12 +161,17 @@ def discover_sources(inputs: list[str | Path]) -> list[SceneSource]:
                 )
             sources.append(SceneSource(_scene_name(path), path, "video"))
             continue
-        images = _sorted_images(path)
+        images, skipped = _sorted_images(path)
+        if skipped and strict:
+            name, reason = skipped[0]
+            raise SeeUError(f"cannot be read as an image: {reason} (--strict)", path / name)
         videos = sorted(p for p in path.iterdir() if p.is_file() and p.suffix.lower() in VIDEO_EXTENSIONS)
         if images:
-            sources.append(SceneSource(_scene_name(path), path, "images", tuple(images)))
+            sources.append(SceneSource(_scene_name(path), path, "images", tuple(images), tuple(skipped)))
         elif videos:
             sources.extend(SceneSource(_scene_name(v), v, "video") for v in videos)
+        elif skipped:
+            raise SeeUError(f"no readable images ({skipped_line(skipped)})", path)
         else:
             raise SeeUError("folder holds neither images nor videos", path)
     return unique_scene_names(sources)

@@ -699,31 +699,6 @@ def _nan_camera_triples(ws, tmp) -> Path:
     with pa.OSFile(str(shard), "wb") as sink, ipc.new_file(sink, table.schema) as writer:
         writer.write_table(table)
     entry["bytes"], entry["sha256"] = shard.stat().st_size, sha256_file(shard)
-
-
-# ---- one dataset validator (dataset_check) ----
-def _bomb_jpeg(size: int = 60000) -> bytes:
-    """A 25-byte JPEG whose frame header declares `size` x `size` pixels (a header bomb)."""
-    sof = b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, size, size, 3) + b"\x01\x22\x00\x02\x11\x01\x03\x11\x01"
-    return b"\xff\xd8" + sof + b"\xff\xd9"
-
-
-def _rewrite(ws, tmp, key, change=None, meta=None, manifest=None) -> Path:
-    """A copy of dataset `key` whose first file's table is `change(table)` (and its schema metadata
-    updated by `meta`), the manifest's sizes/sha256 kept true, then `manifest(doc)` applied."""
-    from seeu_data.arrow_io import read_table, write_table
-
-    root = _copy(ws[key], tmp, "ds")
-    doc = json.loads((root / "manifest.json").read_text())
-    entry = doc["files"][0]
-    table = read_table(root / entry["path"]).combine_chunks()
-    if change is not None:
-        table = change(table)
-    if meta is not None:
-        table = table.replace_schema_metadata({**table.schema.metadata, **meta})
-    entry["bytes"], entry["sha256"] = write_table(root / entry["path"], table)
-    if manifest is not None:
-        manifest(doc)
     (root / "manifest.json").write_text(json.dumps(doc))
     return root
 
@@ -734,37 +709,6 @@ def _all_checkpoints_finite(run: Path):
 
         for p in sorted((run / "checkpoints").glob("*.pt")):
             assert first_nonfinite(torch.load(p, weights_only=True)) is None, f"{p} holds a non-finite tensor"
-
-
-def _set_column(name, make):
-    """change(table): column `name` replaced by `make(table)` (an Arrow array)."""
-    return lambda t: t.set_column(t.schema.get_field_index(name), t.schema.field(name), make(t))
-
-
-def _nan_camera(t):
-    c2w = t.column("cam_to_world").combine_chunks().flatten().to_numpy().copy()
-    c2w[3] = np.nan
-    return pa.FixedSizeListArray.from_arrays(pa.array(c2w), 16)
-
-
-def _first_image(data: bytes):
-    return lambda t: pa.array([data] + t.column("image").to_pylist()[1:], pa.binary())
-
-
-NAN_CAMERA = _set_column("cam_to_world", _nan_camera)
-SAME_FRAME_INDEX = _set_column("frame_index", lambda t: pa.array(np.zeros(t.num_rows, np.int32)))
-WIDER = _set_column("width", lambda t: pa.array(t.column("width").to_numpy() + 1))
-BOMB = _set_column("image", _first_image(_bomb_jpeg()))
-OTHER_VERSION = {b"seeu.schema_version": b"2.0"}
-
-
-def _build(root: Path, tmp: Path, *more: str) -> list[str]:
-    return ["build", str(root), "--out", str(tmp / "o"), "--gap-min", "3", "--gap-max", "5", *more]
-
-
-def _nothing_written(path: Path):
-    def check():
-        assert not path.exists(), f"{path} was written"
 
     return check
 
@@ -861,6 +805,66 @@ case("render-nan-checkpoint", text=NAN_CKPT)(
         str(tmp / "r"),
     ]
 )
+
+
+# ---- one dataset validator (dataset_check) ----
+def _bomb_jpeg(size: int = 60000) -> bytes:
+    """A 25-byte JPEG whose frame header declares `size` x `size` pixels (a header bomb)."""
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, size, size, 3) + b"\x01\x22\x00\x02\x11\x01\x03\x11\x01"
+    return b"\xff\xd8" + sof + b"\xff\xd9"
+
+
+def _rewrite(ws, tmp, key, change=None, meta=None, manifest=None) -> Path:
+    """A copy of dataset `key` whose first file's table is `change(table)` (and its schema metadata
+    updated by `meta`), the manifest's sizes/sha256 kept true, then `manifest(doc)` applied."""
+    from seeu_data.arrow_io import read_table, write_table
+
+    root = _copy(ws[key], tmp, "ds")
+    doc = json.loads((root / "manifest.json").read_text())
+    entry = doc["files"][0]
+    table = read_table(root / entry["path"]).combine_chunks()
+    if change is not None:
+        table = change(table)
+    if meta is not None:
+        table = table.replace_schema_metadata({**table.schema.metadata, **meta})
+    entry["bytes"], entry["sha256"] = write_table(root / entry["path"], table)
+    if manifest is not None:
+        manifest(doc)
+    (root / "manifest.json").write_text(json.dumps(doc))
+    return root
+
+
+def _set_column(name, make):
+    """change(table): column `name` replaced by `make(table)` (an Arrow array)."""
+    return lambda t: t.set_column(t.schema.get_field_index(name), t.schema.field(name), make(t))
+
+
+def _nan_camera(t):
+    c2w = t.column("cam_to_world").combine_chunks().flatten().to_numpy().copy()
+    c2w[3] = np.nan
+    return pa.FixedSizeListArray.from_arrays(pa.array(c2w), 16)
+
+
+def _first_image(data: bytes):
+    return lambda t: pa.array([data] + t.column("image").to_pylist()[1:], pa.binary())
+
+
+NAN_CAMERA = _set_column("cam_to_world", _nan_camera)
+SAME_FRAME_INDEX = _set_column("frame_index", lambda t: pa.array(np.zeros(t.num_rows, np.int32)))
+WIDER = _set_column("width", lambda t: pa.array(t.column("width").to_numpy() + 1))
+BOMB = _set_column("image", _first_image(_bomb_jpeg()))
+OTHER_VERSION = {b"seeu.schema_version": b"2.0"}
+
+
+def _build(root: Path, tmp: Path, *more: str) -> list[str]:
+    return ["build", str(root), "--out", str(tmp / "o"), "--gap-min", "3", "--gap-max", "5", *more]
+
+
+def _nothing_written(path: Path):
+    def check():
+        assert not path.exists(), f"{path} was written"
+
+    return check
 
 
 case("build-posed-non-finite-camera", text="non-finite camera")(
@@ -986,6 +990,45 @@ def test_header_bomb_refused_in_little_memory(ws, tmp_path):
         errors = [ln for ln in done.stderr.splitlines() if ": error: " in ln]
         assert rc == 2 and len(errors) == 1 and "over the 64 MP limit" in errors[0], done.stderr[-600:]
         assert peak_kb < 1 << 20, f"peak RSS {peak_kb / 1024:.0f} MB"
+
+
+# ---- locks: image-folder entries that cannot be read as images ----
+def _folder_with(tmp: Path, ws, *bad: str) -> Path:
+    """An image folder: one real frame (from the workspace clip) and entries named `bad` that are
+    not readable images ("pipe.jpg": a FIFO, "dir.png": a directory, anything else: text bytes)."""
+    folder = tmp / "images"
+    folder.mkdir()
+    cap = cv2.VideoCapture(str(ws["clip"]))
+    ok, bgr = cap.read()
+    cap.release()
+    assert ok and cv2.imwrite(str(folder / "f000.jpg"), bgr)
+    for name in bad:
+        if name.startswith("pipe"):
+            os.mkfifo(folder / name)
+        elif name.startswith("dir"):
+            (folder / name).mkdir()
+        else:
+            _put(folder / name, "not an image")
+    return folder
+
+
+case("ingest-strict-fifo", text="pipe.jpg: cannot be read as an image: a FIFO (--strict)")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "pipe.jpg")), "--out", str(tmp / "o"), "--strict"]
+)
+case("ingest-strict-text-as-jpeg", text="notes.jpg: cannot be read as an image: not an image")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "notes.jpg")), "--out", str(tmp / "o"), "--strict"]
+)
+case("ingest-strict-directory-named-png", text="a directory (--strict)")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "dir.png")), "--out", str(tmp / "o"), "--strict"]
+)
+case("ingest-only-unreadable-images", text="no readable images (skipped: 2 (dir.png: a directory; pipe.jpg: a FIFO))")(
+    lambda ws, tmp: (
+        (tmp / "only").mkdir()
+        or os.mkfifo(tmp / "only" / "pipe.jpg")
+        or (tmp / "only" / "dir.png").mkdir()
+        or ["ingest", str(tmp / "only"), "--out", str(tmp / "o")]
+    )
+)
 
 
 @pytest.mark.parametrize("make,rc,text", CASES)

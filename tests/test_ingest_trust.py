@@ -283,7 +283,7 @@ def test_unique_scene_names_rule(tmp_path):
     assert names == ["a-images", "a-images-2"]
     for d in ("a/images", "b/images"):
         (tmp_path / d).mkdir(parents=True)
-        (tmp_path / d / "0.png").write_bytes(b"")
+        (tmp_path / d / "0.png").write_bytes(b"\x89PNG\r\n\x1a\n")  # an image by its signature
     assert [s.name for s in discover_sources([tmp_path / "a/images", tmp_path / "b/images"])] == [
         "a-images",
         "b-images",

@@ -5,7 +5,8 @@ many commands share come from `pipelines.cli.options`) and `run(args) -> int`, w
 flags into the stage's typed config, calls the stage function and prints its summary. Modules keep
 heavy imports inside `run`. The module docstring is the command's `--help` description.
 
-Errors the user can fix (SeeUError) print one line and exit 2; `--debug` shows tracebacks.
+Errors the user can fix (SeeUError) print one line and exit 2; `--debug` shows tracebacks. Ctrl-C
+(SIGINT) and SIGTERM end the command's child processes and print one line: exit 130 / 143.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import sys
 
 from seeu_data import __version__
 from seeu_data.errors import SeeUError, os_error_line
+from seeu_data.interrupts import Terminated, sigterm_raises
 
 # name -> (module, one-line help). Commands whose module is not present are not offered.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -73,7 +75,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     debug = args.debug or os.environ.get("SEEU_DEBUG") == "1"
     try:
-        return int(args._module.run(args) or 0)
+        with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: children are ended, the outputs stay resumable
+            return int(args._module.run(args) or 0)
     except SeeUError as exc:
         if debug:
             raise
@@ -85,8 +88,11 @@ def main(argv: list[str] | None = None) -> int:
         print(f"seeu {args.command}: error: {os_error_line(exc)}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"seeu {args.command}: interrupted; re-run the same command to resume", file=sys.stderr)
+        print(f"seeu {args.command}: interrupted (SIGINT); re-run the same command to resume", file=sys.stderr)
         return 130
+    except Terminated:
+        print(f"seeu {args.command}: interrupted (SIGTERM); re-run the same command to resume", file=sys.stderr)
+        return 143
     except Exception as exc:  # unexpected: still one line, with a way to see more
         if debug:
             raise

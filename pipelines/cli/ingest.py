@@ -183,6 +183,12 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
         help="while no progress bars show (no terminal, or --no-progress), print a status line every SECONDS "
         "(default 10, or $SEEU_HEARTBEAT_S; 0 = off)",
     )
+    p.add_argument(
+        "--strict",
+        action="store_true",
+        help="refuse an image folder holding an entry with an image name that cannot be read as an image "
+        "(a FIFO, a directory, no read permission, other bytes); default: skip it and name it in the summary",
+    )
     add_progress(p)
     add_fsync(p)
 
@@ -232,6 +238,7 @@ def run(args: argparse.Namespace) -> int:
         heartbeat_s=args.heartbeat,
         progress=progress_wanted(args),
         fsync=args.fsync,
+        strict=args.strict,
     )
 
     def show(result: SceneResult) -> None:

@@ -25,6 +25,7 @@ from ..arrow_io import atomic_write_bytes, atomic_write_text
 from ..cameras import intrinsics_pixels, opengl_from_opencv
 from ..errors import SeeUError
 from ..image_header import extension_for
+from ..out_lock import locks_output
 from ..posed import PosedDataset, PosedScene
 
 
@@ -91,6 +92,7 @@ def _points_file(root: Path, rel) -> Path | None:
     return src if src.is_file() else None
 
 
+@locks_output(lambda dataset, cfg, *_, **__: cfg.out)
 def export_nerfstudio(dataset: PosedDataset, cfg: NerfstudioExportConfig, progress: bool = False) -> dict:
     from tqdm import tqdm
 

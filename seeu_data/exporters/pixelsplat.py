@@ -32,6 +32,7 @@ from ..arrow_io import atomic_path, atomic_write_text
 from ..cameras import world_to_cam_from_cam_to_world
 from ..errors import SeeUError
 from ..limits import MAX_CHUNK_BYTES, MAX_IMAGE_SIDE, check_range
+from ..out_lock import locks_output
 from ..posed import PosedDataset, PosedScene
 from ..resize import resize_scene
 from ..resume import sweep
@@ -124,6 +125,7 @@ def _save_chunk(examples: list[dict], path: Path) -> None:
         torch.save(examples, tmp)
 
 
+@locks_output(lambda dataset, cfg, *_, **__: cfg.out)
 def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progress: bool = False) -> dict:
     """Write the chunks, then index.json and the sidecar. Returns a summary dict."""
     from tqdm import tqdm

@@ -1,0 +1,186 @@
+"""One writer per output directory (`seeu_data/out_lock.py`) and interrupted commands (SIGTERM /
+SIGINT end the child processes: `seeu_data/interrupts.py`), with real processes; entries of an image
+folder that cannot be read as images are skipped and named."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import cv2
+import pytest
+
+from pipelines.cli import main as cli_main
+from seeu_data.synthetic import write_clip
+
+ROOT = Path(__file__).resolve().parents[1]
+ENV = {**os.environ, "PYTHONPATH": str(ROOT), "SEEU_HEARTBEAT_S": "0"}
+# holds the lock of argv[1] until its stdin closes (or it is killed)
+HOLD = (
+    "import sys\nfrom seeu_data.out_lock import out_lock\n"
+    "with out_lock(sys.argv[1]):\n    print('held', flush=True)\n    sys.stdin.read()\n"
+)
+
+pytestmark = pytest.mark.usefixtures("no_heartbeat")
+
+
+def _holder(directory: Path) -> subprocess.Popen:
+    proc = subprocess.Popen(
+        [sys.executable, "-c", HOLD, str(directory)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+    )
+    assert proc.stdout is not None and proc.stdout.readline().strip() == "held"
+    return proc
+
+
+def _refusals(ws: dict[str, Path], out: Path) -> dict[str, list[str]]:
+    """A command of each kind writing into `out`."""
+    return {
+        "build": ["build", str(ws["posed"]), "--out", str(out), "--samples-per-scene", "2", "--gap-min", "3"],
+        "export": ["export", "nerfstudio", str(ws["posed"]), "--out", str(out)],
+        "import": ["import", "nerfstudio", str(ws["transforms"].parent), "--out", str(out)],
+        "ingest": ["ingest", str(ws["clip"]), "--out", str(out)],
+        "synth": ["synth", "--out", str(out), "--frames", "2", "--size", "32x24"],
+    }
+
+
+def test_a_second_writer_is_refused_naming_the_holder(workspace, tmp_path, capsys):
+    """While another process holds OUT, every writing command refuses it with one line naming the
+    holder's pid (exit 2) and writes nothing; afterwards the build runs, validates, leaves no .lock."""
+    out = tmp_path / "out"
+    holder = _holder(out)
+    try:
+        for name, argv in _refusals(workspace, out).items():
+            assert cli_main(argv) == 2, name
+            err = capsys.readouterr().err.strip()
+            assert err.count("\n") == 0 and f"pid {holder.pid}" in err and err.startswith(f"seeu {name}: error: "), err
+        assert sorted(p.name for p in out.iterdir()) == [".lock"]
+    finally:
+        assert holder.stdin is not None
+        holder.stdin.close()
+        holder.wait(timeout=30)
+    assert not out.exists()  # made for the lock, nothing written: removed again
+    build = _refusals(workspace, out)["build"]
+    assert cli_main(build) == 0
+    assert cli_main(["validate", str(out)]) == 0
+    assert not (out / ".lock").exists()
+
+
+def test_a_lock_left_by_a_dead_process_is_taken_over(workspace, tmp_path, capsys):
+    """A holder killed outright leaves OUT/.lock with its pid; the kernel released the lock, so the
+    next build takes it over (the stale pid text is no obstacle), and its output validates."""
+    out = tmp_path / "shards"
+    holder = _holder(out)
+    holder.kill()
+    holder.wait(timeout=30)
+    assert (out / ".lock").read_text().strip() == str(holder.pid)  # left behind
+    assert cli_main(_refusals(workspace, out)["build"]) == 0
+    assert cli_main(["validate", str(out)]) == 0
+    assert not (out / ".lock").exists()
+
+
+# ---------------------------------------------------------------------------------------- signals
+
+
+@pytest.fixture(scope="module")
+def folder(tmp_path_factory) -> Path:
+    """20 frames of the synthetic corridor as JPEGs, a FIFO and an unreadable file with image names."""
+    root = tmp_path_factory.mktemp("signals")
+    write_clip(root / "walk.mp4", n_frames=20, width=240, height=136, seed=0)
+    images = root / "walk"
+    images.mkdir()
+    cap = cv2.VideoCapture(str(root / "walk.mp4"))
+    i = 0
+    while True:
+        ok, bgr = cap.read()
+        if not ok:
+            break
+        cv2.imwrite(str(images / f"f{i:03d}.jpg"), bgr)
+        i += 1
+    cap.release()
+    assert i == 20
+    os.mkfifo(images / "pipe.jpg")
+    if os.geteuid() == 0:  # root reads any file: a link to nothing cannot be read either
+        (images / "locked.jpg").symlink_to(root / "nothing")
+    else:
+        (images / "locked.jpg").write_bytes((images / "f000.jpg").read_bytes())
+        (images / "locked.jpg").chmod(0)
+    return images
+
+
+def _ingest_argv(folder: Path, out: Path) -> list[str]:
+    return ["ingest", str(folder), "--out", str(out), "--threads", "1", "--no-sfm-check", "--no-progress"]
+
+
+def _sfm_child(parent: int, timeout: float = 120.0) -> int:
+    """The pid of `parent`'s SfM child process (`python -m seeu_data.sfm`), once it exists."""
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        for d in Path("/proc").iterdir():
+            if not d.name.isdigit():
+                continue
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+                cmd = (d / "cmdline").read_bytes()
+            except (OSError, IndexError, ValueError):
+                continue
+            if ppid == parent and b"seeu_data.sfm" in cmd:
+                return int(d.name)
+        time.sleep(0.05)
+    raise AssertionError("no SfM child appeared")
+
+
+def _interrupt(folder: Path, out: Path, sig: signal.Signals) -> tuple[int, str, int]:
+    """Start `seeu ingest`, send `sig` once its SfM child runs; (exit status, stderr, the child's pid)."""
+    if not Path("/proc/self/stat").exists():
+        pytest.skip("needs Linux /proc")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "pipelines.cli", *_ingest_argv(folder, out)],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=ENV,
+        cwd=ROOT,
+    )
+    try:
+        child = _sfm_child(proc.pid)
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        proc.kill()
+    deadline = time.monotonic() + 1.0
+    while Path(f"/proc/{child}").exists() and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not Path(f"/proc/{child}").exists(), "the SfM child outlived seeu ingest"
+    return proc.returncode, err, child
+
+
+def test_sigterm_ends_the_sfm_child_and_a_rerun_resumes(folder, tmp_path, capsys):
+    """SIGTERM while SfM runs: exit 143 with one line, the SfM child is gone, no lock is held; the same
+    command right after completes, naming the two image-named entries it skipped (summary, report)."""
+    out = tmp_path / "posed"
+    rc, err, _ = _interrupt(folder, out, signal.SIGTERM)
+    assert rc == 143, err
+    assert err.strip().splitlines() == ["seeu ingest: interrupted (SIGTERM); re-run the same command to resume"]
+    assert not (out / ".lock").exists()
+    assert cli_main(_ingest_argv(folder, out)) == 0
+    summary = capsys.readouterr().out
+    assert "skipped: 2 (locked.jpg: " in summary and "pipe.jpg: a FIFO" in summary, summary
+    report = json.loads((out / "walk" / "report.json").read_text())
+    assert [f["name"] for f in report["skipped_files"]] == ["locked.jpg", "pipe.jpg"]
+    assert report["frames_selected"] == 20
+
+
+def test_sigint_ends_the_sfm_child(folder, tmp_path):
+    rc, err, _ = _interrupt(folder, tmp_path / "posed", signal.SIGINT)
+    assert rc == 130, err
+    assert err.strip().splitlines() == ["seeu ingest: interrupted (SIGINT); re-run the same command to resume"]
