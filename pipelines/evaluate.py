@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
-from seeu_data.limits import MAX_BATCH_SIZE, MAX_IMAGE_SIDE, MAX_SAMPLES, MAX_WORKERS, check_range
+from seeu_data.limits import MAX_BATCH_SIZE, MAX_PIXELS, MAX_IMAGE_SIDE, MAX_SAMPLES, MAX_WORKERS, check_range
 from seeu_data.out_lock import locks_output
 
 
@@ -61,6 +61,7 @@ class EvalConfig:
     depth_gt: str | Path | None = None
     points_gt: str | Path | None = None
     geometry_scale: float = 1.0
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) decoded, `--max-pixels`
 
     def check(self) -> None:
         check_range(self.batch_size, "--batch-size", 1, MAX_BATCH_SIZE)
@@ -128,6 +129,7 @@ def evaluate_on_data(
     depth_gt=None,
     points_gt=None,
     geometry_scale: float = 1.0,
+    max_pixels: int = MAX_PIXELS,
 ):
     """Evaluate an in-memory model on triple shards; returns `seeu_model.evaluation.EvalOutput`."""
     import sys
@@ -140,7 +142,7 @@ def evaluate_on_data(
     from seeu_model.training.loop import autocast_context
 
     device = torch.device(device) if device is not None else next(model.parameters()).device
-    loader = make_eval_loader(data, image_hw, batch_size, num_workers)
+    loader = make_eval_loader(data, image_hw, batch_size, num_workers, max_pixels=max_pixels)
     return evaluate_model(
         model,
         loader,
@@ -249,6 +251,7 @@ def evaluate(cfg: EvalConfig) -> dict:
         depth_gt=depth_gt,
         points_gt=points_gt,
         geometry_scale=geometry_scale,
+        max_pixels=cfg.max_pixels,
     )
     if not res.records:
         raise SeeUError("the evaluation data yielded no sample", cfg.data)

@@ -25,7 +25,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from seeu_data.errors import SeeUError
-from seeu_data.limits import MAX_STEPS, check_range
+from seeu_data.limits import MAX_PIXELS, MAX_STEPS, check_range
 from seeu_data.out_lock import locks_output
 
 
@@ -116,10 +116,18 @@ def make_train_loader(data: str, cfg, dist, cache_dir: str | None = None) -> Any
         flip_p=0.5 if cfg.data.flip else 0.0,
         pin_memory=dist.device.type == "cuda",
         cache_dir=cache_dir,
+        max_pixels=cfg.data.max_pixels,
     )
 
 
-def make_eval_loader(data: str, image_hw, batch_size: int, num_workers: int = 0, cache_dir: str | None = None) -> Any:
+def make_eval_loader(
+    data: str,
+    image_hw,
+    batch_size: int,
+    num_workers: int = 0,
+    cache_dir: str | None = None,
+    max_pixels: int = MAX_PIXELS,
+) -> Any:
     """Every sample once, in manifest order, on this process alone (no flip, padded last batch)."""
     from seeu_data.loader import make_loader
 
@@ -135,6 +143,7 @@ def make_eval_loader(data: str, image_hw, batch_size: int, num_workers: int = 0,
         shuffle=False,
         remainder="pad",
         cache_dir=cache_dir,
+        max_pixels=max_pixels,
     )
 
 
@@ -217,7 +226,13 @@ def train(run: TrainRunConfig) -> dict:
             from seeu_model.evaluation import evaluate_model, summarize
 
             def eval_fn(m):  # noqa: F811 - closure over the validation data
-                vl = make_eval_loader(val, cfg.data.image_size, cfg.data.val_batch_size, cache_dir=run_cache_dir(out))
+                vl = make_eval_loader(
+                    val,
+                    cfg.data.image_size,
+                    cfg.data.val_batch_size,
+                    cache_dir=run_cache_dir(out),
+                    max_pixels=cfg.data.max_pixels,
+                )
                 res = evaluate_model(
                     m,
                     vl,

@@ -48,6 +48,7 @@ from .errors import SeeUError
 from .limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
+    MAX_PIXELS_CEILING,
     MAX_ROWS_PER_BATCH,
     MAX_SEED,
     MAX_WORKERS,
@@ -119,8 +120,7 @@ class BuildConfig:
         for side in self.image.resize or ():
             check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
         check_range(self.seed, "--seed", 0, MAX_SEED)
-        if self.max_pixels < 1:
-            raise SeeUError(f"--max-pixels must be >= 1, got {self.max_pixels}")
+        check_range(self.max_pixels, "--max-pixels", 1, MAX_PIXELS_CEILING)
         if self.near_far is not None and not (0 < self.near_far[0] < self.near_far[1] < float("inf")):
             raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {self.near_far[0]} / {self.near_far[1]}")
 

@@ -20,6 +20,9 @@ from typing import Any
 from .errors import SeeUError
 
 MAX_PIXELS = 64_000_000  # pixels (width x height) of an image any stage reads; --max-pixels raises it
+MAX_PIXELS_CEILING = (
+    1 << 30
+)  # the most --max-pixels / data.max_pixels may raise it to (OpenCV decodes no more: CV_IO_MAX_IMAGE_PIXELS)
 MAX_IMAGE_SIDE = 8192  # px: image sides of training, evaluation, render, ingest --size/--max-size, --resize
 MAX_VIDEO_SIDE = 4096  # px: the frame sides of a synthetic video (seeu synth / demo --size)
 MAX_VIDEO_FRAMES = 100_000  # frames of a synthetic video (seeu synth / demo --frames)
@@ -35,11 +38,13 @@ MAX_FEATURES = 1_000_000  # SIFT features per frame (ingest --max-features)
 MAX_CHUNK_BYTES = 1 << 30  # bytes of one exported pixelSplat chunk, held in memory (export --chunk-mb)
 MAX_ROWS_PER_BATCH = 65_536  # rows per Arrow record batch (build --rows-per-batch)
 MAX_ATTEMPTS = 100  # repeated mapping runs (ingest --sfm-attempts)
+MAX_LEARNING_RATE = 1e10  # optim.lr: far above any useful rate; a diverging run then reaches the non-finite guard (AdamW itself overflows from ~3e37)
 MAX_SEED = 2**63 - 1  # random seeds (--seed, data.seed, seed)
 
 # (what, limit) for README.md's "Limits" paragraph; tests/test_limits.py checks the README lists them.
 LIMITS = {
     "pixels per image read (default of --max-pixels)": MAX_PIXELS,
+    "--max-pixels, data.max_pixels": MAX_PIXELS_CEILING,
     "image side (px)": MAX_IMAGE_SIDE,
     "synthetic video side (px)": MAX_VIDEO_SIDE,
     "synthetic video frames": MAX_VIDEO_FRAMES,
@@ -56,6 +61,7 @@ LIMITS = {
     "pixelSplat chunk bytes": MAX_CHUNK_BYTES,
     "SfM attempts": MAX_ATTEMPTS,
     "random seeds": MAX_SEED,
+    "learning rate": MAX_LEARNING_RATE,
 }
 
 

@@ -24,6 +24,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .dataset_check import check_image, check_pixels
+from .limits import MAX_PIXELS
+
 # Border samples per image side used to find the largest undistorted rectangle.
 _BORDER_SAMPLES = 256
 
@@ -95,18 +98,29 @@ def undistort_maps(camera, pinhole: PinholeCamera) -> tuple[np.ndarray, np.ndarr
 
 
 def undistort_files(
-    camera, image_dir: str | Path, names: list[str], out_dir: str | Path, jpeg_quality: int = 95
+    camera,
+    image_dir: str | Path,
+    names: list[str],
+    out_dir: str | Path,
+    jpeg_quality: int = 95,
+    max_pixels: int = MAX_PIXELS,
 ) -> PinholeCamera:
     """Undistort the frames `image_dir/name` to `out_dir/name` (JPEG at `jpeg_quality`, bilinear
-    resampling, same size); returns the pinhole camera of the output frames."""
+    resampling, same size); returns the pinhole camera of the output frames. The camera's size and
+    every frame's header are checked against `max_pixels` (and each other) before anything is
+    allocated or decoded: SeeUError."""
     import cv2
 
+    check_pixels(camera.width, camera.height, max_pixels, "camera size", image_dir)
     pin = same_size_pinhole(camera)
     map_x, map_y = undistort_maps(camera, pin)
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     for name in names:
-        img = cv2.imread(str(Path(image_dir) / name), cv2.IMREAD_COLOR)
+        path = Path(image_dir) / name
+        data = path.read_bytes()
+        check_image(data, pin.width, pin.height, path, max_pixels)
+        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
         if img is None:
             raise ValueError(f"cannot read frame {Path(image_dir) / name}")
         if img.shape[:2] != (pin.height, pin.width):

@@ -621,6 +621,27 @@ case("train-num-workers-huge", text="over the limit 256")(
 case("train-max-steps-huge", text="--max-steps 10000000000 is over the limit 1000000000")(
     lambda ws, tmp: _train(ws, tmp, "--max-steps", "10000000000")
 )
+case("train-lr-huge", text="optim.lr must be in (0, 1e+10], got 1e+38")(
+    lambda ws, tmp: _train(ws, tmp, *TRAIN, "optim.lr=1e38")
+)
+case("train-max-pixels-below-the-shards", text="over the 5e-06 MP limit")(
+    lambda ws, tmp: _train(ws, tmp, *TRAIN, "data.max_pixels=5")
+)
+case("eval-max-pixels-below-the-shards", text="over the 5e-06 MP limit")(
+    lambda ws, tmp: [
+        "eval",
+        "--checkpoint",
+        str(ws["ckpt"]),
+        "--data",
+        str(ws["triples"]),
+        "--no-lpips",
+        "--max-pixels",
+        "5",
+    ]
+)
+case("eval-max-pixels-over-the-ceiling", text="--max-pixels 100000000000 is over the limit")(
+    lambda ws, tmp: ["eval", "--checkpoint", str(ws["ckpt"]), "--data", str(ws["triples"]), "--max-pixels", "1e11"]
+)
 case("train-batch-size-zero", text="data.batch_size must be >= 1, got 0")(
     lambda ws, tmp: _train(ws, tmp, *TRAIN, "data.batch_size=0")
 )
@@ -856,6 +877,26 @@ BOMB = _set_column("image", _first_image(_bomb_jpeg()))
 OTHER_VERSION = {b"seeu.schema_version": b"2.0"}
 
 
+def _distorted_colmap_bomb(ws, tmp) -> list[str]:
+    """A COLMAP model with a distorted (OPENCV) camera, one of whose frames is a header bomb: refused
+    before the undistortion decodes it."""
+    colmap_fixture(tmp / "c", pycolmap.CameraModelId.OPENCV, [90.0, 85.0, 47.0, 33.0, 0.05, -0.01, 0.0, 0.0])
+    first = sorted((tmp / "c" / "images").iterdir())[0]
+    first.write_bytes(_bomb_jpeg())
+    return [
+        "import",
+        "colmap",
+        str(tmp / "c" / "sparse" / "0"),
+        "--images",
+        str(tmp / "c" / "images"),
+        "--out",
+        str(tmp / "o"),
+    ]
+
+
+case("import-colmap-distorted-header-bomb", text="over the 64 MP limit")(_distorted_colmap_bomb)
+
+
 def _build(root: Path, tmp: Path, *more: str) -> list[str]:
     return ["build", str(root), "--out", str(tmp / "o"), "--gap-min", "3", "--gap-max", "5", *more]
 
@@ -924,7 +965,9 @@ case("validate-posed-header-bomb", text="60000x60000")(
     lambda ws, tmp: ["validate", str(_rewrite(ws, tmp, "posed", BOMB))]
 )
 case("build-posed-header-bomb-max-pixels-raised", text="the row records 32x32")(
-    lambda ws, tmp: _build(_rewrite(ws, tmp, "posed", BOMB), tmp, "--max-pixels", "4e9")
+    lambda ws, tmp: _build(
+        _rewrite(ws, tmp, "posed", _set_column("image", _first_image(_bomb_jpeg(30000)))), tmp, "--max-pixels", "1e9"
+    )
 )
 case("build-posed-header-dims-differ", text="image header declares 32x32, the row records 33x32")(
     lambda ws, tmp: _build(_rewrite(ws, tmp, "posed", WIDER), tmp)
@@ -1055,7 +1098,7 @@ def test_bad_input(ws, tmp_path, capsys, make, rc, text):
 
 def test_enough_cases():
     commands = {p.id.split("-")[0] for p in CASES}
-    assert len(CASES) >= 40 and commands >= {
+    assert len(CASES) >= 120 and commands >= {
         "ingest",
         "import",
         "export",

@@ -25,7 +25,7 @@ import argparse
 import json
 from pathlib import Path
 
-from pipelines.cli.options import add_progress, parse_dims, progress_wanted
+from pipelines.cli.options import add_max_pixels, add_progress, max_pixels, parse_dims, progress_wanted
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -64,6 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="multiply predicted points by this before Chamfer (DTU: 200 -> mm)",
     )
     add_progress(parser)
+    add_max_pixels(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -87,6 +88,7 @@ def run(args: argparse.Namespace) -> int:
             depth_gt=args.depth_gt,
             points_gt=args.points_gt,
             geometry_scale=args.geometry_scale,
+            max_pixels=max_pixels(args),
         )
     )
     print(json.dumps({k: summary[k] for k in ("metrics", "timing", "out")}, indent=2))

@@ -85,8 +85,9 @@ def add_max_pixels(p: Flags) -> None:
 
 
 def max_pixels(args: argparse.Namespace) -> int:
-    """The `--max-pixels` value (`limits.MAX_PIXELS` when not given); SeeUError unless a positive integer."""
-    from seeu_data.limits import MAX_PIXELS
+    """The `--max-pixels` value (`limits.MAX_PIXELS` when not given); SeeUError unless an integer in
+    1..MAX_PIXELS_CEILING."""
+    from seeu_data.limits import MAX_PIXELS, MAX_PIXELS_CEILING, check_range
 
     text = getattr(args, "max_pixels", None)
     if text is None:
@@ -97,7 +98,7 @@ def max_pixels(args: argparse.Namespace) -> int:
         value = 0
     if value <= 0:
         raise SeeUError(f"--max-pixels {text!r} is not a positive number of pixels (e.g. 64000000, 1e8)")
-    return value
+    return check_range(value, "--max-pixels", 1, MAX_PIXELS_CEILING)
 
 
 def add_workers(p: Flags, what: str, default: int | None) -> None:

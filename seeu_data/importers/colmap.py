@@ -225,7 +225,9 @@ def scene_from_model(
     )
 
 
-def undistort_cameras(rec, images_dir: Path, out_dir: Path, names: list[str]) -> dict[int, PinholeCamera]:
+def undistort_cameras(
+    rec, images_dir: Path, out_dir: Path, names: list[str], max_pixels: int = MAX_PIXELS
+) -> dict[int, PinholeCamera]:
     """The registered frames `names` whose camera has lens distortion, undistorted from `images_dir`
     into `out_dir` (same relative names and encoding) with `seeu_data.undistort`: per camera, a pinhole
     camera of the same size. Returns {camera id: its PinholeCamera}; SeeUError when a frame is missing,
@@ -240,7 +242,7 @@ def undistort_cameras(rec, images_dir: Path, out_dir: Path, names: list[str]) ->
     pinholes = {}
     for cid, frames in sorted(by_camera.items()):
         try:
-            pinholes[cid] = undistort_files(rec.camera(cid), images_dir, sorted(frames), out_dir)
+            pinholes[cid] = undistort_files(rec.camera(cid), images_dir, sorted(frames), out_dir, max_pixels=max_pixels)
         except ValueError as exc:
             raise SeeUError(f"undistortion of camera {cid} failed ({str(exc)[:160]})", images_dir) from None
     return pinholes
@@ -302,7 +304,7 @@ def _scene_items(cfg: ColmapImportConfig, rec) -> Iterator[PosedScene | SkippedS
             with tempfile.TemporaryDirectory(prefix="seeu-undistort-") as tmp:
                 if not kept:
                     raise SeeUError("the model has no registered images inside the image directory", cfg.model_dir)
-                pinholes = undistort_cameras(rec, cfg.images_dir, Path(tmp), kept)
+                pinholes = undistort_cameras(rec, cfg.images_dir, Path(tmp), kept, cfg.max_pixels)
                 meta["undistorted"] = "same-size pinhole, focal x scale (seeu_data.undistort)"
                 meta["undistortion_scale"] = {str(cid): pin.scale for cid, pin in pinholes.items()}
                 scene = scene_from_model(

@@ -220,7 +220,7 @@ def colmap_camera(K: np.ndarray, model: str, dist: dict) -> tuple[str, list[floa
 
 
 def undistort_frames(
-    paths: list[Path], cameras: list[tuple[str, list[float], int, int]]
+    paths: list[Path], cameras: list[tuple[str, list[float], int, int]], max_pixels: int = MAX_PIXELS
 ) -> tuple[list[bytes], list[np.ndarray], list[tuple[int, int]]]:
     """Undistort frames as the COLMAP importer does (`seeu_data.undistort`: same size, focal scaled).
 
@@ -246,7 +246,7 @@ def undistort_frames(
         for (name, params, w, h), ks in groups.items():
             camera = pycolmap.Camera(model=name, width=w, height=h, params=list(params))
             try:
-                pin = undistort_files(camera, links, [link(k) for k in ks], out)
+                pin = undistort_files(camera, links, [link(k) for k in ks], out, max_pixels=max_pixels)
             except ValueError as exc:
                 raise SeeUError(f"undistortion failed ({str(exc)[:160]})", paths[ks[0]]) from None
             for k in ks:
@@ -318,7 +318,9 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
             c2w_gl.append(_matrix(f["transform_matrix"], (3, 4), f"transform_matrix of {f['file_path']}", path))
         if distorted:
             keys = sorted(distorted)
-            data, und_K, und_sizes = undistort_frames([paths[k] for k in keys], [distorted[k] for k in keys])
+            data, und_K, und_sizes = undistort_frames(
+                [paths[k] for k in keys], [distorted[k] for k in keys], cfg.max_pixels
+            )
             for j, k in enumerate(keys):
                 images[k], Ks[k], sizes[k] = data[j], und_K[j], und_sizes[j]
             fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)

@@ -25,6 +25,9 @@ from typing import Any
 from seeu_data.errors import SeeUError
 from seeu_data.json_file import check_nesting, parse_json, read_document, read_json, too_deep_error
 from seeu_data.limits import (
+    MAX_PIXELS,
+    MAX_PIXELS_CEILING,
+    MAX_LEARNING_RATE,
     MAX_BATCH_SIZE,
     MAX_IMAGE_SIDE,
     MAX_SAMPLES,
@@ -55,6 +58,7 @@ class DataConfig:
     flip: bool = True  # horizontal flip with p = 0.5 (pose mirrored)
     val_batch_size: int = 1
     val_max_samples: int = 16  # validation samples per validation pass (0: all)
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) the loader decodes (seeu validate --max-pixels)
 
 
 @dataclass
@@ -295,6 +299,7 @@ def validate(cfg: TrainConfig) -> None:
         ("data.num_workers", d.num_workers, 0, MAX_WORKERS),
         ("data.seed", d.seed, 0, MAX_SEED),
         ("data.val_batch_size", d.val_batch_size, 1, MAX_BATCH_SIZE),
+        ("data.max_pixels", d.max_pixels, 1, MAX_PIXELS_CEILING),
         ("data.val_max_samples", d.val_max_samples, 0, MAX_SAMPLES),
         ("optim.max_steps", o.max_steps, 1, MAX_STEPS),
         ("optim.warmup_steps", o.warmup_steps, 0, MAX_STEPS),
@@ -308,7 +313,7 @@ def validate(cfg: TrainConfig) -> None:
     for name, value, lo, hi in counts:
         check_range(value, f"config {name}", lo, hi)
     checks = [
-        (o.lr > 0, "optim.lr must be > 0"),
+        (0 < o.lr <= MAX_LEARNING_RATE, f"optim.lr must be in (0, {MAX_LEARNING_RATE:g}], got {o.lr:g}"),
         (0 <= o.min_lr_ratio <= 1, "optim.min_lr_ratio must be in [0, 1]"),
         (all(0 <= b < 1 for b in o.betas), "optim.betas must be in [0, 1)"),
         (o.eps > 0, "optim.eps must be > 0"),
