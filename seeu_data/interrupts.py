@@ -18,6 +18,7 @@ import multiprocessing
 import signal
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
 from concurrent.futures import Executor
 
@@ -60,15 +61,16 @@ def end_process(proc: subprocess.Popen) -> None:
     proc.wait()
 
 
-def end_pool(pool: Executor) -> None:
+def end_pool(pool: Executor, grace_s: float = _WORKER_GRACE_S) -> None:
     """Stop a process pool at once: cancel what has not started, SIGTERM the worker processes (all
-    multiprocessing children of this process), kill the ones still alive after a grace period, reap all."""
+    multiprocessing children of this process), kill the ones still alive `grace_s` later, reap all."""
     pool.shutdown(wait=False, cancel_futures=True)
     children = multiprocessing.active_children()
     for p in children:
         p.terminate()
+    deadline = time.monotonic() + grace_s
     for p in children:
-        p.join(_WORKER_GRACE_S)
+        p.join(max(0.0, deadline - time.monotonic()))
         if p.is_alive():
             p.kill()
             p.join()

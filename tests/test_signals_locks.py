@@ -184,3 +184,33 @@ def test_sigint_ends_the_sfm_child(folder, tmp_path):
     rc, err, _ = _interrupt(folder, tmp_path / "posed", signal.SIGINT)
     assert rc == 130, err
     assert err.strip().splitlines() == ["seeu ingest: interrupted (SIGINT); re-run the same command to resume"]
+
+
+def _sleep(seconds: float) -> float:
+    time.sleep(seconds)
+    return seconds
+
+
+def test_end_pool_ends_every_worker_at_once():
+    """`end_pool` (what build and ingest call when interrupted) leaves no worker behind, also while
+    the workers are busy and more tasks wait; a worker that ignores SIGTERM is killed."""
+    import multiprocessing as mp
+    from concurrent.futures import ProcessPoolExecutor
+
+    from seeu_data.interrupts import end_pool
+
+    pool = ProcessPoolExecutor(
+        max_workers=2,
+        mp_context=mp.get_context("fork"),
+        initializer=signal.signal,
+        initargs=(signal.SIGTERM, signal.SIG_IGN),
+    )
+    futures = [pool.submit(_sleep, 30) for _ in range(4)]
+    while sum(f.running() for f in futures) < 2:
+        time.sleep(0.05)
+    pids = [p.pid for p in mp.active_children()]
+    assert len(pids) == 2
+    end_pool(pool, grace_s=1.0)
+    for pid in pids:
+        assert not Path(f"/proc/{pid}").exists(), f"worker {pid} outlived end_pool"
+    assert not any(f.running() for f in futures[2:])
