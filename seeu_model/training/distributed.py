@@ -78,23 +78,24 @@ def barrier(info: DistInfo) -> None:
         dist.barrier()
 
 
+def _all_reduce(value: float, dtype: torch.dtype, op, info: DistInfo) -> torch.Tensor:
+    """`value` reduced with `op` over the ranks, as a one-element tensor on the CPU or the NCCL device."""
+    t = torch.tensor([value], dtype=dtype)
+    if dist.get_backend() == "nccl":
+        t = t.to(info.device)
+    dist.all_reduce(t, op=op)
+    return t
+
+
 def mean_across(value: float, info: DistInfo) -> float:
     """Average a Python float over the ranks (for logging)."""
     if not info.enabled:
         return value
-    t = torch.tensor([value], dtype=torch.float64)
-    if dist.get_backend() == "nccl":
-        t = t.to(info.device)
-    dist.all_reduce(t)
-    return float(t.item()) / info.world_size
+    return float(_all_reduce(value, torch.float64, dist.ReduceOp.SUM, info).item()) / info.world_size
 
 
 def max_across(value: int, info: DistInfo) -> int:
     """The largest of an integer over the ranks (a decision every rank must take alike)."""
     if not info.enabled:
         return value
-    t = torch.tensor([value], dtype=torch.int64)
-    if dist.get_backend() == "nccl":
-        t = t.to(info.device)
-    dist.all_reduce(t, op=dist.ReduceOp.MAX)
-    return int(t.item())
+    return int(_all_reduce(value, torch.int64, dist.ReduceOp.MAX, info).item())
