@@ -224,11 +224,11 @@ def test_skip_batch_stops_after_too_many_in_a_row(good_and_nan_batch, tmp_path, 
 
 
 def test_weights_overflowing_in_the_optimizer_step_stop_even_with_skip_batch(good_and_nan_batch, tmp_path):
-    # finite gradients, but the decoupled decay factor 1 - lr * weight_decay = -3e38 takes a weight of 2
-    # past the float32 range (3.4e38) in the optimizer step
-    trainer = _trainer(tmp_path, "on_nonfinite=skip-batch", "optim.lr=3e37", "optim.weight_decay=10")
+    # finite gradients, but the decoupled decay factor 1 - lr * weight_decay = -3e38 takes a weight of 10
+    # past the float32 range (3.4e38) in the optimizer step (optim.lr itself stays under its limit)
+    trainer = _trainer(tmp_path, "on_nonfinite=skip-batch", "optim.lr=1e10", "optim.weight_decay=3e28")
     with torch.no_grad():
-        trainer.model.net[0].weight[0, 0, 0, 0] = 2.0
+        trainer.model.net[0].weight[0, 0, 0, 0] = 10.0
     with pytest.raises(SeeUError, match="step 1: the weights became non-finite"):
         trainer.fit([good_and_nan_batch[0]])
     assert _saved_are_finite(tmp_path / "run") == []
