@@ -406,6 +406,8 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
     """
     if cfg.pairs < 1:
         raise SeeUError(f"--pairs must be at least 1, got {cfg.pairs}")
+    if cfg.max_scenes < 1:
+        raise SeeUError(f"--max-scenes must be at least 1, got {cfg.max_scenes}")
     if not cfg.max_error > 0:
         raise SeeUError(f"--max-error must be positive, got {cfg.max_error}")
     kind = detect_kind(cfg.path)
@@ -414,6 +416,7 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
         if isinstance(item, tuple):
             skipped.append({"scene_id": item[0], "reason": item[1]})
             continue
+        item.check()  # finite rigid poses, positive focal lengths (a bad dataset, not a convention mistake)
         rep, pair = check_scene(item, cfg)
         scenes.append(rep)
         if pair is not None and (
