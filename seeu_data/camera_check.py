@@ -435,7 +435,7 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
         "max_error_px": cfg.max_error,
         "median_error_px": float(np.median([s["median_error_px"] for s in checked])),
         "verdict": "inconsistent" if bad else "consistent",
-        "cause": bad[0]["cause_text"] if bad else None,
+        "cause": f"{bad[0]['cause_text']} (scene {bad[0]['scene_id']})" if bad else None,
         "causes": causes,
         "suggestion": bad[0]["suggestion"] if bad else None,
         "scenes": scenes,

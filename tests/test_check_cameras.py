@@ -69,6 +69,11 @@ def test_exact_cameras_pass_with_figure_and_report(good, tmp_path, capsys):
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _transposed(c2w):
+    c2w[:, :3, :3] = np.swapaxes(c2w[:, :3, :3], -1, -2).copy()
+    return c2w
+
+
 def _shift_cx(c2w, intr):
     intr[:, 2] += 0.05
     return c2w, intr
@@ -79,6 +84,8 @@ BROKEN = {
     "opengl": (lambda c, k: (opencv_from_opengl(c), k), "OpenGL"),
     "pixel_intrinsics": (lambda c, k: (c, k * np.array([W, H, W, H])), "pixels stored in the normalised field"),
     "principal_point": (_shift_cx, "principal point"),
+    "transposed_rotation": (lambda c, k: (_transposed(c), k), "rotations look transposed"),
+    "normalised_as_pixels": (lambda c, k: (c, k / np.array([W, H, W, H])), "divided by the size twice"),
 }
 
 

@@ -4,8 +4,8 @@ PATH: a posed-frames folder (manifest.json), a nerfstudio transforms.json (or it
 model folder (cameras.bin/.txt; images from --images, else the images/ folder beside sparse/), or
 pixelSplat chunks (*.torch, or a folder holding train/ or test/). For a few frame pairs per scene,
 SIFT matches are compared with the epipolar lines of the stored cameras (Sampson error, pixels).
-Exit 0: consistent (median under --max-error). Exit 1: not, with the likely cause when a common
-convention mistake fits (c2w/w2c swapped, OpenGL axes, pixel vs normalised intrinsics, principal
+Exit 0: consistent (median under --max-error). Exit 1: not (or a convention fix fits 3x better),
+with the likely cause when a common convention mistake fits (c2w/w2c swapped, OpenGL axes, pixel vs normalised intrinsics, principal
 point, transposed rotations). Exit 2: PATH is not a dataset. Also notes scenes the pixelSplat /
 MVSplat RE10K loader would skip (views not 360x640, field of view above 100 degrees).
 
