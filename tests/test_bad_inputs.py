@@ -1074,6 +1074,24 @@ case("ingest-only-unreadable-images", text="no readable images (skipped: 2 (dir.
 )
 
 
+# ---- check-cameras ----
+case("check-cameras-unknown-kind", text="unknown dataset kind")(
+    lambda ws, tmp: (tmp / "empty").mkdir() or ["check-cameras", str(tmp / "empty")]
+)
+case("check-cameras-missing-path", text="not a dataset folder or transforms.json")(
+    lambda ws, tmp: ["check-cameras", str(tmp / "nothing")]
+)
+case("check-cameras-too-small-to-match", text="no scene could be checked")(
+    lambda ws, tmp: ["check-cameras", str(ws["posed"])]
+)
+case("check-cameras-zero-pairs", text="--pairs must be at least 1")(
+    lambda ws, tmp: ["check-cameras", str(ws["posed"]), "--pairs", "0"]
+)
+case("check-cameras-nan-camera", text="non-finite camera")(
+    lambda ws, tmp: ["check-cameras", str(_rewrite(ws, tmp, "posed", NAN_CAMERA))]
+)
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)

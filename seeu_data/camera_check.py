@@ -1,0 +1,452 @@
+"""Check that stored cameras agree with the images: SIFT matches against the cameras' epipolar geometry.
+
+For a few frame pairs per scene (frames far enough apart), SIFT features are matched (OpenCV, Lowe's
+ratio test) and the Sampson error (pixels) of each match is computed under the fundamental matrix
+the stored cameras give, `F = K2^-T [t]x R K1^-1` with (R, t) the pose of camera 1 in camera 2. A
+median under `max_error` means the cameras are consistent with the images, unless a convention fix
+fits at least BETTER_FACTOR times better (a principal point off by 5 % of the width moves epipolar
+lines of forward motion by well under a pixel: 0.55 px median on the synthetic clip). The common
+convention mistakes are tried (`HYPOTHESES`: poses inverted, OpenGL axes, pixel intrinsics in
+the normalised field and the reverse, a centred principal point, transposed rotations) and the one
+with the lowest median under `max_error` is named as the likely cause.
+
+Inputs (`detect_kind`): a posed-frames directory (manifest.json), nerfstudio `transforms.json` (or
+its folder), a COLMAP model folder (cameras/images .bin or .txt; images in `--images`, else the
+`images/` folder beside `sparse/`), pixelSplat chunks (a folder of *.torch or holding train/ / test/).
+Foreign formats are read by their importer's `iter_scenes` (the same `PosedScene`s `seeu import`
+writes), so the check sees what an import would store.
+
+Also noted per scene: what the pixelSplat / MVSplat RE10K loader would skip (views not 360x640, a
+field of view above 100 degrees).
+
+Example:
+    from pathlib import Path
+    from seeu_data.camera_check import CameraCheckConfig, check_cameras
+
+    report = check_cameras(CameraCheckConfig(path=Path("data/posed/clip")))
+    print(report["verdict"], report["median_error_px"])
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable, Iterator
+
+import cv2
+import numpy as np
+
+from .arrow_io import atomic_write_bytes, atomic_write_text
+from .cameras import field_of_view_deg, intrinsics_pixels, invert_rigid, opencv_from_opengl
+from .errors import SeeUError
+from .image_ops import decode_rgb
+from .limits import MAX_PIXELS
+from .posed import PosedScene
+
+MAX_ERROR_PX = 2.0  # median Sampson error (pixels) under which cameras are consistent, `--max-error`
+PAIRS_PER_SCENE = 3  # frame pairs matched per scene, `--pairs`
+MAX_SCENES = 20  # scenes checked at most, `--max-scenes`
+MIN_MATCHES = 15  # fewer SIFT matches in a scene: not checked
+RATIO = 0.75  # Lowe's ratio test
+MIN_BASELINE_FRACTION = 0.1  # a pair's camera centres at least this fraction of the scene's extent apart
+SIFT_FEATURES = 2000
+BETTER_FACTOR = 3.0  # a convention fix whose median error is this many times lower flags the scene ...
+MIN_FLAG_PX = 0.3  # ... when the stored cameras' median is above this (below it, noise)
+PEER_SIZE = (360, 640)  # (H, W) the pixelSplat / MVSplat RE10K loader accepts
+PEER_MAX_FOV_DEG = 100.0  # ... and its largest field of view
+
+Hypothesis = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
+
+
+def _transpose_rotation(c2w: np.ndarray) -> np.ndarray:
+    out = c2w.copy()
+    out[:, :3, :3] = np.swapaxes(c2w[:, :3, :3], -1, -2)
+    return out
+
+
+def _scaled(intr: np.ndarray, wh: np.ndarray, power: int) -> np.ndarray:
+    scale = np.stack([wh[:, 0], wh[:, 1], wh[:, 0], wh[:, 1]], -1).astype(np.float64)
+    return intr * scale**power
+
+
+def _centred(intr: np.ndarray) -> np.ndarray:
+    out = intr.copy()
+    out[:, 2:] = 0.5
+    return out
+
+
+# name -> (the cause in words, what to do, the fix: (cam_to_world (N,4,4), intrinsics_norm (N,4), wh (N,2)) -> fixed)
+HYPOTHESES: dict[str, tuple[str, str, Hypothesis]] = {
+    "w2c": (
+        "poses look like world-to-camera (c2w/w2c swapped)",
+        "invert the poses (cameras.cam_to_world_from_world_to_cam) when importing",
+        lambda c, k, wh: (invert_rigid(c), k),
+    ),
+    "opengl": (
+        "camera axes look like OpenGL's (+y up, +z back), not OpenCV's",
+        "convert with cameras.opencv_from_opengl (flip camera y and z)",
+        lambda c, k, wh: (opencv_from_opengl(c), k),
+    ),
+    "pixel_intrinsics": (
+        "intrinsics look like pixels stored in the normalised field",
+        "divide fx, cx by the width and fy, cy by the height",
+        lambda c, k, wh: (c, _scaled(k, wh, -1)),
+    ),
+    "normalised_as_pixels": (
+        "intrinsics look normalised where pixels were expected (divided by the size twice)",
+        "multiply fx, cx by the width and fy, cy by the height",
+        lambda c, k, wh: (c, _scaled(k, wh, 1)),
+    ),
+    "principal_point": (
+        "the principal point looks wrong (the image centre fits)",
+        "store cx/W, cy/H of the image centre (0.5, 0.5) or the calibrated values, corner-at-origin",
+        lambda c, k, wh: (c, _centred(k)),
+    ),
+    "transposed_rotation": (
+        "rotations look transposed",
+        "transpose the 3x3 rotation of each pose",
+        lambda c, k, wh: (_transpose_rotation(c), k),
+    ),
+}
+
+
+@dataclass(frozen=True)
+class CameraCheckConfig:
+    """One `seeu check-cameras` run. `path`: dataset (kind detected); `images`: a COLMAP model's image
+    folder (None: `images/` beside `sparse/`); `out`: folder for check.json and the epipolar figure."""
+
+    path: Path
+    pairs: int = PAIRS_PER_SCENE
+    max_error: float = MAX_ERROR_PX
+    max_scenes: int = MAX_SCENES
+    images: Path | None = None
+    out: Path | None = None
+    max_pixels: int = MAX_PIXELS
+
+
+# ---------------------------------------------------------------------------------------------
+# Reading
+# ---------------------------------------------------------------------------------------------
+
+
+def detect_kind(path: Path) -> str:
+    """'posed', 'nerfstudio', 'colmap' or 'pixelsplat'; SeeUError for anything else."""
+    path = Path(path)
+    if path.is_file() and path.suffix == ".json" and path.name != "manifest.json":
+        return "nerfstudio"
+    if not path.is_dir():
+        raise SeeUError("not a dataset folder or transforms.json", path)
+    if (path / "manifest.json").is_file():
+        return "posed"
+    if (path / "transforms.json").is_file():
+        return "nerfstudio"
+    if any((path / f"cameras{ext}").is_file() for ext in (".bin", ".txt")):
+        return "colmap"
+    if any(path.glob("*.torch")) or any(any((path / s).glob("*.torch")) for s in ("train", "test")):
+        return "pixelsplat"
+    raise SeeUError(
+        "unknown dataset kind: expected a posed-frames folder (manifest.json), nerfstudio transforms.json, "
+        "a COLMAP model folder (cameras.bin/.txt) or pixelSplat chunks (*.torch)",
+        path,
+    )
+
+
+def _colmap_images(cfg: CameraCheckConfig) -> Path:
+    if cfg.images is not None:
+        return Path(cfg.images)
+    model = Path(cfg.path).resolve()
+    for parent in model.parents:
+        if parent.name == "sparse":
+            return parent.parent / "images"
+    return model.parent / "images"
+
+
+def iter_scenes(cfg: CameraCheckConfig, kind: str) -> Iterator[PosedScene | tuple[str, str]]:
+    """The scenes of `cfg.path` as `PosedScene`s (foreign formats through their importer), or
+    (scene_id, reason) for scenes the importer skips."""
+    from .importers.common import SkippedScene
+
+    path = Path(cfg.path)
+    if kind == "posed":
+        from .posed import PosedDataset
+
+        ds = PosedDataset(path)
+        yield from ds.iter_scenes(ds.scene_ids[: cfg.max_scenes])
+        return
+    items: Iterator
+    if kind == "nerfstudio":
+        from .importers.nerfstudio import NerfstudioImportConfig, iter_scenes as ns_scenes
+
+        transforms = path if path.is_file() else path / "transforms.json"
+        items = ns_scenes(NerfstudioImportConfig(transforms=transforms, near=0.1, far=100.0, max_pixels=cfg.max_pixels))
+    elif kind == "colmap":
+        from .importers.colmap import ColmapImportConfig, iter_scenes as colmap_scenes
+
+        items = colmap_scenes(
+            ColmapImportConfig(
+                model_dir=path, images_dir=_colmap_images(cfg), near=0.1, far=100.0, max_pixels=cfg.max_pixels
+            )
+        )
+    else:
+        from .importers.pixelsplat import PixelSplatImportConfig, iter_scenes as ps_scenes
+
+        stage = "test" if (path / "test").is_dir() and not (path / "train").is_dir() else "train"
+        items = ps_scenes(PixelSplatImportConfig(root=path, stage=stage, max_pixels=cfg.max_pixels))
+    count = 0
+    for item in items:
+        if count >= cfg.max_scenes:
+            return
+        count += 1
+        yield (item.scene_id, item.reason) if isinstance(item, SkippedScene) else item
+
+
+# ---------------------------------------------------------------------------------------------
+# Geometry
+# ---------------------------------------------------------------------------------------------
+
+
+def skew(t: np.ndarray) -> np.ndarray:
+    """(3,) -> the (3, 3) cross-product matrix [t]x."""
+    return np.array([[0.0, -t[2], t[1]], [t[2], 0.0, -t[0]], [-t[1], t[0], 0.0]])
+
+
+def fundamental(c2w1: np.ndarray, c2w2: np.ndarray, K1: np.ndarray, K2: np.ndarray) -> np.ndarray:
+    """F (3, 3) with x2^T F x1 = 0 for pixels x1 of camera 1 and x2 of camera 2 (OpenCV c2w, pixel K)."""
+    rel = invert_rigid(c2w2) @ c2w1  # camera 1 -> camera 2
+    E = skew(rel[:3, 3]) @ rel[:3, :3]
+    F = np.linalg.inv(K2).T @ E @ np.linalg.inv(K1)
+    norm = np.linalg.norm(F)
+    return F / norm if norm > 0 else F
+
+
+def sampson_error(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
+    """Sampson distance (pixels) of matches x1, x2 `(M, 2)` under F: `(M,)`."""
+    h1 = np.concatenate([x1, np.ones((len(x1), 1))], 1)
+    h2 = np.concatenate([x2, np.ones((len(x2), 1))], 1)
+    Fx1 = h1 @ F.T
+    Ftx2 = h2 @ F
+    num = np.einsum("ij,ij->i", h2, Fx1) ** 2
+    den = Fx1[:, 0] ** 2 + Fx1[:, 1] ** 2 + Ftx2[:, 0] ** 2 + Ftx2[:, 1] ** 2
+    return np.sqrt(num / np.maximum(den, 1e-300))
+
+
+def _decode(scene: PosedScene, k: int) -> np.ndarray:
+    """Frame k as (H, W, 3) uint8 BGR (`image_ops.decode_rgb`); SeeUError when it does not decode."""
+    try:
+        rgb = decode_rgb(memoryview(scene.images[k]))  # type: ignore[arg-type]
+    except ValueError:
+        raise SeeUError(f"scene {scene.scene_id}: frame {k} does not decode") from None
+    return np.ascontiguousarray(rgb[..., ::-1])
+
+
+def _gray(bgr: np.ndarray) -> np.ndarray:
+    return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
+
+
+def match_sift(img1: np.ndarray, img2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """SIFT matches between two grayscale images with the ratio test: pixel coordinates (M, 2) each,
+    corner-at-origin (OpenCV keypoints are pixel-centre based: +0.5)."""
+    sift = cv2.SIFT_create(nfeatures=SIFT_FEATURES)  # type: ignore[attr-defined]
+    k1, d1 = sift.detectAndCompute(img1, None)
+    k2, d2 = sift.detectAndCompute(img2, None)
+    if d1 is None or d2 is None or len(k1) < 2 or len(k2) < 2:
+        return np.zeros((0, 2)), np.zeros((0, 2))
+    good = [
+        m[0]
+        for m in cv2.BFMatcher(cv2.NORM_L2).knnMatch(d1, d2, k=2)
+        if len(m) == 2 and m[0].distance < RATIO * m[1].distance
+    ]
+    x1 = np.array([k1[m.queryIdx].pt for m in good], dtype=np.float64).reshape(-1, 2) + 0.5
+    x2 = np.array([k2[m.trainIdx].pt for m in good], dtype=np.float64).reshape(-1, 2) + 0.5
+    return x1, x2
+
+
+def pick_pairs(cam_to_world: np.ndarray, pairs: int) -> list[tuple[int, int]]:
+    """Up to `pairs` frame pairs (i, j), i evenly spread, j the first later frame whose camera centre is
+    at least MIN_BASELINE_FRACTION of the scene's extent from i's (none when the cameras do not move)."""
+    centres = cam_to_world[:, :3, 3]
+    n = len(centres)
+    extent = float(np.linalg.norm(centres - centres[0], axis=1).max()) if n else 0.0
+    if n < 2 or extent <= 0:
+        return []
+    out: list[tuple[int, int]] = []
+    for i in sorted({int(round(v)) for v in np.linspace(0, n - 2, pairs)}):
+        dist = np.linalg.norm(centres[i + 1 :] - centres[i], axis=1)
+        far = np.nonzero(dist >= MIN_BASELINE_FRACTION * extent)[0]
+        if len(far):
+            out.append((i, i + 1 + int(far[0])))
+    return out
+
+
+# ---------------------------------------------------------------------------------------------
+# The check
+# ---------------------------------------------------------------------------------------------
+
+
+def _errors(scene_pairs: list, c2w: np.ndarray, intr: np.ndarray, wh: np.ndarray) -> np.ndarray:
+    errs = []
+    for (i, j), x1, x2 in scene_pairs:
+        K1 = intrinsics_pixels(intr[i], int(wh[i, 0]), int(wh[i, 1]))
+        K2 = intrinsics_pixels(intr[j], int(wh[j, 0]), int(wh[j, 1]))
+        if not (np.isfinite(K1).all() and np.isfinite(K2).all()) or 0 in (K1[0, 0], K1[1, 1], K2[0, 0], K2[1, 1]):
+            errs.append(np.full(len(x1), np.inf))
+            continue
+        errs.append(sampson_error(fundamental(c2w[i], c2w[j], K1, K2), x1, x2))
+    return np.concatenate(errs) if errs else np.zeros(0)
+
+
+def peer_loader_skips(scene: PosedScene) -> list[str]:
+    """Why the pixelSplat / MVSplat RE10K loader would skip this scene (empty: it would not)."""
+    reasons = []
+    sizes = {(int(h), int(w)) for h, w in zip(scene.height, scene.width)}
+    if sizes != {PEER_SIZE}:
+        shown = ", ".join(f"{h}x{w}" for h, w in sorted(sizes)[:3])
+        reasons.append(f"views are {shown}, not {PEER_SIZE[0]}x{PEER_SIZE[1]}")
+    fov_x, fov_y = field_of_view_deg(np.asarray(scene.intrinsics_norm, dtype=np.float64))
+    widest = float(np.nanmax(np.maximum(fov_x, fov_y)))
+    if widest > PEER_MAX_FOV_DEG:
+        reasons.append(f"field of view {widest:.0f} deg > {PEER_MAX_FOV_DEG:.0f}")
+    return reasons
+
+
+def check_scene(scene: PosedScene, cfg: CameraCheckConfig) -> tuple[dict, tuple | None]:
+    """One scene's report (and its first pair with matches, for the figure: (i, j, x1, x2))."""
+    c2w = np.asarray(scene.cam_to_world, dtype=np.float64)
+    intr = np.asarray(scene.intrinsics_norm, dtype=np.float64)
+    wh = np.stack([np.asarray(scene.width), np.asarray(scene.height)], -1)
+    rep: dict = {"scene_id": scene.scene_id, "frames": len(scene), "peer_loader_skips": peer_loader_skips(scene)}
+    matched = []
+    for i, j in pick_pairs(c2w, cfg.pairs):
+        x1, x2 = match_sift(_gray(_decode(scene, i)), _gray(_decode(scene, j)))
+        if len(x1):
+            matched.append(((i, j), x1, x2))
+    rep["pairs"] = [list(p) for p, _, _ in matched]
+    rep["matches"] = int(sum(len(x1) for _, x1, _ in matched))
+    if rep["matches"] < MIN_MATCHES:
+        rep["verdict"] = "unchecked"
+        rep["reason"] = (
+            f"{rep['matches']} SIFT matches (need {MIN_MATCHES}): too little texture or overlap, or static cameras"
+        )
+        return rep, None
+    err = _errors(matched, c2w, intr, wh)
+    rep["median_error_px"] = float(np.median(err))
+    rep["p90_error_px"] = float(np.percentile(err, 90))
+    tried = {}
+    for name, (_, _, fix) in HYPOTHESES.items():
+        c2, k2 = fix(c2w, intr, wh)
+        tried[name] = float(np.median(_errors(matched, c2, k2, wh)))
+    rep["hypotheses_median_px"] = tried
+    best = min(tried, key=lambda k: tried[k])
+    stored = rep["median_error_px"]
+    fits_better = tried[best] <= stored / BETTER_FACTOR and stored > MIN_FLAG_PX
+    rep["verdict"] = "inconsistent" if stored > cfg.max_error or fits_better else "consistent"
+    if rep["verdict"] == "inconsistent":
+        if tried[best] <= cfg.max_error and (fits_better or stored > cfg.max_error):
+            what, todo, _ = HYPOTHESES[best]
+            rep["cause"] = best
+            rep["cause_text"] = (
+                f"{what}: median Sampson error {tried[best]:.2f} px after the fix, {stored:.2f} px as stored"
+            )
+            rep["suggestion"] = todo
+        else:
+            rep["cause"] = None
+            rep["cause_text"] = (
+                f"none of the common convention mistakes fits (best: {best} at {tried[best]:.1f} px); "
+                "check the poses' scale/order, the image-camera pairing, or lens distortion"
+            )
+            rep["suggestion"] = "plot the epipolar lines (--out) and compare frames by eye"
+    (i, j), x1, x2 = matched[0]
+    K1 = intrinsics_pixels(intr[i], int(wh[i, 0]), int(wh[i, 1]))
+    K2 = intrinsics_pixels(intr[j], int(wh[j, 0]), int(wh[j, 1]))
+    return rep, (scene, i, j, x1, x2, fundamental(c2w[i], c2w[j], K1, K2))
+
+
+def epipolar_figure(
+    scene: PosedScene, i: int, j: int, x1: np.ndarray, x2: np.ndarray, F: np.ndarray, n: int = 20
+) -> bytes:
+    """PNG: frames i and j side by side; `n` matches as dots, each with its epipolar line (from the
+    stored cameras) in the other image. A consistent pair has its dots on the lines."""
+    a, b = _decode(scene, i), _decode(scene, j)
+    h = max(a.shape[0], b.shape[0])
+    canvas = np.zeros((h, a.shape[1] + b.shape[1], 3), np.uint8)
+    canvas[: a.shape[0], : a.shape[1]] = a
+    canvas[: b.shape[0], a.shape[1] :] = b
+    rng = np.random.default_rng(0)
+    pick = rng.choice(len(x1), size=min(n, len(x1)), replace=False)
+    for k, m in enumerate(pick):
+        hsv = np.array([[[k * 180 // max(1, len(pick)), 255, 255]]], dtype=np.uint8)
+        colour = tuple(int(c) for c in np.asarray(cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR))[0, 0])
+        for pt, line, img, off in (
+            (x2[m], F @ np.append(x1[m], 1.0), b, a.shape[1]),  # line in image j from the point in i
+            (x1[m], F.T @ np.append(x2[m], 1.0), a, 0),  # line in image i from the point in j
+        ):
+            w = img.shape[1]
+            la, lb, lc = line
+            if abs(lb) > 1e-12:
+                p0, p1 = (0.0, -lc / lb), (float(w), -(lc + la * w) / lb)
+            else:
+                p0, p1 = (-lc / la, 0.0), (-lc / la, float(img.shape[0]))
+            cv2.line(canvas, (int(p0[0] + off), int(p0[1])), (int(p1[0] + off), int(p1[1])), colour, 1, cv2.LINE_AA)
+            cv2.circle(canvas, (int(pt[0] - 0.5 + off), int(pt[1] - 0.5)), 3, colour, -1, cv2.LINE_AA)
+    ok, buf = cv2.imencode(".png", canvas)
+    if not ok:  # pragma: no cover - OpenCV always encodes uint8 BGR
+        raise SeeUError("PNG encoding failed")
+    return buf.tobytes()
+
+
+def check_cameras(cfg: CameraCheckConfig) -> dict:
+    """Check every scene (up to `max_scenes`); the report written to `out/check.json` when `out` is set.
+
+    Returns {"path", "kind", "max_error_px", "scenes": [per scene: frames, pairs, matches,
+    median_error_px, p90_error_px, verdict (consistent / inconsistent / unchecked), cause, cause_text,
+    suggestion, hypotheses_median_px, peer_loader_skips], "skipped": [{scene_id, reason}],
+    "median_error_px" (over checked scenes' medians), "verdict", "cause", "figure"}.
+    SeeUError when the path is not a dataset or no scene could be checked.
+    """
+    if cfg.pairs < 1:
+        raise SeeUError(f"--pairs must be at least 1, got {cfg.pairs}")
+    if cfg.max_scenes < 1:
+        raise SeeUError(f"--max-scenes must be at least 1, got {cfg.max_scenes}")
+    if not cfg.max_error > 0:
+        raise SeeUError(f"--max-error must be positive, got {cfg.max_error}")
+    kind = detect_kind(cfg.path)
+    scenes, skipped, figure_pair = [], [], None
+    for item in iter_scenes(cfg, kind):
+        if isinstance(item, tuple):
+            skipped.append({"scene_id": item[0], "reason": item[1]})
+            continue
+        item.check()  # finite rigid poses, positive focal lengths (a bad dataset, not a convention mistake)
+        rep, pair = check_scene(item, cfg)
+        scenes.append(rep)
+        if pair is not None and (
+            figure_pair is None or (rep["verdict"] != "consistent" and figure_pair[0] == "consistent")
+        ):
+            figure_pair = (rep["verdict"], pair)
+    checked = [s for s in scenes if s["verdict"] != "unchecked"]
+    if not checked:
+        why = scenes[0]["reason"] if scenes else (skipped[0]["reason"] if skipped else "no scenes")
+        raise SeeUError(f"no scene could be checked ({why})", cfg.path)
+    bad = [s for s in checked if s["verdict"] == "inconsistent"]
+    causes = sorted({s["cause"] for s in bad if s.get("cause")})
+    report = {
+        "path": str(cfg.path),
+        "kind": kind,
+        "max_error_px": cfg.max_error,
+        "median_error_px": float(np.median([s["median_error_px"] for s in checked])),
+        "verdict": "inconsistent" if bad else "consistent",
+        "cause": f"{bad[0]['cause_text']} (scene {bad[0]['scene_id']})" if bad else None,
+        "causes": causes,
+        "suggestion": bad[0]["suggestion"] if bad else None,
+        "scenes": scenes,
+        "skipped": skipped,
+        "figure": None,
+    }
+    if cfg.out is not None:
+        out = Path(cfg.out)
+        out.mkdir(parents=True, exist_ok=True)
+        if figure_pair is not None:
+            atomic_write_bytes(out / "epipolar.png", epipolar_figure(*figure_pair[1]))
+            report["figure"] = str(out / "epipolar.png")
+        atomic_write_text(out / "check.json", json.dumps(report, indent=1))
+    return report
