@@ -340,7 +340,7 @@ def _one_line_exit_2(argv, capsys) -> str:
         ("data.num_workers=-1", "data.num_workers must be >= 0"),
         ("optim.lr=NaN", "finite"),
         ("optim.lr=Infinity", "finite"),
-        ("optim.lr=-1e-4", "optim.lr must be > 0"),
+        ("optim.lr=-1e-4", "optim.lr must be in (0, 1e+10], got -0.0001"),
         ("optim.max_steps=NaN", "integer"),
         ("optim.max_steps=0", "optim.max_steps must be >= 1"),
         ("optim.betas=[0.9,1.5]", "optim.betas"),
