@@ -36,12 +36,12 @@ from __future__ import annotations
 
 import argparse
 import os
-from dataclasses import replace
 import shutil
 import statistics
 import sys
 import tempfile
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import cv2

@@ -100,13 +100,12 @@ def child(mode: str, data: Path, out: Path, prefault_mb: int) -> None:
     import torch  # noqa: F401
 
     if mode in ("import", "import_fsync", "read"):
+        import jsonschema  # noqa: F401  (manifest validation)
         import pyarrow as pa
+        import tqdm  # noqa: F401  (progress bar)
 
         from seeu_data.importers import ImportReport, write_import
         from seeu_data.importers import pixelsplat as ps
-
-        import jsonschema  # noqa: F401  (manifest validation)
-        import tqdm  # noqa: F401  (progress bar)
 
         pa.array([0])  # pyarrow imports its pandas shim lazily on first use (~1 s)
     t_imports = time.perf_counter() - t_imports

@@ -94,8 +94,8 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=1, help="runs of each, alternating order; best is reported")
     args = ap.parse_args()
 
-    from pipelines.ingest import IngestConfig, ingest_scene
     from pipelines.cli.options import parse_dims
+    from pipelines.ingest import IngestConfig, ingest_scene
     from seeu_data.ingest_report import accuracy_vs_truth
     from seeu_data.synthetic import ClipConfig, write_clip
     from seeu_data.video import discover_sources

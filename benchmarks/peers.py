@@ -61,11 +61,11 @@ import torch
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
-from benchmarks.loader import CONTEXT, OUT, VIEWS, W, H, INTRINSICS, camera_poses, make_triples, write_seeu_shards  # noqa: E402
+from benchmarks.loader import CONTEXT, INTRINSICS, OUT, VIEWS, H, W, camera_poses, make_triples, write_seeu_shards  # noqa: E402
 from benchmarks.results_md import write_section  # noqa: E402
 from seeu_data.loader import make_loader  # noqa: E402
-from seeu_data.triple_row import TripleRow  # noqa: E402
 from seeu_data.loader.transforms import transform_sample  # noqa: E402
+from seeu_data.triple_row import TripleRow  # noqa: E402
 
 SHARD_ROWS = 60
 S3_ENV = {

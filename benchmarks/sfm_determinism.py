@@ -29,9 +29,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 def _ingest(video: Path, out: Path, cfg):
     """One ingest from scratch; returns (report, seconds, sha256 of the written poses)."""
-    import numpy as np
-
     from dataclasses import replace
+
+    import numpy as np
 
     from pipelines.ingest import ingest_scene
     from seeu_data.posed import PosedDataset
@@ -66,8 +66,8 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path("out/bench_sfm_determinism"))
     args = ap.parse_args()
 
-    from pipelines.ingest import IngestConfig
     from pipelines.cli.options import parse_dims
+    from pipelines.ingest import IngestConfig
     from seeu_data.synthetic import write_clip
 
     width, height = parse_dims(args.size, "--size", minimum=16)

@@ -113,8 +113,8 @@ def _fmt(v, nd=3) -> str:
 
 
 def write_table(out: Path, rows: list[dict], budget: dict) -> None:
-    from seeu_data.arrow_io import atomic_write_text
     from pipelines.evaluate import csv_text
+    from seeu_data.arrow_io import atomic_write_text
 
     ref = next((r for r in rows if r["variant"] == "full"), None)
     for r in rows:

@@ -27,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
-from seeu_data.limits import MAX_BATCH_SIZE, MAX_PIXELS, MAX_IMAGE_SIDE, MAX_SAMPLES, MAX_WORKERS, check_range
+from seeu_data.limits import MAX_BATCH_SIZE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES, MAX_WORKERS, check_range
 from seeu_data.out_lock import locks_output
 
 
@@ -284,9 +284,8 @@ def make_depth_fn(root_or_loader, image_hw: tuple[int, int]):
     import torch
 
     from seeu_data.cameras import cover_crop_geometry
-    from seeu_model.geometry_metrics import depth_rmse
-
     from seeu_data.dtu_gt import load_depth_map
+    from seeu_model.geometry_metrics import depth_rmse
 
     if callable(root_or_loader):
         load = root_or_loader

@@ -20,19 +20,19 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Union
+from typing import Any
 
 from seeu_data.errors import SeeUError
-from seeu_data.out_lock import locks_output
 from seeu_data.importers.colmap import ColmapImportConfig
 from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 from seeu_data.importers.pixelsplat import PixelSplatImportConfig
 from seeu_data.importers.re10k_text import Re10kTextImportConfig
+from seeu_data.out_lock import locks_output
 
-SourceConfig = Union[
-    PixelSplatImportConfig, Re10kTextImportConfig, DtuImportConfig, ColmapImportConfig, NerfstudioImportConfig
-]
+SourceConfig = (
+    PixelSplatImportConfig | Re10kTextImportConfig | DtuImportConfig | ColmapImportConfig | NerfstudioImportConfig
+)
 
 # format name (the `seeu import FORMAT`) of each source config
 FORMATS: dict[type, str] = {

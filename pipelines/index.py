@@ -23,9 +23,9 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
-from seeu_data.limits import MAX_PIXELS
 from seeu_data.errors import SeeUError
 from seeu_data.eval_index import IndexConfig
+from seeu_data.limits import MAX_PIXELS
 
 FORMATS = ("pixelsplat", "latentsplat")
 

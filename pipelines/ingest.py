@@ -20,9 +20,9 @@ from __future__ import annotations
 import os
 import re
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, fields, replace
 from pathlib import Path
-from typing import Callable
 
 from pipelines.ingest_ray import SceneResult
 from seeu_data.errors import SeeUError
@@ -342,9 +342,9 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     from seeu_data.points import POINTS_DIR, write_chunk_points
     from seeu_data.posed import POSED_FILES, PosedDatasetWriter, PosedScene
     from seeu_data.resize import resize_scene
+    from seeu_data.resume import StageCache, stamp_of, sweep
     from seeu_data.scale import distance_frame_names
     from seeu_data.sfm import run_sfm
-    from seeu_data.resume import StageCache, stamp_of, sweep
 
     t_start = time.perf_counter()
     out_dir = out_root / source.name
@@ -558,8 +558,8 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
     in worker processes, or every scene is a Ray task. `on_result(result)` is called as each scene
     finishes (to print it).
     """
-    from concurrent.futures import ProcessPoolExecutor
     import multiprocessing
+    from concurrent.futures import ProcessPoolExecutor
 
     from tqdm import tqdm
 

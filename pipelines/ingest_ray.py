@@ -19,9 +19,10 @@ as the local engine does. Every node must see the inputs, OUT and that directory
 from __future__ import annotations
 
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 
 @dataclass(frozen=True)

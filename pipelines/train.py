@@ -18,11 +18,12 @@ from __future__ import annotations
 
 import json
 import math
-import re
 import os
+import re
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS, MAX_STEPS, check_range
@@ -174,7 +175,7 @@ def train(run: TrainRunConfig) -> dict:
 
     from seeu_data.arrow_io import atomic_write_text
     from seeu_model.training import checkpoint as ckpt_io
-    from seeu_model.training.config import config_from_dict, load_config, apply_overrides
+    from seeu_model.training.config import apply_overrides, config_from_dict, load_config
     from seeu_model.training.distributed import cleanup_distributed, setup_distributed
     from seeu_model.training.factory import build_model, encode_context, make_render_fn, render_gaussians
     from seeu_model.training.loop import Trainer, autocast_context

@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from seeu_data.limits import MAX_PIXELS
 from seeu_data.dataset_check import check_dataset
+from seeu_data.limits import MAX_PIXELS
 
 
 def validate_dataset(root: Path, check_sha: bool = True, max_pixels: int = MAX_PIXELS) -> dict:

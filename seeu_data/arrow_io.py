@@ -21,9 +21,9 @@ import io
 import mmap
 import os
 import threading
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Callable, Iterator, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -380,7 +380,7 @@ class AtomicIpcWriter:
             self._raw.sha256.stop()
             self.tmp.unlink(missing_ok=True)
 
-    def __enter__(self) -> "AtomicIpcWriter":
+    def __enter__(self) -> AtomicIpcWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

@@ -33,10 +33,10 @@ import hashlib
 import os
 import sys
 from collections import deque
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import suppress
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Callable, Iterable, Iterator
 
 import numpy as np
 import pyarrow as pa
@@ -45,6 +45,7 @@ import pyarrow.compute as pc
 from .arrow_io import open_ipc_file
 from .dataset_check import check_dataset
 from .errors import SeeUError
+from .interrupts import end_pool
 from .limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
@@ -55,13 +56,12 @@ from .limits import (
     check_range,
 )
 from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
-from .interrupts import end_pool
 from .out_lock import locks_output
 from .resume import Journal, file_intact, sweep
 from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
-from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from .schema import schema_version
 from .shard_task import ShardResult, materialise, write_pending
+from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
 SHARD_FILES = "shard-*.arrow"

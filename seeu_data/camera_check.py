@@ -30,9 +30,9 @@ Example:
 from __future__ import annotations
 
 import json
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Iterator
 
 import cv2
 import numpy as np
@@ -176,12 +176,14 @@ def iter_scenes(cfg: CameraCheckConfig, kind: str) -> Iterator[PosedScene | tupl
         return
     items: Iterator
     if kind == "nerfstudio":
-        from .importers.nerfstudio import NerfstudioImportConfig, iter_scenes as ns_scenes
+        from .importers.nerfstudio import NerfstudioImportConfig
+        from .importers.nerfstudio import iter_scenes as ns_scenes
 
         transforms = path if path.is_file() else path / "transforms.json"
         items = ns_scenes(NerfstudioImportConfig(transforms=transforms, near=0.1, far=100.0, max_pixels=cfg.max_pixels))
     elif kind == "colmap":
-        from .importers.colmap import ColmapImportConfig, iter_scenes as colmap_scenes
+        from .importers.colmap import ColmapImportConfig
+        from .importers.colmap import iter_scenes as colmap_scenes
 
         items = colmap_scenes(
             ColmapImportConfig(
@@ -189,7 +191,8 @@ def iter_scenes(cfg: CameraCheckConfig, kind: str) -> Iterator[PosedScene | tupl
             )
         )
     else:
-        from .importers.pixelsplat import PixelSplatImportConfig, iter_scenes as ps_scenes
+        from .importers.pixelsplat import PixelSplatImportConfig
+        from .importers.pixelsplat import iter_scenes as ps_scenes
 
         stage = "test" if (path / "test").is_dir() and not (path / "train").is_dir() else "train"
         items = ps_scenes(PixelSplatImportConfig(root=path, stage=stage, max_pixels=cfg.max_pixels))

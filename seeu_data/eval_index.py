@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .json_file import read_json
 from .errors import SeeUError
+from .json_file import read_json
 from .sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 
 FORMATS = ("pixelsplat", "latentsplat", "dtu")
@@ -149,7 +149,7 @@ def generate_entries(
     Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4). Context pairs whose overlap falls outside
     [min_overlap, max_overlap] are redrawn (at most `max_tries` draws per entry).
     """
-    from .sampling import sample_one, min_scene_length
+    from .sampling import min_scene_length, sample_one
 
     s = cfg.sampling
     n = len(cam_to_world)

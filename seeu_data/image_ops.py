@@ -7,8 +7,8 @@ The crop geometry and the intrinsics update come from `seeu_data.cameras` (`cove
 from __future__ import annotations
 
 import math
+from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import Iterator
 
 import cv2
 import numpy as np

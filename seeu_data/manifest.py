@@ -18,8 +18,8 @@ import jsonschema
 
 from . import __version__
 from .arrow_io import atomic_write_text, open_ipc_file, sha256_file
-from .json_file import read_json
 from .errors import SeeUError
+from .json_file import read_json
 from .paths import contained_key, contained_path
 from .schema import MANIFEST_VERSION, check_version, manifest_json_schema
 
@@ -52,7 +52,7 @@ class FileEntry:
     sha256: str
 
     @classmethod
-    def for_file(cls, root: Path, path: Path, rows: int) -> "FileEntry":
+    def for_file(cls, root: Path, path: Path, rows: int) -> FileEntry:
         return cls(str(path.relative_to(root)), int(rows), path.stat().st_size, sha256_file(path))
 
 

@@ -11,9 +11,9 @@ Rows follow `schemas/posed_frames.v1.json`; cameras follow `seeu_data.cameras`.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Callable, Iterable, Iterator, Sequence
 
 import numpy as np
 import pyarrow as pa
@@ -105,7 +105,7 @@ class PosedScene:
         return pa.RecordBatch.from_arrays([cols[f.name] for f in schema], schema=schema)
 
     @classmethod
-    def from_record_batch(cls, batch: pa.RecordBatch | pa.Table, meta: dict | None = None) -> "PosedScene":
+    def from_record_batch(cls, batch: pa.RecordBatch | pa.Table, meta: dict | None = None) -> PosedScene:
         def fixed(name: str, k: int) -> np.ndarray:
             col = batch.column(name)
             if isinstance(col, pa.ChunkedArray):
@@ -167,7 +167,7 @@ class PosedDatasetWriter:
         self.out_dir.mkdir(parents=True, exist_ok=True)
         (self.out_dir / "manifest.json").unlink(missing_ok=True)  # being rewritten: not complete
 
-    def __enter__(self) -> "PosedDatasetWriter":
+    def __enter__(self) -> PosedDatasetWriter:
         return self
 
     def __exit__(self, exc_type, exc, tb) -> None:

@@ -71,7 +71,7 @@ class StageProgress:
             self._bar.close()
             self._bar = None
 
-    def __enter__(self) -> "StageProgress":
+    def __enter__(self) -> StageProgress:
         return self
 
     def __exit__(self, *exc) -> None:

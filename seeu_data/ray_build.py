@@ -13,8 +13,8 @@ from __future__ import annotations
 
 import json
 import os
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from .ray_cluster import ensure_ray
 from .shard_task import ShardResult, materialise

@@ -44,8 +44,8 @@ import os
 import shutil
 import threading
 import time
+from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
-from typing import Callable, Collection, Iterable
 
 from .arrow_io import atomic_write_text, sha256_file
 from .errors import SeeUError

@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import json
 import re
-from functools import lru_cache
+from functools import cache
 from importlib.resources import files
 from pathlib import Path
 
@@ -53,7 +53,7 @@ def parse_type(spec: str) -> pa.DataType:
     raise ValueError(f"unknown column type {spec!r}")
 
 
-@lru_cache(maxsize=None)
+@cache
 def load_schema_doc(name: str, major: int = 1) -> dict:
     """The JSON schema document of table `name` at major version `major`."""
     stem = _SCHEMA_FILES.get(name)

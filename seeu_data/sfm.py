@@ -59,8 +59,8 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from .errors import SeeUError
-from .limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
 from .interrupts import end_process
+from .limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")

@@ -6,9 +6,9 @@ writes the manifest; `ray_build.py` maps the same task over a Ray cluster. Both 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable
 
 from .errors import SeeUError
 from .manifest import FileEntry

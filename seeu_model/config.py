@@ -117,12 +117,12 @@ class SeeUConfig:
 
     # ---- presets -----------------------------------------------------------------------------
     @classmethod
-    def paper(cls, **overrides: Any) -> "SeeUConfig":
+    def paper(cls, **overrides: Any) -> SeeUConfig:
         """The paper's model (frozen pretrained DINOv3 ViT-B/16 semantic encoder)."""
         return cls(**overrides)
 
     @classmethod
-    def cpu_small(cls, **overrides: Any) -> "SeeUConfig":
+    def cpu_small(cls, **overrides: Any) -> SeeUConfig:
         """A small model for the CPU demo: same architecture, narrower and shallower everywhere,
         32 depth candidates, SH degree 2, DINOv3 ViT-S/16 semantic encoder (pretrained unless
         ``semantic_pretrained=False`` is passed)."""
@@ -149,7 +149,7 @@ class SeeUConfig:
         return cls(**base)
 
     @classmethod
-    def tiny(cls, **overrides: Any) -> "SeeUConfig":
+    def tiny(cls, **overrides: Any) -> SeeUConfig:
         """The unit-test model: tiny widths, 16 depth candidates, SH degree 1, a randomly initialised
         2-block DINOv3 ViT-S/16 as the semantic encoder. Not meant to be trained for quality."""
         base = dict(
@@ -178,7 +178,7 @@ class SeeUConfig:
         return cls(**base)
 
     @classmethod
-    def mvsplat(cls, **overrides: Any) -> "SeeUConfig":
+    def mvsplat(cls, **overrides: Any) -> SeeUConfig:
         """MVSplat's encoder as released for RE10K / ACID (128 disparity candidates, SH degree 4), without a
         refiner: what a converted MVSplat checkpoint runs as ("SeeU w/o refinement"). With
         ``refiner="transformer"`` (and the paper's condition) SeeU's refiner sits on MVSplat's latent tokens."""
@@ -199,7 +199,7 @@ class SeeUConfig:
         return cls(**base)
 
     @classmethod
-    def preset(cls, name: str, **overrides: Any) -> "SeeUConfig":
+    def preset(cls, name: str, **overrides: Any) -> SeeUConfig:
         presets = {"paper": cls.paper, "cpu_small": cls.cpu_small, "tiny": cls.tiny, "mvsplat": cls.mvsplat}
         if name not in presets:
             raise ValueError(f"unknown preset {name!r}; choose one of {sorted(presets)}")
@@ -241,7 +241,7 @@ class SeeUConfig:
     def needs_semantic(self) -> bool:
         return self.refiner != "none"
 
-    def replace(self, **changes: Any) -> "SeeUConfig":
+    def replace(self, **changes: Any) -> SeeUConfig:
         return replace(self, **changes)
 
     def to_dict(self) -> dict[str, Any]:

@@ -14,8 +14,8 @@ import resource
 import sys
 import time
 from collections import OrderedDict
+from collections.abc import Callable, Iterable
 from dataclasses import asdict, dataclass, field
-from typing import Callable, Iterable
 
 import torch
 from torch import nn
@@ -192,7 +192,7 @@ def evaluate_model(
     return out
 
 
-def per_scene(records: list[TargetRecord]) -> "OrderedDict[str, dict]":
+def per_scene(records: list[TargetRecord]) -> OrderedDict[str, dict]:
     """scene_id -> {num_targets, psnr, ssim, lpips, depth_rmse}: means over the scene's targets."""
     groups: OrderedDict[str, list[TargetRecord]] = OrderedDict()
     for r in records:

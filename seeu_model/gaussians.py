@@ -32,6 +32,6 @@ class Gaussians:
     def __len__(self) -> int:
         return self.means.shape[1]
 
-    def map(self, fn) -> "Gaussians":
+    def map(self, fn) -> Gaussians:
         """Apply `fn` to every tensor field (e.g. `.detach()`, `.to(device)`, indexing)."""
         return Gaussians(**{f.name: fn(getattr(self, f.name)) for f in fields(self)})

@@ -107,7 +107,7 @@ class LPIPS(nn.Module):
             p.requires_grad_(False)
         self.eval()
 
-    def train(self, mode: bool = True) -> "LPIPS":
+    def train(self, mode: bool = True) -> LPIPS:
         return super().train(False)  # always eval: the heads have dropout layers
 
     def forward(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:

@@ -83,8 +83,8 @@ class SeeUOutput:
     depth (B, T, 1, H, W), alpha (B, T, 1, H, W)); `coarse_render` when asked for."""
 
     encoding: SeeUEncoding
-    render: "RenderOutput | None"  # noqa: F821
-    coarse_render: "RenderOutput | None" = None  # noqa: F821
+    render: RenderOutput | None  # noqa: F821
+    coarse_render: RenderOutput | None = None  # noqa: F821
 
     @property
     def gaussians(self) -> Gaussians:
@@ -145,14 +145,14 @@ class SeeU(nn.Module):
         """State-dict prefixes of frozen modules (the semantic encoder)."""
         return [name + "." for name, m in self.named_modules() if isinstance(m, FrozenModule) and name]
 
-    def train(self, mode: bool = True) -> "SeeU":
+    def train(self, mode: bool = True) -> SeeU:
         super().train(mode)
         for m in self.modules():  # frozen encoders stay in eval mode
             if isinstance(m, FrozenModule):
                 nn.Module.train(m, False)
         return self
 
-    def trainable_state_dict(self) -> "OrderedDict[str, torch.Tensor]":
+    def trainable_state_dict(self) -> OrderedDict[str, torch.Tensor]:
         """The state dict without the frozen semantic encoder (what checkpoints store)."""
         prefixes = tuple(self.frozen_prefixes())
         return OrderedDict((k, v) for k, v in self.state_dict().items() if not k.startswith(prefixes))
@@ -365,7 +365,7 @@ def build_model(cfg: SeeUConfig | None = None) -> SeeU:
     return SeeU(cfg or SeeUConfig())
 
 
-def parameter_counts(model: SeeU) -> "OrderedDict[str, tuple[int, int]]":
+def parameter_counts(model: SeeU) -> OrderedDict[str, tuple[int, int]]:
     """Per top-level module (the semantic encoder split out): name -> (trainable, frozen) parameter counts."""
     counts: OrderedDict[str, tuple[int, int]] = OrderedDict()
     for name, module in model.named_children():

@@ -11,9 +11,10 @@ leaves its weights out of checkpoints.
 
 from __future__ import annotations
 
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Any, Callable, Iterator
+from typing import Any
 
 import torch
 import torch.nn.functional as F
@@ -71,7 +72,7 @@ class FrozenModule(nn.Module):
             p.requires_grad_(False)
         super().train(False)
 
-    def train(self, mode: bool = True) -> "FrozenModule":  # noqa: ARG002 - stays in eval mode
+    def train(self, mode: bool = True) -> FrozenModule:  # noqa: ARG002 - stays in eval mode
         return super().train(False)
 
 

@@ -6,8 +6,8 @@ valid look-at pose, so tests can compare what the loader returns against an inde
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 import cv2
 import numpy as np

@@ -15,8 +15,8 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data import arrow_io
-from seeu_data.build import PROGRESS_NAME
 from seeu_data.arrow_io import AtomicIpcWriter, atomic_write_text, sha256_file, write_table
+from seeu_data.build import PROGRESS_NAME
 from seeu_data.errors import SeeUError
 from seeu_data.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene

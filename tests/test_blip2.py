@@ -25,7 +25,6 @@ from seeu_model.semantic import (  # noqa: E402
     FrozenBLIP2ImageEncoder,
     export_blip2_image_part,
 )
-
 from tests.test_model import random_batch  # noqa: E402
 
 Q = 3

@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from seeu_data import cameras
-from seeu_data.image_ops import resize_cover_crop
 from seeu_data.errors import SeeUError
+from seeu_data.image_ops import resize_cover_crop
 from seeu_data.loader import GapCurriculum, LoaderConfig, TripleStream, make_loader
 from seeu_data.loader import source as source_mod
 from tests.loader_fixtures import all_sample_ids, row_dict, write_triples

@@ -183,8 +183,8 @@ def test_dtu_ground_truth_found_through_the_shards(tmp_path):
     """Ground truth the DTU importer records in the scene meta reaches seeu eval via the shards' manifest."""
     from plyfile import PlyData, PlyElement
 
-    from seeu_data.dtu_gt import posed_ground_truth, read_pfm
     from seeu_data.build import BuildConfig, build
+    from seeu_data.dtu_gt import posed_ground_truth, read_pfm
     from seeu_data.manifest import provenance
     from seeu_data.posed import PosedDatasetWriter
     from seeu_data.sampling import SamplingConfig

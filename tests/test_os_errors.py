@@ -17,7 +17,8 @@ from pathlib import Path
 
 import pytest
 
-from pipelines.cli import main as cli_main, os_error_line
+from pipelines.cli import main as cli_main
+from pipelines.cli import os_error_line
 from seeu_data import arrow_io
 
 

@@ -18,8 +18,6 @@ import math
 import sys
 from pathlib import Path
 
-from seeu_data.limits import MAX_CHUNK_BYTES
-
 from pipelines.cli.options import (
     add_max_pixels,
     add_out,
@@ -29,6 +27,7 @@ from pipelines.cli.options import (
     parse_scene_list,
     progress_wanted,
 )
+from seeu_data.limits import MAX_CHUNK_BYTES
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

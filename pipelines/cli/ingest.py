@@ -30,10 +30,9 @@ import argparse
 import sys
 from pathlib import Path
 
+from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, add_workers, parse_dims, progress_wanted
 from seeu_data.scale import SCALES
 from seeu_data.sfm import CAMERA_MODELS, FEATURES, FINAL_BA_LOSSES, MAPPERS
-
-from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, add_workers, parse_dims, progress_wanted
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -14,9 +14,9 @@ Example:
 from __future__ import annotations
 
 import argparse
-from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE
 
 from pipelines.cli.options import add_out, add_progress, parse_dims, progress_wanted
+from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

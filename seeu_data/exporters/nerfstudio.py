@@ -28,7 +28,6 @@ from ..image_header import extension_for
 from ..out_lock import locks_output
 from ..posed import PosedDataset, PosedScene
 
-
 SPARSE_PLY = "sparse_pc.ply"  # the name nerfstudio's own ns-process-data gives the initial point cloud
 
 

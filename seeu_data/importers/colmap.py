@@ -22,18 +22,19 @@ from __future__ import annotations
 
 import re
 import tempfile
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intrinsics_norm_from_pixels
 from ..errors import SeeUError
+from ..limits import MAX_PIXELS
 from ..paths import contained_path
 from ..posed import PosedScene
 from ..undistort import PinholeCamera, undistort_files
-from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}

@@ -3,19 +3,19 @@
 from __future__ import annotations
 
 import sys
+from collections.abc import Callable, Iterable, Sequence
 from contextlib import suppress
-from itertools import takewhile
 from dataclasses import asdict, dataclass, field
+from itertools import takewhile
 from pathlib import Path
-from typing import Callable, Iterable, Sequence
 
 import numpy as np
 
 from ..arrow_io import BytesLike
-from ..errors import SeeUError
-from ..limits import MAX_PIXELS
 from ..dataset_check import check_image
+from ..errors import SeeUError
 from ..image_header import decode_check
+from ..limits import MAX_PIXELS
 from ..manifest import FileEntry, read_manifest
 from ..posed import POSED_FILES, PosedDatasetWriter, PosedScene
 from ..resume import Journal, file_intact, stamp_of, sweep

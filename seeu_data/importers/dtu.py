@@ -22,17 +22,17 @@ by `scale` for scene units).
 from __future__ import annotations
 
 import re
-from functools import partial
+from collections.abc import Iterator
 from dataclasses import dataclass
+from functools import partial
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from ..cameras import cam_to_world_from_world_to_cam
 from ..errors import SeeUError
-from ..posed import PosedScene
 from ..limits import MAX_PIXELS
+from ..posed import PosedScene
 from .common import SkippedScene, probe_images
 
 CAM_FILE_SIZE = (160, 128)  # width, height the Cameras/train K is given for

@@ -31,19 +31,19 @@ from __future__ import annotations
 
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from ..cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels, invert_rigid, opencv_from_opengl
-from ..json_file import read_json
 from ..errors import SeeUError
+from ..json_file import read_json
+from ..limits import MAX_PIXELS
 from ..paths import contained_path
 from ..posed import PosedScene
 from ..undistort import undistort_files
-from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 PINHOLE_MODELS = {"OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "OPENCV_FISHEYE"}

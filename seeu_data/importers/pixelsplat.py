@@ -22,18 +22,19 @@ chunk format cannot carry (near/far, source frame numbers and names, meta); peer
 from __future__ import annotations
 
 import struct
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterator, Sequence
+from typing import Any
 
 import numpy as np
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
-from ..json_file import read_json
 from ..errors import SeeUError
+from ..json_file import read_json
+from ..limits import MAX_PIXELS
 from ..paths import contained_path
 from ..posed import PosedScene
-from ..limits import MAX_PIXELS
 from .common import SkippedScene, probe_images
 
 SIDECAR_NAME = "seeu_posed.json"

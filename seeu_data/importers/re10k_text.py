@@ -17,16 +17,16 @@ scene id = file stem; url in the meta; `source_frame` = line position (0-based f
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 import numpy as np
 
 from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from ..errors import SeeUError
-from ..posed import PosedScene
 from ..limits import MAX_PIXELS
+from ..posed import PosedScene
 from .common import SkippedScene, probe_images
 
 FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg")

@@ -15,7 +15,8 @@ memory and the host-to-device copy); `batch_to_device` moves a batch and makes t
 from __future__ import annotations
 
 import os
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 import torch
@@ -25,7 +26,6 @@ from .. import cameras
 from ..errors import SeeUError
 from .transforms import ViewsSample
 from .types import Batch
-
 
 _STAGING: dict[tuple, np.ndarray] = {}  # per-process reusable staging buffers (shape, dtype) -> array
 

@@ -24,9 +24,10 @@ from __future__ import annotations
 import os
 import warnings
 from collections import OrderedDict
+from collections.abc import Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Any, Iterator
+from typing import Any
 
 import numpy as np
 import torch
@@ -35,8 +36,9 @@ from torch.utils.data._utils.pin_memory import pin_memory
 
 from ..errors import SeeUError
 from ..image_ops import single_threaded_cv2
+from ..limits import MAX_PIXELS
+from ..triple_row import TripleRow
 from .collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
-from .types import Batch
 from .curriculum import GapCurriculum
 from .order import (
     GlobalPlan,
@@ -46,11 +48,10 @@ from .order import (
     rank_worker_batches,
     shard_offsets,
 )
-from ..triple_row import TripleRow
-from ..limits import MAX_PIXELS
 from .shard_reader import ShardReader
 from .source import DEFAULT_CACHE_LIMIT, ShardSource
 from .transforms import ViewsSample, transform_sample
+from .types import Batch
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,8 @@ counted and not revisited in this epoch; the walk is deterministic, so it resume
 from __future__ import annotations
 
 import hashlib
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Sequence
 
 import numpy as np
 

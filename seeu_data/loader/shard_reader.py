@@ -14,9 +14,9 @@ import numpy as np
 import pyarrow as pa
 
 from ..arrow_io import open_ipc_file
+from ..dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
 from ..errors import SeeUError
 from ..limits import MAX_PIXELS
-from ..dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
 from ..triple_row import PER_VIEW_COLUMNS, TripleRow
 
 _REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + PER_VIEW_COLUMNS

@@ -26,10 +26,10 @@ import fcntl
 import hashlib
 import os
 import warnings
+from collections.abc import Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterator
 
 from ..arrow_io import sha256_file
 from ..errors import SeeUError

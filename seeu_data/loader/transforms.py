@@ -25,10 +25,10 @@ import cv2
 import numpy as np
 
 from .. import cameras
-from ..image_ops import INTERPOLATIONS, resize_cover_crop
-from ..limits import MAX_PIXELS
 from ..dataset_check import check_image
 from ..errors import SeeUError
+from ..image_ops import INTERPOLATIONS, resize_cover_crop
+from ..limits import MAX_PIXELS
 from ..triple_row import TripleRow
 
 

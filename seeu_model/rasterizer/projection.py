@@ -17,7 +17,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
 from kornia.geometry.conversions import quaternion_to_rotation_matrix
 
 from seeu_data.cameras import intrinsics_pixels, world_to_cam_from_cam_to_world

@@ -25,11 +25,11 @@ from typing import Any
 from seeu_data.errors import SeeUError
 from seeu_data.json_file import check_nesting, parse_json, read_document, read_json, too_deep_error
 from seeu_data.limits import (
-    MAX_PIXELS,
-    MAX_PIXELS_CEILING,
-    MAX_LEARNING_RATE,
     MAX_BATCH_SIZE,
     MAX_IMAGE_SIDE,
+    MAX_LEARNING_RATE,
+    MAX_PIXELS,
+    MAX_PIXELS_CEILING,
     MAX_SAMPLES,
     MAX_SEED,
     MAX_STEPS,

@@ -25,9 +25,10 @@ import contextlib
 import math
 import sys
 import time
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Iterable
+from typing import Any
 
 import torch
 from torch import nn
@@ -36,8 +37,8 @@ from seeu_data.errors import SeeUError
 from seeu_data.loader.collate import batch_to_device
 from seeu_model.training import checkpoint as ckpt_io
 from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, TrainConfig, save_config
-from seeu_model.training.factory import load_model_state, model_state_for_checkpoint
 from seeu_model.training.distributed import DistInfo, all_gather_objects, max_across, mean_across
+from seeu_model.training.factory import load_model_state, model_state_for_checkpoint
 from seeu_model.training.loss import LossParts, photometric_loss
 from seeu_model.training.schedule import make_scheduler
 
