@@ -38,8 +38,9 @@ import cv2
 import numpy as np
 
 from .arrow_io import atomic_write_bytes, atomic_write_text
-from .cameras import field_of_view_deg, intrinsics_pixels, invert_rigid, opencv_from_opengl
+from .cameras import intrinsics_pixels, invert_rigid, opencv_from_opengl
 from .errors import SeeUError
+from .exporters.pixelsplat import peer_skip_reason
 from .image_ops import decode_rgb
 from .limits import MAX_PIXELS
 from .posed import PosedScene
@@ -53,8 +54,6 @@ MIN_BASELINE_FRACTION = 0.1  # a pair's camera centres at least this fraction of
 SIFT_FEATURES = 2000
 BETTER_FACTOR = 3.0  # a convention fix whose median error is this many times lower flags the scene ...
 MIN_FLAG_PX = 0.3  # ... when the stored cameras' median is above this (below it, noise)
-PEER_SIZE = (360, 640)  # (H, W) the pixelSplat / MVSplat RE10K loader accepts
-PEER_MAX_FOV_DEG = 100.0  # ... and its largest field of view
 
 Hypothesis = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -300,17 +299,10 @@ def _errors(scene_pairs: list, c2w: np.ndarray, intr: np.ndarray, wh: np.ndarray
 
 
 def peer_loader_skips(scene: PosedScene) -> list[str]:
-    """Why the pixelSplat / MVSplat RE10K loader would skip this scene (empty: it would not)."""
-    reasons = []
-    sizes = {(int(h), int(w)) for h, w in zip(scene.height, scene.width)}
-    if sizes != {PEER_SIZE}:
-        shown = ", ".join(f"{h}x{w}" for h, w in sorted(sizes)[:3])
-        reasons.append(f"views are {shown}, not {PEER_SIZE[0]}x{PEER_SIZE[1]}")
-    fov_x, fov_y = field_of_view_deg(np.asarray(scene.intrinsics_norm, dtype=np.float64))
-    widest = float(np.nanmax(np.maximum(fov_x, fov_y)))
-    if widest > PEER_MAX_FOV_DEG:
-        reasons.append(f"field of view {widest:.0f} deg > {PEER_MAX_FOV_DEG:.0f}")
-    return reasons
+    """Why the pixelSplat / MVSplat RE10K loader would skip this scene (empty: it would not); the
+    exporter's rule (`exporters.pixelsplat.peer_skip_reason`)."""
+    reason = peer_skip_reason(scene.width, scene.height, scene.intrinsics_norm)
+    return [reason] if reason else []
 
 
 def check_scene(scene: PosedScene, cfg: CameraCheckConfig) -> tuple[dict, tuple | None]:

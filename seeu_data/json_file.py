@@ -51,12 +51,14 @@ def too_deep_error(what: str, path: str | Path | None = None) -> SeeUError:
     )
 
 
+def _too_large(what: str, size: int, path: str | Path | None) -> SeeUError:
+    return SeeUError(f"{what} is {size} bytes, over the {MAX_JSON_BYTES} bytes a JSON or YAML document may have", path)
+
+
 def parse_json(text: str | bytes, what: str = "JSON", path: str | Path | None = None) -> Any:
     """Parse JSON text; SeeUError (naming `path` and `what`) when invalid, too large or too deep."""
     if len(text) > MAX_JSON_BYTES:
-        raise SeeUError(
-            f"{what} is {len(text)} bytes, over the {MAX_JSON_BYTES} bytes a JSON or YAML document may have", path
-        )
+        raise _too_large(what, len(text), path)
     try:
         doc = json.loads(text)
     except RecursionError:
@@ -73,9 +75,7 @@ def read_document(path: str | Path, what: str = "JSON") -> bytes:
         raise SeeUError(f"{what} is not a regular file" if path.exists() else f"{what} not found", path)
     size = path.stat().st_size
     if size > MAX_JSON_BYTES:
-        raise SeeUError(
-            f"{what} is {size} bytes, over the {MAX_JSON_BYTES} bytes a JSON or YAML document may have", path
-        )
+        raise _too_large(what, size, path)
     return path.read_bytes()
 
 

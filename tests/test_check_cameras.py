@@ -59,7 +59,9 @@ def _broken(good: Path, tmp: Path, change) -> Path:
 def test_exact_cameras_pass_with_figure_and_report(good, tmp_path, capsys):
     rc, out = _check([str(good), "--out", str(tmp_path / "o"), "--pairs", "3"], capsys)
     assert rc == 0, out
-    assert "CONSISTENT" in out and "RE10K loader would skip it (views are 120x160, not 360x640)" in out
+    assert (
+        "CONSISTENT" in out and "RE10K loader would skip it (frames are 160x120, the RE10K loaders need 640x360" in out
+    )
     rep = json.loads((tmp_path / "o" / "check.json").read_text())
     scene = rep["scenes"][0]
     assert rep["verdict"] == "consistent" and rep["kind"] == "posed" and scene["matches"] >= 30
