@@ -164,10 +164,6 @@ def scan_inputs(
                     f"({Path(scenes[s['scene_id']].path).parent} and {root_p})",
                     root_p,
                 )
-            if s["file"] not in sha:
-                raise SeeUError(
-                    f"scene {s['scene_id']!r} points at {s['file']}, which the manifest does not list", root_p
-                )
             scenes[s["scene_id"]] = SceneRows(
                 str((root_p / s["file"]).resolve()),
                 int(s["row_start"]),
