@@ -5,7 +5,7 @@ Creates a posed-frames dataset in a temporary directory (`--scenes` scenes x `--
 360x640 JPEGs, ~40-60 KB each), plans an interp build (2 context + 3 target views,
 `--samples-per-scene`, ~400 MB of shards by default), then measures side by side, interleaved, `--repeats` times, one process each:
 
-* seeu: `seeu_data.build.build` with the local engine, workers 1, `seeu build`'s default on up to 4
+* seeu: `pipelines.build.build` with the local engine, workers 1, `seeu build`'s default on up to 4
         cores (plan, shard specs, rows with cameras and metadata, atomic IPC writes, sha256 per shard,
         manifest);
 * bare: for the very same sample plan, memory-map the posed Arrow files, take the five views'
@@ -51,11 +51,11 @@ import pyarrow as pa
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
+from pipelines.build import BuildConfig, build, plan_sampled, scan_inputs, shard_specs  # noqa: E402
 from pipelines.cli.options import parse_dims  # noqa: E402
-from seeu_data.build import BuildConfig, build, plan_sampled, scan_inputs, shard_specs  # noqa: E402
-from seeu_data.posed import PosedDatasetWriter, PosedScene  # noqa: E402
-from seeu_data.sampling import SamplingConfig  # noqa: E402
-from seeu_data.triples import ImageOptions, ShardSpec  # noqa: E402
+from seeu_data.build.sampling import SamplingConfig  # noqa: E402
+from seeu_data.build.triples import ImageOptions, ShardSpec  # noqa: E402
+from seeu_data.store.posed import PosedDatasetWriter, PosedScene  # noqa: E402
 
 H, W = 360, 640
 

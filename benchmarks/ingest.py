@@ -96,9 +96,9 @@ def main() -> int:
 
     from pipelines.cli.options import parse_dims
     from pipelines.ingest import IngestConfig, ingest_scene
-    from seeu_data.ingest_report import accuracy_vs_truth
+    from seeu_data.ingest.report import accuracy_vs_truth
+    from seeu_data.ingest.video import discover_sources
     from seeu_data.synthetic import ClipConfig, write_clip
-    from seeu_data.video import discover_sources
 
     width, height = parse_dims(args.size, "--size", minimum=16)
     video = args.out / "clip" / "clip.mp4"

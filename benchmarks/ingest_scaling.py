@@ -134,8 +134,8 @@ def run_one(video: Path, out_root: Path, mapper: str, keyframe_motion: float | N
     """One default `seeu ingest` of `video` with `mapper` (and `keyframe_motion` unless None), from
     scratch; returns the benchmark's row."""
     from pipelines.ingest import IngestConfig, ingest_scene
-    from seeu_data.ingest_report import accuracy_vs_truth
-    from seeu_data.video import discover_sources
+    from seeu_data.ingest.report import accuracy_vs_truth
+    from seeu_data.ingest.video import discover_sources
 
     (source,) = discover_sources([video])
     load_before = _loadavg()

@@ -47,11 +47,11 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks.results_md import write_section  # noqa: E402
 from seeu_data import cameras  # noqa: E402
-from seeu_data.arrow_io import write_table  # noqa: E402
 from seeu_data.loader import make_loader  # noqa: E402
-from seeu_data.manifest import FileEntry, provenance, write_manifest  # noqa: E402
-from seeu_data.schema import arrow_schema, schema_version  # noqa: E402
-from seeu_data.triple_row import TripleRow  # noqa: E402
+from seeu_data.store.arrow_io import write_table  # noqa: E402
+from seeu_data.store.manifest import FileEntry, provenance, write_manifest  # noqa: E402
+from seeu_data.store.schema import arrow_schema, schema_version  # noqa: E402
+from seeu_data.store.triple_row import TripleRow  # noqa: E402
 
 H, W, OUT = 360, 640, (256, 256)
 VIEWS, CONTEXT = 5, 2

@@ -96,8 +96,8 @@ sys.path.insert(0, str(ROOT))
 
 from pipelines.cli import main as cli_main  # noqa: E402
 from seeu_data import cameras as cam  # noqa: E402
-from seeu_data.points import read_points_ply  # noqa: E402
-from seeu_data.posed import PosedDataset, PosedScene  # noqa: E402
+from seeu_data.ingest.points import read_points_ply  # noqa: E402
+from seeu_data.store.posed import PosedDataset, PosedScene  # noqa: E402
 from seeu_model.gaussians import Gaussians  # noqa: E402
 from seeu_model.ply import save_ply_bundle  # noqa: E402
 

@@ -65,7 +65,7 @@ from benchmarks.loader import CONTEXT, INTRINSICS, OUT, VIEWS, H, W, camera_pose
 from benchmarks.results_md import write_section  # noqa: E402
 from seeu_data.loader import make_loader  # noqa: E402
 from seeu_data.loader.transforms import transform_sample  # noqa: E402
-from seeu_data.triple_row import TripleRow  # noqa: E402
+from seeu_data.store.triple_row import TripleRow  # noqa: E402
 
 SHARD_ROWS = 60
 S3_ENV = {

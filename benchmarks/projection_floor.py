@@ -53,7 +53,7 @@ def measure(rec, gt: dict) -> dict:
     """Ground-truth surface points through the model's cameras (with its lens): held-out median/p95 in
     the pixel-fitted world frame, median in the centre-fitted frame, focal error (%)."""
     from seeu_data import cameras as cam
-    from seeu_data.pose_eval import fit_projection_similarity, similarity_from_cameras
+    from seeu_data.ingest.pose_eval import fit_projection_similarity, similarity_from_cameras
     from seeu_data.synthetic import make_scene, surface_points
 
     ids, w2c, cameras = _cameras(rec)

@@ -34,8 +34,8 @@ def _ingest(video: Path, out: Path, cfg):
     import numpy as np
 
     from pipelines.ingest import ingest_scene
-    from seeu_data.posed import PosedDataset
-    from seeu_data.video import discover_sources
+    from seeu_data.ingest.video import discover_sources
+    from seeu_data.store.posed import PosedDataset
 
     (source,) = discover_sources([video])
     t0 = time.perf_counter()

@@ -20,10 +20,10 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def make_data(root: Path, frames: int, size: int, scenes: int) -> tuple[str, str]:
-    from seeu_data.build import BuildConfig, build
-    from seeu_data.manifest import provenance
-    from seeu_data.posed import PosedDatasetWriter
-    from seeu_data.sampling import SamplingConfig
+    from pipelines.build import BuildConfig, build
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.store.manifest import provenance
+    from seeu_data.store.posed import PosedDatasetWriter
     from seeu_data.synthetic import synthetic_posed_scene
 
     def posed(name, seeds):

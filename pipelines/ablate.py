@@ -20,9 +20,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import read_json
 from seeu_data.limits import MAX_FRAMES, MAX_SAMPLES, check_range
-from seeu_data.out_lock import locks_output
+from seeu_data.store.json_file import read_json
+from seeu_data.store.out_lock import locks_output
 
 # name -> (label as in the paper, model overrides)
 MODEL_VARIANTS: dict[str, tuple[str, dict]] = {
@@ -81,8 +81,8 @@ def build_ext_shards(
     training shards), else the samplers' defaults."""
     from dataclasses import fields
 
-    from seeu_data.build import BuildConfig, build
-    from seeu_data.sampling import SamplingConfig
+    from pipelines.build import BuildConfig, build
+    from seeu_data.build.sampling import SamplingConfig
 
     base = {}
     if like is not None and (Path(like) / "manifest.json").exists():
@@ -114,7 +114,7 @@ def _fmt(v, nd=3) -> str:
 
 def write_table(out: Path, rows: list[dict], budget: dict) -> None:
     from pipelines.evaluate import csv_text
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
 
     ref = next((r for r in rows if r["variant"] == "full"), None)
     for r in rows:

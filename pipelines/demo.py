@@ -31,7 +31,7 @@ from seeu_data.limits import (
     MAX_VIDEO_SIDE,
     check_range,
 )
-from seeu_data.out_lock import locks_output
+from seeu_data.store.out_lock import locks_output
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
 STAMP_FORMAT = 1
@@ -87,13 +87,13 @@ class DemoConfig:
 
 
 # ------------------------------------------------------------------------------------------------
-# Stage bookkeeping: seeu_data.resume.StageCache, its journal in OUT/.stages/; here the [n/7] lines
+# Stage bookkeeping: seeu_data.store.resume.StageCache, its journal in OUT/.stages/; here the [n/7] lines
 # ------------------------------------------------------------------------------------------------
 
 
 class Stages:
     def __init__(self, out: Path, force: bool):
-        from seeu_data.resume import StageCache
+        from seeu_data.store.resume import StageCache
 
         self.cache = StageCache(out / ".stages", force)
         self.info: dict[str, dict] = {}  # name -> {"seconds" (when it ran), "reused"}
@@ -214,10 +214,10 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
 
 
 def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
+    from pipelines.build import BuildConfig, build
     from pipelines.inspect_triples import contact_sheet
-    from seeu_data.build import BuildConfig, build
-    from seeu_data.sampling import SamplingConfig
-    from seeu_data.triples import ImageOptions
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.build.triples import ImageOptions
 
     a = ctx["cfg"]
     hw = ctx["image_hw"]
@@ -231,7 +231,7 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
     }
 
     def fn() -> dict:
-        from seeu_data.build import default_workers
+        from pipelines.build import default_workers
 
         out = {}
         for name, (posed, mode, ratio, n, seed) in sets.items():
@@ -323,7 +323,7 @@ def stage_train(ctx: dict, stages: Stages, build: dict) -> dict:
     key = {"build": stages.hash("build"), "config": preset, "overrides": ov_run}
 
     def fn() -> dict:
-        from seeu_data.resume import claim_dir, stamp_of
+        from seeu_data.store.resume import claim_dir, stamp_of
 
         # An interrupted run with the same key continues from its newest checkpoint; any other is redone.
         claim_dir(run_dir, stamp_of(key), a.force)
@@ -465,7 +465,7 @@ def stage_eval(ctx: dict, stages: Stages, build: dict, trained: dict) -> dict:
         results["mean"]["gain_psnr_db"] = results["mean"]["trained_psnr"] - results["mean"]["init_psnr"]
         results["renders_png"] = str(figures / "heldout_renders.png")
         render_grid(renders, Path(results["renders_png"]))
-        from seeu_data.arrow_io import atomic_write_text
+        from seeu_data.store.arrow_io import atomic_write_text
 
         atomic_write_text(ctx["out"] / "metrics.json", json.dumps(results, indent=2) + "\n")
         results["metrics_json"] = str(ctx["out"] / "metrics.json")
@@ -489,7 +489,7 @@ def render_grid(renders: dict, path: Path) -> None:
 
     from matplotlib.figure import Figure
 
-    from seeu_data.arrow_io import atomic_write_bytes
+    from seeu_data.store.arrow_io import atomic_write_bytes
 
     rows = []  # (label, [images or None])
     for set_name, by_model in renders.items():
@@ -596,7 +596,7 @@ def plot_training_curve(curves: dict, evals: dict, path: Path) -> None:
 
     from matplotlib.figure import Figure
 
-    from seeu_data.arrow_io import atomic_write_bytes
+    from seeu_data.store.arrow_io import atomic_write_bytes
 
     fig = Figure(figsize=(10, 3.8), dpi=90)
     ax1, ax2 = fig.subplots(1, 2)
@@ -645,7 +645,7 @@ def _fmt(x, spec: str = ".2f") -> str:
 
 
 def write_report(ctx: dict, stages: Stages, r: dict) -> Path:
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
 
     out: Path = ctx["out"]
     figures = out / "figures"

@@ -28,7 +28,7 @@ from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_BATCH_SIZE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES, MAX_WORKERS, check_range
-from seeu_data.out_lock import locks_output
+from seeu_data.store.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -165,7 +165,7 @@ def write_results(out: Path, res, extra: dict) -> dict:
     """per_target.csv, per_scene.csv, then summary.json (last). Returns the summary document."""
     from dataclasses import asdict
 
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
     from seeu_model.evaluation import per_scene, summarize, timing_dict
 
     out.mkdir(parents=True, exist_ok=True)

@@ -28,7 +28,7 @@ from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 from seeu_data.importers.pixelsplat import PixelSplatImportConfig
 from seeu_data.importers.re10k_text import Re10kTextImportConfig
-from seeu_data.out_lock import locks_output
+from seeu_data.store.out_lock import locks_output
 
 SourceConfig = (
     PixelSplatImportConfig | Re10kTextImportConfig | DtuImportConfig | ColmapImportConfig | NerfstudioImportConfig
@@ -169,7 +169,7 @@ def import_dataset(cfg: ImportConfig):
     """Import `cfg.source` into `cfg.out`; returns the `seeu_data.importers.ImportReport` (also in the
     manifest's `report`). Raises SeeUError when the input as a whole is unusable or no scene remains."""
     from seeu_data.importers import ImportReport, write_import
-    from seeu_data.manifest import provenance
+    from seeu_data.store.manifest import provenance
 
     cfg.check()
     items, params, total, inputs = _PLANNERS[cfg.format](cfg.source)  # type: ignore[operator]

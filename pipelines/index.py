@@ -1,15 +1,15 @@
 """Evaluation indices for your own posed data (`seeu index`), in the peers' JSON formats.
 
 pixelsplat: {scene: {"context": [l, r], "target": [t1, t2, t3]} | null} (one entry per scene);
-latentsplat: {scene: [entry, ...]}. The entries are drawn by `seeu_data.eval_index.generate_entries`
+latentsplat: {scene: [entry, ...]}. The entries are drawn by `seeu_data.build.eval_index.generate_entries`
 (seeded; context pairs redrawn until their frustum overlap is in the window) and read back by
 `seeu build --mode eval --index FILE`.
 
 Example:
     from pathlib import Path
     from pipelines.index import IndexFileConfig, write_index
-    from seeu_data.eval_index import IndexConfig
-    from seeu_data.sampling import SamplingConfig
+    from seeu_data.build.eval_index import IndexConfig
+    from seeu_data.build.sampling import SamplingConfig
 
     cfg = IndexFileConfig(inputs=("data/posed/clip",), out=Path("data/clip_eval.json"),
                           generation=IndexConfig(SamplingConfig(gap_min=30, gap_max=60), min_overlap=0.3))
@@ -23,8 +23,8 @@ import json
 from dataclasses import dataclass
 from pathlib import Path
 
+from seeu_data.build.eval_index import IndexConfig
 from seeu_data.errors import SeeUError
-from seeu_data.eval_index import IndexConfig
 from seeu_data.limits import MAX_PIXELS
 
 FORMATS = ("pixelsplat", "latentsplat")
@@ -60,9 +60,9 @@ def write_index(cfg: IndexFileConfig) -> dict:
     overlap window), and nothing is written."""
     import numpy as np
 
-    from seeu_data.arrow_io import atomic_write_text, open_ipc_file
-    from seeu_data.build import scan_inputs
-    from seeu_data.eval_index import generate_entries, index_document, no_entry_reason
+    from pipelines.build import scan_inputs
+    from seeu_data.build.eval_index import generate_entries, index_document, no_entry_reason
+    from seeu_data.store.arrow_io import atomic_write_text, open_ipc_file
 
     cfg.check()
     generation = cfg.generation

@@ -26,9 +26,9 @@ from pathlib import Path
 
 from pipelines.ingest_ray import SceneResult
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import read_json
 from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
-from seeu_data.out_lock import locks_output
+from seeu_data.store.json_file import read_json
+from seeu_data.store.out_lock import locks_output
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 2
@@ -74,7 +74,7 @@ class IngestConfig:
     max_size: int | None = None
     size: tuple[int, int] | None = None  # (H, W) of the written frames: cover-resize + centre crop after SfM
     jpeg_quality: int = 95
-    # SfM (seeu_data.sfm.SfmConfig: the same names)
+    # SfM (seeu_data.ingest.sfm.SfmConfig: the same names)
     camera_model: str = "SIMPLE_RADIAL"
     overlap: int = 10
     vocab_tree: str | None = None
@@ -139,13 +139,13 @@ class IngestConfig:
         return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in RUN_FIELDS}
 
     def select_config(self):
-        from seeu_data.frame_select import SelectConfig
+        from seeu_data.ingest.frame_select import SelectConfig
 
         return SelectConfig(self.stride, self.sharpness_window, self.target_frames)
 
     def chunk_config(self):
-        from seeu_data.chunks import ChunkConfig
-        from seeu_data.scale import ScaleConfig
+        from seeu_data.ingest.chunks import ChunkConfig
+        from seeu_data.ingest.scale import ScaleConfig
 
         return ChunkConfig(
             min_chunk_frames=self.min_chunk_frames,
@@ -153,7 +153,7 @@ class IngestConfig:
         )
 
     def sfm_config(self):
-        from seeu_data.sfm import SfmConfig
+        from seeu_data.ingest.sfm import SfmConfig
 
         return SfmConfig(
             camera_model=self.camera_model,
@@ -185,8 +185,8 @@ def _encode_jpeg(rgb, quality: int) -> bytes:
 def _decode_stage(source, cfg: IngestConfig, prog):
     """Stage function: decode every stride-th frame, resize, write JPEGs + per-frame metadata."""
 
-    from seeu_data.arrow_io import atomic_write_bytes
-    from seeu_data.video import iter_frames, probe_video, resize_max_side, sharpness
+    from seeu_data.ingest.video import iter_frames, probe_video, resize_max_side, sharpness
+    from seeu_data.store.arrow_io import atomic_write_bytes
 
     def fn(d: Path) -> dict:
         frames_dir = d / "frames"
@@ -231,7 +231,7 @@ def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, 
     """Accuracy against a synthetic clip's ground-truth JSON lying beside the video, if there is one."""
     import numpy as np
 
-    from seeu_data.pose_eval import pose_accuracy
+    from seeu_data.ingest.pose_eval import pose_accuracy
     from seeu_data.synthetic import ground_truth_path, load_ground_truth
 
     if source.kind != "video" or not ground_truth_path(source.path).exists():
@@ -310,7 +310,7 @@ def heartbeat_seconds(cfg: IngestConfig) -> float:
 
 
 def ingest_scene(source, cfg: IngestConfig) -> dict:
-    """Run every stage for one scene (`source`: a `seeu_data.video.SceneSource`) into cfg.out/<name>/;
+    """Run every stage for one scene (`source`: a `seeu_data.ingest.video.SceneSource`) into cfg.out/<name>/;
     returns its report (also written to OUT/<scene>/report.json, with `summary`: the one-line result).
 
     Raises SeeUError for bad input, and when OUT/<scene> holds another input's scene and not `cfg.force`.
@@ -328,9 +328,10 @@ def ingest_scene(source, cfg: IngestConfig) -> dict:
 def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
     import numpy as np
 
-    from seeu_data.chunks import plan_chunks
-    from seeu_data.frame_select import select_frames
-    from seeu_data.ingest_report import (
+    from seeu_data.ingest.chunks import plan_chunks
+    from seeu_data.ingest.frame_select import select_frames
+    from seeu_data.ingest.points import POINTS_DIR, write_chunk_points
+    from seeu_data.ingest.report import (
         baseline_over_depth,
         mean_reprojection_error,
         plot_trajectory,
@@ -338,13 +339,12 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         summary_line,
         write_report,
     )
-    from seeu_data.manifest import MANIFEST_NAME, provenance
-    from seeu_data.points import POINTS_DIR, write_chunk_points
-    from seeu_data.posed import POSED_FILES, PosedDatasetWriter, PosedScene
+    from seeu_data.ingest.scale import distance_frame_names
+    from seeu_data.ingest.sfm import run_sfm
     from seeu_data.resize import resize_scene
-    from seeu_data.resume import StageCache, stamp_of, sweep
-    from seeu_data.scale import distance_frame_names
-    from seeu_data.sfm import run_sfm
+    from seeu_data.store.manifest import MANIFEST_NAME, provenance
+    from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
+    from seeu_data.store.resume import StageCache, stamp_of, sweep
 
     t_start = time.perf_counter()
     out_dir = out_root / source.name
@@ -563,8 +563,8 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
 
     from tqdm import tqdm
 
+    from seeu_data.ingest.video import discover_sources
     from seeu_data.interrupts import end_pool, raise_on_sigterm
-    from seeu_data.video import discover_sources
 
     cfg.check()
     sources = discover_sources(list(cfg.inputs), cfg.strict)

@@ -5,7 +5,7 @@
 `pipelines.ingest.ingest` calls it for `IngestConfig(engine="ray")`. Each task runs
 `scene_fn(source, cfg)` (pipelines/ingest.py `ingest_scene`, into cfg.out) and reserves `max(cfg.threads, cfg.map_threads)` CPUs, the COLMAP threads it will use. A re-run
 resumes the way the local engine does: every scene keeps its stages under OUT/.work/<scene>/ with a
-stamp of their inputs (`seeu_data.resume.StageCache`), so a completed scene reuses decode and SfM
+stamp of their inputs (`seeu_data.store.resume.StageCache`), so a completed scene reuses decode and SfM
 and only rewrites its posed files (the same bytes), while a failed or interrupted one redoes what
 it lacks. Results come back as the tasks finish; a scene that fails is reported in one line and
 the others go on.
@@ -83,7 +83,7 @@ def ingest_on_ray(
     on_result: Callable[[SceneResult], None] | None = None,
     progress: bool = False,
 ) -> list[SceneResult]:
-    """Ingest every source (`seeu_data.video.SceneSource`) as one Ray task; results in `sources` order.
+    """Ingest every source (`seeu_data.ingest.video.SceneSource`) as one Ray task; results in `sources` order.
 
     `cfg`: the `IngestConfig` every scene uses (`out`, `force`; its `threads` and `map_threads` set the
     CPUs per task).

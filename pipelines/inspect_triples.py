@@ -46,7 +46,7 @@ def triple_statistics(root: Path, verify: bool = False) -> dict:
     """Statistics of a triples directory (reads no image pixels; image bytes via Arrow offsets)."""
     import pyarrow.compute as pc
 
-    from seeu_data.triples import TripleShards
+    from seeu_data.build.triples import TripleShards
 
     shards = TripleShards(root, verify=verify)
     cols = ["scene_id", "mode", "num_context", "gap", "target_offset", "width", "height", "image"]
@@ -97,11 +97,11 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
 
     from matplotlib.figure import Figure
 
-    from seeu_data.arrow_io import atomic_write_bytes
+    from seeu_data.build.triples import TripleShards
     from seeu_data.errors import SeeUError
     from seeu_data.image_ops import decode_rgb
-    from seeu_data.triple_row import TripleRow
-    from seeu_data.triples import TripleShards
+    from seeu_data.store.arrow_io import atomic_write_bytes
+    from seeu_data.store.triple_row import TripleRow
 
     shards = TripleShards(root)
     total = len(shards)

@@ -118,7 +118,7 @@ def model_info(cfg: ModelInfoConfig) -> dict:
         "shapes": shapes,
     }
     if cfg.json_out is not None:  # written where it is named (a device such as /dev/stdout too): no rename
-        from seeu_data.arrow_io import naming_os_errors
+        from seeu_data.store.arrow_io import naming_os_errors
 
         with naming_os_errors(cfg.json_out), open(cfg.json_out, "w") as fh:
             json.dump(info, fh, indent=2)

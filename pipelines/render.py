@@ -25,9 +25,9 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import read_json
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_RENDER_FRAMES, check_range
-from seeu_data.out_lock import locks_output
+from seeu_data.store.json_file import read_json
+from seeu_data.store.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -159,7 +159,7 @@ def _to_uint8(img):
 def write_png(path: Path, rgb) -> None:
     import cv2
 
-    from seeu_data.arrow_io import atomic_write_bytes
+    from seeu_data.store.arrow_io import atomic_write_bytes
 
     ok, buf = cv2.imencode(".png", cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     if not ok:  # pragma: no cover
@@ -242,7 +242,7 @@ def render(cfg: RenderConfig) -> dict:
     import torch
 
     from pipelines.evaluate import check_image_size
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
     from seeu_model.camera_path import camera_path, path_parameters
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import config_from_dict

@@ -27,7 +27,7 @@ from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS, MAX_STEPS, check_range
-from seeu_data.out_lock import locks_output
+from seeu_data.store.out_lock import locks_output
 
 
 @dataclass(frozen=True)
@@ -173,7 +173,7 @@ def train(run: TrainRunConfig) -> dict:
     """
     import torch
 
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import apply_overrides, config_from_dict, load_config
     from seeu_model.training.distributed import cleanup_distributed, setup_distributed

@@ -1,4 +1,4 @@
-"""`seeu validate`: the dataset checks of `seeu_data.dataset_check` (the one validator every stage
+"""`seeu validate`: the dataset checks of `seeu_data.store.dataset_check` (the one validator every stage
 uses), run over a whole dataset directory (posed frames or triple shards).
 
 Example:
@@ -13,8 +13,8 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from seeu_data.dataset_check import check_dataset
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.dataset_check import check_dataset
 
 
 def validate_dataset(root: Path, check_sha: bool = True, max_pixels: int = MAX_PIXELS) -> dict:

@@ -37,13 +37,13 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .arrow_io import atomic_write_bytes, atomic_write_text
-from .cameras import intrinsics_pixels, invert_rigid, opencv_from_opengl
-from .errors import SeeUError
-from .exporters.pixelsplat import peer_skip_reason
-from .image_ops import decode_rgb
-from .limits import MAX_PIXELS
-from .posed import PosedScene
+from seeu_data.cameras import intrinsics_pixels, invert_rigid, opencv_from_opengl
+from seeu_data.errors import SeeUError
+from seeu_data.exporters.pixelsplat import peer_skip_reason
+from seeu_data.image_ops import decode_rgb
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
+from seeu_data.store.posed import PosedScene
 
 MAX_ERROR_PX = 2.0  # median Sampson error (pixels) under which cameras are consistent, `--max-error`
 PAIRS_PER_SCENE = 3  # frame pairs matched per scene, `--pairs`
@@ -164,25 +164,25 @@ def _colmap_images(cfg: CameraCheckConfig) -> Path:
 def iter_scenes(cfg: CameraCheckConfig, kind: str) -> Iterator[PosedScene | tuple[str, str]]:
     """The scenes of `cfg.path` as `PosedScene`s (foreign formats through their importer), or
     (scene_id, reason) for scenes the importer skips."""
-    from .importers.common import SkippedScene
+    from seeu_data.importers.common import SkippedScene
 
     path = Path(cfg.path)
     if kind == "posed":
-        from .posed import PosedDataset
+        from seeu_data.store.posed import PosedDataset
 
         ds = PosedDataset(path)
         yield from ds.iter_scenes(ds.scene_ids[: cfg.max_scenes])
         return
     items: Iterator
     if kind == "nerfstudio":
-        from .importers.nerfstudio import NerfstudioImportConfig
-        from .importers.nerfstudio import iter_scenes as ns_scenes
+        from seeu_data.importers.nerfstudio import NerfstudioImportConfig
+        from seeu_data.importers.nerfstudio import iter_scenes as ns_scenes
 
         transforms = path if path.is_file() else path / "transforms.json"
         items = ns_scenes(NerfstudioImportConfig(transforms=transforms, near=0.1, far=100.0, max_pixels=cfg.max_pixels))
     elif kind == "colmap":
-        from .importers.colmap import ColmapImportConfig
-        from .importers.colmap import iter_scenes as colmap_scenes
+        from seeu_data.importers.colmap import ColmapImportConfig
+        from seeu_data.importers.colmap import iter_scenes as colmap_scenes
 
         items = colmap_scenes(
             ColmapImportConfig(
@@ -190,8 +190,8 @@ def iter_scenes(cfg: CameraCheckConfig, kind: str) -> Iterator[PosedScene | tupl
             )
         )
     else:
-        from .importers.pixelsplat import PixelSplatImportConfig
-        from .importers.pixelsplat import iter_scenes as ps_scenes
+        from seeu_data.importers.pixelsplat import PixelSplatImportConfig
+        from seeu_data.importers.pixelsplat import iter_scenes as ps_scenes
 
         stage = "test" if (path / "test").is_dir() and not (path / "train").is_dir() else "train"
         items = ps_scenes(PixelSplatImportConfig(root=path, stage=stage, max_pixels=cfg.max_pixels))

@@ -25,8 +25,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SeeUError
-from .json_file import read_json
+from seeu_data.errors import SeeUError
+from seeu_data.store.json_file import read_json
 
 
 @dataclass
@@ -119,7 +119,7 @@ def posed_ground_truth(
     depth_loader(scene_id, frame_index) -> (H, W) depth in scene units (maps in mm are multiplied by the
     scene's `scale`) or None; points_loader(scene_id) -> GroundTruthPoints (mm) or None;
     geometry_scale: 1 / scale, what predicted centres are multiplied by to compare in mm."""
-    from .posed import PosedDataset
+    from seeu_data.store.posed import PosedDataset
 
     manifest = Path(str(data)) / "manifest.json"
     if not manifest.is_file():

@@ -13,7 +13,7 @@ from contextlib import contextmanager
 import cv2
 import numpy as np
 
-from .cameras import cover_crop_geometry, crop_intrinsics_norm
+from seeu_data.cameras import cover_crop_geometry, crop_intrinsics_norm
 
 INTERPOLATIONS = {
     "area": cv2.INTER_AREA,

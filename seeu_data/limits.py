@@ -17,7 +17,7 @@ import numbers
 from pathlib import Path
 from typing import Any
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 MAX_PIXELS = 64_000_000  # pixels (width x height) of an image any stage reads; --max-pixels raises it
 MAX_PIXELS_CEILING = (

@@ -22,7 +22,7 @@ import subprocess
 import sys
 from pathlib import Path
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 CONNECT_TIMEOUT_S = 5.0
 JOIN_TIMEOUT_S = 30.0

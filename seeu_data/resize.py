@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from .errors import SeeUError
-from .posed import PosedScene
+from seeu_data.errors import SeeUError
+from seeu_data.store.posed import PosedScene
 
 
 def resize_scene(
@@ -16,7 +16,7 @@ def resize_scene(
     crop; `seeu_data.image_ops`), intrinsics updated, frames re-encoded as JPEG."""
     from dataclasses import replace
 
-    from .image_ops import decode_rgb, encode_jpeg, resize_cover_crop, resized_intrinsics
+    from seeu_data.image_ops import decode_rgb, encode_jpeg, resize_cover_crop, resized_intrinsics
 
     images, intr = [], []
     for i, data in enumerate(scene.images):

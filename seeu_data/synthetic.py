@@ -30,11 +30,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .cameras import intrinsics_pixels, project_points, unproject_pixels
-from .errors import SeeUError
-from .json_file import read_json
-from .limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE, check_range
-from .out_lock import locks_output
+from seeu_data.cameras import intrinsics_pixels, project_points, unproject_pixels
+from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE, check_range
+from seeu_data.store.json_file import read_json
+from seeu_data.store.out_lock import locks_output
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
 SCENES = ("corridor", "planar")
@@ -437,7 +437,7 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     """
     from tqdm import tqdm
 
-    from .arrow_io import atomic_write_text, tmp_path_for
+    from seeu_data.store.arrow_io import atomic_write_text, tmp_path_for
 
     cfg = config or ClipConfig()
     if overrides:
@@ -533,7 +533,7 @@ def synthetic_posed_scene(
 
     near/far are the min/max rendered depth over all frames with a 10 % margin (recorded in meta).
     """
-    from .posed import PosedScene
+    from seeu_data.store.posed import PosedScene
 
     scene = make_scene(seed)
     poses = camera_path(n_frames, path_length_m)

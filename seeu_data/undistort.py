@@ -24,8 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .dataset_check import check_image, check_pixels
-from .limits import MAX_PIXELS
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.dataset_check import check_image, check_pixels
 
 # Border samples per image side used to find the largest undistorted rectangle.
 _BORDER_SAMPLES = 256

@@ -110,7 +110,7 @@ def save_ply_bundle(
 ) -> dict:
     """`out_dir/gaussians.ply` (3DGS layout) + `cameras.json` (`cameras_json`) + `gaussians.json`, a
     sidecar saying the SH degree, the Gaussian count and the conventions. Returns the sidecar."""
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
 
     out_dir = Path(out_dir)
     ply = save_ply(gaussians, out_dir / "gaussians.ply", batch_index)

@@ -21,7 +21,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import read_json
+from seeu_data.store.json_file import read_json
 from seeu_model.safe_load import safe_torch_load
 
 

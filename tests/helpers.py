@@ -5,7 +5,7 @@ from __future__ import annotations
 import cv2
 import numpy as np
 
-from seeu_data.posed import PosedScene
+from seeu_data.store.posed import PosedScene
 
 
 def look_at_cam_to_world(eye: np.ndarray, target: np.ndarray, up=(0.0, -1.0, 0.0)) -> np.ndarray:

@@ -13,10 +13,10 @@ import cv2
 import numpy as np
 import pyarrow as pa
 
-from seeu_data.arrow_io import write_table
-from seeu_data.manifest import FileEntry, provenance, write_manifest
-from seeu_data.schema import arrow_schema, schema_version
-from seeu_data.triple_row import TripleRow
+from seeu_data.store.arrow_io import write_table
+from seeu_data.store.manifest import FileEntry, provenance, write_manifest
+from seeu_data.store.schema import arrow_schema, schema_version
+from seeu_data.store.triple_row import TripleRow
 from tests.helpers import look_at_cam_to_world
 
 SCHEMA = "seeu.triples"

@@ -1,4 +1,4 @@
-"""Writes of seeu_data.arrow_io: atomic always, fsynced before the rename only when a writer is told
+"""Writes of seeu_data.store.arrow_io: atomic always, fsynced before the rename only when a writer is told
 to (`fsync=True`, what `--fsync` on ingest/import/build passes down); the sha256 recorded while
 writing equals the file's; a column written from views gives the bytes pyarrow writes for it."""
 
@@ -13,12 +13,12 @@ import numpy as np
 import pyarrow as pa
 import pytest
 
+from pipelines.build import PROGRESS_NAME
 from pipelines.cli import main as cli_main
-from seeu_data import arrow_io
-from seeu_data.arrow_io import AtomicIpcWriter, atomic_write_text, sha256_file, write_table
-from seeu_data.build import PROGRESS_NAME
 from seeu_data.errors import SeeUError
-from seeu_data.posed import PosedDatasetWriter
+from seeu_data.store import arrow_io
+from seeu_data.store.arrow_io import AtomicIpcWriter, atomic_write_text, sha256_file, write_table
+from seeu_data.store.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
 
@@ -192,9 +192,9 @@ def test_posed_files_are_the_bytes_pyarrow_writes_for_the_scenes(tmp_path):
     """The posed writer writes each scene's images from where they are (bytes here; chunk pages in the
     pixelSplat import), not copied into the batch: its files equal pyarrow's own writer's for the same
     batches, and the manifest's sha256 is the file's."""
-    from seeu_data.manifest import read_manifest
-    from seeu_data.posed import SCHEMA
-    from seeu_data.schema import arrow_schema
+    from seeu_data.store.manifest import read_manifest
+    from seeu_data.store.posed import SCHEMA
+    from seeu_data.store.schema import arrow_schema
 
     scenes = [make_posed_scene(f"s{i}", n=5 + i, height=24, width=32, seed=i) for i in range(3)]
     with PosedDatasetWriter(tmp_path / "p", params={}, provenance={}, target_file_bytes=10_000) as w:

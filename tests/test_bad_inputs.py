@@ -706,7 +706,7 @@ def _nan_camera_triples(ws, tmp) -> Path:
     import pyarrow as pa
     import pyarrow.ipc as ipc
 
-    from seeu_data.arrow_io import sha256_file
+    from seeu_data.store.arrow_io import sha256_file
 
     root = _copy(ws["triples"], tmp, "nan_triples")
     doc = json.loads((root / "manifest.json").read_text())
@@ -838,7 +838,7 @@ def _bomb_jpeg(size: int = 60000) -> bytes:
 def _rewrite(ws, tmp, key, change=None, meta=None, manifest=None) -> Path:
     """A copy of dataset `key` whose first file's table is `change(table)` (and its schema metadata
     updated by `meta`), the manifest's sizes/sha256 kept true, then `manifest(doc)` applied."""
-    from seeu_data.arrow_io import read_table, write_table
+    from seeu_data.store.arrow_io import read_table, write_table
 
     root = _copy(ws[key], tmp, "ds")
     doc = json.loads((root / "manifest.json").read_text())

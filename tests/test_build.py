@@ -15,11 +15,11 @@ import pytest
 from pipelines.cli import main as cli_main
 from pipelines.inspect_triples import triple_statistics
 from pipelines.validate import validate_dataset
+from seeu_data.build.sampling import SamplingConfig, sample_scene
+from seeu_data.build.triples import TripleShards
 from seeu_data.cameras import project_points
 from seeu_data.errors import SeeUError
-from seeu_data.posed import PosedDataset, PosedDatasetWriter, PosedScene
-from seeu_data.sampling import SamplingConfig, sample_scene
-from seeu_data.triples import TripleShards
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter, PosedScene
 from tests.helpers import look_at_cam_to_world, make_posed_scene
 
 SCENES = {"alpha": 30, "beta": 44, "gamma": 9, "delta": 37}  # gamma too short for gap_min 10
@@ -260,9 +260,9 @@ def test_skipped_scenes_and_bad_inputs(posed, tmp_path, capsys):
 def test_shard_spec_out_of_range_and_missing_file_are_errors(posed):
     from dataclasses import replace
 
-    from seeu_data.build import scan_inputs
-    from seeu_data.sampling import make_sample
-    from seeu_data.triples import ImageOptions, ShardSpec, build_shard_table
+    from pipelines.build import scan_inputs
+    from seeu_data.build.sampling import make_sample
+    from seeu_data.build.triples import ImageOptions, ShardSpec, build_shard_table
 
     src = scan_inputs([str(posed)])["alpha"]
     sample = make_sample("alpha", "interp", 0, [0, 5], [30])
@@ -312,7 +312,7 @@ def test_progress_bar_on_request(posed, tmp_path, capsys):
 def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeypatch):
     """Shards are planned and checked as the build goes: a re-run interrupted before it reached some
     shards of the complete build it resumes still knows them (journal), and the next run keeps all."""
-    import seeu_data.build as build_mod
+    import pipelines.build as build_mod
 
     out = tmp_path / "r"
     assert _build(posed, out) == 0
@@ -335,7 +335,7 @@ def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeyp
 def test_hashed_writer_matches_plain_ipc_and_leftovers_are_cleared(posed, tmp_path, monkeypatch):
     import pyarrow as pa
 
-    from seeu_data.arrow_io import sha256_file, write_table
+    from seeu_data.store.arrow_io import sha256_file, write_table
 
     # large values too, so that the file has big writes as well as small ones
     table = pa.table(
@@ -358,8 +358,8 @@ def test_hashed_writer_matches_plain_ipc_and_leftovers_are_cleared(posed, tmp_pa
     assert _build(posed, out) == 0
     good = _shard_bytes(out)
     shutil.rmtree(out)
-    import seeu_data.build as build_mod
-    import seeu_data.shard_task as shard_task
+    import pipelines.build as build_mod
+    import seeu_data.build.shard_task as shard_task
 
     real = shard_task.write_shard
 
@@ -407,10 +407,10 @@ def test_written_shards_equal_their_tables(posed, tmp_path):
     shard, several scenes per shard and several batches per shard, with and without resizing."""
     import pyarrow as pa
 
-    from seeu_data.arrow_io import sha256_file
-    from seeu_data.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
-    from seeu_data.sampling import SamplingConfig
-    from seeu_data.triples import ImageOptions, build_shard_table, write_shard
+    from pipelines.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.build.triples import ImageOptions, build_shard_table, write_shard
+    from seeu_data.store.arrow_io import sha256_file
 
     for resize in (None, (8, 12)):
         cfg = BuildConfig(
@@ -454,7 +454,7 @@ def test_rewritten_posed_data_is_mapped_again(tmp_path):
 
 @pytest.mark.parametrize("cores, copy, resize", [(1, 1, 1), (2, 1, 2), (4, 1, 4), (6, 6, 6), (32, 8, 8)])
 def test_default_workers(monkeypatch, cores, copy, resize):
-    from seeu_data.build import default_workers
+    from pipelines.build import default_workers
 
     monkeypatch.setattr(os, "cpu_count", lambda: cores)
     assert (default_workers(), default_workers(resize=True)) == (copy, resize)
@@ -465,10 +465,10 @@ def test_shard_spec_and_result_round_trip_as_json_and_the_plan_hash(posed, tmp_p
     covers the samples and the posed files' content, not their paths."""
     from dataclasses import replace
 
-    from seeu_data.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
-    from seeu_data.sampling import SamplingConfig
-    from seeu_data.shard_task import ShardResult, materialise
-    from seeu_data.triples import ShardSpec
+    from pipelines.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.build.shard_task import ShardResult, materialise
+    from seeu_data.build.triples import ShardSpec
 
     cfg = BuildConfig(
         inputs=(str(posed),),

@@ -9,7 +9,7 @@ import numpy as np
 import pyarrow as pa
 
 from pipelines.cli import main as cli_main
-from seeu_data.posed import PosedDatasetWriter
+from seeu_data.store.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
 

@@ -13,10 +13,10 @@ import pyarrow as pa
 import pytest
 
 from pipelines.cli import main as cli_main
-from seeu_data.arrow_io import read_table, write_table
 from seeu_data.cameras import invert_rigid, opencv_from_opengl, quat_wxyz_from_rotmat
-from seeu_data.manifest import provenance
-from seeu_data.posed import PosedDataset, PosedDatasetWriter
+from seeu_data.store.arrow_io import read_table, write_table
+from seeu_data.store.manifest import provenance
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter
 from seeu_data.synthetic import synthetic_posed_scene
 
 H, W = 120, 160

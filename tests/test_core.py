@@ -14,7 +14,7 @@ from pipelines.cli import main as cli_main
 from pipelines.validate import validate_dataset
 from seeu_data import cameras as cam
 from seeu_data.errors import SeeUError
-from seeu_data.posed import PosedDataset, PosedDatasetWriter
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter
 from tests.helpers import look_at_cam_to_world, make_posed_scene
 
 

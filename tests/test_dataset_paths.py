@@ -21,8 +21,8 @@ from pipelines.cli import main as cli_main
 from pipelines.validate import validate_dataset
 from seeu_data.errors import SeeUError
 from seeu_data.loader import ShardSource, make_loader
-from seeu_data.paths import OutsidePathError, contained_key, contained_path
-from seeu_data.posed import PosedDataset
+from seeu_data.store.paths import OutsidePathError, contained_key, contained_path
+from seeu_data.store.posed import PosedDataset
 from tests.loader_fixtures import write_triples
 from tests.test_import_formats import colmap_fixture, nerfstudio_from_colmap
 from tests.test_import_pixelsplat import make_example, write_chunks

@@ -10,9 +10,9 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main as cli_main
-from seeu_data.eval_index import pair_overlap, read_index
-from seeu_data.posed import PosedDatasetWriter
-from seeu_data.triples import TripleShards
+from seeu_data.build.eval_index import pair_overlap, read_index
+from seeu_data.build.triples import TripleShards
+from seeu_data.store.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
 ASSETS = Path(__file__).resolve().parent.parent / "seeu_data" / "assets"  # shipped, unchanged copies
@@ -183,7 +183,7 @@ def test_seeu_index_generation_round_trip(tmp_path):
         l, r = doc[sid]["context"]
         assert 10 <= r - l <= 20 and all(l <= t <= r for t in doc[sid]["target"]) and r < n
     # its own random stream: not the first training sample of a build with the same seed and options
-    from seeu_data.sampling import SamplingConfig, sample_scene
+    from seeu_data.build.sampling import SamplingConfig, sample_scene
 
     train = [
         sample_scene(SamplingConfig(gap_min=10, gap_max=20, samples_per_scene=1), n, sid, 3)[0]

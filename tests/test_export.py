@@ -11,7 +11,7 @@ import torch
 
 from pipelines.cli import main as cli_main
 from seeu_data import cameras as cam
-from seeu_data.posed import PosedDataset, PosedDatasetWriter
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from seeu_data.errors import SeeUError
-from seeu_data.image_header import decode_check, image_info
+from seeu_data.store.image_header import decode_check, image_info
 
 
 @pytest.mark.parametrize(

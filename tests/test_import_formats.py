@@ -23,7 +23,7 @@ from seeu_data.importers import colmap as colmap_imp
 from seeu_data.importers import dtu as dtu_imp
 from seeu_data.importers import nerfstudio as ns_imp
 from seeu_data.importers import re10k_text as re10k_imp
-from seeu_data.posed import PosedDataset
+from seeu_data.store.posed import PosedDataset
 from tests.helpers import look_at_cam_to_world
 
 

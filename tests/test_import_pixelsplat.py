@@ -19,7 +19,7 @@ from seeu_data.errors import SeeUError
 from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
 from seeu_data.importers import ImportReport, write_import
 from seeu_data.importers import pixelsplat as ps
-from seeu_data.posed import PosedDataset, PosedDatasetWriter
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter
 from tests.helpers import look_at_cam_to_world, make_posed_scene
 
 H, W = 36, 64

@@ -15,12 +15,13 @@ import pytest
 from pipelines.cli import main as cli_main
 from pipelines.validate import validate_dataset
 from seeu_data import cameras as cam
-from seeu_data.chunks import ChunkConfig, plan_chunks
-from seeu_data.frame_select import SelectConfig, drop_blurriest_per_window, evenly_spaced, select_frames
-from seeu_data.ingest_report import summary_line
-from seeu_data.pose_eval import pose_accuracy, umeyama
-from seeu_data.posed import PosedDataset
-from seeu_data.scale import ScaleConfig
+from seeu_data.ingest.chunks import ChunkConfig, plan_chunks
+from seeu_data.ingest.frame_select import SelectConfig, drop_blurriest_per_window, evenly_spaced, select_frames
+from seeu_data.ingest.pose_eval import pose_accuracy, umeyama
+from seeu_data.ingest.report import summary_line
+from seeu_data.ingest.scale import ScaleConfig
+from seeu_data.ingest.video import discover_sources, iter_frames, sharpness
+from seeu_data.store.posed import PosedDataset
 from seeu_data.synthetic import (
     camera_path,
     default_intrinsics_norm,
@@ -29,7 +30,6 @@ from seeu_data.synthetic import (
     render_view,
     write_clip,
 )
-from seeu_data.video import discover_sources, iter_frames, sharpness
 
 W, H, N = 320, 180, 36
 
@@ -442,7 +442,7 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
     frame ends the retries; when every run fails, nothing is returned."""
     import pycolmap
 
-    from seeu_data.sfm import SfmConfig, map_with_retries
+    from seeu_data.ingest.sfm import SfmConfig, map_with_retries
 
     sfm_dir = ingested["out"] / ".work" / "walk" / "sfm"
     job = json.loads((sfm_dir / "job.json").read_text())

@@ -19,7 +19,7 @@ from pipelines.cli import main as cli_main
 from pipelines.validate import validate_dataset
 from seeu_data.errors import SeeUError
 from seeu_data.ray_cluster import check_address
-from seeu_data.resume import STAGES_JOURNAL, Journal
+from seeu_data.store.resume import STAGES_JOURNAL, Journal
 from seeu_data.synthetic import write_clip
 
 ray = pytest.importorskip("ray")

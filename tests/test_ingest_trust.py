@@ -13,10 +13,11 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main as cli_main
-from seeu_data.ingest_report import LOW_PARALLAX, baseline_over_depth, scene_warnings, summary_line
-from seeu_data.pose_eval import pose_accuracy
+from seeu_data.ingest.pose_eval import pose_accuracy
+from seeu_data.ingest.report import LOW_PARALLAX, baseline_over_depth, scene_warnings, summary_line
+from seeu_data.ingest.sfm import SfmConfig, map_with_retries, model_disagreement_pct, run_sfm
+from seeu_data.ingest.video import SceneSource, discover_sources, unique_scene_names
 from seeu_data.progress import StageProgress
-from seeu_data.sfm import SfmConfig, map_with_retries, model_disagreement_pct, run_sfm
 from seeu_data.synthetic import (
     default_intrinsics_norm,
     load_ground_truth,
@@ -25,7 +26,6 @@ from seeu_data.synthetic import (
     render_view,
     write_clip,
 )
-from seeu_data.video import SceneSource, discover_sources, unique_scene_names
 
 W, H = 320, 180
 

@@ -1,4 +1,4 @@
-"""seeu_data/json_file.py: the bounded JSON reader (depth and size limits, one SeeUError line)."""
+"""seeu_data/store/json_file.py: the bounded JSON reader (depth and size limits, one SeeUError line)."""
 
 from __future__ import annotations
 
@@ -6,9 +6,9 @@ import json
 
 import pytest
 
-from seeu_data import json_file
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import MAX_JSON_DEPTH, parse_json, read_json
+from seeu_data.store import json_file
+from seeu_data.store.json_file import MAX_JSON_DEPTH, parse_json, read_json
 from seeu_model.training.config import read_config_file
 
 

@@ -1,4 +1,4 @@
-"""Keyframe mapping (seeu_data.keyframes): the stride rule, the motion measurement on a database of
+"""Keyframe mapping (seeu_data.ingest.keyframes): the stride rule, the motion measurement on a database of
 known keypoints, and a dense clip mapped on keyframes with every frame registered after, accurate
 against the ground truth and identical run after run."""
 
@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 
 from seeu_data.errors import SeeUError
-from seeu_data.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride
-from seeu_data.pose_eval import pose_accuracy
-from seeu_data.sfm import SfmConfig, run_sfm
+from seeu_data.ingest.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride
+from seeu_data.ingest.pose_eval import pose_accuracy
+from seeu_data.ingest.sfm import SfmConfig, run_sfm
 from seeu_data.synthetic import camera_path, default_intrinsics_norm, make_scene, render_view
 
 

@@ -7,8 +7,8 @@ from pathlib import Path
 import pytest
 
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import MAX_JSON_BYTES, MAX_JSON_DEPTH
 from seeu_data.limits import LIMITS, MAX_BATCH_SIZE, check_range
+from seeu_data.store.json_file import MAX_JSON_BYTES, MAX_JSON_DEPTH
 
 
 def test_check_range_messages():

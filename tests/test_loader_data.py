@@ -454,8 +454,8 @@ def test_span_resize_equals_full_resize_then_crop(h, w, oh, ow, seed, interpolat
 def test_reads_what_seeu_build_writes(tmp_path):
     # The writer's own output (`seeu build`, resized at build time) streams with the cameras it stored.
     from pipelines.cli import main as cli_main
-    from seeu_data.posed import PosedDatasetWriter
-    from seeu_data.triples import TripleShards
+    from seeu_data.build.triples import TripleShards
+    from seeu_data.store.posed import PosedDatasetWriter
     from tests.helpers import make_posed_scene
 
     posed = tmp_path / "posed"
@@ -488,9 +488,9 @@ def test_reads_what_seeu_build_writes(tmp_path):
 def test_one_row_type_written_and_read_back_by_both_readers(dataset):
     """`TripleRow.to_pydict` wrote the fixture rows; `TripleShards` and the loader's `ShardReader`
     give every row back as the same `TripleRow`, equal to the row written."""
+    from seeu_data.build.triples import TripleShards
     from seeu_data.loader.shard_reader import ShardReader
-    from seeu_data.triple_row import TripleRow
-    from seeu_data.triples import TripleShards
+    from seeu_data.store.triple_row import TripleRow
 
     shards = TripleShards(dataset)
     read = list(shards.iter_rows())

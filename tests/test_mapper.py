@@ -11,7 +11,7 @@ import pycolmap
 import pytest
 
 from pipelines.cli import main as cli_main
-from seeu_data.match_graph import CHAIN_PCT, choose_mapper, match_graph_stats
+from seeu_data.ingest.match_graph import CHAIN_PCT, choose_mapper, match_graph_stats
 from seeu_data.synthetic import write_clip
 
 W, H, N = 320, 180, 24
@@ -80,7 +80,7 @@ def test_ingest_size_resizes_and_crops_with_intrinsics(global_run):
     from each side; the stored focal length is the true one (SfM-accurate) times 2/3."""
     import cv2
 
-    from seeu_data.posed import PosedDataset
+    from seeu_data.store.posed import PosedDataset
     from seeu_data.synthetic import load_ground_truth
 
     s = PosedDataset(global_run / "posed" / "walk").load_scene("walk_c0")

@@ -183,11 +183,11 @@ def test_dtu_ground_truth_found_through_the_shards(tmp_path):
     """Ground truth the DTU importer records in the scene meta reaches seeu eval via the shards' manifest."""
     from plyfile import PlyData, PlyElement
 
-    from seeu_data.build import BuildConfig, build
+    from pipelines.build import BuildConfig, build
+    from seeu_data.build.sampling import SamplingConfig
     from seeu_data.dtu_gt import posed_ground_truth, read_pfm
-    from seeu_data.manifest import provenance
-    from seeu_data.posed import PosedDatasetWriter
-    from seeu_data.sampling import SamplingConfig
+    from seeu_data.store.manifest import provenance
+    from seeu_data.store.posed import PosedDatasetWriter
     from seeu_data.synthetic import synthetic_posed_scene
 
     gt_dir = tmp_path / "Depths" / "scan1_train"

@@ -19,7 +19,7 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from pipelines.cli import os_error_line
-from seeu_data import arrow_io
+from seeu_data.store import arrow_io
 
 
 def _one_line(capsys) -> str:

@@ -18,8 +18,8 @@ from PIL import Image
 from pipelines.cli import main as cli_main
 from seeu_data import cameras as cam
 from seeu_data.exporters.pixelsplat import peer_fov_deg
-from seeu_data.pose_eval import fit_projection_similarity, similarity_from_cameras, umeyama
-from seeu_data.posed import PosedDataset
+from seeu_data.ingest.pose_eval import fit_projection_similarity, similarity_from_cameras, umeyama
+from seeu_data.store.posed import PosedDataset
 from seeu_data.synthetic import load_ground_truth, make_scene, render_view, surface_points, write_clip
 
 W, H, N = 640, 360, 24
@@ -135,7 +135,7 @@ def test_default_ingest_export_passes_peer_rule_and_projects_ground_truth(export
 def test_fit_projection_similarity_recovers_the_world_frame():
     """Exact cameras in a world scaled, rotated and moved by a known similarity: from the camera-fitted
     first guess, disturbed, the pixel fit finds the similarity again and the projections agree to 1e-6 px."""
-    from seeu_data.pose_eval import Similarity
+    from seeu_data.ingest.pose_eval import Similarity
     from seeu_data.synthetic import camera_path, default_intrinsics_norm
 
     gt_c2w = camera_path(8)
@@ -170,7 +170,7 @@ def test_pixelsplat_layout_projects_ground_truth_within_005_px(tmp_path):
     """The exact ground-truth cameras of a 640x360 synthetic scene through `seeu export pixelsplat` and
     back the way the peers read the 18 numbers (float32): ground-truth surface points land within
     0.05 px of where the ground-truth camera puts them."""
-    from seeu_data.posed import PosedDatasetWriter
+    from seeu_data.store.posed import PosedDatasetWriter
     from seeu_data.synthetic import synthetic_posed_scene
 
     scene = synthetic_posed_scene(n_frames=3, height=H, width=W, seed=0, scene_id="gt")
@@ -234,7 +234,7 @@ def test_peer_fov_rule_closed_form():
 
 
 def test_export_resize_makes_frames_peer_size_with_ground_truth_intrinsics(tmp_path, capsys):
-    from seeu_data.posed import PosedDatasetWriter
+    from seeu_data.store.posed import PosedDatasetWriter
     from seeu_data.synthetic import synthetic_posed_scene
 
     scene = synthetic_posed_scene(n_frames=1, height=600, width=800, seed=1, scene_id="four_three")
@@ -263,7 +263,7 @@ def test_export_resize_makes_frames_peer_size_with_ground_truth_intrinsics(tmp_p
 
 
 def test_ingested_sfm_points_lie_on_ground_truth_surfaces_and_reach_nerfstudio(exported, tmp_path):
-    from seeu_data.points import read_points_ply
+    from seeu_data.ingest.points import read_points_ply
 
     root = exported
     ds = PosedDataset(root / "posed" / "clip")

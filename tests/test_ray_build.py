@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 
 from pipelines.cli import main as cli_main
-from seeu_data.posed import PosedDatasetWriter
+from seeu_data.store.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
 
 ray = pytest.importorskip("ray")

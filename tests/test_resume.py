@@ -1,4 +1,4 @@
-"""seeu_data.resume: the journal of completed units, stamps, stage reuse and the stale-file sweep."""
+"""seeu_data.store.resume: the journal of completed units, stamps, stage reuse and the stale-file sweep."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ import shutil
 
 import pytest
 
-from seeu_data.resume import Journal, StageCache, claim_dir, file_intact, files_fingerprint, stamp_of, sweep
+from seeu_data.store.resume import Journal, StageCache, claim_dir, file_intact, files_fingerprint, stamp_of, sweep
 
 
 def test_journal_keeps_complete_lines_and_ignores_a_torn_last_one(tmp_path):

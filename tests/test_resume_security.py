@@ -118,7 +118,7 @@ def test_stop_at_epoch_end_then_resume(shards, tmp_path):
 def test_verified_stamp_is_kept_in_the_chosen_cache_and_a_rewrite_is_hashed_again(shards, tmp_path, monkeypatch):
     from seeu_data.errors import SeeUError
     from seeu_data.loader import make_loader
-    from seeu_data.manifest import read_manifest
+    from seeu_data.store.manifest import read_manifest
 
     data, other = tmp_path / "data", tmp_path / "other"
     shutil.copytree(shards, data)

@@ -1,4 +1,4 @@
-"""Samplers (seeu_data.sampling): hypothesis properties, statistics, determinism, frustum overlap."""
+"""Samplers (seeu_data.build.sampling): hypothesis properties, statistics, determinism, frustum overlap."""
 
 from __future__ import annotations
 
@@ -7,7 +7,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from seeu_data.sampling import (
+from seeu_data.build.sampling import (
     SamplingConfig,
     frustum_overlap,
     min_scene_length,
@@ -95,7 +95,7 @@ def test_scene_rng_is_stable_across_processes():
     import subprocess
     import sys
 
-    code = "from seeu_data.sampling import scene_rng; print(scene_rng(7, '5aca87f95a9412c6').integers(0, 1 << 30, 3).tolist())"
+    code = "from seeu_data.build.sampling import scene_rng; print(scene_rng(7, '5aca87f95a9412c6').integers(0, 1 << 30, 3).tolist())"
     out = subprocess.run(
         [sys.executable, "-c", code],
         capture_output=True,

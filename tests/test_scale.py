@@ -10,9 +10,9 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data import cameras as cam
-from seeu_data.chunks import ChunkConfig, plan_chunks
 from seeu_data.errors import SeeUError
-from seeu_data.scale import ScaleConfig
+from seeu_data.ingest.chunks import ChunkConfig, plan_chunks
+from seeu_data.ingest.scale import ScaleConfig
 
 N = 12
 DEPTHS = np.linspace(0.5, 6.5, 601)  # model units; p5 = 0.8, median = 3.5

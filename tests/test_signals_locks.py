@@ -1,4 +1,4 @@
-"""One writer per output directory (`seeu_data/out_lock.py`) and interrupted commands (SIGTERM /
+"""One writer per output directory (`seeu_data/store/out_lock.py`) and interrupted commands (SIGTERM /
 SIGINT end the child processes: `seeu_data/interrupts.py`), with real processes; entries of an image
 folder that cannot be read as images are skipped and named."""
 
@@ -22,7 +22,7 @@ ROOT = Path(__file__).resolve().parents[1]
 ENV = {**os.environ, "PYTHONPATH": str(ROOT), "SEEU_HEARTBEAT_S": "0"}
 # holds the lock of argv[1] until its stdin closes (or it is killed)
 HOLD = (
-    "import sys\nfrom seeu_data.out_lock import out_lock\n"
+    "import sys\nfrom seeu_data.store.out_lock import out_lock\n"
     "with out_lock(sys.argv[1]):\n    print('held', flush=True)\n    sys.stdin.read()\n"
 )
 
@@ -122,7 +122,7 @@ def _ingest_argv(folder: Path, out: Path) -> list[str]:
 
 
 def _sfm_child(parent: int, timeout: float = 120.0) -> int:
-    """The pid of `parent`'s SfM child process (`python -m seeu_data.sfm`), once it exists."""
+    """The pid of `parent`'s SfM child process (`python -m seeu_data.ingest.sfm`), once it exists."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for d in Path("/proc").iterdir():
@@ -133,7 +133,7 @@ def _sfm_child(parent: int, timeout: float = 120.0) -> int:
                 cmd = (d / "cmdline").read_bytes()
             except (OSError, IndexError, ValueError):
                 continue
-            if ppid == parent and b"seeu_data.sfm" in cmd:
+            if ppid == parent and b"seeu_data.ingest.sfm" in cmd:
                 return int(d.name)
         time.sleep(0.05)
     raise AssertionError("no SfM child appeared")

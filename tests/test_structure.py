@@ -131,6 +131,43 @@ def test_layering(package, forbidden):
     assert not bad, "\n".join(bad)
 
 
+# seeu_data's sub-packages, by the data they hold. store/ (files, schemas, manifests, posed frames) is
+# the bottom: it reads only the shared basics. The stages beside it (ingest, build, importers,
+# exporters, loader) read store/ and the basics, never one another.
+DATA_BASICS = {"seeu_data", "seeu_data.errors", "seeu_data.limits", "seeu_data.cameras"}
+DATA_STAGES = ("ingest", "build", "importers", "exporters", "loader")
+
+
+def _data_part(module: str) -> str | None:
+    """'seeu_data.ingest.sfm' -> 'ingest'; a top-level seeu_data module -> None."""
+    parts = module.split(".")
+    return parts[1] if parts[0] == "seeu_data" and len(parts) > 2 else None
+
+
+def test_store_reads_only_the_basics():
+    graph, _ = scan(module_files(PACKAGES))
+    bad = sorted(
+        f"{m} imports {t}"
+        for m, targets in graph.items()
+        if _data_part(m) == "store"
+        for t in targets
+        if t not in DATA_BASICS and _data_part(t) != "store"
+    )
+    assert not bad, "\n".join(bad)
+
+
+def test_data_stages_do_not_import_one_another():
+    graph, _ = scan(module_files(PACKAGES))
+    bad = sorted(
+        f"{m} imports {t}"
+        for m, targets in graph.items()
+        if _data_part(m) in DATA_STAGES
+        for t in targets
+        if _data_part(t) in DATA_STAGES and _data_part(t) != _data_part(m)
+    )
+    assert not bad, "\n".join(bad)
+
+
 def test_stage_libraries_do_not_import_the_cli():
     """pipelines/<stage>.py is the library; pipelines/cli/ parses flags and calls it, never the reverse."""
     graph, _ = scan(module_files(PACKAGES))
@@ -145,11 +182,17 @@ def test_stage_libraries_do_not_import_the_cli():
 
 
 def test_architecture_page_places_every_module():
-    """docs/ARCHITECTURE.md is the map of the stages: every module of seeu_data and every stage library
-    of pipelines is named there (by file name), so a new module cannot be left off it."""
+    """docs/ARCHITECTURE.md is the map of the stages: every module of seeu_data and of its ingest/,
+    build/ and store/ sub-packages, and every stage library of pipelines, is named there (by file name), so a
+    new module cannot be left off it."""
     page = (ROOT / "docs" / "ARCHITECTURE.md").read_text()
-    modules = sorted((ROOT / "seeu_data").glob("*.py")) + sorted((ROOT / "pipelines").glob("*.py"))
-    missing = [str(p.relative_to(ROOT)) for p in modules if p.name != "__init__.py" and p.name not in page]
+    modules = [
+        p
+        for d in ("seeu_data", "seeu_data/ingest", "seeu_data/build", "seeu_data/store", "pipelines")
+        for p in sorted((ROOT / d).glob("*.py"))
+    ]
+    named = [str(p.relative_to(ROOT)) for p in modules if p.name != "__init__.py"]
+    missing = [n for n in named if Path(n).name not in page]
     assert not missing, f"not in docs/ARCHITECTURE.md: {missing}"
 
 

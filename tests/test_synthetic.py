@@ -10,7 +10,7 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data import cameras as cam
-from seeu_data.posed import PosedDataset, PosedDatasetWriter
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter
 from seeu_data.synthetic import (
     camera_path,
     default_intrinsics_norm,

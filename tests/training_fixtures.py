@@ -1,19 +1,19 @@
 """Shared fixtures of the training / evaluation tests: tiny triple shards of the synthetic corridor.
 
 `synthetic_triples(root, ...)` renders the built-in synthetic scene (exact cameras, no SfM) at a
-small size, writes posed frames and builds interp (or extrap) triple shards with `seeu_data.build`.
+small size, writes posed frames and builds interp (or extrap) triple shards with `pipelines.build`.
 """
 
 from __future__ import annotations
 
 from pathlib import Path
 
-from seeu_data.build import BuildConfig, build
-from seeu_data.manifest import provenance
-from seeu_data.posed import PosedDatasetWriter
-from seeu_data.sampling import SamplingConfig
+from pipelines.build import BuildConfig, build
+from seeu_data.build.sampling import SamplingConfig
+from seeu_data.build.triples import ImageOptions
+from seeu_data.store.manifest import provenance
+from seeu_data.store.posed import PosedDatasetWriter
 from seeu_data.synthetic import synthetic_posed_scene
-from seeu_data.triples import ImageOptions
 
 
 def synthetic_posed(root: Path, n_frames: int = 16, hw: tuple[int, int] = (32, 32), seeds=(0,)) -> Path:

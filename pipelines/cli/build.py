@@ -65,7 +65,7 @@ def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
 
 def sampling_config(args: argparse.Namespace, mode: str):
     """The SamplingConfig of the `add_sampling_arguments` flags (a bad value: one line naming it)."""
-    from seeu_data.sampling import SamplingConfig
+    from seeu_data.build.sampling import SamplingConfig
 
     try:
         return SamplingConfig(
@@ -139,9 +139,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from seeu_data.build import BuildConfig, build, default_workers
-    from seeu_data.sampling import SamplingConfig
-    from seeu_data.triples import ImageOptions
+    from pipelines.build import BuildConfig, build, default_workers
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.build.triples import ImageOptions
 
     if (args.near is None) != (args.far is None):
         raise SeeUError("--near and --far go together")

@@ -35,7 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pathlib import Path
 
-    from seeu_data.arrow_io import atomic_write_bytes
+    from seeu_data.store.arrow_io import atomic_write_bytes
     from seeu_model.mvsplat.convert import convert_checkpoint
 
     written, report = convert_checkpoint(args.checkpoint, args.out, allow_incomplete=args.allow_incomplete)

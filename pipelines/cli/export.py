@@ -64,8 +64,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from seeu_data.dataset_check import check_dataset
-    from seeu_data.posed import SCHEMA, PosedDataset
+    from seeu_data.store.dataset_check import check_dataset
+    from seeu_data.store.posed import SCHEMA, PosedDataset
 
     check_dataset(args.dataset, check_sha=False, max_pixels=max_pixels(args), expect_schema=SCHEMA)
     dataset = PosedDataset(args.dataset)

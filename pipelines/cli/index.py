@@ -38,7 +38,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.index import IndexFileConfig, write_index
-    from seeu_data.eval_index import IndexConfig
+    from seeu_data.build.eval_index import IndexConfig
 
     cfg = IndexFileConfig(
         inputs=tuple(args.inputs),

@@ -10,7 +10,7 @@ seeds for the solution check, a last bundle adjustment with a robust loss (--fin
 undistortion to a pinhole camera of the same size when the model has distortion; the same poses
 whatever --threads; --size HxW crops/resizes afterwards)
 -> posed chunks (contiguous registered runs per model, >= --min-chunk-frames; scale by --scale:
-re10k, median-depth or metric, seeu_data/scale.py) -> OUT/<scene>/ posed-frames dataset
+re10k, median-depth or metric, seeu_data/ingest/scale.py) -> OUT/<scene>/ posed-frames dataset
 (scenes <scene>_c0, _c1, ...) with report.json and trajectory.png, manifest.json written last.
 <scene> is the input's name or --name; OUT/<scene> holding another input's scene is an error
 unless --force. Warnings (failed solution check, low parallax) end the summary line.
@@ -31,8 +31,8 @@ import sys
 from pathlib import Path
 
 from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, add_workers, parse_dims, progress_wanted
-from seeu_data.scale import SCALES
-from seeu_data.sfm import CAMERA_MODELS, FEATURES, FINAL_BA_LOSSES, MAPPERS
+from seeu_data.ingest.scale import SCALES
+from seeu_data.ingest.sfm import CAMERA_MODELS, FEATURES, FINAL_BA_LOSSES, MAPPERS
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

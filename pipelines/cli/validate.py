@@ -1,6 +1,6 @@
 """Check a dataset directory (posed frames or triple shards) against its schema and manifest.
 
-Checks (`seeu_data.dataset_check`, the checks every stage applies to what it reads): the manifest
+Checks (`seeu_data.store.dataset_check`, the checks every stage applies to what it reads): the manifest
 (JSON shape, known schema and major version, no file or scene listed twice), every listed file
 (present, byte size, sha256, row count, its own schema metadata), column names and types against
 `schemas/`, finite cameras, orthonormal rotations, positive focal lengths, 0 < near < far, for

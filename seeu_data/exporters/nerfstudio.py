@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrow_io import atomic_write_bytes, atomic_write_text
-from ..cameras import intrinsics_pixels, opengl_from_opencv
-from ..errors import SeeUError
-from ..image_header import extension_for
-from ..out_lock import locks_output
-from ..posed import PosedDataset, PosedScene
+from seeu_data.cameras import intrinsics_pixels, opengl_from_opencv
+from seeu_data.errors import SeeUError
+from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
+from seeu_data.store.image_header import extension_for
+from seeu_data.store.out_lock import locks_output
+from seeu_data.store.posed import PosedDataset, PosedScene
 
 SPARSE_PLY = "sparse_pc.ply"  # the name nerfstudio's own ns-process-data gives the initial point cloud
 

@@ -28,14 +28,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrow_io import atomic_path, atomic_write_text
-from ..cameras import world_to_cam_from_cam_to_world
-from ..errors import SeeUError
-from ..limits import MAX_CHUNK_BYTES, MAX_IMAGE_SIDE, check_range
-from ..out_lock import locks_output
-from ..posed import PosedDataset, PosedScene
-from ..resize import resize_scene
-from ..resume import sweep
+from seeu_data.cameras import world_to_cam_from_cam_to_world
+from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_CHUNK_BYTES, MAX_IMAGE_SIDE, check_range
+from seeu_data.resize import resize_scene
+from seeu_data.store.arrow_io import atomic_path, atomic_write_text
+from seeu_data.store.out_lock import locks_output
+from seeu_data.store.posed import PosedDataset, PosedScene
+from seeu_data.store.resume import sweep
 
 SIDECAR_NAME = "seeu_posed.json"
 CHUNK_FILES = "[0-9]" * 6 + ".torch"  # glob of the chunk files (000000.torch, ...)

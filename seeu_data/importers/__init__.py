@@ -17,6 +17,6 @@ Modules: `pixelsplat` (RE10K/ACID/DTU chunks), `re10k_text` (raw RealEstate10K/A
 
 from __future__ import annotations
 
-from .common import ImportReport, SkippedScene, probe_images, write_import
+from seeu_data.importers.common import ImportReport, SkippedScene, probe_images, write_import
 
 __all__ = ["ImportReport", "SkippedScene", "probe_images", "write_import"]

@@ -29,13 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intrinsics_norm_from_pixels
-from ..errors import SeeUError
-from ..limits import MAX_PIXELS
-from ..paths import contained_path
-from ..posed import PosedScene
-from ..undistort import PinholeCamera, undistort_files
-from .common import SkippedScene, probe_images
+from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intrinsics_norm_from_pixels
+from seeu_data.errors import SeeUError
+from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.paths import contained_path
+from seeu_data.store.posed import PosedScene
+from seeu_data.undistort import PinholeCamera, undistort_files
 
 PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
 UNDISTORTABLE_MODELS = {
@@ -271,8 +271,8 @@ def iter_scenes(cfg: ColmapImportConfig) -> Iterator[PosedScene | SkippedScene]:
 def import_plan(cfg: ColmapImportConfig):
     """The import as one resumable unit (`importers.common.ImportPlan`) whose fingerprint covers the
     model's files and the registered images it names. Reads the model (SeeUError when unusable)."""
-    from ..resume import files_fingerprint
-    from .common import ImportPlan, ImportUnit
+    from seeu_data.importers.common import ImportPlan, ImportUnit
+    from seeu_data.store.resume import files_fingerprint
 
     rec = _check_and_read(cfg)
     model_files = sorted(p for p in Path(cfg.model_dir).iterdir() if p.is_file())

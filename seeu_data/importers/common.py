@@ -11,15 +11,15 @@ from pathlib import Path
 
 import numpy as np
 
-from ..arrow_io import BytesLike
-from ..dataset_check import check_image
-from ..errors import SeeUError
-from ..image_header import decode_check
-from ..limits import MAX_PIXELS
-from ..manifest import FileEntry, read_manifest
-from ..posed import POSED_FILES, PosedDatasetWriter, PosedScene
-from ..resume import Journal, file_intact, stamp_of, sweep
-from .prefetch import prefetch
+from seeu_data.errors import SeeUError
+from seeu_data.importers.prefetch import prefetch
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.arrow_io import BytesLike
+from seeu_data.store.dataset_check import check_image
+from seeu_data.store.image_header import decode_check
+from seeu_data.store.manifest import FileEntry, read_manifest
+from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
+from seeu_data.store.resume import Journal, file_intact, stamp_of, sweep
 
 RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
 _UNIT_END = object()

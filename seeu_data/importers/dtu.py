@@ -29,11 +29,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import cam_to_world_from_world_to_cam
-from ..errors import SeeUError
-from ..limits import MAX_PIXELS
-from ..posed import PosedScene
-from .common import SkippedScene, probe_images
+from seeu_data.cameras import cam_to_world_from_world_to_cam
+from seeu_data.errors import SeeUError
+from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.posed import PosedScene
 
 CAM_FILE_SIZE = (160, 128)  # width, height the Cameras/train K is given for
 DEPTH_PLANES = 192
@@ -234,8 +234,8 @@ def import_plan(cfg: DtuImportConfig, scans: list[int] | None = None):
     """The import as resumable units (`importers.common.ImportPlan`): one unit per scan (fingerprint:
     its images and ground-truth files); the camera files, shared by every scan, are the plan's
     fingerprint and are read once, by the first scan not resumed."""
-    from ..resume import files_fingerprint
-    from .common import ImportPlan, ImportUnit
+    from seeu_data.importers.common import ImportPlan, ImportUnit
+    from seeu_data.store.resume import files_fingerprint
 
     scans = scans if scans is not None else scan_list(cfg)
     root = Path(cfg.root)

@@ -4,7 +4,7 @@ Keys read: `fl_x`, `fl_y`, `cx`, `cy`, `w`, `h` (top level, or per frame overrid
 files with only `camera_angle_x` get f = w / (2 tan(angle / 2)) and a centred principal point),
 `camera_model` (OPENCV, the default, OPENCV_FISHEYE, PINHOLE or SIMPLE_PINHOLE), the distortion
 `k1`, `k2`, `k3`, `p1`, `p2` (OPENCV) or `k1..k4` (OPENCV_FISHEYE), `frames[].file_path` (relative to
-the JSON's folder and inside it, see `seeu_data.paths`; a missing extension tries .png/.jpg),
+the JSON's folder and inside it, see `seeu_data.store.paths`; a missing extension tries .png/.jpg),
 `frames[].transform_matrix` (4x4 or 3x4 OpenGL camera-to-world: +x right, +y up, +z backward) and
 `applied_transform` (3x4).
 
@@ -37,14 +37,14 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels, invert_rigid, opencv_from_opengl
-from ..errors import SeeUError
-from ..json_file import read_json
-from ..limits import MAX_PIXELS
-from ..paths import contained_path
-from ..posed import PosedScene
-from ..undistort import undistort_files
-from .common import SkippedScene, probe_images
+from seeu_data.cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels, invert_rigid, opencv_from_opengl
+from seeu_data.errors import SeeUError
+from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.json_file import read_json
+from seeu_data.store.paths import contained_path
+from seeu_data.store.posed import PosedScene
+from seeu_data.undistort import undistort_files
 
 PINHOLE_MODELS = {"OPENCV", "PINHOLE", "SIMPLE_PINHOLE", "OPENCV_FISHEYE"}
 DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
@@ -257,8 +257,8 @@ def undistort_frames(
 def import_plan(cfg: NerfstudioImportConfig):
     """The import as one resumable unit (`importers.common.ImportPlan`) whose fingerprint covers
     transforms.json and the frame images it names."""
-    from ..resume import files_fingerprint
-    from .common import ImportPlan, ImportUnit
+    from seeu_data.importers.common import ImportPlan, ImportUnit
+    from seeu_data.store.resume import files_fingerprint
 
     path = Path(cfg.transforms)
     doc = load_transforms(path)

@@ -29,13 +29,13 @@ from typing import Any
 
 import numpy as np
 
-from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
-from ..errors import SeeUError
-from ..json_file import read_json
-from ..limits import MAX_PIXELS
-from ..paths import contained_path
-from ..posed import PosedScene
-from .common import SkippedScene, probe_images
+from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
+from seeu_data.errors import SeeUError
+from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.json_file import read_json
+from seeu_data.store.paths import contained_path
+from seeu_data.store.posed import PosedScene
 
 SIDECAR_NAME = "seeu_posed.json"
 # near/far per dataset as MVSplat configures them.
@@ -119,7 +119,7 @@ def load_chunk(path: Path) -> list:
     import pickle
     import zipfile
 
-    from .torch_chunk import UnsupportedChunk, load_plain
+    from seeu_data.importers.torch_chunk import UnsupportedChunk, load_plain
 
     if not path.exists():
         raise SeeUError("chunk listed in index.json is missing", path)
@@ -288,8 +288,8 @@ def import_plan(
     scenes asked for that no chunk held last. index.json and the sidecar are the plan's fingerprint."""
     from functools import partial
 
-    from ..resume import file_fingerprint
-    from .common import ImportPlan, ImportUnit
+    from seeu_data.importers.common import ImportPlan, ImportUnit
+    from seeu_data.store.resume import file_fingerprint
 
     if chunks is None or directory is None:
         directory, chunks, missing, _ = plan(cfg)

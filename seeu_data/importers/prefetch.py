@@ -2,7 +2,7 @@
 
 `prefetch` runs an importer (reading image files or chunks, header checks, conversion) in a
 background thread a few scenes ahead of the writer; the file written is hashed on a thread of its
-own as it grows (`seeu_data.arrow_io.AtomicIpcWriter`), and file reads, hashlib and file writes
+own as it grows (`seeu_data.store.arrow_io.AtomicIpcWriter`), and file reads, hashlib and file writes
 release the GIL, so reading the next scene overlaps writing and hashing this one.
 """
 

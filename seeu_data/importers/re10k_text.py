@@ -23,11 +23,11 @@ from pathlib import Path
 
 import numpy as np
 
-from ..cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
-from ..errors import SeeUError
-from ..limits import MAX_PIXELS
-from ..posed import PosedScene
-from .common import SkippedScene, probe_images
+from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
+from seeu_data.errors import SeeUError
+from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.posed import PosedScene
 
 FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg")
 
@@ -188,8 +188,8 @@ def import_plan(cfg: Re10kTextImportConfig, files: list[Path] | None = None):
     have no camera file (reported on every run)."""
     from functools import partial
 
-    from ..resume import files_fingerprint
-    from .common import ImportPlan, ImportUnit
+    from seeu_data.importers.common import ImportPlan, ImportUnit
+    from seeu_data.store.resume import files_fingerprint
 
     files = files if files is not None else camera_files(cfg)
     missing = [

@@ -3,12 +3,12 @@
 `make_loader(shards, batch_size, ...)` -> `StreamingLoader`; the order/partition maths is in `order.py`.
 """
 
-from .collate import batch_to_device
-from .curriculum import GapCurriculum
-from .dataset import LoaderConfig, StreamingLoader, TripleStream, make_loader
-from .order import epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches
-from .source import ShardSource
-from .types import Batch, Views
+from seeu_data.loader.collate import batch_to_device
+from seeu_data.loader.curriculum import GapCurriculum
+from seeu_data.loader.dataset import LoaderConfig, StreamingLoader, TripleStream, make_loader
+from seeu_data.loader.order import epoch_order, manifest_fingerprint, plan_global_batches, rank_worker_batches
+from seeu_data.loader.source import ShardSource
+from seeu_data.loader.types import Batch, Views
 
 __all__ = [
     "Batch",

@@ -22,10 +22,10 @@ import numpy as np
 import torch
 from torch.utils.data import get_worker_info
 
-from .. import cameras
-from ..errors import SeeUError
-from .transforms import ViewsSample
-from .types import Batch
+from seeu_data import cameras
+from seeu_data.errors import SeeUError
+from seeu_data.loader.transforms import ViewsSample
+from seeu_data.loader.types import Batch
 
 _STAGING: dict[tuple, np.ndarray] = {}  # per-process reusable staging buffers (shape, dtype) -> array
 

@@ -34,13 +34,12 @@ import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
 from torch.utils.data._utils.pin_memory import pin_memory
 
-from ..errors import SeeUError
-from ..image_ops import single_threaded_cv2
-from ..limits import MAX_PIXELS
-from ..triple_row import TripleRow
-from .collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
-from .curriculum import GapCurriculum
-from .order import (
+from seeu_data.errors import SeeUError
+from seeu_data.image_ops import single_threaded_cv2
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.loader.collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
+from seeu_data.loader.curriculum import GapCurriculum
+from seeu_data.loader.order import (
     GlobalPlan,
     epoch_order,
     manifest_fingerprint,
@@ -48,10 +47,11 @@ from .order import (
     rank_worker_batches,
     shard_offsets,
 )
-from .shard_reader import ShardReader
-from .source import DEFAULT_CACHE_LIMIT, ShardSource
-from .transforms import ViewsSample, transform_sample
-from .types import Batch
+from seeu_data.loader.shard_reader import ShardReader
+from seeu_data.loader.source import DEFAULT_CACHE_LIMIT, ShardSource
+from seeu_data.loader.transforms import ViewsSample, transform_sample
+from seeu_data.loader.types import Batch
+from seeu_data.store.triple_row import TripleRow
 
 
 @dataclass(frozen=True)

@@ -13,11 +13,11 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from ..arrow_io import open_ipc_file
-from ..dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
-from ..errors import SeeUError
-from ..limits import MAX_PIXELS
-from ..triple_row import PER_VIEW_COLUMNS, TripleRow
+from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.arrow_io import open_ipc_file
+from seeu_data.store.dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
+from seeu_data.store.triple_row import PER_VIEW_COLUMNS, TripleRow
 
 _REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + PER_VIEW_COLUMNS
 
@@ -88,7 +88,7 @@ class _BatchColumns:
 class ShardReader:
     """Rows of one shard by index. `name` is what errors call the shard (its URL or path).
 
-    Opening a shard runs the cheap per-file checks of `seeu_data.dataset_check`: the file's schema
+    Opening a shard runs the cheap per-file checks of `seeu_data.store.dataset_check`: the file's schema
     metadata (`seeu.triples`, a major version this seeu reads), its row count against the manifest's,
     finite rigid cameras with 0 < near < far, recorded image sizes under `max_pixels` (each image's
     header is checked against them when it is decoded: `transforms.transform_sample`)."""

@@ -31,9 +31,9 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from ..arrow_io import sha256_file
-from ..errors import SeeUError
-from ..manifest import MANIFEST_NAME, read_manifest
+from seeu_data.errors import SeeUError
+from seeu_data.store.arrow_io import sha256_file
+from seeu_data.store.manifest import MANIFEST_NAME, read_manifest
 
 SCHEMA = "seeu.triples"
 DEFAULT_CACHE_LIMIT = 64 << 30  # 64 GiB

@@ -24,12 +24,12 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from .. import cameras
-from ..dataset_check import check_image
-from ..errors import SeeUError
-from ..image_ops import INTERPOLATIONS, resize_cover_crop
-from ..limits import MAX_PIXELS
-from ..triple_row import TripleRow
+from seeu_data import cameras
+from seeu_data.errors import SeeUError
+from seeu_data.image_ops import INTERPOLATIONS, resize_cover_crop
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.dataset_check import check_image
+from seeu_data.store.triple_row import TripleRow
 
 
 @dataclass

@@ -35,8 +35,8 @@ from typing import Any
 import numpy as np
 import torch
 
-from seeu_data.arrow_io import atomic_write_bytes
 from seeu_data.errors import SeeUError
+from seeu_data.store.arrow_io import atomic_write_bytes
 from seeu_model.safe_load import safe_torch_load
 
 FORMAT = "seeu-train-checkpoint"

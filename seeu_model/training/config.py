@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
-from seeu_data.json_file import check_nesting, parse_json, read_document, read_json, too_deep_error
 from seeu_data.limits import (
     MAX_BATCH_SIZE,
     MAX_IMAGE_SIDE,
@@ -36,6 +35,7 @@ from seeu_data.limits import (
     MAX_WORKERS,
     check_range,
 )
+from seeu_data.store.json_file import check_nesting, parse_json, read_document, read_json, too_deep_error
 
 PRESETS_DIR = files("seeu_model") / "presets"
 # What a step whose loss, gradients or weights are not finite (NaN / inf) does (TrainConfig.on_nonfinite):
@@ -333,6 +333,6 @@ def validate(cfg: TrainConfig) -> None:
 
 
 def save_config(cfg: TrainConfig, path: str | Path) -> None:
-    from seeu_data.arrow_io import atomic_write_text
+    from seeu_data.store.arrow_io import atomic_write_text
 
     atomic_write_text(path, json.dumps(cfg.to_dict(), indent=2) + "\n")

@@ -16,9 +16,9 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from .ray_cluster import ensure_ray
-from .shard_task import ShardResult, materialise
-from .triples import ShardSpec
+from seeu_data.ray_cluster import ensure_ray
+from seeu_data.build.shard_task import ShardResult, materialise
+from seeu_data.build.triples import ShardSpec
 
 
 def _ray_task(row: dict) -> dict:

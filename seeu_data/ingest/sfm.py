@@ -1,11 +1,11 @@
 """Structure from motion with pycolmap 4.x, run in a child process.
 
 COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop detection without a
-vocabulary tree), so `run_sfm` starts `python -m seeu_data.sfm CONFIG.json` and turns any failure
+vocabulary tree), so `run_sfm` starts `python -m seeu_data.ingest.sfm CONFIG.json` and turns any failure
 into a SeeUError. The child runs: the database's camera and images written in frame order ->
 SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`: frames 1, 2, 4,
 ..., 2**(overlap-1) apart; loop detection only with a vocabulary-tree file; verification RANSAC seeded
-per pair) -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.keyframes`)
+per pair) -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.ingest.keyframes`)
 -> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
 it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`) ->
 a last global bundle adjustment of each mapped model with a robust loss (`final_ba_loss`, soft-L1 at
@@ -58,9 +58,9 @@ import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .errors import SeeUError
-from .interrupts import end_process
-from .limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
+from seeu_data.errors import SeeUError
+from seeu_data.interrupts import end_process
+from seeu_data.limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
@@ -101,10 +101,10 @@ class SfmConfig:
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
-    # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.match_graph)
+    # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.ingest.match_graph)
     mapper: str = "incremental"
     features: str = "sift"
-    # Keyframes (seeu_data.keyframes): a video is mapped on every s-th frame, s the largest power of two
+    # Keyframes (seeu_data.ingest.keyframes): a video is mapped on every s-th frame, s the largest power of two
     # keeping the median image motion between keyframes <= keyframe_motion pixels and >= min_keyframes
     # of them; the other frames are registered into the model afterwards. 0: map every frame.
     keyframe_motion: float = 20.0
@@ -171,7 +171,7 @@ def run_sfm(
     (registered images), read from the child's own lines and COLMAP's log lines as they come.
     Raises SeeUError when the child aborts, crashes, or reports that no model could be built.
     """
-    from .progress import StageProgress
+    from seeu_data.progress import StageProgress
 
     config.check()
     out_dir = Path(out_dir)
@@ -192,7 +192,7 @@ def run_sfm(
             # COLMAP's log (stderr) comes through the same pipe: it goes to sfm.log, and its
             # "Processed file [k/N]" / "Processing image [k/N]" lines move the extract and match stages.
             proc = subprocess.Popen(
-                [sys.executable, "-m", "seeu_data.sfm", str(out_dir / "job.json")],
+                [sys.executable, "-m", "seeu_data.ingest.sfm", str(out_dir / "job.json")],
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
                 env=env,
@@ -261,7 +261,7 @@ def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: Sf
     """
     import pycolmap
 
-    from .image_header import image_info
+    from seeu_data.store.image_header import image_info
 
     info = image_info(first_image.read_bytes(), str(first_image))
     focal = pycolmap.ImageReaderOptions().default_focal_length_factor * max(info.width, info.height)
@@ -385,7 +385,7 @@ def model_disagreement_pct(recs_a: dict, recs_b: dict) -> float:
     either model's frames (or fewer than 3) are common."""
     import numpy as np
 
-    from .pose_eval import pose_accuracy
+    from seeu_data.ingest.pose_eval import pose_accuracy
 
     a, b = _centres_by_name(recs_a), _centres_by_name(recs_b)
     common = sorted(set(a) & set(b))
@@ -560,8 +560,8 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
 def _child(job_path: str) -> int:
     import pycolmap
 
-    from seeu_data.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride, register_frames
-    from seeu_data.match_graph import choose_mapper, match_graph_stats
+    from seeu_data.ingest.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride, register_frames
+    from seeu_data.ingest.match_graph import choose_mapper, match_graph_stats
     from seeu_data.undistort import undistort_files
 
     job = json.loads(Path(job_path).read_text())

@@ -25,7 +25,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import ParamSpec, TypeVar
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 LOCK_NAME = ".lock"
 

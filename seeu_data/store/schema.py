@@ -18,7 +18,7 @@ from pathlib import Path
 
 import pyarrow as pa
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 SCHEMAS_DIR = files("seeu_data") / "schemas"
 

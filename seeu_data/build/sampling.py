@@ -33,7 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .limits import MAX_CONTEXT_VIEWS, MAX_FRAMES, MAX_SAMPLES, MAX_TARGET_VIEWS, check_range
+from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_FRAMES, MAX_SAMPLES, MAX_TARGET_VIEWS, check_range
 
 MODES = ("interp", "extrap")
 
@@ -186,7 +186,7 @@ def frustum_overlap(
     intrinsics are normalised), so the result does not depend on the resolution. Symmetrise with
     min(overlap(a, b), overlap(b, a)) for a pair score.
     """
-    from .cameras import project_points, unproject_pixels
+    from seeu_data.cameras import project_points, unproject_pixels
 
     ticks = (np.arange(grid) + 0.5) / grid
     uv = np.stack(np.meshgrid(ticks, ticks, indexing="xy"), -1).reshape(-1, 2)

@@ -21,8 +21,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .arrow_io import atomic_write_bytes, atomic_write_text
-from .video import skipped_line
+from seeu_data.ingest.video import skipped_line
+from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
 
 
 def mean_reprojection_error(models: list[dict]) -> float:

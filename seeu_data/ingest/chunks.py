@@ -6,7 +6,7 @@ in several overlapping models belongs to the largest one only. Runs shorter than
 `min_chunk_frames` are dropped (and reported).
 
 Scale and frame of each chunk (recorded in the chunk's meta): poses are expressed relative to the
-chunk's first camera (identity) and scaled by the convention `config.scale` (`seeu_data.scale`:
+chunk's first camera (identity) and scaled by the convention `config.scale` (`seeu_data.ingest.scale`:
 re10k, median-depth, metric); near/far (median-depth, metric) are the 0.1th / 99.9th percentiles of
 the depths of the SfM points seen by the model's cameras times 0.4 / 1.5 (SfM triangulates few
 points on the nearest, most foreshortened surfaces, hence the margins); re10k records the peers' 1 / 100.
@@ -21,10 +21,10 @@ from pathlib import Path
 
 import numpy as np
 
-from .cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, invert_rigid
-from .errors import SeeUError
-from .limits import MAX_FRAMES, check_range
-from .scale import ScaleConfig, chunk_scale
+from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, invert_rigid
+from seeu_data.errors import SeeUError
+from seeu_data.ingest.scale import ScaleConfig, chunk_scale
+from seeu_data.limits import MAX_FRAMES, check_range
 
 NEAR_FAR_METHOD = (
     "sfm_point_depth_percentiles: near = 0.4 * p0.1, far = 1.5 * p99.9 of the depths of SfM point "

@@ -6,7 +6,7 @@ nested deeper than `MAX_JSON_DEPTH`, or not valid JSON is one SeeUError line nam
 limit; never a RecursionError or a MemoryError. Our own documents nest 6 deep at most.
 
 Example:
-    from seeu_data.json_file import read_json
+    from seeu_data.store.json_file import read_json
     doc = read_json("data/posed/clip/manifest.json", "manifest")
 """
 
@@ -16,7 +16,7 @@ import json
 from pathlib import Path
 from typing import Any
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 MAX_JSON_BYTES = 256 * 1024 * 1024  # a transforms.json of 100k frames is ~60 MB
 MAX_JSON_DEPTH = 64

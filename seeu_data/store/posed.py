@@ -18,10 +18,10 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
-from .errors import SeeUError
-from .manifest import FileEntry, read_manifest, write_manifest
-from .schema import arrow_schema, schema_version
+from seeu_data.errors import SeeUError
+from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
+from seeu_data.store.manifest import FileEntry, read_manifest, write_manifest
+from seeu_data.store.schema import arrow_schema, schema_version
 
 SCHEMA = "seeu.posed_frames"
 POSED_FILES = "posed-*.arrow"  # glob of the files `PosedDatasetWriter` writes (default prefix)
@@ -57,7 +57,7 @@ class PosedScene:
     def check(self) -> None:
         """Raise SeeUError when the scene is inconsistent or its cameras are not finite rigid poses
         (`dataset_check.check_cameras`)."""
-        from .dataset_check import check_cameras
+        from seeu_data.store.dataset_check import check_cameras
 
         n = len(self.images)
         where = f"scene {self.scene_id}"

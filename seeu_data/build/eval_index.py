@@ -21,9 +21,9 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SeeUError
-from .json_file import read_json
-from .sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
+from seeu_data.errors import SeeUError
+from seeu_data.store.json_file import read_json
+from seeu_data.build.sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 
 FORMATS = ("pixelsplat", "latentsplat", "dtu")
 _DTU_KEY = re.compile(r"^(scan\d+)_train_(\d+)$")
@@ -149,7 +149,7 @@ def generate_entries(
     Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4). Context pairs whose overlap falls outside
     [min_overlap, max_overlap] are redrawn (at most `max_tries` draws per entry).
     """
-    from .sampling import min_scene_length, sample_one
+    from seeu_data.build.sampling import min_scene_length, sample_one
 
     s = cfg.sampling
     n = len(cam_to_world)
@@ -177,7 +177,7 @@ def generate_entries(
 
 def no_entry_reason(cfg: IndexConfig, scene_id: str, num_frames: int) -> str:
     """Why `generate_entries` gave a scene of `num_frames` frames no entry, in words."""
-    from .sampling import min_scene_length
+    from seeu_data.build.sampling import min_scene_length
 
     s = cfg.sampling
     need = min_scene_length(s)

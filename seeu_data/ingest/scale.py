@@ -30,7 +30,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 SCALES = ("re10k", "median-depth", "metric")
 RE10K_NEAR_FAR = (1.0, 100.0)

@@ -17,7 +17,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 
 @dataclass(frozen=True)

@@ -23,7 +23,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 # FFmpeg prints its own lines ("moov atom not found") on stderr, which would break the one-line error;
 # OpenCV reads this when it first opens a video. Set OPENCV_FFMPEG_LOGLEVEL=24 to see them.

@@ -13,7 +13,7 @@ from __future__ import annotations
 import posixpath
 from pathlib import Path
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 
 class OutsidePathError(SeeUError):

@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 POINTS_DIR = "points3d"
 
@@ -24,7 +24,7 @@ def write_points_ply(path: str | Path, xyz: np.ndarray, rgb: np.ndarray, fsync: 
     before its rename when `fsync`)."""
     from plyfile import PlyData, PlyElement
 
-    from .arrow_io import atomic_path
+    from seeu_data.store.arrow_io import atomic_path
 
     xyz = np.asarray(xyz, np.float64).reshape(-1, 3)
     rgb = np.clip(np.round(np.asarray(rgb, np.float64).reshape(-1, 3)), 0, 255).astype(np.uint8)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .limits import MAX_FRAMES, check_range
+from seeu_data.limits import MAX_FRAMES, check_range
 
 
 @dataclass(frozen=True)

@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from .errors import SeeUError
+from seeu_data.errors import SeeUError
 
 # An encoded value (image) as the writers take it: bytes, or a view (a memoryview, a numpy uint8 view
 # into a memory-mapped input) that must not change until it is written.

@@ -16,12 +16,12 @@ from typing import Any
 
 import jsonschema
 
-from . import __version__
-from .arrow_io import atomic_write_text, open_ipc_file, sha256_file
-from .errors import SeeUError
-from .json_file import read_json
-from .paths import contained_key, contained_path
-from .schema import MANIFEST_VERSION, check_version, manifest_json_schema
+from seeu_data import __version__
+from seeu_data.errors import SeeUError
+from seeu_data.store.arrow_io import atomic_write_text, open_ipc_file, sha256_file
+from seeu_data.store.json_file import read_json
+from seeu_data.store.paths import contained_key, contained_path
+from seeu_data.store.schema import MANIFEST_VERSION, check_version, manifest_json_schema
 
 MANIFEST_NAME = "manifest.json"
 _VALIDATOR = None

@@ -47,9 +47,9 @@ import time
 from collections.abc import Callable, Collection, Iterable
 from pathlib import Path
 
-from .arrow_io import atomic_write_text, sha256_file
-from .errors import SeeUError
-from .json_file import parse_json
+from seeu_data.errors import SeeUError
+from seeu_data.store.arrow_io import atomic_write_text, sha256_file
+from seeu_data.store.json_file import parse_json
 
 STAGES_JOURNAL = "stages.jsonl"
 CLAIM_NAME = ".stamp"  # in a directory given to a unit that resumes inside itself (`claim_dir`)

@@ -13,7 +13,7 @@ frames are then registered into the mapped model one by one, in frame order, wit
 incremental-mapper step (`register_frames`: 2D-3D RANSAC + pose refinement against the keyframes'
 points, tracks continued; no new points, no bundle adjustment), which costs the same for every frame.
 
-The stride is a power of two because sequential matching with quadratic overlap (`seeu_data.sfm`)
+The stride is a power of two because sequential matching with quadratic overlap (`seeu_data.ingest.sfm`)
 matches frames 1, 2, 4, ..., 2**(overlap-1) apart: keyframes `stride` apart are then matched to each
 other at 1, 2, 4, ... keyframes apart, the same graph the mapper sees on a sparser video.
 
@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .match_graph import CHAIN_PCT, MIN_INLIERS
+from seeu_data.ingest.match_graph import CHAIN_PCT, MIN_INLIERS
 
 
 def consecutive_motion_px(db, names: list[str]) -> float | None:

@@ -26,12 +26,12 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import AtomicIpcWriter, binary_array, open_ipc_file
-from .errors import SeeUError
-from .manifest import read_manifest
-from .sampling import Sample, make_sample
-from .schema import arrow_schema
-from .triple_row import TripleRow
+from seeu_data.store.arrow_io import AtomicIpcWriter, binary_array, open_ipc_file
+from seeu_data.errors import SeeUError
+from seeu_data.store.manifest import read_manifest
+from seeu_data.build.sampling import Sample, make_sample
+from seeu_data.store.schema import arrow_schema
+from seeu_data.store.triple_row import TripleRow
 
 SCHEMA = "seeu.triples"
 PLAN_KEY = b"seeu.shard_plan_sha256"
@@ -198,7 +198,7 @@ def _resize_views(
     sources: dict[str, SceneRows],
 ) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
     """Decode, resize + centre-crop and re-encode every view (cached per scene frame within the shard)."""
-    from .image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
+    from seeu_data.image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
 
     assert opts.resize is not None
     out_h, out_w = opts.resize

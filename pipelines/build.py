@@ -7,7 +7,7 @@ Stages:
    frames numbered 0..n-1 per scene, scene rows inside their files, image headers equal to the
    recorded sizes and under `max_pixels`; sha256 too with `verify_inputs`), before anything is
    written. Scene ids must be unique across inputs.
-2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.sampling`,
+2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.build.sampling`,
    scenes in sorted order, drawn lazily so that the first shards are written while the rest is
    planned), or the entries of an evaluation index (file order; entries naming a missing scene or
    frame are reported and not written).
@@ -17,7 +17,7 @@ Stages:
 4. Materialise every spec with `triples.write_shard`: `shard-XXXXX.arrow`, written atomically
    (the local process pool and Ray run the same function: byte-identical shards; a `ShardResult`
    each), its sha256 computed as it is written. Resume
-   (`seeu_data.resume`): a shard already on disk is kept when a previous run recorded it (its
+   (`seeu_data.store.resume`): a shard already on disk is kept when a previous run recorded it (its
    manifest, or the journal `.build-progress.jsonl` of an interrupted run: one unit per shard,
    stamped with its plan hash) and it still has the recorded size and sha256, the spec's plan hash
    in its metadata and the planned row count (`resumable_shard`). Shards no run recorded, shards
@@ -42,11 +42,12 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
-from .arrow_io import open_ipc_file
-from .dataset_check import check_dataset
-from .errors import SeeUError
-from .interrupts import end_pool
-from .limits import (
+from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
+from seeu_data.build.shard_task import ShardResult, materialise, write_pending
+from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
+from seeu_data.errors import SeeUError
+from seeu_data.interrupts import end_pool
+from seeu_data.limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
     MAX_PIXELS_CEILING,
@@ -55,13 +56,12 @@ from .limits import (
     MAX_WORKERS,
     check_range,
 )
-from .manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
-from .out_lock import locks_output
-from .resume import Journal, file_intact, sweep
-from .sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
-from .schema import schema_version
-from .shard_task import ShardResult, materialise, write_pending
-from .triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
+from seeu_data.store.arrow_io import open_ipc_file
+from seeu_data.store.dataset_check import check_dataset
+from seeu_data.store.manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
+from seeu_data.store.out_lock import locks_output
+from seeu_data.store.resume import Journal, file_intact, sweep
+from seeu_data.store.schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
 SHARD_FILES = "shard-*.arrow"
@@ -207,7 +207,7 @@ def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
 
 def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
     """eval: exactly the entries of the index, in file order; problems reported per entry."""
-    from .eval_index import read_index
+    from seeu_data.build.eval_index import read_index
 
     if not cfg.index_path:
         raise SeeUError("--mode eval needs --index FILE")
@@ -385,7 +385,7 @@ def run_local(
         # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
         # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
         ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        from .image_ops import single_threaded_cv2
+        from seeu_data.image_ops import single_threaded_cv2
 
         # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
         with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
@@ -429,9 +429,9 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     """Run a whole build; return the manifest document.
 
     Example:
-        from seeu_data.build import BuildConfig, build
-        from seeu_data.sampling import SamplingConfig
-        from seeu_data.triples import ImageOptions
+        from pipelines.build import BuildConfig, build
+        from seeu_data.build.sampling import SamplingConfig
+        from seeu_data.build.triples import ImageOptions
 
         cfg = BuildConfig(inputs=("data/posed/clip",), out="data/shards/extrap", mode="extrap",
                           sampling=SamplingConfig(mode="extrap", extrap_frames=45), image=ImageOptions(resize=(256, 256)))
@@ -477,7 +477,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 
     with _progress_bar(plan.total, cfg.progress) as bar:
         if cfg.engine == "ray":
-            from .ray_build import run_ray
+            from seeu_data.build.ray_build import run_ray
 
             specs = list(todo(bar))
             if specs:

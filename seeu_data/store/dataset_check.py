@@ -34,13 +34,13 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from .arrow_io import open_ipc_file
-from .cameras import rotation_orthonormality_error
-from .errors import SeeUError
-from .image_header import ImageInfo, image_info
-from .limits import MAX_PIXELS
-from .manifest import read_manifest, verify_file
-from .schema import arrow_schema, check_version
+from seeu_data.cameras import rotation_orthonormality_error
+from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.arrow_io import open_ipc_file
+from seeu_data.store.image_header import ImageInfo, image_info
+from seeu_data.store.manifest import read_manifest, verify_file
+from seeu_data.store.schema import arrow_schema, check_version
 
 _ORTHONORMAL_TOL = 1e-4
 

@@ -10,9 +10,9 @@ from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from .errors import SeeUError
-from .manifest import FileEntry
-from .triples import ShardSpec, write_shard
+from seeu_data.errors import SeeUError
+from seeu_data.store.manifest import FileEntry
+from seeu_data.build.triples import ShardSpec, write_shard
 
 
 @dataclass
