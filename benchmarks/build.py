@@ -52,9 +52,9 @@ ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 
 from pipelines.build import BuildConfig, build, plan_sampled, scan_inputs, shard_specs  # noqa: E402
-from pipelines.cli.options import parse_dims  # noqa: E402
 from seeu_data.build.sampling import SamplingConfig  # noqa: E402
 from seeu_data.build.triples import ImageOptions, ShardSpec  # noqa: E402
+from seeu_data.settings import parse_dims  # noqa: E402
 from seeu_data.store.posed import PosedDatasetWriter, PosedScene  # noqa: E402
 
 H, W = 360, 640

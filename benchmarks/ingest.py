@@ -94,10 +94,11 @@ def main() -> int:
     ap.add_argument("--repeats", type=int, default=1, help="runs of each, alternating order; best is reported")
     args = ap.parse_args()
 
-    from pipelines.cli.options import parse_dims
-    from pipelines.ingest import IngestConfig, ingest_scene
+    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
     from seeu_data.ingest.report import accuracy_vs_truth
+    from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
+    from seeu_data.settings import parse_dims
     from seeu_data.synthetic import ClipConfig, write_clip
 
     width, height = parse_dims(args.size, "--size", minimum=16)
@@ -108,7 +109,10 @@ def main() -> int:
 
     # like for like with the bare calls (one mapping): without the solution check's second mapping
     cfg = IngestConfig(
-        inputs=(video,), out=args.out / "posed", camera_model=args.camera_model, sfm_check=False, force=True
+        out=args.out / "posed",
+        inputs=(video,),
+        sfm=SfmConfig(camera_model=args.camera_model, sfm_check=False),
+        run=IngestRunConfig(force=True),
     )
     (source,) = discover_sources([video])
     frames_dir = args.out / "posed" / ".work" / source.name / "decode" / "frames"

@@ -33,7 +33,6 @@ import platform
 import resource
 import sys
 import time
-from dataclasses import replace
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -133,16 +132,20 @@ def _clip(out: Path, frames: int, width: int, height: int, seed: int) -> Path:
 def run_one(video: Path, out_root: Path, mapper: str, keyframe_motion: float | None = None) -> dict:
     """One default `seeu ingest` of `video` with `mapper` (and `keyframe_motion` unless None), from
     scratch; returns the benchmark's row."""
-    from pipelines.ingest import IngestConfig, ingest_scene
+    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
     from seeu_data.ingest.report import accuracy_vs_truth
+    from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
 
     (source,) = discover_sources([video])
     load_before = _loadavg()
     c0, t0 = _cpu_s(), time.perf_counter()
-    cfg = IngestConfig(inputs=(video,), out=out_root, mapper=mapper, force=True)
-    if keyframe_motion is not None:
-        cfg = replace(cfg, keyframe_motion=keyframe_motion)
+    sfm = (
+        SfmConfig(mapper=mapper)
+        if keyframe_motion is None
+        else SfmConfig(mapper=mapper, keyframe_motion=keyframe_motion)
+    )
+    cfg = IngestConfig(out=out_root, inputs=(video,), sfm=sfm, run=IngestRunConfig(force=True))
     report = ingest_scene(source, cfg)
     wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
     acc = accuracy_vs_truth(report)
@@ -254,7 +257,7 @@ def main() -> int:
     ap.add_argument("--write", action="store_true", help="write the results into benchmarks/RESULTS.md")
     args = ap.parse_args()
 
-    from pipelines.cli.options import parse_dims
+    from seeu_data.settings import parse_dims
 
     frames = [int(v) for v in args.frames.split(",")]
     mappers = [m.strip() for m in args.mappers.split(",")]

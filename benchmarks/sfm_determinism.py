@@ -39,7 +39,7 @@ def _ingest(video: Path, out: Path, cfg):
 
     (source,) = discover_sources([video])
     t0 = time.perf_counter()
-    report = ingest_scene(source, replace(cfg, inputs=(video,), out=out, force=True))
+    report = ingest_scene(source, replace(cfg, inputs=(video,), out=out, run=replace(cfg.run, force=True)))
     elapsed = time.perf_counter() - t0
     ds = PosedDataset(out / source.name)
     digest = hashlib.sha256()
@@ -66,14 +66,17 @@ def main() -> int:
     ap.add_argument("--out", type=Path, default=Path("out/bench_sfm_determinism"))
     args = ap.parse_args()
 
-    from pipelines.cli.options import parse_dims
     from pipelines.ingest import IngestConfig
+    from seeu_data.ingest.sfm import SfmConfig
+    from seeu_data.settings import parse_dims
     from seeu_data.synthetic import write_clip
 
     width, height = parse_dims(args.size, "--size", minimum=16)
     # what `seeu ingest` uses by default with one worker (inputs and out: set per ingest)
-    cfg = IngestConfig(inputs=(), out=args.out / "posed", threads=os.cpu_count() or 1)
-    print(f"{os.cpu_count()} cores; COLMAP threads {cfg.threads}; {args.frames} frames {width}x{height}", flush=True)
+    cfg = IngestConfig(out=args.out / "posed", sfm=SfmConfig(threads=os.cpu_count() or 1))
+    print(
+        f"{os.cpu_count()} cores; COLMAP threads {cfg.sfm.threads}; {args.frames} frames {width}x{height}", flush=True
+    )
 
     video = args.out / "clips" / "planar_s0.mp4"
     write_clip(video, n_frames=args.frames, width=width, height=height, seed=0, scene="planar")

@@ -166,7 +166,10 @@ def stage_synth(ctx: dict, stages: Stages) -> dict:
 
 
 def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
-    from pipelines.ingest import IngestConfig, ingest
+    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest
+    from seeu_data.ingest.chunks import ChunkConfig
+    from seeu_data.ingest.scale import ScaleConfig
+    from seeu_data.ingest.sfm import SfmConfig
 
     # The synthetic clips are rendered with an ideal pinhole camera (square pixels, centred principal
     # point), so SIMPLE_PINHOLE is the matching model. Ingest's SfM gives the same poses whatever the
@@ -174,14 +177,10 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     # differed, about one in four with ~5% camera-centre error); on 2 cores one thread costs little
     # (measured: 57-71 s vs 51-81 s per 72-frame clip).
     cfg = IngestConfig(
-        inputs=(),
         out=ctx["out"] / "posed",
-        camera_model="SIMPLE_PINHOLE",
-        threads=1,
-        scale="median-depth",  # the demo model's tight near/far
-        force=ctx["cfg"].force,
-        progress=ctx["progress"],
-        heartbeat_s=0,
+        sfm=SfmConfig(camera_model="SIMPLE_PINHOLE", threads=1),
+        chunks=ChunkConfig(scale=ScaleConfig("median-depth")),  # the demo model's tight near/far
+        run=IngestRunConfig(force=ctx["cfg"].force, progress=ctx["progress"], heartbeat_s=0),
     )
 
     def fn() -> dict:

@@ -20,7 +20,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.importers.colmap import ColmapImportConfig
@@ -28,20 +27,23 @@ from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 from seeu_data.importers.pixelsplat import PixelSplatImportConfig
 from seeu_data.importers.re10k_text import Re10kTextImportConfig
+from seeu_data.settings import setting
 from seeu_data.store.out_lock import locks_output
 
 SourceConfig = (
     PixelSplatImportConfig | Re10kTextImportConfig | DtuImportConfig | ColmapImportConfig | NerfstudioImportConfig
 )
 
-# format name (the `seeu import FORMAT`) of each source config
-FORMATS: dict[type, str] = {
-    PixelSplatImportConfig: "pixelsplat",
-    Re10kTextImportConfig: "re10k",
-    DtuImportConfig: "dtu",
-    ColmapImportConfig: "colmap",
-    NerfstudioImportConfig: "nerfstudio",
+# `seeu import FORMAT` -> (the format's config, whose settings are the subcommand's flags and whose
+# `plan()` prepares the import; the one-line help)
+IMPORTERS: dict[str, tuple[type, str]] = {
+    "pixelsplat": (PixelSplatImportConfig, "RE10K / ACID / DTU pixelSplat chunks"),
+    "re10k": (Re10kTextImportConfig, "raw RealEstate10K / ACID text files + frames"),
+    "dtu": (DtuImportConfig, "DTU in the MVSNet layout"),
+    "colmap": (ColmapImportConfig, "a COLMAP model and its images"),
+    "nerfstudio": (NerfstudioImportConfig, "a nerfstudio / NeRF transforms.json"),
 }
+FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 
 
 @dataclass(frozen=True)
@@ -51,7 +53,7 @@ class ImportConfig:
 
     source: SourceConfig
     out: Path
-    strict: bool = False
+    strict: bool = setting(False, "fail on the first bad scene instead of skipping it")
     progress: bool = False
     fsync: bool = False
 
@@ -64,106 +66,6 @@ class ImportConfig:
             raise SeeUError(f"unknown import source {type(self.source).__name__}; one of {', '.join(FORMATS.values())}")
 
 
-# Each planner: the source config -> (items or ImportPlan, params recorded in the manifest, number of
-# units for the progress bar, inputs named in the provenance).
-
-
-def _plan_pixelsplat(cfg: PixelSplatImportConfig) -> tuple[Any, dict, int | None, list[str]]:
-    from seeu_data.importers import pixelsplat as m
-
-    directory, chunks, missing, total = m.plan(cfg)
-    near, far = cfg.near_far()
-    params = {
-        "format": "pixelsplat",
-        "root": str(cfg.root),
-        "stage": cfg.stage,
-        "dataset": cfg.dataset,
-        "near": near,
-        "far": far,
-        "scenes": sorted(cfg.scenes) if cfg.scenes else None,
-        "verify_decode": cfg.verify_decode,
-    }
-    return m.import_plan(cfg, chunks, directory, missing), params, total, [str(directory)]
-
-
-def _plan_re10k(cfg: Re10kTextImportConfig) -> tuple[Any, dict, int | None, list[str]]:
-    from seeu_data.importers import re10k_text as m
-
-    files = m.camera_files(cfg)
-    params = {
-        "format": "re10k",
-        "cameras": str(cfg.cameras_dir),
-        "frames": str(cfg.frames_dir),
-        "dataset": cfg.dataset,
-        "near": cfg.near,
-        "far": cfg.far,
-        "allow_missing_frames": cfg.allow_missing_frames,
-        "verify_decode": cfg.verify_decode,
-    }
-    return m.import_plan(cfg, files), params, len(files), [str(cfg.cameras_dir), str(cfg.frames_dir)]
-
-
-def _plan_dtu(cfg: DtuImportConfig) -> tuple[Any, dict, int | None, list[str]]:
-    from seeu_data.importers import dtu as m
-
-    found = m.scan_list(cfg)
-    params = {
-        "format": "dtu",
-        "root": str(cfg.root),
-        "scans": found,
-        "lighting": cfg.lighting,
-        "scale": cfg.scale,
-        "near": cfg.near,
-        "far": cfg.far,
-        "verify_decode": cfg.verify_decode,
-    }
-    return m.import_plan(cfg, found), params, len(found), [str(cfg.root)]
-
-
-def _plan_colmap(cfg: ColmapImportConfig) -> tuple[Any, dict, int | None, list[str]]:
-    from seeu_data.importers import colmap as m
-
-    params = {
-        "format": "colmap",
-        "model": str(cfg.model_dir),
-        "images": str(cfg.images_dir),
-        "undistort": cfg.undistort,
-        "near": cfg.near,
-        "far": cfg.far,
-        "scene_id": cfg.scene_id,
-        "verify_decode": cfg.verify_decode,
-        "allow_outside_paths": cfg.allow_outside_paths,
-    }
-    return m.import_plan(cfg), params, 1, [str(cfg.model_dir), str(cfg.images_dir)]
-
-
-def _plan_nerfstudio(cfg: NerfstudioImportConfig) -> tuple[Any, dict, int | None, list[str]]:
-    from seeu_data.importers import nerfstudio as m
-
-    params = {
-        "format": "nerfstudio",
-        "transforms": str(cfg.transforms),
-        "undo_applied_transform": cfg.undo_applied_transform,
-        "near": cfg.near,
-        "far": cfg.far,
-        "scene_id": cfg.scene_id,
-        "verify_decode": cfg.verify_decode,
-        "undistort": cfg.undistort,
-        "skip_missing": cfg.skip_missing,
-        "allow_outside_paths": cfg.allow_outside_paths,
-    }
-    return m.import_plan(cfg), params, 1, [str(cfg.transforms)]
-
-
-_PLANNERS = {
-    "pixelsplat": _plan_pixelsplat,
-    "re10k": _plan_re10k,
-    "dtu": _plan_dtu,
-    "colmap": _plan_colmap,
-    "nerfstudio": _plan_nerfstudio,
-}
-
-
 @locks_output(lambda cfg: cfg.out)
 def import_dataset(cfg: ImportConfig):
     """Import `cfg.source` into `cfg.out`; returns the `seeu_data.importers.ImportReport` (also in the
@@ -172,17 +74,17 @@ def import_dataset(cfg: ImportConfig):
     from seeu_data.store.manifest import provenance
 
     cfg.check()
-    items, params, total, inputs = _PLANNERS[cfg.format](cfg.source)  # type: ignore[operator]
+    job = cfg.source.plan()
     report = ImportReport(format=cfg.format)
     write_import(
-        items,
+        job.items,
         cfg.out,
         report,
-        params=params,
-        provenance=provenance(f"import {cfg.format}", inputs),
+        params=job.params,
+        provenance=provenance(f"import {cfg.format}", job.inputs),
         strict=cfg.strict,
         progress=cfg.progress,
-        total=total,
+        total=job.total,
         fsync=cfg.fsync,
     )
     return report

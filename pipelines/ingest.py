@@ -4,14 +4,17 @@
 one. Per scene, stages are kept under OUT/.work/<scene>/ with a stamp of their inputs and parameters,
 so a re-run resumes (`force` redoes them): decode -> select frames -> SfM in a child process ->
 posed chunks -> OUT/<scene>/ posed-frames dataset with report.json and trajectory.png, manifest.json
-written last. `seeu ingest --help` describes every parameter; the flags map one to one onto the
-fields of `IngestConfig` (`--max-features` -> `max_features`, `--no-sfm-check` -> `sfm_check=False`).
+written last. `seeu ingest --help` describes every parameter; the flags are made from the `setting` fields of
+`IngestConfig` and its nested configs (`--max-features` -> `sfm.max_features`, `--no-sfm-check` ->
+`sfm.sfm_check=False`).
 
 Example:
     from pathlib import Path
     from pipelines.ingest import IngestConfig, ingest
+    from seeu_data.ingest.frame_select import SelectConfig
 
-    (result,) = ingest(IngestConfig(inputs=("clip.mp4",), out=Path("data/posed"), target_frames=120))
+    cfg = IngestConfig(out=Path("data/posed"), inputs=("clip.mp4",), select=SelectConfig(target_frames=120))
+    (result,) = ingest(cfg)
     print(result.report["summary"])          # also OUT/clip/report.json
 """
 
@@ -21,12 +24,16 @@ import os
 import re
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, fields, replace
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 
 from pipelines.ingest_ray import SceneResult
 from seeu_data.errors import SeeUError
+from seeu_data.ingest.chunks import ChunkConfig
+from seeu_data.ingest.frame_select import SelectConfig
+from seeu_data.ingest.sfm import SfmConfig
 from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
+from seeu_data.settings import parse_dims, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
 
@@ -34,143 +41,120 @@ from seeu_data.store.out_lock import locks_output
 DECODE_STAGE_FORMAT = 2
 SFM_STAGE_FORMAT = 6
 
-# Fields of IngestConfig that say where and how a run goes, not what it computes: not recorded in
-# the manifests' params.
-RUN_FIELDS = (
-    "inputs",
-    "out",
-    "name",
-    "engine",
-    "ray_address",
-    "workers",
-    "force",
-    "progress",
-    "heartbeat_s",
-    "fsync",
-    "strict",
-)
+
+@dataclass(frozen=True)
+class IngestRunConfig:
+    """Where and how an ingest runs, not what it computes (not recorded in the manifests' params).
+
+    engine: local (`workers` scenes at once in worker processes) or ray (one scene per Ray task on the
+    cluster at `ray_address`, None: a local instance; `pipelines/ingest_ray.py`). heartbeat_s: a status
+    line on stderr this often while no progress bars are shown (None: $SEEU_HEARTBEAT_S, else 10 s; 0:
+    off); progress: tqdm bars; force: redo every stage; fsync: fsync every file before its rename.
+    """
+
+    engine: str = setting(
+        "local",
+        "local processes or Ray: one scene per task, as many at once as the cluster's CPUs allow; the same posed files",
+        choices=("local", "ray"),
+    )
+    ray_address: str | None = setting(
+        None, "--engine ray: a running cluster (host:port, or auto); default: start a local instance"
+    )
+    workers: int = setting(1, f"local engine: scenes processed in parallel (at most {MAX_WORKERS})", metavar="N")
+    heartbeat_s: float | None = setting(
+        None,
+        "while no progress bars show (no terminal, or --no-progress), print a status line every SECONDS "
+        "(default 10, or $SEEU_HEARTBEAT_S; 0 = off)",
+        flag="--heartbeat",
+        metavar="SECONDS",
+    )
+    force: bool = False
+    progress: bool = False
+    fsync: bool = False
 
 
 @dataclass(frozen=True)
 class IngestConfig:
-    """Everything `seeu ingest` needs; `params()` (recorded in each manifest) leaves out `RUN_FIELDS`.
+    """Everything `seeu ingest` needs, in the stages' own configs: `select` (frame selection), `sfm`
+    (structure from motion), `chunks` (posed chunks and their scale), `run` (how the run goes). Each
+    field declared with `setting` is a flag of `seeu ingest` (pipelines/cli/config_flags.py); `params()`
+    (recorded in each manifest) leaves out the inputs, names and `run`.
 
     inputs: video files, image folders or folders of videos; out: OUT (one dataset per scene:
-    OUT/<scene>/); name: the scene name of a single input. engine: local (`workers` scenes at once in
-    worker processes) or ray (one scene per Ray task on the cluster at `ray_address`, None: a local
-    instance; `pipelines/ingest_ray.py`). threads: COLMAP extraction threads per scene (-1: all cores
-    / workers; 1 on Ray, where each task reserves max(threads, map_threads) CPUs); heartbeat_s: a status line on stderr this often while no progress
-    bars are shown (None: $SEEU_HEARTBEAT_S, else 10 s; 0: off); progress: tqdm bars. strict: an entry
-    of an image folder that cannot be read as an image is an error (else it is skipped and counted).
+    OUT/<scene>/); name: the scene name of a single input; max_size / size: the decoded frames' longer
+    side, and the written frames' (H, W) (cover-resize + centre crop after SfM); strict: an entry of an
+    image folder that cannot be read as an image is an error (else it is skipped and counted).
     """
 
-    inputs: tuple[str | Path, ...]
     out: Path
-    name: str | None = None
-    # decode and frame selection
-    stride: int = 1
-    target_frames: int | None = None
-    sharpness_window: int = 0
-    max_size: int | None = None
-    size: tuple[int, int] | None = None  # (H, W) of the written frames: cover-resize + centre crop after SfM
+    inputs: tuple[str | Path, ...] = setting(
+        (), "video file, folder of images, or folder of videos", positional=True, many=True, metavar="INPUT"
+    )
+    name: str | None = setting(
+        None,
+        "scene name for a single input (default: the file's or folder's name; inputs sharing a name get their "
+        "parent folder's name in front: a/images, b/images -> a-images, b-images)",
+    )
+    max_size: int | None = setting(None, "downscale so the longer side is at most N pixels (default: as decoded)")
+    size: tuple[int, int] | None = setting(
+        None,
+        "make the posed frames exactly HxW: resize to cover + centre crop after SfM (intrinsics updated), e.g. "
+        "360x640 for the peers' RE10K loaders; default: the (undistorted) frame size",
+        metavar="HxW",
+        parse=parse_dims,
+    )
+    strict: bool = setting(
+        False,
+        "refuse an image folder holding an entry with an image name that cannot be read as an image (a FIFO, "
+        "a directory, no read permission, other bytes); default: skip it and name it in the summary",
+    )
     jpeg_quality: int = 95
-    # SfM (seeu_data.ingest.sfm.SfmConfig: the same names)
-    camera_model: str = "SIMPLE_RADIAL"
-    overlap: int = 10
-    vocab_tree: str | None = None
-    mapper: str = "incremental"
-    features: str = "sift"
-    max_features: int = 8192
-    sfm_attempts: int = 3
-    sfm_check: bool = True
-    threads: int = -1
-    map_threads: int = 1
-    keyframe_motion: float = 20.0
-    final_ba_loss: str = "soft_l1"
-    final_ba_loss_scale: float = 0.5
-    # posed chunks and their scale
-    min_chunk_frames: int = 10
-    scale: str = "re10k"
-    known_distance: float | None = None
-    distance_frames: tuple[int, int] | None = None
-    # the run
-    engine: str = "local"
-    ray_address: str | None = None
-    workers: int = 1
-    force: bool = False
-    progress: bool = False
-    heartbeat_s: float | None = None
-    fsync: bool = False
-    strict: bool = False
+    select: SelectConfig = field(default_factory=SelectConfig)
+    sfm: SfmConfig = field(default_factory=SfmConfig)
+    chunks: ChunkConfig = field(default_factory=ChunkConfig)
+    run: IngestRunConfig = field(default_factory=IngestRunConfig)
 
     def check(self) -> None:
         """One-line SeeUError for a bad value, before any scene starts (e.g. ALIKED without ONNX)."""
+        run = self.run
         if not self.inputs:
             raise SeeUError("no input given")
-        check_range(self.workers, "--workers", 1, MAX_WORKERS)
+        check_range(run.workers, "--workers", 1, MAX_WORKERS)
         if self.max_size is not None:
             check_range(self.max_size, "--max-size", 1, MAX_IMAGE_SIDE)
         for side in self.size or ():
             check_range(side, "--size", 1, MAX_IMAGE_SIDE)
-        if self.engine not in ("local", "ray"):
-            raise SeeUError(f"--engine must be local or ray, got {self.engine!r}")
-        if self.engine == "ray" and self.workers != 1:
+        if run.engine not in ("local", "ray"):
+            raise SeeUError(f"--engine must be local or ray, got {run.engine!r}")
+        if run.engine == "ray" and run.workers != 1:
             raise SeeUError("--workers is for the local engine; on Ray each scene is a task that takes --threads CPUs")
-        if self.engine == "local" and self.ray_address is not None:
+        if run.engine == "local" and run.ray_address is not None:
             raise SeeUError("--ray-address needs --engine ray")
-        if self.engine == "ray":
+        if run.engine == "ray":
             from pipelines.ingest_ray import task_cpus
 
-            task_cpus(1 if self.threads == -1 else self.threads, self.map_threads)  # positive, before Ray starts
+            task_cpus(1 if self.sfm.threads == -1 else self.sfm.threads, self.sfm.map_threads)  # before Ray starts
         if self.name is not None and not re.fullmatch(r"[A-Za-z0-9_-][A-Za-z0-9_.-]*", self.name):
             raise SeeUError(f"--name must be letters, digits, '_', '-', '.' (not first), got {self.name!r}")
         if not 1 <= self.jpeg_quality <= 100:
             raise SeeUError(f"JPEG quality must be in 1..100, got {self.jpeg_quality}")
-        if self.threads == 0 or self.threads < -1:
-            raise SeeUError(f"--threads must be >= 1 or -1 (all cores / workers), got {self.threads}")
-        if self.heartbeat_s is not None and not self.heartbeat_s >= 0:
-            raise SeeUError(f"--heartbeat must be >= 0 seconds, got {self.heartbeat_s}")
-        self.select_config().check()
-        self.chunk_config().check()
-        self.sfm_config().check()
+        if self.sfm.threads == 0 or self.sfm.threads < -1:
+            raise SeeUError(f"--threads must be >= 1 or -1 (all cores / workers), got {self.sfm.threads}")
+        if run.heartbeat_s is not None and not run.heartbeat_s >= 0:
+            raise SeeUError(f"--heartbeat must be >= 0 seconds, got {run.heartbeat_s}")
+        self.select.check()
+        self.chunks.check()
+        self.sfm.check()
 
     def params(self) -> dict:
         """The processing parameters (recorded in each manifest's params)."""
-        return {f.name: getattr(self, f.name) for f in fields(self) if f.name not in RUN_FIELDS}
+        skip = ("inputs", "out", "name", "strict", "run")
+        return {k: v for k, v in asdict(self).items() if k not in skip}
 
-    def select_config(self):
-        from seeu_data.ingest.frame_select import SelectConfig
-
-        return SelectConfig(self.stride, self.sharpness_window, self.target_frames)
-
-    def chunk_config(self):
-        from seeu_data.ingest.chunks import ChunkConfig
-        from seeu_data.ingest.scale import ScaleConfig
-
-        return ChunkConfig(
-            min_chunk_frames=self.min_chunk_frames,
-            scale=ScaleConfig(self.scale, self.known_distance, self.distance_frames),
-        )
-
-    def sfm_config(self):
-        from seeu_data.ingest.sfm import SfmConfig
-
-        return SfmConfig(
-            camera_model=self.camera_model,
-            overlap=self.overlap,
-            vocab_tree=None if self.vocab_tree is None else str(Path(self.vocab_tree).resolve()),
-            min_model_size=max(3, min(self.min_chunk_frames, 10)),
-            max_features=self.max_features,
-            threads=self.threads,
-            sfm_attempts=self.sfm_attempts,
-            mapper=self.mapper,
-            features=self.features,
-            sfm_check=self.sfm_check,
-            map_threads=self.map_threads,
-            keyframe_motion=self.keyframe_motion,
-            final_ba_loss=self.final_ba_loss,
-            final_ba_loss_scale=self.final_ba_loss_scale,
-        )
+    def stage_sfm(self) -> SfmConfig:
+        """The SfM stage's config: the vocabulary tree's path resolved, models kept from the chunk length."""
+        vocab = None if self.sfm.vocab_tree is None else str(Path(self.sfm.vocab_tree).resolve())
+        return replace(self.sfm, vocab_tree=vocab, min_model_size=max(3, min(self.chunks.min_chunk_frames, 10)))
 
 
 def _encode_jpeg(rgb, quality: int) -> bytes:
@@ -192,11 +176,11 @@ def _decode_stage(source, cfg: IngestConfig, prog):
         frames_dir = d / "frames"
         frames_dir.mkdir()
         in_source = probe_video(source.path).frame_count if source.kind == "video" else len(source.image_files)
-        total = -(-in_source // cfg.stride)
+        total = -(-in_source // cfg.select.stride)
         frames: list[dict] = []
         size: tuple[int, int] | None = None
         prog.stage("decode", total)
-        for fr in iter_frames(source, cfg.stride):
+        for fr in iter_frames(source, cfg.select.stride):
             prog.advance()
             rgb = resize_max_side(fr.rgb, cfg.max_size)
             if size is None:
@@ -210,7 +194,7 @@ def _decode_stage(source, cfg: IngestConfig, prog):
                 )
             name = f"{fr.source_frame:06d}.jpg"
             # OS errors name the file
-            atomic_write_bytes(frames_dir / name, _encode_jpeg(rgb, cfg.jpeg_quality), cfg.fsync)
+            atomic_write_bytes(frames_dir / name, _encode_jpeg(rgb, cfg.jpeg_quality), cfg.run.fsync)
             frames.append(
                 {
                     "name": name,
@@ -304,25 +288,25 @@ def check_scene_owner(out_dir: Path, identity: dict, force: bool) -> None:
 
 def heartbeat_seconds(cfg: IngestConfig) -> float:
     """Seconds between status lines: none while progress bars show; else `heartbeat_s`, $SEEU_HEARTBEAT_S or 10."""
-    if cfg.progress:
+    if cfg.run.progress:
         return 0.0
-    return cfg.heartbeat_s if cfg.heartbeat_s is not None else float(os.environ.get("SEEU_HEARTBEAT_S", "10"))
+    return cfg.run.heartbeat_s if cfg.run.heartbeat_s is not None else float(os.environ.get("SEEU_HEARTBEAT_S", "10"))
 
 
 def ingest_scene(source, cfg: IngestConfig) -> dict:
     """Run every stage for one scene (`source`: a `seeu_data.ingest.video.SceneSource`) into cfg.out/<name>/;
     returns its report (also written to OUT/<scene>/report.json, with `summary`: the one-line result).
 
-    Raises SeeUError for bad input, and when OUT/<scene> holds another input's scene and not `cfg.force`.
+    Raises SeeUError for bad input, and when OUT/<scene> holds another input's scene and not `cfg.run.force`.
     """
     from seeu_data.progress import StageProgress
 
     out_dir = Path(cfg.out) / source.name
     identity = input_identity(source)
-    check_scene_owner(out_dir, identity, cfg.force)
+    check_scene_owner(out_dir, identity, cfg.run.force)
     label = f"seeu ingest: {source.name}"
-    with StageProgress(label, bar=cfg.progress, heartbeat_s=heartbeat_seconds(cfg)) as prog:
-        return _ingest_scene(source, Path(cfg.out), cfg, cfg.force, prog, identity)
+    with StageProgress(label, bar=cfg.run.progress, heartbeat_s=heartbeat_seconds(cfg)) as prog:
+        return _ingest_scene(source, Path(cfg.out), cfg, cfg.run.force, prog, identity)
 
 
 def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
@@ -349,16 +333,16 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     t_start = time.perf_counter()
     out_dir = out_root / source.name
     (out_dir / MANIFEST_NAME).unlink(missing_ok=True)  # being redone: must not look complete meanwhile
-    select_cfg = cfg.select_config()
-    chunk_cfg = cfg.chunk_config()
-    sfm_cfg = cfg.sfm_config()
-    cache = StageCache(out_root / ".work" / source.name, force=force, fsync=cfg.fsync)
+    select_cfg = cfg.select
+    chunk_cfg = cfg.chunks
+    sfm_cfg = cfg.stage_sfm()
+    cache = StageCache(out_root / ".work" / source.name, force=force, fsync=cfg.run.fsync)
 
     decode_key = {
         "input": identity["path"],
         "fingerprint": identity["fingerprint"],
         "kind": source.kind,
-        "stride": cfg.stride,
+        "stride": cfg.select.stride,
         "max_size": cfg.max_size,
         "jpeg_quality": cfg.jpeg_quality,
         "format": DECODE_STAGE_FORMAT,
@@ -373,7 +357,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     )
     frames = [frames_all[i] for i in keep]
     cache.timings["select"] = time.perf_counter() - t0
-    need = max(3, cfg.min_chunk_frames)
+    need = max(3, cfg.chunks.min_chunk_frames)
     if len(frames) < need:
         raise SeeUError(
             f"only {len(frames)} usable frame(s) after selection; SfM and --min-chunk-frames need at least {need}",
@@ -397,13 +381,13 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         sfm_result,
         cache.stage_dir("sfm"),
         chunk_cfg,
-        distance_frame_names(frames, cfg.distance_frames, source.path),
+        distance_frame_names(frames, cfg.chunks.scale.distance_frames, source.path),
     )
     registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
     if not chunks:
         raise SeeUError(
             f"SfM registered {registered}/{len(frames)} frames but no contiguous run reaches "
-            f"--min-chunk-frames {cfg.min_chunk_frames}",
+            f"--min-chunk-frames {cfg.chunks.min_chunk_frames}",
             source.path,
         )
     cache.timings["chunks"] = time.perf_counter() - t0
@@ -482,7 +466,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
 
     sweep(out_dir, POSED_FILES, keep=())  # an earlier run's files: this run writes its own
     sweep(out_dir / POINTS_DIR, "*.ply", keep=())
-    with PosedDatasetWriter(out_dir, params=params, provenance=prov, fsync=cfg.fsync) as writer:
+    with PosedDatasetWriter(out_dir, params=params, provenance=prov, fsync=cfg.run.fsync) as writer:
         for c in chunks:
             imgs = []
             for path in c.image_paths:
@@ -508,7 +492,12 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
                     **c.meta,
                     "source": str(source.path),
                     **write_chunk_points(
-                        cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir, c.scene_id, cfg.fsync
+                        cache.stage_dir("sfm"),
+                        c.model_index,
+                        c.meta["sfm_to_chunk"],
+                        out_dir,
+                        c.scene_id,
+                        cfg.run.fsync,
                     ),
                 },
             )
@@ -529,12 +518,12 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         writer.report["dropped_frames"] = len(dropped)
         writer.report["skipped_files"] = len(source.skipped)
         writer.report["warnings"] = report["warnings"]
-        write_report(out_dir / "report.json", report, cfg.fsync)
+        write_report(out_dir / "report.json", report, cfg.run.fsync)
         plot_trajectory(
             out_dir / "trajectory.png",
             chunks,
             f"{source.name}: {registered}/{len(frames)} registered, {len(chunks)} chunk(s)",
-            cfg.fsync,
+            cfg.run.fsync,
         )
     report["summary"] = summary_line(report)
     return report
@@ -554,7 +543,7 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
     """Ingest every scene of `cfg.inputs` into `cfg.out`; one SceneResult per scene, in input order.
 
     A single input's error raises SeeUError (on the local engine). With several inputs, or on Ray, each
-    scene's error is kept in its result (`error`) and the others go on; `cfg.workers` scenes run at once
+    scene's error is kept in its result (`error`) and the others go on; `cfg.run.workers` scenes run at once
     in worker processes, or every scene is a Ray task. `on_result(result)` is called as each scene
     finishes (to print it).
     """
@@ -572,14 +561,20 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
         if len(sources) != 1:
             raise SeeUError(f"--name names one scene, but the inputs hold {len(sources)}")
         sources = [replace(sources[0], name=cfg.name)]
-    workers = min(cfg.workers, len(sources))
-    if cfg.threads == -1:  # the cores shared by the scenes running at once (on Ray: each task's own)
-        cfg = replace(cfg, threads=1 if cfg.engine == "ray" else max(1, (os.cpu_count() or 1) // workers))
-    if cfg.engine == "ray":
+    workers = min(cfg.run.workers, len(sources))
+    if cfg.sfm.threads == -1:  # the cores shared by the scenes running at once (on Ray: each task's own)
+        threads = 1 if cfg.run.engine == "ray" else max(1, (os.cpu_count() or 1) // workers)
+        cfg = replace(cfg, sfm=replace(cfg.sfm, threads=threads))
+    if cfg.run.engine == "ray":
         from pipelines.ingest_ray import ingest_on_ray
 
         return ingest_on_ray(
-            sources, cfg, scene_fn=ingest_scene, address=cfg.ray_address, on_result=on_result, progress=cfg.progress
+            sources,
+            cfg,
+            scene_fn=ingest_scene,
+            address=cfg.run.ray_address,
+            on_result=on_result,
+            progress=cfg.run.progress,
         )
     Path(cfg.out).mkdir(parents=True, exist_ok=True)
     report = on_result or (lambda result: None)
@@ -593,13 +588,13 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
             report(results[-1])
     else:
         # no bars from the workers (they would interleave): the scenes' bar here, or their heartbeats
-        quiet = replace(cfg, progress=False, heartbeat_s=heartbeat_seconds(cfg))
+        quiet = replace(cfg, run=replace(cfg.run, progress=False, heartbeat_s=heartbeat_seconds(cfg)))
         ctx = multiprocessing.get_context("spawn")
         # workers end their SfM child on SIGTERM (`end_pool` sends it) before they go
         with ProcessPoolExecutor(workers, mp_context=ctx, initializer=raise_on_sigterm) as pool:
             try:
                 futures = pool.map(_scene_worker, [(s, quiet) for s in sources])
-                for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.progress):
+                for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.run.progress):
                     results.append(result)
                     report(result)
             except BaseException:  # Ctrl-C, SIGTERM, an error: no worker outlives the ingest

@@ -3,7 +3,7 @@
     results = ingest_on_ray(sources, cfg, scene_fn=ingest_scene, address="auto")
 
 `pipelines.ingest.ingest` calls it for `IngestConfig(engine="ray")`. Each task runs
-`scene_fn(source, cfg)` (pipelines/ingest.py `ingest_scene`, into cfg.out) and reserves `max(cfg.threads, cfg.map_threads)` CPUs, the COLMAP threads it will use. A re-run
+`scene_fn(source, cfg)` (pipelines/ingest.py `ingest_scene`, into cfg.out) and reserves `max(cfg.sfm.threads, cfg.sfm.map_threads)` CPUs, the COLMAP threads it will use. A re-run
 resumes the way the local engine does: every scene keeps its stages under OUT/.work/<scene>/ with a
 stamp of their inputs (`seeu_data.store.resume.StageCache`), so a completed scene reuses decode and SfM
 and only rewrites its posed files (the same bytes), while a failed or interrupted one redoes what
@@ -85,14 +85,14 @@ def ingest_on_ray(
 ) -> list[SceneResult]:
     """Ingest every source (`seeu_data.ingest.video.SceneSource`) as one Ray task; results in `sources` order.
 
-    `cfg`: the `IngestConfig` every scene uses (`out`, `force`; its `threads` and `map_threads` set the
+    `cfg`: the `IngestConfig` every scene uses (`out`, `force`; its `sfm.threads` and `sfm.map_threads` set the
     CPUs per task).
     `scene_fn`: the local engine's `ingest_scene`. `address`: a running cluster ('host:port', 'auto');
     None starts a local instance (or uses the one this process already has). The connection is made
     before OUT is created. `on_result` is called with each scene's result as its task finishes.
     Raises SeeUError when Ray cannot be reached.
     """
-    cpus = task_cpus(cfg.threads, cfg.map_threads)  # a bad value: one line before Ray starts
+    cpus = task_cpus(cfg.sfm.threads, cfg.sfm.map_threads)  # a bad value: one line before Ray starts
     import ray
     from tqdm import tqdm
 

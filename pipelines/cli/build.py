@@ -33,11 +33,10 @@ from pipelines.cli.options import (
     add_progress,
     add_workers,
     max_pixels,
-    parse_bytes,
-    parse_dims,
     progress_wanted,
 )
 from seeu_data.errors import SeeUError
+from seeu_data.settings import parse_bytes, parse_dims
 
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:

@@ -31,7 +31,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipelines.cli.options import add_force, add_out, add_progress, parse_dims, progress_wanted
+from pipelines.cli.options import add_force, add_out, add_progress, progress_wanted
+from seeu_data.settings import parse_dims
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

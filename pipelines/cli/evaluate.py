@@ -25,7 +25,8 @@ import argparse
 import json
 from pathlib import Path
 
-from pipelines.cli.options import add_max_pixels, add_progress, max_pixels, parse_dims, progress_wanted
+from pipelines.cli.options import add_max_pixels, add_progress, max_pixels, progress_wanted
+from seeu_data.settings import parse_dims
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

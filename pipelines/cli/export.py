@@ -18,16 +18,9 @@ import math
 import sys
 from pathlib import Path
 
-from pipelines.cli.options import (
-    add_max_pixels,
-    add_out,
-    add_progress,
-    max_pixels,
-    parse_dims,
-    parse_scene_list,
-    progress_wanted,
-)
+from pipelines.cli.options import add_max_pixels, add_out, add_progress, max_pixels, progress_wanted
 from seeu_data.limits import MAX_CHUNK_BYTES
+from seeu_data.settings import parse_dims, parse_scene_list
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

@@ -33,220 +33,32 @@ skipped and counted; colmap and nerfstudio take --allow-outside-paths where that
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pipelines.cli.options import (
-    add_fsync,
-    add_max_pixels,
-    add_out,
-    add_progress,
-    max_pixels,
-    parse_scene_list,
-    progress_wanted,
-)
-from seeu_data.errors import SeeUError
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_fsync, add_out, add_progress, progress_wanted
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from pipelines.import_data import IMPORTERS, ImportConfig
+
     common = argparse.ArgumentParser(add_help=False)
     add_out(common, "output posed-frames directory")
-    common.add_argument(
-        "--verify-decode", action="store_true", help="fully decode every image (slow); default: header + trailer check"
-    )
-    common.add_argument("--strict", action="store_true", help="fail on the first bad scene instead of skipping it")
+    add_config_flags(common, ImportConfig)
     add_progress(common)
     add_fsync(common)
-    add_max_pixels(common)
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
-
-    f = sub.add_parser("pixelsplat", parents=[common], help="RE10K / ACID / DTU pixelSplat chunks")
-    f.add_argument("root", type=Path, help="dataset dir holding train/ and test/ (or a stage dir)")
-    f.add_argument("--stage", choices=["train", "test"], default="train")
-    f.add_argument("--scenes", help="keep only these scene keys: a,b,c or @file.txt")
-    f.add_argument(
-        "--dataset",
-        choices=["re10k", "acid", "dtu"],
-        default="re10k",
-        help="near/far preset (re10k/acid 1/100, dtu 2.125/4.525) and the name kept in the meta",
-    )
-    f.add_argument("--near", type=float)
-    f.add_argument("--far", type=float)
-    f.set_defaults(source_config=pixelsplat_source)
-
-    f = sub.add_parser("re10k", parents=[common], help="raw RealEstate10K / ACID text files + frames")
-    f.add_argument("--cameras", type=Path, required=True, help="directory of <scene>.txt camera files")
-    f.add_argument(
-        "--frames",
-        type=Path,
-        required=True,
-        help="directory of <scene>/<timestamp_us>.{png,jpg} frames (as the download scripts leave them)",
-    )
-    f.add_argument("--scenes", help="keep only these scenes: a,b,c or @file.txt")
-    f.add_argument("--dataset", choices=["re10k", "acid"], default="re10k")
-    f.add_argument("--near", type=float, default=1.0)
-    f.add_argument("--far", type=float, default=100.0)
-    f.add_argument(
-        "--allow-missing-frames",
-        action="store_true",
-        help="drop frames whose image is missing instead of skipping the scene",
-    )
-    f.set_defaults(source_config=re10k_source)
-
-    f = sub.add_parser("dtu", parents=[common], help="DTU in the MVSNet layout")
-    f.add_argument("root", type=Path, help="directory holding Cameras/ and Rectified/")
-    f.add_argument("--scans", help="scan numbers, e.g. 1,8,21 (default: every Rectified/scanN_train)")
-    f.add_argument("--lighting", type=int, default=3, help="lighting index of the rectified images (default 3)")
-    f.add_argument("--scale", type=float, default=1 / 200, help="translation scale (default 1/200, as MVSplat)")
-    f.add_argument("--near", type=float, default=2.125)
-    f.add_argument("--far", type=float, default=4.525)
-    f.set_defaults(source_config=dtu_source)
-
-    f = sub.add_parser("colmap", parents=[common], help="a COLMAP model and its images")
-    f.add_argument("model", type=Path, help="model directory (cameras/images/points3D .bin or .txt)")
-    f.add_argument("--images", type=Path, required=True, help="image directory the model's names are relative to")
-    f.add_argument("--scene-id", help="scene id (default: derived from the model path)")
-    f.add_argument(
-        "--no-undistort",
-        action="store_true",
-        help="refuse distorted camera models instead of undistorting with pycolmap",
-    )
-    f.add_argument(
-        "--allow-outside-paths",
-        action="store_true",
-        help="read image names that lead outside --images (../x.jpg, absolute, links); "
-        "default: such images are dropped and counted",
-    )
-    f.add_argument("--near", type=float, help="near plane (default: from the 3D points' depths)")
-    f.add_argument("--far", type=float, help="far plane (default: from the 3D points' depths)")
-    f.set_defaults(source_config=colmap_source)
-
-    f = sub.add_parser("nerfstudio", parents=[common], help="a nerfstudio / NeRF transforms.json")
-    f.add_argument("transforms", type=Path, help="transforms.json")
-    f.add_argument("--scene-id", help="scene id (default: the folder name)")
-    f.add_argument(
-        "--keep-applied-transform",
-        action="store_true",
-        help="keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)",
-    )
-    f.add_argument(
-        "--skip-missing",
-        action="store_true",
-        help="drop frames whose image is missing (counted in the report) instead of skipping the scene",
-    )
-    f.add_argument(
-        "--no-undistort",
-        action="store_true",
-        help="refuse frames with lens distortion (k1, k2, k3, k4, p1, p2) instead of undistorting them",
-    )
-    f.add_argument(
-        "--allow-outside-paths",
-        action="store_true",
-        help="read file_paths that lead outside the JSON's folder (../x.png, absolute, links); "
-        "default: such frames are dropped and counted",
-    )
-    f.add_argument("--near", type=float, help="near plane (default: from a seeu export, else 0.1)")
-    f.add_argument("--far", type=float, help="far plane (default: from a seeu export, else 100)")
-    f.set_defaults(source_config=nerfstudio_source)
-
-
-def pixelsplat_source(args: argparse.Namespace):
-    from seeu_data.importers.pixelsplat import PixelSplatImportConfig
-
-    return PixelSplatImportConfig(
-        root=args.root,
-        stage=args.stage,
-        scenes=parse_scene_list(args.scenes),
-        dataset=args.dataset,
-        near=args.near,
-        far=args.far,
-        verify_decode=args.verify_decode,
-        max_pixels=max_pixels(args),
-    )
-
-
-def re10k_source(args: argparse.Namespace):
-    from seeu_data.importers.re10k_text import Re10kTextImportConfig
-
-    return Re10kTextImportConfig(
-        cameras_dir=args.cameras,
-        frames_dir=args.frames,
-        scenes=parse_scene_list(args.scenes),
-        dataset=args.dataset,
-        near=args.near,
-        far=args.far,
-        allow_missing_frames=args.allow_missing_frames,
-        verify_decode=args.verify_decode,
-        max_pixels=max_pixels(args),
-    )
-
-
-def parse_scans(text: str | None) -> list[int] | None:
-    """`--scans 1,8,21` (or scan1,scan8) -> [1, 8, 21]; None: every scan."""
-    if text is None:
-        return None
-    try:
-        return [int(s) for s in text.replace("scan", "").split(",") if s.strip()]
-    except ValueError:
-        raise SeeUError(f"--scans {text!r} is not a list of scan numbers (e.g. 1,8,21)") from None
-
-
-def dtu_source(args: argparse.Namespace):
-    from seeu_data.importers.dtu import DtuImportConfig
-
-    return DtuImportConfig(
-        root=args.root,
-        scans=parse_scans(args.scans),
-        lighting=args.lighting,
-        scale=args.scale,
-        near=args.near,
-        far=args.far,
-        verify_decode=args.verify_decode,
-        max_pixels=max_pixels(args),
-    )
-
-
-def colmap_source(args: argparse.Namespace):
-    from seeu_data.importers.colmap import ColmapImportConfig
-
-    return ColmapImportConfig(
-        model_dir=args.model,
-        images_dir=args.images,
-        scene_id=args.scene_id,
-        undistort=not args.no_undistort,
-        near=args.near,
-        far=args.far,
-        verify_decode=args.verify_decode,
-        max_pixels=max_pixels(args),
-        allow_outside_paths=args.allow_outside_paths,
-    )
-
-
-def nerfstudio_source(args: argparse.Namespace):
-    from seeu_data.importers.nerfstudio import NerfstudioImportConfig
-
-    return NerfstudioImportConfig(
-        transforms=args.transforms,
-        scene_id=args.scene_id,
-        undo_applied_transform=not args.keep_applied_transform,
-        near=args.near,
-        far=args.far,
-        verify_decode=args.verify_decode,
-        max_pixels=max_pixels(args),
-        undistort=not args.no_undistort,
-        skip_missing=args.skip_missing,
-        allow_outside_paths=args.allow_outside_paths,
-    )
+    for name, (source_cls, help_text) in IMPORTERS.items():
+        f = sub.add_parser(name, parents=[common], help=help_text)
+        add_config_flags(f, source_cls)
+        f.set_defaults(source_cls=source_cls)
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.import_data import ImportConfig, import_dataset
 
-    cfg = ImportConfig(
-        source=args.source_config(args),
-        out=args.out,
-        strict=args.strict,
-        progress=progress_wanted(args),
-        fsync=args.fsync,
+    source = config_from_args(args.source_cls, args)
+    cfg = config_from_args(
+        ImportConfig, args, source=source, out=args.out, progress=progress_wanted(args), fsync=args.fsync
     )
     report = import_dataset(cfg)
     print(report.summary_line(args.out))

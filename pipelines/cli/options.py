@@ -6,24 +6,18 @@ resuming), `--progress` / `--no-progress` (progress bars even when stderr is not
 default: bars on a terminal), `--fsync` (fsync every output file before its rename), `--workers N`
 (worker processes, 1..MAX_WORKERS), `--max-pixels N` (largest image a command reads, `limits.MAX_PIXELS`).
 
-Value parsers (`parse_*`) raise SeeUError naming the flag, so a bad value is one line and exit 2
-wherever it is parsed. Flags take these values as strings; the command's `run` parses them while it
-builds the stage's config.
+The value parsers (`parse_dims`, `parse_bytes`, ...) are in seeu_data/settings.py, beside `setting`,
+the declaration flags are generated from (pipelines/cli/config_flags.py).
 """
 
 from __future__ import annotations
 
 import argparse
-import re
 import sys
 from pathlib import Path
 from typing import Any, Protocol
 
-from seeu_data.errors import SeeUError
-from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
-
-_BYTE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "kib": 1 << 10, "mib": 1 << 20, "gib": 1 << 30}
-
+from seeu_data.limits import MAX_WORKERS
 
 # ------------------------------------------------------------------------------------------------
 # Shared flags
@@ -85,20 +79,12 @@ def add_max_pixels(p: Flags) -> None:
 
 
 def max_pixels(args: argparse.Namespace) -> int:
-    """The `--max-pixels` value (`limits.MAX_PIXELS` when not given); SeeUError unless an integer in
-    1..MAX_PIXELS_CEILING."""
-    from seeu_data.limits import MAX_PIXELS, MAX_PIXELS_CEILING, check_range
+    """The `--max-pixels` value (`limits.MAX_PIXELS` when not given), parsed by `settings.parse_pixels`."""
+    from seeu_data.limits import MAX_PIXELS
+    from seeu_data.settings import parse_pixels
 
     text = getattr(args, "max_pixels", None)
-    if text is None:
-        return MAX_PIXELS
-    try:
-        value = int(float(text)) if re.fullmatch(r"\s*[0-9.eE+]+\s*", str(text)) else 0
-    except ValueError:
-        value = 0
-    if value <= 0:
-        raise SeeUError(f"--max-pixels {text!r} is not a positive number of pixels (e.g. 64000000, 1e8)")
-    return check_range(value, "--max-pixels", 1, MAX_PIXELS_CEILING)
+    return MAX_PIXELS if text is None else parse_pixels(text, "--max-pixels")
 
 
 def add_workers(p: Flags, what: str, default: int | None) -> None:
@@ -107,49 +93,3 @@ def add_workers(p: Flags, what: str, default: int | None) -> None:
     p.add_argument(
         "--workers", type=int, default=default, metavar="N", help=f"worker processes (at most {MAX_WORKERS}): {what}"
     )
-
-
-# ------------------------------------------------------------------------------------------------
-# Value parsers
-# ------------------------------------------------------------------------------------------------
-
-
-def parse_dims(text: str, flag: str, minimum: int = 1, maximum: int = MAX_IMAGE_SIDE) -> tuple[int, int]:
-    """'256x384' -> (256, 384), '256' -> (256, 256): two sizes in the order written (the one size
-    parser), each in minimum..maximum (`check_range`; image sides: at most `MAX_IMAGE_SIDE`). Image
-    sizes are written HxW (`--image-size`, `--resize`, `--size` of ingest/export); a video's frame size
-    WIDTHxHEIGHT, as video sizes are (`seeu synth --size 640x360`, at most `MAX_VIDEO_SIDE`)."""
-    m = re.fullmatch(r"\s*(\d{1,18})\s*(?:[xX,]\s*(\d{1,18}))?\s*", str(text))
-    if not m:
-        raise SeeUError(f"{flag} {text!r} is not two sizes AxB (e.g. 256x256)")
-    a, b = int(m.group(1)), int(m.group(2) or m.group(1))
-    return check_range(a, flag, minimum, maximum), check_range(b, flag, minimum, maximum)
-
-
-def parse_bytes(text: str, flag: str) -> int:
-    """'128MB', '64MiB', '1e6' -> bytes (positive)."""
-    m = re.fullmatch(r"\s*([0-9.eE+]+)\s*([a-zA-Z]*)\s*", str(text))
-    try:
-        value = int(float(m.group(1)) * _BYTE_UNITS[m.group(2).lower()]) if m else 0
-    except (KeyError, ValueError, OverflowError):
-        value = 0
-    if value <= 0:
-        raise SeeUError(f"{flag} {text!r} is not a positive size (e.g. 128MB, 64MiB)")
-    return value
-
-
-def parse_scene_list(text: str | None, flag: str = "--scenes") -> frozenset[str] | None:
-    """`a,b,c` or `@file` (one id per line) -> set of scene ids (None: all)."""
-    if text is None:
-        return None
-    if text.startswith("@"):
-        path = Path(text[1:])
-        if not path.exists():
-            raise SeeUError(f"{flag}: scene list file not found", path)
-        items = [line.strip() for line in path.read_text().splitlines()]
-    else:
-        items = [s.strip() for s in text.split(",")]
-    items = [s for s in items if s]
-    if not items:
-        raise SeeUError(f"{flag}: empty scene list {text!r}")
-    return frozenset(items)

@@ -26,7 +26,8 @@ from __future__ import annotations
 import argparse
 import json
 
-from pipelines.cli.options import add_out, parse_dims
+from pipelines.cli.options import add_out
+from seeu_data.settings import parse_dims
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

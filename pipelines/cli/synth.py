@@ -15,8 +15,9 @@ from __future__ import annotations
 
 import argparse
 
-from pipelines.cli.options import add_out, add_progress, parse_dims, progress_wanted
+from pipelines.cli.options import add_out, add_progress, progress_wanted
 from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE
+from seeu_data.settings import parse_dims
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

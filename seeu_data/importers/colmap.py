@@ -31,8 +31,9 @@ import numpy as np
 
 from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, intrinsics_norm_from_pixels
 from seeu_data.errors import SeeUError
-from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, probe_images, recorded_params
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.settings import setting
 from seeu_data.store.paths import contained_path
 from seeu_data.store.posed import PosedScene
 from seeu_data.undistort import PinholeCamera, undistort_files
@@ -58,16 +59,24 @@ UNDISTORTABLE_MODELS = {
 
 
 @dataclass
-class ColmapImportConfig:
-    model_dir: Path
-    images_dir: Path
-    scene_id: str | None = None
-    undistort: bool = True
-    near: float | None = None
-    far: float | None = None
-    verify_decode: bool = False
-    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
-    allow_outside_paths: bool = False  # image names may lead outside images_dir (`../x.jpg`, absolute, links)
+class ColmapImportConfig(ReadSettings):
+    model_dir: Path = setting(
+        help="model directory (cameras/images/points3D .bin or .txt)", positional=True, metavar="model"
+    )
+    images_dir: Path = setting(help="image directory the model's names are relative to", flag="--images")
+    scene_id: str | None = setting(None, "scene id (default: derived from the model path)")
+    undistort: bool = setting(True, "refuse distorted camera models instead of undistorting with pycolmap")
+    near: float | None = setting(None, "near plane (default: from the 3D points' depths)")
+    far: float | None = setting(None, "far plane (default: from the 3D points' depths)")
+    allow_outside_paths: bool = setting(
+        False,
+        "read image names that lead outside --images (../x.jpg, absolute, links); default: such images are "
+        "dropped and counted",
+    )
+
+    def plan(self) -> ImportJob:
+        params = recorded_params(self, "colmap")
+        return ImportJob(import_plan(self), params, 1, [str(self.model_dir), str(self.images_dir)])
 
 
 def default_scene_id(model_dir: Path) -> str:

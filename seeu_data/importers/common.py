@@ -5,7 +5,7 @@ from __future__ import annotations
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from contextlib import suppress
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, fields
 from itertools import takewhile
 from pathlib import Path
 
@@ -14,6 +14,7 @@ import numpy as np
 from seeu_data.errors import SeeUError
 from seeu_data.importers.prefetch import prefetch
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.settings import parse_pixels, setting
 from seeu_data.store.arrow_io import BytesLike
 from seeu_data.store.dataset_check import check_image
 from seeu_data.store.image_header import decode_check
@@ -23,6 +24,36 @@ from seeu_data.store.resume import Journal, file_intact, stamp_of, sweep
 
 RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
 _UNIT_END = object()
+
+
+@dataclass(kw_only=True)
+class ReadSettings:
+    """How every importer reads images: the base of each format's config (`--verify-decode`, `--max-pixels`)."""
+
+    verify_decode: bool = setting(False, "fully decode every image (slow); default: header + trailer check")
+    max_pixels: int = setting(
+        MAX_PIXELS,
+        "refuse images whose header declares more than N pixels (width x height): a tiny file declaring "
+        "60000x60000 would make later stages allocate gigabytes",
+        parse=parse_pixels,
+        metavar="N",
+    )
+
+
+def recorded_params(cfg: ReadSettings, format: str, **resolved) -> dict:
+    """The manifest's params of an import: the format, every field of the format's config but
+    `max_pixels` (paths as text, sets sorted), then the `resolved` values (near/far from a preset,
+    the scans found) in place of the fields they resolve."""
+
+    def plain(v):
+        if isinstance(v, Path):
+            return str(v)
+        if isinstance(v, (set, frozenset)):
+            return sorted(v)
+        return list(v) if isinstance(v, tuple) else v
+
+    params = {f.name: plain(getattr(cfg, f.name)) for f in fields(cfg) if f.name != "max_pixels"}
+    return {"format": format, **params, **resolved}
 
 
 @dataclass(frozen=True)
@@ -117,6 +148,18 @@ class ImportUnit:
     key: str | None
     fingerprint: str
     read: Callable[[], Iterable[PosedScene | SkippedScene]]
+
+
+@dataclass(frozen=True)
+class ImportJob:
+    """One import, as its format's `plan()` prepares it for `write_import`: `items` (scenes and skips,
+    or an `ImportPlan` that can resume), `params` recorded in the manifest (`recorded_params`), `total`
+    units for the progress bar (None: unknown), `inputs` named in the provenance."""
+
+    items: Iterable[PosedScene | SkippedScene] | ImportPlan
+    params: dict
+    total: int | None
+    inputs: list[str]
 
 
 @dataclass

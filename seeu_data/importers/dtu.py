@@ -31,8 +31,8 @@ import numpy as np
 
 from seeu_data.cameras import cam_to_world_from_world_to_cam
 from seeu_data.errors import SeeUError
-from seeu_data.importers.common import SkippedScene, probe_images
-from seeu_data.limits import MAX_PIXELS
+from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, probe_images, recorded_params
+from seeu_data.settings import parse_int_list, setting
 from seeu_data.store.posed import PosedScene
 
 CAM_FILE_SIZE = (160, 128)  # width, height the Cameras/train K is given for
@@ -40,15 +40,20 @@ DEPTH_PLANES = 192
 
 
 @dataclass
-class DtuImportConfig:
-    root: Path
-    scans: list[int] | None = None
-    lighting: int = 3
-    scale: float = 1 / 200
-    near: float = 2.125
-    far: float = 4.525
-    verify_decode: bool = False
-    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
+class DtuImportConfig(ReadSettings):
+    root: Path = setting(help="directory holding Cameras/ and Rectified/", positional=True)
+    scans: tuple[int, ...] | None = setting(
+        None, "scan numbers, e.g. 1,8,21 (default: every Rectified/scanN_train)", parse=parse_int_list
+    )
+    lighting: int = setting(3, "lighting index of the rectified images")
+    scale: float = setting(1 / 200, "translation scale (default 1/200, as MVSplat)")
+    near: float = setting(2.125, "near plane")
+    far: float = setting(4.525, "far plane")
+
+    def plan(self) -> ImportJob:
+        found = scan_list(self)
+        params = recorded_params(self, "dtu", scans=found)
+        return ImportJob(import_plan(self, found), params, len(found), [str(self.root)])
 
 
 @dataclass

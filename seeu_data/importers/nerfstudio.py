@@ -39,8 +39,9 @@ import numpy as np
 
 from seeu_data.cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels, invert_rigid, opencv_from_opengl
 from seeu_data.errors import SeeUError
-from seeu_data.importers.common import SkippedScene, probe_images
+from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, probe_images, recorded_params
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.settings import setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.paths import contained_path
 from seeu_data.store.posed import PosedScene
@@ -51,17 +52,32 @@ DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
 
 
 @dataclass
-class NerfstudioImportConfig:
-    transforms: Path
-    scene_id: str | None = None
-    undo_applied_transform: bool = True
-    near: float | None = None  # None: the `seeu` block's value (our exports), else DEFAULT_NEAR_FAR
-    far: float | None = None
-    verify_decode: bool = False
-    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
-    undistort: bool = True  # False: frames with lens distortion are refused
-    skip_missing: bool = False  # drop frames whose image is missing instead of skipping the scene
-    allow_outside_paths: bool = False  # file_paths may lead outside the JSON's folder
+class NerfstudioImportConfig(ReadSettings):
+    transforms: Path = setting(help="transforms.json", positional=True)
+    scene_id: str | None = setting(None, "scene id (default: the folder name)")
+    undo_applied_transform: bool = setting(
+        True,
+        "keep nerfstudio's world frame (default: undo applied_transform, i.e. the original, e.g. COLMAP, world)",
+        flag="--keep-applied-transform",
+    )
+    # None: the `seeu` block's value (our exports), else DEFAULT_NEAR_FAR
+    near: float | None = setting(None, "near plane (default: from a seeu export, else 0.1)")
+    far: float | None = setting(None, "far plane (default: from a seeu export, else 100)")
+    undistort: bool = setting(
+        True, "refuse frames with lens distortion (k1, k2, k3, k4, p1, p2) instead of undistorting them"
+    )
+    skip_missing: bool = setting(
+        False, "drop frames whose image is missing (counted in the report) instead of skipping the scene"
+    )
+    allow_outside_paths: bool = setting(
+        False,
+        "read file_paths that lead outside the JSON's folder (../x.png, absolute, links); default: such frames "
+        "are dropped and counted",
+    )
+
+    def plan(self) -> ImportJob:
+        params = recorded_params(self, "nerfstudio")
+        return ImportJob(import_plan(self), params, 1, [str(self.transforms)])
 
 
 DEFAULT_NEAR_FAR = (0.1, 100.0)

@@ -31,8 +31,8 @@ import numpy as np
 
 from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from seeu_data.errors import SeeUError
-from seeu_data.importers.common import SkippedScene, probe_images
-from seeu_data.limits import MAX_PIXELS
+from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, probe_images, recorded_params
+from seeu_data.settings import parse_scene_list, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.paths import contained_path
 from seeu_data.store.posed import PosedScene
@@ -44,22 +44,32 @@ EXAMPLE_KEYS = ("url", "timestamps", "cameras", "images", "key")
 
 
 @dataclass
-class PixelSplatImportConfig:
+class PixelSplatImportConfig(ReadSettings):
     """`root`: dataset dir holding `train/` and `test/` (or a stage dir itself); `scenes`: keys to keep
     (None = all); near/far default to the `dataset` preset."""
 
-    root: Path
-    stage: str = "train"
-    scenes: frozenset[str] | None = None
-    dataset: str = "re10k"
-    near: float | None = None
-    far: float | None = None
-    verify_decode: bool = False
-    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
+    root: Path = setting(help="dataset dir holding train/ and test/ (or a stage dir)", positional=True)
+    stage: str = setting("train", "which stage's chunks to read", choices=("train", "test"))
+    scenes: frozenset[str] | None = setting(
+        None, "keep only these scene keys: a,b,c or @file.txt (default: all)", parse=parse_scene_list
+    )
+    dataset: str = setting(
+        "re10k",
+        "near/far preset (re10k/acid 1/100, dtu 2.125/4.525) and the name kept in the meta",
+        choices=tuple(NEAR_FAR),
+    )
+    near: float | None = setting(None, "near plane (default: the --dataset preset)")
+    far: float | None = setting(None, "far plane (default: the --dataset preset)")
 
     def near_far(self) -> tuple[float, float]:
         near, far = NEAR_FAR[self.dataset]
         return (near if self.near is None else self.near, far if self.far is None else self.far)
+
+    def plan(self) -> ImportJob:
+        directory, chunks, missing, total = find_chunks(self)
+        near, far = self.near_far()
+        params = recorded_params(self, "pixelsplat", near=near, far=far)
+        return ImportJob(import_plan(self, chunks, directory, missing), params, total, [str(directory)])
 
 
 def stage_dir(cfg: PixelSplatImportConfig) -> Path:
@@ -85,7 +95,7 @@ def read_index(directory: Path) -> dict[str, str] | None:
     return index
 
 
-def plan(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[SkippedScene], int | None]:
+def find_chunks(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[SkippedScene], int | None]:
     """Which chunks to read: `(stage_dir, chunk paths in order, scenes already known missing, scene total)`."""
     directory = stage_dir(cfg)
     index = read_index(directory)
@@ -292,7 +302,7 @@ def import_plan(
     from seeu_data.store.resume import file_fingerprint
 
     if chunks is None or directory is None:
-        directory, chunks, missing, _ = plan(cfg)
+        directory, chunks, missing, _ = find_chunks(cfg)
     missing = list(missing or [])
     sidecar = read_sidecar(directory)
     index = read_index(directory)

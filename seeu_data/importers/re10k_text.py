@@ -25,24 +25,32 @@ import numpy as np
 
 from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4
 from seeu_data.errors import SeeUError
-from seeu_data.importers.common import SkippedScene, probe_images
-from seeu_data.limits import MAX_PIXELS
+from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, probe_images, recorded_params
+from seeu_data.settings import parse_scene_list, setting
 from seeu_data.store.posed import PosedScene
 
 FRAME_EXTENSIONS = (".png", ".jpg", ".jpeg")
 
 
 @dataclass
-class Re10kTextImportConfig:
-    cameras_dir: Path
-    frames_dir: Path
-    scenes: frozenset[str] | None = None
-    dataset: str = "re10k"
-    near: float = 1.0
-    far: float = 100.0
-    allow_missing_frames: bool = False
-    verify_decode: bool = False
-    max_pixels: int = MAX_PIXELS  # largest image (width x height) imported, `--max-pixels`
+class Re10kTextImportConfig(ReadSettings):
+    cameras_dir: Path = setting(help="directory of <scene>.txt camera files", flag="--cameras")
+    frames_dir: Path = setting(
+        help="directory of <scene>/<timestamp_us>.{png,jpg} frames (as the download scripts leave them)",
+        flag="--frames",
+    )
+    scenes: frozenset[str] | None = setting(
+        None, "keep only these scenes: a,b,c or @file.txt (default: all)", parse=parse_scene_list
+    )
+    dataset: str = setting("re10k", "the dataset's name kept in the meta", choices=("re10k", "acid"))
+    near: float = setting(1.0, "near plane")
+    far: float = setting(100.0, "far plane")
+    allow_missing_frames: bool = setting(False, "drop frames whose image is missing instead of skipping the scene")
+
+    def plan(self) -> ImportJob:
+        files = camera_files(self)
+        params = recorded_params(self, "re10k")
+        return ImportJob(import_plan(self, files), params, len(files), [str(self.cameras_dir), str(self.frames_dir)])
 
 
 @dataclass

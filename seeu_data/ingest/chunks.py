@@ -25,6 +25,7 @@ from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3
 from seeu_data.errors import SeeUError
 from seeu_data.ingest.scale import ScaleConfig, chunk_scale
 from seeu_data.limits import MAX_FRAMES, check_range
+from seeu_data.settings import setting
 
 NEAR_FAR_METHOD = (
     "sfm_point_depth_percentiles: near = 0.4 * p0.1, far = 1.5 * p99.9 of the depths of SfM point "
@@ -35,7 +36,7 @@ FRAME_METHOD = "world frame = first camera of the chunk"
 
 @dataclass(frozen=True)
 class ChunkConfig:
-    min_chunk_frames: int = 10
+    min_chunk_frames: int = setting(10, "shortest posed chunk kept")
     near_percentile: float = 0.1
     far_percentile: float = 99.9
     near_margin: float = 0.4

@@ -12,6 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seeu_data.limits import MAX_FRAMES, check_range
+from seeu_data.settings import setting
 
 
 @dataclass(frozen=True)
@@ -20,9 +21,9 @@ class SelectConfig:
     sharpness_window: in each consecutive window of this many candidates, drop the blurriest
     (0 or 1 = off); target_frames: then keep this many, evenly spaced (None = all)."""
 
-    stride: int = 1
-    sharpness_window: int = 0
-    target_frames: int | None = None
+    stride: int = setting(1, "keep every N-th decoded frame")
+    sharpness_window: int = setting(0, "drop the blurriest frame in each window of N candidates (0 = off)")
+    target_frames: int | None = setting(None, "then keep this many frames, evenly spaced (default: all)")
 
     def check(self) -> None:
         check_range(self.stride, "--stride", 1, MAX_FRAMES)

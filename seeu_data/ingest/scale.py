@@ -31,6 +31,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from seeu_data.errors import SeeUError
+from seeu_data.settings import parse_int_pair, setting
 
 SCALES = ("re10k", "median-depth", "metric")
 RE10K_NEAR_FAR = (1.0, 100.0)
@@ -41,9 +42,24 @@ class ScaleConfig:
     """`scale`: one of SCALES; `known_distance` (metres, metric only) between the cameras of the
     source frames `distance_frames` (None: the first and the last selected frame)."""
 
-    scale: str = "re10k"
-    known_distance: float | None = None
-    distance_frames: tuple[int, int] | None = None
+    scale: str = setting(
+        "re10k",
+        "scale convention, recorded in each chunk's meta: re10k (5th-percentile point depth = 2, near/far "
+        "1/100 as the pixelSplat/MVSplat RealEstate10K setup), median-depth (median point depth = 1, near/far "
+        "from the points), metric (metres, needs --known-distance)",
+        choices=SCALES,
+    )
+    known_distance: float | None = setting(
+        None,
+        "--scale metric: real distance between the cameras of the first and last frame (or of --distance-frames)",
+        metavar="METRES",
+    )
+    distance_frames: tuple[int, int] | None = setting(
+        None,
+        "--scale metric: the two source frame numbers --known-distance is measured between",
+        metavar="A,B",
+        parse=parse_int_pair,
+    )
 
     def check(self) -> None:
         if self.scale not in SCALES:

@@ -61,6 +61,7 @@ from pathlib import Path
 from seeu_data.errors import SeeUError
 from seeu_data.interrupts import end_process
 from seeu_data.limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
+from seeu_data.settings import setting
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
@@ -79,40 +80,76 @@ _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 class SfmConfig:
     """Parameters of the SfM stage (all of them go into the stage stamp)."""
 
-    camera_model: str = "SIMPLE_RADIAL"
-    overlap: int = 10
-    vocab_tree: str | None = None
+    camera_model: str = setting(
+        "SIMPLE_RADIAL", "shared camera model; models with distortion are undistorted", choices=CAMERA_MODELS
+    )
+    overlap: int = setting(10, "sequential matching overlap in frames")
+    vocab_tree: str | None = setting(None, "vocabulary-tree file: enables loop detection (default: off)")
     min_model_size: int = 10
-    max_features: int = 8192
-    threads: int = -1
+    max_features: int = setting(8192, "SIFT features per frame")
+    threads: int = setting(
+        -1,
+        "COLMAP threads per scene for feature extraction (default: all cores / workers; 1 with --engine ray, "
+        "where each task reserves max(--threads, --map-threads) CPUs); results do not depend on it",
+    )
     # Incremental mapping's threads (bundle adjustment of models above 50,000 residuals, and more):
     # with more than one, re-mapping the same database differed in 1 of 15 runs (2 threads, 20-frame
     # clip); with one, never. Matching runs on these threads too; extraction uses `threads` and stays deterministic.
-    map_threads: int = 1
+    map_threads: int = setting(
+        1,
+        "threads for matching and mapping (1: poses identical run after run; more speeds them up on large "
+        "inputs, but results then depend on thread timing; -1 = all cores)",
+    )
     random_seed: int = 0
     # Incremental mapping is re-run with the next seed (up to this many runs in all) while its usable
     # models register fewer than `retry_below` of the frames; the run registering most is kept.
-    sfm_attempts: int = 3
+    sfm_attempts: int = setting(
+        3,
+        "re-run incremental mapping with the next seed while it registers < 80% of the frames, keeping the "
+        "run that registers most (at most this many runs)",
+    )
     retry_below: float = 0.8
     # The solution check: map again from the next seed and require two runs whose camera centres agree
     # (Sim(3)-aligned) within this % of the path; see `map_with_retries`. Needs sfm_attempts >= 2.
-    sfm_check: bool = True
+    sfm_check: bool = setting(
+        True,
+        "skip the solution check (a second mapping from the next seed whose camera centres must agree within "
+        "1% of the path; mapping takes about twice as long with it)",
+    )
     max_disagreement_pct: float = 1.0
     # A distorted camera model whose distortion moves no border pixel by more than this is used as a
     # pinhole without resampling the images.
     max_negligible_distortion_px: float = 0.1
     # incremental (COLMAP), global (GLOMAP), or auto: chosen from the match graph (seeu_data.ingest.match_graph)
-    mapper: str = "incremental"
-    features: str = "sift"
+    mapper: str = setting(
+        "incremental",
+        "COLMAP incremental mapping, GLOMAP global mapping, or auto: incremental when >= 90% of consecutive "
+        "frames match (a video), else global (recorded in report.json)",
+        choices=MAPPERS,
+    )
+    features: str = setting(
+        "sift", "feature type (aliked needs a pycolmap built with ONNX, checked up front)", choices=tuple(FEATURES)
+    )
     # Keyframes (seeu_data.ingest.keyframes): a video is mapped on every s-th frame, s the largest power of two
     # keeping the median image motion between keyframes <= keyframe_motion pixels and >= min_keyframes
     # of them; the other frames are registered into the model afterwards. 0: map every frame.
-    keyframe_motion: float = 20.0
+    keyframe_motion: float = setting(
+        20.0,
+        "map a video on keyframes every 2, 4, 8, ... frames, as far apart as keeps the median image motion "
+        "between keyframes <= PX pixels (at least 30 keyframes), then register the other frames into the "
+        "model; mapping time then grows with the frame count, not its square (0 = map every frame)",
+        metavar="PX",
+    )
     min_keyframes: int = 30
     # A last global bundle adjustment of every mapped model (a video: its keyframes), with this
     # robust loss (none, soft_l1, cauchy, huber) of scale final_ba_loss_scale pixels; see `final_bundle_adjustment`.
-    final_ba_loss: str = "soft_l1"
-    final_ba_loss_scale: float = 0.5
+    final_ba_loss: str = setting(
+        "soft_l1",
+        "a last global bundle adjustment of each model after mapping (a video: of its keyframes), with this "
+        "robust loss, so that the few large SIFT residuals pull the camera less (none = off)",
+        choices=FINAL_BA_LOSSES,
+    )
+    final_ba_loss_scale: float = setting(0.5, "scale of --final-ba-loss in pixels", metavar="PX")
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:

@@ -1,0 +1,140 @@
+"""Settings: a config field declared once, with what its command-line flag needs, and the parsers for
+values written on the command line.
+
+A stage's config is a frozen dataclass. A field declared with `setting(default, help, ...)` is a user
+setting: `pipelines/cli/config_flags.py` makes its flag (`--max-features` for `max_features`), its help
+with the default taken from this declaration, and reads it back into the config. Nested configs
+(a dataclass-typed field with a `default_factory`) are walked, their settings flattened into the same
+flags. A field declared without `setting` is internal (a constant of the method, not a flag).
+
+Example:
+    @dataclass(frozen=True)
+    class SelectConfig:
+        stride: int = setting(1, "keep every N-th decoded frame")
+        target_frames: int | None = setting(None, "then keep this many frames, evenly spaced (default: all)")
+
+Parsers (`parse_*`) take the text and the flag's name and raise SeeUError naming the flag, so a bad
+value is one line and exit 2 wherever it is parsed.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Callable, Sequence
+from dataclasses import MISSING, field
+from pathlib import Path
+from typing import Any
+
+from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_IMAGE_SIDE, MAX_PIXELS_CEILING, check_range
+
+Parser = Callable[[str, str], Any]
+
+_BYTE_UNITS = {"": 1, "b": 1, "kb": 10**3, "mb": 10**6, "gb": 10**9, "kib": 1 << 10, "mib": 1 << 20, "gib": 1 << 30}
+
+
+def setting(
+    default: Any = MISSING,
+    help: str = "",
+    *,
+    flag: str | None = None,
+    metavar: str | None = None,
+    choices: Sequence[str] | None = None,
+    parse: Parser | None = None,
+    positional: bool = False,
+    many: bool = False,
+    required: bool = False,
+) -> Any:
+    """A config field that is a user setting (see the module docstring).
+
+    flag: the flag when it is not `--<name-with-dashes>` (a bool whose default is True gets `--no-<name>`;
+    `flag` names another inverting flag, e.g. `--keep-applied-transform` for `undo_applied_transform`);
+    parse: text -> value (`parse_*` below), for values that are not a plain int/float/str/Path;
+    positional / many: a positional argument (`many`: one or more, a tuple); required: a flag that must be given.
+    `help` says what the value does; the default is appended from `default` (None: say in `help` what
+    happens, e.g. "(default: all)").
+    """
+    meta = {
+        "help": help,
+        "flag": flag,
+        "metavar": metavar,
+        "choices": tuple(choices) if choices is not None else None,
+        "parse": parse,
+        "positional": positional,
+        "many": many,
+        "required": required,
+    }
+    if default is MISSING:
+        return field(metadata=meta)
+    return field(default=default, metadata=meta)
+
+
+def parse_dims(text: str, flag: str, minimum: int = 1, maximum: int = MAX_IMAGE_SIDE) -> tuple[int, int]:
+    """'256x384' -> (256, 384), '256' -> (256, 256): two sizes in the order written (the one size
+    parser), each in minimum..maximum (`check_range`; image sides: at most `MAX_IMAGE_SIDE`). Every
+    image size on the command line is written HxW (`--size`, `--image-size`, `--resize`)."""
+    m = re.fullmatch(r"\s*(\d{1,18})\s*(?:[xX,]\s*(\d{1,18}))?\s*", str(text))
+    if not m:
+        raise SeeUError(f"{flag} {text!r} is not two sizes AxB (e.g. 256x256)")
+    a, b = int(m.group(1)), int(m.group(2) or m.group(1))
+    return check_range(a, flag, minimum, maximum), check_range(b, flag, minimum, maximum)
+
+
+def parse_bytes(text: str, flag: str) -> int:
+    """'128MB', '64MiB', '1e6' -> bytes (positive)."""
+    m = re.fullmatch(r"\s*([0-9.eE+]+)\s*([a-zA-Z]*)\s*", str(text))
+    try:
+        value = int(float(m.group(1)) * _BYTE_UNITS[m.group(2).lower()]) if m else 0
+    except (KeyError, ValueError, OverflowError):
+        value = 0
+    if value <= 0:
+        raise SeeUError(f"{flag} {text!r} is not a positive size (e.g. 128MB, 64MiB)")
+    return value
+
+
+def parse_scene_list(text: str | None, flag: str = "--scenes") -> frozenset[str] | None:
+    """`a,b,c` or `@file` (one id per line) -> set of scene ids (None: all)."""
+    if text is None:
+        return None
+    if text.startswith("@"):
+        path = Path(text[1:])
+        if not path.exists():
+            raise SeeUError(f"{flag}: scene list file not found", path)
+        items = [line.strip() for line in path.read_text().splitlines()]
+    else:
+        items = [s.strip() for s in text.split(",")]
+    items = [s for s in items if s]
+    if not items:
+        raise SeeUError(f"{flag}: empty scene list {text!r}")
+    return frozenset(items)
+
+
+def parse_int_pair(text: str, flag: str) -> tuple[int, int]:
+    """'12,80' -> (12, 80): two integers (e.g. `--distance-frames A,B`)."""
+    try:
+        a, b = (int(v) for v in str(text).split(","))
+    except ValueError:
+        raise SeeUError(f"{flag} {text!r} is not two integers A,B (e.g. 0,90)") from None
+    return a, b
+
+
+def parse_int_list(text: str, flag: str) -> tuple[int, ...]:
+    """'1,8,21' (or 'scan1,scan8') -> (1, 8, 21)."""
+    try:
+        values = tuple(int(s) for s in str(text).replace("scan", "").split(",") if s.strip())
+    except ValueError:
+        values = ()
+    if not values:
+        raise SeeUError(f"{flag} {text!r} is not a list of integers (e.g. 1,8,21)")
+    return values
+
+
+def parse_pixels(text: str, flag: str = "--max-pixels") -> int:
+    """'64000000', '1e8' -> a pixel count in 1..MAX_PIXELS_CEILING (`--max-pixels`)."""
+    try:
+        value = int(float(text)) if re.fullmatch(r"\s*[0-9.eE+]+\s*", str(text)) else 0
+    except (ValueError, OverflowError):
+        value = 0
+    if value <= 0:
+        raise SeeUError(f"{flag} {text!r} is not a positive number of pixels (e.g. 64000000, 1e8)")
+    return check_range(value, flag, 1, MAX_PIXELS_CEILING)
