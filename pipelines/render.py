@@ -65,10 +65,9 @@ class RenderConfig:
 def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
     """Context dict (B=1) from a cameras JSON and its images, resized/cropped to `image_hw`."""
     import numpy as np
-    import torch
 
-    from seeu_data.cameras import intrinsics_norm_from_pixels, intrinsics_norm_matrix, rotation_orthonormality_error
-    from seeu_data.image_ops import decode_rgb, resize_cover_crop, resized_intrinsics
+    from seeu_data.cameras import intrinsics_norm_from_pixels, rotation_orthonormality_error
+    from seeu_data.image_ops import decode_rgb
 
     path = Path(path)
     if not path.is_file():
@@ -124,14 +123,31 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
             raise SeeUError(f"frame {i}: intrinsics have non-finite values (NaN or inf)", path)
         if not (k[0] > 0 and k[1] > 0):
             raise SeeUError(f"frame {i}: focal lengths must be positive, got fx/W={k[0]:g}, fy/H={k[1]:g}", path)
-        images.append(resize_cover_crop(img, image_hw))
+        images.append(img)
         poses.append(pose)
-        intrs.append(intrinsics_norm_matrix(resized_intrinsics(k, (h, w), image_hw)))
-    v = len(images)
-    img_t = torch.from_numpy(np.stack(images)).permute(0, 3, 1, 2).float().div(255.0)
+        intrs.append(k)
+    return context_views(images, np.stack(poses), np.stack(intrs), near, far, image_hw)
+
+
+def context_views(images: list, cam_to_world, intrinsics_norm, near: float, far: float, image_hw) -> dict:
+    """Context dict (B=1) of V views: (H_i, W_i, 3) uint8 RGB images, resized/cropped to `image_hw`
+    with their (V, 4) normalised intrinsics updated; cam_to_world (V, 4, 4) OpenCV."""
+    import numpy as np
+    import torch
+
+    from seeu_data.cameras import intrinsics_norm_matrix
+    from seeu_data.image_ops import resize_cover_crop, resized_intrinsics
+
+    imgs = [resize_cover_crop(img, image_hw) for img in images]
+    intrs = [
+        intrinsics_norm_matrix(resized_intrinsics(np.asarray(k, np.float64), img.shape[:2], image_hw))
+        for img, k in zip(images, intrinsics_norm)
+    ]
+    v = len(imgs)
+    img_t = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float().div(255.0)
     return {
         "image": img_t[None],
-        "cam_to_world": torch.tensor(np.stack(poses), dtype=torch.float32)[None],
+        "cam_to_world": torch.tensor(np.asarray(cam_to_world), dtype=torch.float32)[None],
         "intrinsics": torch.tensor(np.stack(intrs), dtype=torch.float32)[None],
         "near": torch.full((1, v), near),
         "far": torch.full((1, v), far),
@@ -235,28 +251,39 @@ def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
     return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
 
 
+def load_model(checkpoint, image_size=None, device=None, rasterizer=None):
+    """(model in eval mode, checkpoint dict, (H, W), rasterizer backend) of a checkpoint file or
+    directory; `image_size`/`rasterizer` None: the training config's; `device` None: cuda when available."""
+    import torch
+
+    from pipelines.evaluate import check_image_size
+    from seeu_model.training import checkpoint as ckpt_io
+    from seeu_model.training.config import config_from_dict
+    from seeu_model.training.factory import model_from_checkpoint
+
+    ck = ckpt_io.load_checkpoint(checkpoint)
+    train_cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
+    hw: tuple[int, int] = image_size or train_cfg.data.image_size
+    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    model = model_from_checkpoint(ck, dev)
+    check_image_size(model, hw)
+    return model, ck, hw, rasterizer or train_cfg.rasterizer
+
+
 @locks_output(lambda cfg: cfg.out)
 def render(cfg: RenderConfig) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
     import numpy as np
     import torch
 
-    from pipelines.evaluate import check_image_size
     from seeu_data.store.arrow_io import atomic_write_text
     from seeu_model.camera_path import camera_path, path_parameters
-    from seeu_model.training import checkpoint as ckpt_io
-    from seeu_model.training.config import config_from_dict
-    from seeu_model.training.factory import encode_context, model_from_checkpoint
+    from seeu_model.training.factory import encode_context
     from seeu_model.training.loop import batch_to
 
     cfg.check()
-    ck = ckpt_io.load_checkpoint(cfg.checkpoint)
-    train_cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
-    hw: tuple[int, int] = cfg.image_size or train_cfg.data.image_size
-    backend = cfg.rasterizer or train_cfg.rasterizer
-    dev = torch.device(cfg.device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    model = model_from_checkpoint(ck, dev)
-    check_image_size(model, hw)
+    model, ck, hw, backend = load_model(cfg.checkpoint, cfg.image_size, cfg.device, cfg.rasterizer)
+    dev = next(model.parameters()).device
     data, cameras, frames, extrapolate, fps = cfg.data, cfg.cameras, cfg.frames, cfg.extrapolate, cfg.fps
     if data is not None:
         batch = shard_sample(data, str(cfg.sample), hw)

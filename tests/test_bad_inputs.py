@@ -1092,6 +1092,30 @@ case("check-cameras-nan-camera", text="non-finite camera")(
 )
 
 
+# ---- view ----
+def _port_in_use(ws, tmp):
+    import socket
+
+    sock = socket.socket()
+    sock.bind(("127.0.0.1", 0))
+    sock.listen(1)
+    return ["view", str(ws["posed"]), "--port", str(sock.getsockname()[1])], sock.close
+
+
+case("view-unknown-kind", text="unknown kind")(lambda ws, tmp: (tmp / "empty").mkdir() or ["view", str(tmp / "empty")])
+case("view-missing-path", text="not found")(lambda ws, tmp: ["view", str(tmp / "nothing.ply")])
+case("view-port-in-use", text="is in use")(_port_in_use)
+case("view-not-a-ply", text="not a readable .ply")(
+    lambda ws, tmp: _put(tmp / "x.ply", "ply\nformat nonsense\n") or ["view", str(tmp / "x.ply")]
+)
+case("view-checkpoint-on-gaussians", text="--checkpoint needs posed frames or triple shards")(
+    lambda ws, tmp: _put(tmp / "x.ply", "ply") or ["view", str(tmp / "x.ply"), "--checkpoint", str(ws["ckpt"])]
+)
+case("view-sample-out-of-range", text="no sample 99")(
+    lambda ws, tmp: ["view", str(ws["triples"]), "--sample", "99", "--save", str(tmp / "s.viser")]
+)
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)

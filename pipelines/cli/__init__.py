@@ -33,6 +33,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "inspect": ("pipelines.cli.inspect_cmd", "statistics and a contact sheet of a shards directory"),
     "validate": ("pipelines.cli.validate", "check a dataset directory against its schema and manifest"),
     "check-cameras": ("pipelines.cli.check_cameras", "check that a dataset's cameras agree with its images (epipolar)"),
+    "view": ("pipelines.cli.view", "look at posed frames, triple shards or Gaussians in the browser (viser)"),
     "train": ("pipelines.cli.train", "train SeeU on triple shards"),
     "eval": ("pipelines.cli.evaluate", "evaluate a checkpoint: PSNR/SSIM/LPIPS (and DTU depth/Chamfer)"),
     "render": ("pipelines.cli.render", "render novel views and export a .ply from a checkpoint"),

@@ -1,0 +1,151 @@
+"""`seeu view` in a real browser: the command serves, headless chromium (software WebGL) opens the
+page, the server logs the client (viser's on_client_connect) and the screenshot's canvas is not
+blank. Chromium is required: a missing one fails these tests (`.ci/run` installs it)."""
+
+from __future__ import annotations
+
+import os
+import queue
+import shutil
+import signal
+import subprocess
+import sys
+import threading
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipelines.cli import main as cli_main
+from pipelines.view import chromium_screenshot
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@pytest.fixture(scope="module", autouse=True)
+def chromium() -> None:
+    if shutil.which("chromium") is None and shutil.which("chromium-browser") is None:
+        pytest.fail("chromium is not installed: `apt-get install -y chromium` (.ci/run does it on CI)")
+
+
+def canvas_spread(png: Path) -> float:
+    """Standard deviation of the pixels left of viser's panel and below its notification."""
+    import cv2
+
+    img = cv2.imread(str(png))
+    assert img is not None, png
+    return float(img[170:640, 60:640].astype(np.float64).std())
+
+
+class Served:
+    """`seeu view PATH --port 0` as a process; its stdout lines in a queue."""
+
+    def __init__(self, *argv: str):
+        env = {**os.environ, "PYTHONPATH": str(ROOT)}
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "pipelines.cli", "view", *argv, "--port", "0"],
+            stdout=subprocess.PIPE,
+            stderr=subprocess.STDOUT,
+            text=True,
+            env=env,
+        )
+        self.lines: queue.Queue[str] = queue.Queue()
+        self.seen: list[str] = []
+        threading.Thread(target=self._read, daemon=True).start()
+
+    def _read(self) -> None:
+        assert self.proc.stdout is not None
+        for line in self.proc.stdout:
+            self.lines.put(line.rstrip("\n"))
+
+    def wait_for(self, text: str, timeout: float = 60.0) -> str:
+        end = time.monotonic() + timeout
+        while time.monotonic() < end:
+            try:
+                line = self.lines.get(timeout=0.2)
+            except queue.Empty:
+                assert self.proc.poll() is None, "\n".join(self.seen[-20:])
+                continue
+            self.seen.append(line)
+            if text in line:
+                return line
+        raise AssertionError(f"no {text!r} in: " + "\n".join(self.seen[-20:]))
+
+    def stop(self) -> int:
+        self.proc.send_signal(signal.SIGINT)
+        return self.proc.wait(timeout=30)
+
+
+def _look(path: Path, tmp_path: Path) -> None:
+    served = Served(str(path))
+    try:
+        url = served.wait_for(" at http://").split(" at ")[1].split()[0]
+        png = tmp_path / "page.png"
+        chromium_screenshot(url, png)
+        served.wait_for("connected")
+        assert canvas_spread(png) > 10.0, "the 3D canvas looks blank"
+    finally:
+        rc = served.stop()
+    assert rc == 0, "\n".join(served.seen[-20:])
+
+
+def test_view_posed_frames_in_browser(workspace, tmp_path):
+    _look(workspace["posed"], tmp_path)
+
+
+def test_view_triple_shards_in_browser(workspace, tmp_path):
+    _look(workspace["triples"], tmp_path)
+
+
+def gaussians_dir(root: Path, n: int = 2000) -> Path:
+    """A render-like directory: a blob of n coloured Gaussians (gaussians.ply) and two cameras."""
+    import torch
+
+    from seeu_model.gaussians import Gaussians
+    from seeu_model.ply import save_ply_bundle
+
+    rng = np.random.default_rng(0)
+    g = Gaussians(
+        means=torch.tensor(rng.normal(size=(1, n, 3)) * [1.0, 0.5, 0.5] + [0, 0, 4], dtype=torch.float32),
+        scales=torch.full((1, n, 3), 0.05),
+        rotations=torch.tensor([1.0, 0, 0, 0]).expand(1, n, 4).clone(),
+        opacities=torch.full((1, n), 0.8),
+        sh=torch.tensor(rng.normal(size=(1, n, 1, 3)), dtype=torch.float32),
+    )
+    c2w = np.stack([np.eye(4)] * 2)
+    c2w[1, 0, 3] = 0.5
+    save_ply_bundle(g, root, c2w, np.array([[1.0, 1.0, 0.5, 0.5]] * 2), 64, 48, ["context_0", "target_0"])
+    return root
+
+
+def test_view_ply_screenshot(tmp_path, capsys):
+    """`--screenshot` (the README's command): serve, chromium, PNG, exit; the client was logged."""
+    ply = gaussians_dir(tmp_path / "render") / "gaussians.ply"
+    png = tmp_path / "shot.png"
+    assert cli_main(["view", str(ply), "--screenshot", str(png)]) == 0
+    out = capsys.readouterr().out
+    assert "connected" in out and f"wrote {png} (ply)" in out, out
+    assert canvas_spread(png) > 10.0
+
+
+def test_view_save_scene_file(workspace, tmp_path, capsys):
+    """`--save` writes viser's scene file (with the frustums' thumbnails) and serves nothing."""
+    out = tmp_path / "scene.viser"
+    assert cli_main(["view", str(workspace["posed"]), "--save", str(out)]) == 0
+    assert "wrote" in capsys.readouterr().out
+    kinds = [m[1]["type"] for m in read_viser_file(out)["messages"]]
+    assert kinds.count("CameraFrustumMessage") == 12 + 1  # every frame, and the slider's frame
+    assert "LineSegmentsMessage" in kinds  # the trajectory
+
+
+def read_viser_file(path: Path) -> dict:
+    """The msgpack header of a .viser file (viser's StateSerializer: 8-byte size, zstd of
+    [8-byte msgpack length, msgpack, binary buffers])."""
+    import msgspec
+    import zstandard
+
+    data = path.read_bytes()
+    inner = zstandard.ZstdDecompressor().decompress(data[8:], max_output_size=int.from_bytes(data[:8], "little"))
+    n = int.from_bytes(inner[:8], "little")
+    return msgspec.msgpack.decode(inner[8 : 8 + n])
