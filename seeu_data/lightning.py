@@ -21,6 +21,7 @@ torch.distributed, so each rank reads its own part. Lightning needs nothing spec
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -30,12 +31,33 @@ import torch
 from .loader import StreamingLoader, batch_to_device, make_loader
 
 
+class EveryPassFromStart:
+    """A validation loader: every pass (and its length) starts at the beginning of epoch 0, so each
+    validation sees the whole set in the same order, whatever an earlier pass (Lightning's sanity check:
+    2 batches) left off. Not stateful: Lightning's checkpoints keep only the training loader's position."""
+
+    def __init__(self, loader: StreamingLoader):
+        self.loader = loader
+
+    def _rewind(self) -> None:
+        self.loader.load_state_dict({"epoch": 0, "samples_seen": 0, "step": 0})
+
+    def __len__(self) -> int:
+        self._rewind()
+        return len(self.loader)
+
+    def __iter__(self) -> Iterator[Any]:
+        self._rewind()
+        return iter(self.loader)
+
+
 class TripleDataModule(L.LightningDataModule):
     """Training (and optionally validation) batches from triple shards (local directory or object-storage URL).
 
     `batch_size`: per rank; `num_workers`: DataLoader worker processes per rank; `config`: the other
     `seeu_data.loader.LoaderConfig` fields (`image_hw`, `seed`, `flip_p`, `remainder`, `image_dtype`,
-    `batch_format`, ...), used for both loaders, except that validation never shuffles nor flips.
+    `batch_format`, ...), used for both loaders, except that validation never shuffles nor flips and
+    starts from the beginning on every pass (`EveryPassFromStart`).
     """
 
     def __init__(
@@ -68,11 +90,13 @@ class TripleDataModule(L.LightningDataModule):
             **self.config,
         )
 
-    def val_dataloader(self) -> StreamingLoader:
+    def val_dataloader(self) -> EveryPassFromStart:
         assert self.val_source is not None
         config = {**self.config, "shuffle": False, "flip_p": 0.0}
-        return make_loader(
-            self.val_source, self.val_batch_size, num_workers=self.num_workers, pin_memory=self.pin_memory, **config
+        return EveryPassFromStart(
+            make_loader(
+                self.val_source, self.val_batch_size, num_workers=self.num_workers, pin_memory=self.pin_memory, **config
+            )
         )
 
     def transfer_batch_to_device(self, batch: Any, device: torch.device, dataloader_idx: int) -> Any:

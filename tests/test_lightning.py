@@ -41,7 +41,8 @@ def test_batch_format_is_checked():
 
 
 def _fit(triples: Path, root: Path, max_steps: int, ckpt_path: Path | None = None):
-    """`Trainer.fit` of a tiny model on CPU; returns (trainer, the (scene, context index) of each step's batch)."""
+    """`Trainer.fit` of a tiny model on CPU, validating at each epoch's end; returns (trainer, the
+    (scene, context index) of each training step's batch, the sample count of each validation pass)."""
     import lightning as L
 
     from seeu_data.lightning import TripleDataModule
@@ -51,6 +52,7 @@ def _fit(triples: Path, root: Path, max_steps: int, ckpt_path: Path | None = Non
             super().__init__()
             self.gain = torch.nn.Parameter(torch.ones(3))
             self.seen: list[tuple] = []
+            self.val: list[int] = []
 
         def training_step(self, batch, batch_idx):
             ctx, tgt = batch["context"], batch["target"]
@@ -59,10 +61,16 @@ def _fit(triples: Path, root: Path, max_steps: int, ckpt_path: Path | None = Non
             pred = ctx["image"].mean(1) * self.gain[:, None, None]
             return torch.nn.functional.mse_loss(pred, tgt["image"][:, 0])
 
+        def validation_step(self, batch, batch_idx):
+            if not self.trainer.sanity_checking:
+                self.val.append(int((~batch["is_padding"]).sum()))
+
         def configure_optimizers(self):
             return torch.optim.SGD(self.parameters(), lr=0.1)
 
-    data = TripleDataModule(triples, 1, image_hw=(32, 32), batch_format="pixelsplat", seed=3)
+    data = TripleDataModule(
+        triples, 1, val=triples, val_batch_size=3, image_hw=(32, 32), batch_format="pixelsplat", seed=3
+    )
     model = Tiny()
     trainer = L.Trainer(
         max_steps=max_steps,
@@ -75,20 +83,23 @@ def _fit(triples: Path, root: Path, max_steps: int, ckpt_path: Path | None = Non
         default_root_dir=root,
     )
     trainer.fit(model, datamodule=data, ckpt_path=ckpt_path)
-    return trainer, model.seen
+    return trainer, model.seen, model.val
 
 
 def test_lightning_trainer_fit_and_resume(workspace, tmp_path):
+    """2 steps; resumed to the end of the epoch (4 samples, batch 1: validation runs, the whole set after the
+    sanity check's pass); resumed again from that end into the next epoch: every step gets the batch the
+    loader gives on its own, none repeated or skipped."""
     triples = workspace["triples"]
-    expected = [
-        (tuple(b["scene"]), tuple(b["context"]["index"].flatten().tolist()))
-        for b in make_loader(triples, 1, image_hw=(32, 32), batch_format="pixelsplat", seed=3)
-    ][:3]
-    trainer, seen = _fit(triples, tmp_path, max_steps=2)
-    assert trainer.global_step == 2 and seen == expected[:2]
-    ckpt = tmp_path / "two.ckpt"
-    trainer.save_checkpoint(ckpt)
-    state = torch.load(ckpt, weights_only=False)["loops"]["fit_loop"]["state_dict"]["combined_loader"]
-    assert [(s["epoch"], s["samples_seen"], s["step"]) for s in state] == [(0, 2, 2)]
-    trainer, seen = _fit(triples, tmp_path, max_steps=3, ckpt_path=ckpt)
-    assert trainer.global_step == 3 and seen == expected[2:3]  # the third batch, exactly
+    loader = make_loader(triples, 1, image_hw=(32, 32), batch_format="pixelsplat", seed=3)
+    expected = [(tuple(b["scene"]), tuple(b["context"]["index"].flatten().tolist())) for _ in range(2) for b in loader]
+    trainer, seen, val = _fit(triples, tmp_path, max_steps=2)
+    assert trainer.global_step == 2 and seen == expected[:2] and val == []
+    trainer.save_checkpoint(tmp_path / "two.ckpt")
+    state = torch.load(tmp_path / "two.ckpt", weights_only=False)["loops"]["fit_loop"]["state_dict"]
+    assert [(s["epoch"], s["samples_seen"], s["step"]) for s in state["combined_loader"]] == [(0, 2, 2)]
+    trainer, seen, val = _fit(triples, tmp_path, max_steps=4, ckpt_path=tmp_path / "two.ckpt")
+    assert trainer.global_step == 4 and seen == expected[2:4] and val == [3, 1]
+    trainer.save_checkpoint(tmp_path / "four.ckpt")
+    trainer, seen, val = _fit(triples, tmp_path, max_steps=5, ckpt_path=tmp_path / "four.ckpt")
+    assert trainer.global_step == 5 and seen == expected[4:5]

@@ -436,16 +436,22 @@ class StreamingLoader:
         ds.position = _Position(int(state["epoch"]), int(state["samples_seen"]), int(state.get("step", 0)))
 
     def __len__(self) -> int:
-        """Batches this rank yields from the current position to the end of the epoch."""
+        """Batches this rank yields when iterated now: from the current position to the end of the epoch,
+        or the whole next epoch when the position is an epoch's end (a Lightning checkpoint taken there)."""
+        self._roll_over()
         return self.dataset.num_batches()
 
-    # ------------------------------------------------------------------ iteration
-    def __iter__(self) -> Iterator[Batch]:
+    def _roll_over(self) -> None:
         ds = self.dataset
         if ds.position.samples_seen > 0 and ds.num_batches() == 0:
             # a state saved after the last batch of an epoch (samples_seen == epoch size, or only a
             # dropped remainder left) means the start of the next epoch
             ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
+
+    # ------------------------------------------------------------------ iteration
+    def __iter__(self) -> Iterator[Batch]:
+        ds = self.dataset
+        self._roll_over()
         plan = ds.plan()  # computed here once; forked workers inherit it
         pin = self.pin_memory and torch.cuda.is_available()
         loader = DataLoader(
