@@ -181,6 +181,32 @@ def test_stage_libraries_do_not_import_the_cli():
     assert not bad, "\n".join(bad)
 
 
+# Optional extras (pyproject.toml): the one module that may import each, so the rest works without it.
+OPTIONAL_IMPORTS = {"lightning": "seeu_data.lightning", "pytorch_lightning": None}
+
+
+def test_optional_extras_are_imported_by_their_module_only():
+    """`lightning` is imported by seeu_data/lightning.py alone, and that module by nobody in the packages."""
+    mods = module_files(PACKAGES)
+    bad = []
+    for mod, (path, _) in mods.items():
+        for node in ast.walk(ast.parse(path.read_text(), str(path))):
+            names = (
+                [a.name for a in node.names]
+                if isinstance(node, ast.Import)
+                else [node.module or ""]
+                if isinstance(node, ast.ImportFrom) and not node.level
+                else []
+            )
+            for name in names:
+                top = name.split(".")[0]
+                if top in OPTIONAL_IMPORTS and OPTIONAL_IMPORTS[top] != mod:
+                    bad.append(f"{mod} imports {name}")
+    graph, _ = scan(mods)
+    bad += [f"{m} imports {t}" for m, ts in graph.items() for t in ts if t in OPTIONAL_IMPORTS.values()]
+    assert not bad, "\n".join(sorted(bad))
+
+
 def test_architecture_page_places_every_module():
     """docs/ARCHITECTURE.md is the map of the stages: every module of seeu_data and of its ingest/,
     build/ and store/ sub-packages, and every stage library of pipelines, is named there (by file name), so a

@@ -39,6 +39,7 @@ from seeu_data.image_ops import single_threaded_cv2
 from seeu_data.limits import MAX_PIXELS
 from seeu_data.loader.collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
 from seeu_data.loader.curriculum import GapCurriculum
+from seeu_data.loader.formats import BATCH_FORMATS, to_pixelsplat
 from seeu_data.loader.order import (
     GlobalPlan,
     epoch_order,
@@ -74,6 +75,7 @@ class LoaderConfig:
     curriculum: GapCurriculum | None = None
     max_open_shards: int = 16  # per worker
     max_pixels: int = MAX_PIXELS  # largest image (width x height) read, `--max-pixels` (`dataset_check`)
+    batch_format: str = "seeu"  # "seeu" (`types.Batch`) or "pixelsplat" (the peers' layout: `formats.py`)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "image_hw", tuple(int(x) for x in self.image_hw))
@@ -85,6 +87,8 @@ class LoaderConfig:
             raise ValueError("image_dtype must be 'float32' or 'uint8'")
         if not 0.0 <= self.flip_p <= 1.0:
             raise ValueError("flip_p must be in [0, 1]")
+        if self.batch_format not in BATCH_FORMATS:
+            raise ValueError(f"batch_format must be one of {', '.join(BATCH_FORMATS)}")
 
 
 def resolve_rank(rank: int | None, world_size: int | None) -> tuple[int, int]:
@@ -367,6 +371,7 @@ class StreamingLoader:
     the dataset fingerprint to refuse a checkpoint of another dataset. A finished epoch advances
     `epoch` by itself, and so does iterating from a state taken after an epoch's last batch
     (`samples_seen` == the epoch size); `set_epoch(e)` jumps to the start of epoch e (no-op if already in e).
+    Batches: `types.Batch`, or with `batch_format="pixelsplat"` the peers' layout (`formats.to_pixelsplat`).
     """
 
     def __init__(
@@ -431,16 +436,22 @@ class StreamingLoader:
         ds.position = _Position(int(state["epoch"]), int(state["samples_seen"]), int(state.get("step", 0)))
 
     def __len__(self) -> int:
-        """Batches this rank yields from the current position to the end of the epoch."""
+        """Batches this rank yields when iterated now: from the current position to the end of the epoch,
+        or the whole next epoch when the position is an epoch's end (a Lightning checkpoint taken there)."""
+        self._roll_over()
         return self.dataset.num_batches()
 
-    # ------------------------------------------------------------------ iteration
-    def __iter__(self) -> Iterator[Batch]:
+    def _roll_over(self) -> None:
         ds = self.dataset
         if ds.position.samples_seen > 0 and ds.num_batches() == 0:
             # a state saved after the last batch of an epoch (samples_seen == epoch size, or only a
             # dropped remainder left) means the start of the next epoch
             ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
+
+    # ------------------------------------------------------------------ iteration
+    def __iter__(self) -> Iterator[Batch]:
+        ds = self.dataset
+        self._roll_over()
         plan = ds.plan()  # computed here once; forked workers inherit it
         pin = self.pin_memory and torch.cuda.is_available()
         loader = DataLoader(
@@ -482,7 +493,7 @@ class StreamingLoader:
             before = ds.position.samples_seen
             self.stats["skipped_curriculum"] += int(np.searchsorted(skipped, cursor) - np.searchsorted(skipped, before))
             ds.position = _Position(ds.position.epoch, cursor, ds.position.step + 1)
-            yield batch
+            yield to_pixelsplat(batch) if ds.config.batch_format == "pixelsplat" else batch  # type: ignore[misc]
         ds.position = _Position(ds.position.epoch + 1, 0, ds.position.step)
 
 
