@@ -331,12 +331,29 @@ class SeeU(nn.Module):
         cuda when available). The same loading as `seeu render` / `seeu predict`. SeeUError (one line)
         for a file that is not a valid checkpoint."""
         from .training.checkpoint import load_checkpoint
-        from .training.factory import model_from_checkpoint
 
-        dev = device or ("cuda" if torch.cuda.is_available() else "cpu")
-        model = model_from_checkpoint(load_checkpoint(path), dev)
-        assert isinstance(model, cls)
-        return model
+        return cls.from_checkpoint_dict(
+            load_checkpoint(path), device or ("cuda" if torch.cuda.is_available() else "cpu")
+        )
+
+    @classmethod
+    def from_checkpoint_dict(cls, ckpt: dict, device: torch.device | str = "cpu", **model_overrides) -> SeeU:
+        """The model of a loaded checkpoint (`training.checkpoint.load_checkpoint`): rebuilt from its
+        model config (frozen pretrained parts loaded from their own weights, as in training), its
+        trained state loaded (`load_model_state`), in eval mode on `device`."""
+        from .training.checkpoint import load_model_state
+
+        if not isinstance(ckpt.get("model_config") or {}, dict):
+            raise SeeUError("checkpoint model_config is not a mapping", ckpt.get("path"))
+        cfg_dict = dict(ckpt.get("model_config") or {})
+        cfg_dict.update(model_overrides)
+        try:
+            model = cls(SeeUConfig(**cfg_dict))
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            msg = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+            raise SeeUError(f"checkpoint model config is not valid for this toolkit: {msg}", ckpt.get("path")) from None
+        load_model_state(model, ckpt["model"], ckpt.get("path"))
+        return model.to(device).eval()
 
     @torch.no_grad()
     def predict(self, images, intrinsics, cam_to_world, near, far) -> Gaussians:
