@@ -23,6 +23,10 @@ folder is not given is skipped with a line):
   the extrinsics / intrinsics equal ours (pixelSplat's `make_baseline_1`, off in MVSplat's experiment:
   translations divided by the distance between the two context cameras); then the same settings at
   stage "train" with the bounded sampler and the experiment's 256x256: it yields examples (3x256x256).
+  Then a phone-size capture: our scene upscaled to 1280x720 (`resize_scene`, written as its own posed
+  dataset) through a default `seeu export pixelsplat` (no --resize: the default 360x640) is read at stage
+  "test" as above: one example, 360x640 images, cameras equal to the 1280x720 ones after the peers'
+  resize + centre crop (normalised intrinsics unchanged for 16:9, poses unchanged).
   The two checkouts both name their package `src`: each is imported alone and forgotten afterwards.
 * gaussian-splatting: `scene.gaussian_model.GaussianModel(sh_degree).load_ply` on our `gaussians.ply`
   gives back our means, opacities, scales, rotations and SH; `utils.camera_utils.camera_to_JSON` of the
@@ -97,11 +101,13 @@ sys.path.insert(0, str(ROOT))
 from pipelines.cli import main as cli_main  # noqa: E402
 from seeu_data import cameras as cam  # noqa: E402
 from seeu_data.ingest.points import read_points_ply  # noqa: E402
-from seeu_data.store.posed import PosedDataset, PosedScene  # noqa: E402
+from seeu_data.resize import resize_scene  # noqa: E402
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter, PosedScene  # noqa: E402
 from seeu_model.gaussians import Gaussians  # noqa: E402
 from seeu_model.ply import save_ply_bundle  # noqa: E402
 
 N_FRAMES, W, H = 24, 640, 360
+HD_HW = (720, 1280)  # (H, W) of the phone-size capture exported with the default --resize
 SH_DEGREE, N_GAUSSIANS = 3, 2000
 RESULTS: list[bool] = []
 
@@ -126,6 +132,12 @@ def make_outputs(work: Path) -> None:
     for stage in ("test", "train"):
         if not (work / "ps" / stage / "index.json").exists():
             run_cli(["export", "pixelsplat", str(posed), "--out", str(work / "ps"), "--stage", stage])
+    hd = work / "posed_hd"  # a phone-size capture: our scene at 1280x720, exported with the default size
+    if not (hd / "manifest.json").exists():
+        with PosedDatasetWriter(hd, params={}, provenance={}) as w:
+            w.add(resize_scene(PosedDataset(posed).load_scene(PosedDataset(posed).scene_ids[0]), HD_HW))
+    if not (work / "ps_hd" / "test" / "index.json").exists():
+        run_cli(["export", "pixelsplat", str(hd), "--out", str(work / "ps_hd"), "--size-check", "refuse"])
     if not (work / "ns").exists():
         run_cli(["export", "nerfstudio", str(posed), "--out", str(work / "ns")])
 
@@ -284,6 +296,32 @@ def read_re10k(peer: Re10kPeer, src: Path, work: Path, ours: PosedScene) -> None
             f"{peer.name} images",
             f"vs our decode of the same JPEGs: max |d| {d_px:.3f} / 255",
         )
+
+    # a 1280x720 capture through a default export: 360x640 frames the test stage yields, same cameras
+    hd = PosedDataset(work / "posed_hd").load_scene(ours.scene_id)
+    key_hd = json.loads((work / "ps_hd" / "test" / "index.json").read_text())
+    index_hd = work / "re10k_eval_index_hd.json"
+    index_hd.write_text(json.dumps({k: {"context": [0, n - 1], "target": list(range(n))} for k in key_hd}))
+    hd_sampler = {**evaluation, "index_path": str(index_hd)}
+    cfg = DatasetRE10kCfg(
+        **{**dataset, "roots": [work / "ps_hd"], "image_shape": [H, W]},
+        view_sampler=ViewSamplerEvaluationCfg(**{**hd_sampler, "index_path": index_hd}),
+    )
+    got, printed = examples("test", cfg, hd_sampler)
+    shapes = [tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")]
+    d_k = d_rot = np.inf
+    if got:
+        tgt = got[0]["target"]
+        d_rot = maxabs(tgt["extrinsics"].double().numpy()[:, :3, :3], hd.cam_to_world[:, :3, :3])
+        # after the peers' resize + centre crop of 1280x720 to 360x640 (scale 0.5, nothing cropped)
+        k_crop = cam.intrinsics_norm_matrix(cam.crop_intrinsics_norm(hd.intrinsics_norm, (H, W), (0, 0), (H, W)))
+        d_k = maxabs(tgt["intrinsics"].double().numpy(), k_crop)
+    report(
+        len(got) == 1 and shapes == [(2, 3, H, W), (n, 3, H, W)] and d_k < 1e-6 and d_rot < 1e-4,
+        f"{peer.name} 1280x720 capture, default export",
+        f"{len(got)} example(s), images {shapes}, max |d| rotation {d_rot:.2e}, normalised K after the crop "
+        f"{d_k:.2e}" + (f"; printed: {printed!r}" if printed else ""),
+    )
 
     # stage train with the peer's own +experiment=re10k dataset settings (bounded sampler, 256x256, augment)
     torch.manual_seed(0)

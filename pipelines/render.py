@@ -23,11 +23,14 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_RENDER_FRAMES, check_range
 from seeu_data.store.json_file import read_json
-from seeu_data.store.out_lock import locks_output
+
+if TYPE_CHECKING:
+    import torch
 
 
 @dataclass(frozen=True)
@@ -60,6 +63,36 @@ class RenderConfig:
             raise SeeUError(f"--fps must be a finite number > 0, got {self.fps}")
         if (self.data is None) == (self.cameras is None):
             raise SeeUError("give exactly one of --data (a shard example) or --cameras (your own views)")
+
+
+def context_from_views(images: list, cam_to_world, intrinsics_norm, near: float, far: float, image_hw) -> dict:
+    """The model's context dict (B = 1) from V decoded (H_i, W_i, 3) uint8 RGB images, (V, 4, 4) OpenCV
+    camera-to-world, (V, 4) normalised intrinsics of the images as given, and the scene's near/far:
+    every image resized to cover `image_hw` (H, W) and centre-cropped (the peers' crop), its intrinsics
+    updated. Returns the loader's layout: image (1, V, 3, H, W) uint8 (`training.loop.batch_to` makes
+    it float in [0, 1] as for shard examples), cam_to_world (1, V, 4, 4), intrinsics (1, V, 3, 3)
+    normalised, near/far (1, V) (float32), frame_index (1, V) = 0 .. V-1."""
+    import numpy as np
+
+    from seeu_data.cameras import intrinsics_norm_matrix
+    from seeu_data.image_ops import resize_cover_crop, resized_intrinsics
+
+    if not (np.isfinite(near) and np.isfinite(far) and 0 < near < far):
+        raise SeeUError(f"need finite 0 < near < far, got near={near}, far={far}")
+    resized = [resize_cover_crop(img, image_hw) for img in images]
+    intrs = [
+        intrinsics_norm_matrix(resized_intrinsics(k, img.shape[:2], image_hw))
+        for img, k in zip(images, intrinsics_norm)
+    ]
+    v = len(images)
+    return {
+        "image": torch.from_numpy(np.stack(resized)).permute(0, 3, 1, 2)[None].contiguous(),
+        "cam_to_world": torch.tensor(np.stack(cam_to_world), dtype=torch.float32)[None],
+        "intrinsics": torch.tensor(np.stack(intrs), dtype=torch.float32)[None],
+        "near": torch.full((1, v), float(near)),
+        "far": torch.full((1, v), float(far)),
+        "frame_index": torch.arange(v)[None],
+    }
 
 
 def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
@@ -126,33 +159,7 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
         images.append(img)
         poses.append(pose)
         intrs.append(k)
-    return context_views(images, np.stack(poses), np.stack(intrs), near, far, image_hw)
-
-
-def context_views(images: list, cam_to_world, intrinsics_norm, near: float, far: float, image_hw) -> dict:
-    """Context dict (B=1) of V views: (H_i, W_i, 3) uint8 RGB images, resized/cropped to `image_hw`
-    with their (V, 4) normalised intrinsics updated; cam_to_world (V, 4, 4) OpenCV."""
-    import numpy as np
-    import torch
-
-    from seeu_data.cameras import intrinsics_norm_matrix
-    from seeu_data.image_ops import resize_cover_crop, resized_intrinsics
-
-    imgs = [resize_cover_crop(img, image_hw) for img in images]
-    intrs = [
-        intrinsics_norm_matrix(resized_intrinsics(np.asarray(k, np.float64), img.shape[:2], image_hw))
-        for img, k in zip(images, intrinsics_norm)
-    ]
-    v = len(imgs)
-    img_t = torch.from_numpy(np.stack(imgs)).permute(0, 3, 1, 2).float().div(255.0)
-    return {
-        "image": img_t[None],
-        "cam_to_world": torch.tensor(np.asarray(cam_to_world), dtype=torch.float32)[None],
-        "intrinsics": torch.tensor(np.stack(intrs), dtype=torch.float32)[None],
-        "near": torch.full((1, v), near),
-        "far": torch.full((1, v), far),
-        "frame_index": torch.arange(v)[None],
-    }
+    return context_from_views(images, poses, intrs, near, far, image_hw)
 
 
 def shard_sample(data: str, sample: str, image_hw) -> dict:
@@ -167,7 +174,7 @@ def shard_sample(data: str, sample: str, image_hw) -> dict:
     raise SeeUError(f"no sample {sample!r} in this dataset", data)
 
 
-def _to_uint8(img):
+def to_uint8(img):
     """(3, H, W) float in [0, 1] -> (H, W, 3) uint8 RGB."""
     return (img.clamp(0, 1) * 255.0 + 0.5).byte().permute(1, 2, 0).cpu().numpy()
 
@@ -221,11 +228,74 @@ def render_views(
                 "image": torch.empty(1, c2w.shape[1], 3, *image_hw, device=dev),
             }
             out = render_gaussians(g, target, rasterizer)
-            frames += [_to_uint8(c) for c in out.color[0]]
+            frames += [to_uint8(c) for c in out.color[0]]
     return frames, g
 
 
-def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
+@dataclass
+class LoadedModel:
+    """A checkpoint's model ready to render: `ck` the checkpoint dict (`checkpoint.load_checkpoint`),
+    `model` in eval mode on `device`, `image_hw` (H, W) the model's input size (asked for, else the
+    training size), `backend` the rasterizer (asked for, else the training config's)."""
+
+    ck: dict
+    model: torch.nn.Module
+    image_hw: tuple[int, int]
+    backend: str
+    device: torch.device
+
+
+def load_model(
+    checkpoint: str | Path, image_size: tuple[int, int] | None = None, device: str | None = None, rasterizer=None
+) -> LoadedModel:
+    """The checkpoint loading of `seeu render` and `seeu predict` (a ckpt-*.pt file or a directory: its
+    newest; a converted MVSplat checkpoint the same way). `device` None: cuda when available."""
+    import torch
+
+    from pipelines.evaluate import check_image_size
+    from seeu_model.training import checkpoint as ckpt_io
+    from seeu_model.training.config import config_from_dict
+    from seeu_model.training.factory import model_from_checkpoint
+
+    ck = ckpt_io.load_checkpoint(checkpoint)
+    train_cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
+    hw: tuple[int, int] = image_size or train_cfg.data.image_size
+    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
+    model = model_from_checkpoint(ck, dev)
+    check_image_size(model, hw)
+    return LoadedModel(ck, model, hw, rasterizer or train_cfg.rasterizer, dev)
+
+
+def render_paths(
+    loaded: LoadedModel, ctx: dict, g, out: Path, frames: int, extrapolate: float, fps: float | None, report: dict
+) -> None:
+    """The camera paths from the first to the last context camera (`camera_path`): `interp` t in [0, 1]
+    and `extrap` t in [-e, 1 + e], `frames` views each, rendered from the Gaussians `g` into
+    OUT/frames/{interp,extrap}_NNN.png (and OUT/{interp,extrap}.mp4 when `fps` is given). Fills
+    `report[name]` and `report["timing_s"]["render_<name>_per_frame"]`."""
+    from seeu_model.camera_path import camera_path, path_parameters
+
+    c2w = ctx["cam_to_world"][0].double().cpu().numpy()
+    intr = ctx["intrinsics"][0].double().cpu().numpy()
+    for name, e in (("interp", 0.0), ("extrap", extrapolate)):
+        ts = path_parameters(frames, e)
+        poses, ks = camera_path(c2w[0], c2w[-1], intr[0], intr[-1], ts)
+        t0 = time.perf_counter()
+        imgs, g = render_views(loaded.model, ctx, poses, ks, loaded.image_hw, loaded.backend, g)
+        report["timing_s"][f"render_{name}_per_frame"] = (time.perf_counter() - t0) / len(imgs)
+        pngs = []
+        for i, img in enumerate(imgs):
+            pngs.append(out / "frames" / f"{name}_{i:03d}.png")
+            write_png(pngs[-1], img)
+        report[name] = {"frames": len(imgs), "t": [float(ts[0]), float(ts[-1])]}
+        if fps is not None:
+            write_mp4(out / f"{name}.mp4", imgs, fps)
+            report[name] = {"mp4": str(out / f"{name}.mp4"), **report[name]}
+        else:
+            report[name]["png"] = [str(p) for p in pngs]
+
+
+def export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
     """OUT/gaussians.ply + cameras.json (3DGS viewers' layout: the context cameras, then the sample's
     targets) + gaussians.json (SH degree, count). Returns the report entries."""
     import numpy as np
@@ -251,39 +321,18 @@ def _export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
     return {"ply": str(out / side["ply"]), "cameras_json": str(out / side["cameras"]), "sh_degree": side["sh_degree"]}
 
 
-def load_model(checkpoint, image_size=None, device=None, rasterizer=None):
-    """(model in eval mode, checkpoint dict, (H, W), rasterizer backend) of a checkpoint file or
-    directory; `image_size`/`rasterizer` None: the training config's; `device` None: cuda when available."""
-    import torch
-
-    from pipelines.evaluate import check_image_size
-    from seeu_model.training import checkpoint as ckpt_io
-    from seeu_model.training.config import config_from_dict
-    from seeu_model.training.factory import model_from_checkpoint
-
-    ck = ckpt_io.load_checkpoint(checkpoint)
-    train_cfg = config_from_dict(json.loads(json.dumps(ck["config"])))
-    hw: tuple[int, int] = image_size or train_cfg.data.image_size
-    dev = torch.device(device or ("cuda" if torch.cuda.is_available() else "cpu"))
-    model = model_from_checkpoint(ck, dev)
-    check_image_size(model, hw)
-    return model, ck, hw, rasterizer or train_cfg.rasterizer
-
-
-@locks_output(lambda cfg: cfg.out)
 def render(cfg: RenderConfig) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
     import numpy as np
     import torch
 
     from seeu_data.store.arrow_io import atomic_write_text
-    from seeu_model.camera_path import camera_path, path_parameters
     from seeu_model.training.factory import encode_context
     from seeu_model.training.loop import batch_to
 
     cfg.check()
-    model, ck, hw, backend = load_model(cfg.checkpoint, cfg.image_size, cfg.device, cfg.rasterizer)
-    dev = next(model.parameters()).device
+    loaded = load_model(cfg.checkpoint, cfg.image_size, cfg.device, cfg.rasterizer)
+    ck, model, hw, backend, dev = loaded.ck, loaded.model, loaded.image_hw, loaded.backend, loaded.device
     data, cameras, frames, extrapolate, fps = cfg.data, cfg.cameras, cfg.frames, cfg.extrapolate, cfg.fps
     if data is not None:
         batch = shard_sample(data, str(cfg.sample), hw)
@@ -295,8 +344,6 @@ def render(cfg: RenderConfig) -> dict:
     (out / "render.json").unlink(missing_ok=True)
     batch = batch_to(batch, dev)
     ctx = batch["context"]
-    c2w = ctx["cam_to_world"][0].double().cpu().numpy()
-    intr = ctx["intrinsics"][0].double().cpu().numpy()
     report: dict = {
         "checkpoint": ck["path"],
         "step": ck["step"],
@@ -309,25 +356,16 @@ def render(cfg: RenderConfig) -> dict:
     with torch.no_grad():
         g = encode_context(model, ctx)
     report["timing_s"] = {"encode": time.perf_counter() - t0}
-    for name, e in (("interp", 0.0), ("extrap", extrapolate)):
-        ts = path_parameters(frames, e)
-        poses, ks = camera_path(c2w[0], c2w[-1], intr[0], intr[-1], ts)
-        t0 = time.perf_counter()
-        imgs, g = render_views(model, ctx, poses, ks, hw, backend, g)
-        report["timing_s"][f"render_{name}_per_frame"] = (time.perf_counter() - t0) / len(imgs)
-        for i, img in enumerate(imgs):
-            write_png(out / "frames" / f"{name}_{i:03d}.png", img)
-        write_mp4(out / f"{name}.mp4", imgs, fps)
-        report[name] = {"mp4": str(out / f"{name}.mp4"), "frames": len(imgs), "t": [float(ts[0]), float(ts[-1])]}
-    write_png(out / "context.png", np.concatenate([_to_uint8(v) for v in ctx["image"][0]], axis=1))
+    render_paths(loaded, ctx, g, out, frames, extrapolate, fps, report)
+    write_png(out / "context.png", np.concatenate([to_uint8(v) for v in ctx["image"][0]], axis=1))
     if "target" in batch:  # ground truth (top) over the model's renders of the sample's targets
         tgt = batch["target"]
         renders, _ = render_views(
             model, ctx, tgt["cam_to_world"][0].cpu().numpy(), tgt["intrinsics"][0].cpu().numpy(), hw, backend, g
         )
-        top = np.concatenate([_to_uint8(v) for v in tgt["image"][0]], axis=1)
+        top = np.concatenate([to_uint8(v) for v in tgt["image"][0]], axis=1)
         write_png(out / "targets.png", np.concatenate([top, np.concatenate(renders, axis=1)], axis=0))
-    report.update(_export_gaussians(out, g, batch, hw))
+    report.update(export_gaussians(out, g, batch, hw))
     report["num_gaussians"] = int(g.means.shape[1])
     atomic_write_text(out / "render.json", json.dumps(report, indent=2) + "\n")
     return report

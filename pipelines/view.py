@@ -522,7 +522,8 @@ class Prediction:
         from pipelines.render import load_model
 
         self.server, self.notes = server, notes
-        self.model, _, self.hw, _ = load_model(checkpoint, device=device or "cpu")
+        loaded = load_model(checkpoint, device=device or "cpu")
+        self.model, self.hw = loaded.model, loaded.image_hw
         self.g = None
         self.lock = threading.Lock()
         self.image = server.gui.add_image(
@@ -567,12 +568,13 @@ class Prediction:
 
 
 def posed_context(scene, hw) -> dict:
-    """A two-view context of a posed scene: its first frame and the one a third of the way on."""
-    from pipelines.render import context_views
+    """A two-view context of a posed scene: the pair `seeu predict --auto-context` picks."""
+    from pipelines.predict import auto_context_pair
+    from pipelines.render import context_from_views
     from seeu_data.image_ops import decode_rgb
 
-    ids = [0, max(1, len(scene) // 3)] if len(scene) > 1 else [0, 0]
-    return context_views(
+    ids = list(auto_context_pair(len(scene)))
+    return context_from_views(
         [decode_rgb(bytes(scene.images[i])) for i in ids],
         np.asarray(scene.cam_to_world)[ids],
         np.asarray(scene.intrinsics_norm)[ids],

@@ -322,6 +322,70 @@ class SeeU(nn.Module):
         return self.encode_all(context, decode_coarse=False).gaussians
 
     # ------------------------------------------------------------------------------------------
+    # Prediction from a checkpoint (Python API of `seeu predict`)
+    # ------------------------------------------------------------------------------------------
+    @classmethod
+    def from_checkpoint(cls, path, device: torch.device | str | None = None) -> SeeU:
+        """The model of a `seeu train` checkpoint (a ckpt-*.pt file, or a directory: its newest; a
+        `seeu convert-checkpoint` MVSplat checkpoint the same way), in eval mode on `device` (None:
+        cuda when available). The same loading as `seeu render` / `seeu predict`. SeeUError (one line)
+        for a file that is not a valid checkpoint."""
+        from .training.checkpoint import load_checkpoint
+
+        return cls.from_checkpoint_dict(
+            load_checkpoint(path), device or ("cuda" if torch.cuda.is_available() else "cpu")
+        )
+
+    @classmethod
+    def from_checkpoint_dict(cls, ckpt: dict, device: torch.device | str = "cpu", **model_overrides) -> SeeU:
+        """The model of a loaded checkpoint (`training.checkpoint.load_checkpoint`): rebuilt from its
+        model config (frozen pretrained parts loaded from their own weights, as in training), its
+        trained state loaded (`load_model_state`), in eval mode on `device`."""
+        from .training.checkpoint import load_model_state
+
+        if not isinstance(ckpt.get("model_config") or {}, dict):
+            raise SeeUError("checkpoint model_config is not a mapping", ckpt.get("path"))
+        cfg_dict = dict(ckpt.get("model_config") or {})
+        cfg_dict.update(model_overrides)
+        try:
+            model = cls(SeeUConfig(**cfg_dict))
+        except (TypeError, ValueError, KeyError, AttributeError) as exc:
+            msg = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
+            raise SeeUError(f"checkpoint model config is not valid for this toolkit: {msg}", ckpt.get("path")) from None
+        load_model_state(model, ckpt["model"], ckpt.get("path"))
+        return model.to(device).eval()
+
+    @torch.no_grad()
+    def predict(self, images, intrinsics, cam_to_world, near, far) -> Gaussians:
+        """3D Gaussians from V >= 2 posed context views of one scene (what `seeu predict` computes).
+
+        images: (V, 3, H, W) float RGB in [0, 1] (H, W: multiples of `size_unit`, e.g. the training
+            size; `pipelines.render.context_from_views` resizes and crops decoded images to it);
+        intrinsics: (V, 3, 3) normalised (first row / W, second row / H: fx/W, fy/H, cx/W, cy/H, pixel
+            corner at 0, centres at +0.5), as everywhere in the toolkit (`seeu_data.cameras`);
+        cam_to_world: (V, 4, 4) OpenCV camera-to-world (x right, y down, z forward);
+        near, far: the scene's depth range in the cameras' units (floats, or (V,) per view).
+        Tensors or arrays; moved to the model's device as float32.
+        Returns Gaussians with B = 1: means (1, N, 3), scales (1, N, 3), rotations (1, N, 4), opacities
+        (1, N), sh (1, N, K, 3), N = V*H*W, in the cameras' world frame.
+        """
+        dev = next(self.parameters()).device
+        img = torch.as_tensor(images, dtype=torch.float32, device=dev)
+        v = img.shape[0]
+
+        def per_view(x) -> torch.Tensor:
+            return torch.as_tensor(x, dtype=torch.float32, device=dev).expand(v)[None].clone()
+
+        context = {
+            "image": img[None],
+            "intrinsics": torch.as_tensor(intrinsics, dtype=torch.float32, device=dev)[None],
+            "cam_to_world": torch.as_tensor(cam_to_world, dtype=torch.float32, device=dev)[None],
+            "near": per_view(near),
+            "far": per_view(far),
+        }
+        return self.encode(context)
+
+    # ------------------------------------------------------------------------------------------
     # Rendering
     # ------------------------------------------------------------------------------------------
     @staticmethod

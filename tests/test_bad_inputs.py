@@ -1116,6 +1116,32 @@ case("view-sample-out-of-range", text="no sample 99")(
 )
 
 
+# ---- predict ----
+def _predict(ws, tmp, scene_dir, *extra) -> list[str]:
+    return ["predict", str(scene_dir), "--checkpoint", str(ws["ckpt"]), "--out", str(tmp / "p"), *extra]
+
+
+case("predict-context-out-of-range", text="--context frame 12 is not in scene 'syn0' (frames 0..11)")(
+    lambda ws, tmp: _predict(ws, tmp, ws["posed"], "--context", "3,12")
+)
+case("predict-context-same-frame", text="--context frames must differ")(
+    lambda ws, tmp: _predict(ws, tmp, ws["posed"], "--context", "4,4")
+)
+case("predict-context-one-frame", text="context frames in --context")(
+    lambda ws, tmp: _predict(ws, tmp, ws["posed"], "--context", "4")
+)
+case("predict-context-not-indices", text="is not frame indices I,J")(
+    lambda ws, tmp: _predict(ws, tmp, ws["posed"], "--context", "2,x")
+)
+case("predict-unposed-images-folder", text="no manifest.json")(
+    lambda ws, tmp: _put(tmp / "imgs" / "a.png", "") or _predict(ws, tmp, tmp / "imgs")
+)
+case("predict-triples-not-posed", text="expected a seeu.posed_frames dataset")(
+    lambda ws, tmp: _predict(ws, tmp, ws["triples"])
+)
+case("predict-unknown-scene", text="no scene 'nope'")(lambda ws, tmp: _predict(ws, tmp, ws["posed"], "--scene", "nope"))
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)

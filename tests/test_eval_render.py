@@ -246,3 +246,51 @@ def test_render_shard_sample_and_user_cameras(run, tmp_path):
         )
         == 2
     )
+
+
+def test_predict_and_python_api_give_the_gaussians_render_gives(run, tmp_path, capsys):
+    """`seeu predict` on the posed scene a shard example was built from, with that example's context
+    frames, and `SeeU.from_checkpoint(...).predict(...)` on the example's views, give the Gaussians
+    `seeu render --data --sample` gives (1e-6); --auto-context picks the widest default gap, centred."""
+    from pipelines.render import shard_sample
+    from seeu_model.ply import load_ply
+    from seeu_model.seeu import SeeU
+    from seeu_model.training.loop import batch_to
+
+    shards, run_dir = run
+    ckpt = str(run_dir / "checkpoints")
+    batch = batch_to(shard_sample(str(shards), "1", (32, 32)), "cpu")
+    scene_id, frames = batch["scene_id"][0], batch["context"]["frame_index"][0].tolist()
+    common = ["--checkpoint", ckpt, "--frames", "2"]
+    assert main(["render", "--data", str(shards), "--sample", "1", "--out", str(tmp_path / "r"), *common]) == 0
+    posed = shards.parent / "posed"
+    context = ",".join(map(str, frames))
+    argv = ["predict", str(posed), "--scene", scene_id, "--context", context, "--out", str(tmp_path / "p"), *common]
+    capsys.readouterr()
+    assert main(argv) == 0
+    line = capsys.readouterr().out.strip()
+    assert "\n" not in line and f"from frames {context} (given)" in line
+    rep = json.loads((tmp_path / "p" / "predict.json").read_text())
+    assert rep["context_frames"] == frames and rep["num_gaussians"] == 2 * 32 * 32
+    assert sorted(p.name for p in (tmp_path / "p" / "frames").iterdir()) == [
+        "extrap_000.png",
+        "extrap_001.png",
+        "interp_000.png",
+        "interp_001.png",
+    ]
+    assert len(json.loads((tmp_path / "p" / "cameras.json").read_text())) == 2
+    rendered = load_ply(tmp_path / "r" / "gaussians.ply")
+    predicted = load_ply(tmp_path / "p" / "gaussians.ply")
+    ctx = batch["context"]
+    api = SeeU.from_checkpoint(ckpt, device="cpu").predict(
+        ctx["image"][0], ctx["intrinsics"][0], ctx["cam_to_world"][0], ctx["near"][0], ctx["far"][0]
+    )
+    api.rotations = api.rotations / api.rotations.norm(dim=-1, keepdim=True)  # the .ply holds unit quaternions
+    for name in ("means", "scales", "rotations", "opacities", "sh"):
+        ref = getattr(rendered, name)
+        assert ref.shape == getattr(predicted, name).shape == getattr(api, name).shape
+        assert (ref - getattr(predicted, name)).abs().max() <= 1e-6, name
+        assert (ref - getattr(api, name)).abs().max() <= 1e-6, name
+    # --auto-context: frames (N-1-g)//2 and + g, g = min(45, N-1): the whole 16-frame scene
+    assert main(["predict", str(posed), "--scene", scene_id, "--out", str(tmp_path / "a"), *common]) == 0
+    assert json.loads((tmp_path / "a" / "predict.json").read_text())["context_frames"] == [0, 15]

@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import cv2
 import numpy as np
 import torch
 
@@ -80,6 +81,8 @@ def test_pixelsplat_export_cli_and_reimport(tmp_path, capsys):
                 "train",
                 "--scenes",
                 "beta",
+                "--resize",
+                "none",
             ]
         )
         == 0
@@ -102,3 +105,58 @@ def test_pixelsplat_export_cli_and_reimport(tmp_path, capsys):
         == 2
     )
     assert "gamma" in capsys.readouterr().err
+
+
+def _blob_scene(scene_id: str, height: int, width: int, point: np.ndarray) -> tuple:
+    """Two frames of `height x width` (H x W): a dark image with a bright Gaussian blob (sigma 4 px)
+    where the frame's camera puts `point` (3,), pixel centres at +0.5. Returns (scene, (N, 2) pixels)."""
+    scene = make_posed_scene(scene_id, n=2, height=height, width=width)
+    uv, _ = cam.project_points(point[None], scene.cam_to_world, scene.intrinsics_norm, width, height)
+    x, y = np.arange(width) + 0.5, np.arange(height) + 0.5
+    images = []
+    for u, v in uv[:, 0]:
+        blob = 20.0 + 200.0 * np.exp(-((x[None] - u) ** 2 + (y[:, None] - v) ** 2) / (2 * 4.0**2))
+        ok, buf = cv2.imencode(".png", np.repeat(blob[..., None], 3, 2).round().astype(np.uint8))
+        images.append(buf.tobytes())
+    scene.images, scene.image_format = images, "png"
+    return scene, uv[:, 0]
+
+
+def test_pixelsplat_export_default_resizes_any_size_to_the_peers_frame(tmp_path, capsys):
+    """Default export: every frame 360x640 (H x W) whatever its source size, and the exported cameras
+    put a known 3-D point where the source camera put it after the peers' resize + centre crop
+    (scale s = max(360 / H, 640 / W) to cover, crop the middle: the peers' `rescale_and_crop`), and where
+    the frame's pixels show it (a blob drawn at its projection). `--resize none` keeps the source size."""
+    point = np.array([0.07, 0.04, 0.0])
+    sizes = {"landscape": (720, 1280), "portrait": (1280, 720), "four_three": (480, 640)}
+    made = {k: _blob_scene(k, h, w, point) for k, (h, w) in sizes.items()}
+    with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
+        for scene, _ in made.values():
+            w.add(scene)
+    argv = ["export", "pixelsplat", str(tmp_path / "posed"), "--size-check", "refuse"]
+    assert cli_main([*argv, "--out", str(tmp_path / "ps")]) == 0
+    index = json.loads((tmp_path / "ps" / "test" / "index.json").read_text())
+    examples = {ex["key"]: ex for ex in torch.load(tmp_path / "ps" / "test" / "000000.torch", weights_only=True)}
+    assert sorted(index) == sorted(examples) == sorted(sizes)
+    for key, (h, w) in sizes.items():
+        ex, (scene, uv_src) = examples[key], made[key]
+        s = max(360 / h, 640 / w)
+        oy, ox = (round(h * s) - 360) // 2, (round(w * s) - 640) // 2
+        expected = uv_src * [round(w * s) / w, round(h * s) / h] - [ox, oy]  # source pixels after resize + crop
+        w2c = torch.eye(4, dtype=torch.float64).repeat(2, 1, 1)
+        w2c[:, :3] = ex["cameras"][:, 6:].double().view(2, 3, 4)
+        uv, _ = cam.project_points(point[None], w2c.inverse().numpy(), ex["cameras"][:, :4].double().numpy(), 640, 360)
+        assert np.abs(uv[:, 0] - expected).max() < 1e-3, (key, uv[:, 0], expected)
+        for i, data in enumerate(ex["images"]):
+            img = cv2.imdecode(data.numpy(), cv2.IMREAD_GRAYSCALE).astype(np.float64)
+            assert img.shape == (360, 640)
+            u0, v0 = np.round(expected[i]).astype(int)
+            win = np.clip(img[v0 - 12 : v0 + 13, u0 - 12 : u0 + 13] - 20.0, 0, None)
+            yy, xx = np.mgrid[v0 - 12 : v0 + 13, u0 - 12 : u0 + 13] + 0.5
+            centroid = np.array([(win * xx).sum(), (win * yy).sum()]) / win.sum()
+            assert np.abs(centroid - expected[i]).max() < 0.1, (key, centroid, expected[i])
+    # --resize none: frames as stored (the loaders would skip them: one warning line)
+    assert cli_main([*argv[:-2], "--out", str(tmp_path / "native"), "--resize", "none", "--scenes", "landscape"]) == 0
+    assert "would skip 1 of 1 scenes" in capsys.readouterr().err
+    (ex,) = torch.load(tmp_path / "native" / "test" / "000000.torch", weights_only=True)
+    assert bytes(ex["images"][0].numpy()) == made["landscape"][0].images[0]

@@ -173,7 +173,9 @@ def test_round_trip_posed_export_import(tmp_path):
     scenes = [make_posed_scene("s0", n=6, seed=0), make_posed_scene("s1", n=4, seed=1, image_format="png")]
     scenes[0].meta = {"url": "https://example.com/v"}
     ds = _posed_dataset(tmp_path / "posed", scenes)
-    s = export_pixelsplat(ds, PixelSplatExportConfig(out=tmp_path / "chunks", stage="train", chunk_bytes=1))
+    s = export_pixelsplat(
+        ds, PixelSplatExportConfig(out=tmp_path / "chunks", stage="train", chunk_bytes=1, resize=None)
+    )
     assert s["chunks"] == 2
     # Exactly the peer's keys and dtypes.
     chunk = torch.load(tmp_path / "chunks" / "train" / "000000.torch", weights_only=True)
@@ -208,7 +210,10 @@ def test_round_trip_chunks_import_export(tmp_path):
     assert (
         cli_main(["import", "pixelsplat", str(tmp_path / "ds"), "--stage", "test", "--out", str(tmp_path / "p")]) == 0
     )
-    assert cli_main(["export", "pixelsplat", str(tmp_path / "p"), "--out", str(tmp_path / "again")]) == 0
+    assert (
+        cli_main(["export", "pixelsplat", str(tmp_path / "p"), "--out", str(tmp_path / "again"), "--resize", "none"])
+        == 0
+    )
     again = torch.load(tmp_path / "again" / "test" / "000000.torch", weights_only=True)
     by_key = {ex["key"]: ex for ex in again}
     for ex in examples:

@@ -532,8 +532,13 @@ def test_lens_distortion_is_estimated_and_undistorted(tmp_path):
 
     assert psnr(stored, truth) > 28  # measured ~31.7
     assert psnr(stored, truth) > psnr(distorted, truth) + 4  # measured ~25.4 for the distorted frame
-    # ... and the pixelSplat export of it keeps the original frame size too
-    assert cli_main(["export", "pixelsplat", str(tmp_path / "out" / "lens"), "--out", str(tmp_path / "ps")]) == 0
+    # ... and the pixelSplat export of it keeps the original frame size too (--resize none)
+    assert (
+        cli_main(
+            ["export", "pixelsplat", str(tmp_path / "out" / "lens"), "--out", str(tmp_path / "ps"), "--resize", "none"]
+        )
+        == 0
+    )
     import torch
 
     (ex,) = torch.load(tmp_path / "ps" / "test" / "000000.torch", weights_only=True)

@@ -220,3 +220,40 @@ def test_seeu_refiner_on_mvsplat_starts_at_mvsplat_and_learns(fixture):
     loss = enc.gaussians.means.square().mean() + enc.gaussians.sh.square().mean() + enc.gaussians.opacities.mean()
     loss.backward()
     assert float(model.refiner.out.weight.grad.abs().sum()) > 0
+
+
+def test_predict_with_a_converted_checkpoint(fixture, tmp_path):
+    """`seeu predict` takes a `convert-checkpoint` result as it takes a trained one, and gives the
+    Gaussians `SeeU.from_checkpoint(...).predict` gives for the same context (1e-6)."""
+    from pipelines.cli import main as cli_main
+    from pipelines.render import context_from_views
+    from seeu_data.image_ops import decode_rgb
+    from seeu_data.store.posed import PosedDataset
+    from seeu_model.ply import load_ply
+    from seeu_model.training.loop import batch_to
+    from tests.training_fixtures import synthetic_posed
+
+    state = {k: t.float() for k, t in fixture["state_dict"].items()}
+    torch.save({"state_dict": state}, tmp_path / "mvsplat.ckpt")
+    convert_checkpoint(tmp_path / "mvsplat.ckpt", tmp_path / "converted")
+    posed = synthetic_posed(tmp_path / "data", n_frames=6, hw=(32, 32))
+    argv = ["predict", str(posed), "--checkpoint", str(tmp_path / "converted"), "--out", str(tmp_path / "p")]
+    assert cli_main([*argv, "--context", "1,4", "--frames", "2", "--image-size", "64x64"]) == 0
+    got = load_ply(tmp_path / "p" / "gaussians.ply")
+    scene = PosedDataset(posed).load_scene("syn0")
+    ctx = context_from_views(
+        [decode_rgb(bytes(scene.images[i])) for i in (1, 4)],
+        scene.cam_to_world[[1, 4]],
+        scene.intrinsics_norm[[1, 4]],
+        scene.near,
+        scene.far,
+        (64, 64),
+    )
+    ctx = batch_to(ctx, torch.device("cpu"))
+    model = SeeU.from_checkpoint(tmp_path / "converted", device="cpu")
+    assert model.cfg.encoder == "mvsplat"
+    api = model.predict(ctx["image"][0], ctx["intrinsics"][0], ctx["cam_to_world"][0], scene.near, scene.far)
+    api.rotations = api.rotations / api.rotations.norm(dim=-1, keepdim=True)
+    assert got.means.shape == (1, 2 * 64 * 64, 3)
+    for name in ("means", "scales", "rotations", "opacities", "sh"):
+        assert (getattr(got, name) - getattr(api, name)).abs().max() <= 1e-6, name

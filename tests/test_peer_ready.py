@@ -241,10 +241,10 @@ def test_export_resize_makes_frames_peer_size_with_ground_truth_intrinsics(tmp_p
     with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
         w.add(scene)
     base = ["export", "pixelsplat", str(tmp_path / "posed")]
-    # as stored (600x800) the loaders would skip it: refused in one line, no index.json
-    assert cli_main(base + ["--out", str(tmp_path / "bad"), "--size-check", "refuse"]) == 2
+    # as stored (600x800, --resize none) the loaders would skip it: refused in one line, no index.json
+    assert cli_main(base + ["--out", str(tmp_path / "bad"), "--resize", "none", "--size-check", "refuse"]) == 2
     err = capsys.readouterr().err.strip()
-    assert "800x600" in err and "--resize 360x640" in err and "\n" not in err
+    assert "800x600" in err and "--resize none" in err and "\n" not in err
     assert not (tmp_path / "bad" / "test" / "index.json").exists()
     assert cli_main(base + ["--out", str(tmp_path / "ps"), "--resize", "360x640", "--size-check", "refuse"]) == 0
     (ex,) = torch.load(tmp_path / "ps" / "test" / "000000.torch", weights_only=True)

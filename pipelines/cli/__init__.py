@@ -37,6 +37,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "train": ("pipelines.cli.train", "train SeeU on triple shards"),
     "eval": ("pipelines.cli.evaluate", "evaluate a checkpoint: PSNR/SSIM/LPIPS (and DTU depth/Chamfer)"),
     "render": ("pipelines.cli.render", "render novel views and export a .ply from a checkpoint"),
+    "predict": ("pipelines.cli.predict", "a checkpoint's Gaussians and novel views of your posed scene"),
     "ablate": ("pipelines.cli.ablate", "run the paper's ablation configurations with equal budgets"),
     "model-info": ("pipelines.cli.model_info", "parameter counts per module of the SeeU model"),
     "convert-checkpoint": ("pipelines.cli.convert_checkpoint", "convert an MVSplat checkpoint into a SeeU checkpoint"),

@@ -7,7 +7,8 @@ Formats:
 
 Examples:
   seeu export pixelsplat data/posed/scene --out datasets/my_re10k --stage test
-  seeu export pixelsplat data/posed/phone --out datasets/mine --resize 360x640 --size-check refuse
+  seeu export pixelsplat data/posed/phone --out datasets/mine --size-check refuse
+  seeu export pixelsplat data/posed/scene --out datasets/native --resize none   # frames as stored
   seeu export nerfstudio data/posed/scene --out exports/ns --scenes scene0
 """
 
@@ -19,8 +20,11 @@ import sys
 from pathlib import Path
 
 from pipelines.cli.options import add_max_pixels, add_out, add_progress, max_pixels, progress_wanted
+from seeu_data.exporters.pixelsplat import PEER_HW
 from seeu_data.limits import MAX_CHUNK_BYTES
 from seeu_data.settings import parse_dims, parse_scene_list
+
+RESIZE_DEFAULT = f"{PEER_HW[0]}x{PEER_HW[1]}"
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -41,10 +45,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     f.add_argument(
         "--resize",
-        metavar="HxW",
-        default=None,
-        help="resize + centre-crop every frame (the peers' crop, intrinsics updated, JPEG re-encoded); "
-        "360x640 makes any posed data RE10K-loader ready",
+        metavar="HxW|none",
+        default=RESIZE_DEFAULT,
+        help="resize every frame to cover HxW and crop the centre (the peers' crop, intrinsics updated, JPEG "
+        f"re-encoded; frames already HxW kept as stored); default {RESIZE_DEFAULT}, the peers' RE10K size; "
+        "'none' keeps every frame as stored",
     )
     f.add_argument(
         "--size-check",
@@ -73,7 +78,7 @@ def run(args: argparse.Namespace) -> int:
             stage=args.stage,
             chunk_bytes=int(args.chunk_mb * 1e6) if math.isfinite(args.chunk_mb) else 0,
             scenes=scene_ids,
-            resize=parse_dims(args.resize, "--resize") if args.resize else None,
+            resize=None if args.resize.strip().lower() == "none" else parse_dims(args.resize, "--resize"),
             size_check=args.size_check,
         )
         s = export_pixelsplat(dataset, cfg, progress=progress)

@@ -8,8 +8,10 @@ Each chunk is `torch.save(list_of_examples)` with exactly the peer's keys and dt
 The peers' RE10K loaders (pixelSplat, MVSplat: `src/dataset/dataset_re10k.py`) skip an example
 whose frames are not 360x640 (H x W) or whose field of view exceeds `max_fov` = 100 degrees on either
 axis (the angle between the rays through the middles of opposite frame edges). `peer_skip_reason`
-applies that rule; `resize` (H, W) resizes + centre-crops every frame like the peers (JPEG re-encoded
-at `jpeg_quality`, intrinsics updated) so any posed data can be made loader-ready; `size_check`
+applies that rule. `resize` (H, W), by default the peers' `PEER_HW`, resizes every frame to cover H x W
+and crops the centre, as the peers' own crop shim does (`seeu_data.resize.resize_scene`: intrinsics
+updated, JPEG re-encoded at `jpeg_quality`), so posed data of any size is loader-ready; a scene whose
+frames are already H x W is kept as stored (bytes unchanged); None keeps every frame as stored. `size_check`
 "warn" (default: count the scenes the loaders would skip, the CLI prints one line) or "refuse"
 (raise SeeUError at the first such scene, before index.json is written).
 
@@ -49,14 +51,15 @@ SIZE_CHECKS = ("warn", "refuse")
 @dataclass
 class PixelSplatExportConfig:
     """`out`: dataset root (chunks go to `out/stage/`); `scenes`: ids to export (None = all);
-    `resize`: (H, W) to resize + centre-crop every frame to (None = as stored); `size_check`: what to
+    `resize`: (H, W) to resize + centre-crop every frame to (default the peers' 360x640; None = as
+    stored; frames already that size are kept as stored); `size_check`: what to
     do with a scene the peers' loaders would skip ("warn" | "refuse")."""
 
     out: Path
     stage: str = "test"
     chunk_bytes: int = 100_000_000
     scenes: list[str] | None = None
-    resize: tuple[int, int] | None = None
+    resize: tuple[int, int] | None = PEER_HW
     size_check: str = "warn"
     jpeg_quality: int = 95
 
@@ -93,7 +96,10 @@ def peer_skip_reason(width: np.ndarray, height: np.ndarray, intrinsics_norm: np.
     w, h = np.asarray(width), np.asarray(height)
     if not ((h == PEER_HW[0]).all() and (w == PEER_HW[1]).all()):
         bad = int(np.nonzero((h != PEER_HW[0]) | (w != PEER_HW[1]))[0][0])
-        return f"frames are {int(w[bad])}x{int(h[bad])}, the RE10K loaders need 640x360 (try --resize 360x640)"
+        return (
+            f"frames are {int(w[bad])}x{int(h[bad])}, the RE10K loaders need 640x360 "
+            "(seeu export pixelsplat resizes to it unless given --resize none)"
+        )
     fov = peer_fov_deg(intrinsics_norm)
     if (fov > PEER_MAX_FOV_DEG).any():
         return f"field of view {fov.max():.1f} deg > {PEER_MAX_FOV_DEG:.0f} deg, which the RE10K loaders skip"
@@ -164,7 +170,9 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
         file=sys.stderr,
         disable=not progress,
     ):
-        if cfg.resize is not None:
+        if cfg.resize is not None and not (
+            (np.asarray(scene.height) == cfg.resize[0]).all() and (np.asarray(scene.width) == cfg.resize[1]).all()
+        ):
             scene = resize_scene(scene, cfg.resize, cfg.jpeg_quality)
         reason = peer_skip_reason(scene.width, scene.height, scene.intrinsics_norm)
         if reason is not None:

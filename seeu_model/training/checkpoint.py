@@ -200,6 +200,25 @@ def load_checkpoint(path: str | Path) -> dict:
     return ckpt
 
 
+def load_model_state(model: torch.nn.Module, state: dict[str, torch.Tensor], where: str | None = None) -> None:
+    """Load a `model_state_for_checkpoint` dict; parameters of frozen modules may be absent. Every
+    tensor must be finite and of the model's shape (`checkpoint.check_tensors`)."""
+    check_tensors(state, where, model.state_dict(), prefix="model")
+    try:
+        missing, unexpected = model.load_state_dict(state, strict=False)
+    except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself
+        raise SeeUError(f"checkpoint weights do not fit the model ({str(exc).splitlines()[0][:200]})", where) from None
+    frozen_prefixes = tuple(model.frozen_prefixes()) if hasattr(model, "frozen_prefixes") else ()
+    frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
+    missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]
+    if missing or unexpected:
+        raise SeeUError(
+            f"checkpoint does not match the model (missing {missing[:3]}, unexpected {list(unexpected)[:3]}):"
+            " was it trained with another model config?",
+            where,
+        )
+
+
 def unlink_stale_temporaries(directory: str | Path) -> None:
     """Remove temporaries left by a crashed writer (``.ckpt-*.pt.<pid>.tmp``)."""
     d = Path(directory)

@@ -14,7 +14,6 @@ import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
-from seeu_model.training.checkpoint import check_tensors
 
 
 def resolve_model_config(section: dict[str, Any]):
@@ -39,23 +38,11 @@ def build_model(section: dict[str, Any]) -> tuple[nn.Module, dict]:
 
 def model_from_checkpoint(ckpt: dict, device: torch.device | str = "cpu", **model_overrides: Any) -> nn.Module:
     """Rebuild the model stored in a training checkpoint (frozen pretrained parts are loaded from
-    their own weights, as in training) and load its trained state. Puts it in eval mode."""
-    from seeu_model.config import SeeUConfig
-
-    if not isinstance(ckpt.get("model_config") or {}, dict):
-        raise SeeUError("checkpoint model_config is not a mapping", ckpt.get("path"))
-    cfg_dict = dict(ckpt.get("model_config") or {})
-    cfg_dict.update(model_overrides)
+    their own weights, as in training) and load its trained state. Puts it in eval mode
+    (`SeeU.from_checkpoint_dict`)."""
     from seeu_model.seeu import SeeU
 
-    try:
-        mcfg = SeeUConfig(**cfg_dict)
-        model = SeeU(mcfg)
-    except (TypeError, ValueError, KeyError, AttributeError) as exc:
-        msg = str(exc).splitlines()[0][:200] if str(exc) else type(exc).__name__
-        raise SeeUError(f"checkpoint model config is not valid for this toolkit: {msg}", ckpt.get("path")) from None
-    load_model_state(model, ckpt["model"], ckpt.get("path"))
-    return model.to(device).eval()
+    return SeeU.from_checkpoint_dict(ckpt, device, **model_overrides)
 
 
 def _frozen_is_random(model_config: dict) -> bool:
@@ -79,25 +66,6 @@ def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str
 
         return trainable_state_dict(model)
     return {k: v.detach().cpu() for k, v in model.trainable_state_dict().items()}
-
-
-def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: str | None = None) -> None:
-    """Load a `model_state_for_checkpoint` dict; parameters of frozen modules may be absent. Every
-    tensor must be finite and of the model's shape (`checkpoint.check_tensors`)."""
-    check_tensors(state, where, model.state_dict(), prefix="model")
-    try:
-        missing, unexpected = model.load_state_dict(state, strict=False)
-    except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself
-        raise SeeUError(f"checkpoint weights do not fit the model ({str(exc).splitlines()[0][:200]})", where) from None
-    frozen_prefixes = tuple(model.frozen_prefixes()) if hasattr(model, "frozen_prefixes") else ()
-    frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
-    missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]
-    if missing or unexpected:
-        raise SeeUError(
-            f"checkpoint does not match the model (missing {missing[:3]}, unexpected {list(unexpected)[:3]}):"
-            " was it trained with another model config?",
-            where,
-        )
 
 
 def target_color(output: Any) -> torch.Tensor:

@@ -36,9 +36,10 @@ from torch import nn
 from seeu_data.errors import SeeUError
 from seeu_data.loader.collate import batch_to_device
 from seeu_model.training import checkpoint as ckpt_io
+from seeu_model.training.checkpoint import load_model_state
 from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, TrainConfig, save_config
 from seeu_model.training.distributed import DistInfo, all_gather_objects, max_across, mean_across
-from seeu_model.training.factory import load_model_state, model_state_for_checkpoint
+from seeu_model.training.factory import model_state_for_checkpoint
 from seeu_model.training.loss import LossParts, photometric_loss
 from seeu_model.training.schedule import make_scheduler
 

@@ -1,0 +1,159 @@
+"""The predict stage: a trained checkpoint's 3D Gaussians for your own posed scene, and novel views.
+
+Input: a posed scene (the output of `seeu ingest` or `seeu import`: a posed-frames directory with
+manifest.json; `scene` picks one when it holds several) and context frames: `context` (frame indices
+0 .. N-1 of the scene, at least two) or, when None, `auto_context_pair`: the widest context gap the
+build sampler's default interpolation setting allows (`SamplingConfig().gap_max` = 45 frames, at most
+N - 1), centred in the scene -- frames (N-1-g)//2 and that + g, g = min(45, N - 1).
+
+The context frames are decoded, resized to cover the model's input size and centre-cropped (the
+intrinsics updated), with the scene's near/far: the same context `seeu render --cameras` builds
+(`render.context_from_views`), the same checkpoint loading (`render.load_model`), encoder and
+renderer. Writes OUT/gaussians.ply (3DGS layout) with OUT/cameras.json (the context cameras) and
+OUT/gaussians.json, OUT/frames/{interp,extrap}_NNN.png (the camera path from the first to the last
+context camera, t in [0, 1] and [-e, 1 + e]), OUT/context.png, and OUT/predict.json (written last).
+
+Example:
+    from pipelines.predict import PredictConfig, predict
+
+    report = predict(PredictConfig(scene_dir="data/posed/clip", checkpoint="runs/re10k/checkpoints", out="out/p"))
+    report["context_frames"], report["ply"], report["num_gaussians"]
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_RENDER_FRAMES, check_range
+from seeu_data.store.out_lock import locks_output
+
+FRAMES = 5  # views per camera path
+EXTRAPOLATE = 0.5  # the extrapolated path runs from t = -e to 1 + e
+
+
+@dataclass(frozen=True)
+class PredictConfig:
+    """One `seeu predict` run: `scene_dir` a posed-frames directory, `scene` its scene id (None: its
+    only scene), `context` frame indices (None: `auto_context_pair`), `frames` views per path,
+    `extrapolate` e, `image_size` (H, W) (None: the training size), `device` (None: cuda when
+    available), `rasterizer` auto | torch | gsplat (None: the training config's)."""
+
+    scene_dir: str | Path
+    checkpoint: str | Path
+    out: str | Path
+    scene: str | None = None
+    context: tuple[int, ...] | None = None
+    frames: int = FRAMES
+    extrapolate: float = EXTRAPOLATE
+    image_size: tuple[int, int] | None = None
+    device: str | None = None
+    rasterizer: str | None = None
+    max_pixels: int = MAX_PIXELS
+
+    def check(self) -> None:
+        check_range(self.frames, "--frames", 2, MAX_RENDER_FRAMES)
+        for side in self.image_size or ():
+            check_range(side, "--image-size", 1, MAX_IMAGE_SIDE)
+        if not (math.isfinite(self.extrapolate) and self.extrapolate >= 0):
+            raise SeeUError(f"--extrapolate must be a finite number >= 0, got {self.extrapolate}")
+        if self.context is not None:
+            check_range(len(self.context), "context frames in --context", 2, MAX_CONTEXT_VIEWS)
+            if len(set(self.context)) != len(self.context):
+                raise SeeUError(f"--context frames must differ, got {','.join(map(str, self.context))}")
+
+
+def auto_context_pair(num_frames: int) -> tuple[int, int]:
+    """The context pair `--auto-context` picks in a scene of `num_frames` frames: the widest gap the
+    build sampler's default interpolation setting draws (`SamplingConfig().gap_max`), clipped to the
+    scene (`sampling.max_gap`), centred."""
+    from seeu_data.build.sampling import SamplingConfig, max_gap
+
+    if num_frames < 2:
+        raise SeeUError(f"the scene has {num_frames} frame(s): at least two are needed as context views")
+    gap = max_gap(SamplingConfig(), num_frames)
+    left = (num_frames - 1 - gap) // 2
+    return left, left + gap
+
+
+def load_posed_scene(scene_dir: str | Path, scene: str | None, max_pixels: int = MAX_PIXELS):
+    """The PosedScene of a posed-frames directory (SeeUError, one line, for anything else: a folder of
+    images, an unfinished ingest, another kind of dataset)."""
+    from seeu_data.store.dataset_check import check_dataset
+    from seeu_data.store.posed import SCHEMA, PosedDataset
+
+    check_dataset(scene_dir, check_sha=False, max_pixels=max_pixels, expect_schema=SCHEMA)
+    ds = PosedDataset(scene_dir)
+    if scene is None:
+        if len(ds.scene_ids) != 1:
+            shown = ", ".join(ds.scene_ids[:5]) + (", ..." if len(ds.scene_ids) > 5 else "")
+            raise SeeUError(f"the dataset holds {len(ds.scene_ids)} scenes ({shown}): pick one with --scene", scene_dir)
+        scene = ds.scene_ids[0]
+    if scene not in set(ds.scene_ids):
+        raise SeeUError(f"no scene {scene!r} in this dataset", scene_dir)
+    return ds.load_scene(scene)
+
+
+@locks_output(lambda cfg: cfg.out)
+def predict(cfg: PredictConfig) -> dict:
+    """Python API of `seeu predict`; returns the report (also OUT/predict.json)."""
+    import numpy as np
+    import torch
+
+    from pipelines.render import context_from_views, export_gaussians, load_model, render_paths, to_uint8, write_png
+    from seeu_data.image_ops import decode_rgb
+    from seeu_data.store.arrow_io import atomic_write_text
+    from seeu_model.training.factory import encode_context
+    from seeu_model.training.loop import batch_to
+
+    cfg.check()
+    scene = load_posed_scene(cfg.scene_dir, cfg.scene, cfg.max_pixels)
+    n = len(scene)
+    picked = "auto" if cfg.context is None else "given"
+    context = auto_context_pair(n) if cfg.context is None else tuple(sorted(cfg.context))
+    bad = [i for i in context if not 0 <= i < n]
+    if bad:
+        raise SeeUError(
+            f"--context frame {bad[0]} is not in scene {scene.scene_id!r} (frames 0..{n - 1})", cfg.scene_dir
+        )
+    loaded = load_model(cfg.checkpoint, cfg.image_size, cfg.device, cfg.rasterizer)
+    hw = loaded.image_hw
+    images = []
+    for i in context:
+        try:
+            images.append(decode_rgb(bytes(scene.images[i])))
+        except ValueError:
+            raise SeeUError(f"scene {scene.scene_id!r} frame {i}: not a decodable image", cfg.scene_dir) from None
+    ctx = context_from_views(
+        images, scene.cam_to_world[list(context)], scene.intrinsics_norm[list(context)], scene.near, scene.far, hw
+    )
+    out = Path(cfg.out)
+    out.mkdir(parents=True, exist_ok=True)
+    (out / "predict.json").unlink(missing_ok=True)
+    ctx = batch_to({"context": ctx}, loaded.device)["context"]
+    report: dict = {
+        "checkpoint": loaded.ck["path"],
+        "step": loaded.ck["step"],
+        "scene_dir": str(cfg.scene_dir),
+        "scene_id": scene.scene_id,
+        "num_frames": n,
+        "context_frames": list(context),
+        "context_rule": picked,
+        "image_hw": list(hw),
+        "near": float(scene.near),
+        "far": float(scene.far),
+    }
+    t0 = time.perf_counter()
+    with torch.no_grad():
+        g = encode_context(loaded.model, ctx)
+    report["timing_s"] = {"encode": time.perf_counter() - t0}
+    render_paths(loaded, ctx, g, out, cfg.frames, cfg.extrapolate, None, report)
+    write_png(out / "context.png", np.concatenate([to_uint8(v) for v in ctx["image"][0]], axis=1))
+    report.update(export_gaussians(out, g, {"context": ctx}, hw))
+    report["num_gaussians"] = int(g.means.shape[1])
+    atomic_write_text(out / "predict.json", json.dumps(report, indent=2) + "\n")
+    return report
