@@ -2,7 +2,7 @@
 
 `import_dataset(ImportConfig(source=..., out=...))` takes one format's config from
 `seeu_data.importers` (`PixelSplatImportConfig`, `Re10kTextImportConfig`, `DtuImportConfig`,
-`ColmapImportConfig`, `NerfstudioImportConfig`), plans the import (a re-run keeps the output files
+`ColmapImportConfig`, `NerfstudioImportConfig`, `Dl3dvImportConfig`), plans the import (a re-run keeps the output files
 already complete for the same options and unchanged inputs), streams the scenes into OUT with
 `write_import` (bad scenes skipped and counted, manifest last) and returns the `ImportReport`.
 
@@ -10,6 +10,7 @@ Example:
     from pathlib import Path
     from pipelines.import_data import ImportConfig, import_dataset
     from seeu_data.importers.colmap import ColmapImportConfig
+from seeu_data.importers.dl3dv import Dl3dvImportConfig
 
     source = ColmapImportConfig(model_dir=Path("scene/sparse/0"), images_dir=Path("scene/images"))
     report = import_dataset(ImportConfig(source=source, out=Path("data/posed/scene")))
@@ -24,6 +25,7 @@ from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.importers.colmap import ColmapImportConfig
+from seeu_data.importers.dl3dv import Dl3dvImportConfig
 from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 from seeu_data.importers.pixelsplat import PixelSplatImportConfig
@@ -31,7 +33,12 @@ from seeu_data.importers.re10k_text import Re10kTextImportConfig
 from seeu_data.out_lock import locks_output
 
 SourceConfig = (
-    PixelSplatImportConfig | Re10kTextImportConfig | DtuImportConfig | ColmapImportConfig | NerfstudioImportConfig
+    PixelSplatImportConfig
+    | Re10kTextImportConfig
+    | DtuImportConfig
+    | ColmapImportConfig
+    | NerfstudioImportConfig
+    | Dl3dvImportConfig
 )
 
 # format name (the `seeu import FORMAT`) of each source config
@@ -41,6 +48,7 @@ FORMATS: dict[type, str] = {
     DtuImportConfig: "dtu",
     ColmapImportConfig: "colmap",
     NerfstudioImportConfig: "nerfstudio",
+    Dl3dvImportConfig: "dl3dv",
 }
 
 
@@ -155,12 +163,24 @@ def _plan_nerfstudio(cfg: NerfstudioImportConfig) -> tuple[Any, dict, int | None
     return m.import_plan(cfg), params, 1, [str(cfg.transforms)]
 
 
+def _plan_dl3dv(cfg: Dl3dvImportConfig) -> tuple[Any, dict, int | None, list[str]]:
+    from dataclasses import asdict
+
+    from seeu_data.importers import dl3dv as m
+
+    scenes = m.selected_scenes(cfg)
+    params = {"format": "dl3dv", **asdict(cfg), "root": str(cfg.root), "exclude": sorted(cfg.exclude or ())}
+    params.pop("max_pixels")
+    return m.import_plan(cfg, scenes), params, len(scenes), [str(cfg.root)]
+
+
 _PLANNERS = {
     "pixelsplat": _plan_pixelsplat,
     "re10k": _plan_re10k,
     "dtu": _plan_dtu,
     "colmap": _plan_colmap,
     "nerfstudio": _plan_nerfstudio,
+    "dl3dv": _plan_dl3dv,
 }
 
 

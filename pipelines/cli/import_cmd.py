@@ -6,13 +6,14 @@ Formats:
   dtu DIR               DTU in the MVSNet layout (Cameras/train, Rectified/scanN_train, ...)
   colmap MODEL_DIR      a COLMAP model (binary or text) + its image folder
   nerfstudio JSON       a nerfstudio / NeRF transforms.json
+  dl3dv ROOT            DL3DV-10K (<subset>/<hash>/ release or <hash>/nerfstudio/ benchmark layout)
 
 Scenes with bad input (an image that fails to decode, missing frames, frame/camera count mismatch,
 non-finite or non-orthonormal poses) are skipped, counted and named in the manifest's report.
 
 A re-run resumes: output files already complete for the same options and unchanged inputs
-(pixelsplat chunks, re10k camera files with their frames, dtu scans, the colmap or nerfstudio
-scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
+(pixelsplat chunks, re10k camera files with their frames, dtu scans, dl3dv scenes, the colmap or
+nerfstudio scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
 Writes are atomic (temporary name, rename, manifest last); --fsync also fsyncs
 every file before its rename, for durability across a power loss.
 
@@ -24,6 +25,7 @@ Examples:
   seeu import colmap scene/sparse/0 --images scene/images --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --skip-missing --out data/posed/scene
+  seeu import dl3dv DL3DV-480P --resolution 480p --exclude @benchmark_hashes.txt --out data/posed/dl3dv
 
 Paths read from input files (index.json chunk names, COLMAP image names, nerfstudio file_paths)
 must stay inside their dataset folder: an entry leading outside (../x, an absolute path, a link) is
@@ -148,6 +150,31 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     f.add_argument("--far", type=float, help="far plane (default: from a seeu export, else 100)")
     f.set_defaults(source_config=nerfstudio_source)
 
+    from seeu_data.importers.dl3dv import DEFAULT_RESOLUTION, DL3DV_NEAR_FAR, RESOLUTIONS
+
+    f = sub.add_parser("dl3dv", parents=[common], help="DL3DV-10K scenes (release or benchmark layout)")
+    f.add_argument("root", type=Path, help="folder of <subset>/<hash>/transforms.json or <hash>/nerfstudio/")
+    f.add_argument(
+        "--resolution",
+        choices=list(RESOLUTIONS),
+        default=DEFAULT_RESOLUTION,
+        help="frames read: "
+        + ", ".join(f"{k} = {v}/" for k, v in RESOLUTIONS.items())
+        + f" (default {DEFAULT_RESOLUTION})",
+    )
+    f.add_argument(
+        "--exclude",
+        help="scene hashes left out: a,b,c or @file.txt (one per line), e.g. the 140 DL3DV-Benchmark hashes",
+    )
+    f.add_argument(
+        "--undistort",
+        action="store_true",
+        help="undistort the frames with transforms.json's k1, k2, p1, p2 (default: ignored, as DepthSplat)",
+    )
+    f.add_argument("--near", type=float, default=DL3DV_NEAR_FAR[0], help=f"near plane (default {DL3DV_NEAR_FAR[0]:g})")
+    f.add_argument("--far", type=float, default=DL3DV_NEAR_FAR[1], help=f"far plane (default {DL3DV_NEAR_FAR[1]:g})")
+    f.set_defaults(source_config=dl3dv_source)
+
 
 def pixelsplat_source(args: argparse.Namespace):
     from seeu_data.importers.pixelsplat import PixelSplatImportConfig
@@ -235,6 +262,21 @@ def nerfstudio_source(args: argparse.Namespace):
         undistort=not args.no_undistort,
         skip_missing=args.skip_missing,
         allow_outside_paths=args.allow_outside_paths,
+    )
+
+
+def dl3dv_source(args: argparse.Namespace):
+    from seeu_data.importers.dl3dv import Dl3dvImportConfig
+
+    return Dl3dvImportConfig(
+        root=args.root,
+        resolution=args.resolution,
+        exclude=parse_scene_list(args.exclude, "--exclude"),
+        near=args.near,
+        far=args.far,
+        undistort=args.undistort,
+        verify_decode=args.verify_decode,
+        max_pixels=max_pixels(args),
     )
 
 
