@@ -38,6 +38,7 @@ from pipelines.cli.options import (
     progress_wanted,
 )
 from seeu_data.errors import SeeUError
+from seeu_data.eval_index import FORMATS as EVAL_INDEX_FORMATS
 
 
 def add_sampling_arguments(p: argparse.ArgumentParser) -> None:
@@ -89,7 +90,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--index", help="eval: evaluation index JSON file")
     p.add_argument(
         "--index-format",
-        choices=["auto", "pixelsplat", "latentsplat", "dtu"],
+        choices=["auto", *EVAL_INDEX_FORMATS],
         default="auto",
         help="eval: format of --index (default: detected)",
     )
