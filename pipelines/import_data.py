@@ -2,7 +2,7 @@
 
 `import_dataset(ImportConfig(source=..., out=...))` takes one format's config from
 `seeu_data.importers` (`PixelSplatImportConfig`, `Re10kTextImportConfig`, `DtuImportConfig`,
-`ColmapImportConfig`, `NerfstudioImportConfig`), plans the import (a re-run keeps the output files
+`ColmapImportConfig`, `NerfstudioImportConfig`, `Dl3dvImportConfig`), plans the import (a re-run keeps the output files
 already complete for the same options and unchanged inputs), streams the scenes into OUT with
 `write_import` (bad scenes skipped and counted, manifest last) and returns the `ImportReport`.
 
@@ -10,6 +10,7 @@ Example:
     from pathlib import Path
     from pipelines.import_data import ImportConfig, import_dataset
     from seeu_data.importers.colmap import ColmapImportConfig
+from seeu_data.importers.dl3dv import Dl3dvImportConfig
 
     source = ColmapImportConfig(model_dir=Path("scene/sparse/0"), images_dir=Path("scene/images"))
     report = import_dataset(ImportConfig(source=source, out=Path("data/posed/scene")))
@@ -23,6 +24,7 @@ from pathlib import Path
 
 from seeu_data.errors import SeeUError
 from seeu_data.importers.colmap import ColmapImportConfig
+from seeu_data.importers.dl3dv import Dl3dvImportConfig
 from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 from seeu_data.importers.pixelsplat import PixelSplatImportConfig
@@ -31,7 +33,12 @@ from seeu_data.settings import setting
 from seeu_data.store.out_lock import locks_output
 
 SourceConfig = (
-    PixelSplatImportConfig | Re10kTextImportConfig | DtuImportConfig | ColmapImportConfig | NerfstudioImportConfig
+    PixelSplatImportConfig
+    | Re10kTextImportConfig
+    | DtuImportConfig
+    | ColmapImportConfig
+    | NerfstudioImportConfig
+    | Dl3dvImportConfig
 )
 
 # `seeu import FORMAT` -> (the format's config, whose settings are the subcommand's flags and whose
@@ -42,6 +49,7 @@ IMPORTERS: dict[str, tuple[type, str]] = {
     "dtu": (DtuImportConfig, "DTU in the MVSNet layout"),
     "colmap": (ColmapImportConfig, "a COLMAP model and its images"),
     "nerfstudio": (NerfstudioImportConfig, "a nerfstudio / NeRF transforms.json"),
+    "dl3dv": (Dl3dvImportConfig, "DL3DV-10K scenes (release or benchmark layout)"),
 }
 FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 

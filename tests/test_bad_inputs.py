@@ -1140,6 +1140,25 @@ case("predict-triples-not-posed", text="expected a seeu.posed_frames dataset")(
     lambda ws, tmp: _predict(ws, tmp, ws["triples"])
 )
 case("predict-unknown-scene", text="no scene 'nope'")(lambda ws, tmp: _predict(ws, tmp, ws["posed"], "--scene", "nope"))
+# ---- dl3dv ----
+case("import-dl3dv-no-scene", text="no DL3DV scene found")(
+    lambda ws, tmp: (tmp / "empty").mkdir() or ["import", "dl3dv", str(tmp / "empty"), "--out", str(tmp / "o")]
+)
+case("import-dl3dv-only-wrong-size", text="images_8/frame_00001.png is 48x30, but the intrinsics are for 384x216")(
+    lambda ws, tmp: (
+        _dl3dv_scene(tmp / "d" / "1K" / ("e" * 64), {"images_8": (48, 30)})
+        or ["import", "dl3dv", str(tmp / "d"), "--out", str(tmp / "o")]
+    )
+)
+case("import-dl3dv-missing-root", text="DL3DV root not found")(
+    lambda ws, tmp: ["import", "dl3dv", str(tmp / "nothing"), "--out", str(tmp / "o")]
+)
+
+
+def _dl3dv_scene(folder, sizes) -> None:
+    from tests.dl3dv_fixtures import make_scene
+
+    make_scene(folder, n=2, sizes=sizes)
 
 
 @pytest.mark.parametrize("make,rc,text", CASES)

@@ -244,3 +244,25 @@ def test_seeu_index_latentsplat_extrap_with_overlap_window(tmp_path):
         assert abs(ov - (1 - 0.1 * (r - l) * 0.9 / 2)) <= 1 / 16 + 1e-9
         assert all((l - 5 <= t < l) or (r < t <= r + 5) for t in e["target"])
     assert read_index(idx_path).format == "latentsplat"
+
+
+DEPTHSPLAT = Path(__file__).resolve().parent / "fixtures" / "depthsplat"  # copies of DepthSplat's assets/
+
+
+def test_depthsplat_dl3dv_indices_read_and_built(tmp_path):
+    raw = json.loads((DEPTHSPLAT / "dl3dv_start_0_distance_10_ctx_2v_tgt_4v.json").read_text())
+    idx = read_index(DEPTHSPLAT / "dl3dv_start_0_distance_10_ctx_2v_tgt_4v.json")
+    assert idx.format == "dl3dv" and idx.num_keys == 140 and len(idx.entries) == 140 and idx.num_null == 0
+    for e, (k, v) in zip(idx.entries, raw.items()):
+        assert (e.scene_id, list(e.context), list(e.target)) == (f"dl3dv_{k}", v["context"], v["target"])
+    six = DEPTHSPLAT / "dl3dv_start_0_distance_50_ctx_6v_video_0_50.first3.json"
+    raw6 = json.loads(six.read_text())
+    posed = _write_posed(tmp_path / "posed", {f"dl3dv_{k}": 50 for k in raw6})
+    out = tmp_path / "dl3dv"
+    assert cli_main(["build", str(posed), "--out", str(out), "--mode", "eval", "--index", str(six)]) == 0
+    got: dict[str, tuple[list[int], list[int]]] = {}
+    for r in TripleShards(out).rows():
+        ctx, tgt = got.setdefault(r.scene_id, (list(r.context), []))
+        assert ctx == list(r.context)
+        tgt.extend(r.target)
+    assert got == {f"dl3dv_{k}": (v["context"], v["target"]) for k, v in raw6.items()}

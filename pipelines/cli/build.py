@@ -35,6 +35,7 @@ from pipelines.cli.options import (
     max_pixels,
     progress_wanted,
 )
+from seeu_data.build.eval_index import FORMATS as EVAL_INDEX_FORMATS
 from seeu_data.errors import SeeUError
 from seeu_data.settings import parse_bytes, parse_dims
 
@@ -88,7 +89,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--index", help="eval: evaluation index JSON file")
     p.add_argument(
         "--index-format",
-        choices=["auto", "pixelsplat", "latentsplat", "dtu"],
+        choices=["auto", *EVAL_INDEX_FORMATS],
         default="auto",
         help="eval: format of --index (default: detected)",
     )

@@ -6,13 +6,14 @@ Formats:
   dtu DIR               DTU in the MVSNet layout (Cameras/train, Rectified/scanN_train, ...)
   colmap MODEL_DIR      a COLMAP model (binary or text) + its image folder
   nerfstudio JSON       a nerfstudio / NeRF transforms.json
+  dl3dv ROOT            DL3DV-10K (<subset>/<hash>/ release or <hash>/nerfstudio/ benchmark layout)
 
 Scenes with bad input (an image that fails to decode, missing frames, frame/camera count mismatch,
 non-finite or non-orthonormal poses) are skipped, counted and named in the manifest's report.
 
 A re-run resumes: output files already complete for the same options and unchanged inputs
-(pixelsplat chunks, re10k camera files with their frames, dtu scans, the colmap or nerfstudio
-scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
+(pixelsplat chunks, re10k camera files with their frames, dtu scans, dl3dv scenes, the colmap or
+nerfstudio scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
 Writes are atomic (temporary name, rename, manifest last); --fsync also fsyncs
 every file before its rename, for durability across a power loss.
 
@@ -24,6 +25,7 @@ Examples:
   seeu import colmap scene/sparse/0 --images scene/images --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --skip-missing --out data/posed/scene
+  seeu import dl3dv DL3DV-480P --resolution 480p --exclude @benchmark_hashes.txt --out data/posed/dl3dv
 
 Paths read from input files (index.json chunk names, COLMAP image names, nerfstudio file_paths)
 must stay inside their dataset folder: an entry leading outside (../x, an absolute path, a link) is

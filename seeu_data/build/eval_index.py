@@ -6,6 +6,8 @@ Formats (frame indices are posed `frame_index` values, contexts and targets in t
   ``{scene: {"context": [l, r], "target": [t1, t2, t3]} | null}``; null entries are skipped and counted.
 * ``latentsplat`` (latentSplat ``re10k_extra.json``): ``{scene: [entry, entry, ...]}``, a list per scene
   of such entries (null items skipped).
+* ``dl3dv`` (DepthSplat ``assets/dl3dv_*.json``, 2/4/6/12 context views): the pixelsplat layout keyed by
+  DL3DV scene hashes (64 hex digits); the scene is ``dl3dv_<hash>`` (the DL3DV importer's scene key).
 * ``dtu`` (MVSplat DTU protocol, ``evaluation_index_dtu_nctx2.json``): keys ``scanN_train_0K`` whose
   scene is ``scanN`` (the DTU importer's scene id) and whose view ids are frame indices.
 
@@ -25,8 +27,10 @@ from seeu_data.errors import SeeUError
 from seeu_data.store.json_file import read_json
 from seeu_data.build.sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 
-FORMATS = ("pixelsplat", "latentsplat", "dtu")
+FORMATS = ("pixelsplat", "latentsplat", "dtu", "dl3dv")
 _DTU_KEY = re.compile(r"^(scan\d+)_train_(\d+)$")
+_DL3DV_KEY = re.compile(r"^[0-9a-f]{64}$")
+DL3DV_SCENE_PREFIX = "dl3dv_"  # as seeu_data.importers.dl3dv.SCENE_PREFIX
 
 
 @dataclass(frozen=True)
@@ -56,6 +60,8 @@ def detect_format(doc: dict) -> str:
         return "latentsplat"
     if doc and all(_DTU_KEY.match(k) for k in doc):
         return "dtu"
+    if doc and all(_DL3DV_KEY.match(k) for k in doc):
+        return "dl3dv"
     return "pixelsplat"
 
 
@@ -100,6 +106,10 @@ def read_index(path: str | Path, fmt: str = "auto") -> EvalIndex:
             if not m:
                 raise SeeUError(f"DTU index key {key!r} is not 'scanN_train_K'", path)
             scene = m.group(1)
+        elif fmt == "dl3dv":
+            if not _DL3DV_KEY.match(key):
+                raise SeeUError(f"DL3DV index key {key!r:.80} is not a scene hash (64 hex digits)", path)
+            scene = DL3DV_SCENE_PREFIX + key
         for j, raw in enumerate(items):
             if raw is None:
                 nulls += 1

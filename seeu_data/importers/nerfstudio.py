@@ -285,10 +285,26 @@ def import_plan(cfg: NerfstudioImportConfig):
 def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedScene]:
     path = Path(cfg.transforms)
     doc = load_transforms(path)
-    base = path.parent
     extra = doc.get("seeu") or {}
-    scene_id = cfg.scene_id or extra.get("scene_id") or base.resolve().name
+    scene_id = cfg.scene_id or extra.get("scene_id") or path.parent.resolve().name
     all_paths, outside = frame_paths(cfg, doc)
+    yield from scene_from_doc(cfg, doc, str(scene_id), all_paths, outside, {"dataset": "nerfstudio"})
+
+
+def scene_from_doc(
+    cfg: NerfstudioImportConfig,
+    doc: dict,
+    scene_id: str,
+    all_paths: list[Path | None],
+    outside: dict[str, str],
+    meta_base: dict,
+) -> Iterator[PosedScene | SkippedScene]:
+    """One scene from a checked transforms.json `doc` (`load_transforms`) read from `cfg.transforms`:
+    `all_paths[k]` is frame k's image (None: dropped, its reason in `outside` by file_path), `meta_base`
+    starts the scene's meta (e.g. {"dataset": "nerfstudio"}). Yields the PosedScene, or a SkippedScene
+    with the one-line reason."""
+    path = Path(cfg.transforms)
+    extra = doc.get("seeu") or {}
     dropped = [{"frame": n, "reason": r} for n, r in sorted(outside.items())]
     pairs = sorted(
         ((f, p) for f, p in zip(doc["frames"], all_paths) if p is not None), key=lambda fp: fp[0]["file_path"]
@@ -366,7 +382,7 @@ def iter_scenes(cfg: NerfstudioImportConfig) -> Iterator[PosedScene | SkippedSce
     if applied is not None and cfg.undo_applied_transform:
         c2w_gl_n4 = invert_rigid(applied) @ c2w_gl_n4
     meta: dict[str, object] = {
-        "dataset": "nerfstudio",
+        **meta_base,
         "transforms": str(path.resolve()),
         "world": "nerfstudio (applied_transform kept)"
         if applied is not None and not cfg.undo_applied_transform

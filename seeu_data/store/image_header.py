@@ -122,3 +122,30 @@ def decode_check(data, where: str | None = None) -> ImageInfo:
 def extension_for(fmt: str) -> str:
     """File extension for an image format: 'jpeg' -> '.jpg', 'png' -> '.png'."""
     return {"jpeg": ".jpg", "png": ".png"}[fmt]
+
+
+def file_image_size(path, prefix_bytes: int = 1 << 16) -> tuple[int, int]:
+    """(width, height) of a JPEG or PNG file from its header alone: reads the first `prefix_bytes`
+    (the whole file when a JPEG's frame header lies further in), decodes no pixels, checks no trailer
+    (`image_info` does that when the frame is read). Raises SeeUError naming the file otherwise."""
+    from pathlib import Path
+
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            data = memoryview(f.read(prefix_bytes))
+            if data[:2] == b"\xff\xd8":
+                try:
+                    return _jpeg_size(data)
+                except (ValueError, struct.error):
+                    data = memoryview(data.tobytes() + f.read())
+                    return _jpeg_size(data)
+    except OSError as exc:
+        raise SeeUError(f"image unreadable ({exc.strerror})", path) from None
+    except (ValueError, struct.error) as exc:
+        raise SeeUError(f"image failed to decode: {exc}", path) from None
+    if data[:8] == _PNG_SIGNATURE and len(data) >= 24 and data[12:16] == b"IHDR":
+        width, height = struct.unpack_from(">II", data, 16)
+        if width > 0 and height > 0:
+            return int(width), int(height)
+    raise SeeUError("image failed to decode: neither a JPEG nor a PNG header", path)
