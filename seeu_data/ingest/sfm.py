@@ -557,30 +557,61 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
     }
 
 
-def _child(job_path: str) -> int:
+class _Failed(Exception):
+    """A result the user can act on (no features, no pairs, no model): result.json's "error"."""
+
+
+@dataclass
+class _Job:
+    """What the child works on: job.json's fields, the database path and the stage clock."""
+
+    cfg: SfmConfig
+    out: Path
+    image_dir: str
+    names: list[str]
+    db_path: Path
+    clock: _Clock
+
+
+@dataclass(frozen=True)
+class Matches:
+    """The match step's facts: verified pairs, the match graph's statistics, the median image motion
+    between consecutive frames (px; None when keyframes are off)."""
+
+    num_pairs: int
+    graph: dict
+    motion_px: float | None
+
+
+@dataclass(frozen=True)
+class Keyframes:
+    """The frames mapped: every `stride`-th frame (`names`); `info` is result.json's "keyframes"."""
+
+    stride: int
+    names: list[str]
+    info: dict
+
+
+@dataclass(frozen=True)
+class Mapped:
+    """The kept mapping run: its usable models {index: pycolmap.Reconstruction}, every run's facts, the
+    kept run's rejected models, the solution check's facts and the mapper chosen (result.json's fields)."""
+
+    recs: dict
+    attempts: list[dict]
+    rejected: list[dict]
+    check: dict
+    mapper_info: dict
+
+
+def _extract(job: _Job) -> int:
+    """The database (camera and images in frame order) and SIFT features; returns the keypoint count."""
     import pycolmap
 
-    from seeu_data.ingest.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride, register_frames
-    from seeu_data.ingest.match_graph import choose_mapper, match_graph_stats
-    from seeu_data.undistort import undistort_files
-
-    job = json.loads(Path(job_path).read_text())
-    cfg = SfmConfig(**job["config"])
-    out = Path(job["out_dir"])
-    image_dir = job["image_dir"]
-    names = job["image_names"]
-    db_path = out / "database.db"
-    for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
-        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
-    clock = _Clock()
-
-    def fail(msg: str) -> int:
-        (out / "result.json").write_text(json.dumps({"error": msg, "timings": clock.wall, "cpu_timings": clock.cpu}))
-        return 0
-
-    _emit("stage", "extract", len(names))
+    cfg, clock = job.cfg, job.clock
+    _emit("stage", "extract", len(job.names))
     t0 = clock.mark()
-    _create_database(db_path, Path(image_dir) / names[0], names, cfg)
+    _create_database(job.db_path, Path(job.image_dir) / job.names[0], job.names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
@@ -588,20 +619,32 @@ def _child(job_path: str) -> int:
     extraction.num_threads = cfg.threads
     extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
     pycolmap.extract_features(
-        db_path,
-        image_dir,
-        image_names=names,
+        job.db_path,
+        job.image_dir,
+        image_names=job.names,
         camera_mode=pycolmap.CameraMode.SINGLE,
         reader_options=reader,
         extraction_options=extraction,
     )
     clock.add("extract_s", t0)
-    db = pycolmap.Database.open(db_path)
+    db = pycolmap.Database.open(job.db_path)
     num_kp = int(db.num_keypoints())
     db.close()
     if num_kp < 50:
-        return fail(f"SfM found only {num_kp} image features in {len(names)} frames (blank or textureless video?)")
+        raise _Failed(
+            f"SfM found only {num_kp} image features in {len(job.names)} frames (blank or textureless video?)"
+        )
+    return num_kp
 
+
+def _match(job: _Job) -> Matches:
+    """Sequential matching and two-view verification (RANSAC seeded per pair), then the facts read back."""
+    import pycolmap
+
+    from seeu_data.ingest.keyframes import consecutive_motion_px
+    from seeu_data.ingest.match_graph import match_graph_stats
+
+    cfg, clock = job.cfg, job.clock
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = cfg.overlap
     # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it)
@@ -609,7 +652,7 @@ def _child(job_path: str) -> int:
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
-    _emit("stage", "match", len(names))
+    _emit("stage", "match", len(job.names))
     t0 = clock.mark()
     matching = pycolmap.FeatureMatchingOptions()
     # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
@@ -622,28 +665,48 @@ def _child(job_path: str) -> int:
     # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
     verification.ransac.random_seed = cfg.random_seed
     pycolmap.match_sequential(
-        db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
+        job.db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
     )
     clock.add("match_s", t0)
     t0 = clock.mark()
-    db = pycolmap.Database.open(db_path)
+    db = pycolmap.Database.open(job.db_path)
     num_pairs = int(db.num_verified_image_pairs())
-    graph = match_graph_stats(db, names)
-    motion = consecutive_motion_px(db, names) if cfg.keyframe_motion > 0 else None
+    graph = match_graph_stats(db, job.names)
+    motion = consecutive_motion_px(db, job.names) if cfg.keyframe_motion > 0 else None
     db.close()
-    # keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart
-    stride = keyframe_stride(len(names), motion, cfg.keyframe_motion, cfg.min_keyframes, 2 ** max(cfg.overlap - 3, 0))
-    keys = keyframe_names(names, stride)
-    keyframes = {"stride": stride, "count": len(keys), "motion_px": motion, "target_px": cfg.keyframe_motion}
     clock.add("map_s", t0)
-    mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(graph)
-    mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": graph}
-    if num_pairs == 0:
-        return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
+    return Matches(num_pairs, graph, motion)
 
-    _emit("stage", "map", len(keys))
+
+def _keyframes(names: list[str], motion_px: float | None, cfg: SfmConfig) -> Keyframes:
+    """The frames to map (`seeu_data.ingest.keyframes`)."""
+    from seeu_data.ingest.keyframes import keyframe_names, keyframe_stride
+
+    # keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart
+    stride = keyframe_stride(
+        len(names), motion_px, cfg.keyframe_motion, cfg.min_keyframes, 2 ** max(cfg.overlap - 3, 0)
+    )
+    keys = keyframe_names(names, stride)
+    return Keyframes(
+        stride, keys, {"stride": stride, "count": len(keys), "motion_px": motion_px, "target_px": cfg.keyframe_motion}
+    )
+
+
+def _map(job: _Job, matches: Matches, kf: Keyframes) -> Mapped:
+    """Mapping with retries and the solution check (`map_with_retries`); `sparse/` left empty."""
+    import pycolmap
+
+    from seeu_data.ingest.match_graph import choose_mapper
+
+    cfg, clock = job.cfg, job.clock
+    mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(matches.graph)
+    mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": matches.graph}
+    if matches.num_pairs == 0:
+        raise _Failed("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
+    _emit("stage", "map", len(kf.names))
     t0 = clock.mark()
-    sparse = out / "sparse"
+    sparse = job.out / "sparse"
+    image_names = kf.names if kf.stride > 1 else []
 
     def map_once(seed: int) -> dict:
         shutil.rmtree(sparse, ignore_errors=True)
@@ -653,56 +716,72 @@ def _child(job_path: str) -> int:
             global_options.min_model_size = cfg.min_model_size
             global_options.num_threads = cfg.map_threads
             global_options.random_seed = seed
-            global_options.image_names = keys if stride > 1 else []
-            return pycolmap.global_mapping(db_path, image_dir, sparse, options=global_options)
+            global_options.image_names = image_names
+            return pycolmap.global_mapping(job.db_path, job.image_dir, sparse, options=global_options)
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.map_threads
         options.random_seed = seed
-        options.image_names = keys if stride > 1 else []
+        options.image_names = image_names
         return pycolmap.incremental_mapping(
-            db_path, image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
+            job.db_path, job.image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
         )
 
-    pairs = geometry_counts(db_path)
+    pairs = geometry_counts(job.db_path)
     recs, attempts, rejected, check = map_with_retries(
-        map_once, len(keys), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
+        map_once, len(kf.names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
     )
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]
     clock.add("map_s", t0)
     if not recs:
-        return fail(
+        raise _Failed(
             "SfM found no model: no frame pair with enough parallax "
             "(static camera, blank frames, or too few overlapping frames)"
             + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else "")
         )
-    shutil.rmtree(sparse)  # the models kept are written again below, under their own index
+    shutil.rmtree(sparse)  # the models kept are written again by the export, under their own index
     sparse.mkdir()
-    final_ba = None
-    if cfg.final_ba_loss != "none":
-        # On the mapped (key)frames, before the other frames are registered: a bundle adjustment of
-        # every frame costs about the sum of squared track lengths, which grows with the frame rate
-        # (100 frames: 32 s on every frame against 12 s on its 51 keyframes); the frames registered after are
-        # placed against the adjusted points and camera.
-        _emit("stage", "final-ba")
-        t0 = clock.mark()
-        final_ba = []
-        for k in sorted(recs):
-            recs[k], facts = final_bundle_adjustment(recs[k], cfg)
-            final_ba.append({"index": int(k), **facts})
-        clock.add("final_ba_s", t0)
-    if stride > 1:
-        mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
-        _emit("stage", "register", len(names) - len(mapped))
-        t0 = clock.mark()
-        keyframes["registered_after"] = register_frames(
-            db_path, recs, names, keys, check["kept_seed"], cfg.map_threads, on_frame=lambda: _emit("step")
-        )
-        clock.add("register_s", t0)
+    return Mapped(recs, attempts, rejected, check, mapper_info)
 
-    # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
-    # poor initial pair, with an implausible focal length): keep only models adding new frames.
+
+def _final_ba(job: _Job, recs: dict) -> list[dict] | None:
+    """`final_bundle_adjustment` of every model in `recs`, in place; result.json's "final_ba"."""
+    if job.cfg.final_ba_loss == "none":
+        return None
+    # On the mapped (key)frames, before the other frames are registered: a bundle adjustment of
+    # every frame costs about the sum of squared track lengths, which grows with the frame rate; the
+    # frames registered after are placed against the adjusted points and camera.
+    _emit("stage", "final-ba")
+    t0 = job.clock.mark()
+    facts = []
+    for k in sorted(recs):
+        recs[k], f = final_bundle_adjustment(recs[k], job.cfg)
+        facts.append({"index": int(k), **f})
+    job.clock.add("final_ba_s", t0)
+    return facts
+
+
+def _register(job: _Job, recs: dict, kf: Keyframes, seed: int) -> None:
+    """The frames between keyframes registered into `recs` (in place); sets kf.info["registered_after"]."""
+    from seeu_data.ingest.keyframes import register_frames
+
+    if kf.stride <= 1:
+        return
+    mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+    _emit("stage", "register", len(job.names) - len(mapped))
+    t0 = job.clock.mark()
+    kf.info["registered_after"] = register_frames(
+        job.db_path, recs, job.names, kf.names, seed, job.cfg.map_threads, on_frame=lambda: _emit("step")
+    )
+    job.clock.add("register_s", t0)
+
+
+def _keep_models(recs: dict, rejected: list[dict]) -> tuple[list[int], list[dict]]:
+    """The model indices to export, largest first, and every discarded model's {index, registered, reason}.
+
+    COLMAP may also build small models that mostly re-register frames of a larger one (often from a
+    poor initial pair, with an implausible focal length): only models adding new frames are kept."""
     kept, discarded, seen = [], list(rejected), set[str]()
     for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
         names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
@@ -713,13 +792,21 @@ def _child(job_path: str) -> int:
             continue
         seen |= names_k
         kept.append(k)
+    return kept, discarded
 
+
+def _export(job: _Job, recs: dict, kept: list[int]) -> list[dict]:
+    """Each kept model written to sparse/<k>/, undistorted when its distortion matters, and exported;
+    returns result.json's "models"."""
+    from seeu_data.undistort import undistort_files
+
+    cfg, clock, out, image_dir = job.cfg, job.clock, job.out, job.image_dir
     _emit("stage", "export")
     models = []
     for k in sorted(kept):
         rec = recs[k]
         t0 = clock.mark()
-        model_dir = sparse / str(k)
+        model_dir = out / "sparse" / str(k)
         model_dir.mkdir(exist_ok=True)
         rec.write(model_dir)
         camera = next(iter(rec.cameras.values()))
@@ -745,23 +832,45 @@ def _child(job_path: str) -> int:
         models[-1]["distortion_max_px"] = distortion
         models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
         clock.add("export_s", t0)
-    (out / "result.json").write_text(
-        json.dumps(
-            {
-                "models": models,
-                "discarded_models": discarded,
-                "num_keypoints": num_kp,
-                "num_verified_pairs": num_pairs,
-                "mapping_attempts": attempts,
-                "mapper": mapper_info,
-                "solution_check": check,
-                "keyframes": keyframes,
-                "final_ba": final_ba,
-                "timings": clock.wall,
-                "cpu_timings": clock.cpu,
-            }
-        )
-    )
+    return models
+
+
+def _child(job_path: str) -> int:
+    """The SfM stage on job.json's frames: extract, match, keyframes, map, final BA, register, export."""
+    raw = json.loads(Path(job_path).read_text())
+    out = Path(raw["out_dir"])
+    db_path = out / "database.db"
+    for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
+        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
+    job = _Job(SfmConfig(**raw["config"]), out, raw["image_dir"], raw["image_names"], db_path, _Clock())
+    try:
+        num_kp = _extract(job)
+        matches = _match(job)
+        kf = _keyframes(job.names, matches.motion_px, job.cfg)
+        mapped = _map(job, matches, kf)
+    except _Failed as exc:
+        failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu}
+        (out / "result.json").write_text(json.dumps(failed))
+        return 0
+    recs = mapped.recs
+    final_ba = _final_ba(job, recs)
+    _register(job, recs, kf, mapped.check["kept_seed"])
+    kept, discarded = _keep_models(recs, mapped.rejected)
+    models = _export(job, recs, kept)
+    result: dict = {
+        "models": models,
+        "discarded_models": discarded,
+        "num_keypoints": num_kp,
+        "num_verified_pairs": matches.num_pairs,
+        "mapping_attempts": mapped.attempts,
+        "mapper": mapped.mapper_info,
+        "solution_check": mapped.check,
+        "keyframes": kf.info,
+        "final_ba": final_ba,
+        "timings": job.clock.wall,
+        "cpu_timings": job.clock.cpu,
+    }
+    (out / "result.json").write_text(json.dumps(result))
     return 0
 
 
