@@ -212,6 +212,31 @@ def test_solution_check_maps_again_until_two_runs_agree_and_flags_when_none_do()
     assert seeds == [0] and check["ran"] is False and check["passed"] is None
 
 
+def test_solution_check_starts_at_once_only_the_runs_it_certainly_needs():
+    """`start(seed)` begins a run in the background (the SfM child: a process per run): with the check
+    the first two runs are started together (the second either checks or replaces the first), a third
+    only once the two disagree; without it, one. The outcome is the sequential one."""
+    truth = planar_camera_path(30)
+    wrong = truth.copy()
+    wrong[15:, 0, 3] *= 1.5
+    cfg = SfmConfig(sfm_attempts=3)
+    for runs, check in (({0: truth, 1: wrong, 2: truth}, True), ({0: truth, 1: truth}, True), ({0: truth}, False)):
+        events: list[tuple[str, int]] = []
+
+        def map_once(seed, runs=runs, events=events):
+            events.append(("collect", seed))
+            return {0: _Rec(runs[seed])}
+
+        got = map_with_retries(map_once, 30, cfg, check=check, start=lambda seed, ev=events: ev.append(("start", seed)))
+        sequential = map_with_retries(lambda seed, runs=runs: {0: _Rec(runs[seed])}, 30, cfg, check=check)
+        for attempt in got[1] + sequential[1]:
+            attempt.pop("seconds")  # wall time: differs between any two runs
+        assert got[1:] == sequential[1:] and got[0].keys() == sequential[0].keys()
+        started = [s for e, s in events if e == "start"]
+        assert started == ([0, 1] if check else [0]), events
+        assert [s for e, s in events if e == "collect"] == sorted(runs)
+
+
 def test_failed_check_and_low_parallax_are_warned_in_the_summary():
     base = {
         "scene": "s",

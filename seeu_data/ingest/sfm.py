@@ -30,8 +30,8 @@ Output directory layout::
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
 "verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
-"final_ba": [{"index", "loss", "scale_px", "termination", "used" (false: Ceres' solution unusable, the model
-kept as mapped), "reprojection_before_px", "reprojection_after_px"}] (null with `final_ba_loss` none),
+"final_ba": [{"index", "loss", "scale_px", "termination", "iterations", "residuals", "used" (false: Ceres'
+solution unusable, the model kept as mapped), "reprojection_before_px", "reprojection_after_px"}] (null with `final_ba_loss` none),
 "timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
 "final_ba_s", "undistort_s" (when undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings":
 the same in CPU seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
@@ -66,6 +66,10 @@ from seeu_data.settings import setting
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
 FINAL_BA_LOSSES = ("none", "soft_l1", "cauchy", "huber")  # pycolmap.LossFunctionType, upper-cased
+# The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
+# (Ceres' default; COLMAP sets 0, iterating to the gradient tolerance): 12 iterations instead of 56 on
+# a 40-frame clip, the cost within 2e-6 and the focal length within 3e-6 of the 56-iteration result.
+FINAL_BA_FUNCTION_TOLERANCE = 1e-6
 # --features: (pycolmap FeatureExtractorType, FeatureMatcherType) names; only SIFT needs no ONNX runtime
 FEATURES = {"sift": ("SIFT", "SIFT_BRUTEFORCE"), "aliked": ("ALIKED_N16ROT", "ALIKED_LIGHTGLUE")}
 _UNDISTORTED_MODELS = ("PINHOLE", "SIMPLE_PINHOLE")
@@ -320,7 +324,7 @@ def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: Sf
 
 
 def map_with_retries(
-    map_once, num_frames: int, cfg: SfmConfig, check: bool = False
+    map_once, num_frames: int, cfg: SfmConfig, check: bool = False, start=None
 ) -> tuple[dict, list[dict], list[dict], dict]:
     """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
     cfg.random_seed, +1, ... at most `cfg.sfm_attempts` times, until a run registers enough frames
@@ -340,12 +344,20 @@ def map_with_retries(
     fails. Returns (usable models of the kept run, every run's {seed, registered, models, seconds
     (wall, of `map_once`)[, disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
     {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"}).
+
+    `start(seed)` (optional) begins mapping `seed` in the background; `map_once(seed)` then collects
+    it. It is called at once for the runs certainly needed: with the check, the first two (the second
+    either checks the first or replaces it). The runs are still judged one by one in seed order, so the
+    outcome is the sequential one.
     """
     runs: list[tuple[int, dict, list]] = []  # (registered, usable, rejected)
     attempts: list[dict] = []
     good: list[int] = []  # indices of runs registering enough
     agreed: int | None = None
     smallest = None
+    if start is not None:
+        for i in range(min(2 if check else 1, cfg.sfm_attempts)):
+            start(cfg.random_seed + i)
     for i in range(cfg.sfm_attempts):
         seed = cfg.random_seed + i
         if i:
@@ -465,7 +477,8 @@ def _emit(*parts) -> None:
 
 
 class _Clock:
-    """Wall and CPU seconds (CPU: every thread of this process) per stage of the child, summed by name.
+    """Wall and CPU seconds (CPU: every thread of this process and of its finished mapping processes)
+    per stage of the child, summed by name.
 
     `wall` / `cpu`: {"extract_s", "match_s", "map_s", "register_s", "undistort_s", "export_s"}; a machine shared with
     other work stretches the wall times, much less the CPU times."""
@@ -476,7 +489,10 @@ class _Clock:
 
     @staticmethod
     def mark() -> tuple[float, float]:
-        return time.perf_counter(), time.process_time()
+        import resource
+
+        kids = resource.getrusage(resource.RUSAGE_CHILDREN)
+        return time.perf_counter(), time.process_time() + kids.ru_utime + kids.ru_stime
 
     def add(self, name: str, since: tuple[float, float]) -> None:
         wall, cpu = self.mark()
@@ -522,14 +538,15 @@ def _max_distortion_px(camera) -> float:
 def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     """One global bundle adjustment of `rec` with the robust loss `cfg.final_ba_loss` of scale
     `cfg.final_ba_loss_scale` px: every registered image, the points, the shared camera's focal
-    length and extra parameters (not the principal point), on `cfg.map_threads` threads (Ceres'
-    defaults otherwise: at most 100 iterations; NO_CONVERGENCE then keeps the last, better, iterate).
+    length and extra parameters (not the principal point), on `cfg.map_threads` threads, until an
+    iteration gains less than `FINAL_BA_FUNCTION_TOLERANCE` of the cost (at most 100 iterations;
+    NO_CONVERGENCE then keeps the last, better, iterate).
 
     COLMAP's own global adjustments use a plain squared loss; SIFT's residuals on a video have a heavy
     tail (a few % of observations above 1 px carry most of the squared error), which then pulls the
     focal length and the poses. Returns (the adjusted reconstruction, or `rec` unchanged when Ceres
-    calls its solution unusable; {"loss", "scale_px", "termination", "used", "reprojection_before_px",
-    "reprojection_after_px"})."""
+    calls its solution unusable; {"loss", "scale_px", "termination", "iterations", "residuals", "used",
+    "reprojection_before_px", "reprojection_after_px"})."""
     import pycolmap
 
     before = float(rec.compute_mean_reprojection_error())
@@ -540,12 +557,14 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     options.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, cfg.final_ba_loss.upper())
     options.ceres.loss_function_scale = cfg.final_ba_loss_scale
     options.ceres.solver_options.num_threads = cfg.map_threads
+    options.ceres.solver_options.function_tolerance = FINAL_BA_FUNCTION_TOLERANCE
     config = pycolmap.BundleAdjustmentConfig()
     for i in sorted(rec.reg_image_ids()):
         config.add_image(i)
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
     summary = pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
     used = bool(summary.is_solution_usable())
+    ceres = summary.ceres_summary  # type: ignore[attr-defined]  # the Ceres backend's summary (the default)
     if used:
         rec.update_point_3d_errors()  # the points' stored errors (what the mean reads) are not updated by the solve
     else:
@@ -554,6 +573,8 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
         "loss": cfg.final_ba_loss,
         "scale_px": cfg.final_ba_loss_scale,
         "termination": summary.termination_type.name,
+        "iterations": int(ceres.num_successful_steps + ceres.num_unsuccessful_steps),
+        "residuals": int(summary.num_residuals),
         "used": used,
         "reprojection_before_px": before,
         "reprojection_after_px": float(rec.compute_mean_reprojection_error()),
@@ -594,30 +615,61 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
     }
 
 
-def _child(job_path: str) -> int:
+class _Failed(Exception):
+    """A result the user can act on (no features, no pairs, no model): result.json's "error"."""
+
+
+@dataclass
+class _Job:
+    """What the child works on: job.json's fields, the database path and the stage clock."""
+
+    cfg: SfmConfig
+    out: Path
+    image_dir: str
+    names: list[str]
+    db_path: Path
+    clock: _Clock
+
+
+@dataclass(frozen=True)
+class Matches:
+    """The match step's facts: verified pairs, the match graph's statistics, the median image motion
+    between consecutive frames (px; None when keyframes are off)."""
+
+    num_pairs: int
+    graph: dict
+    motion_px: float | None
+
+
+@dataclass(frozen=True)
+class Keyframes:
+    """The frames mapped: every `stride`-th frame (`names`); `info` is result.json's "keyframes"."""
+
+    stride: int
+    names: list[str]
+    info: dict
+
+
+@dataclass(frozen=True)
+class Mapped:
+    """The kept mapping run: its usable models {index: pycolmap.Reconstruction}, every run's facts, the
+    kept run's rejected models, the solution check's facts and the mapper chosen (result.json's fields)."""
+
+    recs: dict
+    attempts: list[dict]
+    rejected: list[dict]
+    check: dict
+    mapper_info: dict
+
+
+def _extract(job: _Job) -> int:
+    """The database (camera and images in frame order) and SIFT features; returns the keypoint count."""
     import pycolmap
 
-    from seeu_data.ingest.keyframes import consecutive_motion_px, keyframe_names, keyframe_stride, register_frames
-    from seeu_data.ingest.match_graph import choose_mapper, match_graph_stats
-    from seeu_data.undistort import undistort_files
-
-    job = json.loads(Path(job_path).read_text())
-    cfg = SfmConfig(**job["config"])
-    out = Path(job["out_dir"])
-    image_dir = job["image_dir"]
-    names = job["image_names"]
-    db_path = out / "database.db"
-    for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
-        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
-    clock = _Clock()
-
-    def fail(msg: str) -> int:
-        (out / "result.json").write_text(json.dumps({"error": msg, "timings": clock.wall, "cpu_timings": clock.cpu}))
-        return 0
-
-    _emit("stage", "extract", len(names))
+    cfg, clock = job.cfg, job.clock
+    _emit("stage", "extract", len(job.names))
     t0 = clock.mark()
-    _create_database(db_path, Path(image_dir) / names[0], names, cfg)
+    _create_database(job.db_path, Path(job.image_dir) / job.names[0], job.names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
@@ -625,20 +677,32 @@ def _child(job_path: str) -> int:
     extraction.num_threads = cfg.threads
     extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
     pycolmap.extract_features(
-        db_path,
-        image_dir,
-        image_names=names,
+        job.db_path,
+        job.image_dir,
+        image_names=job.names,
         camera_mode=pycolmap.CameraMode.SINGLE,
         reader_options=reader,
         extraction_options=extraction,
     )
     clock.add("extract_s", t0)
-    db = pycolmap.Database.open(db_path)
+    db = pycolmap.Database.open(job.db_path)
     num_kp = int(db.num_keypoints())
     db.close()
     if num_kp < 50:
-        return fail(f"SfM found only {num_kp} image features in {len(names)} frames (blank or textureless video?)")
+        raise _Failed(
+            f"SfM found only {num_kp} image features in {len(job.names)} frames (blank or textureless video?)"
+        )
+    return num_kp
 
+
+def _match(job: _Job) -> Matches:
+    """Sequential matching and two-view verification (RANSAC seeded per pair), then the facts read back."""
+    import pycolmap
+
+    from seeu_data.ingest.keyframes import consecutive_motion_px
+    from seeu_data.ingest.match_graph import match_graph_stats
+
+    cfg, clock = job.cfg, job.clock
     pairing = pycolmap.SequentialPairingOptions()
     pairing.overlap = cfg.overlap
     # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it)
@@ -646,7 +710,7 @@ def _child(job_path: str) -> int:
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
-    _emit("stage", "match", len(names))
+    _emit("stage", "match", len(job.names))
     t0 = clock.mark()
     matching = pycolmap.FeatureMatchingOptions()
     # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
@@ -659,87 +723,230 @@ def _child(job_path: str) -> int:
     # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
     verification.ransac.random_seed = cfg.random_seed
     pycolmap.match_sequential(
-        db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
+        job.db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
     )
     clock.add("match_s", t0)
     t0 = clock.mark()
-    db = pycolmap.Database.open(db_path)
+    db = pycolmap.Database.open(job.db_path)
     num_pairs = int(db.num_verified_image_pairs())
-    graph = match_graph_stats(db, names)
-    motion = consecutive_motion_px(db, names) if cfg.keyframe_motion > 0 else None
+    graph = match_graph_stats(db, job.names)
+    motion = consecutive_motion_px(db, job.names) if cfg.keyframe_motion > 0 else None
     db.close()
-    # keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart
-    stride = keyframe_stride(len(names), motion, cfg.keyframe_motion, cfg.min_keyframes, 2 ** max(cfg.overlap - 3, 0))
-    keys = keyframe_names(names, stride)
-    keyframes = {"stride": stride, "count": len(keys), "motion_px": motion, "target_px": cfg.keyframe_motion}
     clock.add("map_s", t0)
-    mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(graph)
-    mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": graph}
-    if num_pairs == 0:
-        return fail("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
+    return Matches(num_pairs, graph, motion)
 
-    _emit("stage", "map", len(keys))
-    t0 = clock.mark()
-    sparse = out / "sparse"
 
-    def map_once(seed: int) -> dict:
-        shutil.rmtree(sparse, ignore_errors=True)
-        sparse.mkdir()
-        if mapper == "global":
-            global_options = pycolmap.GlobalPipelineOptions()
-            global_options.min_model_size = cfg.min_model_size
-            global_options.num_threads = cfg.map_threads
-            global_options.random_seed = seed
-            global_options.image_names = keys if stride > 1 else []
-            return pycolmap.global_mapping(db_path, image_dir, sparse, options=global_options)
-        options = pycolmap.IncrementalPipelineOptions()
-        options.min_model_size = cfg.min_model_size
-        options.num_threads = cfg.map_threads
-        options.random_seed = seed
-        options.image_names = keys if stride > 1 else []
-        return pycolmap.incremental_mapping(
-            db_path, image_dir, sparse, options=options, next_image_callback=lambda: _emit("step")
-        )
+def _keyframes(names: list[str], motion_px: float | None, cfg: SfmConfig) -> Keyframes:
+    """The frames to map (`seeu_data.ingest.keyframes`)."""
+    from seeu_data.ingest.keyframes import keyframe_names, keyframe_stride
 
-    pairs = geometry_counts(db_path)
-    recs, attempts, rejected, check = map_with_retries(
-        map_once, len(keys), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2
+    # keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart
+    stride = keyframe_stride(
+        len(names), motion_px, cfg.keyframe_motion, cfg.min_keyframes, 2 ** max(cfg.overlap - 3, 0)
     )
+    keys = keyframe_names(names, stride)
+    return Keyframes(
+        stride, keys, {"stride": stride, "count": len(keys), "motion_px": motion_px, "target_px": cfg.keyframe_motion}
+    )
+
+
+def _map(job: _Job, matches: Matches, kf: Keyframes) -> Mapped:
+    """Mapping with retries and the solution check (`map_with_retries`, the runs in `_MapRuns`);
+    `sparse/` left empty for the export."""
+    from seeu_data.ingest.match_graph import choose_mapper
+
+    cfg, clock = job.cfg, job.clock
+    mapper, why = (cfg.mapper, "requested") if cfg.mapper != "auto" else choose_mapper(matches.graph)
+    mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": matches.graph}
+    if matches.num_pairs == 0:
+        raise _Failed("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
+    _emit("stage", "map", len(kf.names))
+    t0 = clock.mark()
+    pairs = geometry_counts(job.db_path)
+    runs = _MapRuns(job, mapper, kf.names if kf.stride > 1 else [])
+    try:
+        recs, attempts, rejected, check = map_with_retries(
+            runs.collect, len(kf.names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2, start=runs.start
+        )
+    finally:
+        runs.close()
+    for attempt in attempts:  # the run's own wall time (map_with_retries saw only the wait for it)
+        attempt["seconds"] = runs.seconds[attempt["seed"]]
+    sparse = job.out / "sparse"
+    shutil.rmtree(sparse, ignore_errors=True)
+    sparse.mkdir()
     check["planar_or_panoramic_pairs"] = pairs["planar_or_panoramic"]
     check["verified_pairs"] = pairs["verified"]
     clock.add("map_s", t0)
     if not recs:
-        return fail(
+        raise _Failed(
             "SfM found no model: no frame pair with enough parallax "
             "(static camera, blank frames, or too few overlapping frames)"
             + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else "")
         )
-    shutil.rmtree(sparse)  # the models kept are written again below, under their own index
-    sparse.mkdir()
-    final_ba = None
-    if cfg.final_ba_loss != "none":
-        # On the mapped (key)frames, before the other frames are registered: a bundle adjustment of
-        # every frame costs about the sum of squared track lengths, which grows with the frame rate
-        # (100 frames: 32 s on every frame against 12 s on its 51 keyframes); the frames registered after are
-        # placed against the adjusted points and camera.
-        _emit("stage", "final-ba")
-        t0 = clock.mark()
-        final_ba = []
-        for k in sorted(recs):
-            recs[k], facts = final_bundle_adjustment(recs[k], cfg)
-            final_ba.append({"index": int(k), **facts})
-        clock.add("final_ba_s", t0)
-    if stride > 1:
-        mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
-        _emit("stage", "register", len(names) - len(mapped))
-        t0 = clock.mark()
-        keyframes["registered_after"] = register_frames(
-            db_path, recs, names, keys, check["kept_seed"], cfg.map_threads, on_frame=lambda: _emit("step")
-        )
-        clock.add("register_s", t0)
+    return Mapped(recs, attempts, rejected, check, mapper_info)
 
-    # COLMAP may also build small models that mostly re-register frames of a larger one (often from a
-    # poor initial pair, with an implausible focal length): keep only models adding new frames.
+
+def map_processes(cfg: SfmConfig) -> int:
+    """How many mapping runs may go at once: the cores given (`threads`; -1: this process's CPU
+    affinity) over each run's `map_threads` (-1: one run at a time)."""
+    if cfg.map_threads < 1:
+        return 1
+    if cfg.threads > 0:
+        cores = cfg.threads
+    else:
+        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+    return max(1, cores // cfg.map_threads)
+
+
+class _MapRuns:
+    """Mapping runs, each in its own process (`python -m seeu_data.ingest.sfm --map RUN.json`, see
+    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/<seed>/. Every run, even
+    a lone one, is read back from the model files it wrote, so the models do not depend on how many
+    ran at once. A run's COLMAP log goes to sfm.log; the run started when none is going reports progress."""
+
+    def __init__(self, job: _Job, mapper: str, image_names: list[str]) -> None:
+        self.job, self.mapper, self.image_names = job, mapper, image_names
+        self.limit = map_processes(job.cfg)
+        self.root = job.out / "map_runs"
+        shutil.rmtree(self.root, ignore_errors=True)
+        self.root.mkdir()
+        self.procs: dict[int, subprocess.Popen] = {}
+        self.seconds: dict[int, float] = {}
+
+    def _running(self) -> int:
+        return sum(p.poll() is None for p in self.procs.values())
+
+    def _launch(self, seed: int) -> None:
+        run_dir = self.root / str(seed)
+        run_dir.mkdir()
+        run = {
+            "parent": os.getpid(),
+            "db_path": str(self.job.db_path),
+            "image_dir": self.job.image_dir,
+            "dir": str(run_dir),
+            "mapper": self.mapper,
+            "image_names": self.image_names,
+            "seed": seed,
+            "progress": self._running() == 0,
+            "config": asdict(self.job.cfg),
+        }
+        (run_dir / "run.json").write_text(json.dumps(run))
+        self.procs[seed] = subprocess.Popen(
+            [sys.executable, "-m", "seeu_data.ingest.sfm", "--map", str(run_dir / "run.json")]
+        )
+
+    def start(self, seed: int) -> None:
+        """Begin mapping `seed` if a core is free for it."""
+        if seed not in self.procs and self._running() < self.limit:
+            self._launch(seed)
+
+    def collect(self, seed: int) -> dict:
+        """Wait for the run of `seed` (begun now if it was not) and read its models {index: Reconstruction}."""
+        import pycolmap
+
+        if seed not in self.procs:
+            self._launch(seed)
+        rc = self.procs[seed].wait()
+        if rc != 0:  # COLMAP aborted the run: this process ends the same way (run_sfm reports it)
+            self.close()
+            if rc < 0:
+                signal.signal(-rc, signal.SIG_DFL)
+                os.kill(os.getpid(), -rc)
+            sys.exit(rc)
+        run_dir = self.root / str(seed)
+        done = json.loads((run_dir / "done.json").read_text())
+        self.seconds[seed] = done["seconds"]
+        return {k: pycolmap.Reconstruction(run_dir / "sparse" / str(k)) for k in done["models"]}
+
+    def close(self) -> None:
+        """End the runs still going (those begun but not needed) and remove their files."""
+        for proc in self.procs.values():
+            end_process(proc)
+        shutil.rmtree(self.root, ignore_errors=True)
+
+
+def _map_run(run_path: str) -> int:
+    """One mapping run (a `_MapRuns` child): incremental or global mapping of the database from one
+    seed; every model written to <dir>/sparse/<index>/, then done.json {"models": [index], "seconds"}."""
+    run = json.loads(Path(run_path).read_text())
+    if sys.platform.startswith("linux"):  # end with the SfM child (killed when ingest is interrupted)
+        import ctypes
+
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() != run["parent"]:
+        return 1
+    import pycolmap
+
+    cfg = SfmConfig(**run["config"])
+    sparse = Path(run["dir"]) / "sparse"
+    sparse.mkdir()
+    t0 = time.perf_counter()
+    if run["mapper"] == "global":
+        global_options = pycolmap.GlobalPipelineOptions()
+        global_options.min_model_size = cfg.min_model_size
+        global_options.num_threads = cfg.map_threads
+        global_options.random_seed = run["seed"]
+        global_options.image_names = run["image_names"]
+        recs = pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
+    else:
+        options = pycolmap.IncrementalPipelineOptions()
+        options.min_model_size = cfg.min_model_size
+        options.num_threads = cfg.map_threads
+        options.random_seed = run["seed"]
+        options.image_names = run["image_names"]
+        step = (lambda: _emit("step")) if run["progress"] else (lambda: None)
+        recs = pycolmap.incremental_mapping(
+            run["db_path"], run["image_dir"], sparse, options=options, next_image_callback=step
+        )
+    seconds = time.perf_counter() - t0
+    for k, rec in recs.items():
+        if not (sparse / str(k) / "images.bin").exists():
+            (sparse / str(k)).mkdir(exist_ok=True)
+            rec.write(sparse / str(k))
+    (Path(run["dir"]) / "done.json").write_text(
+        json.dumps({"models": sorted(int(k) for k in recs), "seconds": seconds})
+    )
+    return 0
+
+
+def _final_ba(job: _Job, recs: dict) -> list[dict] | None:
+    """`final_bundle_adjustment` of every model in `recs`, in place; result.json's "final_ba"."""
+    if job.cfg.final_ba_loss == "none":
+        return None
+    # On the mapped (key)frames, before the other frames are registered: a bundle adjustment of
+    # every frame costs about the sum of squared track lengths, which grows with the frame rate; the
+    # frames registered after are placed against the adjusted points and camera.
+    _emit("stage", "final-ba")
+    t0 = job.clock.mark()
+    facts = []
+    for k in sorted(recs):
+        recs[k], f = final_bundle_adjustment(recs[k], job.cfg)
+        facts.append({"index": int(k), **f})
+    job.clock.add("final_ba_s", t0)
+    return facts
+
+
+def _register(job: _Job, recs: dict, kf: Keyframes, seed: int) -> None:
+    """The frames between keyframes registered into `recs` (in place); sets kf.info["registered_after"]."""
+    from seeu_data.ingest.keyframes import register_frames
+
+    if kf.stride <= 1:
+        return
+    mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+    _emit("stage", "register", len(job.names) - len(mapped))
+    t0 = job.clock.mark()
+    kf.info["registered_after"] = register_frames(
+        job.db_path, recs, job.names, kf.names, seed, job.cfg.map_threads, on_frame=lambda: _emit("step")
+    )
+    job.clock.add("register_s", t0)
+
+
+def _keep_models(recs: dict, rejected: list[dict]) -> tuple[list[int], list[dict]]:
+    """The model indices to export, largest first, and every discarded model's {index, registered, reason}.
+
+    COLMAP may also build small models that mostly re-register frames of a larger one (often from a
+    poor initial pair, with an implausible focal length): only models adding new frames are kept."""
     kept, discarded, seen = [], list(rejected), set[str]()
     for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
         names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
@@ -750,13 +957,21 @@ def _child(job_path: str) -> int:
             continue
         seen |= names_k
         kept.append(k)
+    return kept, discarded
 
+
+def _export(job: _Job, recs: dict, kept: list[int]) -> list[dict]:
+    """Each kept model written to sparse/<k>/, undistorted when its distortion matters, and exported;
+    returns result.json's "models"."""
+    from seeu_data.undistort import undistort_files
+
+    cfg, clock, out, image_dir = job.cfg, job.clock, job.out, job.image_dir
     _emit("stage", "export")
     models = []
     for k in sorted(kept):
         rec = recs[k]
         t0 = clock.mark()
-        model_dir = sparse / str(k)
+        model_dir = out / "sparse" / str(k)
         model_dir.mkdir(exist_ok=True)
         rec.write(model_dir)
         camera = next(iter(rec.cameras.values()))
@@ -782,25 +997,47 @@ def _child(job_path: str) -> int:
         models[-1]["distortion_max_px"] = distortion
         models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
         clock.add("export_s", t0)
-    (out / "result.json").write_text(
-        json.dumps(
-            {
-                "models": models,
-                "discarded_models": discarded,
-                "num_keypoints": num_kp,
-                "num_verified_pairs": num_pairs,
-                "mapping_attempts": attempts,
-                "mapper": mapper_info,
-                "solution_check": check,
-                "keyframes": keyframes,
-                "final_ba": final_ba,
-                "timings": clock.wall,
-                "cpu_timings": clock.cpu,
-            }
-        )
-    )
+    return models
+
+
+def _child(job_path: str) -> int:
+    """The SfM stage on job.json's frames: extract, match, keyframes, map, final BA, register, export."""
+    raw = json.loads(Path(job_path).read_text())
+    out = Path(raw["out_dir"])
+    db_path = out / "database.db"
+    for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
+        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
+    job = _Job(SfmConfig(**raw["config"]), out, raw["image_dir"], raw["image_names"], db_path, _Clock())
+    try:
+        num_kp = _extract(job)
+        matches = _match(job)
+        kf = _keyframes(job.names, matches.motion_px, job.cfg)
+        mapped = _map(job, matches, kf)
+    except _Failed as exc:
+        failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu}
+        (out / "result.json").write_text(json.dumps(failed))
+        return 0
+    recs = mapped.recs
+    final_ba = _final_ba(job, recs)
+    _register(job, recs, kf, mapped.check["kept_seed"])
+    kept, discarded = _keep_models(recs, mapped.rejected)
+    models = _export(job, recs, kept)
+    result: dict = {
+        "models": models,
+        "discarded_models": discarded,
+        "num_keypoints": num_kp,
+        "num_verified_pairs": matches.num_pairs,
+        "mapping_attempts": mapped.attempts,
+        "mapper": mapped.mapper_info,
+        "solution_check": mapped.check,
+        "keyframes": kf.info,
+        "final_ba": final_ba,
+        "timings": job.clock.wall,
+        "cpu_timings": job.clock.cpu,
+    }
+    (out / "result.json").write_text(json.dumps(result))
     return 0
 
 
 if __name__ == "__main__":
-    sys.exit(_child(sys.argv[1]))
+    sys.exit(_map_run(sys.argv[2]) if sys.argv[1] == "--map" else _child(sys.argv[1]))
