@@ -113,10 +113,9 @@ def main() -> int:
     args = ap.parse_args()
 
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
-    from seeu_data.ingest.report import accuracy_vs_truth
     from seeu_data.ingest.video import discover_sources
     from seeu_data.settings import parse_dims
-    from seeu_data.synthetic import ClipConfig, load_ground_truth, write_clip
+    from seeu_data.synthetic import ClipConfig, ingest_accuracy, load_ground_truth, write_clip
 
     width, height = parse_dims(args.size, "--size", minimum=16)
     video = args.out / "clip" / "clip.mp4"
@@ -152,7 +151,7 @@ def main() -> int:
     med = statistics.median
     ratio = med(seeu_wall) / med(bare_wall)
     n = report["frames_selected"]
-    acc = accuracy_vs_truth(report)
+    acc = ingest_accuracy(report["output"], video, report["registered"], report["frames_selected"])
     identical = all(p == poses[0] for p in poses[1:])
     print()
     print(f"{n} frames selected of {report['frames_decoded']}; medians of {args.pairs} pair(s) run in turn")
@@ -171,7 +170,7 @@ def main() -> int:
     )
     print(f"load average (1, 5, 15 min): before {load_before}, after {load_after}; {os.cpu_count()} CPUs")
     print("accuracy vs ground truth:")
-    print(_accuracy_line("seeu ingest", acc["registered_pct"], acc["num_chunks"], acc["largest"]))
+    print(_accuracy_line("seeu ingest", acc["registered_pct"], len(acc["chunks"]), acc["largest"]))
     print(_accuracy_line("bare pycolmap", bare["registered_pct"], bare["models"], bare["largest"]))
     check = report["sfm"].get("solution_check", {})
     print(f"seeu: solution check {check.get('state')}, poses identical in all {args.pairs} runs: {identical}")

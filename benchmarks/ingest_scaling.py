@@ -133,9 +133,9 @@ def run_one(video: Path, out_root: Path, mapper: str, keyframe_motion: float | N
     """One default `seeu ingest` of `video` with `mapper` (and `keyframe_motion` unless None), from
     scratch; returns the benchmark's row."""
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
-    from seeu_data.ingest.report import accuracy_vs_truth
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
+    from seeu_data.synthetic import ingest_accuracy
 
     (source,) = discover_sources([video])
     load_before = _loadavg()
@@ -148,7 +148,7 @@ def run_one(video: Path, out_root: Path, mapper: str, keyframe_motion: float | N
     cfg = IngestConfig(out=out_root, inputs=(video,), sfm=sfm, run=IngestRunConfig(force=True))
     report = ingest_scene(source, cfg)
     wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
-    acc = accuracy_vs_truth(report)
+    acc = ingest_accuracy(report["output"], video, report["registered"], report["frames_selected"])
     best = acc["largest"]
     check = report["sfm"].get("solution_check", {})
     return {
@@ -164,7 +164,7 @@ def run_one(video: Path, out_root: Path, mapper: str, keyframe_motion: float | N
         "solution_check": check.get("state"),
         "registered_pct": acc["registered_pct"],
         "centre_rmse_pct_path": best["centre_rmse_pct_path"] if best else float("nan"),
-        "chunks": acc["num_chunks"],
+        "chunks": len(acc["chunks"]),
         "loadavg_before": load_before,
         "loadavg_after": _loadavg(),
         "summary": report["summary"],

@@ -50,10 +50,12 @@ def _ingest(video: Path, out: Path, cfg):
     return report, elapsed, digest.hexdigest()[:16]
 
 
-def _accuracy(report: dict) -> tuple[float, float]:
-    """(registered %, centre RMSE % of the path of the largest chunk) from the report's ground-truth section."""
-    gt = report["ground_truth"]
-    best = max(gt["chunks"], key=lambda c: c["num_frames"]) if gt["chunks"] else {"centre_rmse_pct_path": float("nan")}
+def _accuracy(report: dict, video: Path) -> tuple[float, float]:
+    """(registered %, centre RMSE % of the path of the largest chunk) against the clip's ground truth."""
+    from seeu_data.synthetic import ingest_accuracy
+
+    gt = ingest_accuracy(report["output"], video, report["registered"], report["frames_selected"])
+    best = gt["largest"] or {"centre_rmse_pct_path": float("nan")}
     return gt["registered_pct"], best["centre_rmse_pct_path"]
 
 
@@ -83,7 +85,7 @@ def main() -> int:
     hashes, goal = [], []
     for r in range(args.runs):
         report, secs, h = _ingest(video, args.out / "posed", cfg)
-        reg, rmse = _accuracy(report)
+        reg, rmse = _accuracy(report, video)
         hashes.append(h)
         goal.append(reg >= 95.0 and rmse <= 0.5)
         print(
@@ -104,7 +106,7 @@ def main() -> int:
             write_clip(v, n_frames=args.frames, width=width, height=height, seed=seed, scene=kind)
             report, secs, _ = _ingest(v, args.out / "posed", cfg)
             check = report["sfm"]["solution_check"]
-            reg, rmse = _accuracy(report)
+            reg, rmse = _accuracy(report, v)
             planar = check["planar_or_panoramic_pairs"] / max(check["verified_pairs"], 1)
             rows.append(
                 {

@@ -170,6 +170,7 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     from seeu_data.ingest.chunks import ChunkConfig
     from seeu_data.ingest.scale import ScaleConfig
     from seeu_data.ingest.sfm import SfmConfig
+    from seeu_data.synthetic import accuracy_line, ingest_accuracy
 
     # The synthetic clips are rendered with an ideal pinhole camera (square pixels, centred principal
     # point), so SIMPLE_PINHOLE is the matching model. Ingest's SfM gives the same poses whatever the
@@ -189,7 +190,8 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
             (result,) = ingest(replace(cfg, inputs=(clip["video"],)))
             report = result.report
             assert report is not None  # a single input's error raises
-            print(f"      {report['summary']}", flush=True)
+            truth = ingest_accuracy(report["output"], clip["video"], report["registered"], report["frames_selected"])
+            print(f"      {report['summary']} | {accuracy_line(truth)}", flush=True)
             out[name] = {
                 "posed": report["output"],
                 "summary": report["summary"],
@@ -198,7 +200,7 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
                 "chunks": len(report["chunks"]),
                 "frames_in_chunks": report["frames_in_chunks"],
                 "mean_reprojection_error_px": report["mean_reprojection_error_px"],
-                "ground_truth": report.get("ground_truth"),
+                "ground_truth": truth,
             }
         return out
 

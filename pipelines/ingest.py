@@ -211,49 +211,6 @@ def _decode_stage(source, cfg: IngestConfig, prog):
     return fn
 
 
-def _ground_truth_accuracy(source, frames: list[dict], chunks, registered: int, selected: int) -> dict | None:
-    """Accuracy against a synthetic clip's ground-truth JSON lying beside the video, if there is one."""
-    import numpy as np
-
-    from seeu_data.ingest.pose_eval import pose_accuracy
-    from seeu_data.synthetic import ground_truth_path, load_ground_truth
-
-    if source.kind != "video" or not ground_truth_path(source.path).exists():
-        return None
-    try:
-        gt = load_ground_truth(source.path)
-    except (SeeUError, ValueError, KeyError):
-        return None
-    index = {int(f): i for i, f in enumerate(gt["frame"])}
-    per_chunk: list[dict] = []
-    out = {
-        "file": str(ground_truth_path(source.path)),
-        "registered_pct": 100.0 * registered / max(selected, 1),
-        "chunks": per_chunk,
-    }
-    for ch in chunks:
-        src = [frames[p]["source_frame"] for p in ch.frame_positions]
-        if len(src) < 3 or any(s not in index for s in src):
-            continue
-        rows = [index[s] for s in src]
-        # Normalised focal lengths survive --max-size; undistortion may crop the image by a few pixels
-        # without resampling, so compare the camera as mapped (on the decoded frames) with the truth.
-        mapped = ch.meta["camera_as_mapped"]
-        intr = np.array(
-            [
-                mapped["fx"] / mapped["width"],
-                mapped["fy"] / mapped["height"],
-                mapped["cx"] / mapped["width"],
-                mapped["cy"] / mapped["height"],
-            ]
-        )
-        acc = pose_accuracy(
-            ch.cam_to_world, gt["cam_to_world"][rows], np.tile(intr, (len(rows), 1)), gt["intrinsics_norm"][rows]
-        )
-        per_chunk.append({"scene_id": ch.scene_id, **acc.as_dict()})
-    return out
-
-
 def input_identity(source) -> dict:
     """What makes an input the same input: its resolved path and its content fingerprint."""
     return {"path": str(source.path.resolve()), "fingerprint": source.fingerprint()}
@@ -309,36 +266,60 @@ def ingest_scene(source, cfg: IngestConfig) -> dict:
         return _ingest_scene(source, Path(cfg.out), cfg, cfg.run.force, prog, identity)
 
 
-def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
-    import numpy as np
+@dataclass
+class Decoded:
+    """The decode stage's result: every decoded frame's record (`name`, `source_frame`, `timestamp_us`,
+    `source_name`, `sharpness`), the input's frame count, the stage's stamp key and its frames folder."""
 
-    from seeu_data.ingest.chunks import plan_chunks
-    from seeu_data.ingest.frame_select import select_frames
-    from seeu_data.ingest.points import POINTS_DIR, write_chunk_points
-    from seeu_data.ingest.report import (
-        baseline_over_depth,
-        mean_reprojection_error,
-        plot_trajectory,
-        scene_warnings,
-        summary_line,
-        write_report,
-    )
-    from seeu_data.ingest.scale import distance_frame_names
-    from seeu_data.ingest.sfm import run_sfm
-    from seeu_data.resize import resize_scene
-    from seeu_data.store.manifest import MANIFEST_NAME, provenance
-    from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
-    from seeu_data.store.resume import StageCache, stamp_of, sweep
+    frames: list[dict]
+    frames_in_source: int
+    key: dict
+    frames_dir: Path
+
+
+@dataclass
+class Selected:
+    """The frames kept for SfM (records of `Decoded.frames`) and the ones dropped, with reasons."""
+
+    frames: list[dict]
+    dropped: list[dict]
+
+
+@dataclass
+class Chunked:
+    """Posed chunks (`seeu_data.ingest.chunks.Chunk`), every dropped frame (selection and chunking, by
+    source frame), the registered frame count and the solution check's state."""
+
+    chunks: list
+    dropped: list[dict]
+    registered: int
+    check_state: str
+
+
+def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, identity: dict) -> dict:
+    """One scene's stages in turn: decode, select, SfM, chunks, report, write (`ingest_scene`)."""
+    from seeu_data.ingest.report import summary_line
+    from seeu_data.store.manifest import MANIFEST_NAME
+    from seeu_data.store.resume import StageCache
 
     t_start = time.perf_counter()
     out_dir = out_root / source.name
     (out_dir / MANIFEST_NAME).unlink(missing_ok=True)  # being redone: must not look complete meanwhile
-    select_cfg = cfg.select
-    chunk_cfg = cfg.chunks
-    sfm_cfg = cfg.stage_sfm()
     cache = StageCache(out_root / ".work" / source.name, force=force, fsync=cfg.run.fsync)
+    decoded = _decode(source, cfg, cache, identity, prog)
+    selected = _select(source, cfg, cache, decoded)
+    sfm_result = _sfm(source, cfg, cache, decoded, selected, prog)
+    prog.stage("write")
+    chunked = _chunk(source, cfg, cache, selected, sfm_result)
+    report = _scene_report(source, cfg, identity, decoded, selected, sfm_result, chunked, out_dir)
+    _write(source, cfg, cache, selected, chunked, report, out_dir, identity, t_start)
+    report["summary"] = summary_line(report)
+    return report
 
-    decode_key = {
+
+def _decode(source, cfg: IngestConfig, cache, identity: dict, prog) -> Decoded:
+    """Decode every stride-th frame (resumable stage "decode")."""
+    key = {
         "input": identity["path"],
         "fingerprint": identity["fingerprint"],
         "kind": source.kind,
@@ -347,13 +328,19 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
         "jpeg_quality": cfg.jpeg_quality,
         "format": DECODE_STAGE_FORMAT,
     }
-    decode_dir = cache.stage_dir("decode")
-    decoded, _ = cache.run("decode", decode_key, lambda: _decode_stage(source, cfg, prog)(decode_dir), decode_dir)
-    frames_all = decoded["frames"]
+    d = cache.stage_dir("decode")
+    decoded, _ = cache.run("decode", key, lambda: _decode_stage(source, cfg, prog)(d), d)
+    return Decoded(decoded["frames"], decoded["frames_in_source"], key, d / "frames")
+
+
+def _select(source, cfg: IngestConfig, cache, decoded: Decoded) -> Selected:
+    """Drop blurred frames and thin to --target-frames; SeeUError when too few remain for SfM and a chunk."""
+    from seeu_data.ingest.frame_select import select_frames
 
     t0 = time.perf_counter()
-    keep, dropped_sel = select_frames(
-        [f["sharpness"] for f in frames_all], [f["source_frame"] for f in frames_all], select_cfg
+    frames_all = decoded.frames
+    keep, dropped = select_frames(
+        [f["sharpness"] for f in frames_all], [f["source_frame"] for f in frames_all], cfg.select
     )
     frames = [frames_all[i] for i in keep]
     cache.timings["select"] = time.perf_counter() - t0
@@ -363,24 +350,38 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             f"only {len(frames)} usable frame(s) after selection; SfM and --min-chunk-frames need at least {need}",
             source.path,
         )
+    return Selected(frames, dropped)
 
-    names = [f["name"] for f in frames]
+
+def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected, prog) -> dict:
+    """COLMAP SfM in a child process (resumable stage "sfm"); its result.json."""
+    from seeu_data.ingest.sfm import run_sfm
+    from seeu_data.store.resume import stamp_of
+
+    sfm_cfg = cfg.stage_sfm()
+    names = [f["name"] for f in selected.frames]
     # the thread count does not change the results (image ids and RANSAC seeds are fixed by the frames)
-    sfm_params = {k: v for k, v in asdict(sfm_cfg).items() if k != "threads"}
-    sfm_key = {"decode": stamp_of(decode_key), "names": names, "sfm": sfm_params, "format": SFM_STAGE_FORMAT}
-    sfm_dir = cache.stage_dir("sfm")
-    sfm_result, _ = cache.run(
-        "sfm", sfm_key, lambda: run_sfm(decode_dir / "frames", names, sfm_dir, sfm_cfg, source.path, prog), sfm_dir
-    )
-    prog.stage("write")
+    params = {k: v for k, v in asdict(sfm_cfg).items() if k != "threads"}
+    key = {"decode": stamp_of(decoded.key), "names": names, "sfm": params, "format": SFM_STAGE_FORMAT}
+    d = cache.stage_dir("sfm")
+    result, _ = cache.run("sfm", key, lambda: run_sfm(decoded.frames_dir, names, d, sfm_cfg, source.path, prog), d)
+    return result
+
+
+def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dict) -> Chunked:
+    """Contiguous registered runs as scaled chunks; SeeUError when none reaches --min-chunk-frames."""
+    from seeu_data.ingest.chunks import plan_chunks
+    from seeu_data.ingest.report import baseline_over_depth
+    from seeu_data.ingest.scale import distance_frame_names
 
     t0 = time.perf_counter()
+    frames = selected.frames
     chunks, dropped_chunk = plan_chunks(
         source.name,
-        names,
+        [f["name"] for f in frames],
         sfm_result,
         cache.stage_dir("sfm"),
-        chunk_cfg,
+        cfg.chunks,
         distance_frame_names(frames, cfg.chunks.scale.distance_frames, source.path),
     )
     registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
@@ -391,9 +392,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             source.path,
         )
     cache.timings["chunks"] = time.perf_counter() - t0
-
-    t0 = time.perf_counter()
-    dropped = dropped_sel + [
+    dropped = selected.dropped + [
         {"source_frame": frames[d["position"]]["source_frame"], "reason": d["reason"]} for d in dropped_chunk
     ]
     dropped.sort(key=lambda d: d["source_frame"])
@@ -402,19 +401,34 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
     for c in chunks:
         c.meta["baseline_over_depth"] = baseline_over_depth(c.cam_to_world)
         c.meta["sfm_solution_check"] = check_state
-    params = {**cfg.params(), "inputs": [str(source.path)], "sfm": asdict(sfm_cfg)}
-    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=identity["fingerprint"])
+    return Chunked(chunks, dropped, registered, check_state)
+
+
+def _scene_report(
+    source,
+    cfg: IngestConfig,
+    identity: dict,
+    decoded: Decoded,
+    selected: Selected,
+    sfm_result: dict,
+    chunked: Chunked,
+    out_dir: Path,
+) -> dict:
+    """report.json's content (seeu_data/ingest/report.py documents its fields), without the timings."""
+    from seeu_data.ingest.report import mean_reprojection_error, scene_warnings
+
+    frames, chunks = selected.frames, chunked.chunks
     report = {
         "scene": source.name,
         "input": str(source.path),
         "input_kind": source.kind,
         "input_identity": identity,
-        "frames_decoded": decoded["frames_in_source"],
+        "frames_decoded": decoded.frames_in_source,
         "skipped_files": [{"name": name, "reason": reason} for name, reason in source.skipped],
-        "frames_candidates": len(frames_all),
+        "frames_candidates": len(decoded.frames),
         "frames_selected": len(frames),
-        "registered": registered,
-        "registration_rate": registered / len(frames),
+        "registered": chunked.registered,
+        "registration_rate": chunked.registered / len(frames),
         "frames_in_chunks": sum(len(c.frame_positions) for c in chunks),
         "mean_reprojection_error_px": mean_reprojection_error(sfm_result["models"]),
         "sfm": {
@@ -437,7 +451,7 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             "discarded_models": sfm_result.get("discarded_models", []),
             "mapping_attempts": sfm_result.get("mapping_attempts", []),
             "mapper": sfm_result.get("mapper"),
-            "solution_check": {**check, "state": check_state},
+            "solution_check": {**sfm_result.get("solution_check", {}), "state": chunked.check_state},
             "keyframes": sfm_result.get("keyframes"),
             "final_ba": sfm_result.get("final_ba"),
         },
@@ -456,25 +470,52 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
             }
             for c in chunks
         ],
-        "dropped_frames": dropped,
+        "dropped_frames": chunked.dropped,
         "output": str(out_dir),
     }
     report["warnings"] = scene_warnings(report)
-    gt = _ground_truth_accuracy(source, frames, chunks, registered, len(frames))
-    if gt is not None:
-        report["ground_truth"] = gt
+    return report
 
+
+def _write(
+    source,
+    cfg: IngestConfig,
+    cache,
+    selected: Selected,
+    chunked: Chunked,
+    report: dict,
+    out_dir: Path,
+    identity: dict,
+    t_start: float,
+) -> None:
+    """The posed-frames dataset OUT/<scene> (its SfM points per chunk; --size applied), report.json (its
+    timings added) and trajectory.png, the manifest last."""
+    import numpy as np
+
+    from seeu_data.ingest.points import POINTS_DIR, write_chunk_points
+    from seeu_data.ingest.report import plot_trajectory, write_report
+    from seeu_data.resize import resize_scene
+    from seeu_data.store.manifest import provenance
+    from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
+    from seeu_data.store.resume import sweep
+
+    t0 = time.perf_counter()
+    params = {**cfg.params(), "inputs": [str(source.path)], "sfm": asdict(cfg.stage_sfm())}
+    prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=identity["fingerprint"])
     sweep(out_dir, POSED_FILES, keep=())  # an earlier run's files: this run writes its own
     sweep(out_dir / POINTS_DIR, "*.ply", keep=())
     with PosedDatasetWriter(out_dir, params=params, provenance=prov, fsync=cfg.run.fsync) as writer:
-        for c in chunks:
+        for c in chunked.chunks:
             imgs = []
             for path in c.image_paths:
                 if not path.exists():
                     raise SeeUError("SfM image missing from the work directory (re-run with --force)", path)
                 imgs.append(path.read_bytes())
-            fr = [frames[p] for p in c.frame_positions]
+            fr = [selected.frames[p] for p in c.frame_positions]
             n = len(fr)
+            points = write_chunk_points(
+                cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir, c.scene_id, cfg.run.fsync
+            )
             scene = PosedScene(
                 scene_id=c.scene_id,
                 images=imgs,
@@ -488,45 +529,20 @@ def _ingest_scene(source, out_root: Path, cfg: IngestConfig, force: bool, prog, 
                 source_frame=np.array([f["source_frame"] for f in fr], np.int64),
                 timestamp_us=np.array([f["timestamp_us"] for f in fr], np.int64),
                 source_name=[f["source_name"] for f in fr],
-                meta={
-                    **c.meta,
-                    "source": str(source.path),
-                    **write_chunk_points(
-                        cache.stage_dir("sfm"),
-                        c.model_index,
-                        c.meta["sfm_to_chunk"],
-                        out_dir,
-                        c.scene_id,
-                        cfg.run.fsync,
-                    ),
-                },
+                meta={**c.meta, "source": str(source.path), **points},
             )
             writer.add(scene if cfg.size is None else resize_scene(scene, cfg.size, cfg.jpeg_quality))
         cache.timings["write"] = time.perf_counter() - t0
-        report["timings_s"] = {**cache.timings, "total": time.perf_counter() - t_start}
-        report["reused"] = dict(cache.reused)
-        writer.report = {
-            k: report[k]
-            for k in (
-                "frames_selected",
-                "registered",
-                "registration_rate",
-                "frames_in_chunks",
-                "mean_reprojection_error_px",
-            )
-        }
-        writer.report["dropped_frames"] = len(dropped)
+        keys = ("frames_selected", "registered", "registration_rate", "frames_in_chunks", "mean_reprojection_error_px")
+        writer.report = {k: report[k] for k in keys}
+        writer.report["dropped_frames"] = len(chunked.dropped)
         writer.report["skipped_files"] = len(source.skipped)
         writer.report["warnings"] = report["warnings"]
+        report["timings_s"] = {**cache.timings, "total": time.perf_counter() - t_start}
+        report["reused"] = dict(cache.reused)
         write_report(out_dir / "report.json", report, cfg.run.fsync)
-        plot_trajectory(
-            out_dir / "trajectory.png",
-            chunks,
-            f"{source.name}: {registered}/{len(frames)} registered, {len(chunks)} chunk(s)",
-            cfg.run.fsync,
-        )
-    report["summary"] = summary_line(report)
-    return report
+        title = f"{source.name}: {chunked.registered}/{len(selected.frames)} registered, {len(chunked.chunks)} chunk(s)"
+        plot_trajectory(out_dir / "trajectory.png", chunked.chunks, title, cfg.run.fsync)
 
 
 def _scene_worker(payload: tuple) -> SceneResult:

@@ -567,3 +567,51 @@ def synthetic_posed_scene(
             "near_far_method": "min/max rendered depth over the frames with a 10% margin",
         },
     )
+
+
+def ingest_accuracy(posed_dir: str | Path, video_path: str | Path, registered: int, selected: int) -> dict:
+    """How well an ingest of a synthetic clip posed it, against the clip's ground truth, read from what
+    the ingest wrote (the posed frames in `posed_dir`: cameras, source frame numbers, the camera as
+    mapped) — for the demo's report, the benchmarks and the tests; ingest itself knows no ground truth.
+
+    Returns {"file": the ground-truth JSON, "registered_pct": registered / selected frames in %,
+    "chunks": [{"scene_id", **PoseAccuracy.as_dict()}] for every chunk of at least 3 frames,
+    "largest": the entry of the chunk with most frames, or None}."""
+    from seeu_data.ingest.pose_eval import pose_accuracy
+    from seeu_data.store.posed import PosedDataset
+
+    gt = load_ground_truth(video_path)
+    index = {int(f): i for i, f in enumerate(gt["frame"])}
+    chunks: list[dict] = []
+    ds = PosedDataset(posed_dir)
+    for sid in ds.scene_ids:
+        scene = ds.load_scene(sid)
+        src = [int(s) for s in scene.source_frame]
+        if len(src) < 3 or any(s not in index for s in src):
+            continue
+        rows = [index[s] for s in src]
+        # Normalised focal lengths survive --max-size and --size; undistortion may crop a few pixels
+        # without resampling, so the camera as mapped (on the decoded frames) is compared with the truth.
+        m = scene.meta["camera_as_mapped"]
+        intr = np.array([m["fx"] / m["width"], m["fy"] / m["height"], m["cx"] / m["width"], m["cy"] / m["height"]])
+        acc = pose_accuracy(
+            scene.cam_to_world, gt["cam_to_world"][rows], np.tile(intr, (len(rows), 1)), gt["intrinsics_norm"][rows]
+        )
+        chunks.append({"scene_id": sid, **acc.as_dict()})
+    return {
+        "file": str(ground_truth_path(video_path)),
+        "registered_pct": 100.0 * registered / max(selected, 1),
+        "chunks": chunks,
+        "largest": max(chunks, key=lambda c: c["num_frames"]) if chunks else None,
+    }
+
+
+def accuracy_line(acc: dict) -> str:
+    """The ground-truth figures of `ingest_accuracy` as one line (the demo's output, the benchmarks)."""
+    best = acc["largest"]
+    if best is None:
+        return "vs ground truth: no chunk to compare"
+    return (
+        f"vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
+        f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%"
+    )

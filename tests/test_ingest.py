@@ -25,6 +25,7 @@ from seeu_data.store.posed import PosedDataset
 from seeu_data.synthetic import (
     camera_path,
     default_intrinsics_norm,
+    ingest_accuracy,
     load_ground_truth,
     make_scene,
     render_view,
@@ -114,7 +115,7 @@ def test_end_to_end_registration_and_accuracy(ingested, clip, capsys):
         chunk_depths = depth[np.isfinite(depth)] / acc.alignment_scale  # metres -> chunk units
         assert scene.near < np.percentile(chunk_depths, 1) and np.percentile(chunk_depths, 99) < scene.far
     # The report's own ground-truth section agrees with this computation; trajectory plot exists.
-    rep_gt = report["ground_truth"]["chunks"][0]
+    rep_gt = ingest_accuracy(out, clip, report["registered"], report["frames_selected"])["chunks"][0]
     assert rep_gt["centre_rmse"] == pytest.approx(acc.centre_rmse, rel=1e-6)
     assert rep_gt["focal_err_pct"] < 2.0
     png = cv2.imread(str(out / "trajectory.png"))

@@ -11,7 +11,7 @@ planar_or_panoramic_pairs, verified_pairs}}, input_identity {path, fingerprint},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth}],
 warnings [str] (a failed solution check, low parallax; also in the summary line),
 dropped_frames [{source_frame, reason}], timings_s {stage: seconds}, reused {stage: bool},
-ground_truth (only when the input has a synthetic ground-truth JSON beside it), output.
+output. (A synthetic clip's ground truth is compared by `seeu_data.synthetic.ingest_accuracy`, not here.)
 """
 
 from __future__ import annotations
@@ -125,20 +125,6 @@ def scene_warnings(report: dict) -> list[str]:
     return out
 
 
-def accuracy_vs_truth(report: dict) -> dict:
-    """The accuracy figures of a report against a synthetic clip's ground truth (benchmarks, the summary).
-
-    Returns {"registered_pct": registered / selected frames in %, "num_chunks": chunks compared with the
-    truth, "largest": the `ground_truth.chunks` entry (`PoseAccuracy.as_dict()` + scene_id) of the chunk
-    with most frames, or None when the report has no ground truth}."""
-    chunks = report.get("ground_truth", {}).get("chunks", [])
-    return {
-        "registered_pct": 100.0 * report["registered"] / max(report["frames_selected"], 1),
-        "num_chunks": len(chunks),
-        "largest": max(chunks, key=lambda c: c["num_frames"]) if chunks else None,
-    }
-
-
 def summary_line(report: dict) -> str:
     """One line for the terminal."""
     rate = 100 * report["registration_rate"]
@@ -160,12 +146,6 @@ def summary_line(report: dict) -> str:
         )
         + f"{report['timings_s']['total']:.1f} s -> {report['output']}"
     )
-    best = accuracy_vs_truth(report)["largest"]
-    if best is not None:
-        line += (
-            f" | vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
-            f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%"
-        )
     for w in report.get("warnings", []):
         line += f" | WARNING: {w}"
     return line
