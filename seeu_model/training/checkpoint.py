@@ -71,10 +71,12 @@ def latest_checkpoint(directory: str | Path) -> Path | None:
 
 
 def rng_state() -> dict:
+    numpy_state = np.random.get_state(legacy=True)
+    assert isinstance(numpy_state, tuple)  # the global RandomState is MT19937: the legacy tuple
     return {
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
-        "numpy": _numpy_state_plain(np.random.get_state()),
+        "numpy": _numpy_state_plain(numpy_state),
         "python": random.getstate(),
     }
 

@@ -8,13 +8,33 @@ Checkpoints store the resolved ``SeeUConfig`` as a dict, so eval / render rebuil
 from __future__ import annotations
 
 import inspect
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
 from seeu_model.training.checkpoint import check_tensors
+
+if TYPE_CHECKING:
+    from seeu_model.gaussians import Gaussians
+
+
+# The loops take any nn.Module; these are the optional methods they use when a model has them (SeeU does).
+@runtime_checkable
+class HasTrainableState(Protocol):
+    def trainable_state_dict(self) -> Mapping[str, torch.Tensor]: ...
+
+
+@runtime_checkable
+class HasFrozenParts(Protocol):
+    def frozen_prefixes(self) -> list[str]: ...
+
+
+@runtime_checkable
+class GaussianEncoder(Protocol):
+    def encode(self, context: dict) -> Gaussians: ...
 
 
 def resolve_model_config(section: dict[str, Any]):
@@ -72,8 +92,8 @@ def _frozen_is_random(model_config: dict) -> bool:
 def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str, torch.Tensor]:
     """What a checkpoint stores: the trainable state (frozen pretrained encoders are left out; they
     are reloaded from their weights), or everything when the frozen encoders are random."""
-    if _frozen_is_random(model_config) or not hasattr(model, "trainable_state_dict"):
-        if hasattr(model, "trainable_state_dict"):
+    if _frozen_is_random(model_config) or not isinstance(model, HasTrainableState):
+        if isinstance(model, HasTrainableState):
             return {k: v.detach().cpu() for k, v in model.state_dict().items()}
         from seeu_model.training.checkpoint import trainable_state_dict
 
@@ -89,7 +109,7 @@ def load_model_state(model: nn.Module, state: dict[str, torch.Tensor], where: st
         missing, unexpected = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself
         raise SeeUError(f"checkpoint weights do not fit the model ({str(exc).splitlines()[0][:200]})", where) from None
-    frozen_prefixes = tuple(model.frozen_prefixes()) if hasattr(model, "frozen_prefixes") else ()
+    frozen_prefixes = tuple(model.frozen_prefixes()) if isinstance(model, HasFrozenParts) else ()
     frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
     missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]
     if missing or unexpected:
@@ -126,8 +146,10 @@ def make_render_fn(backend: str = "auto"):
     return render_fn
 
 
-def encode_context(model: nn.Module, context: dict):
+def encode_context(model: nn.Module, context: dict) -> Gaussians:
     """Encoder half: context views -> Gaussians (B, N, ...)."""
+    if not isinstance(model, GaussianEncoder):
+        raise TypeError(f"{type(model).__name__} has no encode(context) method")
     return model.encode(context)
 
 
