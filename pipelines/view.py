@@ -47,6 +47,8 @@ from seeu_data.errors import SeeUError
 if TYPE_CHECKING:
     import viser
 
+    from seeu_model.gaussians import Gaussians
+
 DEFAULT_HOST = "127.0.0.1"  # `--host`: only this machine can connect
 DEFAULT_PORT = 8080  # `--port`: viser's default
 MAX_FRAMES = 300  # camera frustums drawn per scene (evenly spaced beyond it)
@@ -524,7 +526,7 @@ class Prediction:
         self.server, self.notes = server, notes
         loaded = load_model(checkpoint, device=device or "cpu")
         self.model, self.hw = loaded.model, loaded.image_hw
-        self.g = None
+        self.g: Gaussians | None = None
         self.lock = threading.Lock()
         self.image = server.gui.add_image(
             np.zeros((LIVE_RENDER_WIDTH * 3 // 4, LIVE_RENDER_WIDTH, 3), np.uint8), label="SeeU render (your view)"

@@ -38,6 +38,9 @@ class ResidualBlock(nn.Module):
 class ResNetBackbone(nn.Module):
     """images (B, V, 3, H, W) in [0, 1] -> features (B, V, C, H/s, W/s), C = channels[-1]."""
 
+    mean: torch.Tensor  # (1, 3, 1, 1) buffers: the input normalisation
+    std: torch.Tensor
+
     def __init__(self, channels: tuple[int, ...] = (64, 96, 128), downsample: int = 4):
         super().__init__()
         n_down = int(math.log2(downsample))

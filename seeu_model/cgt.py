@@ -42,8 +42,10 @@ class DiTBlock(nn.Module):
         self.norm2 = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
         self.mlp = FeedForward(hidden, mlp_ratio)
         self.ada = nn.Sequential(nn.SiLU(), nn.Linear(hidden, 6 * hidden))
-        nn.init.normal_(self.ada[-1].weight, std=0.02)
-        nn.init.zeros_(self.ada[-1].bias)
+        ada = self.ada[-1]
+        assert isinstance(ada, nn.Linear)
+        nn.init.normal_(ada.weight, std=0.02)
+        nn.init.zeros_(ada.bias)
 
     def forward(self, x: torch.Tensor, cond: torch.Tensor, pooled: torch.Tensor) -> torch.Tensor:
         s1, sc1, g1, s2, sc2, g2 = self.ada(pooled).chunk(6, dim=-1)
@@ -66,8 +68,10 @@ class ConditionalGaussianTransformer(nn.Module):
         self.norm_out = nn.LayerNorm(hidden, elementwise_affine=False, eps=1e-6)
         self.ada_out = nn.Sequential(nn.SiLU(), nn.Linear(hidden, 2 * hidden))
         self.out = nn.Linear(hidden, channels)
-        nn.init.normal_(self.ada_out[-1].weight, std=0.02)
-        nn.init.zeros_(self.ada_out[-1].bias)
+        ada_out = self.ada_out[-1]
+        assert isinstance(ada_out, nn.Linear)
+        nn.init.normal_(ada_out.weight, std=0.02)
+        nn.init.zeros_(ada_out.bias)
         nn.init.zeros_(self.out.weight)  # the residual is exactly zero at initialisation
         nn.init.zeros_(self.out.bias)
 

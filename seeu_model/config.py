@@ -126,7 +126,7 @@ class SeeUConfig:
         """A small model for the CPU demo: same architecture, narrower and shallower everywhere,
         32 depth candidates, SH degree 2, DINOv3 ViT-S/16 semantic encoder (pretrained unless
         ``semantic_pretrained=False`` is passed)."""
-        base = dict(
+        base: dict[str, Any] = dict(
             backbone_channels=(32, 48, 64),
             mv_layers=2,
             mv_heads=1,
@@ -152,7 +152,7 @@ class SeeUConfig:
     def tiny(cls, **overrides: Any) -> SeeUConfig:
         """The unit-test model: tiny widths, 16 depth candidates, SH degree 1, a randomly initialised
         2-block DINOv3 ViT-S/16 as the semantic encoder. Not meant to be trained for quality."""
-        base = dict(
+        base: dict[str, Any] = dict(
             backbone_channels=(16, 24, 32),
             mv_layers=2,
             mv_heads=2,
@@ -182,7 +182,7 @@ class SeeUConfig:
         """MVSplat's encoder as released for RE10K / ACID (128 disparity candidates, SH degree 4), without a
         refiner: what a converted MVSplat checkpoint runs as ("SeeU w/o refinement"). With
         ``refiner="transformer"`` (and the paper's condition) SeeU's refiner sits on MVSplat's latent tokens."""
-        base = dict(
+        base: dict[str, Any] = dict(
             encoder="mvsplat",
             refiner="none",
             num_depth_candidates=128,

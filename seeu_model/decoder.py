@@ -32,9 +32,11 @@ class UpsamplingDecoder(nn.Module):
         self.fuse = nn.Sequential(
             nn.GELU(), nn.Conv2d(hidden, hidden, 3, padding=1), nn.GELU(), nn.Conv2d(hidden, layout.params, 1)
         )
+        last = self.fuse[-1]
+        assert isinstance(last, nn.Conv2d) and last.bias is not None
         with torch.no_grad():  # start as plain upsampling; the network learns its corrections
-            self.fuse[-1].weight.mul_(0.1)
-            self.fuse[-1].bias.zero_()
+            last.weight.mul_(0.1)
+            last.bias.zero_()
 
     def forward(self, latent, images, cam_to_world, intrinsics, near, far) -> tuple[Gaussians, torch.Tensor]:
         b, v, h, w, c = latent.shape

@@ -199,7 +199,7 @@ def per_scene(records: list[TargetRecord]) -> OrderedDict[str, dict]:
         groups.setdefault(r.scene_id, []).append(r)
     out: OrderedDict[str, dict] = OrderedDict()
     for scene, rs in groups.items():
-        row = {"num_targets": len(rs)}
+        row: dict[str, float] = {"num_targets": len(rs)}
         for m in (*METRICS, "depth_rmse"):
             vals = [getattr(r, m) for r in rs if not math.isnan(getattr(r, m))]
             row[m] = sum(vals) / len(vals) if vals else math.nan

@@ -90,10 +90,12 @@ class CoarseGaussianHead(nn.Module):
             nn.GELU(),
             nn.Conv2d(hidden, out, 1),
         )
+        last = self.net[-1]
+        assert isinstance(last, nn.Conv2d) and last.bias is not None
         with torch.no_grad():  # identity rotations (bias w = 1) and scales near `initial_scale` (raw units)
-            self.net[-1].bias.zero_()
-            self.net[-1].bias[layout.rotation.start - 1] = 1.0
-            self.net[-1].bias[layout.scale.start - 1 : layout.scale.stop - 1] = initial_scale
+            last.bias.zero_()
+            last.bias[layout.rotation.start - 1] = 1.0
+            last.bias[layout.scale.start - 1 : layout.scale.stop - 1] = initial_scale
 
     def forward(self, features, posterior, depth, images_lowres, near, far) -> torch.Tensor:
         b, v, c, h, w = features.shape

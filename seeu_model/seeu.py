@@ -26,6 +26,7 @@ from __future__ import annotations
 import math
 from collections import OrderedDict
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import torch
 import torch.nn.functional as F
@@ -44,6 +45,9 @@ from .gaussians import Gaussians
 from .multiview_transformer import MultiViewTransformer
 from .semantic import FrozenModule
 from .unet_refiner import UNetRefiner
+
+if TYPE_CHECKING:
+    from .rasterizer import RenderOutput
 
 
 @dataclass
@@ -83,15 +87,15 @@ class SeeUOutput:
     depth (B, T, 1, H, W), alpha (B, T, 1, H, W)); `coarse_render` when asked for."""
 
     encoding: SeeUEncoding
-    render: RenderOutput | None  # noqa: F821
-    coarse_render: RenderOutput | None = None  # noqa: F821
+    render: RenderOutput | None
+    coarse_render: RenderOutput | None = None
 
     @property
     def gaussians(self) -> Gaussians:
         return self.encoding.gaussians
 
     @property
-    def coarse_gaussians(self) -> Gaussians:
+    def coarse_gaussians(self) -> Gaussians | None:
         return self.encoding.coarse_gaussians
 
     @property
@@ -230,7 +234,7 @@ class SeeU(nn.Module):
         latent = self.heads(feats, post, coarse_depth, low, near, far)  # (B, V, h, w, C_l)
 
         condition = None
-        if self.refiner is not None:
+        if self.refiner is not None and self.condition is not None:  # built together (`_build_refiner`)
             condition = self.condition(images, entropy)
             residual = self.refiner(latent, condition)
         else:
@@ -282,7 +286,7 @@ class SeeU(nn.Module):
         entropy = matching_entropy(pred["probabilities"])
         condition = None
         coarse = None
-        if self.refiner is not None:
+        if self.refiner is not None and self.condition is not None:  # built together (`_build_refiner`)
             condition = self.condition(images, entropy)
             residual = self.refiner(latent, condition)
             delta = F.interpolate(
@@ -419,7 +423,7 @@ class SeeU(nn.Module):
                 tuple(target["image"].shape[-2:]) if "image" in target else tuple(batch["context"]["image"].shape[-2:])
             )
             render = self.render(enc.gaussians, target, size, background, backend)
-            if render_coarse:
+            if render_coarse and enc.coarse_gaussians is not None:  # decoded when render_coarse
                 coarse = self.render(enc.coarse_gaussians, target, size, background, backend)
         return SeeUOutput(enc, render, coarse)
 

@@ -81,6 +81,10 @@ class FrozenViTEncoder(FrozenModule):
     cls (B, V, D) and patch features (B, V, D, H'/p, W'/p), where H', W' are H, W rounded to
     multiples of the patch size p (bilinear resize when needed). ImageNet-normalised input."""
 
+    model: Any  # a timm model: its class depends on the name (ViT, EVA, ...), its attributes are duck-typed
+    mean: torch.Tensor  # (1, 3, 1, 1) buffers: the input normalisation
+    std: torch.Tensor
+
     def __init__(
         self, name: str, weights: str | None = None, pretrained: bool = True, model_kwargs: dict[str, Any] | None = None
     ):
@@ -119,6 +123,10 @@ class FrozenCLIPImageEncoder(FrozenModule):
     """CLIP's frozen image tower through timm (the paper's "CLIP embedding" ablation):
     images (B, V, 3, H, W) in [0, 1] -> projected image embeddings (B, V, D_clip), input resized to the
     model's native resolution (224 for ViT-B/16) and CLIP-normalised."""
+
+    model: Any  # a timm model: its class depends on the name (ViT, EVA, ...), its attributes are duck-typed
+    mean: torch.Tensor  # (1, 3, 1, 1) buffers: the input normalisation
+    std: torch.Tensor
 
     def __init__(
         self, name: str, weights: str | None = None, pretrained: bool = True, model_kwargs: dict[str, Any] | None = None
@@ -322,6 +330,9 @@ class FrozenBLIP2ImageEncoder(FrozenModule):
     `export_blip2_image_part` or a hub snapshot), else the hub repo ``model``; only the image-side
     tensors are loaded. ``pretrained=False`` without ``weights``: random initialisation of
     ``Blip2Config(**model_kwargs)`` (tests only; default config = blip2-opt-2.7b's image side)."""
+
+    mean: torch.Tensor  # (1, 3, 1, 1) buffers: the input normalisation
+    std: torch.Tensor
 
     def __init__(
         self,

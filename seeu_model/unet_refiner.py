@@ -60,6 +60,7 @@ class UNetRefiner(nn.Module):
         for i in range(len(channels) - 2, -1, -1):
             self.up.append(ConvBlock(channels[i + 1] + channels[i], channels[i]))
         self.out = nn.Conv2d(channels[0], channels_in, 3, padding=1)
+        assert self.out.bias is not None
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
         self.levels = len(channels)

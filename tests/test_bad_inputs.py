@@ -1,4 +1,4 @@
-"""Bad inputs thrown at every command (issue 20): each must end with exit status 0 or 2 and, when
+"""Bad inputs thrown at every command: each must end with exit status 0 or 2 and, when
 it fails, one line `seeu CMD: error: ...`; never "internal error", never a traceback.
 
 Most cases call `pipelines.cli.main(argv)` in this process (fast); a few run the real `seeu`

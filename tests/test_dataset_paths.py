@@ -1,4 +1,4 @@
-"""Paths read from dataset files stay inside their dataset (issue 20 part 2).
+"""Paths read from dataset files stay inside their dataset.
 
 Each case puts a real, intact file outside the dataset and points a dataset file at it (`../x`, an
 absolute path, a symbolic link): without the containment rule the file would be read and accepted

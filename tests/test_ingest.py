@@ -1,5 +1,5 @@
 """`seeu ingest` end to end on a small synthetic clip (accuracy against the exact ground truth), resume,
-frame selection, chunking, and every bad input of the issue (one line, exit 2, nothing that looks complete)."""
+frame selection, chunking, and ingest's bad inputs (one line, exit 2, nothing that looks complete)."""
 
 from __future__ import annotations
 

@@ -26,7 +26,7 @@ ray = pytest.importorskip("ray")
 
 REPO = Path(__file__).resolve().parent.parent
 GOOD = ("c0", "c1", "c4")  # synthetic clips (seeds 0, 1, 4) that register fully at this size
-# --threads 1 for both engines (the comparison); the rest keeps the clips tiny and fast
+# --threads 1 for both engines (the two compared on equal terms); the rest keeps the clips tiny and fast
 COMMON = ["--threads", "1", "--min-chunk-frames", "8"]
 
 

@@ -1,4 +1,4 @@
-"""Issue 19: SfM results that do not depend on the thread count, the solution check, scene naming
+"""Ingest results to trust: SfM results that do not depend on the thread count, the solution check, scene naming
 without silent overwrites, the low-parallax warning, and progress/heartbeat while SfM works."""
 
 from __future__ import annotations

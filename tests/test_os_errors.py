@@ -1,4 +1,4 @@
-"""One error path for operating-system failures (issue 20 part 3): a full disk, a read-only file
+"""One error path for operating-system failures: a full disk, a read-only file
 system, permission denied, an existing file given as --out. Each command answers with one line
 `seeu CMD: error: PATH: <what> (errno text)`, exit status 2, and leaves no temporary file and no
 complete-looking output.

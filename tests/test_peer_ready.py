@@ -1,4 +1,4 @@
-"""A user's video made ready for the peers' RE10K loaders by default (issue 15): `seeu synth` ->
+"""A user's video made ready for the peers' RE10K loaders by default: `seeu synth` ->
 `seeu ingest` (default options) -> `seeu export pixelsplat` gives 360x640 frames whose 18-number
 cameras put ground-truth 3-D points where the ground-truth camera puts them: within 0.05 px for the
 layout itself (exact cameras), and within 0.05 px median end to end (0.044 px on this clip, p95 0.123

@@ -1,4 +1,4 @@
-"""Issue 20: resume at any step (epoch boundaries included), no code runs from a file we read, and
+"""Resume at any step (epoch boundaries included), no code runs from a file we read, and
 config / CLI values refused with one line (exit 2) where they are parsed."""
 
 from __future__ import annotations
@@ -93,7 +93,7 @@ def test_resume_at_every_step_of_two_epochs_gives_the_uninterrupted_parameters(s
 
 
 def test_stop_at_epoch_end_then_resume(shards, tmp_path):
-    """The issue's repro: --max-steps 4 (the end of epoch 0), then --resume to step 6."""
+    """A stop at an epoch boundary, then a resume: --max-steps 4 (the end of epoch 0), then --resume to step 6."""
     from pipelines.train import TrainRunConfig, train
 
     ov = [o for o in FAST if not o.startswith("optim.max_steps")]

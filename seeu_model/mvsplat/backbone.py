@@ -139,7 +139,7 @@ class _AttentionLayer(nn.Module):
         vw = to_windows(vv.permute(0, 2, 3, 1, 4).reshape(n, h, w, m * c), k).reshape(n * k * k, -1, m, c)
         kw, vw = kw.reshape(n * k * k, -1, c), vw.reshape(n * k * k, -1, c)
         scores = q_k = qw @ kw.transpose(1, 2) / (c**0.5)  # (N', L, L*M)
-        if shift:
+        if shift and bias is not None:
             # the window bias is tiled view-major over the keys (as in MVSplat), whatever their order
             q_k = scores + bias.repeat(n, 1, m)
         msg = torch.softmax(q_k, -1) @ vw  # (N', L, C)

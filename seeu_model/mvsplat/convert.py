@@ -13,8 +13,10 @@ key as mapped, missing, unexpected or ignored; a file without MVSplat's encoder 
 from __future__ import annotations
 
 import zipfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import torch
 
@@ -52,7 +54,7 @@ def read_lightning_state_dict(path: str | Path) -> dict[str, torch.Tensor]:
         raise SeeUError("not a PyTorch checkpoint (expected torch.save's zip format)", p)
     try:
         unsafe = torch.serialization.get_unsafe_globals_in_checkpoint(str(p))
-        stand_ins = [(_stand_in(name), name) for name in unsafe]
+        stand_ins: list[Callable[..., Any] | tuple[Callable[..., Any], str]] = [(_stand_in(n), n) for n in unsafe]
         with torch.serialization.safe_globals(stand_ins):
             ckpt = torch.load(p, map_location="cpu", weights_only=True)
     except Exception as exc:  # noqa: BLE001 - any unreadable / refused file: one line, no traceback

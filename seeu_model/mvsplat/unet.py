@@ -117,8 +117,8 @@ class RefineUNet(nn.Module):
         self.head_norm = group_norm(c0)
 
     @staticmethod
-    def _run(block: nn.Sequential, x: torch.Tensor, views: int) -> torch.Tensor:
-        for layer in block:
+    def _run(block: nn.Module, x: torch.Tensor, views: int) -> torch.Tensor:
+        for layer in block.children():
             x = layer(x, views) if isinstance(layer, CrossViewAttention) else layer(x)
         return x
 

@@ -71,10 +71,12 @@ def _plan_chunks(tile_counts: torch.Tensor, pixels_per_tile: int, max_elements: 
         return []
     counts = tile_counts[nonempty]
     order = torch.sort(counts, descending=True, stable=True).indices
-    tiles, counts = nonempty[order], counts[order].tolist()
-    chunks, start = [], 0
-    while start < len(counts):
-        longest = counts[start]
+    tiles = nonempty[order]
+    sizes: list[int] = counts[order].tolist()
+    chunks: list[torch.Tensor] = []
+    start = 0
+    while start < len(sizes):
+        longest = sizes[start]
         n_tiles = max(1, max_elements // max(1, longest * pixels_per_tile))
         chunks.append(tiles[start : start + n_tiles])
         start += n_tiles

@@ -71,10 +71,12 @@ def latest_checkpoint(directory: str | Path) -> Path | None:
 
 
 def rng_state() -> dict:
+    numpy_state = np.random.get_state(legacy=True)
+    assert isinstance(numpy_state, tuple)  # the global RandomState is MT19937: the legacy tuple
     return {
         "torch": torch.get_rng_state(),
         "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else [],
-        "numpy": _numpy_state_plain(np.random.get_state()),
+        "numpy": _numpy_state_plain(numpy_state),
         "python": random.getstate(),
     }
 
@@ -208,7 +210,8 @@ def load_model_state(model: torch.nn.Module, state: dict[str, torch.Tensor], whe
         missing, unexpected = model.load_state_dict(state, strict=False)
     except RuntimeError as exc:  # e.g. dtype/shape problems load_state_dict finds itself
         raise SeeUError(f"checkpoint weights do not fit the model ({str(exc).splitlines()[0][:200]})", where) from None
-    frozen_prefixes = tuple(model.frozen_prefixes()) if hasattr(model, "frozen_prefixes") else ()
+    listed = getattr(model, "frozen_prefixes", None)  # SeeU names its frozen modules; any nn.Module loads
+    frozen_prefixes = tuple(listed()) if callable(listed) else ()
     frozen = {n for n, p in model.named_parameters() if not p.requires_grad}
     missing = [m for m in missing if m not in frozen and not (frozen_prefixes and m.startswith(frozen_prefixes))]
     if missing or unexpected:

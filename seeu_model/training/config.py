@@ -199,7 +199,7 @@ def _build(cls: type, data: dict, where: str) -> Any:
             continue
         tp = hints[f.name]
         key = f"{where}.{f.name}" if where else f.name
-        if dataclasses.is_dataclass(tp):
+        if isinstance(tp, type) and dataclasses.is_dataclass(tp):
             kwargs[f.name] = _build(tp, data[f.name], key)
         else:
             kwargs[f.name] = _coerce(data[f.name], tp, key)

@@ -8,12 +8,32 @@ Checkpoints store the resolved ``SeeUConfig`` as a dict, so eval / render rebuil
 from __future__ import annotations
 
 import inspect
-from typing import Any
+from collections.abc import Mapping
+from typing import TYPE_CHECKING, Any, Protocol, runtime_checkable
 
 import torch
 from torch import nn
 
 from seeu_data.errors import SeeUError
+
+if TYPE_CHECKING:
+    from seeu_model.gaussians import Gaussians
+
+
+# The loops take any nn.Module; these are the optional methods they use when a model has them (SeeU does).
+@runtime_checkable
+class HasTrainableState(Protocol):
+    def trainable_state_dict(self) -> Mapping[str, torch.Tensor]: ...
+
+
+@runtime_checkable
+class HasFrozenParts(Protocol):
+    def frozen_prefixes(self) -> list[str]: ...
+
+
+@runtime_checkable
+class GaussianEncoder(Protocol):
+    def encode(self, context: dict) -> Gaussians: ...
 
 
 def resolve_model_config(section: dict[str, Any]):
@@ -59,8 +79,8 @@ def _frozen_is_random(model_config: dict) -> bool:
 def model_state_for_checkpoint(model: nn.Module, model_config: dict) -> dict[str, torch.Tensor]:
     """What a checkpoint stores: the trainable state (frozen pretrained encoders are left out; they
     are reloaded from their weights), or everything when the frozen encoders are random."""
-    if _frozen_is_random(model_config) or not hasattr(model, "trainable_state_dict"):
-        if hasattr(model, "trainable_state_dict"):
+    if _frozen_is_random(model_config) or not isinstance(model, HasTrainableState):
+        if isinstance(model, HasTrainableState):
             return {k: v.detach().cpu() for k, v in model.state_dict().items()}
         from seeu_model.training.checkpoint import trainable_state_dict
 
@@ -94,8 +114,10 @@ def make_render_fn(backend: str = "auto"):
     return render_fn
 
 
-def encode_context(model: nn.Module, context: dict):
+def encode_context(model: nn.Module, context: dict) -> Gaussians:
     """Encoder half: context views -> Gaussians (B, N, ...)."""
+    if not isinstance(model, GaussianEncoder):
+        raise TypeError(f"{type(model).__name__} has no encode(context) method")
     return model.encode(context)
 
 

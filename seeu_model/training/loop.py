@@ -100,7 +100,8 @@ def autocast_context(precision: str, device: torch.device):
 
 def parameter_groups(model: nn.Module, weight_decay: float) -> list[dict]:
     """AdamW groups: decay on weight matrices/kernels, none on biases, norms and embeddings of dim < 2."""
-    decay, no_decay = [], []
+    decay: list[nn.Parameter] = []
+    no_decay: list[nn.Parameter] = []
     for _, p in model.named_parameters():
         if not p.requires_grad:
             continue
@@ -150,7 +151,7 @@ class Trainer:
         if self.dist.enabled:
             from torch.nn.parallel import DistributedDataParallel as DDP
 
-            self.ddp = DDP(
+            self.ddp: nn.Module = DDP(
                 self.model,
                 device_ids=[self.device] if self.device.type == "cuda" else None,
                 find_unused_parameters=True,
