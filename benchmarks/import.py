@@ -1,7 +1,7 @@
 """pixelSplat-chunk import throughput against `torch.load` of the same chunks alone.
 
 Generates realistic chunks in a temporary directory (RE10K-like scenes of 360x640 JPEGs, ~50 KB each;
-default 4 chunks of ~100 MB, the peers' chunk size per `../shared/REFERENCE.md`; `--chunk-mb 25` gives
+default 4 chunks of ~100 MB, the peers' chunk size; `--chunk-mb 25` gives
 a quicker run in which fixed start and end costs weigh more), then measures, side by side and
 interleaved, in fresh child processes:
 

@@ -363,8 +363,8 @@ def run_local(
         bar.update(result.entry.rows if result.entry is not None else 0)
 
     if workers <= 1:
-        # The next shards are written while the last ones' sha256 finish (`write_pending`): on 2 cores
-        # waiting for each shard's hash before the next made `seeu build` 1.3x slower (RESULTS.md).
+        # The next shards are written while the last ones' sha256 finish (`write_pending`): on 2 cores,
+        # waiting for each shard's hash before the next makes `seeu build` 1.3x slower.
         pending: deque[Callable[[], ShardResult]] = deque()
         try:
             for spec in specs:
@@ -507,7 +507,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 
 def default_workers(resize: bool = False) -> int:
     """Local engine processes for this machine: one per core, at most 8, except when copying images
-    (no resize) on up to 4 cores, where one process was faster (measured on 2 cores: two processes
-    took 1.0-1.2x the time of one; benchmarks/RESULTS.md, plain I/O)."""
+    (no resize) on up to 4 cores, where one process is faster (on 2 cores two take 1.0-1.2x the time of
+    one)."""
     cores = os.cpu_count() or 1
     return 1 if not resize and cores <= 4 else max(1, min(8, cores))

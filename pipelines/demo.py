@@ -173,10 +173,8 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     from seeu_data.synthetic import accuracy_line, ingest_accuracy
 
     # The synthetic clips are rendered with an ideal pinhole camera (square pixels, centred principal
-    # point), so SIMPLE_PINHOLE is the matching model. Ingest's SfM gives the same poses whatever the
-    # thread count (image ids and RANSAC seeds are fixed by the frames; earlier multi-threaded runs
-    # differed, about one in four with ~5% camera-centre error); on 2 cores one thread costs little
-    # (measured: 57-71 s vs 51-81 s per 72-frame clip).
+    # point), so SIMPLE_PINHOLE is the matching model. One SfM thread keeps the demo's CPU use low and
+    # costs little on 2 cores; ingest's poses do not depend on the thread count.
     cfg = IngestConfig(
         out=ctx["out"] / "posed",
         sfm=SfmConfig(camera_model="SIMPLE_PINHOLE", threads=1),

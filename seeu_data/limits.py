@@ -4,7 +4,7 @@ Every size or count taken from a flag or a config file is checked with `check_ra
 parsed (the flag parsers in pipelines/cli/options.py, the stage configs' `check()`, the training
 config's `validate`), so a value that would allocate without end or run forever is one line
 (`data.batch_size 100000000 is over the limit 1024`), not a MemoryError or a run that never ends.
-Each limit is declared once, here; README.md ("Limits") lists them.
+Each limit is declared once, here; docs/limits.md lists them.
 
 Example:
     from seeu_data.limits import MAX_WORKERS, check_range
@@ -41,7 +41,7 @@ MAX_ATTEMPTS = 100  # repeated mapping runs (ingest --sfm-attempts)
 MAX_LEARNING_RATE = 1e10  # optim.lr: far above any useful rate; a diverging run then reaches the non-finite guard (AdamW itself overflows from ~3e37)
 MAX_SEED = 2**63 - 1  # random seeds (--seed, data.seed, seed)
 
-# (what, limit) for README.md's "Limits" paragraph; tests/test_limits.py checks the README lists them.
+# (what, limit) for docs/limits.md; tests/test_limits.py checks the page lists them.
 LIMITS = {
     "pixels per image read (default of --max-pixels)": MAX_PIXELS,
     "--max-pixels, data.max_pixels": MAX_PIXELS_CEILING,

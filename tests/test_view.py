@@ -120,7 +120,7 @@ def gaussians_dir(root: Path, n: int = 2000) -> Path:
 
 
 def test_view_ply_screenshot(tmp_path, capsys):
-    """`--screenshot` (the README's command): serve, chromium, PNG, exit; the client was logged."""
+    """`--screenshot` (docs/view.md's command): serve, chromium, PNG, exit; the client was logged."""
     ply = gaussians_dir(tmp_path / "render") / "gaussians.ply"
     png = tmp_path / "shot.png"
     assert cli_main(["view", str(ply), "--screenshot", str(png)]) == 0

@@ -18,7 +18,7 @@ Examples:
   seeu build data/posed/clip --out data/shards/interp --mode interp --gap-min 25 --gap-max 45
   seeu build data/posed/re10k --out data/shards/extrap --mode extrap --extrap-frames 45 --resize 256x256
   seeu build data/posed/re10k_test --out data/shards/eval --mode eval \\
-      --index ../shared/data/evaluation_index_re10k.json --resize 256x256
+      --index seeu_data/assets/evaluation_index_re10k.json --resize 256x256
   seeu build data/posed/re10k --out data/shards/x --engine ray --ray-address auto
 """
 

@@ -11,8 +11,8 @@ refused, as `torch.load(weights_only=True)` refuses it. Tensors come back as rea
 into the mapped file, so nothing is copied and the chunk's bytes stay in the page cache instead of
 the process's memory. Anything unusual (the legacy non-zip format, compressed entries, big-endian
 data, another global) raises `UnsupportedChunk` and the caller falls back to `torch.load`.
-Kept over `torch.load(weights_only=True, mmap=True)`, which is as safe: reading the import
-benchmark's four 100 MB chunks took 0.27 s here against 1.38 s there (5.2x; benchmarks/RESULTS.md).
+Kept over `torch.load(weights_only=True, mmap=True)`, which is as safe, because it reads the peers'
+100 MB chunks about 5x faster (benchmarks/RESULTS.md, pixelSplat chunk import).
 """
 
 from __future__ import annotations

@@ -3,9 +3,8 @@
 Why: mapping every frame of a dense video costs about the square of the frame count. Frames taken
 closer together see the same scene points, so each point's track grows with the frame count, and one
 global bundle adjustment costs about the sum of squared track lengths (COLMAP's Schur complement),
-which grows as the square; the incremental mapper runs ~40-60 of them. Measured on the synthetic walk
-(`benchmarks/ingest_scaling.py`): one global BA of the final model took 1.8 s CPU at 100 frames and
-6.3 s at 200 (sum of squared track lengths 5.4 M -> 22.8 M), one mapping run 54 s -> 228 s CPU.
+which grows as the square; the incremental mapper runs ~40-60 of them (figures: docs/ingest.md,
+Keyframes; `benchmarks/ingest_scaling.py`).
 
 So only keyframes are mapped: every `stride`-th frame (and the last), the stride the largest power of
 two keeping the median image motion between keyframes <= `target_px` (`keyframe_stride`). The other

@@ -3,7 +3,7 @@
 Measurement (recorded in report.json under `sfm.mapper`): the verified image pairs with at least
 `MIN_INLIERS` inlier matches, and from them the share of consecutive frames (in input order) that
 are matched to each other. A video gives a chain: nearly every frame matches the next one
-(measured 100 % on the synthetic walk-through, which incremental mapping registers fully). Unordered
+(100 % on the synthetic walk-through, which incremental mapping registers fully). Unordered
 photos sorted by file name do not: neighbours in name order are often unrelated shots. `auto` then
 picks incremental mapping for a chain (COLMAP's incremental mapper grows the model along it, the
 best-tested path) and global mapping (GLOMAP's rotation averaging + global positioning, which does

@@ -12,10 +12,9 @@ camera and multiplied by one factor chosen by a convention:
   far = 100 beyond the farthest. SfM points under-sample the nearest, most foreshortened surfaces
   (floor at the bottom of the frame): on the synthetic corridor (320x180, 36 frames) 1 % of the
   true rendered depths lie below 0.35 x the 5th percentile of the SfM point depths, so a rule such
-  as "p5 = 2" would put them in front of near = 1; the 0.4 x p0.1 bound lies below them. Measured on the
-  24-frame 640x360 walk: p0.1 / p5 / p50 / p99.9 of the SfM depths = 2.5 / 4.6 / 8.5 / 22 after
-  scaling, well inside 1-100 (`points_farther_than_far_pct` records any excess for deeper scenes). The share of points
-  nearer than 1 is recorded (`points_nearer_than_near_pct`) so a scene the peers would clip shows.
+  as "p5 = 2" would put them in front of near = 1; the 0.4 x p0.1 bound lies below them. The shares of
+  points nearer than 1 (`points_nearer_than_near_pct`) and farther than 100
+  (`points_farther_than_far_pct`) are recorded, so a scene the peers would clip shows.
 - `median-depth`: the median SfM point depth becomes 1; near/far from the depth percentiles
   (`chunks.NEAR_FAR_METHOD`), i.e. the tightest range for this toolkit's own model.
 - `metric`: the user gives a real distance D (metres) between two cameras (by default the first and

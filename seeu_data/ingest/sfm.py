@@ -40,8 +40,8 @@ Determinism: the same frames give the same database and the same poses whatever 
 (tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `map_threads` = 1. COLMAP's parallel extractor would number images in completion
 order and each matching thread's RANSAC state would carry over between the pairs it happens to
 verify; both are fixed here (`_create_database`, `ransac.random_seed`). Progress comes from COLMAP's
-log lines, not from polling the database: in testing, a second SQLite connection counting rows while
-COLMAP wrote coincided with one image's keypoints missing, silently.
+log lines, not from polling the database: a second SQLite connection reading while COLMAP writes can
+leave an image's keypoints missing, silently.
 """
 
 from __future__ import annotations
@@ -713,8 +713,8 @@ def _match(job: _Job) -> Matches:
     _emit("stage", "match", len(job.names))
     t0 = clock.mark()
     matching = pycolmap.FeatureMatchingOptions()
-    # Matching on the mapping threads (default 1): with a seeded RANSAC per pair, two matching threads
-    # still gave a different database in 1 of ~10 full CI runs (a loaded machine); one thread never did.
+    # Matching on the mapping threads (default 1): even with a seeded RANSAC per pair, two matching threads
+    # can change the database under load; one thread cannot.
     matching.num_threads = cfg.map_threads
     if cfg.features != "sift":
         matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])

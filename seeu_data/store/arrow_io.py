@@ -163,11 +163,9 @@ class _TrailingSha256:
     buffers, so the writer never waits for it and a finished file's hash can still be running while
     the next file is written.
 
-    Why (benchmarks/RESULTS.md, plain I/O): hashing the written buffers on a thread the writer waited
-    for at each write made a quiet 2-core machine's `seeu build` 1.3-1.45x and `seeu import
-    pixelsplat` 1.45-1.5x the time of the code before the plain I/O; trailing the writes from the
-    page cache brings them to 1.07-1.22x and 0.95-1.12x of it. hashlib releases the GIL while it
-    hashes, so the second core takes the hash.
+    Why: a hash the writer waits for makes `seeu build` and `seeu import` 1.3-1.5x slower on 2 cores;
+    hashlib releases the GIL, so a trailing thread's hash runs on the second core (benchmarks/RESULTS.md,
+    Triple build).
     """
 
     def __init__(self, path: Path):
@@ -332,9 +330,8 @@ class AtomicIpcWriter:
         table or batch that `make` returns, which must hold every value of it, and read no value of
         either.
         """
-        # A trick kept for its measured gain (benchmarks/RESULTS.md, plain I/O): copying the images
-        # into the shard's column first made `seeu build` 1.36x slower, and a copy per scene made
-        # `seeu import pixelsplat` 1.1-1.25x slower; from their views they go through the write buffer.
+        # Images go from their views through the write buffer, never copied into the column first: that
+        # copy makes `seeu build` about 1.36x slower and `seeu import pixelsplat` 1.1-1.25x slower.
         stand_in = _Views(views)
         self._raw.views = stand_in
         try:
