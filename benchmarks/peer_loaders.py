@@ -1,6 +1,6 @@
-"""Our exports read by the peers' own code: pixelSplat's and MVSplat's RE10K datasets, the 3DGS (INRIA)
-`.ply` loader and `cameras.json` writer, nerfstudio's dataparser. Not a test (it needs the peers'
-sources, fetched by hand), so it is not run by CI; the tests re-implement these readers
+"""Our exports read by the peers' own code: pixelSplat's and MVSplat's RE10K datasets, DepthSplat's DL3DV
+dataset, the 3DGS (INRIA) `.ply` loader and `cameras.json` writer, nerfstudio's dataparser. Not a test
+(it needs the peers' sources, fetched by hand), so it is not run by CI; the tests re-implement these readers
 (tests/test_peer_ready.py, test_export.py, test_ply.py, test_cameras_json.py) and this script checks
 them against the real ones.
 
@@ -23,11 +23,21 @@ folder is not given is skipped with a line):
   the extrinsics / intrinsics equal ours (pixelSplat's `make_baseline_1`, off in MVSplat's experiment:
   translations divided by the distance between the two context cameras); then the same settings at
   stage "train" with the bounded sampler and the experiment's 256x256: it yields examples (3x256x256).
-  Then a phone-size capture: our scene upscaled to 1280x720 (`resize_scene`, written as its own posed
-  dataset) through a default `seeu export pixelsplat` (no --resize: the default 360x640) is read at stage
-  "test" as above: one example, 360x640 images, cameras equal to the 1280x720 ones after the peers'
-  resize + centre crop (normalised intrinsics unchanged for 16:9, poses unchanged).
+  Then a phone-size capture: a 1280x720 `seeu synth` clip through a default `seeu ingest` (its own line:
+  PASS when it is posed; when that ingest fails, the line says why and our scene upscaled to 1280x720 by
+  `resize_scene` stands in) and a default `seeu export pixelsplat` (360x640) is read at stage "test" as
+  above: one example, 360x640 images, cameras equal to the 1280x720 ones after the peers' resize + centre
+  crop (normalised intrinsics unchanged for 16:9, poses unchanged).
   The two checkouts both name their package `src`: each is imported alone and forgotten afterwards.
+* depthsplat (DL3DV, `check_depthsplat`): our scene written as a DL3DV release scene (`1K/<hash>/`,
+  transforms.json for 3840x2160, PNG frames in images_8/ 480x270 and images_4/ 960x540), the hash being
+  the first scene of DepthSplat's own `assets/dl3dv_start_0_distance_10_ctx_2v_tgt_4v.json`; `seeu import
+  dl3dv` at 480p and 960p; default `seeu export pixelsplat` (no warning expected). DepthSplat's
+  `src.dataset.get_dataset` -> `DatasetDL3DV` with its `+experiment=dl3dv` dataset settings (the config
+  built with dacite as its `load_typed_config` does) at stage "test" with its evaluation sampler on that
+  unmodified index file: the scene found by its key, the index's context/target frames, 270x480 images
+  (its `ori_image_shape`), cameras equal to our import's and to the source's; the 480p images equal the
+  PNG files; then stage "train" with its boundedv2_360 sampler (4 context + 4 target views, augment).
 * gaussian-splatting: `scene.gaussian_model.GaussianModel(sh_degree).load_ply` on our `gaussians.ply`
   gives back our means, opacities, scales, rotations and SH; `utils.camera_utils.camera_to_JSON` of the
   same cameras, as its `readColmapCameras` builds them (R = world-to-camera rotation transposed, T = its
@@ -38,7 +48,7 @@ folder is not given is skipped with a line):
   our SfM points in its world; and the rays its `Cameras.generate_rays` casts through the pixels where
   our cameras project those points pass through them (distance in pixels).
 
-Stubbed, and why (nothing that reads data): MVSplat's view-sampler package imports the evaluation
+Stubbed, and why (nothing that reads data): MVSplat's (and DepthSplat's) view-sampler package imports the evaluation
 index generator, which imports `pytorch_lightning` (LightningModule, for its training-time index
 generation) and `skvideo.io` (video writing) -- both replaced by empty modules; pixelSplat's imports
 the same generator, which imports `lightning.pytorch` (LightningModule) -- replaced likewise. Not
@@ -52,10 +62,10 @@ redirected to the CPU for that call (values untouched).
 
 How to run (Python 3.11; the peers' sources as checked out below, their code as it is):
 
-    # sources: the GitHub repositories donydchen/mvsplat, dcharatan/pixelsplat,
+    # sources: the GitHub repositories donydchen/mvsplat, dcharatan/pixelsplat, cvg/depthsplat,
     # graphdeco-inria/gaussian-splatting (or a fork holding its commits: check out the upstream commit) and
     # nerfstudio-project/nerfstudio, each checked out (git clone / git archive) into
-    # /tmp/peers/{mvsplat,pixelsplat,gaussian-splatting,nerfstudio}; the commits used for RESULTS.md are
+    # /tmp/peers/{mvsplat,pixelsplat,depthsplat,gaussian-splatting,nerfstudio}; the commits used for RESULTS.md are
     # listed there
     # a virtualenv that sees ours, plus what the peers' imports need (open3d-cpu is the one large wheel)
     python -m venv /tmp/venv-peers
@@ -66,7 +76,7 @@ How to run (Python 3.11; the peers' sources as checked out below, their code as 
         open3d-cpu plotly narwhals dash janus                                      # nerfstudio (+ open3d)
     apt-get install libusb-1.0-0                                                   # open3d's shared library
     PYTHONPATH=. /tmp/venv-peers/bin/python benchmarks/peer_loaders.py \\
-        --mvsplat /tmp/peers/mvsplat --pixelsplat /tmp/peers/pixelsplat \\
+        --mvsplat /tmp/peers/mvsplat --pixelsplat /tmp/peers/pixelsplat --depthsplat /tmp/peers/depthsplat \\
         --gaussian-splatting /tmp/peers/gaussian-splatting \\
         --nerfstudio /tmp/peers/nerfstudio [--work /tmp/peer-work]
 
@@ -377,7 +387,7 @@ def make_dl3dv_source(root: Path, ours: PosedScene, scene_hash: str) -> None:
         {"file_path": f"images/frame_{i + 1:05d}.png", "transform_matrix": (ours.cam_to_world[i] @ BLENDER).tolist()}
         for i in range(len(ours))
     ]
-    doc = {"w": w, "h": h, "fl_x": fx * w, "fl_y": fy * h, "cx": cx * w, "cy": cy * h}
+    doc: dict[str, Any] = {"w": w, "h": h, "fl_x": fx * w, "fl_y": fy * h, "cx": cx * w, "cy": cy * h}
     doc.update(k1=0.0, k2=0.0, p1=0.0, p2=0.0, camera_model="OPENCV", frames=frames)
     for sub, scale in (("images_8", 8), ("images_4", 4)):
         (folder / sub).mkdir(parents=True)
@@ -414,7 +424,7 @@ def read_dl3dv(src: Path, work: Path, ours: PosedScene) -> None:
     from omegaconf import OmegaConf
 
     def conf(*parts: str) -> dict[str, Any]:
-        return OmegaConf.to_container(OmegaConf.load(src.joinpath("config", *parts)))  # type: ignore[return-value]
+        return OmegaConf.to_container(OmegaConf.load(src.joinpath("config", *parts)))
 
     for module, attrs in MVSPLAT.stubs.items():  # the same generator imports as MVSplat's (docstring)
         stub_modules([module])
