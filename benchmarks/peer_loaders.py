@@ -1,6 +1,6 @@
-"""Our exports read by the peers' own code: pixelSplat's and MVSplat's RE10K datasets, the 3DGS (INRIA)
-`.ply` loader and `cameras.json` writer, nerfstudio's dataparser. Not a test (it needs the peers'
-sources, fetched by hand), so it is not run by CI; the tests re-implement these readers
+"""Our exports read by the peers' own code: pixelSplat's and MVSplat's RE10K datasets, DepthSplat's DL3DV
+dataset, the 3DGS (INRIA) `.ply` loader and `cameras.json` writer, nerfstudio's dataparser. Not a test
+(it needs the peers' sources, fetched by hand), so it is not run by CI; the tests re-implement these readers
 (tests/test_peer_ready.py, test_export.py, test_ply.py, test_cameras_json.py) and this script checks
 them against the real ones.
 
@@ -23,11 +23,21 @@ folder is not given is skipped with a line):
   the extrinsics / intrinsics equal ours (pixelSplat's `make_baseline_1`, off in MVSplat's experiment:
   translations divided by the distance between the two context cameras); then the same settings at
   stage "train" with the bounded sampler and the experiment's 256x256: it yields examples (3x256x256).
-  Then a phone-size capture: our scene upscaled to 1280x720 (`resize_scene`, written as its own posed
-  dataset) through a default `seeu export pixelsplat` (no --resize: the default 360x640) is read at stage
-  "test" as above: one example, 360x640 images, cameras equal to the 1280x720 ones after the peers'
-  resize + centre crop (normalised intrinsics unchanged for 16:9, poses unchanged).
+  Then a phone-size capture: a 1280x720 `seeu synth` clip through a default `seeu ingest` (its own line:
+  PASS when it is posed; when that ingest fails, the line says why and our scene upscaled to 1280x720 by
+  `resize_scene` stands in) and a default `seeu export pixelsplat` (360x640) is read at stage "test" as
+  above: one example, 360x640 images, cameras equal to the 1280x720 ones after the peers' resize + centre
+  crop (normalised intrinsics unchanged for 16:9, poses unchanged).
   The two checkouts both name their package `src`: each is imported alone and forgotten afterwards.
+* depthsplat (DL3DV, `check_depthsplat`): our scene written as a DL3DV release scene (`1K/<hash>/`,
+  transforms.json for 3840x2160, PNG frames in images_8/ 480x270 and images_4/ 960x540), the hash being
+  the first scene of DepthSplat's own `assets/dl3dv_start_0_distance_10_ctx_2v_tgt_4v.json`; `seeu import
+  dl3dv` at 480p and 960p; default `seeu export pixelsplat` (no warning expected). DepthSplat's
+  `src.dataset.get_dataset` -> `DatasetDL3DV` with its `+experiment=dl3dv` dataset settings (the config
+  built with dacite as its `load_typed_config` does) at stage "test" with its evaluation sampler on that
+  unmodified index file: the scene found by its key, the index's context/target frames, 270x480 images
+  (its `ori_image_shape`), cameras equal to our import's and to the source's; the 480p images equal the
+  PNG files; then stage "train" with its boundedv2_360 sampler (4 context + 4 target views, augment).
 * gaussian-splatting: `scene.gaussian_model.GaussianModel(sh_degree).load_ply` on our `gaussians.ply`
   gives back our means, opacities, scales, rotations and SH; `utils.camera_utils.camera_to_JSON` of the
   same cameras, as its `readColmapCameras` builds them (R = world-to-camera rotation transposed, T = its
@@ -38,7 +48,7 @@ folder is not given is skipped with a line):
   our SfM points in its world; and the rays its `Cameras.generate_rays` casts through the pixels where
   our cameras project those points pass through them (distance in pixels).
 
-Stubbed, and why (nothing that reads data): MVSplat's view-sampler package imports the evaluation
+Stubbed, and why (nothing that reads data): MVSplat's (and DepthSplat's) view-sampler package imports the evaluation
 index generator, which imports `pytorch_lightning` (LightningModule, for its training-time index
 generation) and `skvideo.io` (video writing) -- both replaced by empty modules; pixelSplat's imports
 the same generator, which imports `lightning.pytorch` (LightningModule) -- replaced likewise. Not
@@ -52,10 +62,10 @@ redirected to the CPU for that call (values untouched).
 
 How to run (Python 3.11; the peers' sources as checked out below, their code as it is):
 
-    # sources: the GitHub repositories donydchen/mvsplat, dcharatan/pixelsplat,
+    # sources: the GitHub repositories donydchen/mvsplat, dcharatan/pixelsplat, cvg/depthsplat,
     # graphdeco-inria/gaussian-splatting (or a fork holding its commits: check out the upstream commit) and
     # nerfstudio-project/nerfstudio, each checked out (git clone / git archive) into
-    # /tmp/peers/{mvsplat,pixelsplat,gaussian-splatting,nerfstudio}; the commits used for RESULTS.md are
+    # /tmp/peers/{mvsplat,pixelsplat,depthsplat,gaussian-splatting,nerfstudio}; the commits used for RESULTS.md are
     # listed there
     # a virtualenv that sees ours, plus what the peers' imports need (open3d-cpu is the one large wheel)
     python -m venv /tmp/venv-peers
@@ -66,7 +76,7 @@ How to run (Python 3.11; the peers' sources as checked out below, their code as 
         open3d-cpu plotly narwhals dash janus                                      # nerfstudio (+ open3d)
     apt-get install libusb-1.0-0                                                   # open3d's shared library
     PYTHONPATH=. /tmp/venv-peers/bin/python benchmarks/peer_loaders.py \\
-        --mvsplat /tmp/peers/mvsplat --pixelsplat /tmp/peers/pixelsplat \\
+        --mvsplat /tmp/peers/mvsplat --pixelsplat /tmp/peers/pixelsplat --depthsplat /tmp/peers/depthsplat \\
         --gaussian-splatting /tmp/peers/gaussian-splatting \\
         --nerfstudio /tmp/peers/nerfstudio [--work /tmp/peer-work]
 
@@ -132,10 +142,22 @@ def make_outputs(work: Path) -> None:
     for stage in ("test", "train"):
         if not (work / "ps" / stage / "index.json").exists():
             run_cli(["export", "pixelsplat", str(posed), "--out", str(work / "ps"), "--stage", stage])
-    hd = work / "posed_hd"  # a phone-size capture: our scene at 1280x720, exported with the default size
+    # a phone-size capture: a 1280x720 clip through default ingest, else (when that ingest fails: noted in
+    # hd_ingest.txt and reported) our scene upscaled to 1280x720; then a default export
+    hd, failed = work / "posed_hd" / "clip", work / "hd_ingest.txt"
+    if not (hd / "manifest.json").exists() and not failed.exists():
+        run_cli(["synth", "--out", str(work / "hd"), "--frames", str(N_FRAMES), "--size", f"{HD_HW[1]}x{HD_HW[0]}"])
+        err = io.StringIO()
+        try:
+            with contextlib.redirect_stderr(err):
+                run_cli(["ingest", str(work / "hd" / "clip.mp4"), "--out", str(work / "posed_hd")])
+        except SystemExit:
+            failed.write_text(err.getvalue().strip().splitlines()[-1])
     if not (hd / "manifest.json").exists():
-        with PosedDatasetWriter(hd, params={}, provenance={}) as w:
-            w.add(resize_scene(PosedDataset(posed).load_scene(PosedDataset(posed).scene_ids[0]), HD_HW))
+        hd = work / "posed_hd_upscaled"
+        if not (hd / "manifest.json").exists():
+            with PosedDatasetWriter(hd, params={}, provenance={}) as w:
+                w.add(resize_scene(PosedDataset(posed).load_scene(PosedDataset(posed).scene_ids[0]), HD_HW))
     if not (work / "ps_hd" / "test" / "index.json").exists():
         run_cli(["export", "pixelsplat", str(hd), "--out", str(work / "ps_hd"), "--size-check", "refuse"])
     if not (work / "ns").exists():
@@ -297,11 +319,15 @@ def read_re10k(peer: Re10kPeer, src: Path, work: Path, ours: PosedScene) -> None
             f"vs our decode of the same JPEGs: max |d| {d_px:.3f} / 255",
         )
 
-    # a 1280x720 capture through a default export: 360x640 frames the test stage yields, same cameras
-    hd = PosedDataset(work / "posed_hd").load_scene(ours.scene_id)
+    # a 1280x720 clip through default ingest + export: 360x640 frames the test stage yields, same cameras
+    failed = work / "hd_ingest.txt"
+    hd_ds = PosedDataset(work / ("posed_hd_upscaled" if failed.exists() else "posed_hd/clip"))
+    hd = hd_ds.load_scene(hd_ds.scene_ids[0])
+    n_hd = len(hd)
+    source = "our scene upscaled (resize_scene)" if failed.exists() else "the clip ingested"
     key_hd = json.loads((work / "ps_hd" / "test" / "index.json").read_text())
     index_hd = work / "re10k_eval_index_hd.json"
-    index_hd.write_text(json.dumps({k: {"context": [0, n - 1], "target": list(range(n))} for k in key_hd}))
+    index_hd.write_text(json.dumps({k: {"context": [0, n_hd - 1], "target": list(range(n_hd))} for k in key_hd}))
     hd_sampler = {**evaluation, "index_path": str(index_hd)}
     cfg = DatasetRE10kCfg(
         **{**dataset, "roots": [work / "ps_hd"], "image_shape": [H, W]},
@@ -317,9 +343,10 @@ def read_re10k(peer: Re10kPeer, src: Path, work: Path, ours: PosedScene) -> None
         k_crop = cam.intrinsics_norm_matrix(cam.crop_intrinsics_norm(hd.intrinsics_norm, (H, W), (0, 0), (H, W)))
         d_k = maxabs(tgt["intrinsics"].double().numpy(), k_crop)
     report(
-        len(got) == 1 and shapes == [(2, 3, H, W), (n, 3, H, W)] and d_k < 1e-6 and d_rot < 1e-4,
+        len(got) == 1 and shapes == [(2, 3, H, W), (n_hd, 3, H, W)] and d_k < 1e-6 and d_rot < 1e-4,
         f"{peer.name} 1280x720 capture, default export",
-        f"{len(got)} example(s), images {shapes}, max |d| rotation {d_rot:.2e}, normalised K after the crop "
+        f"{source}, {n_hd} frames {int(hd.width[0])}x{int(hd.height[0])}; {len(got)} example(s), "
+        f"images {shapes}, max |d| rotation {d_rot:.2e}, normalised K after the crop "
         f"{d_k:.2e}" + (f"; printed: {printed!r}" if printed else ""),
     )
 
@@ -335,6 +362,155 @@ def read_re10k(peer: Re10kPeer, src: Path, work: Path, ours: PosedScene) -> None
     report(
         ok,
         f"{peer.name} train stage (experiment re10k: bounded sampler, 256x256, augment)",
+        f"{len(got)} example(s) in 4 passes over 1 scene, images {shapes}"
+        + (f"; printed: {printed!r}" if printed else ""),
+    )
+
+
+# ---------------------------------------------------------------- DepthSplat (DL3DV)
+
+DL3DV_INDEX = "assets/dl3dv_start_0_distance_10_ctx_2v_tgt_4v.json"  # DepthSplat's own, 2 context views
+DL3DV_FULL_WH = (3840, 2160)  # transforms.json's w, h in the DL3DV release (4K); images_8 = / 8, images_4 = / 4
+BLENDER = np.diag([1.0, -1.0, -1.0, 1.0])  # OpenCV <-> OpenGL camera axes
+
+
+def make_dl3dv_source(root: Path, ours: PosedScene, scene_hash: str) -> None:
+    """Our scene as a DL3DV release scene `root/1K/<hash>/`: nerfstudio transforms.json for 3840x2160
+    (Blender camera-to-world), `file_path` naming `images/frame_XXXXX.png`, the frames as PNG in
+    `images_8/` (480x270) and `images_4/` (960x540), made with our peers' resize (`resize_scene`)."""
+    folder = root / "1K" / scene_hash
+    if (folder / "transforms.json").exists():
+        return
+    w, h = DL3DV_FULL_WH
+    fx, fy, cx, cy = (float(v) for v in ours.intrinsics_norm[0])
+    frames = [
+        {"file_path": f"images/frame_{i + 1:05d}.png", "transform_matrix": (ours.cam_to_world[i] @ BLENDER).tolist()}
+        for i in range(len(ours))
+    ]
+    doc: dict[str, Any] = {"w": w, "h": h, "fl_x": fx * w, "fl_y": fy * h, "cx": cx * w, "cy": cy * h}
+    doc.update(k1=0.0, k2=0.0, p1=0.0, p2=0.0, camera_model="OPENCV", frames=frames)
+    for sub, scale in (("images_8", 8), ("images_4", 4)):
+        (folder / sub).mkdir(parents=True)
+        small = resize_scene(ours, (h // scale, w // scale))
+        for i, data in enumerate(small.images):
+            Image.open(io.BytesIO(bytes(data))).convert("RGB").save(folder / sub / f"frame_{i + 1:05d}.png")
+    (folder / "transforms.json").write_text(json.dumps(doc))
+
+
+def make_dl3dv_outputs(work: Path, ours: PosedScene, scene_hash: str) -> dict[str, str]:
+    """`seeu import dl3dv` (480p and 960p) of the DL3DV-layout source, then default `seeu export
+    pixelsplat` (stages test and train; 960p: test); returns what each export printed on stderr."""
+    make_dl3dv_source(work / "dl3dv_src", ours, scene_hash)
+    printed = {}
+    for res in ("480p", "960p"):
+        posed = work / f"posed_dl3dv_{res}"
+        if not (posed / "manifest.json").exists():
+            run_cli(["import", "dl3dv", str(work / "dl3dv_src"), "--resolution", res, "--out", str(posed)])
+        for stage in ("test", "train") if res == "480p" else ("test",):
+            err = io.StringIO()
+            with contextlib.redirect_stderr(err):
+                run_cli(["export", "pixelsplat", str(posed), "--out", str(work / f"ps_dl3dv_{res}"), "--stage", stage])
+            printed[f"{res} {stage}"] = err.getvalue().strip()
+    return printed
+
+
+def check_depthsplat(src: Path, work: Path, ours: PosedScene) -> None:
+    with peer_src(src):
+        read_dl3dv(src, work, ours)
+
+
+def read_dl3dv(src: Path, work: Path, ours: PosedScene) -> None:
+    from dacite import Config, from_dict
+    from omegaconf import OmegaConf
+
+    def conf(*parts: str) -> dict[str, Any]:
+        return OmegaConf.to_container(OmegaConf.load(src.joinpath("config", *parts)))
+
+    for module, attrs in MVSPLAT.stubs.items():  # the same generator imports as MVSplat's (docstring)
+        stub_modules([module])
+        for attr, value in attrs.items():
+            setattr(sys.modules[module], attr, value)
+    from src.dataset import get_dataset
+    from src.dataset.dataset_dl3dv import DatasetDL3DVCfg
+
+    index_path = src / DL3DV_INDEX
+    index = json.loads(index_path.read_text())
+    scene_hash = next(k for k, v in index.items() if v is not None)  # the index's first scene
+    entry = index[scene_hash]
+    printed_export = make_dl3dv_outputs(work, ours, scene_hash)
+    report(
+        not any(printed_export.values()),
+        "depthsplat default export of DL3DV scenes",
+        "no warning from seeu export pixelsplat ("
+        + "; ".join(f"{k}: {v!r}" if v else f"{k}: none" for k, v in printed_export.items())
+        + ")",
+    )
+
+    # +experiment=dl3dv: config/dataset/dl3dv.yaml with the experiment's dataset block
+    dataset = conf("dataset", "dl3dv.yaml")
+    dataset.pop("defaults")
+    dataset.update(conf("experiment", "dl3dv.yaml")["dataset"])
+    dataset.update(overfit_to_scene=None)
+    hw = list(dataset["ori_image_shape"])
+
+    def examples(root: Path, stage: str, sampler: dict[str, Any]) -> tuple[list[dict], str]:
+        # as its src/config.py load_typed_config: dacite, Path type hook, keys the class lacks ignored
+        block = {**dataset, "roots": [str(root)], "view_sampler": sampler}
+        cfg = from_dict(DatasetDL3DVCfg, block, config=Config(type_hooks={Path: Path}))
+        out = io.StringIO()
+        with contextlib.redirect_stdout(out):
+            got = list(get_dataset(cfg, stage, None))
+        return got, out.getvalue().strip()
+
+    evaluation = {"name": "evaluation", "index_path": str(index_path), "num_context_views": 2}
+    posed = PosedDataset(work / "posed_dl3dv_480p").load_scene(f"dl3dv_{scene_hash}")
+    for res in ("480p", "960p"):
+        root = work / f"ps_dl3dv_{res}"
+        keys = list(json.loads((root / "test" / "index.json").read_text()))
+        got, printed = examples(root, "test", evaluation)
+        shapes = [tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")]
+        nc, nt = len(entry["context"]), len(entry["target"])
+        ok = keys == [scene_hash] and len(got) == 1 and shapes == [(nc, 3, *hw), (nt, 3, *hw)]
+        d_rot = d_pos = d_k = d_src = np.inf
+        if got:
+            ex = got[0]
+            idx = np.concatenate([ex["context"]["index"].numpy(), ex["target"]["index"].numpy()])
+            ext = torch.cat([ex["context"]["extrinsics"], ex["target"]["extrinsics"]]).double().numpy()
+            intr = torch.cat([ex["context"]["intrinsics"], ex["target"]["intrinsics"]]).double().numpy()
+            ok &= idx.tolist() == entry["context"] + entry["target"] and ex["scene"] == scene_hash
+            d_rot = maxabs(ext[:, :3, :3], posed.cam_to_world[idx, :3, :3])
+            d_pos = maxabs(ext[:, :3, 3], posed.cam_to_world[idx, :3, 3])
+            d_src = maxabs(ext, ours.cam_to_world[idx])  # through the DL3DV layout and back
+            d_k = maxabs(intr, cam.intrinsics_norm_matrix(posed.intrinsics_norm[idx]))
+        ok &= max(d_rot, d_pos, d_src) < 1e-4 and d_k < 1e-6
+        report(
+            ok,
+            f"depthsplat DL3DV test stage, {res} import, default export",
+            f"key {keys[0][:12]}... ({len(keys)} key(s)) found by its own {Path(DL3DV_INDEX).name}: "
+            f"{len(got)} example(s), images {shapes} (ori_image_shape {hw}), indices "
+            f"{'as its index' if ok else 'WRONG'}; max |d| vs our import: rotation {d_rot:.2e}, centre "
+            f"{d_pos:.2e}, normalised K {d_k:.2e}; vs the source cameras {d_src:.2e}; near/far "
+            f"{float(got[0]['context']['near'][0]) if got else 0:g}/{float(got[0]['context']['far'][0]) if got else 0:g}"
+            + (f"; printed: {printed!r}" if printed else ""),
+        )
+        if got and res == "480p":  # bytes kept as stored: its decode equals the PNG files'
+            files = sorted((work / "dl3dv_src" / "1K" / scene_hash / "images_8").glob("*.png"))
+            pixels = np.stack([np.asarray(Image.open(files[i]).convert("RGB")) for i in idx])
+            imgs = torch.cat([got[0]["context"]["image"], got[0]["target"]["image"]])
+            d_px = maxabs(imgs.permute(0, 2, 3, 1).numpy() * 255.0, pixels)
+            report(d_px <= 1e-3, "depthsplat DL3DV images", f"vs the images_8 PNG files: max |d| {d_px:.3f} / 255")
+
+    # stage train: its experiment's boundedv2_360 sampler (4 context + 4 target views), augment, 270x480
+    torch.manual_seed(0)
+    bounded = conf("dataset", "view_sampler", "boundedv2_360.yaml")
+    got = []
+    for _ in range(4):
+        more, printed = examples(work / "ps_dl3dv_480p", "train", bounded)
+        got += more
+    shapes = sorted({tuple(ex[v]["image"].shape) for ex in got for v in ("context", "target")})
+    report(
+        len(got) == 4 and shapes == [(4, 3, *hw)],
+        "depthsplat DL3DV train stage (experiment dl3dv: boundedv2 sampler, augment)",
         f"{len(got)} example(s) in 4 passes over 1 scene, images {shapes}"
         + (f"; printed: {printed!r}" if printed else ""),
     )
@@ -501,6 +677,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--mvsplat", type=Path, help="checkout of donydchen/mvsplat")
     ap.add_argument("--pixelsplat", type=Path, help="checkout of dcharatan/pixelsplat")
+    ap.add_argument("--depthsplat", type=Path, help="checkout of cvg/depthsplat (DL3DV)")
     ap.add_argument("--gaussian-splatting", type=Path, help="checkout of graphdeco-inria/gaussian-splatting")
     ap.add_argument("--nerfstudio", type=Path, help="checkout of nerfstudio-project/nerfstudio")
     ap.add_argument("--work", type=Path, help="keep (and reuse) our outputs here instead of a temporary folder")
@@ -511,9 +688,16 @@ def main() -> int:
         make_outputs(work)
         ours = our_scene(work)
         print(f"ours: {work} scene {ours.scene_id}, {len(ours)} frames {W}x{H}", flush=True)
+        failed = work / "hd_ingest.txt"
+        report(
+            not failed.exists(),
+            "1280x720 clip, default seeu ingest",
+            f"failed: {failed.read_text()!r}" if failed.exists() else "posed (work/posed_hd/clip)",
+        )
         for name, path, check in (
             ("mvsplat", args.mvsplat, functools.partial(check_re10k, MVSPLAT)),
             ("pixelsplat", args.pixelsplat, functools.partial(check_re10k, PIXELSPLAT)),
+            ("depthsplat", args.depthsplat, check_depthsplat),
             ("gaussian-splatting", args.gaussian_splatting, check_gaussian_splatting),
             ("nerfstudio", args.nerfstudio, check_nerfstudio),
         ):

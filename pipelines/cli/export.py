@@ -2,13 +2,15 @@
 
 Formats:
   pixelsplat DATASET    chunks + index.json for the pixelSplat / MVSplat / DepthSplat loaders
-                        (OUT/STAGE/000000.torch ...; same keys and dtypes as the public RE10K chunks)
+                        (OUT/STAGE/000000.torch ...; same keys and dtypes as the public RE10K and
+                        DepthSplat DL3DV chunks; DL3DV scenes keyed by their hash, 270x480)
   nerfstudio DATASET    OUT/<scene_id>/images/*.jpg|png + transforms.json (OpenGL camera-to-world)
 
 Examples:
   seeu export pixelsplat data/posed/scene --out datasets/my_re10k --stage test
   seeu export pixelsplat data/posed/phone --out datasets/mine --size-check refuse
   seeu export pixelsplat data/posed/scene --out datasets/native --resize none   # frames as stored
+  seeu export pixelsplat data/posed/dl3dv --out datasets/dl3dv --stage test     # DepthSplat's DL3DV
   seeu export nerfstudio data/posed/scene --out exports/ns --scenes scene0
 """
 
@@ -20,11 +22,11 @@ import sys
 from pathlib import Path
 
 from pipelines.cli.options import add_max_pixels, add_out, add_progress, max_pixels, progress_wanted
-from seeu_data.exporters.pixelsplat import PEER_HW
+from seeu_data.exporters.pixelsplat import PEER_MAX_FOV_DEG, PEERS, RESIZE_AUTO
 from seeu_data.limits import MAX_CHUNK_BYTES
 from seeu_data.settings import parse_dims, parse_scene_list
 
-RESIZE_DEFAULT = f"{PEER_HW[0]}x{PEER_HW[1]}"
+PEER_SIZES = ", ".join(f"{p}: " + " or ".join(f"{h}x{w}" for h, w in r.sizes) for p, r in PEERS.items())
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,20 +47,29 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     )
     f.add_argument(
         "--resize",
-        metavar="HxW|none",
-        default=RESIZE_DEFAULT,
+        metavar="HxW|auto|none",
+        default=RESIZE_AUTO,
         help="resize every frame to cover HxW and crop the centre (the peers' crop, intrinsics updated, JPEG "
-        f"re-encoded; frames already HxW kept as stored); default {RESIZE_DEFAULT}, the peers' RE10K size; "
-        "'none' keeps every frame as stored",
+        f"re-encoded; frames already that size kept as stored); default {RESIZE_AUTO}: each scene to its "
+        f"peer's size, {PEERS['dl3dv'].hw[0]}x{PEERS['dl3dv'].hw[1]} (DepthSplat) for scenes from seeu import "
+        f"dl3dv, else {PEERS['re10k'].hw[0]}x{PEERS['re10k'].hw[1]} (the RE10K peers); 'none' keeps every frame as stored",
     )
     f.add_argument(
         "--size-check",
         choices=["warn", "refuse"],
         default="warn",
-        help="scenes the peers' RE10K loaders would skip (frames not 360x640, field of view > 100 deg): "
-        "warn in one line (default) or refuse the export (exit 2)",
+        help=f"scenes the peers' loaders would skip (frames not their size, {PEER_SIZES}; field of view > "
+        f"{PEER_MAX_FOV_DEG:g} deg): warn in one line (default) or refuse the export (exit 2)",
     )
     f = sub.add_parser("nerfstudio", parents=[common], help="nerfstudio transforms.json + image files")
+
+
+def parse_resize(text: str) -> tuple[int, int] | str | None:
+    """--resize: "none" -> None, "auto" -> RESIZE_AUTO, "HxW" -> (H, W)."""
+    word = text.strip().lower()
+    if word in ("none", RESIZE_AUTO):
+        return None if word == "none" else RESIZE_AUTO
+    return parse_dims(text, "--resize")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -78,14 +89,14 @@ def run(args: argparse.Namespace) -> int:
             stage=args.stage,
             chunk_bytes=int(args.chunk_mb * 1e6) if math.isfinite(args.chunk_mb) else 0,
             scenes=scene_ids,
-            resize=None if args.resize.strip().lower() == "none" else parse_dims(args.resize, "--resize"),
+            resize=parse_resize(args.resize),
             size_check=args.size_check,
         )
         s = export_pixelsplat(dataset, cfg, progress=progress)
         print(f"exported {s['scenes']} scenes in {s['chunks']} chunks to {s['directory']}")
         if s["scenes_peers_skip"]:
             print(
-                f"seeu export: warning: the RE10K loaders would skip {s['scenes_peers_skip']} of {s['scenes']} "
+                f"seeu export: warning: the peers' loaders would skip {s['scenes_peers_skip']} of {s['scenes']} "
                 f"scenes (first: {s['peers_skip'][0]})",
                 file=sys.stderr,
             )

@@ -5,20 +5,30 @@ Each chunk is `torch.save(list_of_examples)` with exactly the peer's keys and dt
 3x4 world-to-camera row-major), `images` (N uint8 1-D tensors of the encoded bytes, unchanged),
 `key` (str). Chunks are filled to about `chunk_bytes` of image data (the peers use 100 MB).
 
-The peers' RE10K loaders (pixelSplat, MVSplat: `src/dataset/dataset_re10k.py`) skip an example
-whose frames are not 360x640 (H x W) or whose field of view exceeds `max_fov` = 100 degrees on either
-axis (the angle between the rays through the middles of opposite frame edges). `peer_skip_reason`
-applies that rule. `resize` (H, W), by default the peers' `PEER_HW`, resizes every frame to cover H x W
-and crops the centre, as the peers' own crop shim does (`seeu_data.resize.resize_scene`: intrinsics
-updated, JPEG re-encoded at `jpeg_quality`), so posed data of any size is loader-ready; a scene whose
-frames are already H x W is kept as stored (bytes unchanged); None keeps every frame as stored. `size_check`
-"warn" (default: count the scenes the loaders would skip, the CLI prints one line) or "refuse"
-(raise SeeUError at the first such scene, before index.json is written).
+The peers' loaders skip an example whose frames are not their one configured size or whose field of
+view exceeds `max_fov` = 100 degrees on either axis (the angle between the rays through the middles of
+opposite frame edges): the RE10K loaders (pixelSplat, MVSplat, DepthSplat: `src/dataset/dataset_re10k.py`)
+need 360x640 (H x W); DepthSplat's DL3DV loader (`src/dataset/dataset_dl3dv.py`) needs its
+`ori_image_shape`, 270x480 in its config (540x960 for its 960p runs). `PEERS` holds these per dataset;
+a scene's `dataset` meta ("dl3dv" from `seeu import dl3dv`) picks its peer, any other scene is RE10K's
+(`peer_of`). `peer_skip_reason` applies the rule. `resize` "auto" (the default) resizes every frame to
+cover its peer's size and crops the centre, as the peers' own crop shim does (`seeu_data.resize.
+resize_scene`: intrinsics updated, JPEG re-encoded at `jpeg_quality`); (H, W) does so to that size for
+every scene; a scene whose frames are already the target size is kept as stored (bytes unchanged); None
+keeps every frame as stored. `size_check` "warn" (default: count the scenes the loaders would skip, the
+CLI prints one line) or "refuse" (raise SeeUError at the first such scene, before index.json is
+written). One export directory is read by one loader with one size: export DL3DV and RE10K-style
+scenes to separate `--out` roots.
+
+Keys: an example's `key` is the scene id, except for a scene imported from DL3DV, whose key is its bare
+scene hash (meta `dl3dv_hash`), as DepthSplat's converter writes it and its evaluation indices
+(`assets/dl3dv_*.json`) name it (`export_key`).
 
 What the format cannot hold (near/far, source frame numbers and names, scene meta) goes into a
 sidecar `seeu_posed.json` beside index.json, which `seeu import pixelsplat` reads back and the peer
 loaders ignore (they only list `*.torch` and read `index.json`). Files are written atomically;
 index.json and the sidecar last, so a stage directory without index.json is an unfinished export.
+The sidecar is keyed like index.json; an entry whose key is not the scene id holds `scene_id`.
 """
 
 from __future__ import annotations
@@ -43,33 +53,74 @@ SIDECAR_NAME = "seeu_posed.json"
 CHUNK_FILES = "[0-9]" * 6 + ".torch"  # glob of the chunk files (000000.torch, ...)
 
 
-PEER_HW = (360, 640)
+@dataclass(frozen=True)
+class Peer:
+    """A peer loader's frame rule: `sizes` (H, W) it accepts (the first is its default config's, the size
+    `resize="auto"` makes); `loader` names it in messages, `verb` agrees with it ("need" | "needs")."""
+
+    loader: str
+    verb: str
+    sizes: tuple[tuple[int, int], ...]
+
+    @property
+    def hw(self) -> tuple[int, int]:
+        return self.sizes[0]
+
+
+PEERS = {
+    "re10k": Peer("the RE10K loaders", "need", ((360, 640),)),  # pixelSplat, MVSplat, DepthSplat
+    "dl3dv": Peer("DepthSplat's DL3DV loader", "needs", ((270, 480), (540, 960))),  # its ori_image_shape
+}
+PEER_HW = PEERS["re10k"].hw
 PEER_MAX_FOV_DEG = 100.0
 SIZE_CHECKS = ("warn", "refuse")
+RESIZE_AUTO = "auto"  # `resize`: each scene to its peer's size (`peer_of`)
+DL3DV_HASH_META = "dl3dv_hash"  # scene meta written by `seeu import dl3dv`: the example key
+
+
+def peer_of(meta: dict) -> str:
+    """The peer dataset ("re10k" | "dl3dv") a scene with this meta is exported for."""
+    return "dl3dv" if meta.get("dataset") == "dl3dv" else "re10k"
+
+
+def export_key(scene_id: str, meta: dict) -> str:
+    """The example key: the bare DL3DV hash for a scene imported from DL3DV, else the scene id."""
+    value = meta.get(DL3DV_HASH_META)
+    return value if peer_of(meta) == "dl3dv" and isinstance(value, str) and value else scene_id
 
 
 @dataclass
 class PixelSplatExportConfig:
     """`out`: dataset root (chunks go to `out/stage/`); `scenes`: ids to export (None = all);
-    `resize`: (H, W) to resize + centre-crop every frame to (default the peers' 360x640; None = as
-    stored; frames already that size are kept as stored); `size_check`: what to
-    do with a scene the peers' loaders would skip ("warn" | "refuse")."""
+    `resize`: "auto" (each scene to its peer's size, `PEERS`), (H, W) to resize + centre-crop every
+    frame to, or None (as stored); frames already the target size are kept as stored; `size_check`: what
+    to do with a scene the peers' loaders would skip ("warn" | "refuse")."""
 
     out: Path
     stage: str = "test"
     chunk_bytes: int = 100_000_000
     scenes: list[str] | None = None
-    resize: tuple[int, int] | None = PEER_HW
+    resize: tuple[int, int] | str | None = RESIZE_AUTO
     size_check: str = "warn"
     jpeg_quality: int = 95
 
     def check(self) -> None:
         if self.size_check not in SIZE_CHECKS:
             raise SeeUError(f"--size-check must be one of {', '.join(SIZE_CHECKS)}, got {self.size_check!r}")
-        for side in self.resize or ():
-            check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
+        if isinstance(self.resize, str):
+            if self.resize != RESIZE_AUTO:
+                raise SeeUError(f"--resize must be HxW, {RESIZE_AUTO} or none, got {self.resize!r}")
+        else:
+            for side in self.resize or ():
+                check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
         check_range(self.chunk_bytes, "--chunk-mb in bytes", 1, MAX_CHUNK_BYTES)
         check_range(self.jpeg_quality, "JPEG quality", 1, 100)
+
+    def target_hw(self, meta: dict) -> tuple[int, int] | None:
+        """The (H, W) a scene with this meta is resized to (None: as stored)."""
+        if isinstance(self.resize, str):
+            return PEERS[peer_of(meta)].hw
+        return self.resize
 
 
 def peer_fov_deg(intrinsics_norm: np.ndarray) -> np.ndarray:
@@ -90,24 +141,31 @@ def peer_fov_deg(intrinsics_norm: np.ndarray) -> np.ndarray:
     return np.stack([angle(ray(zero, half), ray(one, half)), angle(ray(half, zero), ray(half, one))], -1)
 
 
-def peer_skip_reason(width: np.ndarray, height: np.ndarray, intrinsics_norm: np.ndarray) -> str | None:
-    """Why the peers' RE10K loaders would skip a scene with these (N,) frame sizes and (N, 4)
-    intrinsics, or None when they accept it."""
+def peer_skip_reason(
+    width: np.ndarray, height: np.ndarray, intrinsics_norm: np.ndarray, peer: str = "re10k"
+) -> str | None:
+    """Why the `peer` dataset's loader (`PEERS`) would skip a scene with these (N,) frame sizes and
+    (N, 4) intrinsics, or None when it accepts it."""
+    rule = PEERS[peer]
     w, h = np.asarray(width), np.asarray(height)
-    if not ((h == PEER_HW[0]).all() and (w == PEER_HW[1]).all()):
-        bad = int(np.nonzero((h != PEER_HW[0]) | (w != PEER_HW[1]))[0][0])
+    for sh, sw in rule.sizes:
+        if (h == sh).all() and (w == sw).all():
+            break
+    else:
+        bad = int(np.nonzero((h != rule.hw[0]) | (w != rule.hw[1]))[0][0])
+        sizes = " or ".join(f"{sw}x{sh}" for sh, sw in rule.sizes)
         return (
-            f"frames are {int(w[bad])}x{int(h[bad])}, the RE10K loaders need 640x360 "
-            "(seeu export pixelsplat resizes to it unless given --resize none)"
+            f"frames are {int(w[bad])}x{int(h[bad])}, {rule.loader} {rule.verb} {sizes} "
+            "(seeu export pixelsplat resizes to it unless given --resize none or another size)"
         )
     fov = peer_fov_deg(intrinsics_norm)
     if (fov > PEER_MAX_FOV_DEG).any():
-        return f"field of view {fov.max():.1f} deg > {PEER_MAX_FOV_DEG:.0f} deg, which the RE10K loaders skip"
+        return f"field of view {fov.max():.1f} deg > {PEER_MAX_FOV_DEG:.0f} deg, which {rule.loader} {rule.verb.replace('need', 'skip')}"
     return None
 
 
-def example_from_scene(scene: PosedScene) -> dict:
-    """PosedScene -> one chunk example dict (the peer's keys and dtypes)."""
+def example_from_scene(scene: PosedScene, key: str | None = None) -> dict:
+    """PosedScene -> one chunk example dict (the peer's keys and dtypes); `key` defaults to the scene id."""
     import torch
 
     n = len(scene)
@@ -120,7 +178,7 @@ def example_from_scene(scene: PosedScene) -> dict:
         "timestamps": torch.tensor(np.asarray(scene.timestamp_us, dtype=np.int64)),
         "cameras": torch.as_tensor(cameras.astype(np.float32)),
         "images": [torch.frombuffer(bytearray(b), dtype=torch.uint8) for b in scene.images],
-        "key": scene.scene_id,
+        "key": scene.scene_id if key is None else key,
     }
 
 
@@ -170,25 +228,31 @@ def export_pixelsplat(dataset: PosedDataset, cfg: PixelSplatExportConfig, progre
         file=sys.stderr,
         disable=not progress,
     ):
-        if cfg.resize is not None and not (
-            (np.asarray(scene.height) == cfg.resize[0]).all() and (np.asarray(scene.width) == cfg.resize[1]).all()
+        hw = cfg.target_hw(scene.meta)
+        if hw is not None and not (
+            (np.asarray(scene.height) == hw[0]).all() and (np.asarray(scene.width) == hw[1]).all()
         ):
-            scene = resize_scene(scene, cfg.resize, cfg.jpeg_quality)
-        reason = peer_skip_reason(scene.width, scene.height, scene.intrinsics_norm)
+            scene = resize_scene(scene, hw, cfg.jpeg_quality)
+        reason = peer_skip_reason(scene.width, scene.height, scene.intrinsics_norm, peer_of(scene.meta))
         if reason is not None:
             if cfg.size_check == "refuse":
                 raise SeeUError(
                     f"scene {scene.scene_id!r}: {reason}; nothing exported (index.json not written)", dataset.root
                 )
             skipped_by_peers.append(f"{scene.scene_id}: {reason}")
-        chunk.append(example_from_scene(scene))
+        key = export_key(scene.scene_id, scene.meta)
+        if key in sidecar:
+            other = sidecar[key].get("scene_id", key)
+            raise SeeUError(f"scenes {other!r} and {scene.scene_id!r} both have the example key {key!r}", dataset.root)
+        chunk.append(example_from_scene(scene, key))
         size += sum(len(b) for b in scene.images)
-        sidecar[scene.scene_id] = {
+        sidecar[key] = {
             "near": scene.near,
             "far": scene.far,
             "source_frame": np.asarray(scene.source_frame).tolist(),
             "source_name": list(scene.source_name),
             "meta": scene.meta,
+            **({"scene_id": scene.scene_id} if key != scene.scene_id else {}),
         }
         if size >= cfg.chunk_bytes:
             flush()

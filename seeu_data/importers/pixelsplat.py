@@ -206,8 +206,10 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
     meta = {"url": str(example["url"]), "dataset": cfg.dataset, "stage": cfg.stage, "chunk": chunk_name}
     source_frame = np.arange(n, dtype=np.int64)
     source_name: list[str] = []
+    scene_id = str(key)
     if sidecar is not None and key in sidecar:
         extra = sidecar[key]
+        scene_id = str(extra.get("scene_id", key))  # our export keyed it otherwise (a DL3DV scene's hash)
         near, far = float(extra.get("near", near)), float(extra.get("far", far))
         if len(extra.get("source_frame", [])) == n:
             source_frame = np.asarray(extra["source_frame"], dtype=np.int64)
@@ -216,7 +218,7 @@ def scene_from_example(example: dict, cfg: PixelSplatImportConfig, chunk_name: s
         meta.update(extra.get("meta", {}))
         meta.update({"dataset": meta.get("dataset", cfg.dataset), "stage": cfg.stage, "chunk": chunk_name})
     return PosedScene(
-        scene_id=str(key),
+        scene_id=scene_id,
         images=data,
         image_format=fmt,
         width=width,
