@@ -73,6 +73,7 @@ def context_from_views(images: list, cam_to_world, intrinsics_norm, near: float,
     it float in [0, 1] as for shard examples), cam_to_world (1, V, 4, 4), intrinsics (1, V, 3, 3)
     normalised, near/far (1, V) (float32), frame_index (1, V) = 0 .. V-1."""
     import numpy as np
+    import torch
 
     from seeu_data.cameras import intrinsics_norm_matrix
     from seeu_data.image_ops import resize_cover_crop, resized_intrinsics
