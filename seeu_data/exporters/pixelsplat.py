@@ -34,6 +34,7 @@ from seeu_data.cameras import world_to_cam_from_cam_to_world
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_CHUNK_BYTES, MAX_IMAGE_SIDE, check_range
 from seeu_data.resize import resize_scene
+from seeu_data.settings import parse_dims_or_none, parse_megabytes, parse_scene_ids, setting
 from seeu_data.store.arrow_io import atomic_path, atomic_write_text
 from seeu_data.store.out_lock import locks_output
 from seeu_data.store.posed import PosedDataset, PosedScene
@@ -56,11 +57,30 @@ class PixelSplatExportConfig:
     do with a scene the peers' loaders would skip ("warn" | "refuse")."""
 
     out: Path
-    stage: str = "test"
-    chunk_bytes: int = 100_000_000
-    scenes: list[str] | None = None
-    resize: tuple[int, int] | None = PEER_HW
-    size_check: str = "warn"
+    stage: str = setting("test", "the split written (OUT/STAGE/)", choices=("train", "test"))
+    chunk_bytes: int = setting(
+        100_000_000,
+        f"image megabytes per chunk (default: 100, the peers'; at most {MAX_CHUNK_BYTES / 1e6:g})",
+        flag="--chunk-mb",
+        parse=parse_megabytes,
+        metavar="CHUNK_MB",
+    )
+    scenes: list[str] | None = setting(
+        None, "export only these scene ids: a,b,c or @file.txt", parse=parse_scene_ids, metavar="SCENES"
+    )
+    resize: tuple[int, int] | None = setting(
+        PEER_HW,
+        "resize every frame to cover HxW and crop the centre (the peers' crop, intrinsics updated, JPEG re-encoded; "
+        "frames already HxW kept as stored); 'none' keeps every frame as stored",
+        parse=parse_dims_or_none,
+        metavar="HxW|none",
+    )
+    size_check: str = setting(
+        "warn",
+        "scenes the peers' RE10K loaders would skip (frames not 360x640, field of view > 100 deg): "
+        "warn in one line or refuse the export (exit 2)",
+        choices=SIZE_CHECKS,
+    )
     jpeg_quality: int = 95
 
     def check(self) -> None:
