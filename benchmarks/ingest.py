@@ -14,7 +14,7 @@
    whether seeu's poses were identical in every run. Writes <out>/result.json.
 
 Example (quiet 2-core machine, the figure in RESULTS.md):
-  .venv/bin/python benchmarks/ingest.py --frames 90 --size 640x360 --pairs 3 --out out/bench_ingest
+  .venv/bin/python benchmarks/ingest.py --frames 90 --size 360x640 --pairs 3 --out out/bench_ingest
 """
 
 from __future__ import annotations
@@ -106,7 +106,7 @@ def _accuracy_line(name: str, registered_pct: float, models: int, best: dict | N
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=90)
-    ap.add_argument("--size", default="640x360", help="W x H of the rendered clip")
+    ap.add_argument("--size", default="360x640", help="H x W of the rendered clip")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--out", type=Path, default=Path("out/bench_ingest"))
     ap.add_argument("--pairs", type=int, default=3, help="seeu / bare pairs run in turn; medians reported")
@@ -117,10 +117,10 @@ def main() -> int:
     from seeu_data.settings import parse_dims
     from seeu_data.synthetic import ClipConfig, ingest_accuracy, load_ground_truth, write_clip
 
-    width, height = parse_dims(args.size, "--size", minimum=16)
+    height, width = parse_dims(args.size, "--size", minimum=16)
     video = args.out / "clip" / "clip.mp4"
     t0 = time.perf_counter()
-    write_clip(video, ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed))
+    write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed))
     print(f"rendered {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s -> {video}", flush=True)
     truth = load_ground_truth(video)
 

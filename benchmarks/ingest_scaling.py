@@ -114,7 +114,7 @@ def _clip(out: Path, frames: int, width: int, height: int, seed: int) -> Path:
     """The synthetic clip of `frames` frames under OUT/clips/, rendered unless an identical one is there."""
     from seeu_data.synthetic import ClipConfig, ground_truth_path, write_clip
 
-    cfg = ClipConfig(n_frames=frames, width=width, height=height, seed=seed)
+    cfg = ClipConfig(n_frames=frames, size=(height, width), seed=seed)
     video = out / "clips" / f"f{frames}" / "clip.mp4"
     gt = ground_truth_path(video)
     if video.exists() and gt.exists():
@@ -242,7 +242,7 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", default="50,100,200,400", help="frame counts, comma-separated")
     ap.add_argument("--mappers", default="incremental,global", help="mappers, comma-separated")
-    ap.add_argument("--size", default="640x360", help="clip WIDTHxHEIGHT (default 640x360)")
+    ap.add_argument("--size", default="360x640", help="clip HxW (default 360x640)")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument(
         "--keyframe-motion",
@@ -265,7 +265,7 @@ def main() -> int:
     if bad or any(n < 10 for n in frames):
         ap.error(f"--mappers takes incremental, global, auto (got {bad}); --frames at least 10 each")
     lo, hi = (int(v) for v in args.fit_range.split(","))
-    width, height = parse_dims(args.size, "--size", minimum=16)
+    height, width = parse_dims(args.size, "--size", minimum=16)
     load_start, t_start = _loadavg(), time.perf_counter()
     rows: list[dict] = []
     for n in frames:

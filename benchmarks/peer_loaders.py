@@ -137,7 +137,7 @@ def make_outputs(work: Path) -> None:
     """Our outputs with our own CLI (skipped where `work` already has them)."""
     posed = work / "posed" / "clip"
     if not (posed / "manifest.json").exists():
-        run_cli(["synth", "--out", str(work), "--frames", str(N_FRAMES), "--size", f"{W}x{H}"])
+        run_cli(["synth", "--out", str(work), "--frames", str(N_FRAMES), "--size", f"{H}x{W}"])
         run_cli(["ingest", str(work / "clip.mp4"), "--out", str(work / "posed")])
     for stage in ("test", "train"):
         if not (work / "ps" / stage / "index.json").exists():

@@ -223,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out
     shutil.rmtree(out, ignore_errors=True)
     out.mkdir(parents=True)
-    write_clip(out / "clip.mp4", n_frames=N, width=W, height=H, seed=0)
+    write_clip(out / "clip.mp4", n_frames=N, size=(H, W), seed=0)
     gt = load_ground_truth(out / "clip.mp4")
     t0 = time.perf_counter()
     assert cli_main(["ingest", str(out / "clip.mp4"), "--out", str(out / "posed")]) == 0

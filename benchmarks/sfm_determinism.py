@@ -11,7 +11,7 @@
    smallest disagreement between two mapping runs.
 
 Example:
-  .venv/bin/python benchmarks/sfm_determinism.py --frames 30 --size 320x180 --runs 5 --check-clips 3
+  .venv/bin/python benchmarks/sfm_determinism.py --frames 30 --size 180x320 --runs 5 --check-clips 3
 """
 
 from __future__ import annotations
@@ -62,7 +62,7 @@ def _accuracy(report: dict, video: Path) -> tuple[float, float]:
 def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--frames", type=int, default=30)
-    ap.add_argument("--size", default="320x180")
+    ap.add_argument("--size", default="180x320", help="H x W of the rendered clips")
     ap.add_argument("--runs", type=int, default=5, help="ingests of the planar clip (default 5)")
     ap.add_argument("--check-clips", type=int, default=3, help="seeds of each clip kind for the check's rate")
     ap.add_argument("--out", type=Path, default=Path("out/bench_sfm_determinism"))
@@ -73,7 +73,7 @@ def main() -> int:
     from seeu_data.settings import parse_dims
     from seeu_data.synthetic import write_clip
 
-    width, height = parse_dims(args.size, "--size", minimum=16)
+    height, width = parse_dims(args.size, "--size", minimum=16)
     # what `seeu ingest` uses by default with one worker (inputs and out: set per ingest)
     cfg = IngestConfig(out=args.out / "posed", sfm=SfmConfig(threads=os.cpu_count() or 1))
     print(
@@ -81,7 +81,7 @@ def main() -> int:
     )
 
     video = args.out / "clips" / "planar_s0.mp4"
-    write_clip(video, n_frames=args.frames, width=width, height=height, seed=0, scene="planar")
+    write_clip(video, n_frames=args.frames, size=(height, width), seed=0, scene="planar")
     hashes, goal = [], []
     for r in range(args.runs):
         report, secs, h = _ingest(video, args.out / "posed", cfg)
@@ -103,7 +103,7 @@ def main() -> int:
     for kind in ("corridor", "planar"):
         for seed in range(args.check_clips):
             v = args.out / "clips" / f"{kind}_check_s{seed}.mp4"
-            write_clip(v, n_frames=args.frames, width=width, height=height, seed=seed, scene=kind)
+            write_clip(v, n_frames=args.frames, size=(height, width), seed=seed, scene=kind)
             report, secs, _ = _ingest(v, args.out / "posed", cfg)
             check = report["sfm"]["solution_check"]
             reg, rmse = _accuracy(report, v)

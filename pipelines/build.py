@@ -42,6 +42,7 @@ import numpy as np
 import pyarrow as pa
 import pyarrow.compute as pc
 
+from seeu_data.build.eval_index import FORMATS as EVAL_INDEX_FORMATS
 from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
 from seeu_data.build.shard_task import ShardResult, materialise, write_pending
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
@@ -56,6 +57,7 @@ from seeu_data.limits import (
     MAX_WORKERS,
     check_range,
 )
+from seeu_data.settings import parse_bytes, setting
 from seeu_data.store.arrow_io import open_ipc_file
 from seeu_data.store.dataset_check import check_dataset
 from seeu_data.store.manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
@@ -72,28 +74,47 @@ _HASHES_BEHIND = 2  # written shards whose sha256 may still be running while the
 MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class BuildConfig:
     """Everything `seeu build` needs. mode: 'interp' | 'extrap' | 'eval'."""
 
-    inputs: tuple[str, ...]
-    out: str
-    mode: str = "interp"
-    sampling: SamplingConfig = field(default_factory=SamplingConfig)
-    index_path: str | None = None
-    index_format: str = "auto"
-    seed: int = 0
+    inputs: tuple[str, ...] = setting(help="posed-frames directories (hold manifest.json)", positional=True, many=True)
+    out: str | Path
+    mode: str = setting("interp", "interp, extrap or eval (the module docstring)", choices=("interp", "extrap", "eval"))
+    sampling: SamplingConfig = field(default_factory=SamplingConfig)  # its mode: `mode` (unused with eval)
+    index_path: str | None = setting(None, "eval: evaluation index JSON file", flag="--index", metavar="INDEX")
+    index_format: str = setting(
+        "auto", "eval: format of --index (default: detected)", choices=("auto", *EVAL_INDEX_FORMATS)
+    )
+    seed: int = setting(0, "random seed")
     image: ImageOptions = field(default_factory=ImageOptions)
-    shard_bytes: int = 128 << 20
-    rows_per_batch: int = 64
-    engine: str = "local"
-    workers: int = 1
-    ray_address: str | None = None
+    shard_bytes: int = setting(
+        128_000_000, "target shard size, e.g. 128MB or 64MiB", flag="--shard-size", parse=parse_bytes, metavar="SIZE"
+    )
+    rows_per_batch: int = setting(64, "rows per Arrow record batch")
+    engine: str = setting("local", "local process pool or Ray Data; identical shards", choices=("local", "ray"))
+    workers: int | None = setting(
+        None,
+        f"worker processes (at most {MAX_WORKERS}) of the local engine (default: the CPU count, at most 8; 1 when "
+        "copying images on up to 4 cores, where one process hashes on threads while it writes)",
+        metavar="N",
+    )
+    ray_address: str | None = setting(None, "Ray cluster address (default: start a local instance)")
     progress: bool = False  # a progress bar on stderr
-    verify_inputs: bool = False
+    verify_inputs: bool = setting(False, "check the posed files' sha256 first")
     fsync: bool = False  # fsync every shard and the manifest before its rename (`--fsync`)
-    near_far: tuple[float, float] | None = None  # override the posed data's near/far (None: the data's)
+    near: float | None = setting(
+        None,
+        "near plane for every view instead of the posed data's (e.g. 1 with --far 100: the peers' "
+        "RealEstate10K values); default: the data's",
+    )
+    far: float | None = setting(None, "far plane for every view (with --near)")
     max_pixels: int = MAX_PIXELS  # largest input image (width x height), `--max-pixels`
+
+    @property
+    def near_far(self) -> tuple[float, float] | None:
+        """The near/far planes overriding the posed data's (None: the data's)."""
+        return None if self.near is None or self.far is None else (self.near, self.far)
 
     def check(self) -> None:
         """One-line SeeUError for a bad value (named by its `seeu build` flag), before anything is read."""
@@ -116,11 +137,14 @@ class BuildConfig:
         check_range(self.rows_per_batch, "--rows-per-batch", 1, MAX_ROWS_PER_BATCH)
         if self.engine not in ("local", "ray"):
             raise SeeUError(f"unknown engine {self.engine!r} (local or ray)")
-        check_range(self.workers, "--workers", 1, MAX_WORKERS)
+        if self.workers is not None:  # None: `default_workers`
+            check_range(self.workers, "--workers", 1, MAX_WORKERS)
         for side in self.image.resize or ():
             check_range(side, "--resize", 1, MAX_IMAGE_SIDE)
         check_range(self.seed, "--seed", 0, MAX_SEED)
         check_range(self.max_pixels, "--max-pixels", 1, MAX_PIXELS_CEILING)
+        if (self.near is None) != (self.far is None):
+            raise SeeUError("--near and --far go together")
         if self.near_far is not None and not (0 < self.near_far[0] < self.near_far[1] < float("inf")):
             raise SeeUError(f"--near/--far must satisfy 0 < near < far, got {self.near_far[0]} / {self.near_far[1]}")
 
@@ -438,6 +462,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         manifest = build(cfg)     # manifest["total_rows"] triples in manifest["files"]
     """
     cfg.check()
+    workers = cfg.workers if cfg.workers is not None else default_workers(cfg.image.resize is not None)
     out = Path(cfg.out)
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():
@@ -485,7 +510,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
                     specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r)), fsync=cfg.fsync
                 )
         else:
-            results += run_local(todo(bar), str(out), cfg.workers, bar, journal, fsync=cfg.fsync)
+            results += run_local(todo(bar), str(out), workers, bar, journal, fsync=cfg.fsync)
     removed += sweep(out, SHARD_FILES, keep={SHARD_PATTERN.format(i) for i in range(len(plan_hashes))})
     results.sort(key=lambda r: r.index)
     errors = [r.error for r in results if r.error is not None]
@@ -499,7 +524,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         stale_files_removed=sorted(removed),
         plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest(),
     )
-    prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=cfg.workers)
+    prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=workers)
     doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report, fsync=cfg.fsync)
     journal.remove()
     return doc

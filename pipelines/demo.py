@@ -9,7 +9,7 @@ Example:
     from pathlib import Path
     from pipelines.demo import DemoConfig, demo
 
-    result = demo(DemoConfig(out=Path("out/quick"), frames=36, size=(320, 180), steps=60, image_size=(32, 32)))
+    result = demo(DemoConfig(out=Path("out/quick"), frames=36, size=(180, 320), steps=60, image_size=(32, 32)))
     result["report"], result["stages"]["eval"]["mean"]["trained_psnr"]
 """
 
@@ -31,6 +31,7 @@ from seeu_data.limits import (
     MAX_VIDEO_SIDE,
     check_range,
 )
+from seeu_data.settings import parse_dims, parse_video_dims, setting
 from seeu_data.store.out_lock import locks_output
 
 STAGES = ("synth", "ingest", "build", "train", "eval", "render", "report")
@@ -41,7 +42,7 @@ STAMP_FORMAT = 1
 class DemoConfig:
     """One `seeu demo` run.
 
-    out: the output directory; frames: frames per synthetic clip; size: the clips' (width, height);
+    out: the output directory; frames: frames per synthetic clip; size: the clips' (height, width);
     seed / heldout_seed: scene seeds of the training and held-out clips (None: seed + 100);
     image_size: training/evaluation (H, W), built into the shards; train_samples / eval_samples:
     triples per posed chunk / per evaluation set; config: a training preset's name or a config file;
@@ -49,18 +50,28 @@ class DemoConfig:
     LPIPS (None: the torch hub cache; skipped when missing); render_frames: frames per camera path.
     """
 
-    out: Path = Path("out/demo")
-    frames: int = 72
-    size: tuple[int, int] = (480, 270)
-    seed: int = 0
-    heldout_seed: int | None = None
-    image_size: tuple[int, int] = (64, 64)
-    train_samples: int = 256
-    eval_samples: int = 8
-    config: str | Path = "demo"
-    steps: int | None = None
-    lpips_weights: str | None = None
-    render_frames: int = 30
+    out: Path = setting(Path("out/demo"), "output directory")
+    frames: int = setting(72, "frames per synthetic clip")
+    size: tuple[int, int] = setting((270, 480), "clip size HxW", parse=parse_video_dims, metavar="HxW")
+    seed: int = setting(0, "scene seed of the training clip")
+    heldout_seed: int | None = setting(None, "scene seed of the held-out evaluation clip (default: --seed + 100)")
+    image_size: tuple[int, int] = setting(
+        (64, 64), "training/evaluation image size, built into the shards", parse=parse_dims, metavar="HxW"
+    )
+    train_samples: int = setting(256, "training triples drawn per posed chunk")
+    eval_samples: int = setting(8, "held-out triples per evaluation set, interp and extrap")
+    config: str | Path = setting(
+        "demo", "training preset: a shipped preset's name or a config file (demo = configs/demo.json)"
+    )
+    steps: int | None = setting(
+        None, "training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)"
+    )
+    lpips_weights: str | None = setting(
+        None,
+        "torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; LPIPS is skipped when it is missing)",
+        metavar="PATH",
+    )
+    render_frames: int = setting(30, "frames per rendered camera path")
     force: bool = False
     progress: bool = False
 
@@ -134,10 +145,10 @@ def sampling_for(frames: int) -> dict:
 def stage_synth(ctx: dict, stages: Stages) -> dict:
     from seeu_data.synthetic import ClipConfig, write_clip
 
-    width, height = ctx["cfg"].size
+    height, width = ctx["cfg"].size
     clips = {
-        "clip": ClipConfig(n_frames=ctx["cfg"].frames, width=width, height=height, seed=ctx["cfg"].seed),
-        "heldout": ClipConfig(n_frames=ctx["cfg"].frames, width=width, height=height, seed=ctx["heldout_seed"]),
+        "clip": ClipConfig(n_frames=ctx["cfg"].frames, size=ctx["cfg"].size, seed=ctx["cfg"].seed),
+        "heldout": ClipConfig(n_frames=ctx["cfg"].frames, size=ctx["cfg"].size, seed=ctx["heldout_seed"]),
     }
 
     def fn() -> dict:
@@ -149,7 +160,7 @@ def stage_synth(ctx: dict, stages: Stages) -> dict:
                 "video": str(video),
                 "seed": cfg.seed,
                 "frames": cfg.n_frames,
-                "size": f"{width}x{height}",
+                "size": f"{height}x{width}",
                 "path_length_m": doc["path_length"],
             }
         return out
@@ -158,7 +169,7 @@ def stage_synth(ctx: dict, stages: Stages) -> dict:
     return stages.run(
         "synth",
         key,
-        f"rendering 2 clips ({ctx['cfg'].frames} frames at {width}x{height}): "
+        f"rendering 2 clips ({ctx['cfg'].frames} frames at {height}x{width}): "
         f"training scene seed {ctx['cfg'].seed}, held-out scene seed {ctx['heldout_seed']}",
         fn,
         lambda r: [v["video"] for v in r.values()],

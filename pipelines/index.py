@@ -26,20 +26,23 @@ from pathlib import Path
 from seeu_data.build.eval_index import IndexConfig
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.settings import setting
 
 FORMATS = ("pixelsplat", "latentsplat")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class IndexFileConfig:
     """inputs: posed-frames directories; out: the JSON file; format: pixelsplat (one entry per scene)
     or latentsplat (`generation.sampling.samples_per_scene` per scene); seed: the draw's seed."""
 
-    inputs: tuple[str | Path, ...]
+    inputs: tuple[str | Path, ...] = setting(help="posed-frames directories", positional=True, many=True)
     out: Path
     generation: IndexConfig
-    format: str = "pixelsplat"
-    seed: int = 0
+    format: str = setting(
+        "pixelsplat", "pixelsplat: one entry per scene; latentsplat: a list per scene", choices=FORMATS
+    )
+    seed: int = setting(0, "random seed")
     max_pixels: int = MAX_PIXELS  # largest input image, `--max-pixels` (the inputs are checked)
 
     def check(self) -> None:

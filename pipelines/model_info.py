@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_IMAGE_SIDE, check_range
 
 MVSPLAT_PARAMS = 12.0e6  # REFERENCE.md: MVSplat's total
 PRESETS = ("paper", "cpu_small", "tiny", "mvsplat")
@@ -28,7 +29,7 @@ PRESETS = ("paper", "cpu_small", "tiny", "mvsplat")
 class ModelInfoConfig:
     """preset: a SeeUConfig preset; refiner / condition / sh_degree / depth_candidates: overrides (None:
     the preset's); shapes: run one CPU forward pass on random 2-view inputs of `size` (None: the preset's)
-    and report the intermediate shapes; json_out: also write the result there."""
+    (H, W) and report the intermediate shapes; json_out: also write the result there."""
 
     preset: str = "paper"
     refiner: str | None = None
@@ -36,14 +37,14 @@ class ModelInfoConfig:
     sh_degree: int | None = None
     depth_candidates: int | None = None
     shapes: bool = False
-    size: int | None = None
+    size: tuple[int, int] | None = None  # (H, W)
     json_out: Path | None = None
 
     def check(self) -> None:
         if self.preset not in PRESETS:
             raise SeeUError(f"--preset must be one of {', '.join(PRESETS)}, got {self.preset!r}")
-        if self.size is not None and self.size < 1:
-            raise SeeUError(f"--size must be >= 1, got {self.size}")
+        for side in self.size or ():
+            check_range(side, "--size", 1, MAX_IMAGE_SIDE)
 
 
 def encoder_name(cfg) -> str:
@@ -84,13 +85,13 @@ def model_info(cfg: ModelInfoConfig) -> dict:
     counts = parameter_counts(model)
     shapes = {}
     if cfg.shapes:
-        size = cfg.size or model_cfg.image_size
+        h, w = cfg.size or (model_cfg.image_size, model_cfg.image_size)
         b, v = 1, 2
         c2w = torch.eye(4).repeat(b, v, 1, 1)
         c2w[:, 1, 0, 3] = 0.2
         intr = torch.tensor([[1.0, 0, 0.5], [0, 1.0, 0.5], [0, 0, 1]]).repeat(b, v, 1, 1)
         ctx = {
-            "image": torch.rand(b, v, 3, size, size),
+            "image": torch.rand(b, v, 3, h, w),
             "cam_to_world": c2w,
             "intrinsics": intr,
             "near": torch.ones(b, v),

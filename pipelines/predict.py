@@ -30,29 +30,38 @@ from pathlib import Path
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_RENDER_FRAMES, check_range
+from seeu_data.settings import parse_dims, parse_indices, setting
 from seeu_data.store.out_lock import locks_output
 
 FRAMES = 5  # views per camera path
 EXTRAPOLATE = 0.5  # the extrapolated path runs from t = -e to 1 + e
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PredictConfig:
     """One `seeu predict` run: `scene_dir` a posed-frames directory, `scene` its scene id (None: its
     only scene), `context` frame indices (None: `auto_context_pair`), `frames` views per path,
     `extrapolate` e, `image_size` (H, W) (None: the training size), `device` (None: cuda when
-    available), `rasterizer` auto | torch | gsplat (None: the training config's)."""
+    available), `rasterizer` auto | torch | gsplat (None: the training config's); `auto_context` only
+    says that `context` is None on the command line (--auto-context)."""
 
-    scene_dir: str | Path
-    checkpoint: str | Path
+    scene_dir: str | Path = setting(
+        help="posed-frames directory (manifest.json)", positional=True, metavar="POSED_SCENE"
+    )
+    checkpoint: str | Path = setting(help="a ckpt-*.pt file or a directory (its newest checkpoint)")
     out: str | Path
-    scene: str | None = None
-    context: tuple[int, ...] | None = None
-    frames: int = FRAMES
-    extrapolate: float = EXTRAPOLATE
-    image_size: tuple[int, int] | None = None
-    device: str | None = None
-    rasterizer: str | None = None
+    scene: str | None = setting(None, "scene id (default: the directory's only scene)")
+    context: tuple[int, ...] | None = setting(
+        None, "context frame indices (0..N-1)", parse=parse_indices, metavar="I,J", exclusive="context"
+    )
+    auto_context: bool = setting(False, "pick the context pair (the default; rule above)", exclusive="context")
+    frames: int = setting(FRAMES, "views per path")
+    extrapolate: float = setting(EXTRAPOLATE, "extrapolated path runs from t=-e to 1+e")
+    image_size: tuple[int, int] | None = setting(
+        None, "default: the training image size", parse=parse_dims, metavar="HxW"
+    )
+    device: str | None = setting(None, "default: cuda when available")
+    rasterizer: str | None = setting(None, "auto | torch | gsplat (default: the training config's)")
     max_pixels: int = MAX_PIXELS
 
     def check(self) -> None:

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from seeu_data.errors import SeeUError
+from seeu_data.settings import setting
 
 if TYPE_CHECKING:
     import viser
@@ -71,15 +72,19 @@ class ViewConfig:
     """One `seeu view` run. `path`: what to show (kind detected); `host`/`port`: where to serve
     (port 0: any free port); `save`: write the scene as a .viser file and do not serve;
     `checkpoint`: also show the model's prediction (posed frames or shards); `sample`: the shard
-    sample (index or sample_id) first shown; `device`: of the model (None: cpu)."""
+    sample (index or sample_id) first shown; `device`: of the model (None: cpu); `screenshot`: a PNG of
+    the page in headless chromium (the CLI serves on a free port, shoots and stops)."""
 
-    path: Path
-    host: str = DEFAULT_HOST
-    port: int = DEFAULT_PORT
-    save: Path | None = None
-    checkpoint: Path | None = None
-    sample: str = "0"
-    device: str | None = None
+    path: Path = setting(help="posed frames, triple shards, a render directory or a .ply file", positional=True)
+    host: str = setting(DEFAULT_HOST, "address to serve on")
+    port: int = setting(DEFAULT_PORT, "port (0: any free port)")
+    checkpoint: Path | None = setting(None, "also show this checkpoint's prediction (posed frames or shards)")
+    sample: str = setting("0", "triple shards: sample shown first, index or sample_id")
+    device: str | None = setting(None, "--checkpoint: the model's device (default cpu)")
+    save: Path | None = setting(None, "write the scene as a .viser file and exit", metavar="FILE", exclusive="out")
+    screenshot: Path | None = setting(
+        None, "screenshot the page in headless chromium and exit", metavar="PNG", exclusive="out"
+    )
 
     def check(self) -> None:
         if not 0 <= self.port <= 65535:

@@ -42,6 +42,7 @@ from seeu_data.errors import SeeUError
 from seeu_data.exporters.pixelsplat import peer_skip_reason
 from seeu_data.image_ops import decode_rgb
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.settings import setting
 from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
 from seeu_data.store.posed import PosedScene
 
@@ -115,12 +116,16 @@ class CameraCheckConfig:
     """One `seeu check-cameras` run. `path`: dataset (kind detected); `images`: a COLMAP model's image
     folder (None: `images/` beside `sparse/`); `out`: folder for check.json and the epipolar figure."""
 
-    path: Path
-    pairs: int = PAIRS_PER_SCENE
-    max_error: float = MAX_ERROR_PX
-    max_scenes: int = MAX_SCENES
-    images: Path | None = None
-    out: Path | None = None
+    path: Path = setting(
+        help="dataset: posed frames, transforms.json, COLMAP model or pixelSplat chunks", positional=True
+    )
+    pairs: int = setting(PAIRS_PER_SCENE, "frame pairs matched per scene")
+    max_error: float = setting(
+        MAX_ERROR_PX, "largest median Sampson error (pixels) of consistent cameras", metavar="PX"
+    )
+    max_scenes: int = setting(MAX_SCENES, "scenes checked at most")
+    images: Path | None = setting(None, "a COLMAP model's image folder (default: images/ beside sparse/)")
+    out: Path | None = setting(None, "write check.json and epipolar.png (a pair with its epipolar lines) here")
     max_pixels: int = MAX_PIXELS
 
 

@@ -19,6 +19,7 @@ value is one line and exit 2 wherever it is parsed.
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Callable, Sequence
 from dataclasses import MISSING, field
@@ -26,7 +27,7 @@ from pathlib import Path
 from typing import Any
 
 from seeu_data.errors import SeeUError
-from seeu_data.limits import MAX_IMAGE_SIDE, MAX_PIXELS_CEILING, check_range
+from seeu_data.limits import MAX_IMAGE_SIDE, MAX_PIXELS_CEILING, MAX_VIDEO_SIDE, check_range
 
 Parser = Callable[[str, str], Any]
 
@@ -44,13 +45,16 @@ def setting(
     positional: bool = False,
     many: bool = False,
     required: bool = False,
+    aliases: Sequence[str] = (),
+    exclusive: str | None = None,
 ) -> Any:
     """A config field that is a user setting (see the module docstring).
 
     flag: the flag when it is not `--<name-with-dashes>` (a bool whose default is True gets `--no-<name>`;
     `flag` names another inverting flag, e.g. `--keep-applied-transform` for `undo_applied_transform`);
     parse: text -> value (`parse_*` below), for values that are not a plain int/float/str/Path;
-    positional / many: a positional argument (`many`: one or more, a tuple); required: a flag that must be given.
+    positional / many: a positional argument (`many`: one or more, a tuple); required: a flag that must be given;
+    aliases: more names of the flag (`-V`); exclusive: a group name, settings sharing it may not be given together.
     `help` says what the value does; the default is appended from `default` (None: say in `help` what
     happens, e.g. "(default: all)").
     """
@@ -63,6 +67,8 @@ def setting(
         "positional": positional,
         "many": many,
         "required": required,
+        "aliases": tuple(aliases),
+        "exclusive": exclusive,
     }
     if default is MISSING:
         return field(metadata=meta)
@@ -78,6 +84,25 @@ def parse_dims(text: str, flag: str, minimum: int = 1, maximum: int = MAX_IMAGE_
         raise SeeUError(f"{flag} {text!r} is not two sizes AxB (e.g. 256x256)")
     a, b = int(m.group(1)), int(m.group(2) or m.group(1))
     return check_range(a, flag, minimum, maximum), check_range(b, flag, minimum, maximum)
+
+
+def parse_video_dims(text: str, flag: str) -> tuple[int, int]:
+    """`parse_dims` for a synthetic video's HxW (`seeu synth/demo --size`): sides 16..MAX_VIDEO_SIDE."""
+    return parse_dims(text, flag, minimum=16, maximum=MAX_VIDEO_SIDE)
+
+
+def parse_dims_or_none(text: str, flag: str) -> tuple[int, int] | None:
+    """`parse_dims`, or None for 'none' (e.g. `--resize none`: keep the stored size)."""
+    return None if str(text).strip().lower() == "none" else parse_dims(text, flag)
+
+
+def parse_megabytes(text: str, flag: str) -> int:
+    """'100', '0.5' (megabytes) -> bytes; not a finite number: 0 (the stage's range check names the flag)."""
+    try:
+        value = float(text)
+    except ValueError:
+        raise SeeUError(f"{flag} {text!r} is not a number of megabytes (e.g. 100)") from None
+    return int(value * 1e6) if math.isfinite(value) else 0
 
 
 def parse_bytes(text: str, flag: str) -> int:
@@ -109,6 +134,11 @@ def parse_scene_list(text: str | None, flag: str = "--scenes") -> frozenset[str]
     return frozenset(items)
 
 
+def parse_scene_ids(text: str, flag: str = "--scenes") -> list[str]:
+    """`parse_scene_list`, sorted: the scene ids to export."""
+    return sorted(parse_scene_list(text, flag) or ())
+
+
 def parse_int_pair(text: str, flag: str) -> tuple[int, int]:
     """'12,80' -> (12, 80): two integers (e.g. `--distance-frames A,B`)."""
     try:
@@ -116,6 +146,14 @@ def parse_int_pair(text: str, flag: str) -> tuple[int, int]:
     except ValueError:
         raise SeeUError(f"{flag} {text!r} is not two integers A,B (e.g. 0,90)") from None
     return a, b
+
+
+def parse_indices(text: str, flag: str) -> tuple[int, ...]:
+    """'10,40' -> (10, 40): frame indices (non-negative integers) separated by commas (`--context`)."""
+    parts = [p.strip() for p in str(text).split(",")]
+    if not all(p.isdigit() and len(p) <= 18 for p in parts):
+        raise SeeUError(f"{flag} {text!r} is not frame indices I,J (e.g. 0,30)")
+    return tuple(int(p) for p in parts)
 
 
 def parse_int_list(text: str, flag: str) -> tuple[int, ...]:

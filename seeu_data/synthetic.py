@@ -14,8 +14,8 @@ Lambertian with a fixed light, constant per face (view-independent, as SfM assum
     poses = camera_path(90)                       # (90, 4, 4) walk-through that translates and turns
     intr = default_intrinsics_norm(640, 360)      # (4,) fx/W, fy/H, cx/W, cy/H
     rgb, depth = render_view(scene, poses[0], intr, 640, 360)   # (360, 640, 3) uint8, (360, 640) float32
-    write_clip("clip.mp4", n_frames=90, width=640, height=360, seed=0)   # + clip.json ground truth
-    write_clip("wall.mp4", n_frames=30, width=320, height=180, scene="planar")  # one dominant plane
+    write_clip("clip.mp4", n_frames=90, size=(360, 640), seed=0)   # + clip.json ground truth
+    write_clip("wall.mp4", n_frames=30, size=(180, 320), scene="planar")  # one dominant plane
     posed = synthetic_posed_scene(24, 90, 160, seed=0)                    # PosedScene, no SfM
     pts = surface_points(scene, poses[:3], np.tile(intr, (3, 1)), 640, 360)  # (180, 3) exact surface points
 """
@@ -33,6 +33,7 @@ import numpy as np
 from seeu_data.cameras import intrinsics_pixels, project_points, unproject_pixels
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE, check_range
+from seeu_data.settings import parse_video_dims, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
 
@@ -411,16 +412,30 @@ def surface_points(
 
 @dataclass(frozen=True)
 class ClipConfig:
-    """Parameters of a synthetic clip (the ground-truth JSON records them)."""
+    """Parameters of a synthetic clip (the ground-truth JSON records them, `size` as width and height)."""
 
-    n_frames: int = 90
-    width: int = 640
-    height: int = 360
-    seed: int = 0
-    fps: float = 30.0
+    n_frames: int = setting(90, f"number of frames (at most {MAX_VIDEO_FRAMES})", flag="--frames")
+    size: tuple[int, int] = setting(
+        (360, 640), f"frame size HxW (sides 16..{MAX_VIDEO_SIDE})", parse=parse_video_dims, metavar="HxW"
+    )
+    seed: int = setting(0, "scene seed: textures and box layout")
+    fps: float = setting(30.0, "frame rate written to the video")
     hfov_deg: float = 70.0
     path_length_m: float = 7.0
-    scene: str = "corridor"  # or "planar": make_planar_scene + planar_camera_path
+    scene: str = setting(
+        "corridor",
+        "corridor, or planar: one large textured wall with three small boxes, seen by a camera walking "
+        "along it at 4 m (a scene dominated by one plane)",
+        choices=SCENES,
+    )  # planar: make_planar_scene + planar_camera_path
+
+    @property
+    def height(self) -> int:
+        return self.size[0]
+
+    @property
+    def width(self) -> int:
+        return self.size[1]
 
 
 def ground_truth_path(video_path: str | Path) -> Path:
@@ -484,7 +499,7 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
         raise
     doc = {
         "format": GT_FORMAT,
-        "config": dict(cfg.__dict__),
+        "config": {**{k: v for k, v in cfg.__dict__.items() if k != "size"}, "width": cfg.width, "height": cfg.height},
         "video": video_path.name,
         "width": cfg.width,
         "height": cfg.height,

@@ -15,7 +15,7 @@ def workspace(tmp_path_factory) -> dict[str, Path]:
 
     posed: a posed-frames dataset (synthetic corridor, 12 frames at 32x32); triples: shards built
     from it (4 samples per scene, gap 3-5); transforms: its nerfstudio export's transforms.json;
-    clip: a 6-frame 64x48 synthetic video.
+    clip: a 6-frame 48x64 (HxW) synthetic video.
     """
     from pipelines.cli import main as cli_main
     from tests.training_fixtures import synthetic_posed, synthetic_triples
@@ -24,7 +24,7 @@ def workspace(tmp_path_factory) -> dict[str, Path]:
     triples = synthetic_triples(root, n_frames=12, hw=(32, 32), samples_per_scene=4, gap=(3, 5))
     posed = synthetic_posed(root, n_frames=12, hw=(32, 32))
     assert cli_main(["export", "nerfstudio", str(posed), "--out", str(root / "ns")]) == 0
-    assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "64x48"]) == 0
+    assert cli_main(["synth", "--out", str(root / "clip"), "--frames", "6", "--size", "48x64"]) == 0
     return {
         "posed": posed,
         "triples": triples,

@@ -154,10 +154,10 @@ def _good_frame(tmp, name="a.png", **over) -> dict:
 
 
 # ------------------------------------------------------------------------------------------ synth
-case("synth-size-not-WxH")(lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--size", "big"])
+case("synth-size-not-HxW")(lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--size", "big"])
 case("synth-zero-frames")(lambda ws, tmp: ["synth", "--out", str(tmp / "o"), "--frames", "0"])
 case("synth-out-is-a-file", text="is a file")(
-    lambda ws, tmp: _put(tmp / "f", "") or ["synth", "--out", str(tmp / "f" / "x"), "--frames", "2", "--size", "32x24"]
+    lambda ws, tmp: _put(tmp / "f", "") or ["synth", "--out", str(tmp / "f" / "x"), "--frames", "2", "--size", "24x32"]
 )
 
 # ------------------------------------------------------------------------------------------ ingest
@@ -1215,7 +1215,7 @@ def _seeu(*argv: str) -> subprocess.CompletedProcess:
     [
         (lambda ws: ["ingest", str(ws["clip"]), "--out", "/sys/seeu-bad-input-test"], "/sys/seeu-bad-input-test: "),
         (
-            lambda ws: ["synth", "--out", "/sys/seeu-bad-input-test", "--frames", "2", "--size", "32x24"],
+            lambda ws: ["synth", "--out", "/sys/seeu-bad-input-test", "--frames", "2", "--size", "24x32"],
             "/sys/seeu-bad-input-test: ",
         ),
         (

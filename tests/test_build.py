@@ -474,7 +474,8 @@ def test_shard_spec_and_result_round_trip_as_json_and_the_plan_hash(posed, tmp_p
         inputs=(str(posed),),
         out=str(tmp_path / "o"),
         shard_bytes=60_000,
-        near_far=(0.5, 20.0),
+        near=0.5,
+        far=20.0,
         sampling=SamplingConfig(mode="extrap", gap_min=4, gap_max=8, samples_per_scene=5),
     )
     scenes = scan_inputs(cfg.inputs)

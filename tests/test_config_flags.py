@@ -5,7 +5,7 @@ declared default, and the values given on the command line arrive in the config.
 from __future__ import annotations
 
 import argparse
-from dataclasses import MISSING, dataclass, field
+from dataclasses import MISSING, dataclass, field, fields
 from pathlib import Path
 
 import pytest
@@ -36,33 +36,74 @@ def _flag_dests(parser: argparse.ArgumentParser) -> dict[str, str]:
     return out
 
 
-def _check_one_to_one(parser: argparse.ArgumentParser, cls: type, shared: dict[str, str]) -> None:
+def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple[str, ...], tuple[str, ...]]]:
+    """(argv naming the (sub)command, its config classes, its shared flags (dest -> config field), the
+    settings it leaves out (SKIP), the flags the CLI reads itself (where to write or what to read))."""
+    from pipelines.build import BuildConfig
+    from pipelines.cli import build as build_cli
+    from pipelines.cli import check_cameras, demo, export, index, predict, synth, validate, view
+    from pipelines.demo import DemoConfig
+    from pipelines.index import IndexFileConfig
+    from pipelines.predict import PredictConfig
+    from pipelines.validate import ValidateConfig
+    from pipelines.view import ViewConfig
+    from seeu_data.camera_check import CameraCheckConfig
+    from seeu_data.synthetic import ClipConfig
+
+    import_shared = {"out": "out", "progress": "progress", "fsync": "fsync"}
+    out = [
+        (("ingest",), [IngestConfig], SHARED_FLAGS, (), ()),
+        (("build",), [BuildConfig], build_cli.SHARED_FLAGS, build_cli.SKIP, ()),
+        (("index",), [IndexFileConfig], index.SHARED_FLAGS, (), ()),
+        (("validate",), [ValidateConfig], validate.SHARED_FLAGS, (), ()),
+        (("synth",), [ClipConfig], {}, (), synth.OWN_FLAGS),
+        (("demo",), [DemoConfig], demo.SHARED_FLAGS, (), ()),
+        (("check-cameras",), [CameraCheckConfig], check_cameras.SHARED_FLAGS, (), ()),
+        (("view",), [ViewConfig], view.SHARED_FLAGS, (), ()),
+        (("predict",), [PredictConfig], predict.SHARED_FLAGS, (), ()),
+    ]
+    out += [(("import", f), [cls, ImportConfig], import_shared, (), ()) for f, (cls, _) in IMPORTERS.items()]
+    formats = export._formats().items()
+    out += [(("export", f), [cls], export.SHARED_FLAGS, (), export.OWN_FLAGS) for f, (cls, _) in formats]
+    return out
+
+
+COMMANDS = _commands()
+
+
+@pytest.mark.parametrize("argv,classes,shared,skip,own", COMMANDS, ids=[" ".join(c[0]) for c in COMMANDS])
+def test_every_flag_is_one_config_field_and_back(argv, classes, shared, skip, own):
+    """Each flag sets one config field (a setting, or through `shared` a plain field), each setting but
+    `skip` has exactly one flag, and its dest is the setting's dotted path (what config_from_args reads)."""
+    parser = _subparser(build_parser(), *argv)
+    settings = {s.path: s for cls in classes for s in settings_of(cls)}
+    plain = {f.name for cls in classes for f in fields(cls)}
     dests = _flag_dests(parser)
-    settings = {s.path: s for s in settings_of(cls)}
-    mapped = {}
+    mapped: dict[str, list[str]] = {}
     for flag, dest in dests.items():
-        target = shared.get(dest, dest)
-        assert target in settings or target in shared.values(), f"{flag} sets no config field ({dest})"
+        if dest in own:
+            continue
+        if dest in shared:
+            assert shared[dest].split(".")[0] in plain and shared[dest] not in settings, (flag, shared[dest])
+            target = shared[dest]
+        else:
+            assert dest in settings, f"{flag} sets no config field ({dest})"
+            target = dest
+            s = settings[dest]
+            assert flag == (dest if s.meta["positional"] else s.flag), (flag, s.flag)
         mapped.setdefault(target, []).append(flag)
     assert all(len(v) == 1 for v in mapped.values()), {k: v for k, v in mapped.items() if len(v) > 1}
-    missing = [p for p in settings if p not in mapped]
+    missing = [p for p in settings if p not in mapped and p not in skip]
     assert not missing, f"settings without a flag: {missing}"
+    assert set(own) | set(shared) <= set(dests.values())
 
 
-def test_every_ingest_flag_is_one_config_field_and_back():
-    parser = _subparser(build_parser(), "ingest")
-    _check_one_to_one(parser, IngestConfig, SHARED_FLAGS)
-    assert "sfm.overlap" in _flag_dests(parser).values()  # nested configs are walked
-
-
-@pytest.mark.parametrize("fmt", sorted(IMPORTERS))
-def test_every_import_flag_is_one_config_field_and_back(fmt):
-    source_cls, _ = IMPORTERS[fmt]
-    parser = _subparser(build_parser(), "import", fmt)
-    shared = {"out": "out", "progress": "progress", "fsync": "fsync", "strict": "strict"}
-    dests = {d for d in _flag_dests(parser).values() if d not in shared}
-    assert dests == {s.path for s in settings_of(source_cls)}
-    assert {s.path for s in settings_of(ImportConfig)} == {"strict"}
+def test_nested_configs_are_walked():
+    assert "sfm.overlap" in _flag_dests(_subparser(build_parser(), "ingest")).values()
+    build = _flag_dests(_subparser(build_parser(), "build"))
+    assert build["--num-context"] == "sampling.num_context" and build["--resize"] == "image.resize"
+    index = _flag_dests(_subparser(build_parser(), "index"))
+    assert index["--mode"] == "generation.sampling.mode" and index["--min-overlap"] == "generation.min_overlap"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:
@@ -103,15 +144,84 @@ def test_import_values_arrive_in_the_format_config(tmp_path):
 
 
 def test_help_states_the_declared_default():
-    for cls in [IngestConfig] + [c for c, _ in IMPORTERS.values()]:
+    for cls, skip in {(c, skip) for _, classes, _, skip, _ in COMMANDS for c in classes}:
         parser = argparse.ArgumentParser()
-        for s in add_config_flags(parser, cls):
+        for s in add_config_flags(parser, cls, skip=skip):
             default = s.field.default
             help_text = next(a.help for a in parser._actions if s.flag in a.option_strings or a.dest == s.path)
             if s.kind is not bool and default not in (MISSING, None, ()):
                 assert "default" in help_text, (cls.__name__, s.flag, help_text)
                 if "default:" not in help_text and not isinstance(default, tuple):
                     assert f"default {default}" in help_text or "default 1/200" in help_text, (s.flag, help_text)
+
+
+def test_build_and_index_values_arrive(tmp_path):
+    from pipelines.build import BuildConfig
+    from pipelines.cli.build import run as build_run
+    from pipelines.cli.index import run as index_run
+    from seeu_data.build.sampling import SamplingConfig
+
+    args = _parse(
+        [
+            "build",
+            "a",
+            "b",
+            "--out",
+            str(tmp_path),
+            "--mode",
+            "extrap",
+            "-V",
+            "3",
+            "--gap-min",
+            "4",
+            "--resize",
+            "32x48",
+        ]
+        + ["--shard-size", "64MiB", "--near", "1", "--far", "100", "--fsync", "--max-pixels", "1e6"]
+    )
+    cfg = config_from_args(BuildConfig, args, **{"sampling.mode": "extrap", "out": args.out, "fsync": args.fsync})
+    assert cfg.inputs == ("a", "b") and cfg.mode == "extrap" and cfg.sampling.num_context == 3
+    assert cfg.sampling.gap_min == 4 and cfg.image.resize == (32, 48) and cfg.shard_bytes == 64 << 20
+    assert cfg.near_far == (1.0, 100.0) and cfg.fsync is True and cfg.workers is None
+    defaults = config_from_args(BuildConfig, _parse(["build", "x", "--out", "o"]), out="o")
+    assert defaults == BuildConfig(inputs=("x",), out="o") and defaults.shard_bytes == 128_000_000
+    assert defaults.sampling == SamplingConfig()
+    with pytest.raises(SeeUError, match="invalid sampling options: gap_max must be >= gap_min"):
+        build_run(_parse(["build", "x", "--out", str(tmp_path / "o"), "--gap-min", "9", "--gap-max", "5"]))
+    with pytest.raises(SeeUError, match="invalid sampling options"):
+        index_run(_parse(["index", "x", "--out", str(tmp_path / "i.json"), "--gap-min", "9", "--gap-max", "5"]))
+
+
+def test_sizes_are_hxw_and_exclusive_flags(capsys):
+    from pipelines.demo import DemoConfig
+    from pipelines.predict import PredictConfig
+    from pipelines.view import ViewConfig
+    from seeu_data.exporters.pixelsplat import PixelSplatExportConfig
+    from seeu_data.synthetic import ClipConfig
+
+    clip = config_from_args(ClipConfig, _parse(["synth", "--out", "o", "--size", "360x640", "--frames", "5"]))
+    assert clip.size == (360, 640) and (clip.height, clip.width) == (360, 640) and clip.n_frames == 5
+    demo = config_from_args(DemoConfig, _parse(["demo", "--size", "180x320", "--image-size", "32"]))
+    assert demo.size == (180, 320) and demo.image_size == (32, 32) and demo.out == Path("out/demo")
+    with pytest.raises(SeeUError, match="--size 100000 is over the limit 4096"):
+        config_from_args(DemoConfig, _parse(["demo", "--size", "100000x100000"]))
+    args = _parse(["export", "pixelsplat", "d", "--out", "o", "--resize", "none", "--chunk-mb", "0.5"])
+    cfg = config_from_args(args.export_cls, args, out=args.out)
+    assert isinstance(cfg, PixelSplatExportConfig) and cfg.resize is None and cfg.chunk_bytes == 500_000
+    assert config_from_args(args.export_cls, _parse(["export", "pixelsplat", "d", "--out", "o"]), out="o").resize
+    predict = config_from_args(
+        PredictConfig, _parse(["predict", "s", "--checkpoint", "c", "--context", "3,9", "--out", "o"]), out="o"
+    )
+    assert predict.context == (3, 9) and predict.auto_context is False
+    view = config_from_args(ViewConfig, _parse(["view", "p", "--screenshot", "x.png", "--port", "0"]))
+    assert view.screenshot == Path("x.png") and view.port == 0 and view.save is None
+    for argv in (
+        ["predict", "s", "--checkpoint", "c", "--context", "1,2", "--auto-context"],
+        ["view", "p", "--save", "a", "--screenshot", "b"],
+    ):
+        with pytest.raises(SystemExit):
+            _parse(argv)
+        assert "not allowed with argument" in capsys.readouterr().err
 
 
 @dataclass(frozen=True)

@@ -16,7 +16,7 @@ import pytest
 
 from pipelines.cli import main as cli_main
 
-# CI-sized demo: 2 clips of 36 frames at 320x180 (SfM ~10 s each), 64x64 triples (as the demo), 150 steps.
+# CI-sized demo: 2 clips of 36 frames at 180x320 (HxW) (SfM ~10 s each), 64x64 triples (as the demo), 150 steps.
 STEPS = 150
 # The full demo (72-frame clips, 300 steps) gains +4.03 dB on its held-out scene. This CI version (36-frame
 # clips, 150 steps, 4 held-out samples per set) gains +1.69 dB (19.94 -> 21.63 dB; one-thread SfM, so the
@@ -26,7 +26,7 @@ ARGV = [
     "--frames",
     "36",
     "--size",
-    "320x180",
+    "180x320",
     "--image-size",
     "64",
     "--steps",

@@ -41,7 +41,7 @@ pytestmark = pytest.mark.usefixtures("no_heartbeat")  # conftest: one-line error
 @pytest.fixture(scope="module")
 def clip(tmp_path_factory) -> Path:
     root = tmp_path_factory.mktemp("clip")
-    write_clip(root / "walk.mp4", n_frames=N, width=W, height=H, seed=0)
+    write_clip(root / "walk.mp4", n_frames=N, size=(H, W), seed=0)
     return root / "walk.mp4"
 
 
@@ -297,7 +297,7 @@ def test_truncated_and_corrupt_mp4(clip, tmp_path, capsys):
 
 
 def test_too_few_frames(tmp_path, capsys):
-    write_clip(tmp_path / "short.mp4", n_frames=5, width=160, height=96, seed=0)
+    write_clip(tmp_path / "short.mp4", n_frames=5, size=(96, 160), seed=0)
     _expect_failure(
         ["ingest", str(tmp_path / "short.mp4"), "--out", str(tmp_path / "out")],
         capsys,

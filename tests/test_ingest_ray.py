@@ -68,13 +68,11 @@ def runs(tmp_path_factory, request):
     (relative paths, from the same working directory)."""
     root = tmp_path_factory.mktemp("rayingest")
     for name in GOOD:
-        write_clip(
-            root / "videos" / f"{name}.mp4", n_frames=12, width=240, height=136, seed=int(name[1:]), path_length_m=2.5
-        )
+        write_clip(root / "videos" / f"{name}.mp4", n_frames=12, size=(136, 240), seed=int(name[1:]), path_length_m=2.5)
     data = (root / "videos" / "c0.mp4").read_bytes()
     (root / "bad").mkdir()
     (root / "bad" / "trunc.mp4").write_bytes(data[: len(data) // 2])
-    write_clip(root / "bad" / "short.mp4", n_frames=5, width=240, height=136, seed=0)
+    write_clip(root / "bad" / "short.mp4", n_frames=5, size=(136, 240), seed=0)
     with _in(root), pytest.MonkeyPatch.context() as mp:
         mp.setenv("SEEU_HEARTBEAT_S", "0")  # no status lines on stderr from the local engine
         local = _ingest(["videos", "--out", "local", "--engine", "local", "--workers", "2", *COMMON])
@@ -196,7 +194,7 @@ def test_a_port_that_is_not_ray_is_refused_in_bounded_time():
     ],
 )
 def test_engine_flags_checked_before_ray_starts(tmp_path, flags, needle):
-    write_clip(tmp_path / "v.mp4", n_frames=3, width=32, height=24, seed=0)
+    write_clip(tmp_path / "v.mp4", n_frames=3, size=(24, 32), seed=0)
     rc, out, err = _ingest([str(tmp_path / "v.mp4"), "--out", str(tmp_path / "out"), *flags])
     assert rc == 2 and err.count("\n") == 1 and needle in err, err
     assert not (tmp_path / "out").exists()

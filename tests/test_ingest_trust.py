@@ -333,8 +333,8 @@ def test_another_inputs_scene_is_never_overwritten(tmp_path, capsys):
     """a/walk.mp4 is ingested as `walk`; b/walk.mp4 (another clip) into the same --out is refused with one
     line and leaves the scene untouched; --name puts it beside it (with a heartbeat on stderr); re-running
     the first input resumes; --force replaces."""
-    write_clip(tmp_path / "a" / "walk.mp4", n_frames=14, width=W, height=H, seed=0, path_length_m=3.0)
-    write_clip(tmp_path / "b" / "walk.mp4", n_frames=14, width=W, height=H, seed=1, path_length_m=3.0)
+    write_clip(tmp_path / "a" / "walk.mp4", n_frames=14, size=(H, W), seed=0, path_length_m=3.0)
+    write_clip(tmp_path / "b" / "walk.mp4", n_frames=14, size=(H, W), seed=1, path_length_m=3.0)
     out = tmp_path / "out"
     common = ["--out", str(out), "--min-chunk-frames", "5", "--no-sfm-check"]
     assert cli_main(["ingest", str(tmp_path / "a" / "walk.mp4"), *common]) == 0

@@ -20,7 +20,7 @@ W, H, N = 320, 180, 24
 @pytest.fixture(scope="module")
 def global_run(tmp_path_factory):
     root = tmp_path_factory.mktemp("mapper")
-    write_clip(root / "walk.mp4", n_frames=N, width=W, height=H, seed=0)
+    write_clip(root / "walk.mp4", n_frames=N, size=(H, W), seed=0)
     assert (
         cli_main(
             [

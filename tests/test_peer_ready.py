@@ -34,7 +34,7 @@ def _gt_points(gt: dict, rows: list[int]) -> np.ndarray:
 @pytest.fixture(scope="module")
 def exported(tmp_path_factory):
     root = tmp_path_factory.mktemp("peer")
-    write_clip(root / "clip.mp4", n_frames=N, width=W, height=H, seed=0)
+    write_clip(root / "clip.mp4", n_frames=N, size=(H, W), seed=0)
     assert cli_main(["ingest", str(root / "clip.mp4"), "--out", str(root / "posed")]) == 0
     assert (
         cli_main(

@@ -49,7 +49,7 @@ def _refusals(ws: dict[str, Path], out: Path) -> dict[str, list[str]]:
         "export": ["export", "nerfstudio", str(ws["posed"]), "--out", str(out)],
         "import": ["import", "nerfstudio", str(ws["transforms"].parent), "--out", str(out)],
         "ingest": ["ingest", str(ws["clip"]), "--out", str(out)],
-        "synth": ["synth", "--out", str(out), "--frames", "2", "--size", "32x24"],
+        "synth": ["synth", "--out", str(out), "--frames", "2", "--size", "24x32"],
     }
 
 
@@ -95,7 +95,7 @@ def test_a_lock_left_by_a_dead_process_is_taken_over(workspace, tmp_path, capsys
 def folder(tmp_path_factory) -> Path:
     """20 frames of the synthetic corridor as JPEGs, a FIFO and an unreadable file with image names."""
     root = tmp_path_factory.mktemp("signals")
-    write_clip(root / "walk.mp4", n_frames=20, width=240, height=136, seed=0)
+    write_clip(root / "walk.mp4", n_frames=20, size=(136, 240), seed=0)
     images = root / "walk"
     images.mkdir()
     cap = cv2.VideoCapture(str(root / "walk.mp4"))

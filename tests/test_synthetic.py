@@ -136,7 +136,7 @@ def test_camera_path_moves_and_turns():
 
 
 def test_clip_and_ground_truth(tmp_path, scene):
-    assert cli_main(["synth", "--out", str(tmp_path), "--frames", "6", "--size", "96x64", "--seed", "3"]) == 0
+    assert cli_main(["synth", "--out", str(tmp_path), "--frames", "6", "--size", "64x96", "--seed", "3"]) == 0
     gt = load_ground_truth(tmp_path / "clip.mp4")
     assert gt["cam_to_world"].shape == (6, 4, 4) and gt["width"] == 96 and gt["height"] == 64
     assert np.allclose(gt["cam_to_world"], camera_path(6))

@@ -18,42 +18,24 @@ Examples:
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pipelines.cli.options import add_max_pixels, max_pixels
-from seeu_data.camera_check import MAX_ERROR_PX, MAX_SCENES, PAIRS_PER_SCENE
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_max_pixels, shared_values
+
+SHARED_FLAGS = {"max_pixels": "max_pixels"}  # the shared flags and the CameraCheckConfig fields they set
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", type=Path, help="dataset: posed frames, transforms.json, COLMAP model or pixelSplat chunks")
-    p.add_argument(
-        "--pairs", type=int, default=PAIRS_PER_SCENE, help=f"frame pairs matched per scene (default {PAIRS_PER_SCENE})"
-    )
-    p.add_argument(
-        "--max-error",
-        type=float,
-        default=MAX_ERROR_PX,
-        metavar="PX",
-        help=f"largest median Sampson error (pixels) of consistent cameras (default {MAX_ERROR_PX})",
-    )
-    p.add_argument("--max-scenes", type=int, default=MAX_SCENES, help=f"scenes checked at most (default {MAX_SCENES})")
-    p.add_argument("--images", type=Path, help="a COLMAP model's image folder (default: images/ beside sparse/)")
-    p.add_argument("--out", type=Path, help="write check.json and epipolar.png (a pair with its epipolar lines) here")
+    from seeu_data.camera_check import CameraCheckConfig
+
+    add_config_flags(p, CameraCheckConfig)
     add_max_pixels(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from seeu_data.camera_check import CameraCheckConfig, check_cameras
 
-    cfg = CameraCheckConfig(
-        path=args.path,
-        pairs=args.pairs,
-        max_error=args.max_error,
-        max_scenes=args.max_scenes,
-        images=args.images,
-        out=args.out,
-        max_pixels=max_pixels(args),
-    )
+    cfg = config_from_args(CameraCheckConfig, args, **shared_values(args, SHARED_FLAGS))
     rep = check_cameras(cfg)
     for s in rep["scenes"]:
         if s["verdict"] == "unchecked":

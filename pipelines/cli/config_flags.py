@@ -89,6 +89,7 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
     Raises ValueError when two settings would take the same flag (a programming error, caught by the tests)."""
     added: list[Setting] = []
     seen: dict[str, str] = {}
+    groups: dict[str, Flags] = {}
     for s in settings_of(cls):
         if s.path in skip:
             continue
@@ -96,6 +97,10 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
             raise ValueError(f"{cls.__name__}: {s.path} and {seen[s.flag]} both want {s.flag}")
         seen[s.flag] = s.path
         meta = s.meta
+        if meta["exclusive"] is not None and meta["exclusive"] not in groups:
+            groups[meta["exclusive"]] = p.add_mutually_exclusive_group()  # type: ignore[attr-defined]
+        target = groups[meta["exclusive"]] if meta["exclusive"] is not None else p
+        names = (s.flag, *meta["aliases"])
         kwargs: dict[str, Any] = {"help": _help(s)}
         if meta["positional"]:
             kwargs["nargs"] = "+" if meta["many"] else None
@@ -104,7 +109,7 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
             p.add_argument(s.path, **{k: v for k, v in kwargs.items() if v is not None})
         elif s.kind is bool:
             action = "store_false" if s.field.default is True else "store_true"
-            p.add_argument(s.flag, dest=s.path, action=action, **kwargs)
+            target.add_argument(*names, dest=s.path, action=action, **kwargs)
         else:
             default_given = s.field.default is not MISSING
             kwargs.update(
@@ -116,7 +121,7 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
             )
             if s.kind in (int, float, Path) and meta["parse"] is None:
                 kwargs["type"] = s.kind
-            p.add_argument(s.flag, **{k: v for k, v in kwargs.items() if v is not None or k == "default"})
+            target.add_argument(*names, **{k: v for k, v in kwargs.items() if v is not None or k == "default"})
         added.append(s)
     return added
 

@@ -23,90 +23,31 @@ machine). Training length: --steps.
 Examples:
   seeu demo --out out/demo
   seeu demo --out out/demo --steps 800          # train longer (re-uses synth, ingest and build)
-  seeu demo --out out/quick --frames 36 --size 320x180 --steps 60 --image-size 32
+  seeu demo --out out/quick --frames 36 --size 180x320 --steps 60 --image-size 32
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pipelines.cli.options import add_force, add_out, add_progress, progress_wanted
-from seeu_data.settings import parse_dims
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_force, add_progress, shared_values
+
+SHARED_FLAGS = {"force": "force", "progress": "progress"}  # the shared flags and the DemoConfig fields they set
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    add_out(p, "output directory (default out/demo)", default=Path("out/demo"))
-    g = p.add_argument_group("synthetic clips")
-    g.add_argument("--frames", type=int, default=72, help="frames per synthetic clip (default 72)")
-    g.add_argument("--size", default="480x270", metavar="WxH", help="clip size WIDTHxHEIGHT (default 480x270)")
-    g.add_argument("--seed", type=int, default=0, help="scene seed of the training clip (default 0)")
-    g.add_argument(
-        "--heldout-seed",
-        type=int,
-        default=None,
-        help="scene seed of the held-out evaluation clip (default: --seed + 100)",
-    )
-    g = p.add_argument_group("training data and model")
-    g.add_argument(
-        "--image-size",
-        default="64",
-        metavar="HxW",
-        help="training/evaluation image size, built into the shards (default 64 = 64x64)",
-    )
-    g.add_argument(
-        "--train-samples", type=int, default=256, help="training triples drawn per posed chunk (default 256)"
-    )
-    g.add_argument(
-        "--eval-samples", type=int, default=8, help="held-out triples per evaluation set, interp and extrap (default 8)"
-    )
-    g.add_argument(
-        "--config",
-        default="demo",
-        help="training preset: a shipped preset's name or a config file (default demo = configs/demo.json)",
-    )
-    g.add_argument(
-        "--steps",
-        type=int,
-        default=None,
-        help="training steps (default: the preset's optim.max_steps; demo.json: 300, ~3 min on an idle 2-core CPU)",
-    )
-    g.add_argument(
-        "--lpips-weights",
-        default=None,
-        metavar="PATH",
-        help="torchvision's vgg16-397923af.pth for LPIPS (default: the torch hub cache; "
-        "LPIPS is skipped when it is missing)",
-    )
-    g.add_argument("--render-frames", type=int, default=30, help="frames per rendered camera path (default 30)")
+    from pipelines.demo import DemoConfig
+
+    add_config_flags(p, DemoConfig)
     add_force(p)
     add_progress(p)
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.demo import DemoConfig, demo
-    from seeu_data.limits import MAX_VIDEO_SIDE
 
-    result = demo(
-        DemoConfig(
-            out=args.out,
-            frames=args.frames,
-            size=parse_dims(
-                args.size, "--size", minimum=16, maximum=MAX_VIDEO_SIDE
-            ),  # WIDTHxHEIGHT, as video sizes are written
-            seed=args.seed,
-            heldout_seed=args.heldout_seed,
-            image_size=parse_dims(args.image_size, "--image-size", minimum=16),
-            train_samples=args.train_samples,
-            eval_samples=args.eval_samples,
-            config=args.config,
-            steps=args.steps,
-            lpips_weights=args.lpips_weights,
-            render_frames=args.render_frames,
-            force=args.force,
-            progress=progress_wanted(args),
-        )
-    )
+    result = demo(config_from_args(DemoConfig, args, **shared_values(args, SHARED_FLAGS)))
     r = result["stages"]
     mean = r["eval"]["mean"]
     print(

@@ -17,39 +17,27 @@ from __future__ import annotations
 
 import argparse
 
-from pipelines.cli.build import add_sampling_arguments, sampling_config
-from pipelines.cli.options import add_max_pixels, add_out, max_pixels
+from pipelines.cli.build import config_with_sampling
+from pipelines.cli.config_flags import add_config_flags
+from pipelines.cli.options import add_max_pixels, add_out, shared_values
+
+# The shared flags (pipelines/cli/options.py) and the IndexFileConfig fields they set; every other flag
+# comes from a `setting` of IndexFileConfig or its nested configs (IndexConfig, SamplingConfig).
+SHARED_FLAGS = {"out": "out", "max_pixels": "max_pixels"}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("inputs", nargs="+", help="posed-frames directories")
+    from pipelines.index import IndexFileConfig
+
+    add_config_flags(p, IndexFileConfig)
     add_out(p, "index JSON file to write")
-    p.add_argument("--format", choices=["pixelsplat", "latentsplat"], default="pixelsplat")
-    p.add_argument("--mode", choices=["interp", "extrap"], default="interp", help="where targets lie")
-    add_sampling_arguments(p)
     add_max_pixels(p)
-    g = p.add_argument_group("context overlap")
-    g.add_argument("--min-overlap", type=float, default=0.0, help="smallest allowed context view overlap (0..1)")
-    g.add_argument("--max-overlap", type=float, default=1.0, help="largest allowed context view overlap (0..1)")
-    g.add_argument(
-        "--overlap-depth", type=float, default=None, help="depth of the overlap test (default sqrt(near*far))"
-    )
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.index import IndexFileConfig, write_index
-    from seeu_data.build.eval_index import IndexConfig
 
-    cfg = IndexFileConfig(
-        inputs=tuple(args.inputs),
-        out=args.out,
-        format=args.format,
-        generation=IndexConfig(
-            sampling_config(args, args.mode), args.min_overlap, args.max_overlap, args.overlap_depth
-        ),
-        seed=args.seed,
-        max_pixels=max_pixels(args),
-    )
+    cfg = config_with_sampling(IndexFileConfig, args, **shared_values(args, SHARED_FLAGS))
     s = write_index(cfg)
     print(
         f"wrote {args.out}: {s['scenes']} scenes, {s['scenes_with_entries']} with entries "

@@ -30,7 +30,7 @@ import argparse
 import sys
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
-from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, progress_wanted
+from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, shared_values
 
 # The shared flags (pipelines/cli/options.py) and the IngestConfig fields they set; every other flag
 # comes from a `setting` of IngestConfig or its nested configs.
@@ -50,8 +50,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from pipelines.ingest import IngestConfig, SceneResult, ingest
 
-    shared = {"out": args.out, "force": args.force, "progress": progress_wanted(args), "fsync": args.fsync}
-    cfg = config_from_args(IngestConfig, args, **{SHARED_FLAGS[k]: v for k, v in shared.items()})
+    cfg = config_from_args(IngestConfig, args, **shared_values(args, SHARED_FLAGS))
 
     def show(result: SceneResult) -> None:
         if result.error is not None:

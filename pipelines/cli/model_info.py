@@ -18,6 +18,7 @@ import argparse
 from pathlib import Path
 
 from pipelines.model_info import PRESETS
+from seeu_data.settings import parse_dims
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,7 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sh-degree", type=int, help="override the SH degree")
     parser.add_argument("--depth-candidates", type=int, help="override the number of depth candidates D")
     parser.add_argument("--shapes", action="store_true", help="run one forward pass and print intermediate shapes")
-    parser.add_argument("--size", type=int, default=None, help="image size for --shapes (default: the preset's)")
+    parser.add_argument(
+        "--size", default=None, metavar="HxW", help="image size for --shapes, e.g. 64 or 64x96 (default: the preset's)"
+    )
     parser.add_argument("--json", metavar="PATH", type=Path, help="also write the counts as JSON")
 
 
@@ -48,7 +51,7 @@ def run(args: argparse.Namespace) -> int:
             sh_degree=args.sh_degree,
             depth_candidates=args.depth_candidates,
             shapes=args.shapes,
-            size=args.size,
+            size=parse_dims(args.size, "--size") if args.size else None,
             json_out=args.json,
         )
     )

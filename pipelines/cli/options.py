@@ -93,3 +93,11 @@ def add_workers(p: Flags, what: str, default: int | None) -> None:
     p.add_argument(
         "--workers", type=int, default=default, metavar="N", help=f"worker processes (at most {MAX_WORKERS}): {what}"
     )
+
+
+def shared_values(args: argparse.Namespace, flags: dict[str, str]) -> dict[str, Any]:
+    """The shared flags' values for `config_from_args`, keyed by the config field each sets (`flags`:
+    the flag's dest -> the field's dotted path, e.g. {"out": "out", "force": "run.force"}); --progress
+    read by `progress_wanted`, --max-pixels by `max_pixels`."""
+    readers = {"progress": progress_wanted, "max_pixels": max_pixels}
+    return {path: readers[dest](args) if dest in readers else getattr(args, dest) for dest, path in flags.items()}

@@ -20,61 +20,25 @@ works the same way.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pipelines.cli.options import add_max_pixels, add_out, max_pixels
-from pipelines.predict import EXTRAPOLATE, FRAMES
-from seeu_data.errors import SeeUError
-from seeu_data.settings import parse_dims
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_max_pixels, add_out, shared_values
 
-
-def parse_context(text: str) -> tuple[int, ...]:
-    """'10,40' -> (10, 40): frame indices (non-negative integers) separated by commas."""
-    parts = [p.strip() for p in str(text).split(",")]
-    if not all(p.isdigit() and len(p) <= 18 for p in parts):
-        raise SeeUError(f"--context {text!r} is not frame indices I,J (e.g. 0,30)")
-    return tuple(int(p) for p in parts)
+SHARED_FLAGS = {"out": "out", "max_pixels": "max_pixels"}  # the shared flags and the PredictConfig fields they set
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("scene_dir", type=Path, metavar="POSED_SCENE", help="posed-frames directory (manifest.json)")
-    parser.add_argument("--checkpoint", required=True, help="a ckpt-*.pt file or a directory (its newest checkpoint)")
-    parser.add_argument("--scene", help="scene id (default: the directory's only scene)")
-    pick = parser.add_mutually_exclusive_group()
-    pick.add_argument("--context", metavar="I,J", help="context frame indices (0..N-1)")
-    pick.add_argument("--auto-context", action="store_true", help="pick the context pair (the default; rule above)")
+    from pipelines.predict import PredictConfig
+
+    add_config_flags(parser, PredictConfig)
     add_out(parser, "output directory")
-    parser.add_argument("--frames", type=int, default=FRAMES, help=f"views per path (default {FRAMES})")
-    parser.add_argument(
-        "--extrapolate",
-        type=float,
-        default=EXTRAPOLATE,
-        help=f"extrapolated path runs from t=-e to 1+e (default {EXTRAPOLATE})",
-    )
-    parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
-    parser.add_argument("--device", default=None, help="default: cuda when available")
-    parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat (default: the training config's)")
     add_max_pixels(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.predict import PredictConfig, predict
 
-    rep = predict(
-        PredictConfig(
-            scene_dir=args.scene_dir,
-            checkpoint=args.checkpoint,
-            out=args.out,
-            scene=args.scene,
-            context=parse_context(args.context) if args.context else None,
-            frames=args.frames,
-            extrapolate=args.extrapolate,
-            image_size=parse_dims(args.image_size, "--image-size") if args.image_size else None,
-            device=args.device,
-            rasterizer=args.rasterizer,
-            max_pixels=max_pixels(args),
-        )
-    )
+    rep = predict(config_from_args(PredictConfig, args, **shared_values(args, SHARED_FLAGS)))
     print(
         f"predicted {rep['num_gaussians']} Gaussians of scene {rep['scene_id']} from frames "
         f"{','.join(map(str, rep['context_frames']))} ({rep['context_rule']}) at {rep['image_hw'][0]}x"

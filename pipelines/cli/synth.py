@@ -7,37 +7,26 @@ fps, path_length and the generator config. `seeu ingest OUT/clip.mp4` finds clip
 pose accuracy against it to its report.
 
 Example:
-  seeu synth --out data/synth --frames 90 --size 640x360 --seed 0
-  seeu synth --out data/wall --frames 30 --size 320x180 --scene planar
+  seeu synth --out data/synth --frames 90 --size 360x640 --seed 0
+  seeu synth --out data/wall --frames 30 --size 180x320 --scene planar
 """
 
 from __future__ import annotations
 
 import argparse
 
+from pipelines.cli.config_flags import add_config_flags, config_from_args
 from pipelines.cli.options import add_out, add_progress, progress_wanted
-from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE
-from seeu_data.settings import parse_dims
+
+# Every flag but these comes from a `setting` of ClipConfig; these say where the clip goes.
+OWN_FLAGS = ("out", "name", "progress")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
+    from seeu_data.synthetic import ClipConfig
+
     add_out(p, "output directory (clip.mp4 + clip.json)")
-    p.add_argument("--frames", type=int, default=90, help=f"number of frames (default 90, at most {MAX_VIDEO_FRAMES})")
-    p.add_argument(
-        "--size",
-        default="640x360",
-        metavar="WxH",
-        help=f"frame size WIDTHxHEIGHT (default 640x360; sides 16..{MAX_VIDEO_SIDE})",
-    )
-    p.add_argument("--seed", type=int, default=0, help="scene seed: textures and box layout (default 0)")
-    p.add_argument(
-        "--scene",
-        choices=["corridor", "planar"],
-        default="corridor",
-        help="corridor (default) or planar: one large textured wall with three small boxes, seen by "
-        "a camera walking along it at 4 m (a scene dominated by one plane)",
-    )
-    p.add_argument("--fps", type=float, default=30.0, help="frame rate written to the video (default 30)")
+    add_config_flags(p, ClipConfig)
     p.add_argument("--name", default="clip", help="file stem (default clip)")
     add_progress(p)
 
@@ -45,14 +34,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     from seeu_data.synthetic import ClipConfig, write_clip
 
-    width, height = parse_dims(
-        args.size, "--size", minimum=16, maximum=MAX_VIDEO_SIDE
-    )  # WIDTHxHEIGHT, as video sizes are written
-    cfg = ClipConfig(n_frames=args.frames, width=width, height=height, seed=args.seed, fps=args.fps, scene=args.scene)
+    cfg = config_from_args(ClipConfig, args)
     video = args.out / f"{args.name}.mp4"
     doc = write_clip(video, cfg, progress=progress_wanted(args))
     print(
-        f"wrote {video} ({cfg.n_frames} frames, {width}x{height}, path {doc['path_length']:.2f} m) "
+        f"wrote {video} ({cfg.n_frames} frames, {cfg.width}x{cfg.height}, path {doc['path_length']:.2f} m) "
         f"and ground truth {video.with_suffix('.json')}"
     )
     return 0

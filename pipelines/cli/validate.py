@@ -15,23 +15,26 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
-from pipelines.cli.options import add_max_pixels, max_pixels
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_max_pixels, shared_values
+
+SHARED_FLAGS = {"max_pixels": "max_pixels"}  # the shared flags and the ValidateConfig fields they set
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", type=Path, help="dataset directory (holds manifest.json)")
-    p.add_argument("--no-sha", action="store_true", help="skip sha256 checks (faster on large datasets)")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    from pipelines.validate import ValidateConfig
+
+    add_config_flags(p, ValidateConfig)
     add_max_pixels(p)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.validate import validate_dataset
+    from pipelines.validate import ValidateConfig, validate_dataset
 
-    summary = validate_dataset(args.path, check_sha=not args.no_sha, max_pixels=max_pixels(args))
-    if args.json:
+    cfg = config_from_args(ValidateConfig, args, **shared_values(args, SHARED_FLAGS))
+    summary = validate_dataset(cfg.path, check_sha=cfg.check_sha, max_pixels=cfg.max_pixels)
+    if cfg.json:
         print(json.dumps(summary, indent=1))
     else:
         scenes = f", {summary['scenes']} scenes" if summary["scenes"] else ""

@@ -26,55 +26,43 @@ Examples:
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
+from dataclasses import replace
 
-from pipelines.view import DEFAULT_HOST, DEFAULT_PORT
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+
+SHARED_FLAGS: dict[str, str] = {}  # every flag comes from a `setting` of ViewConfig
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", type=Path, help="posed frames, triple shards, a render directory or a .ply file")
-    p.add_argument("--host", default=DEFAULT_HOST, help=f"address to serve on (default {DEFAULT_HOST})")
-    p.add_argument("--port", type=int, default=DEFAULT_PORT, help=f"port (default {DEFAULT_PORT}; 0: any free port)")
-    p.add_argument("--checkpoint", type=Path, help="also show this checkpoint's prediction (posed frames or shards)")
-    p.add_argument("--sample", default="0", help="triple shards: sample shown first, index or sample_id (default 0)")
-    p.add_argument("--device", default=None, help="--checkpoint: the model's device (default cpu)")
-    out = p.add_mutually_exclusive_group()
-    out.add_argument("--save", type=Path, metavar="FILE", help="write the scene as a .viser file and exit")
-    out.add_argument("--screenshot", type=Path, metavar="PNG", help="screenshot the page in headless chromium and exit")
+    from pipelines.view import ViewConfig
+
+    add_config_flags(p, ViewConfig)
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.view import ViewConfig, build_scene, chromium_screenshot, save_scene, serve
+    from pipelines.view import DEFAULT_HOST, ViewConfig, build_scene, chromium_screenshot, save_scene, serve
 
-    cfg = ViewConfig(
-        path=args.path,
-        host=args.host,
-        port=args.port,
-        save=args.save,
-        checkpoint=args.checkpoint,
-        sample=args.sample,
-        device=args.device,
-    )
-    if args.screenshot is not None:
-        cfg = ViewConfig(**{**cfg.__dict__, "host": DEFAULT_HOST, "port": 0})
+    cfg = config_from_args(ViewConfig, args)
+    if cfg.screenshot is not None:
+        cfg = replace(cfg, host=DEFAULT_HOST, port=0)
 
     def say(line: str) -> None:
         print(line, flush=True)
 
     server, kind = build_scene(cfg, say)
-    if args.save is not None:
-        size = save_scene(server, args.save)
+    if cfg.save is not None:
+        size = save_scene(server, cfg.save)
         server.stop()
-        say(f"wrote {args.save} ({kind}, {size} bytes)")
+        say(f"wrote {cfg.save} ({kind}, {size} bytes)")
         return 0
     url = f"http://{cfg.host}:{server.get_port()}"
-    if args.screenshot is not None:
+    if cfg.screenshot is not None:
         try:
-            chromium_screenshot(url, args.screenshot)
+            chromium_screenshot(url, cfg.screenshot)
         finally:
             server.stop()
-        say(f"wrote {args.screenshot} ({kind})")
+        say(f"wrote {cfg.screenshot} ({kind})")
         return 0
-    say(f"seeu view: {kind} {args.path} at {url} (Ctrl-C stops)")
+    say(f"seeu view: {kind} {cfg.path} at {url} (Ctrl-C stops)")
     serve(server, say)
     return 0

@@ -24,6 +24,7 @@ from pathlib import Path
 import numpy as np
 
 from seeu_data.errors import SeeUError
+from seeu_data.settings import setting
 from seeu_data.store.json_file import read_json
 from seeu_data.build.sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 
@@ -131,9 +132,9 @@ class IndexConfig:
     """What `seeu index` draws per scene: a SamplingConfig plus an optional overlap window."""
 
     sampling: SamplingConfig
-    min_overlap: float = 0.0
-    max_overlap: float = 1.0
-    overlap_depth: float | None = None  # None: geometric mean of the scene's near and far
+    min_overlap: float = setting(0.0, "smallest allowed context view overlap (0..1)")
+    max_overlap: float = setting(1.0, "largest allowed context view overlap (0..1)")
+    overlap_depth: float | None = setting(None, "depth of the overlap test (default sqrt(near*far))")
     max_tries: int = 64
 
 

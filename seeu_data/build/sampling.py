@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from seeu_data.settings import setting
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_FRAMES, MAX_SAMPLES, MAX_TARGET_VIEWS, check_range
 
 MODES = ("interp", "extrap")
@@ -42,14 +43,14 @@ MODES = ("interp", "extrap")
 class SamplingConfig:
     """Parameters of the interp / extrap samplers (see the module docstring)."""
 
-    mode: str = "interp"
-    num_context: int = 2
-    num_target: int = 3
-    gap_min: int = 25
-    gap_max: int = 45
-    extrap_frames: int = 45
-    interp_ratio: float = 0.0
-    samples_per_scene: int = 4
+    mode: str = setting("interp", "where targets lie", choices=MODES)
+    num_context: int = setting(2, "context views per example", aliases=("-V",))
+    num_target: int = setting(3, "target views per example", aliases=("-T",))
+    gap_min: int = setting(25, "smallest context gap in frames")
+    gap_max: int = setting(45, "largest context gap in frames")
+    extrap_frames: int = setting(45, "extrap: targets at most this many frames before/after the pair")
+    interp_ratio: float = setting(0.0, "extrap: probability that a target is drawn inside the pair instead")
+    samples_per_scene: int = setting(4, "examples drawn per scene")
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:

@@ -28,6 +28,7 @@ import pyarrow as pa
 
 from seeu_data.store.arrow_io import AtomicIpcWriter, binary_array, open_ipc_file
 from seeu_data.errors import SeeUError
+from seeu_data.settings import parse_dims, setting
 from seeu_data.store.manifest import read_manifest
 from seeu_data.build.sampling import Sample, make_sample
 from seeu_data.store.schema import arrow_schema
@@ -52,9 +53,17 @@ _POSED_COLUMNS = [
 class ImageOptions:
     """Build-time image handling. resize None: copy the encoded bytes as they are (no re-encode)."""
 
-    resize: tuple[int, int] | None = None  # (H, W)
-    interpolation: str = "area"
-    jpeg_quality: int = 95
+    resize: tuple[int, int] | None = setting(
+        None,
+        "resize + centre-crop at build time (intrinsics updated), e.g. 256x256; "
+        "default: copy the encoded images as they are",
+        parse=parse_dims,
+        metavar="HxW",
+    )  # (H, W)
+    interpolation: str = setting(
+        "area", "resize filter (INTER_AREA when shrinking)", choices=("area", "lanczos", "linear", "cubic")
+    )
+    jpeg_quality: int = setting(95, "JPEG quality of resized images")
 
     def as_dict(self) -> dict:
         return {

@@ -23,6 +23,7 @@ import numpy as np
 
 from seeu_data.cameras import intrinsics_pixels, opengl_from_opencv
 from seeu_data.errors import SeeUError
+from seeu_data.settings import parse_scene_ids, setting
 from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
 from seeu_data.store.image_header import extension_for
 from seeu_data.store.out_lock import locks_output
@@ -34,7 +35,9 @@ SPARSE_PLY = "sparse_pc.ply"  # the name nerfstudio's own ns-process-data gives 
 @dataclass
 class NerfstudioExportConfig:
     out: Path
-    scenes: list[str] | None = None
+    scenes: list[str] | None = setting(
+        None, "export only these scene ids: a,b,c or @file.txt", parse=parse_scene_ids, metavar="SCENES"
+    )
 
 
 def transforms_for_scene(scene: PosedScene) -> tuple[dict, list[str]]:

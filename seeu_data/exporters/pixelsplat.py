@@ -44,6 +44,7 @@ from seeu_data.cameras import world_to_cam_from_cam_to_world
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_CHUNK_BYTES, MAX_IMAGE_SIDE, check_range
 from seeu_data.resize import resize_scene
+from seeu_data.settings import parse_dims, parse_megabytes, parse_scene_ids, setting
 from seeu_data.store.arrow_io import atomic_path, atomic_write_text
 from seeu_data.store.out_lock import locks_output
 from seeu_data.store.posed import PosedDataset, PosedScene
@@ -75,6 +76,16 @@ PEER_HW = PEERS["re10k"].hw
 PEER_MAX_FOV_DEG = 100.0
 SIZE_CHECKS = ("warn", "refuse")
 RESIZE_AUTO = "auto"  # `resize`: each scene to its peer's size (`peer_of`)
+
+
+def parse_resize(text: str, flag: str = "--resize") -> tuple[int, int] | str | None:
+    """`--resize`: "none" -> None (frames as stored), "auto" -> RESIZE_AUTO, "HxW" -> (H, W)."""
+    word = str(text).strip().lower()
+    if word in ("none", RESIZE_AUTO):
+        return None if word == "none" else RESIZE_AUTO
+    return parse_dims(text, flag)
+
+
 DL3DV_HASH_META = "dl3dv_hash"  # scene meta written by `seeu import dl3dv`: the example key
 
 
@@ -97,11 +108,33 @@ class PixelSplatExportConfig:
     to do with a scene the peers' loaders would skip ("warn" | "refuse")."""
 
     out: Path
-    stage: str = "test"
-    chunk_bytes: int = 100_000_000
-    scenes: list[str] | None = None
-    resize: tuple[int, int] | str | None = RESIZE_AUTO
-    size_check: str = "warn"
+    stage: str = setting("test", "the split written (OUT/STAGE/)", choices=("train", "test"))
+    chunk_bytes: int = setting(
+        100_000_000,
+        f"image megabytes per chunk (default: 100, the peers'; at most {MAX_CHUNK_BYTES / 1e6:g})",
+        flag="--chunk-mb",
+        parse=parse_megabytes,
+        metavar="CHUNK_MB",
+    )
+    scenes: list[str] | None = setting(
+        None, "export only these scene ids: a,b,c or @file.txt", parse=parse_scene_ids, metavar="SCENES"
+    )
+    resize: tuple[int, int] | str | None = setting(
+        RESIZE_AUTO,
+        "resize every frame to cover HxW and crop the centre (the peers' crop, intrinsics updated, JPEG re-encoded; "
+        f"frames already that size kept as stored); {RESIZE_AUTO}: each scene to its peer's size, "
+        f"{PEERS['dl3dv'].hw[0]}x{PEERS['dl3dv'].hw[1]} (DepthSplat) for scenes from seeu import dl3dv, else "
+        f"{PEERS['re10k'].hw[0]}x{PEERS['re10k'].hw[1]} (the RE10K peers); 'none' keeps every frame as stored",
+        parse=parse_resize,
+        metavar="HxW|auto|none",
+    )
+    size_check: str = setting(
+        "warn",
+        "scenes the peers' loaders would skip (frames not their size, "
+        + ", ".join(f"{p}: " + " or ".join(f"{h}x{w}" for h, w in r.sizes) for p, r in PEERS.items())
+        + f"; field of view > {PEER_MAX_FOV_DEG:g} deg): warn in one line or refuse the export (exit 2)",
+        choices=SIZE_CHECKS,
+    )
     jpeg_quality: int = 95
 
     def check(self) -> None:
