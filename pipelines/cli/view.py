@@ -44,7 +44,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.view import ViewConfig, build_scene, chromium_screenshot, save_scene, serve
+    from pipelines.view import ViewConfig, build_scene, chromium_screenshot, save_scene, serve, server_url, stop_server
 
     cfg = ViewConfig(
         path=args.path,
@@ -64,15 +64,15 @@ def run(args: argparse.Namespace) -> int:
     server, kind = build_scene(cfg, say)
     if args.save is not None:
         size = save_scene(server, args.save)
-        server.stop()
+        stop_server(server)
         say(f"wrote {args.save} ({kind}, {size} bytes)")
         return 0
-    url = f"http://{cfg.host}:{server.get_port()}"
+    url = server_url(cfg.host, server.get_port())
     if args.screenshot is not None:
         try:
             chromium_screenshot(url, args.screenshot)
         finally:
-            server.stop()
+            stop_server(server)
         say(f"wrote {args.screenshot} ({kind})")
         return 0
     say(f"seeu view: {kind} {args.path} at {url} (Ctrl-C stops)")
