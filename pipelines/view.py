@@ -516,7 +516,9 @@ def show_ply(server: viser.ViserServer, path: Path, notes: Notes) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
-def view_camera(wxyz, position, fov: float, aspect: float, width: int) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+def view_camera(
+    wxyz, position, fov: float, aspect: float, width: int
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
     """A viser camera as ours. viser's `client.camera` follows OpenCV: `wxyz` / `position` are R / t of
     `P_world = [R | t] p_camera` (camera-to-world, +z forward, -y up), `fov` the vertical field of view
     (radians), `aspect` width / height. Returns c2w (4, 4), normalised intrinsics (3, 3) with square
