@@ -29,13 +29,14 @@ Example:
 
 from __future__ import annotations
 
+import contextlib
 import errno
 import math
 import socket
 import subprocess
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -522,8 +523,44 @@ def show_ply(server: viser.ViserServer, path: Path, notes: Notes) -> None:
 # ---------------------------------------------------------------------------------------------
 
 
+def view_camera(
+    wxyz, position, fov: float, aspect: float, width: int
+) -> tuple[np.ndarray, np.ndarray, tuple[int, int]]:
+    """A viser camera as ours. viser's `client.camera` follows OpenCV: `wxyz` / `position` are R / t of
+    `P_world = [R | t] p_camera` (camera-to-world, +z forward, -y up), `fov` the vertical field of view
+    (radians), `aspect` width / height. Returns c2w (4, 4), normalised intrinsics (3, 3) with square
+    pixels and a centred principal point, and (H, W) with W = `width`."""
+    import viser.transforms as vtf
+
+    h = max(8, round(width / max(float(aspect), 1e-3)))
+    c2w = np.eye(4)
+    c2w[:3, :3] = vtf.SO3(np.asarray(wxyz, np.float64)).as_matrix()
+    c2w[:3, 3] = np.asarray(position, np.float64)
+    fy = 0.5 / math.tan(float(fov) / 2.0)  # focal length / image height
+    k = np.array([[fy * h / width, 0.0, 0.5], [0.0, fy, 0.5], [0.0, 0.0, 1.0]])
+    return c2w, k, (h, width)
+
+
+def look_at_wxyz(position, look_at, up=(0.0, -1.0, 0.0)) -> np.ndarray:
+    """The (4,) wxyz rotation (camera-to-world, OpenCV axes) of a camera at `position` looking at
+    `look_at` with `up` (world) up in its image; `up` defaults to the OpenCV world's -y."""
+    import viser.transforms as vtf
+
+    z = np.asarray(look_at, np.float64) - np.asarray(position, np.float64)
+    z /= max(float(np.linalg.norm(z)), 1e-12)
+    down = -np.asarray(up, np.float64)
+    y = down - (down @ z) * z
+    if float(np.linalg.norm(y)) < 1e-9:  # looking straight along `up`: any image down will do
+        y = np.cross(z, [1.0, 0.0, 0.0] if abs(z[0]) < 0.9 else [0.0, 1.0, 0.0])
+    y /= float(np.linalg.norm(y))
+    return vtf.SO3.from_matrix(np.stack([np.cross(y, z), y, z], 1)).wxyz
+
+
 class Prediction:
-    """A checkpoint's model: Gaussians for a context, and live renders of the browsers' cameras."""
+    """A checkpoint's model: Gaussians for a context, and live renders of the browsers' cameras.
+
+    Renders run one at a time; a camera that moves during a render is rendered when it ends (the
+    latest pose of each client), so the panel always ends on the view the browser shows."""
 
     def __init__(self, server: viser.ViserServer, checkpoint: Path, device: str | None, notes: Notes):
         from pipelines.render import load_model
@@ -531,8 +568,10 @@ class Prediction:
         self.server, self.notes = server, notes
         loaded = load_model(checkpoint, device=device or "cpu")
         self.model, self.hw = loaded.model, loaded.image_hw
+        self.backend = "torch" if loaded.device.type == "cpu" else loaded.backend
         self.g: Gaussians | None = None
         self.lock = threading.Lock()
+        self.pending: dict[int, viser.ClientHandle] = {}
         self.image = server.gui.add_image(
             np.zeros((LIVE_RENDER_WIDTH * 3 // 4, LIVE_RENDER_WIDTH, 3), np.uint8), label="SeeU render (your view)"
         )
@@ -548,30 +587,35 @@ class Prediction:
         with torch.no_grad():
             self.g = encode_context(self.model, batch_to(context, dev))
         add_splats(self.server, "/prediction", self.g, self.notes)
+        # the panel shows the start view at once (a browser's live render replaces it when it comes)
+        start = self.server.initial_camera
+        wxyz = look_at_wxyz(start.position, start.look_at, start.up if start.up is not None else (0.0, -1.0, 0.0))
+        self.image.image = self.render_camera(wxyz, start.position, start.fov, 4.0 / 3.0)
         for client in self.server.get_clients().values():
             self.render_for(client)
 
-    def render_for(self, client: viser.ClientHandle) -> None:
-        """Render the client's camera (viser: OpenCV axes, vertical fov) through our rasterizer."""
-        import viser.transforms as vtf
-
+    def render_camera(self, wxyz, position, fov: float, aspect: float, width: int = LIVE_RENDER_WIDTH) -> np.ndarray:
+        """The predicted Gaussians seen by a viser camera (`view_camera`): (H, W, 3) uint8 RGB."""
         from pipelines.render import render_views
 
-        if self.g is None or not self.lock.acquire(blocking=False):
-            return  # a render is running: this camera move is skipped, the next one renders
-        try:
-            cam = client.camera
-            w = LIVE_RENDER_WIDTH
-            h = max(8, round(w / max(cam.aspect, 1e-3)))
-            c2w = np.eye(4)
-            c2w[:3, :3] = vtf.SO3(np.asarray(cam.wxyz)).as_matrix()
-            c2w[:3, 3] = cam.position
-            fy = 0.5 / math.tan(cam.fov / 2.0)
-            k = np.array([[fy * h / w, 0, 0.5], [0, fy, 0.5], [0, 0, 1]])
-            frames, _ = render_views(self.model, {}, c2w[None], k[None], (h, w), "torch", self.g)
-            self.image.image = frames[0]
-        finally:
-            self.lock.release()
+        if self.g is None:
+            raise SeeUError("no prediction yet")
+        c2w, k, hw = view_camera(wxyz, position, fov, aspect, width)
+        frames, _ = render_views(self.model, {}, c2w[None], k[None], hw, self.backend, self.g)
+        return frames[0]
+
+    def render_for(self, client: viser.ClientHandle) -> None:
+        """Render the client's current camera into the panel (or leave it to the render running now,
+        which renders it next)."""
+        self.pending[client.client_id] = client
+        while self.g is not None and self.pending and self.lock.acquire(blocking=False):
+            try:
+                while self.pending:
+                    _, c = self.pending.popitem()
+                    cam = c.camera
+                    self.image.image = self.render_camera(cam.wxyz, cam.position, cam.fov, cam.aspect)
+            finally:
+                self.lock.release()
 
 
 def posed_context(scene, hw) -> dict:
@@ -612,6 +656,31 @@ def check_port_free(host: str, port: int) -> None:
             raise SeeUError(f"cannot serve on {host}:{port} ({exc.strerror})") from None
 
 
+@contextlib.contextmanager
+def quiet_viser() -> Iterator[None]:
+    """Silence viser's own stdout lines (its start banner and "(viser) Server stopped" go through
+    rich.print whatever `verbose` says), so `seeu view` prints one URL line of its own."""
+    import rich
+
+    console = rich.get_console()
+    was, console.quiet = console.quiet, True
+    try:
+        yield
+    finally:
+        console.quiet = was
+
+
+def stop_server(server: viser.ViserServer) -> None:
+    """Stop a viser server without its "(viser) Server stopped" line."""
+    with quiet_viser():
+        server.stop()
+
+
+def server_url(host: str, port: int) -> str:
+    """http://HOST:PORT, an IPv6 address in brackets (http://[::1]:8080)."""
+    return f"http://[{host}]:{port}" if ":" in host else f"http://{host}:{port}"
+
+
 def build_scene(cfg: ViewConfig, out: Callable[[str], None] = print) -> tuple[viser.ViserServer, str]:
     """Start the viser server of `cfg` and draw PATH into it; returns (server, kind). Notes and
     clients connecting / disconnecting are written with `out`."""
@@ -624,9 +693,10 @@ def build_scene(cfg: ViewConfig, out: Callable[[str], None] = print) -> tuple[vi
     notes = Notes(out)
     host, port = (DEFAULT_HOST, 0) if cfg.save is not None else (cfg.host, cfg.port)
     check_port_free(host, port)
-    server = viser.ViserServer(host=host, port=port, verbose=False)
+    with quiet_viser():
+        server = viser.ViserServer(host=host, port=port, verbose=False)
     if port != 0 and server.get_port() != port:  # taken between the check and the bind
-        server.stop()
+        stop_server(server)
         raise SeeUError(f"port {port} on {host} is in use (choose another with --port, 0: any free one)")
     server.on_client_connect(lambda c: out(f"client {c.client_id} connected"))
     server.on_client_disconnect(lambda c: out(f"client {c.client_id} disconnected"))
@@ -652,7 +722,7 @@ def build_scene(cfg: ViewConfig, out: Callable[[str], None] = print) -> tuple[vi
             on_scene = None if pred is None else (lambda scene: pred.predict(posed_context(scene, pred.hw)))
             show_posed(server, SceneSource(cfg.path, kind, notes), notes, on_scene)
     except BaseException:
-        server.stop()
+        stop_server(server)
         raise
     return server, kind
 
@@ -705,4 +775,4 @@ def serve(server: viser.ViserServer, out: Callable[[str], None] = print, stop: t
     except (KeyboardInterrupt, Terminated):
         out("stopped")
     finally:
-        server.stop()
+        stop_server(server)

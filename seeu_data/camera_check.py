@@ -17,7 +17,9 @@ Foreign formats are read by their importer's `iter_scenes` (the same `PosedScene
 writes), so the check sees what an import would store.
 
 Also noted per scene: what the pixelSplat / MVSplat RE10K loader would skip (views not 360x640, a
-field of view above 100 degrees).
+field of view above 100 degrees), and near/far suggested from the points (`suggest_near_far`: the
+SfM points an ingest kept, else the matches triangulated with consistent cameras) by the rule
+`seeu ingest` uses, with the RE10K rescale, and whether the stored near/far clip the points.
 
 Example:
     from pathlib import Path
@@ -55,6 +57,11 @@ MIN_BASELINE_FRACTION = 0.1  # a pair's camera centres at least this fraction of
 SIFT_FEATURES = 2000
 BETTER_FACTOR = 3.0  # a convention fix whose median error is this many times lower flags the scene ...
 MIN_FLAG_PX = 0.3  # ... when the stored cameras' median is above this (below it, noise)
+CLIP_PCT = 1.0  # stored near/far clip the points when more than this % of their depths fall outside
+MAX_DEPTH_CAMERAS = 50  # cameras (evenly spread) the kept SfM points' depths are measured in
+MAX_DEPTH_POINTS = 20_000  # kept SfM points (evenly spread) measured
+
+STORED_NEAR_FAR = ("posed", "pixelsplat")  # kinds whose near/far are data (pixelSplat: the RE10K 1 / 100)
 
 Hypothesis = Callable[[np.ndarray, np.ndarray, np.ndarray], tuple[np.ndarray, np.ndarray]]
 
@@ -287,6 +294,91 @@ def pick_pairs(cam_to_world: np.ndarray, pairs: int) -> list[tuple[int, int]]:
 
 
 # ---------------------------------------------------------------------------------------------
+# Near / far from the points
+# ---------------------------------------------------------------------------------------------
+
+
+def triangulated_depths(matched: list, c2w: np.ndarray, intr: np.ndarray, wh: np.ndarray, max_error: float):
+    """Depths (M,) of the matches triangulated with the stored cameras, in both cameras of each pair;
+    only matches in front of both cameras with a Sampson error under `max_error` (inliers)."""
+    out = []
+    for (i, j), x1, x2 in matched:
+        K1 = intrinsics_pixels(intr[i], int(wh[i, 0]), int(wh[i, 1]))
+        K2 = intrinsics_pixels(intr[j], int(wh[j, 0]), int(wh[j, 1]))
+        w2c1, w2c2 = invert_rigid(c2w[i])[:3], invert_rigid(c2w[j])[:3]
+        keep = sampson_error(fundamental(c2w[i], c2w[j], K1, K2), x1, x2) < max_error
+        if not keep.any():
+            continue
+        X = cv2.triangulatePoints(K1 @ w2c1, K2 @ w2c2, x1[keep].T, x2[keep].T)  # same pixel convention as K
+        with np.errstate(divide="ignore", invalid="ignore"):
+            X = (X[:3] / X[3]).T
+        z1, z2 = X @ w2c1[2, :3] + w2c1[2, 3], X @ w2c2[2, :3] + w2c2[2, 3]
+        front = np.isfinite(z1) & np.isfinite(z2) & (z1 > 0) & (z2 > 0)
+        out += [z1[front], z2[front]]
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def sfm_point_depths(scene: PosedScene, root: Path) -> np.ndarray | None:
+    """Depths of the SfM points an ingest kept (`points3d` in the scene's meta, a .ply under `root`)
+    in the cameras that see them (in front, inside the image); None when the scene keeps none.
+    At most MAX_DEPTH_POINTS points in MAX_DEPTH_CAMERAS cameras, evenly spread."""
+    from seeu_data.ingest.points import read_points_ply
+
+    rel = scene.meta.get("points3d") if isinstance(scene.meta, dict) else None
+    if not isinstance(rel, str) or not (root / rel).is_file():
+        return None
+    xyz = read_points_ply(root / rel)[0]
+    xyz = xyz[np.unique(np.linspace(0, len(xyz) - 1, min(len(xyz), MAX_DEPTH_POINTS)).astype(int))] if len(xyz) else xyz
+    out = []
+    for k in np.unique(np.linspace(0, len(scene) - 1, min(len(scene), MAX_DEPTH_CAMERAS)).astype(int)):
+        w, h = int(scene.width[k]), int(scene.height[k])
+        K = intrinsics_pixels(np.asarray(scene.intrinsics_norm[k], np.float64), w, h)
+        w2c = invert_rigid(np.asarray(scene.cam_to_world[k], np.float64))
+        cam = xyz @ w2c[:3, :3].T + w2c[:3, 3]
+        z = cam[:, 2]
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = K[0, 0] * cam[:, 0] / z + K[0, 2]
+            v = K[1, 1] * cam[:, 1] / z + K[1, 2]
+        out.append(z[(z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)])
+    depths = np.concatenate(out) if out else np.zeros(0)
+    return depths if len(depths) else None
+
+
+def suggest_near_far(depths: np.ndarray, source: str, near: float | None, far: float | None) -> dict:
+    """Near/far for point depths (M,) by the toolkit's rule (`ingest.scale.near_far_from_depths`:
+    0.4 x p0.1, 1.5 x p99.9, what `seeu ingest --scale median-depth / metric` records), the RE10K
+    rescale (`ingest.scale.chunk_scale` with re10k: multiply the poses' translations by `re10k_scale`
+    to use the peers' fixed near/far 1 / 100), and how much of the points the stored `near`/`far` clip
+    (None: the format stores none, as nerfstudio and COLMAP)."""
+    from seeu_data.ingest.chunks import NEAR_FAR_METHOD
+    from seeu_data.ingest.scale import ScaleConfig, chunk_scale, near_far_from_depths
+
+    suggested = near_far_from_depths(depths)
+    re10k = chunk_scale(ScaleConfig("re10k"), depths, suggested)
+    nearer = float(100.0 * np.mean(depths < near)) if near is not None else None
+    farther = float(100.0 * np.mean(depths > far)) if far is not None else None
+    clips = (
+        [f"near {near:g} is beyond {nearer:.1f} % of the points"] if nearer is not None and nearer > CLIP_PCT else []
+    )
+    if farther is not None and farther > CLIP_PCT:
+        clips.append(f"far {far:g} is nearer than {farther:.1f} % of the points")
+    return {
+        "source": source,
+        "points": len(depths),
+        "depth_percentiles": dict(zip(("p0.1", "p50", "p99.9"), np.percentile(depths, [0.1, 50, 99.9]).tolist())),
+        "near": suggested[0],
+        "far": suggested[1],
+        "method": NEAR_FAR_METHOD,
+        "re10k_scale": re10k.factor,
+        "re10k_points_farther_than_far_pct": re10k.meta["points_farther_than_far_pct"],
+        "stored": [near, far] if near is not None and far is not None else None,
+        "points_nearer_than_stored_near_pct": nearer,
+        "points_farther_than_stored_far_pct": farther,
+        "stored_clips": "; ".join(clips) or None,
+    }
+
+
+# ---------------------------------------------------------------------------------------------
 # The check
 # ---------------------------------------------------------------------------------------------
 
@@ -310,8 +402,13 @@ def peer_loader_skips(scene: PosedScene) -> list[str]:
     return [reason] if reason else []
 
 
-def check_scene(scene: PosedScene, cfg: CameraCheckConfig) -> tuple[dict, tuple | None]:
-    """One scene's report (and its first pair with matches, for the figure: (i, j, x1, x2))."""
+def check_scene(
+    scene: PosedScene, cfg: CameraCheckConfig, root: Path | None = None, stored_near_far: bool = True
+) -> tuple[dict, tuple | None]:
+    """One scene's report (and its first pair with matches, for the figure: (i, j, x1, x2)). `root`: the
+    posed dataset holding the scene (its kept SfM points give the near/far suggestion; else the
+    matches triangulated with the stored cameras do, when they are consistent); `stored_near_far`:
+    the scene's near/far come from the data (not a reader's placeholder), so their clipping is checked."""
     c2w = np.asarray(scene.cam_to_world, dtype=np.float64)
     intr = np.asarray(scene.intrinsics_norm, dtype=np.float64)
     wh = np.stack([np.asarray(scene.width), np.asarray(scene.height)], -1)
@@ -356,6 +453,13 @@ def check_scene(scene: PosedScene, cfg: CameraCheckConfig) -> tuple[dict, tuple 
                 "check the poses' scale/order, the image-camera pairing, or lens distortion"
             )
             rep["suggestion"] = "plot the epipolar lines (--out) and compare frames by eye"
+    depths = sfm_point_depths(scene, root) if root is not None else None
+    source = "sfm_points"
+    if depths is None and rep["verdict"] == "consistent":
+        depths, source = triangulated_depths(matched, c2w, intr, wh, cfg.max_error), "triangulated_matches"
+    if depths is not None and len(depths) >= MIN_MATCHES:
+        stored = (float(scene.near), float(scene.far)) if stored_near_far else (None, None)
+        rep["near_far"] = suggest_near_far(depths, source, *stored)
     (i, j), x1, x2 = matched[0]
     K1 = intrinsics_pixels(intr[i], int(wh[i, 0]), int(wh[i, 1]))
     K2 = intrinsics_pixels(intr[j], int(wh[j, 0]), int(wh[j, 1]))
@@ -400,7 +504,8 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
 
     Returns {"path", "kind", "max_error_px", "scenes": [per scene: frames, pairs, matches,
     median_error_px, p90_error_px, verdict (consistent / inconsistent / unchecked), cause, cause_text,
-    suggestion, hypotheses_median_px, peer_loader_skips], "skipped": [{scene_id, reason}],
+    suggestion, hypotheses_median_px, peer_loader_skips, near_far (`suggest_near_far`; absent when
+    there are no points: no kept SfM points and inconsistent cameras)], "skipped": [{scene_id, reason}],
     "median_error_px" (over checked scenes' medians), "verdict", "cause", "figure"}.
     SeeUError when the path is not a dataset or no scene could be checked.
     """
@@ -417,7 +522,8 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
             skipped.append({"scene_id": item[0], "reason": item[1]})
             continue
         item.check()  # finite rigid poses, positive focal lengths (a bad dataset, not a convention mistake)
-        rep, pair = check_scene(item, cfg)
+        root = Path(cfg.path) if kind == "posed" else None
+        rep, pair = check_scene(item, cfg, root, stored_near_far=kind in STORED_NEAR_FAR)
         scenes.append(rep)
         if pair is not None and (
             figure_pair is None or (rep["verdict"] != "consistent" and figure_pair[0] == "consistent")
@@ -440,6 +546,7 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
         "suggestion": bad[0]["suggestion"] if bad else None,
         "scenes": scenes,
         "skipped": skipped,
+        "near_far_clipped": [s["scene_id"] for s in scenes if s.get("near_far", {}).get("stored_clips")],
         "figure": None,
     }
     if cfg.out is not None:

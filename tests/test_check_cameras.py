@@ -132,3 +132,25 @@ def test_colmap_text_model_passes(good, tmp_path, capsys):
     (model / "points3D.txt").write_text("")
     rc, out = _check([str(model)], capsys)
     assert rc == 0 and "(colmap)" in out, out
+
+
+def test_near_far_suggested_from_triangulated_matches_and_clipping_flagged(good, tmp_path, capsys):
+    """Consistent cameras: near/far suggested from the triangulated matches by ingest's rule (0.4 x p0.1,
+    1.5 x p99.9 of the depths) with the RE10K rescale; a stored near beyond the points is flagged."""
+    rc, out = _check([str(good), "--out", str(tmp_path / "o")], capsys)
+    nf = json.loads((tmp_path / "o" / "check.json").read_text())["scenes"][0]["near_far"]
+    assert rc == 0 and nf["source"] == "triangulated_matches" and nf["points"] >= 30, out
+    p = nf["depth_percentiles"]
+    assert nf["near"] == pytest.approx(0.4 * p["p0.1"]) and nf["far"] == pytest.approx(1.5 * p["p99.9"])
+    assert nf["re10k_scale"] == pytest.approx(1.0 / nf["near"])
+    scene = PosedDataset(good).load_scene("syn0")  # exact synthetic depths: min/max rendered depth +- 10 %
+    assert 0.3 * scene.near < nf["near"] < 3 * scene.near and nf["stored_clips"] is None
+    assert f"near/far from {nf['points']} triangulated matches" in out and "warning" not in out
+    scene.near = 2 * p["p50"]  # nearer than half the points
+    with PosedDatasetWriter(tmp_path / "clipped", {"test": True}, provenance("tests")) as w:
+        w.add(scene)
+    rc, out = _check([str(tmp_path / "clipped"), "--out", str(tmp_path / "c")], capsys)
+    rep = json.loads((tmp_path / "c" / "check.json").read_text())
+    assert rc == 0 and rep["near_far_clipped"] == ["syn0"], out
+    assert rep["scenes"][0]["near_far"]["points_nearer_than_stored_near_pct"] > 50
+    assert "warning: the stored near/far clip the points (near" in out

@@ -127,6 +127,20 @@ def test_end_to_end_registration_and_accuracy(ingested, clip, capsys):
     assert scene.meta["baseline_over_depth"] > 0.1
 
 
+def test_check_cameras_on_ingested_scene(ingested, tmp_path, capsys):
+    """`seeu check-cameras` passes the ingested walk (median Sampson error stated) and suggests near/far
+    from the SfM points ingest kept, by ingest's own rule: its re10k near/far (1 / 100) clip nothing."""
+    capsys.readouterr()
+    assert cli_main(["check-cameras", str(ingested["out"] / "walk"), "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    rep = json.loads((tmp_path / "check.json").read_text())
+    nf = rep["scenes"][0]["near_far"]
+    assert rep["verdict"] == "consistent" and rep["median_error_px"] < 1.0, out
+    assert f"median Sampson error {rep['median_error_px']:.2f} px" in out
+    assert nf["source"] == "sfm_points" and nf["stored"] == [1.0, 100.0] and nf["stored_clips"] is None, nf
+    assert 0.5 < nf["near"] < 2.0 and nf["re10k_points_farther_than_far_pct"] == 0.0
+
+
 def test_resume_reuses_stages_and_force_redoes(ingested, capsys):
     r1, r2 = ingested["report1"], ingested["report2"]
     assert r1["reused"] == {"decode": False, "sfm": False}

@@ -290,3 +290,15 @@ def test_ingested_sfm_points_lie_on_ground_truth_surfaces_and_reach_nerfstudio(e
     assert doc["ply_file_path"] == "sparse_pc.ply"
     xyz2, rgb2 = read_points_ply(tmp_path / "ns" / scene.scene_id / doc["ply_file_path"])
     assert np.array_equal(xyz2, xyz) and np.array_equal(rgb2, rgb)
+
+
+def test_check_cameras_on_exported_chunks(exported, tmp_path, capsys):
+    """`seeu check-cameras` passes the exported pixelSplat chunks of an ingested clip (median Sampson
+    error stated) and finds the RE10K near/far 1 / 100 they carry clipping none of the points."""
+    capsys.readouterr()
+    assert cli_main(["check-cameras", str(exported / "ps"), "--out", str(tmp_path)]) == 0
+    out = capsys.readouterr().out
+    rep = json.loads((tmp_path / "check.json").read_text())
+    assert rep["kind"] == "pixelsplat" and rep["verdict"] == "consistent" and rep["median_error_px"] < 1.0, out
+    nf = rep["scenes"][0]["near_far"]
+    assert nf["source"] == "triangulated_matches" and nf["stored"] == [1.0, 100.0] and not rep["near_far_clipped"]

@@ -7,7 +7,9 @@ SIFT matches are compared with the epipolar lines of the stored cameras (Sampson
 Exit 0: consistent (median under --max-error). Exit 1: not (or a convention fix fits 3x better),
 with the likely cause when a common convention mistake fits (c2w/w2c swapped, OpenGL axes, pixel vs normalised intrinsics, principal
 point, transposed rotations). Exit 2: PATH is not a dataset. Also notes scenes the pixelSplat /
-MVSplat RE10K loader would skip (views not 360x640, field of view above 100 degrees).
+MVSplat RE10K loader would skip (views not 360x640, field of view above 100 degrees), suggests
+near/far from the points (the SfM points ingest kept, else the triangulated matches; the rule of
+seeu ingest, and the rescale that fits the RE10K 1 / 100) and warns when the stored ones clip them.
 
 Examples:
   seeu check-cameras data/posed/clip
@@ -48,6 +50,15 @@ def run(args: argparse.Namespace) -> int:
         print(line)
         if s.get("cause_text"):
             print(f"    cause: {s['cause_text']}; fix: {s['suggestion']}")
+        nf = s.get("near_far")
+        if nf:
+            stored = f"stored {nf['stored'][0]:g} / {nf['stored'][1]:g}" if nf["stored"] else "none stored"
+            print(
+                f"    near/far from {nf['points']} {nf['source'].replace('_', ' ')}: {nf['near']:.3g} / {nf['far']:.3g} "
+                f"({stored}; for the RE10K 1 / 100 scale the poses by {nf['re10k_scale']:.3g})"
+            )
+            if nf["stored_clips"]:
+                print(f"    warning: the stored near/far clip the points ({nf['stored_clips']})")
         if s["peer_loader_skips"]:
             print(f"    note: the pixelSplat/MVSplat RE10K loader would skip it ({'; '.join(s['peer_loader_skips'])})")
     for s in rep["skipped"]:

@@ -40,7 +40,16 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.view import DEFAULT_HOST, ViewConfig, build_scene, chromium_screenshot, save_scene, serve
+    from pipelines.view import (
+        DEFAULT_HOST,
+        ViewConfig,
+        build_scene,
+        chromium_screenshot,
+        save_scene,
+        serve,
+        server_url,
+        stop_server,
+    )
 
     cfg = config_from_args(ViewConfig, args)
     if cfg.screenshot is not None:
@@ -52,15 +61,15 @@ def run(args: argparse.Namespace) -> int:
     server, kind = build_scene(cfg, say)
     if cfg.save is not None:
         size = save_scene(server, cfg.save)
-        server.stop()
+        stop_server(server)
         say(f"wrote {cfg.save} ({kind}, {size} bytes)")
         return 0
-    url = f"http://{cfg.host}:{server.get_port()}"
+    url = server_url(cfg.host, server.get_port())
     if cfg.screenshot is not None:
         try:
             chromium_screenshot(url, cfg.screenshot)
         finally:
-            server.stop()
+            stop_server(server)
         say(f"wrote {cfg.screenshot} ({kind})")
         return 0
     say(f"seeu view: {kind} {cfg.path} at {url} (Ctrl-C stops)")

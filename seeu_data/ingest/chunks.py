@@ -23,7 +23,15 @@ import numpy as np
 
 from seeu_data.cameras import cam_to_world_from_world_to_cam, homogeneous_from_3x4, invert_rigid
 from seeu_data.errors import SeeUError
-from seeu_data.ingest.scale import ScaleConfig, chunk_scale
+from seeu_data.ingest.scale import (
+    FAR_MARGIN,
+    FAR_PERCENTILE,
+    NEAR_MARGIN,
+    NEAR_PERCENTILE,
+    ScaleConfig,
+    chunk_scale,
+    near_far_from_depths,
+)
 from seeu_data.limits import MAX_FRAMES, check_range
 from seeu_data.settings import setting
 
@@ -37,10 +45,10 @@ FRAME_METHOD = "world frame = first camera of the chunk"
 @dataclass(frozen=True)
 class ChunkConfig:
     min_chunk_frames: int = setting(10, "shortest posed chunk kept")
-    near_percentile: float = 0.1
-    far_percentile: float = 99.9
-    near_margin: float = 0.4
-    far_margin: float = 1.5
+    near_percentile: float = NEAR_PERCENTILE
+    far_percentile: float = FAR_PERCENTILE
+    near_margin: float = NEAR_MARGIN
+    far_margin: float = FAR_MARGIN
     scale: ScaleConfig = field(default_factory=ScaleConfig)
 
     def check(self) -> None:
@@ -138,9 +146,8 @@ def plan_chunks(
         depths = depths[np.isfinite(depths) & (depths > 0)]
         if len(depths) < 10:
             raise SeeUError(f"SfM model {model['index']} has only {len(depths)} usable 3D points")
-        near_far_unit = (
-            config.near_margin * float(np.percentile(depths, config.near_percentile)),
-            config.far_margin * float(np.percentile(depths, config.far_percentile)),
+        near_far_unit = near_far_from_depths(
+            depths, config.near_percentile, config.far_percentile, config.near_margin, config.far_margin
         )
         centres = None
         if config.scale.scale == "metric":

@@ -34,6 +34,25 @@ from seeu_data.settings import parse_int_pair, setting
 
 SCALES = ("re10k", "median-depth", "metric")
 RE10K_NEAR_FAR = (1.0, 100.0)
+# near/far from point depths: near = NEAR_MARGIN x the NEAR_PERCENTILE-th percentile, far = FAR_MARGIN x
+# the FAR_PERCENTILE-th (SfM triangulates few points on the nearest, most foreshortened surfaces)
+NEAR_PERCENTILE, FAR_PERCENTILE = 0.1, 99.9
+NEAR_MARGIN, FAR_MARGIN = 0.4, 1.5
+
+
+def near_far_from_depths(
+    depths: np.ndarray,
+    near_percentile: float = NEAR_PERCENTILE,
+    far_percentile: float = FAR_PERCENTILE,
+    near_margin: float = NEAR_MARGIN,
+    far_margin: float = FAR_MARGIN,
+) -> tuple[float, float]:
+    """(near, far) bounding the positive point depths `depths` (M,): margin x percentile at each end."""
+    depths = np.asarray(depths, np.float64)
+    return (
+        near_margin * float(np.percentile(depths, near_percentile)),
+        far_margin * float(np.percentile(depths, far_percentile)),
+    )
 
 
 @dataclass(frozen=True)
