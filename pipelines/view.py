@@ -61,7 +61,8 @@ THUMB_SIDE = 96  # px: longest side of a frustum's image thumbnail
 FRAME_SIDE = 320  # px: longest side of the image on the frame the slider picks
 LIVE_RENDER_WIDTH = 160  # px: width of the live render of the browser's camera (--checkpoint)
 SCREENSHOT_SIZE = (1000, 700)  # px (width, height) of `--screenshot`
-SCREENSHOT_WAIT_MS = 8000  # chromium's virtual-time budget for the page to load and draw
+SCREENSHOT_WAIT_MS = 8000  # chromium's virtual-time budget for the page to load and draw (doubled per retry)
+SCREENSHOT_ATTEMPTS = 3
 CONTEXT_RGB = (40, 90, 230)
 TARGET_RGB = (240, 140, 20)
 FRAME_RGB = (220, 30, 30)
@@ -737,9 +738,14 @@ def save_scene(server: viser.ViserServer, path: Path) -> int:
     return len(data)
 
 
-def chromium_screenshot(url: str, png: Path, size: tuple[int, int] = SCREENSHOT_SIZE) -> None:
+def chromium_screenshot(
+    url: str, png: Path, size: tuple[int, int] = SCREENSHOT_SIZE, ready: Callable[[], bool] | None = None
+) -> None:
     """Open `url` in headless chromium (software WebGL), wait SCREENSHOT_WAIT_MS of virtual time,
-    write the page to `png`. SeeUError when chromium is missing or writes nothing."""
+    write the page to `png`. `ready()` tells whether that screenshot shows the page as served (e.g. the
+    server saw the client: on a busy machine the websocket may connect after the virtual time ran out);
+    when it does not, chromium runs again with twice the time, SCREENSHOT_ATTEMPTS runs in all. SeeUError
+    when chromium is missing or writes nothing, or the page never got ready."""
     import shutil
 
     exe = shutil.which("chromium") or shutil.which("chromium-browser")
@@ -748,21 +754,26 @@ def chromium_screenshot(url: str, png: Path, size: tuple[int, int] = SCREENSHOT_
     png = Path(png).resolve()
     png.parent.mkdir(parents=True, exist_ok=True)
     png.unlink(missing_ok=True)
-    argv = [
-        exe,
-        "--headless",
-        "--no-sandbox",  # as root (CI containers) chromium refuses to start with its sandbox
-        "--use-angle=swiftshader",
-        "--enable-unsafe-swiftshader",
-        "--hide-scrollbars",
-        f"--window-size={size[0]},{size[1]}",
-        f"--virtual-time-budget={SCREENSHOT_WAIT_MS}",
-        f"--screenshot={png}",
-        url,
-    ]
-    done = subprocess.run(argv, capture_output=True, text=True, timeout=120)
-    if not png.is_file():
-        raise SeeUError(f"chromium wrote no screenshot (exit {done.returncode}): {done.stderr.strip()[-300:]}", png)
+    for attempt in range(SCREENSHOT_ATTEMPTS):
+        png.unlink(missing_ok=True)
+        argv = [
+            exe,
+            "--headless",
+            "--no-sandbox",  # as root (CI containers) chromium refuses to start with its sandbox
+            "--use-angle=swiftshader",
+            "--enable-unsafe-swiftshader",
+            "--hide-scrollbars",
+            f"--window-size={size[0]},{size[1]}",
+            f"--virtual-time-budget={SCREENSHOT_WAIT_MS * 2**attempt}",
+            f"--screenshot={png}",
+            url,
+        ]
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=240)
+        if not png.is_file():
+            raise SeeUError(f"chromium wrote no screenshot (exit {done.returncode}): {done.stderr.strip()[-300:]}", png)
+        if ready is None or ready():
+            return
+    raise SeeUError(f"the page did not load in chromium ({SCREENSHOT_ATTEMPTS} tries)", url)
 
 
 def serve(server: viser.ViserServer, out: Callable[[str], None] = print, stop: threading.Event | None = None) -> None:

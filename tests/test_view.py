@@ -72,6 +72,12 @@ class Served:
                 return line
         raise AssertionError(f"no {text!r} in: " + "\n".join(self.seen[-20:]))
 
+    def saw(self, text: str) -> bool:
+        """Whether `text` is in a line printed so far (without waiting)."""
+        while not self.lines.empty():
+            self.seen.append(self.lines.get())
+        return any(text in line for line in self.seen)
+
     def stop(self) -> int:
         self.proc.send_signal(signal.SIGINT)
         return self.proc.wait(timeout=30)
@@ -82,8 +88,8 @@ def _look(path: Path, tmp_path: Path) -> None:
     try:
         url = served.wait_for(" at http://").split(" at ")[1].split()[0]
         png = tmp_path / "page.png"
-        chromium_screenshot(url, png)
-        served.wait_for("connected")
+        chromium_screenshot(url, png, ready=lambda: served.saw("connected") and canvas_spread(png) > 10.0)
+        assert served.saw("connected")
         assert canvas_spread(png) > 10.0, "the 3D canvas looks blank"
     finally:
         rc = served.stop()

@@ -26,6 +26,7 @@ Examples:
 from __future__ import annotations
 
 import argparse
+import threading
 from dataclasses import replace
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
@@ -66,8 +67,10 @@ def run(args: argparse.Namespace) -> int:
         return 0
     url = server_url(cfg.host, server.get_port())
     if cfg.screenshot is not None:
+        seen = threading.Event()
+        server.on_client_connect(lambda client: seen.set())
         try:
-            chromium_screenshot(url, cfg.screenshot)
+            chromium_screenshot(url, cfg.screenshot, ready=seen.is_set)
         finally:
             stop_server(server)
         say(f"wrote {cfg.screenshot} ({kind})")
