@@ -9,6 +9,7 @@ pose accuracy against it to its report.
 Example:
   seeu synth --out data/synth --frames 90 --size 640x360 --seed 0
   seeu synth --out data/wall --frames 30 --size 320x180 --scene planar
+  seeu synth --out data/pan --frames 20 --size 320x180 --scene pan
 """
 
 from __future__ import annotations
@@ -32,10 +33,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seed", type=int, default=0, help="scene seed: textures and box layout (default 0)")
     p.add_argument(
         "--scene",
-        choices=["corridor", "planar"],
+        choices=["corridor", "planar", "pan"],  # seeu_data.synthetic.SCENES (not imported here: cv2)
         default="corridor",
-        help="corridor (default) or planar: one large textured wall with three small boxes, seen by "
-        "a camera walking along it at 4 m (a scene dominated by one plane)",
+        help="corridor (default); planar: one large textured wall with three small boxes, seen by "
+        "a camera walking along it at 4 m (a scene dominated by one plane); pan: the corridor seen by a "
+        "camera turning 60 deg on a tripod (little parallax)",
     )
     p.add_argument("--fps", type=float, default=30.0, help="frame rate written to the video (default 30)")
     p.add_argument("--name", default="clip", help="file stem (default clip)")
