@@ -377,6 +377,25 @@ def test_tripod_pan_is_flagged_under_default_options_and_the_figure_ignores_scal
     assert 0.02 < figures[0] < 0.1
 
 
+def test_final_bundle_adjustment_keeps_a_model_it_cannot_fix_the_gauge_of():
+    """A model without 3D points (what mapping a pure rotation can leave): Ceres never starts, pycolmap
+    returns a summary without a Ceres part; the model is kept as mapped (once a crash of the SfM child)."""
+    import pycolmap
+
+    from seeu_data.ingest.sfm import final_bundle_adjustment
+
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(
+        pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId.SIMPLE_RADIAL, 200.0, W, H)
+    )
+    for i in (1, 2):
+        points = pycolmap.Point2DList([pycolmap.Point2D(np.array([10.0 * i, 20.0]))])
+        image = pycolmap.Image(name=f"{i}.jpg", camera_id=1, image_id=i, points2D=points)
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(), np.array([0.1 * i, 0, 0])))
+    kept, info = final_bundle_adjustment(rec, SfmConfig())
+    assert kept is rec and info["used"] is False and info["iterations"] == 0
+
+
 def test_planar_scene_is_dominated_by_one_plane():
     """More than 80 % of every view of the planar clip sees the wall (the plane z = 4)."""
     scene = make_planar_scene(0)
