@@ -370,8 +370,10 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
 
 def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dict) -> Chunked:
     """Contiguous registered runs as scaled chunks; SeeUError when none reaches --min-chunk-frames."""
+    import numpy as np
+
     from seeu_data.ingest.chunks import plan_chunks
-    from seeu_data.ingest.report import baseline_over_depth
+    from seeu_data.ingest.report import baseline_over_depth, degeneracy
     from seeu_data.ingest.scale import distance_frame_names
 
     t0 = time.perf_counter()
@@ -398,8 +400,14 @@ def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dic
     dropped.sort(key=lambda d: d["source_frame"])
     check = sfm_result.get("solution_check", {})
     check_state = "not run" if not check.get("ran") else ("passed" if check.get("passed") else "failed")
+    models = {m["index"]: m for m in sfm_result["models"]}
     for c in chunks:
-        c.meta["baseline_over_depth"] = baseline_over_depth(c.cam_to_world)
+        # parallax on the model as mapped (its cameras and point depths): the same under every --scale
+        w2c = {im["name"]: im["world_to_cam"] for im in models[c.model_index]["images"]}
+        depths = np.load(cache.stage_dir("sfm") / f"points_depth_{c.model_index}.npy")
+        parallax = baseline_over_depth(np.array([w2c[frames[p]["name"]] for p in c.frame_positions]), depths)
+        c.meta["baseline_over_depth"] = parallax
+        c.meta["degeneracy"] = degeneracy(check, parallax)
         c.meta["sfm_solution_check"] = check_state
     return Chunked(chunks, dropped, registered, check_state)
 
@@ -467,6 +475,7 @@ def _scene_report(
                 "far": c.far,
                 "sfm_model": c.model_index,
                 "baseline_over_depth": c.meta["baseline_over_depth"],
+                "degeneracy": c.meta["degeneracy"],
             }
             for c in chunks
         ],

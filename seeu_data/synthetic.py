@@ -16,6 +16,7 @@ Lambertian with a fixed light, constant per face (view-independent, as SfM assum
     rgb, depth = render_view(scene, poses[0], intr, 640, 360)   # (360, 640, 3) uint8, (360, 640) float32
     write_clip("clip.mp4", n_frames=90, size=(360, 640), seed=0)   # + clip.json ground truth
     write_clip("wall.mp4", n_frames=30, size=(180, 320), scene="planar")  # one dominant plane
+    write_clip("pan.mp4", n_frames=24, size=(180, 320), scene="pan")  # tripod pan in the corridor
     posed = synthetic_posed_scene(24, 90, 160, seed=0)                    # PosedScene, no SfM
     pts = surface_points(scene, poses[:3], np.tile(intr, (3, 1)), 640, 360)  # (180, 3) exact surface points
 """
@@ -38,7 +39,7 @@ from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
-SCENES = ("corridor", "planar")
+SCENES = ("corridor", "planar", "pan")
 TEXELS_PER_METRE = 128.0
 
 
@@ -266,6 +267,25 @@ def planar_camera_path(n_frames: int, length: float = 7.0) -> np.ndarray:
     return np.stack(poses)
 
 
+def pan_camera_path(n_frames: int, sweep_deg: float = 60.0, arm_m: float = 0.3, jitter_m: float = 0.03) -> np.ndarray:
+    """A tripod pan in the corridor of `make_scene`: `(n_frames, 4, 4)` OpenCV camera-to-world. The head
+    stands at (0, 0, 2) and turns, yaw sweeping `sweep_deg` (centred on +z) with a slight pitch; the
+    camera centre sits `arm_m` in front of the head's axis (so it moves on an arc, as a camera does on
+    a tripod) and wobbles smoothly by at most `jitter_m` metres. Its widest baseline over the median
+    depth stays far below `seeu_data.ingest.report.LOW_PARALLAX` (depths about 1-14 m)."""
+    if n_frames < 1:
+        raise SeeUError(f"n_frames must be >= 1, got {n_frames}")
+    poses = []
+    for ti in np.linspace(0.0, 1.0, n_frames):
+        wobble = jitter_m * np.array([np.sin(3 * np.pi * ti), np.sin(5 * np.pi * ti + 1.0), np.cos(4 * np.pi * ti)])
+        yaw = np.radians(sweep_deg) * (ti - 0.5)
+        pitch = np.radians(3.0) * np.sin(2 * np.pi * ti)
+        forward = np.array([np.sin(yaw) * np.cos(pitch), np.sin(pitch), np.cos(yaw) * np.cos(pitch)])
+        eye = np.array([0.0, 0.0, 2.0]) + arm_m * np.array([np.sin(yaw), 0.0, np.cos(yaw)]) + wobble
+        poses.append(_look_along(eye, forward))
+    return np.stack(poses)
+
+
 def path_length(cam_to_world: np.ndarray) -> float:
     """Sum of distances between consecutive camera centres of `(N, 4, 4)` poses."""
     c = np.asarray(cam_to_world)[:, :3, 3]
@@ -424,10 +444,11 @@ class ClipConfig:
     path_length_m: float = 7.0
     scene: str = setting(
         "corridor",
-        "corridor, or planar: one large textured wall with three small boxes, seen by a camera walking "
-        "along it at 4 m (a scene dominated by one plane)",
+        "corridor; planar: one large textured wall with three small boxes, seen by a camera walking "
+        "along it at 4 m (a scene dominated by one plane); pan: the corridor seen by a camera turning 60 deg "
+        "on a tripod (little parallax)",
         choices=SCENES,
-    )  # planar: make_planar_scene + planar_camera_path
+    )  # planar: make_planar_scene + planar_camera_path; pan: the corridor + pan_camera_path
 
     @property
     def height(self) -> int:
@@ -471,6 +492,8 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
             make_planar_scene(cfg.seed, cfg.path_length_m),
             planar_camera_path(cfg.n_frames, cfg.path_length_m),
         )
+    elif cfg.scene == "pan":
+        scene, poses = make_scene(cfg.seed), pan_camera_path(cfg.n_frames)
     else:
         scene, poses = make_scene(cfg.seed), camera_path(cfg.n_frames, cfg.path_length_m)
     intr = default_intrinsics_norm(cfg.width, cfg.height, cfg.hfov_deg)

@@ -124,7 +124,7 @@ def test_end_to_end_registration_and_accuracy(ingested, clip, capsys):
     # the solution check passed and is recorded with the chunk; a walk of 7 m has ample parallax
     assert scene.meta["sfm_solution_check"] == "passed" and report["warnings"] == []
     assert report["chunks"][0]["baseline_over_depth"] == pytest.approx(scene.meta["baseline_over_depth"])
-    assert scene.meta["baseline_over_depth"] > 0.1
+    assert scene.meta["baseline_over_depth"] > 0.1 and scene.meta["degeneracy"] is None
 
 
 def test_check_cameras_on_ingested_scene(ingested, tmp_path, capsys):

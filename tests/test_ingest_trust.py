@@ -1,5 +1,7 @@
 """Ingest results to trust: SfM results that do not depend on the thread count, the solution check, scene naming
-without silent overwrites, the low-parallax warning, and progress/heartbeat while SfM works."""
+without silent overwrites, the low-parallax warning, parallax judged on the SfM model as mapped (the same under
+every --scale), a camera rotating in place flagged, why a solution check failed, and progress/heartbeat while
+SfM works."""
 
 from __future__ import annotations
 
@@ -14,10 +16,18 @@ import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data.ingest.pose_eval import pose_accuracy
-from seeu_data.ingest.report import LOW_PARALLAX, baseline_over_depth, scene_warnings, summary_line
+from seeu_data.ingest.report import (
+    LOW_PARALLAX,
+    ROTATES_IN_PLACE,
+    baseline_over_depth,
+    degeneracy,
+    scene_warnings,
+    summary_line,
+)
 from seeu_data.ingest.sfm import SfmConfig, map_with_retries, model_disagreement_pct, run_sfm
 from seeu_data.ingest.video import SceneSource, discover_sources, unique_scene_names
 from seeu_data.progress import StageProgress
+from seeu_data.store.posed import PosedDataset
 from seeu_data.synthetic import (
     default_intrinsics_norm,
     load_ground_truth,
@@ -206,10 +216,25 @@ def test_solution_check_maps_again_until_two_runs_agree_and_flags_when_none_do()
     runs[2][:10, 1, 3] += 2.0
     models, attempts, _, check = map_with_retries(map_once, 30, cfg, check=True)
     assert seeds == [0, 1, 2] and check["passed"] is False and check["kept_seed"] == 0
+    assert check["reason"].startswith("the 3 mapping runs that registered enough frames disagree (closest ")
     # without the check one registering run is enough
     seeds.clear()
     _, _, _, check = map_with_retries(map_once, 30, cfg, check=False)
-    assert seeds == [0] and check["ran"] is False and check["passed"] is None
+    assert seeds == [0] and check["ran"] is False and check["passed"] is None and "reason" not in check
+    # too few frames registered to compare: said so, not "the runs disagree"
+    for short, who in (
+        ({0: truth[:12], 1: truth[:12], 2: truth[:12]}, "no mapping run"),
+        ({0: truth[:12], 1: truth, 2: truth[:12]}, "only one of 3 mapping runs"),
+    ):
+        runs.update(short)
+        _, _, _, check = map_with_retries(map_once, 30, cfg, check=True)
+        assert check["passed"] is False and check["disagreement_pct"] is None
+        assert check["reason"] == f"{who} registered enough frames (at least 80%) to compare"
+        warning = scene_warnings({"sfm": {"solution_check": {**check, "state": "failed"}}, "chunks": []})[0]
+        assert (
+            warning
+            == f"SfM solution check failed: {who} registered enough frames (at least 80%) to compare; the poses may be wrong"
+        )
 
 
 def test_solution_check_starts_at_once_only_the_runs_it_certainly_needs():
@@ -237,7 +262,8 @@ def test_solution_check_starts_at_once_only_the_runs_it_certainly_needs():
         assert [s for e, s in events if e == "collect"] == sorted(runs)
 
 
-def test_failed_check_and_low_parallax_are_warned_in_the_summary():
+def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summary():
+    reason = "the 3 mapping runs that registered enough frames disagree (closest 28% of the path apart)"
     base = {
         "scene": "s",
         "registered": 30,
@@ -249,34 +275,125 @@ def test_failed_check_and_low_parallax_are_warned_in_the_summary():
         "output": "out/s",
         "sfm": {
             "mapping_attempts": [{}, {}, {}],
-            "solution_check": {"ran": True, "passed": False, "state": "failed", "disagreement_pct": 27.9},
+            "solution_check": {
+                "ran": True,
+                "passed": False,
+                "state": "failed",
+                "disagreement_pct": 27.9,
+                "reason": reason,
+                "planar_or_panoramic_pairs": 60,
+                "verified_pairs": 64,
+            },
         },
-        "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.04}, {"scene_id": "s_c1", "baseline_over_depth": 0.5}],
+        "chunks": [
+            {"scene_id": "s_c0", "baseline_over_depth": 0.04, "degeneracy": ROTATES_IN_PLACE},
+            {"scene_id": "s_c1", "baseline_over_depth": 0.5, "degeneracy": None},
+            {"scene_id": "s_c2", "baseline_over_depth": 0.07},  # a report without degeneracy
+        ],
     }
     warnings = scene_warnings(base)
-    assert len(warnings) == 2 and "solution check failed" in warnings[0] and "28%" in warnings[0]
-    assert "low parallax" in warnings[1] and "s_c0" in warnings[1] and "s_c1" not in warnings[1]
+    assert warnings[0] == f"SfM solution check failed: {reason}; the poses may be wrong"
+    assert warnings[1] == f"{ROTATES_IN_PLACE} in s_c0 (baseline/depth 0.040, 60/64 verified pairs planar or panoramic)"
+    assert warnings[2] == "low parallax: baseline/depth 0.070 < 0.1 in s_c2 (geometry weakly constrained)"
+    assert len(warnings) == 3
     line = summary_line({**base, "warnings": warnings})
-    assert line.count("WARNING") == 2 and "\n" not in line and "after 3 mapping runs" in line
+    assert line.count("WARNING") == 3 and "\n" not in line and "after 3 mapping runs" in line
+    assert "camera mostly rotates in place: depth is unreliable" in line
+    # an SfM result from before the reason was recorded: the old wording
+    old = {**base, "sfm": {"solution_check": {"state": "failed", "disagreement_pct": 27.9}}}
+    assert (
+        scene_warnings(old)[0]
+        == "SfM solution check failed: no two mapping runs agree (closest 28% of the path apart); the poses may be wrong"
+    )
     ok = {
         **base,
         "sfm": {
             "mapping_attempts": [{}, {}],
             "solution_check": {"ran": True, "passed": True, "state": "passed", "disagreement_pct": 0.02},
         },
-        "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.5}],
+        "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.5, "degeneracy": None}],
     }
     assert scene_warnings(ok) == []
     assert "mapping runs" not in summary_line(ok) and "solution check passed" in summary_line(ok)
 
 
-def test_baseline_over_depth_closed_form():
-    """A pan in place has no baseline; cameras on a 0.3-long segment (median depth 1 in chunk units) give 0.3."""
+def test_baseline_over_depth_on_the_model_as_mapped_is_scale_free():
+    """A pan in place has no baseline; cameras on a 0.3-long segment over points at median depth 2 give 0.15,
+    and the same cameras and points in any other unit (what a --scale convention does) give the same figure."""
     c2w = np.tile(np.eye(4), (5, 1, 1))
-    assert baseline_over_depth(c2w) == 0.0 < LOW_PARALLAX
+    c2w[:, :3, :3] = [
+        [[np.cos(a), 0, np.sin(a)], [0, 1, 0], [-np.sin(a), 0, np.cos(a)]] for a in np.linspace(-0.5, 0.5, 5)
+    ]
+    depths = np.array([1.0, 2.0, 2.0, 3.0, 50.0, np.nan, -1.0])  # invalid depths ignored: median 2
+    assert baseline_over_depth(np.linalg.inv(c2w)[:, :3], depths) == 0.0 < LOW_PARALLAX
     c2w[:, 0, 3] = np.linspace(0, 0.3, 5)
     c2w[2, 1, 3] = 0.05
-    assert baseline_over_depth(c2w) == pytest.approx(0.3)
+    w2c = np.linalg.inv(c2w)
+    assert baseline_over_depth(w2c, depths) == pytest.approx(0.15)
+    assert baseline_over_depth(w2c[:, :3], depths) == pytest.approx(0.15)  # (N, 3, 4) as in result.json
+    for s in (1 / 0.4, 7.3e-3, 1e4):  # the re10k and median-depth factors are such numbers
+        scaled = w2c.copy()
+        scaled[:, :3, 3] *= s
+        assert baseline_over_depth(scaled, depths * s) == pytest.approx(0.15, rel=1e-12)
+    assert np.isnan(baseline_over_depth(w2c, np.array([np.nan])))
+
+
+def test_rotation_in_place_needs_planar_pairs_and_low_parallax():
+    """Flagged only when both hold: a walk along a wall (planar pairs, wide baseline) and a low-parallax
+    scene with 3D structure in its pairs are not."""
+    check = {"planar_or_panoramic_pairs": 67, "verified_pairs": 69}
+    assert degeneracy(check, 0.05) == ROTATES_IN_PLACE
+    assert degeneracy(check, 0.8) is None
+    assert degeneracy({"planar_or_panoramic_pairs": 20, "verified_pairs": 69}, 0.05) is None
+    assert degeneracy({}, 0.05) is None  # nothing counted (an old result): not flagged
+
+
+@pytest.mark.slow
+def test_tripod_pan_is_flagged_under_default_options_and_the_figure_ignores_scale(tmp_path, capsys):
+    """A synthetic tripod pan (the head turns 60 deg, the camera 0.3 m in front of its axis, 3 cm of
+    wobble) through the default `seeu ingest` (--scale re10k): the camera rotating in place is warned in
+    the summary line, report.json and the chunk meta. Then --scale median-depth (the SfM stage reused):
+    the same baseline/depth, to the bit, while the poses' scale differs. The walking clip of
+    tests/test_ingest.py is not warned (test_end_to_end_registration_and_accuracy)."""
+    clip = tmp_path / "pan.mp4"
+    write_clip(clip, n_frames=20, size=(H, W), scene="pan")
+    out = tmp_path / "out"
+    figures, scales = [], []
+    for extra in ([], ["--scale", "median-depth"]):
+        assert cli_main(["ingest", str(clip), "--out", str(out), *extra]) == 0
+        line = capsys.readouterr().out
+        report = json.loads((out / "pan" / "report.json").read_text())
+        (chunk,) = report["chunks"]
+        assert chunk["baseline_over_depth"] < LOW_PARALLAX and chunk["degeneracy"] == ROTATES_IN_PLACE
+        assert any(w.startswith(ROTATES_IN_PLACE) for w in report["warnings"]), report["warnings"]
+        assert f"WARNING: {ROTATES_IN_PLACE}" in line
+        meta = PosedDataset(out / "pan").load_scene("pan_c0").meta
+        assert meta["degeneracy"] == ROTATES_IN_PLACE and meta["baseline_over_depth"] == chunk["baseline_over_depth"]
+        figures.append(chunk["baseline_over_depth"])
+        scales.append(meta["scale_factor"])
+    assert report["reused"]["sfm"] and figures[0] == figures[1]
+    assert scales[0] != pytest.approx(scales[1], rel=0.1)
+    # the true figure of the clip's path: widest baseline 0.30 m over a median depth of about 4.7 m
+    assert 0.02 < figures[0] < 0.1
+
+
+def test_final_bundle_adjustment_keeps_a_model_it_cannot_fix_the_gauge_of():
+    """A model without 3D points (what mapping a pure rotation can leave): Ceres never starts, pycolmap
+    returns a summary without a Ceres part; the model is kept as mapped (once a crash of the SfM child)."""
+    import pycolmap
+
+    from seeu_data.ingest.sfm import final_bundle_adjustment
+
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(
+        pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId.SIMPLE_RADIAL, 200.0, W, H)
+    )
+    for i in (1, 2):
+        points = pycolmap.Point2DList([pycolmap.Point2D(np.array([10.0 * i, 20.0]))])
+        image = pycolmap.Image(name=f"{i}.jpg", camera_id=1, image_id=i, points2D=points)
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(), np.array([0.1 * i, 0, 0])))
+    kept, info = final_bundle_adjustment(rec, SfmConfig())
+    assert kept is rec and info["used"] is False and info["iterations"] == 0
 
 
 def test_planar_scene_is_dominated_by_one_plane():

@@ -9,6 +9,7 @@ pose accuracy against it to its report.
 Example:
   seeu synth --out data/synth --frames 90 --size 360x640 --seed 0
   seeu synth --out data/wall --frames 30 --size 180x320 --scene planar
+  seeu synth --out data/pan --frames 20 --size 180x320 --scene pan
 """
 
 from __future__ import annotations

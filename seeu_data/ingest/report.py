@@ -7,9 +7,11 @@ stages: extract_s, match_s, map_s, undistort_s, export_s), models: [...], discar
 mapping_attempts: [{seed, registered, models, seconds, disagreement_pct}], keyframes {stride, count, motion_px,
 target_px, registered_after},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
-planar_or_panoramic_pairs, verified_pairs}}, input_identity {path, fingerprint},
-chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth}],
-warnings [str] (a failed solution check, low parallax; also in the summary line),
+planar_or_panoramic_pairs, verified_pairs, reason (why a failed check failed)}}, input_identity {path, fingerprint},
+chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth (widest
+baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or
+why the chunk's depth is unreliable: the camera mostly rotated in place)}],
+warnings [str] (a failed solution check, a camera rotating in place, low parallax; also in the summary line),
 dropped_frames [{source_frame, reason}], timings_s {stage: seconds}, reused {stage: bool},
 output. (A synthetic clip's ground truth is compared by `seeu_data.synthetic.ingest_accuracy`, not here.)
 """
@@ -93,29 +95,64 @@ def plot_trajectory(path: str | Path, chunks: list, title: str, fsync: bool = Fa
 # less, so its geometry (and the scale, near/far derived from it) is weakly constrained. A pan in place
 # or a few centimetres of sway in front of a scene metres away is below it.
 LOW_PARALLAX = 0.1
+# Degenerate motion: at least this fraction of the verified pairs is explained by a homography (one
+# plane, or a rotation without translation) *and* the chunk's parallax is low: the camera mostly turned
+# in place, so the SfM depths (and the poses' translations) rest on a few near points. A walk along a
+# wall has planar pairs too, but its baseline is large.
+MOSTLY_PLANAR = 0.8
+ROTATES_IN_PLACE = "camera mostly rotates in place: depth is unreliable"
 
 
-def baseline_over_depth(cam_to_world: np.ndarray) -> float:
-    """Largest distance between two camera centres of a chunk `(N, 4, 4)` over its median scene depth.
+def baseline_over_depth(world_to_cam: np.ndarray, depths: np.ndarray) -> float:
+    """Largest distance between two camera centres of a chunk over the median depth of the SfM points in
+    their cameras, both as mapped (one unit), so the ratio does not depend on any later scale (--scale).
 
-    Chunk poses are scaled so that the median SfM point depth is 1, so this is the largest pairwise
-    centre distance itself."""
-    c = np.asarray(cam_to_world, np.float64)[:, :3, 3]
-    return float(np.sqrt(((c[:, None] - c[None]) ** 2).sum(-1)).max()) if len(c) > 1 else 0.0
+    `world_to_cam`: the chunk's cameras `(N, 3, 4)` or `(N, 4, 4)` in the SfM model's frame; `depths`: `(M,)`
+    depths of the model's point observations (`points_depth_<k>.npy`). 0 for one camera; nan without depths."""
+    w2c = np.asarray(world_to_cam, np.float64)
+    c = -np.einsum("nji,nj->ni", w2c[:, :3, :3], w2c[:, :3, 3])  # centre = -R^T t
+    d = np.asarray(depths, np.float64)
+    d = d[np.isfinite(d) & (d > 0)]
+    if not len(d):
+        return float("nan")
+    widest = float(np.sqrt(((c[:, None] - c[None]) ** 2).sum(-1)).max()) if len(c) > 1 else 0.0
+    return widest / float(np.median(d))
+
+
+def degeneracy(solution_check: dict, parallax: float) -> str | None:
+    """`ROTATES_IN_PLACE` when at least `MOSTLY_PLANAR` of the verified pairs are planar/panoramic
+    (`solution_check`: the SfM result's, with `planar_or_panoramic_pairs`, `verified_pairs`) and the
+    chunk's baseline/depth `parallax` is below `LOW_PARALLAX`; else None."""
+    verified = solution_check.get("verified_pairs") or 0
+    planar = solution_check.get("planar_or_panoramic_pairs") or 0
+    if verified and planar >= MOSTLY_PLANAR * verified and parallax < LOW_PARALLAX:
+        return ROTATES_IN_PLACE
+    return None
 
 
 def scene_warnings(report: dict) -> list[str]:
-    """What the user must know before trusting the scene: a failed solution check, low-parallax chunks."""
+    """What the user must know before trusting the scene: a failed solution check, chunks whose camera
+    mostly rotated in place, other low-parallax chunks."""
     out = []
     check = report["sfm"].get("solution_check", {})
     if check.get("state") == "failed":
         d = check.get("disagreement_pct")
-        out.append(
-            "SfM solution check failed: no two mapping runs agree"
+        reason = check.get("reason") or (  # an SfM stage result from before `reason` was recorded
+            "no two mapping runs agree"
             + (f" (closest {d:.2g}% of the path apart)" if d is not None and np.isfinite(d) else "")
-            + "; the poses may be wrong"
         )
-    low = [c for c in report["chunks"] if c.get("baseline_over_depth", np.inf) < LOW_PARALLAX]
+        out.append(f"SfM solution check failed: {reason}; the poses may be wrong")
+    chunks = report["chunks"]
+    flagged = [c for c in chunks if c.get("degeneracy")]
+    if flagged:
+        pairs = f"{check.get('planar_or_panoramic_pairs')}/{check.get('verified_pairs')}"
+        out.append(
+            f"{ROTATES_IN_PLACE} in "
+            + ", ".join(c["scene_id"] for c in flagged)
+            + f" (baseline/depth {min(c['baseline_over_depth'] for c in flagged):.3f}, "
+            f"{pairs} verified pairs planar or panoramic)"
+        )
+    low = [c for c in chunks if c.get("baseline_over_depth", np.inf) < LOW_PARALLAX and not c.get("degeneracy")]
     if low:
         out.append(
             f"low parallax: baseline/depth {min(c['baseline_over_depth'] for c in low):.3f} < {LOW_PARALLAX} in "

@@ -27,7 +27,7 @@ Output directory layout::
 "fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
 "world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
 "num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
-"solution_check": {"ran", "passed", "disagreement_pct", "kept_seed", "planar_or_panoramic_pairs",
+"solution_check": {"ran", "passed", "disagreement_pct", "kept_seed"[, "reason"], "planar_or_panoramic_pairs",
 "verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
 "final_ba": [{"index", "loss", "scale_px", "termination", "iterations", "residuals", "used" (false: Ceres'
@@ -343,7 +343,8 @@ def map_with_retries(
     first agreeing pair is kept; when no two runs agree, the run registering most is kept and the check
     fails. Returns (usable models of the kept run, every run's {seed, registered, models, seconds
     (wall, of `map_once`)[, disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
-    {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"}).
+    {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"[, "reason" (a failed check: no two runs
+    registered enough frames to compare, or those that did disagree)]}).
 
     `start(seed)` (optional) begins mapping `seed` in the background; `map_once(seed)` then collects
     it. It is called at once for the runs certainly needed: with the check, the first two (the second
@@ -408,7 +409,21 @@ def map_with_retries(
         "disagreement_pct": smallest,
         "kept_seed": attempts[keep]["seed"],
     }
+    if check and agreed is None:
+        result["reason"] = _check_failure(len(good), len(runs), cfg.retry_below, smallest)
     return runs[keep][1], attempts, runs[keep][2], result
+
+
+def _check_failure(enough: int, runs: int, retry_below: float, smallest: float | None) -> str:
+    """Why the solution check failed: too few of the `runs` mapping runs registered at least `retry_below`
+    of the frames (`enough` did) to compare two, or those that did disagree (closest `smallest` % apart)."""
+    if enough < 2:
+        who = "no mapping run" if enough == 0 else f"only one of {runs} mapping runs"
+        return f"{who} registered enough frames (at least {100 * retry_below:.0f}%) to compare"
+    closest = (
+        f" (closest {smallest:.2g}% of the path apart)" if smallest is not None and smallest < float("inf") else ""
+    )
+    return f"the {enough} mapping runs that registered enough frames disagree{closest}"
 
 
 def _centres_by_name(recs: dict):
@@ -564,7 +579,8 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
     summary = pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
     used = bool(summary.is_solution_usable())
-    ceres = summary.ceres_summary  # type: ignore[attr-defined]  # the Ceres backend's summary (the default)
+    # the Ceres backend's summary (the default); a plain one when the solve never started (no gauge: a pan)
+    ceres = getattr(summary, "ceres_summary", None)
     if used:
         rec.update_point_3d_errors()  # the points' stored errors (what the mean reads) are not updated by the solve
     else:
@@ -573,7 +589,7 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
         "loss": cfg.final_ba_loss,
         "scale_px": cfg.final_ba_loss_scale,
         "termination": summary.termination_type.name,
-        "iterations": int(ceres.num_successful_steps + ceres.num_unsuccessful_steps),
+        "iterations": 0 if ceres is None else int(ceres.num_successful_steps + ceres.num_unsuccessful_steps),
         "residuals": int(summary.num_residuals),
         "used": used,
         "reprojection_before_px": before,
