@@ -34,3 +34,22 @@ def test_vggt_colmap_export_imports_at_float_precision(tmp_path):
     norm = np.stack([intr[:, 0, 0] / w, intr[:, 1, 1] / h, intr[:, 0, 2] / w, intr[:, 1, 2] / h], 1)
     np.testing.assert_allclose(scene.intrinsics_norm, norm, atol=1e-6)
     assert (scene.width == w).all() and (scene.height == h).all()
+
+
+def test_mast3r_colmap_model_imports_at_float_precision(tmp_path):
+    """kapture_mast3r_mapping.py's posed branch: kapture -> database, MASt3R's matches, pycolmap's triangulator."""
+    fx = FIXTURES / "mast3r"
+    exp = json.loads((fx / "expected.json").read_text())
+    out = tmp_path / "out"
+    argv = ["import", "colmap", str(fx / "sparse"), "--images", str(fx / "images"), "--out", str(out)]
+    assert cli_main(argv + ["--scene-id", "mast3r", "--near", "0.1", "--far", "100"]) == 0
+    scene = PosedDataset(out).load_scene("mast3r")
+    ext, intr = np.asarray(exp["extrinsics"]), np.asarray(exp["intrinsics"])
+    w2c = np.tile(np.eye(4), (len(ext), 1, 1))
+    w2c[:, :3] = ext
+    assert list(scene.source_name) == exp["names"]
+    np.testing.assert_allclose(scene.cam_to_world, np.linalg.inv(w2c), atol=1e-6)
+    w, h = exp["width"], exp["height"]
+    norm = np.stack([intr[:, 0, 0] / w, intr[:, 1, 1] / h, intr[:, 0, 2] / w, intr[:, 1, 2] / h], 1)
+    np.testing.assert_allclose(scene.intrinsics_norm, norm, atol=1e-6)
+    assert (scene.width == w).all() and (scene.height == h).all()
