@@ -11,6 +11,7 @@ import json
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from pipelines.cli import main as cli_main
 from seeu_data.store.posed import PosedDataset
@@ -36,15 +37,21 @@ def test_vggt_colmap_export_imports_at_float_precision(tmp_path):
     assert (scene.width == w).all() and (scene.height == h).all()
 
 
-def test_mast3r_colmap_model_imports_at_float_precision(tmp_path):
-    """kapture_mast3r_mapping.py's posed branch: kapture -> database, MASt3R's matches, pycolmap's triangulator."""
+@pytest.mark.parametrize(
+    "model,prefix",
+    [("sparse", ""), ("mapper/0", "mapper_")],
+    ids=["posed-triangulator", "unposed-mapper"],
+)
+def test_mast3r_colmap_model_imports_at_float_precision(tmp_path, model, prefix):
+    """kapture_mast3r_mapping.py: kapture -> database, MASt3R's matches, pycolmap's triangulator (posed
+    input: the synthetic arrays) or incremental mapper (unposed: its own gauge, refined focals)."""
     fx = FIXTURES / "mast3r"
     exp = json.loads((fx / "expected.json").read_text())
     out = tmp_path / "out"
-    argv = ["import", "colmap", str(fx / "sparse"), "--images", str(fx / "images"), "--out", str(out)]
+    argv = ["import", "colmap", str(fx / model), "--images", str(fx / "images"), "--out", str(out)]
     assert cli_main(argv + ["--scene-id", "mast3r", "--near", "0.1", "--far", "100"]) == 0
     scene = PosedDataset(out).load_scene("mast3r")
-    ext, intr = np.asarray(exp["extrinsics"]), np.asarray(exp["intrinsics"])
+    ext, intr = np.asarray(exp[prefix + "extrinsics"]), np.asarray(exp[prefix + "intrinsics"])
     w2c = np.tile(np.eye(4), (len(ext), 1, 1))
     w2c[:, :3] = ext
     assert list(scene.source_name) == exp["names"]
