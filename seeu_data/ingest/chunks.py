@@ -50,7 +50,8 @@ class ChunkConfig:
 
 @dataclass
 class Chunk:
-    """One posed chunk. N = frames. cam_to_world: (N, 4, 4) normalised; intrinsics_norm: (4,)."""
+    """One posed chunk. N = frames. cam_to_world: (N, 4, 4) normalised; intrinsics_norm: (N, 4), width and
+    height: (N,) per frame (frames of different sizes, e.g. portrait and landscape photos, have their own camera)."""
 
     scene_id: str
     model_index: int
@@ -58,8 +59,8 @@ class Chunk:
     image_paths: list[Path]
     cam_to_world: np.ndarray
     intrinsics_norm: np.ndarray
-    width: int
-    height: int
+    width: np.ndarray
+    height: np.ndarray
     near: float
     far: float
     meta: dict = field(default_factory=dict)
@@ -107,6 +108,7 @@ def plan_chunks(
             for im in model["images"]
             if im["name"] in pos_of
         }
+        model.setdefault("cameras", [model["camera"]])  # results before per-size cameras: one shared camera
         flags = np.zeros(len(frame_names), bool)
         flags[list(w2c)] = True
         registered_anywhere |= flags
@@ -134,6 +136,7 @@ def plan_chunks(
     chunks = []
     for j, (start, end, model, w2c) in enumerate(kept):
         cam = model["camera"]
+        im_cam = {pos_of[im["name"]]: im.get("camera", 0) for im in model["images"] if im["name"] in pos_of}
         depths = np.load(sfm_dir / f"points_depth_{model['index']}.npy")
         depths = depths[np.isfinite(depths) & (depths > 0)]
         if len(depths) < 10:
@@ -160,8 +163,12 @@ def plan_chunks(
         c2w = first_w2c @ c2w  # first camera of the chunk = identity
         c2w[:, :3, 3] *= scale
         sfm_to_chunk = np.diag([scale, scale, scale, 1.0]) @ first_w2c  # SfM world point -> chunk frame
-        w, h = int(cam["width"]), int(cam["height"])
-        intr = np.array([cam["fx"] / w, cam["fy"] / h, cam["cx"] / w, cam["cy"] / h])
+        cams = [model["cameras"][im_cam[p]] for p in positions]
+        w = np.array([int(c["width"]) for c in cams], np.int64)
+        h = np.array([int(c["height"]) for c in cams], np.int64)
+        intr = np.array(
+            [[c["fx"] / c["width"], c["fy"] / c["height"], c["cx"] / c["width"], c["cy"] / c["height"]] for c in cams]
+        )
         chunks.append(
             Chunk(
                 scene_id=f"{scene_name}_c{j}",
