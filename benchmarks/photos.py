@@ -41,12 +41,14 @@ def bare_pycolmap(image_dir: Path, work: Path) -> dict:
     pairs = int(database.num_verified_image_pairs())
     cameras = int(database.num_cameras())
     database.close()
-    posed = len({r.image(i).name for r in recs.values() for i in r.reg_image_ids()})
+    names = {r.image(i).name for r in recs.values() for i in r.reg_image_ids()}
+    print("pycolmap: not posed:", sorted({p.name for p in image_dir.iterdir()} - names))
+    posed = len(names)
     return {"posed": posed, "pairs": pairs, "models": len(recs), "cameras": cameras}
 
 
 def main() -> int:
-    from pipelines.ingest import IngestConfig, ingest
+    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest
     from seeu_data.ingest.chunks import ChunkConfig
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -59,16 +61,19 @@ def main() -> int:
     rows = []
     t0, c0 = time.perf_counter(), time.process_time() + _children_cpu()
     cfg = IngestConfig(
-        out=args.out / "seeu", inputs=(args.folder,), chunks=ChunkConfig(min_chunk_frames=args.min_chunk_frames)
+        out=args.out / "seeu",
+        inputs=(args.folder,),
+        chunks=ChunkConfig(min_chunk_frames=args.min_chunk_frames),
+        run=IngestRunConfig(force=True),  # every stage redone: no stage reused from an earlier run
     )
     (res,) = ingest(cfg)
     wall, cpu = time.perf_counter() - t0, time.process_time() + _children_cpu() - c0
     rep = res.report
-    cams = {(m["width"], m["height"]) for mod in rep["sfm"]["models"] for m in [mod["camera"]]}
     rows.append(
         ("seeu ingest", rep["registered"], rep["sfm"]["num_verified_pairs"], len(rep["sfm"]["models"]), wall, cpu)
     )
-    print(rep["summary"], "| matcher:", rep["sfm"]["matcher"]["used"], "| mapper:", rep["sfm"]["mapper"]["used"], cams)
+    print(rep["summary"], "| matcher:", rep["sfm"]["matcher"]["used"], "| mapper:", rep["sfm"]["mapper"]["used"])
+    print("not posed:", [d for d in rep["dropped_frames"]])
     t0, c0 = time.perf_counter(), time.process_time() + _children_cpu()
     bare = bare_pycolmap(args.folder, args.out / "bare")
     wall, cpu = time.perf_counter() - t0, time.process_time() + _children_cpu() - c0

@@ -1,7 +1,10 @@
 """Split SfM models into posed chunks, normalise their scale and pick near/far.
 
 A posed chunk is a contiguous run of selected frames registered in one SfM model: a frame that is
-not registered breaks the run, and a model split by COLMAP gives separate chunks. A frame registered
+not registered breaks the run, and a model split by COLMAP gives separate chunks. Frames matched out
+of order (an image folder matched exhaustively, or each image with its next neighbours:
+result.json's "matcher" with "quadratic" false) are photos whose name order means nothing: there a
+chunk is every frame a model registered, in name order. A frame registered
 in several overlapping models belongs to the largest one only. Runs shorter than
 `min_chunk_frames` are dropped (and reported).
 
@@ -94,6 +97,7 @@ def plan_chunks(
     {"position", "reason"} (position into `frame_names`).
     """
     config.check()
+    ordered = (sfm_result.get("matcher") or {}).get("quadratic", True)  # frames matched in their order
     sfm_dir = Path(sfm_dir)
     pos_of = {n: i for i, n in enumerate(frame_names)}
     registered_anywhere = np.zeros(len(frame_names), bool)
@@ -114,27 +118,29 @@ def plan_chunks(
         registered_anywhere |= flags
         flags &= ~claimed
         claimed |= flags
-        for start, end in _runs(flags):
-            raw.append((start, end, model, w2c))
+        if ordered:
+            raw += [(list(range(start, end)), model, w2c) for start, end in _runs(flags)]
+        elif flags.any():
+            raw.append(([int(p) for p in np.nonzero(flags)[0]], model, w2c))
     kept = []
-    for start, end, model, w2c in sorted(raw, key=lambda r: (r[0], -r[1])):
-        if end - start < config.min_chunk_frames:
+    for positions, model, w2c in sorted(raw, key=lambda r: (r[0][0], -len(r[0]))):
+        if len(positions) < config.min_chunk_frames:
+            what = "a registered run" if ordered else "an SfM model"
             dropped += [
                 {
                     "position": p,
-                    "reason": f"in a registered run of {end - start} frames "
-                    f"(< --min-chunk-frames {config.min_chunk_frames})",
+                    "reason": f"in {what} of {len(positions)} frames (< --min-chunk-frames {config.min_chunk_frames})",
                 }
-                for p in range(start, end)
+                for p in positions
             ]
             continue
-        kept.append((start, end, model, w2c))
+        kept.append((positions, model, w2c))
     dropped += [{"position": int(p), "reason": "not registered by SfM"} for p in np.nonzero(~registered_anywhere)[0]]
     # a frame dropped from a short run may still be in a kept chunk of another model
-    in_chunks = {p for s, e, _, _ in kept for p in range(s, e)}
+    in_chunks = {p for positions, _, _ in kept for p in positions}
     dropped = sorted((d for d in dropped if d["position"] not in in_chunks), key=lambda d: d["position"])
     chunks = []
-    for j, (start, end, model, w2c) in enumerate(kept):
+    for j, (positions, model, w2c) in enumerate(kept):
         cam = model["camera"]
         im_cam = {pos_of[im["name"]]: im.get("camera", 0) for im in model["images"] if im["name"] in pos_of}
         depths = np.load(sfm_dir / f"points_depth_{model['index']}.npy")
@@ -157,7 +163,6 @@ def plan_chunks(
             centres = tuple(invert_rigid(w2c[pos_of[n]])[:3, 3] for n in names)
         choice = chunk_scale(config.scale, depths, near_far_unit, centres)
         scale, near, far = choice.factor, choice.near, choice.far
-        positions = list(range(start, end))
         c2w = cam_to_world_from_world_to_cam(np.stack([w2c[p] for p in positions]))
         first_w2c = invert_rigid(c2w[0])
         c2w = first_w2c @ c2w  # first camera of the chunk = identity
