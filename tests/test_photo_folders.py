@@ -104,3 +104,30 @@ def test_unordered_mixed_orientation_photos(tmp_path):
     assert sizes == {(SHORT, LONG), (LONG, SHORT)}
     assert len(set(names)) >= 0.9 * len(truth), (len(names), report["summary"])
     assert worst <= 0.01 * extent, (worst, extent)
+
+
+def test_unordered_photos_are_chunked_per_model_with_per_frame_cameras(tmp_path):
+    """Matched out of order, a chunk is every photo a model registered (gaps in name order allowed),
+    each with its own camera's intrinsics and size."""
+    from seeu_data.ingest.chunks import ChunkConfig, plan_chunks
+    from tests.test_ingest import _fake_model
+
+    names = [f"IMG_{i:04d}.jpg" for i in range(12)]
+    reg = [i for i in range(12) if i % 4 != 1]  # 1, 5, 9 not registered: no run of 4 in name order
+    model = _fake_model(0, [names[i] for i in reg], camera_path(12)[reg], 1.0, tmp_path)
+    portrait = {**model["camera"], "width": 50, "height": 100, "fx": 40.0, "fy": 40.0, "cx": 25.0, "cy": 50.0}
+    model["cameras"] = [model["camera"], portrait]
+    for k, im in enumerate(model["images"]):
+        im["camera"] = k % 2
+    unordered = {"models": [model], "matcher": {"used": "exhaustive", "quadratic": False}}
+    (c,), dropped = plan_chunks("s", names, unordered, tmp_path, ChunkConfig(min_chunk_frames=4))
+    assert c.frame_positions == reg and [d["position"] for d in dropped] == [1, 5, 9]
+    assert list(c.width) == [(100, 50)[k % 2] for k in range(9)] and list(c.height) == [
+        (50, 100)[k % 2] for k in range(9)
+    ]
+    assert np.allclose(c.intrinsics_norm[0], [0.8, 1.6, 0.5, 0.5]) and np.allclose(
+        c.intrinsics_norm[1], [0.8, 0.4, 0.5, 0.5]
+    )
+    ordered = {"models": [model], "matcher": {"used": "sequential", "quadratic": True}}
+    chunks, _ = plan_chunks("s", names, ordered, tmp_path, ChunkConfig(min_chunk_frames=4))
+    assert chunks == []  # in name order the runs are 1 and 3 frames long

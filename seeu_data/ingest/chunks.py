@@ -101,7 +101,7 @@ def plan_chunks(
     sfm_dir = Path(sfm_dir)
     pos_of = {n: i for i, n in enumerate(frame_names)}
     registered_anywhere = np.zeros(len(frame_names), bool)
-    raw: list[tuple[int, int, dict, dict[int, np.ndarray]]] = []
+    raw: list[tuple[list[int], dict, dict[int, np.ndarray]]] = []  # (positions, model, world-to-camera by position)
     dropped: list[dict] = []
     claimed = np.zeros(len(frame_names), bool)
     # COLMAP may register a frame in several (overlapping) models: the largest model claims it, so

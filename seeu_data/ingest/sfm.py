@@ -845,6 +845,16 @@ def map_processes(cfg: SfmConfig) -> int:
     return max(1, cores // cfg.map_threads)
 
 
+def _copy_database(src: Path, dst: Path) -> None:
+    """A consistent copy of the SQLite database `src` (SQLite's backup: pages still in a -wal file included)."""
+    import sqlite3
+
+    with sqlite3.connect(src) as a, sqlite3.connect(dst) as b:
+        a.backup(b)
+    a.close()
+    b.close()
+
+
 class _MapRuns:
     """Mapping runs, each in its own process (`python -m seeu_data.ingest.sfm --map RUN.json`, see
     `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/<seed>/. Every run, even
@@ -866,9 +876,12 @@ class _MapRuns:
     def _launch(self, seed: int) -> None:
         run_dir = self.root / str(seed)
         run_dir.mkdir()
+        # Each run maps its own copy of the database: COLMAP opens it for writing (global mapping writes
+        # to it), and two runs opening one file at once failed with "database is locked".
+        _copy_database(self.job.db_path, run_dir / "database.db")
         run = {
             "parent": os.getpid(),
-            "db_path": str(self.job.db_path),
+            "db_path": str(run_dir / "database.db"),
             "image_dir": self.job.image_dir,
             "dir": str(run_dir),
             "mapper": self.mapper,
