@@ -8,9 +8,10 @@ of them) up to `EXHAUSTIVE_MAX_IMAGES` images; above that, without an image-retr
 image is matched with the next `UNORDERED_OVERLAP` images in name order (photos from one camera are
 numbered in shooting order, so neighbours in name usually overlap). COLMAP's vocabulary-tree
 matcher would find the overlapping pairs of a large unordered folder instead, but needs a
-vocabulary-tree file (a download, e.g. COLMAP's `vocab_tree_flickr100K_words256K.bin`, about 1 GB
-for 256K words; pycolmap's `match_vocabtree` with `VocabTreePairingOptions.vocab_tree_path`); here
-`--vocab-tree FILE` adds loop detection to sequential matching.
+vocabulary-tree file in the format of the installed COLMAP (a download from COLMAP's GitHub
+releases, e.g. the 256K-word tree trained on Flickr100K, `vocab_tree_faiss_flickr100K_words256K.bin`
+for COLMAP >= 3.12; pycolmap's `match_vocabtree` with `VocabTreePairingOptions.vocab_tree_path`, whose
+default here is unset); it is not used. `--vocab-tree FILE` adds loop detection to sequential matching.
 
 Measurement (recorded in report.json under `sfm.mapper`): the verified image pairs with at least
 `MIN_INLIERS` inlier matches, and from them the share of consecutive frames (in input order) that
