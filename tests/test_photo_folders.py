@@ -110,15 +110,23 @@ def test_unordered_photos_are_chunked_per_model_with_per_frame_cameras(tmp_path)
     """Matched out of order, a chunk is every photo a model registered (gaps in name order allowed),
     each with its own camera's intrinsics and size."""
     from seeu_data.ingest.chunks import ChunkConfig, plan_chunks
-    from tests.test_ingest import _fake_model
 
     names = [f"IMG_{i:04d}.jpg" for i in range(12)]
     reg = [i for i in range(12) if i % 4 != 1]  # 1, 5, 9 not registered: no run of 4 in name order
-    model = _fake_model(0, [names[i] for i in reg], camera_path(12)[reg], 1.0, tmp_path)
-    portrait = {**model["camera"], "width": 50, "height": 100, "fx": 40.0, "fy": 40.0, "cx": 25.0, "cy": 50.0}
-    model["cameras"] = [model["camera"], portrait]
-    for k, im in enumerate(model["images"]):
-        im["camera"] = k % 2
+    np.save(tmp_path / "points_depth_0.npy", np.linspace(0.5, 1.5, 101))
+    landscape = {"model": "PINHOLE", "width": 100, "height": 50, "params": [80, 80, 50, 25]}
+    landscape.update(fx=80.0, fy=80.0, cx=50.0, cy=25.0)
+    portrait = {**landscape, "width": 50, "height": 100, "fx": 40.0, "fy": 40.0, "cx": 25.0, "cy": 50.0}
+    w2c = np.linalg.inv(camera_path(12)[reg])
+    model = {
+        "index": 0,
+        "undistorted": False,
+        "image_dir": str(tmp_path),
+        "mean_reprojection_error": 0.5,
+        "camera": landscape,
+        "cameras": [landscape, portrait],
+        "images": [{"name": names[i], "world_to_cam": w2c[k, :3].tolist(), "camera": k % 2} for k, i in enumerate(reg)],
+    }
     unordered = {"models": [model], "matcher": {"used": "exhaustive", "quadratic": False}}
     (c,), dropped = plan_chunks("s", names, unordered, tmp_path, ChunkConfig(min_chunk_frames=4))
     assert c.frame_positions == reg and [d["position"] for d in dropped] == [1, 5, 9]
