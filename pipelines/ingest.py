@@ -38,8 +38,8 @@ from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
-DECODE_STAGE_FORMAT = 2
-SFM_STAGE_FORMAT = 6
+DECODE_STAGE_FORMAT = 3
+SFM_STAGE_FORMAT = 7
 
 
 @dataclass(frozen=True)
@@ -167,7 +167,9 @@ def _encode_jpeg(rgb, quality: int) -> bytes:
 
 
 def _decode_stage(source, cfg: IngestConfig, prog):
-    """Stage function: decode every stride-th frame, resize, write JPEGs + per-frame metadata."""
+    """Stage function: decode every stride-th frame (an image turned upright by its EXIF orientation),
+    resize, write JPEGs + per-frame metadata (with its width and height: photos may differ in size and
+    orientation; SfM gives each size its own camera)."""
 
     from seeu_data.ingest.video import iter_frames, probe_video, resize_max_side, sharpness
     from seeu_data.store.arrow_io import atomic_write_bytes
@@ -178,20 +180,10 @@ def _decode_stage(source, cfg: IngestConfig, prog):
         in_source = probe_video(source.path).frame_count if source.kind == "video" else len(source.image_files)
         total = -(-in_source // cfg.select.stride)
         frames: list[dict] = []
-        size: tuple[int, int] | None = None
         prog.stage("decode", total)
         for fr in iter_frames(source, cfg.select.stride):
             prog.advance()
             rgb = resize_max_side(fr.rgb, cfg.max_size)
-            if size is None:
-                size = (int(rgb.shape[0]), int(rgb.shape[1]))
-            elif rgb.shape[:2] != size:
-                where = source.path / fr.source_name if fr.source_name else source.path
-                raise SeeUError(
-                    f"frame size {rgb.shape[1]}x{rgb.shape[0]} differs from the first frame's "
-                    f"{size[1]}x{size[0]} (one shared camera needs one size)",
-                    where,
-                )
             name = f"{fr.source_frame:06d}.jpg"
             # OS errors name the file
             atomic_write_bytes(frames_dir / name, _encode_jpeg(rgb, cfg.jpeg_quality), cfg.run.fsync)
@@ -202,11 +194,13 @@ def _decode_stage(source, cfg: IngestConfig, prog):
                     "timestamp_us": fr.timestamp_us,
                     "source_name": fr.source_name,
                     "sharpness": sharpness(rgb),
+                    "width": int(rgb.shape[1]),
+                    "height": int(rgb.shape[0]),
                 }
             )
-        if not frames or size is None:
+        if not frames:
             raise SeeUError("no frames decoded", source.path)
-        return {"frames": frames, "width": int(size[1]), "height": int(size[0]), "frames_in_source": int(in_source)}
+        return {"frames": frames, "frames_in_source": int(in_source)}
 
     return fn
 
@@ -364,7 +358,10 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
     params = {k: v for k, v in asdict(sfm_cfg).items() if k != "threads"}
     key = {"decode": stamp_of(decoded.key), "names": names, "sfm": params, "format": SFM_STAGE_FORMAT}
     d = cache.stage_dir("sfm")
-    result, _ = cache.run("sfm", key, lambda: run_sfm(decoded.frames_dir, names, d, sfm_cfg, source.path, prog), d)
+    video = source.kind == "video"
+    result, _ = cache.run(
+        "sfm", key, lambda: run_sfm(decoded.frames_dir, names, d, sfm_cfg, source.path, prog, video=video), d
+    )
     return result
 
 
@@ -459,6 +456,7 @@ def _scene_report(
             "discarded_models": sfm_result.get("discarded_models", []),
             "mapping_attempts": sfm_result.get("mapping_attempts", []),
             "mapper": sfm_result.get("mapper"),
+            "matcher": sfm_result.get("matcher"),
             "solution_check": {**sfm_result.get("solution_check", {}), "state": chunked.check_state},
             "keyframes": sfm_result.get("keyframes"),
             "final_ba": sfm_result.get("final_ba"),
@@ -521,7 +519,6 @@ def _write(
                     raise SeeUError("SfM image missing from the work directory (re-run with --force)", path)
                 imgs.append(path.read_bytes())
             fr = [selected.frames[p] for p in c.frame_positions]
-            n = len(fr)
             points = write_chunk_points(
                 cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir, c.scene_id, cfg.run.fsync
             )
@@ -529,9 +526,9 @@ def _write(
                 scene_id=c.scene_id,
                 images=imgs,
                 image_format="jpeg",
-                width=np.full(n, c.width),
-                height=np.full(n, c.height),
-                intrinsics_norm=np.tile(c.intrinsics_norm, (n, 1)),
+                width=c.width,
+                height=c.height,
+                intrinsics_norm=c.intrinsics_norm,
                 cam_to_world=c.cam_to_world,
                 near=c.near,
                 far=c.far,

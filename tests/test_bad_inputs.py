@@ -1161,6 +1161,12 @@ def _dl3dv_scene(folder, sizes) -> None:
     make_scene(folder, n=2, sizes=sizes)
 
 
+# ---- photos ----
+case("ingest-matcher-unknown", text="invalid choice: 'vocab'")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--matcher", "vocab"]
+)
+
+
 @pytest.mark.parametrize("make,rc,text", CASES)
 def test_bad_input(ws, tmp_path, capsys, make, rc, text):
     made = make(ws, tmp_path)

@@ -133,6 +133,8 @@ class _Pose:
 
 
 class _Image:
+    camera_id = 1
+
     def __init__(self, name, w2c):
         self.name, self._pose = name, _Pose(w2c)
 

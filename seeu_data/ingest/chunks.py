@@ -1,7 +1,10 @@
 """Split SfM models into posed chunks, normalise their scale and pick near/far.
 
 A posed chunk is a contiguous run of selected frames registered in one SfM model: a frame that is
-not registered breaks the run, and a model split by COLMAP gives separate chunks. A frame registered
+not registered breaks the run, and a model split by COLMAP gives separate chunks. Frames matched out
+of order (an image folder matched exhaustively, or each image with its next neighbours:
+result.json's "matcher" with "quadratic" false) are photos whose name order means nothing: there a
+chunk is every frame a model registered, in name order. A frame registered
 in several overlapping models belongs to the largest one only. Runs shorter than
 `min_chunk_frames` are dropped (and reported).
 
@@ -58,7 +61,8 @@ class ChunkConfig:
 
 @dataclass
 class Chunk:
-    """One posed chunk. N = frames. cam_to_world: (N, 4, 4) normalised; intrinsics_norm: (4,)."""
+    """One posed chunk. N = frames. cam_to_world: (N, 4, 4) normalised; intrinsics_norm: (N, 4), width and
+    height: (N,) per frame (frames of different sizes, e.g. portrait and landscape photos, have their own camera)."""
 
     scene_id: str
     model_index: int
@@ -66,8 +70,8 @@ class Chunk:
     image_paths: list[Path]
     cam_to_world: np.ndarray
     intrinsics_norm: np.ndarray
-    width: int
-    height: int
+    width: np.ndarray
+    height: np.ndarray
     near: float
     far: float
     meta: dict = field(default_factory=dict)
@@ -101,10 +105,11 @@ def plan_chunks(
     {"position", "reason"} (position into `frame_names`).
     """
     config.check()
+    ordered = (sfm_result.get("matcher") or {}).get("quadratic", True)  # frames matched in their order
     sfm_dir = Path(sfm_dir)
     pos_of = {n: i for i, n in enumerate(frame_names)}
     registered_anywhere = np.zeros(len(frame_names), bool)
-    raw: list[tuple[int, int, dict, dict[int, np.ndarray]]] = []
+    raw: list[tuple[list[int], dict, dict[int, np.ndarray]]] = []  # (positions, model, world-to-camera by position)
     dropped: list[dict] = []
     claimed = np.zeros(len(frame_names), bool)
     # COLMAP may register a frame in several (overlapping) models: the largest model claims it, so
@@ -115,33 +120,37 @@ def plan_chunks(
             for im in model["images"]
             if im["name"] in pos_of
         }
+        model.setdefault("cameras", [model["camera"]])  # results before per-size cameras: one shared camera
         flags = np.zeros(len(frame_names), bool)
         flags[list(w2c)] = True
         registered_anywhere |= flags
         flags &= ~claimed
         claimed |= flags
-        for start, end in _runs(flags):
-            raw.append((start, end, model, w2c))
+        if ordered:
+            raw += [(list(range(start, end)), model, w2c) for start, end in _runs(flags)]
+        elif flags.any():
+            raw.append(([int(p) for p in np.nonzero(flags)[0]], model, w2c))
     kept = []
-    for start, end, model, w2c in sorted(raw, key=lambda r: (r[0], -r[1])):
-        if end - start < config.min_chunk_frames:
+    for positions, model, w2c in sorted(raw, key=lambda r: (r[0][0], -len(r[0]))):
+        if len(positions) < config.min_chunk_frames:
+            what = "a registered run" if ordered else "an SfM model"
             dropped += [
                 {
                     "position": p,
-                    "reason": f"in a registered run of {end - start} frames "
-                    f"(< --min-chunk-frames {config.min_chunk_frames})",
+                    "reason": f"in {what} of {len(positions)} frames (< --min-chunk-frames {config.min_chunk_frames})",
                 }
-                for p in range(start, end)
+                for p in positions
             ]
             continue
-        kept.append((start, end, model, w2c))
+        kept.append((positions, model, w2c))
     dropped += [{"position": int(p), "reason": "not registered by SfM"} for p in np.nonzero(~registered_anywhere)[0]]
     # a frame dropped from a short run may still be in a kept chunk of another model
-    in_chunks = {p for s, e, _, _ in kept for p in range(s, e)}
+    in_chunks = {p for positions, _, _ in kept for p in positions}
     dropped = sorted((d for d in dropped if d["position"] not in in_chunks), key=lambda d: d["position"])
     chunks = []
-    for j, (start, end, model, w2c) in enumerate(kept):
+    for j, (positions, model, w2c) in enumerate(kept):
         cam = model["camera"]
+        im_cam = {pos_of[im["name"]]: im.get("camera", 0) for im in model["images"] if im["name"] in pos_of}
         depths = np.load(sfm_dir / f"points_depth_{model['index']}.npy")
         depths = depths[np.isfinite(depths) & (depths > 0)]
         if len(depths) < 10:
@@ -161,14 +170,17 @@ def plan_chunks(
             centres = tuple(invert_rigid(w2c[pos_of[n]])[:3, 3] for n in names)
         choice = chunk_scale(config.scale, depths, near_far_unit, centres)
         scale, near, far = choice.factor, choice.near, choice.far
-        positions = list(range(start, end))
         c2w = cam_to_world_from_world_to_cam(np.stack([w2c[p] for p in positions]))
         first_w2c = invert_rigid(c2w[0])
         c2w = first_w2c @ c2w  # first camera of the chunk = identity
         c2w[:, :3, 3] *= scale
         sfm_to_chunk = np.diag([scale, scale, scale, 1.0]) @ first_w2c  # SfM world point -> chunk frame
-        w, h = int(cam["width"]), int(cam["height"])
-        intr = np.array([cam["fx"] / w, cam["fy"] / h, cam["cx"] / w, cam["cy"] / h])
+        cams = [model["cameras"][im_cam[p]] for p in positions]
+        w = np.array([int(c["width"]) for c in cams], np.int64)
+        h = np.array([int(c["height"]) for c in cams], np.int64)
+        intr = np.array(
+            [[c["fx"] / c["width"], c["fy"] / c["height"], c["cx"] / c["width"], c["cy"] / c["height"]] for c in cams]
+        )
         chunks.append(
             Chunk(
                 scene_id=f"{scene_name}_c{j}",

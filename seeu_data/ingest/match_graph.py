@@ -1,4 +1,17 @@
-"""The verified match graph of an SfM database, and the mapper `--mapper auto` picks from it.
+"""Which frame pairs SfM matches (`--matcher auto`), the verified match graph of an SfM database, and
+the mapper `--mapper auto` picks from it.
+
+Matcher (`choose_matcher`, recorded in report.json under `sfm.matcher`): a video is matched
+sequentially (its frames are ordered: frames 1, 2, 4, ... apart, `--overlap`). An image folder may
+be unordered (photos named in any order), so it is matched exhaustively (every pair, n (n - 1) / 2
+of them) up to `EXHAUSTIVE_MAX_IMAGES` images; above that, without an image-retrieval index, each
+image is matched with the next `UNORDERED_OVERLAP` images in name order (photos from one camera are
+numbered in shooting order, so neighbours in name usually overlap). COLMAP's vocabulary-tree
+matcher would find the overlapping pairs of a large unordered folder instead, but needs a
+vocabulary-tree file in the format of the installed COLMAP (a download from COLMAP's GitHub
+releases, e.g. the 256K-word tree trained on Flickr100K, `vocab_tree_faiss_flickr100K_words256K.bin`
+for COLMAP >= 3.12; pycolmap's `match_vocabtree` with `VocabTreePairingOptions.vocab_tree_path`, whose
+default here is unset); it is not used. `--vocab-tree FILE` adds loop detection to sequential matching.
 
 Measurement (recorded in report.json under `sfm.mapper`): the verified image pairs with at least
 `MIN_INLIERS` inlier matches, and from them the share of consecutive frames (in input order) that
@@ -18,6 +31,11 @@ from __future__ import annotations
 import numpy as np
 
 MIN_INLIERS = 15
+# An image folder of up to this many images is matched exhaustively (150: 11,175 pairs; matching one
+# pair of 8192 SIFT features takes ~10 ms on a CPU core, so about 2 minutes on one thread)
+EXHAUSTIVE_MAX_IMAGES = 150
+# Above it, each image is matched with this many next images in name order
+UNORDERED_OVERLAP = 40
 CHAIN_PCT = 90.0  # consecutive frames matched, at or above which the input is treated as a video
 
 
@@ -55,3 +73,27 @@ def choose_mapper(stats: dict) -> tuple[str, str]:
     if pct >= CHAIN_PCT:
         return "incremental", f"sequential input: {pct:.0f}% of consecutive frames matched (>= {CHAIN_PCT:.0f}%)"
     return "global", f"unordered input: only {pct:.0f}% of consecutive frames matched (< {CHAIN_PCT:.0f}%)"
+
+
+def choose_matcher(requested: str, video: bool, num_images: int, overlap: int) -> dict:
+    """The matching `requested` (auto, exhaustive or sequential) resolved for `num_images` frames of a
+    video (`video`) or an image folder: {"requested", "used" (exhaustive | sequential), "overlap",
+    "quadratic" (sequential pairs 1, 2, 4, ..., 2**(overlap-1) apart, else the next `overlap`), "reason"}."""
+    used, quadratic, why = requested, True, "requested"
+    if requested == "auto" and video:
+        used, why = "sequential", "a video: ordered frames"
+    elif requested == "auto" and num_images <= EXHAUSTIVE_MAX_IMAGES:
+        used, why = "exhaustive", f"an image folder of {num_images} <= {EXHAUSTIVE_MAX_IMAGES} images: every pair"
+    elif requested == "auto":
+        used, quadratic, overlap = "sequential", False, UNORDERED_OVERLAP
+        why = (
+            f"an image folder of {num_images} > {EXHAUSTIVE_MAX_IMAGES} images: each with the next "
+            f"{UNORDERED_OVERLAP} in name order"
+        )
+    return {
+        "requested": requested,
+        "used": used,
+        "overlap": overlap if used == "sequential" else None,
+        "quadratic": quadratic if used == "sequential" else False,
+        "reason": why,
+    }

@@ -3,9 +3,11 @@
 COLMAP can abort the whole process (SIGABRT, no Python exception; e.g. loop detection without a
 vocabulary tree), so `run_sfm` starts `python -m seeu_data.ingest.sfm CONFIG.json` and turns any failure
 into a SeeUError. The child runs: the database's camera and images written in frame order ->
-SIFT extraction (one shared camera, `camera_model`) -> sequential matching (`overlap`: frames 1, 2, 4,
-..., 2**(overlap-1) apart; loop detection only with a vocabulary-tree file; verification RANSAC seeded
-per pair) -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.ingest.keyframes`)
+SIFT extraction (one camera of `camera_model` per frame size: portrait and landscape photos get one each)
+-> matching (`matcher`, see `seeu_data.ingest.match_graph.choose_matcher`): sequential for a video
+(`overlap`: frames 1, 2, 4, ..., 2**(overlap-1) apart; loop detection only with a vocabulary-tree file),
+exhaustive for an image folder of up to `EXHAUSTIVE_MAX_IMAGES` images, else sequential over
+`UNORDERED_OVERLAP` neighbours in name order; verification RANSAC seeded per pair -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.ingest.keyframes`)
 -> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
 it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`) ->
 a last global bundle adjustment of each mapped model with a robust loss (`final_ba_loss`, soft-L1 at
@@ -23,10 +25,11 @@ Output directory layout::
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
     points3d_<k>.npy        (P, 6) the 3D points of model k: world x y z, colour R G B (0-255)
 
-`result.json`: {"models": [{"index", "camera": {"model", "width", "height", "params",
-"fx", "fy", "cx", "cy"}, "undistorted": bool, "camera_distorted" (as mapped, when undistorted), "image_dir", "images": [{"name",
-"world_to_cam" (3x4)}], "num_points3D", "mean_reprojection_error"}], "discarded_models", "num_keypoints",
-"num_verified_pairs", "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
+`result.json`: {"models": [{"index", "cameras": [{"model", "width", "height", "params",
+"fx", "fy", "cx", "cy"}] (one per frame size; used after undistortion), "camera" (the one of most frames), "undistorted": bool,
+"camera_distorted" (as mapped, when undistorted; "cameras_distorted": all of them), "image_dir", "images": [{"name",
+"world_to_cam" (3x4), "camera" (index into "cameras")}], "num_points3D", "mean_reprojection_error"}], "discarded_models",
+"num_keypoints", "num_verified_pairs", "matcher": {"requested", "used", "overlap", "reason"}, "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed"[, "reason"], "planar_or_panoramic_pairs",
 "verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
@@ -59,12 +62,14 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
+from seeu_data.ingest.match_graph import EXHAUSTIVE_MAX_IMAGES, UNORDERED_OVERLAP
 from seeu_data.interrupts import end_process
 from seeu_data.limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
 from seeu_data.settings import setting
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
+MATCHERS = ("auto", "exhaustive", "sequential")
 FINAL_BA_LOSSES = ("none", "soft_l1", "cauchy", "huber")  # pycolmap.LossFunctionType, upper-cased
 # The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
 # (Ceres' default; COLMAP sets 0, iterating to the gradient tolerance): 12 iterations instead of 56 on
@@ -88,6 +93,16 @@ class SfmConfig:
         "SIMPLE_RADIAL", "shared camera model; models with distortion are undistorted", choices=CAMERA_MODELS
     )
     overlap: int = setting(10, "sequential matching overlap in frames")
+    # auto: a video sequential; an image folder exhaustive up to EXHAUSTIVE_MAX_IMAGES images, else
+    # sequential over UNORDERED_OVERLAP neighbours in name order (seeu_data.ingest.match_graph.choose_matcher)
+    matcher: str = setting(
+        "auto",
+        "which frame pairs are matched: sequential (frames 1, 2, 4, ... apart, --overlap), exhaustive (every "
+        "pair), or auto: sequential for a video; for an image folder exhaustive up to "
+        f"{EXHAUSTIVE_MAX_IMAGES} images, above that each image with the next {UNORDERED_OVERLAP} in name order "
+        "(recorded in report.json)",
+        choices=MATCHERS,
+    )
     vocab_tree: str | None = setting(None, "vocabulary-tree file: enables loop detection (default: off)")
     min_model_size: int = 10
     max_features: int = setting(8192, "SIFT features per frame")
@@ -172,6 +187,8 @@ class SfmConfig:
             raise SeeUError("vocabulary-tree file not found", self.vocab_tree)
         if self.mapper not in MAPPERS:
             raise SeeUError(f"--mapper must be one of {', '.join(MAPPERS)}, got {self.mapper!r}")
+        if self.matcher not in MATCHERS:
+            raise SeeUError(f"--matcher must be one of {', '.join(MATCHERS)}, got {self.matcher!r}")
         if self.features not in FEATURES:
             raise SeeUError(f"--features must be one of {', '.join(FEATURES)}, got {self.features!r}")
         if self.final_ba_loss not in FINAL_BA_LOSSES:
@@ -204,10 +221,12 @@ def run_sfm(
     config: SfmConfig,
     source: str | Path,
     progress=False,
+    video: bool = True,
 ) -> dict:
     """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
 
-    `source` names the user's input in error messages. `progress`: a `StageProgress` (or True for bars
+    `video`: the frames come from a video (ordered; `matcher` auto matches them sequentially) rather
+    than an image folder. `source` names the user's input in error messages. `progress`: a `StageProgress` (or True for bars
     only) that follows the child: stages `sfm extract` (images), `sfm match` (images), `sfm map`
     (registered images), read from the child's own lines and COLMAP's log lines as they come.
     Raises SeeUError when the child aborts, crashes, or reports that no model could be built.
@@ -221,6 +240,7 @@ def run_sfm(
         "image_dir": str(Path(image_dir).resolve()),
         "image_names": list(image_names),
         "out_dir": str(out_dir.resolve()),
+        "video": bool(video),
         "config": asdict(config),
     }
     (out_dir / "job.json").write_text(json.dumps(job, indent=1))
@@ -292,29 +312,37 @@ def _last_log_line(path: Path) -> str:
     return pick if len(pick) <= 200 else pick[:197] + "..."
 
 
-def _create_database(db_path: Path, first_image: Path, names: list[str], cfg: SfmConfig) -> None:
-    """Write the shared camera, its rig, and one frame + image per name, in frame order, before extraction.
+def _create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmConfig) -> None:
+    """Write the cameras (one per frame size, in order of first use, each with its rig) and one frame +
+    image per name, in frame order, before extraction.
 
     COLMAP's parallel extractor otherwise assigns image ids in completion order, which changes with the
     thread count and the machine's load; the ids fix the pair ids, the matching order and the mapper's
-    tie-breaks. The camera is the one the extractor would create (`default_focal_length_factor` x the
-    longer side, principal point at the centre); the extractor then adds the features of these images.
+    tie-breaks. Each camera is the one the extractor would create (`default_focal_length_factor` x the
+    longer side, principal point at the centre): a portrait and a landscape photo of one phone get the
+    same focal length in pixels, as separate cameras. The extractor then adds the features of these images.
     """
     import pycolmap
 
     from seeu_data.store.image_header import image_info
 
-    info = image_info(first_image.read_bytes(), str(first_image))
-    focal = pycolmap.ImageReaderOptions().default_focal_length_factor * max(info.width, info.height)
+    factor = pycolmap.ImageReaderOptions().default_focal_length_factor
     db = pycolmap.Database.open(db_path)
     try:
-        camera = pycolmap.Camera.create_from_model_name(1, cfg.camera_model, focal, info.width, info.height)
-        camera.camera_id = db.write_camera(camera)
-        rig = pycolmap.Rig()
-        rig.add_ref_sensor(camera.sensor_id)
-        rig_id = db.write_rig(rig)
+        cameras: dict[tuple[int, int], tuple[int, int]] = {}  # (width, height) -> (camera id, rig id)
         for name in names:
-            image = db.read_image(db.write_image(pycolmap.Image(name=name, camera_id=camera.camera_id)))
+            path = image_dir / name
+            info = image_info(path.read_bytes(), str(path))
+            size = (info.width, info.height)
+            if size not in cameras:
+                focal = factor * max(size)
+                camera = pycolmap.Camera.create_from_model_name(len(cameras) + 1, cfg.camera_model, focal, *size)
+                camera.camera_id = db.write_camera(camera)
+                rig = pycolmap.Rig()
+                rig.add_ref_sensor(camera.sensor_id)
+                cameras[size] = (camera.camera_id, db.write_rig(rig))
+            camera_id, rig_id = cameras[size]
+            image = db.read_image(db.write_image(pycolmap.Image(name=name, camera_id=camera_id)))
             frame = pycolmap.Frame()
             frame.rig_id = rig_id
             frame.add_data_id(image.data_id)
@@ -369,15 +397,15 @@ def map_with_retries(
         seconds = time.perf_counter() - t0
         for k, rec in mapped.items():
             n = rec.num_reg_images()
-            camera = next(iter(rec.cameras.values()))
             if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
                 continue
-            if camera.has_bogus_params(*_PLAUSIBLE_CAMERA):
+            bogus = [c for c in _model_cameras(rec) if c.has_bogus_params(*_PLAUSIBLE_CAMERA)]
+            if bogus:
                 rejected.append(
                     {
                         "index": int(k),
                         "registered": n,
-                        "reason": "implausible camera parameters " + ", ".join(f"{p:.3g}" for p in camera.params),
+                        "reason": "implausible camera parameters " + ", ".join(f"{p:.3g}" for p in bogus[0].params),
                     }
                 )
                 continue
@@ -515,6 +543,12 @@ class _Clock:
         self.cpu[name] = self.cpu.get(name, 0.0) + cpu - since[1]
 
 
+def _model_cameras(rec) -> list:
+    """The cameras of `rec`'s registered images, by camera id (one per frame size)."""
+    ids = sorted({rec.image(i).camera_id for i in rec.reg_image_ids()})
+    return [rec.cameras[c] for c in ids]
+
+
 def _camera_dict(camera) -> dict:
     K = camera.calibration_matrix()
     return {
@@ -597,19 +631,19 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     }
 
 
-def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool) -> dict:
-    """Cameras, poses and point depths of one reconstruction, as plain JSON/npy."""
+def _export_model(rec, index: int, image_dir: str, out: Path, cameras: dict[int, dict], undistorted: bool) -> dict:
+    """Cameras (`cameras`: {camera id: dict} of the registered images), poses and point depths of one
+    reconstruction, as plain JSON/npy."""
     import numpy as np
 
-    cams = {cid: _camera_dict(c) for cid, c in rec.cameras.items()}
-    if len(cams) != 1:
-        raise RuntimeError(f"expected one shared camera, model {index} has {len(cams)}")
+    camera_ids = sorted(cameras)
+    position = {cid: j for j, cid in enumerate(camera_ids)}
     images, depths = [], []
     points = {pid: p.xyz for pid, p in rec.points3D.items()}
     for iid in sorted(rec.reg_image_ids()):
         img = rec.image(iid)
         w2c = img.cam_from_world().matrix()
-        images.append({"name": img.name, "world_to_cam": np.asarray(w2c).tolist()})
+        images.append({"name": img.name, "world_to_cam": np.asarray(w2c).tolist(), "camera": position[img.camera_id]})
         pids = [p.point3D_id for p in img.points2D if p.has_point3D()]
         if pids:
             xyz = np.stack([points[p] for p in pids])
@@ -620,9 +654,11 @@ def _export_model(rec, index: int, image_dir: str, out: Path, undistorted: bool)
     xyz = np.array([points[p] for p in ids], np.float64).reshape(-1, 3)
     rgb = np.array([rec.points3D[p].color for p in ids], np.float64).reshape(-1, 3)
     np.save(out / f"points3d_{index}.npy", np.concatenate([xyz, rgb], 1))  # (M, 6) world xyz + RGB 0-255
+    uses = [sum(im["camera"] == j for im in images) for j in range(len(camera_ids))]
     return {
         "index": index,
-        "camera": next(iter(cams.values())),
+        "cameras": [cameras[c] for c in camera_ids],
+        "camera": cameras[camera_ids[uses.index(max(uses))]],  # the camera of most frames
         "undistorted": undistorted,
         "image_dir": image_dir,
         "images": images,
@@ -645,6 +681,7 @@ class _Job:
     names: list[str]
     db_path: Path
     clock: _Clock
+    video: bool = True
 
 
 @dataclass(frozen=True)
@@ -655,6 +692,7 @@ class Matches:
     num_pairs: int
     graph: dict
     motion_px: float | None
+    matcher: dict
 
 
 @dataclass(frozen=True)
@@ -685,7 +723,7 @@ def _extract(job: _Job) -> int:
     cfg, clock = job.cfg, job.clock
     _emit("stage", "extract", len(job.names))
     t0 = clock.mark()
-    _create_database(job.db_path, Path(job.image_dir) / job.names[0], job.names, cfg)
+    _create_database(job.db_path, Path(job.image_dir), job.names, cfg)
     reader = pycolmap.ImageReaderOptions()
     reader.camera_model = cfg.camera_model
     extraction = pycolmap.FeatureExtractionOptions()
@@ -696,7 +734,7 @@ def _extract(job: _Job) -> int:
         job.db_path,
         job.image_dir,
         image_names=job.names,
-        camera_mode=pycolmap.CameraMode.SINGLE,
+        camera_mode=pycolmap.CameraMode.AUTO,  # the images' cameras are in the database already
         reader_options=reader,
         extraction_options=extraction,
     )
@@ -712,17 +750,20 @@ def _extract(job: _Job) -> int:
 
 
 def _match(job: _Job) -> Matches:
-    """Sequential matching and two-view verification (RANSAC seeded per pair), then the facts read back."""
+    """Sequential or exhaustive matching (`choose_matcher`) and two-view verification (RANSAC seeded per
+    pair), then the facts read back."""
     import pycolmap
 
     from seeu_data.ingest.keyframes import consecutive_motion_px
-    from seeu_data.ingest.match_graph import match_graph_stats
+    from seeu_data.ingest.match_graph import choose_matcher, match_graph_stats
 
     cfg, clock = job.cfg, job.clock
+    matcher = choose_matcher(cfg.matcher, job.video, len(job.names), cfg.overlap)
     pairing = pycolmap.SequentialPairingOptions()
-    pairing.overlap = cfg.overlap
-    # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it)
-    pairing.quadratic_overlap = True
+    pairing.overlap = matcher["overlap"] or cfg.overlap
+    # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it), or
+    # (the fallback for a large image folder) every one of the next `overlap` images
+    pairing.quadratic_overlap = matcher["quadratic"]
     pairing.loop_detection = cfg.vocab_tree is not None
     if cfg.vocab_tree is not None:
         pairing.vocab_tree_path = str(cfg.vocab_tree)
@@ -738,18 +779,23 @@ def _match(job: _Job) -> Matches:
     # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
     # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
     verification.ransac.random_seed = cfg.random_seed
-    pycolmap.match_sequential(
-        job.db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
-    )
+    if matcher["used"] == "exhaustive":
+        pycolmap.match_exhaustive(job.db_path, matching_options=matching, verification_options=verification)
+    else:
+        pycolmap.match_sequential(
+            job.db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
+        )
     clock.add("match_s", t0)
     t0 = clock.mark()
     db = pycolmap.Database.open(job.db_path)
     num_pairs = int(db.num_verified_image_pairs())
     graph = match_graph_stats(db, job.names)
-    motion = consecutive_motion_px(db, job.names) if cfg.keyframe_motion > 0 else None
+    # keyframes are for sequentially matched frames (the stride relies on the quadratic overlap)
+    keyframes = cfg.keyframe_motion > 0 and matcher["quadratic"]
+    motion = consecutive_motion_px(db, job.names) if keyframes else None
     db.close()
     clock.add("map_s", t0)
-    return Matches(num_pairs, graph, motion)
+    return Matches(num_pairs, graph, motion, matcher)
 
 
 def _keyframes(names: list[str], motion_px: float | None, cfg: SfmConfig) -> Keyframes:
@@ -815,6 +861,16 @@ def map_processes(cfg: SfmConfig) -> int:
     return max(1, cores // cfg.map_threads)
 
 
+def _copy_database(src: Path, dst: Path) -> None:
+    """A consistent copy of the SQLite database `src` (SQLite's backup: pages still in a -wal file included)."""
+    import sqlite3
+
+    with sqlite3.connect(src) as a, sqlite3.connect(dst) as b:
+        a.backup(b)
+    a.close()
+    b.close()
+
+
 class _MapRuns:
     """Mapping runs, each in its own process (`python -m seeu_data.ingest.sfm --map RUN.json`, see
     `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/<seed>/. Every run, even
@@ -836,9 +892,12 @@ class _MapRuns:
     def _launch(self, seed: int) -> None:
         run_dir = self.root / str(seed)
         run_dir.mkdir()
+        # Each run maps its own copy of the database: COLMAP opens it for writing (global mapping writes
+        # to it), and two runs opening one file at once failed with "database is locked".
+        _copy_database(self.job.db_path, run_dir / "database.db")
         run = {
             "parent": os.getpid(),
-            "db_path": str(self.job.db_path),
+            "db_path": str(run_dir / "database.db"),
             "image_dir": self.job.image_dir,
             "dir": str(run_dir),
             "mapper": self.mapper,
@@ -990,28 +1049,39 @@ def _export(job: _Job, recs: dict, kept: list[int]) -> list[dict]:
         model_dir = out / "sparse" / str(k)
         model_dir.mkdir(exist_ok=True)
         rec.write(model_dir)
-        camera = next(iter(rec.cameras.values()))
-        distortion = _max_distortion_px(camera)
-        if camera.model.name in _UNDISTORTED_MODELS or distortion < cfg.max_negligible_distortion_px:
+        cameras = {int(c.camera_id): c for c in _model_cameras(rec)}  # one per frame size
+        distortion = max(_max_distortion_px(c) for c in cameras.values())
+        as_mapped = {cid: _camera_dict(c) for cid, c in cameras.items()}
+        pinhole_models = all(c.model.name in _UNDISTORTED_MODELS for c in cameras.values())
+        if pinhole_models or distortion < cfg.max_negligible_distortion_px:
             # Pinhole already, or distortion below a fraction of a pixel everywhere: the frames are
             # used as they are (no resampling, no crop, no second JPEG generation).
-            models.append(_export_model(rec, k, image_dir, out, undistorted=False))
+            models.append(_export_model(rec, k, image_dir, out, as_mapped, undistorted=False))
             models[-1]["distortion_max_px"] = distortion
             clock.add("export_s", t0)
             continue
-        # Same-size undistortion (seeu_data.undistort): the frames keep W x H, only the focal changes.
+        # Same-size undistortion (seeu_data.undistort), each camera's frames with it: the frames keep
+        # W x H, only the focal changes.
         und = out / "undistorted" / str(k) / "images"
-        reg_names = sorted(rec.image(i).name for i in rec.reg_image_ids())
         clock.add("export_s", t0)
         t0 = clock.mark()
-        pinhole = undistort_files(camera, image_dir, reg_names, und, jpeg_quality=95)
+        pinholes = {}
+        for cid, camera in cameras.items():
+            names = sorted(rec.image(i).name for i in rec.reg_image_ids() if rec.image(i).camera_id == cid)
+            pinholes[cid] = undistort_files(camera, image_dir, names, und, jpeg_quality=95)
         clock.add("undistort_s", t0)
         t0 = clock.mark()
-        models.append(_export_model(rec, k, str(und), out, undistorted=True))
-        models[-1]["camera"] = pinhole.as_dict()
-        models[-1]["camera_distorted"] = _camera_dict(camera)
-        models[-1]["distortion_max_px"] = distortion
-        models[-1]["undistortion"] = {"method": "same-size pinhole, focal x scale", "scale": pinhole.scale}
+        model = _export_model(rec, k, str(und), out, {c: p.as_dict() for c, p in pinholes.items()}, undistorted=True)
+        primary = next(c for c in cameras if pinholes[c].as_dict() == model["camera"])
+        model["camera_distorted"] = as_mapped[primary]
+        model["cameras_distorted"] = [as_mapped[c] for c in sorted(cameras)]
+        model["distortion_max_px"] = distortion
+        model["undistortion"] = {
+            "method": "same-size pinhole, focal x scale",
+            "scale": pinholes[primary].scale,
+            "scales": [pinholes[c].scale for c in sorted(cameras)],
+        }
+        models.append(model)
         clock.add("export_s", t0)
     return models
 
@@ -1023,7 +1093,9 @@ def _child(job_path: str) -> int:
     db_path = out / "database.db"
     for stale in (db_path, *(db_path.with_name(db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
         stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
-    job = _Job(SfmConfig(**raw["config"]), out, raw["image_dir"], raw["image_names"], db_path, _Clock())
+    job = _Job(
+        SfmConfig(**raw["config"]), out, raw["image_dir"], raw["image_names"], db_path, _Clock(), raw.get("video", True)
+    )
     try:
         num_kp = _extract(job)
         matches = _match(job)
@@ -1043,6 +1115,7 @@ def _child(job_path: str) -> int:
         "discarded_models": discarded,
         "num_keypoints": num_kp,
         "num_verified_pairs": matches.num_pairs,
+        "matcher": matches.matcher,
         "mapping_attempts": mapped.attempts,
         "mapper": mapped.mapper_info,
         "solution_check": mapped.check,

@@ -229,6 +229,8 @@ def iter_frames(source: SceneSource, stride: int = 1) -> Iterator[DecodedFrame]:
         for i, f in enumerate(source.image_files):
             if i % stride:
                 continue
+            # IMREAD_COLOR applies the EXIF orientation (a phone's portrait photo stored landscape with
+            # orientation 6 comes out upright, portrait); IMREAD_IGNORE_ORIENTATION would not
             bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
             if bgr is None:
                 raise SeeUError("cannot be decoded as an image (corrupt?)", f)
