@@ -16,11 +16,12 @@ from __future__ import annotations
 
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_FRAMES, MAX_SAMPLES, check_range
+from seeu_data.settings import parse_frame_counts, parse_int_path, parse_names, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
 
@@ -34,41 +35,58 @@ MODEL_VARIANTS: dict[str, tuple[str, dict]] = {
     "blip2": ("BLIP-2 Embedding", {"condition": "blip2"}),
 }
 DEFAULT_VARIANTS = ("full", "no_refiner", "unet", "cls")
+DEFAULT_EXT_RANGES = (0, 45, 90)  # extrapolation ranges (frames) built from --posed
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AblateConfig:
     """One `seeu ablate` run.
 
     config: the shared training config; data: training shards of the model variants; eval_data: the
     evaluation shards (the same for every variant); out: the output directory; variants: names of
-    MODEL_VARIANTS; ext_data: {N: training shards with extrapolation range N} (adds variant extN);
+    MODEL_VARIANTS; ext_data: (N, training shards with extrapolation range N) pairs (adds variant extN);
     posed / ext_ranges: build those shards here from posed frames; overrides: config overrides for
     every variant; max_eval_samples: 0 = all; lpips: False trains with MSE only and leaves LPIPS out
     of the table; progress: bars (None: the config's log.progress).
     """
 
-    config: str | Path
-    data: str
-    eval_data: str
+    config: str | Path = setting(help="the shared training config (equal budget for all)")
+    data: str = setting(help="training shards of the model variants")
+    eval_data: str = setting(help="evaluation shards (same for every variant)", flag="--eval")
     out: str | Path
-    variants: tuple[str, ...] = DEFAULT_VARIANTS
-    ext_data: dict[int, str] = field(default_factory=dict)
-    posed: str | None = None
-    ext_ranges: tuple[int, ...] = ()
-    overrides: tuple[str, ...] = ()
-    max_eval_samples: int = 0
-    lpips: bool = True
-    lpips_weights: str | None = None
-    device: str | None = None
+    variants: tuple[str, ...] = setting(
+        DEFAULT_VARIANTS,
+        f"comma list of {', '.join(MODEL_VARIANTS)} (default {','.join(DEFAULT_VARIANTS)})",
+        parse=parse_names,
+    )
+    ext_data: tuple[tuple[int, str], ...] = setting(
+        (),
+        "training shards with extrapolation range N frames (adds variant extN; repeat for more)",
+        parse=parse_int_path,
+        many=True,
+        metavar="N=PATH",
+    )
+    posed: str | None = setting(None, "posed frames to build the extrapolation-range shards from")
+    ext_ranges: tuple[int, ...] = setting(
+        DEFAULT_EXT_RANGES,
+        f"with --posed: ranges to build (default {','.join(map(str, DEFAULT_EXT_RANGES))})",
+        parse=parse_frame_counts,
+    )
+    max_eval_samples: int = setting(0, "evaluate at most N samples per variant; 0: all")
+    lpips_weights: str | None = setting(None, "torchvision's vgg16-397923af.pth", metavar="PATH")
+    lpips: bool = setting(True, "MSE-only training and no LPIPS in the table")
+    device: str | None = setting(None, "cpu or cuda (default: cuda when available)")
     progress: bool | None = None
+    overrides: tuple[str, ...] = setting(
+        (), "config overrides for every variant", positional=True, many=True, optional=True, metavar="KEY=VALUE"
+    )
 
     def check(self) -> None:
         unknown = [v for v in self.variants if v not in MODEL_VARIANTS]
         if unknown:
             raise SeeUError(f"unknown variant(s) {', '.join(unknown)}; choose from {', '.join(MODEL_VARIANTS)}")
         check_range(self.max_eval_samples, "--max-eval-samples", 0, MAX_SAMPLES)
-        for n in (*self.ext_ranges, *self.ext_data):
+        for n in (*self.ext_ranges, *dict(self.ext_data)):
             check_range(n, "extrapolation range (frames)", 0, MAX_FRAMES)
 
 

@@ -28,10 +28,11 @@ from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_BATCH_SIZE, MAX_IMAGE_SIDE, MAX_PIXELS, MAX_SAMPLES, MAX_WORKERS, check_range
+from seeu_data.settings import parse_dims, setting
 from seeu_data.store.out_lock import locks_output
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class EvalConfig:
     """One `seeu eval` run.
 
@@ -45,22 +46,28 @@ class EvalConfig:
     it before Chamfer (DTU: 200 -> mm).
     """
 
-    checkpoint: str | Path
-    data: str
-    out: str | Path | None = None
-    batch_size: int = 1
-    image_size: tuple[int, int] | None = None
-    max_samples: int = 0
-    warmup: int = 2
-    lpips: bool = True
-    lpips_weights: str | None = None
-    device: str | None = None
-    rasterizer: str | None = None
-    num_workers: int = 0
+    checkpoint: str | Path = setting(help="a ckpt-*.pt file or a directory (its newest checkpoint)")
+    data: str = setting(help="evaluation triple shards (seeu build --mode eval, or interp/extrap)")
+    out: str | Path | None = setting(None, "output directory (default: RUN/eval/<data name>)", metavar="OUT")
+    batch_size: int = setting(1, "samples per batch")
+    image_size: tuple[int, int] | None = setting(
+        None, "default: the training image size", parse=parse_dims, metavar="HxW"
+    )
+    max_samples: int = setting(0, "evaluate at most N samples; 0: all")
+    warmup: int = setting(2, "batches run before timing starts")
+    lpips_weights: str | None = setting(None, "torchvision's vgg16-397923af.pth", metavar="PATH")
+    lpips: bool = setting(True, "skip LPIPS (reported as null)")
+    device: str | None = setting(None, "cpu or cuda (default: cuda when available)")
+    rasterizer: str | None = setting(None, "auto | torch | gsplat (default: the training config's)")
+    num_workers: int = setting(0, "data loader worker processes")
     progress: bool = False
-    depth_gt: str | Path | None = None
-    points_gt: str | Path | None = None
-    geometry_scale: float = 1.0
+    depth_gt: str | Path | None = setting(
+        None, "ground-truth depth maps DIR/<scene_id>/<frame_index:06d>.npy|.pfm -> depth RMSE", metavar="DIR"
+    )
+    points_gt: str | Path | None = setting(
+        None, "ground-truth points DIR/<scene_id>/points.npy|.ply [+ obs_mask.npz] -> DTUeval Chamfer", metavar="DIR"
+    )
+    geometry_scale: float = setting(1.0, "multiply predicted points by this before Chamfer (DTU: 200 -> mm)")
     max_pixels: int = MAX_PIXELS  # largest image (width x height) decoded, `--max-pixels`
 
     def check(self) -> None:

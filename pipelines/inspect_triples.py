@@ -1,6 +1,7 @@
 """Statistics of a triples directory and a contact sheet of sample triples (`seeu inspect`).
 
-`triple_statistics` reports rows, shards, bytes, scenes, modes, views per example, the context gap
+`inspect_triples(InspectConfig(path=...))` is `seeu inspect`: the statistics, and the contact sheet
+when `sheet` is given. `triple_statistics` reports rows, shards, bytes, scenes, modes, views per example, the context gap
 distribution, the target offsets (inside the pair / before / after, range), image sizes and bytes per
 view, and the build report; it reads no image pixels. `contact_sheet` draws N evenly spaced examples,
 one row each: contexts then targets, labelled with frame index and offset.
@@ -15,9 +16,23 @@ Example:
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+
+from seeu_data.settings import setting
+
+
+@dataclass(frozen=True)
+class InspectConfig:
+    """One `seeu inspect` run: `path` a triples directory; `verify` checks every shard's sha256;
+    `sheet` a PNG to draw `sheet_rows` examples on (None: no sheet)."""
+
+    path: Path = setting(help="triples directory (holds manifest.json)", positional=True)
+    sheet: Path | None = setting(None, "write a contact sheet of sample triples", metavar="OUT.png")
+    sheet_rows: int = setting(6, "examples on the contact sheet")
+    verify: bool = setting(False, "check every shard's sha256 against the manifest")
 
 
 def _hist(values: np.ndarray, bins: int = 10) -> dict:
@@ -151,3 +166,11 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
     fig.savefig(buf, format="png")
     atomic_write_bytes(out, buf.getvalue())
     return [r.sample_id for r in rows]
+
+
+def inspect_triples(cfg: InspectConfig) -> dict:
+    """`triple_statistics` of `cfg.path`, with stats["sheet"] = {"path", "samples"} when a sheet was drawn."""
+    stats = triple_statistics(cfg.path, verify=cfg.verify)
+    if cfg.sheet is not None:
+        stats["sheet"] = {"path": str(cfg.sheet), "samples": contact_sheet(cfg.path, cfg.sheet, cfg.sheet_rows)}
+    return stats

@@ -20,6 +20,7 @@ from pathlib import Path
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_IMAGE_SIDE, check_range
+from seeu_data.settings import parse_dims, setting
 
 MVSPLAT_PARAMS = 12.0e6  # REFERENCE.md: MVSplat's total
 PRESETS = ("paper", "cpu_small", "tiny", "mvsplat")
@@ -31,14 +32,16 @@ class ModelInfoConfig:
     the preset's); shapes: run one CPU forward pass on random 2-view inputs of `size` (None: the preset's)
     (H, W) and report the intermediate shapes; json_out: also write the result there."""
 
-    preset: str = "paper"
-    refiner: str | None = None
-    condition: str | None = None
-    sh_degree: int | None = None
-    depth_candidates: int | None = None
-    shapes: bool = False
-    size: tuple[int, int] | None = None  # (H, W)
-    json_out: Path | None = None
+    preset: str = setting("paper", "model preset", choices=PRESETS)
+    refiner: str | None = setting(None, "override the refiner (ablation)", choices=("none", "unet", "transformer"))
+    condition: str | None = setting(None, "override the condition (ablation)", choices=("cls", "cea", "clip", "blip2"))
+    sh_degree: int | None = setting(None, "override the SH degree")
+    depth_candidates: int | None = setting(None, "override the number of depth candidates D")
+    shapes: bool = setting(False, "run one forward pass and print intermediate shapes")
+    size: tuple[int, int] | None = setting(  # (H, W)
+        None, "image size for --shapes, e.g. 64 or 64x96 (default: the preset's)", parse=parse_dims, metavar="HxW"
+    )
+    json_out: Path | None = setting(None, "also write the counts as JSON", flag="--json", metavar="PATH")
 
     def check(self) -> None:
         if self.preset not in PRESETS:

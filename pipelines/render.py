@@ -27,30 +27,35 @@ from typing import TYPE_CHECKING
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_RENDER_FRAMES, check_range
+from seeu_data.settings import parse_dims, setting
 from seeu_data.store.json_file import read_json
 
 if TYPE_CHECKING:
     import torch
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RenderConfig:
     """One `seeu render` run: exactly one of `data` (triple shards; `sample` picks the example) and
     `cameras` (a cameras JSON); `frames` per path; `extrapolate` e; `fps` of the MP4s; `image_size`
     (H, W) (None: the training size); `device` (None: cuda when available); `rasterizer` auto | torch
     | gsplat (None: the training config's)."""
 
-    checkpoint: str | Path
+    checkpoint: str | Path = setting(help="a ckpt-*.pt file or a directory (its newest checkpoint)")
+    data: str | None = setting(None, "triple shards to take the context views from", required=True, exclusive="source")
+    cameras: str | Path | None = setting(
+        None, "JSON with your own context images and cameras (see above)", required=True, exclusive="source"
+    )
+    sample: str = setting("0", "with --data: sample index (in manifest order) or sample_id")
     out: str | Path
-    data: str | None = None
-    sample: str = "0"
-    cameras: str | Path | None = None
-    frames: int = 30
-    extrapolate: float = 0.5
-    fps: float = 10.0
-    image_size: tuple[int, int] | None = None
-    device: str | None = None
-    rasterizer: str | None = None
+    frames: int = setting(30, "frames per path")
+    extrapolate: float = setting(0.5, "extrapolated path runs from t=-e to 1+e")
+    fps: float = setting(10.0, "frame rate of the MP4s")
+    image_size: tuple[int, int] | None = setting(
+        None, "default: the training image size", parse=parse_dims, metavar="HxW"
+    )
+    device: str | None = setting(None, "default: cuda when available")
+    rasterizer: str | None = setting(None, "auto | torch | gsplat (default: the training config's)")
 
     def check(self) -> None:
         check_range(self.frames, "--frames", 2, MAX_RENDER_FRAMES)

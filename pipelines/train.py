@@ -27,12 +27,15 @@ from typing import Any
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS, MAX_STEPS, check_range
+from seeu_data.settings import setting
 from seeu_data.store.out_lock import locks_output
+from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, NONFINITE_POLICIES, TrainConfig
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TrainRunConfig:
-    """One training run.
+    """One training run; each field declared with `setting` is a flag of `seeu train` (the training
+    hyper-parameters are the config file's, changed by the `overrides`).
 
     data / val: training and validation triple shards (directories or object-storage URLs); out: the
     run directory; config: a config file or a preset name (None: the defaults, or the resumed
@@ -47,21 +50,39 @@ class TrainRunConfig:
     run would; model_factory(model_section) -> (module, model_config_dict) replaces the SeeU model (tests).
     """
 
-    data: str
+    data: str = setting(help="training triple shards (directory or object-storage URL)")
+    val: str | None = setting(None, "validation triple shards (evaluated every log.val_every steps)")
+    config: str | Path | None = setting(
+        None, "config file, or a shipped preset by name: re10k_paper, cpu_small, cpu_tiny, demo (configs/*.json)"
+    )
     out: str | Path
-    config: str | Path | None = None
-    overrides: tuple[str, ...] = ()
-    max_steps: int | None = None
-    val: str | None = None
-    resume: bool | str | Path | None = None
-    init_from: str | Path | None = None
-    lpips: bool = True
-    lpips_weights: str | None = None
-    device: str | None = None
+    resume: bool | str | Path | None = setting(
+        None, "continue from the newest checkpoint in OUT (or from CKPT)", const=True, metavar="CKPT"
+    )
+    init_from: str | Path | None = setting(
+        None,
+        "start from the weights (and model config) of a SeeU checkpoint, e.g. one written by "
+        "`seeu convert-checkpoint mvsplat`; step, optimizer and schedule start afresh",
+        metavar="CKPT",
+    )
+    lpips_weights: str | None = setting(None, "torchvision's vgg16-397923af.pth", metavar="PATH")
+    lpips: bool = setting(True, "train with MSE only (loss.lpips_weight=0)")
+    device: str | None = setting(None, "cpu, cuda, cuda:1 (default: this rank's GPU, else CPU)")
+    max_steps: int | None = setting(None, "shortcut for optim.max_steps=N")
+    on_nonfinite: str | None = setting(
+        None,
+        "a step whose loss, gradients or weights hold NaN/inf: stop = exit 2 naming the step and the "
+        "batch's samples, the last good checkpoint stays the newest; skip-batch = drop that batch's update "
+        f"and go on ({MAX_CONSECUTIVE_SKIPS} such batches in a row stop the run as well; weights that went "
+        f"non-finite always stop). Default: the config's on_nonfinite ({TrainConfig.on_nonfinite})",
+        choices=NONFINITE_POLICIES,
+    )
     progress: bool | None = None
+    overrides: tuple[str, ...] = setting(
+        (), "config overrides, e.g. optim.lr=1e-4", positional=True, many=True, optional=True, metavar="KEY=VALUE"
+    )
     stop_after: int | None = None
     model_factory: Callable | None = None
-    on_nonfinite: str | None = None
 
     def check(self) -> None:
         if self.stop_after is not None:

@@ -44,17 +44,22 @@ def setting(
     parse: Parser | None = None,
     positional: bool = False,
     many: bool = False,
+    optional: bool = False,
     required: bool = False,
     aliases: Sequence[str] = (),
     exclusive: str | None = None,
+    const: Any = None,
 ) -> Any:
     """A config field that is a user setting (see the module docstring).
 
     flag: the flag when it is not `--<name-with-dashes>` (a bool whose default is True gets `--no-<name>`;
     `flag` names another inverting flag, e.g. `--keep-applied-transform` for `undo_applied_transform`);
     parse: text -> value (`parse_*` below), for values that are not a plain int/float/str/Path;
-    positional / many: a positional argument (`many`: one or more, a tuple); required: a flag that must be given;
-    aliases: more names of the flag (`-V`); exclusive: a group name, settings sharing it may not be given together.
+    positional / many / optional: a positional argument (`many`: one or more, a tuple; `optional`: it may
+    be left out, `many` and `optional`: zero or more); `many` on a flag: the flag may be repeated, each value parsed, a tuple of them;
+    required: a flag that must be given (on `exclusive` settings: one of the group must be given);
+    aliases: more names of the flag (`-V`); exclusive: a group name, settings sharing it may not be given together;
+    const: the flag may be given without a value, which then is `const` (`--resume` = True, `--resume CKPT`).
     `help` says what the value does; the default is appended from `default` (None: say in `help` what
     happens, e.g. "(default: all)").
     """
@@ -66,9 +71,11 @@ def setting(
         "parse": parse,
         "positional": positional,
         "many": many,
+        "optional": optional,
         "required": required,
         "aliases": tuple(aliases),
         "exclusive": exclusive,
+        "const": const,
     }
     if default is MISSING:
         return field(metadata=meta)
@@ -165,6 +172,27 @@ def parse_int_list(text: str, flag: str) -> tuple[int, ...]:
     if not values:
         raise SeeUError(f"{flag} {text!r} is not a list of integers (e.g. 1,8,21)")
     return values
+
+
+def parse_names(text: str, flag: str) -> tuple[str, ...]:
+    """'full, unet' -> ('full', 'unet'): names separated by commas (`--variants`; the stage checks them)."""
+    return tuple(v.strip() for v in str(text).split(",") if v.strip())
+
+
+def parse_frame_counts(text: str, flag: str) -> tuple[int, ...]:
+    """'0,45,90' -> (0, 45, 90) (`--ext-ranges`)."""
+    try:
+        return tuple(int(x) for x in str(text).split(",") if x.strip())
+    except ValueError:
+        raise SeeUError(f"{flag} {text!r} is not a list of frame counts (e.g. 0,45,90)") from None
+
+
+def parse_int_path(text: str, flag: str) -> tuple[int, str]:
+    """'45=PATH' -> (45, 'PATH'): a count and a path (one `--ext-data N=PATH`)."""
+    n, _, path = str(text).partition("=")
+    if not n.strip().isdigit() or not path:
+        raise SeeUError(f"{flag} {text!r} is not N=PATH")
+    return int(n), path
 
 
 def parse_pixels(text: str, flag: str = "--max-pixels") -> int:

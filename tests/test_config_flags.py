@@ -1,5 +1,5 @@
 """Flags made from config declarations (seeu_data/settings.py, pipelines/cli/config_flags.py): every
-flag of `seeu ingest` and `seeu import` maps to exactly one config field and back, the help states the
+flag of every `seeu` command maps to exactly one config field and back, the help states the
 declared default, and the values given on the command line arrive in the config."""
 
 from __future__ import annotations
@@ -39,12 +39,35 @@ def _flag_dests(parser: argparse.ArgumentParser) -> dict[str, str]:
 def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple[str, ...], tuple[str, ...]]]:
     """(argv naming the (sub)command, its config classes, its shared flags (dest -> config field), the
     settings it leaves out (SKIP), the flags the CLI reads itself (where to write or what to read))."""
+    from pipelines.ablate import AblateConfig
     from pipelines.build import BuildConfig
+    from pipelines.cli import (
+        ablate,
+        check_cameras,
+        convert_checkpoint,
+        demo,
+        evaluate,
+        export,
+        index,
+        inspect_cmd,
+        model_info,
+        predict,
+        render,
+        synth,
+        train,
+        validate,
+        view,
+    )
     from pipelines.cli import build as build_cli
-    from pipelines.cli import check_cameras, demo, export, index, predict, synth, validate, view
+    from pipelines.convert_checkpoint import ConvertConfig
     from pipelines.demo import DemoConfig
+    from pipelines.evaluate import EvalConfig
     from pipelines.index import IndexFileConfig
+    from pipelines.inspect_triples import InspectConfig
+    from pipelines.model_info import ModelInfoConfig
     from pipelines.predict import PredictConfig
+    from pipelines.render import RenderConfig
+    from pipelines.train import TrainRunConfig
     from pipelines.validate import ValidateConfig
     from pipelines.view import ViewConfig
     from seeu_data.camera_check import CameraCheckConfig
@@ -61,6 +84,13 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
         (("check-cameras",), [CameraCheckConfig], check_cameras.SHARED_FLAGS, (), ()),
         (("view",), [ViewConfig], view.SHARED_FLAGS, (), ()),
         (("predict",), [PredictConfig], predict.SHARED_FLAGS, (), ()),
+        (("train",), [TrainRunConfig], train.SHARED_FLAGS, (), ()),
+        (("eval",), [EvalConfig], evaluate.SHARED_FLAGS, (), ()),
+        (("render",), [RenderConfig], render.SHARED_FLAGS, (), ()),
+        (("ablate",), [AblateConfig], ablate.SHARED_FLAGS, (), ()),
+        (("model-info",), [ModelInfoConfig], model_info.SHARED_FLAGS, (), ()),
+        (("inspect",), [InspectConfig], {}, (), inspect_cmd.OWN_FLAGS),
+        (("convert-checkpoint",), [ConvertConfig], convert_checkpoint.SHARED_FLAGS, (), ()),
     ]
     out += [(("import", f), [cls, ImportConfig], import_shared, (), ()) for f, (cls, _) in IMPORTERS.items()]
     formats = export._formats().items()
@@ -96,6 +126,54 @@ def test_every_flag_is_one_config_field_and_back(argv, classes, shared, skip, ow
     missing = [p for p in settings if p not in mapped and p not in skip]
     assert not missing, f"settings without a flag: {missing}"
     assert set(own) | set(shared) <= set(dests.values())
+
+
+def test_every_command_is_generated():
+    from pipelines.cli import available_commands
+
+    assert {argv[0] for argv, *_ in COMMANDS} == set(available_commands())
+
+
+def test_run_flags_arrive_in_the_stage_configs(tmp_path, capsys):
+    from pipelines.ablate import AblateConfig
+    from pipelines.convert_checkpoint import ConvertConfig
+    from pipelines.evaluate import EvalConfig
+    from pipelines.render import RenderConfig
+    from pipelines.train import TrainRunConfig
+
+    train = ["train", "--data", "d", "--out", "r"]
+    cfg = config_from_args(
+        TrainRunConfig, _parse([*train, "--resume", "--no-lpips", "optim.lr=1e-4", "log.every=2"]), out="r"
+    )
+    assert cfg.resume is True and cfg.lpips is False and cfg.overrides == ("optim.lr=1e-4", "log.every=2")
+    assert cfg.val is None and cfg.max_steps is None and cfg.on_nonfinite is None
+    cfg = config_from_args(TrainRunConfig, _parse([*train, "--resume", "c.pt", "--max-steps", "5"]), out="r")
+    assert cfg.resume == "c.pt" and cfg.max_steps == 5 and cfg.overrides == () and cfg.lpips is True
+    ablate_argv = ["ablate", "--config", "c", "--data", "d", "--eval", "e", "--out", "o"]
+    ablate = config_from_args(AblateConfig, _parse([*ablate_argv, "--ext-data", "0=a"]), out="o")
+    assert ablate.eval_data == "e" and ablate.ext_data == ((0, "a"),) and ablate.ext_ranges == (0, 45, 90)
+    args = _parse([*ablate_argv, "--ext-data", "0=a", "--ext-data", "90=b", "--variants", "full, unet", "x.y=1"])
+    ablate = config_from_args(AblateConfig, args, out="o")
+    assert ablate.ext_data == ((0, "a"), (90, "b")) and ablate.variants == ("full", "unet")
+    assert ablate.overrides == ("x.y=1",)
+    for bad, line in (("--ext-data", "9"), "--ext-data '9' is not N=PATH"), (("--ext-ranges", "0,x"), "frame counts"):
+        with pytest.raises(SeeUError, match=line):
+            config_from_args(AblateConfig, _parse([*ablate_argv, *bad]), out="o")
+    ev = config_from_args(EvalConfig, _parse(["eval", "--checkpoint", "c", "--data", "d", "--image-size", "32x48"]))
+    assert ev.image_size == (32, 48) and ev.out is None and ev.batch_size == 1 and ev.lpips is True
+    args = _parse(["render", "--checkpoint", "c", "--cameras", "v.json", "--out", "o"])
+    render = config_from_args(RenderConfig, args, out="o")
+    assert render.cameras == "v.json" and render.data is None and render.frames == 30
+    conv = config_from_args(ConvertConfig, _parse(["convert-checkpoint", "mvsplat", "m.ckpt", "--out", "o"]), out="o")
+    assert conv == ConvertConfig(format="mvsplat", checkpoint="m.ckpt", out="o", allow_incomplete=False)
+    for argv, err in (
+        (["render", "--checkpoint", "c", "--out", "o"], "one of the arguments --data --cameras is required"),
+        (["render", "--checkpoint", "c", "--data", "d", "--cameras", "v", "--out", "o"], "not allowed with"),
+        (["convert-checkpoint", "other", "m.ckpt", "--out", "o"], "invalid choice: 'other'"),
+    ):
+        with pytest.raises(SystemExit):
+            _parse(argv)
+        assert err in capsys.readouterr().err
 
 
 def test_nested_configs_are_walked():

@@ -23,73 +23,26 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from pipelines.ablate import DEFAULT_VARIANTS, MODEL_VARIANTS
+from pipelines.cli.config_flags import add_config_flags, config_from_args
 from pipelines.cli.options import add_out, add_progress
-from seeu_data.errors import SeeUError
+
+# The shared flags (pipelines/cli/options.py) and the AblateConfig fields they set; every other flag
+# comes from a `setting` of AblateConfig. --progress is passed on as given (None: the config's
+# log.progress, default on a terminal).
+SHARED_FLAGS = {"out": "out", "progress": "progress"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", required=True, help="the shared training config (equal budget for all)")
-    parser.add_argument("--data", required=True, help="training shards of the model variants")
-    parser.add_argument("--eval", required=True, dest="eval_data", help="evaluation shards (same for every variant)")
+    from pipelines.ablate import AblateConfig
+
+    add_config_flags(parser, AblateConfig)
     add_out(parser, "output directory: one run per variant (OUT/<variant>), ablation.md and ablation.csv")
-    parser.add_argument(
-        "--variants",
-        default=",".join(DEFAULT_VARIANTS),
-        help=f"comma list of {', '.join(MODEL_VARIANTS)} (default {','.join(DEFAULT_VARIANTS)})",
-    )
-    parser.add_argument(
-        "--ext-data",
-        action="append",
-        default=[],
-        metavar="N=PATH",
-        help="training shards with extrapolation range N frames (adds variant extN)",
-    )
-    parser.add_argument("--posed", default=None, help="posed frames to build the extrapolation-range shards from")
-    parser.add_argument("--ext-ranges", default="0,45,90", help="with --posed: ranges to build (default 0,45,90)")
-    parser.add_argument("--max-eval-samples", type=int, default=0)
-    parser.add_argument("--lpips-weights", default=None, metavar="PATH")
-    parser.add_argument("--no-lpips", action="store_true", help="MSE-only training and no LPIPS in the table")
-    parser.add_argument("--device", default=None)
     add_progress(parser)
-    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides for every variant")
-
-
-def parse_ext_data(items: list[str]) -> dict[int, str]:
-    """`--ext-data N=PATH` (repeated) -> {N: PATH}."""
-    ext: dict[int, str] = {}
-    for item in items:
-        n, _, path = item.partition("=")
-        if not n.strip().isdigit() or not path:
-            raise SeeUError(f"--ext-data {item!r} is not N=PATH")
-        ext[int(n)] = path
-    return ext
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.ablate import AblateConfig, ablate
 
-    try:
-        ranges = tuple(int(x) for x in args.ext_ranges.split(",") if x.strip()) if args.posed else ()
-    except ValueError:
-        raise SeeUError(f"--ext-ranges {args.ext_ranges!r} is not a list of frame counts (e.g. 0,45,90)") from None
-    rows = ablate(
-        AblateConfig(
-            config=args.config,
-            data=args.data,
-            eval_data=args.eval_data,
-            out=args.out,
-            variants=tuple(v.strip() for v in args.variants.split(",") if v.strip()),
-            ext_data=parse_ext_data(args.ext_data),
-            posed=args.posed,
-            ext_ranges=ranges,
-            overrides=tuple(args.overrides),
-            max_eval_samples=args.max_eval_samples,
-            lpips=not args.no_lpips,
-            lpips_weights=args.lpips_weights,
-            device=args.device,
-            progress=args.progress,  # None: the config's log.progress (default: on a terminal)
-        )
-    )
+    rows = ablate(config_from_args(AblateConfig, args, out=args.out, progress=args.progress))
     print((Path(args.out) / "ablation.md").read_text())
     return 0 if rows else 1

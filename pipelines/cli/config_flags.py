@@ -6,9 +6,10 @@ and the config read back from the parsed flags: each setting is declared once, i
 
 Rules: `--<name-with-dashes>` (or the setting's `flag`); an int, float, str or Path value is converted
 by argparse, any other by the setting's `parse`; a bool whose default is False is a switch, one whose
-default is True a `--no-<name>` switch that sets it False; choices and the default come into the help
-from the declaration (unless the help already says what the default is). Nested configs' settings are flattened into one flag namespace (a name used
-twice is an error when the parser is built).
+default is True a `--no-<name>` switch that sets it False; a `many` flag may be repeated (a tuple of
+its parsed values), a `const` one given without a value; choices and the default come into the help
+from the declaration (unless the help already says what the default is). Nested configs' settings are
+flattened into one flag namespace (a name used twice is an error when the parser is built).
 """
 
 from __future__ import annotations
@@ -78,7 +79,7 @@ def settings_of(cls: type, prefix: str = "") -> list[Setting]:
 def _help(s: Setting) -> str:
     text = s.meta["help"]
     default = s.field.default
-    if s.kind is not bool and default not in (MISSING, None) and "default" not in text:
+    if s.kind is not bool and default not in (MISSING, None, ()) and "default" not in text:
         shown = "x".join(map(str, default)) if isinstance(default, tuple) else default
         text += f" (default {shown})"
     return text.replace("%", "%%")
@@ -90,22 +91,25 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
     added: list[Setting] = []
     seen: dict[str, str] = {}
     groups: dict[str, Flags] = {}
-    for s in settings_of(cls):
-        if s.path in skip:
-            continue
+    wanted = [s for s in settings_of(cls) if s.path not in skip]
+    required_groups = {s.meta["exclusive"] for s in wanted if s.meta["exclusive"] is not None and s.meta["required"]}
+    for s in wanted:
         if s.flag in seen:
             raise ValueError(f"{cls.__name__}: {s.path} and {seen[s.flag]} both want {s.flag}")
         seen[s.flag] = s.path
         meta = s.meta
-        if meta["exclusive"] is not None and meta["exclusive"] not in groups:
-            groups[meta["exclusive"]] = p.add_mutually_exclusive_group()  # type: ignore[attr-defined]
-        target = groups[meta["exclusive"]] if meta["exclusive"] is not None else p
+        group = meta["exclusive"]
+        if group is not None and group not in groups:
+            groups[group] = p.add_mutually_exclusive_group(required=group in required_groups)  # type: ignore[attr-defined]
+        target = groups[group] if group is not None else p
         names = (s.flag, *meta["aliases"])
         kwargs: dict[str, Any] = {"help": _help(s)}
         if meta["positional"]:
-            kwargs["nargs"] = "+" if meta["many"] else None
+            if meta["many"] or meta["optional"]:
+                kwargs["nargs"] = ("*" if meta["many"] else "?") if meta["optional"] else "+"
             kwargs["type"] = s.kind if s.kind in (int, float, Path) else None
             kwargs["metavar"] = meta["metavar"]
+            kwargs["choices"] = meta["choices"]
             p.add_argument(s.path, **{k: v for k, v in kwargs.items() if v is not None})
         elif s.kind is bool:
             action = "store_false" if s.field.default is True else "store_true"
@@ -117,7 +121,10 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
                 default=None,
                 metavar=meta["metavar"] or (None if meta["choices"] else s.field.name.upper()),
                 choices=meta["choices"],
-                required=meta["required"] or (not default_given and not meta["positional"]),
+                required=group is None and (meta["required"] or not default_given),
+                action="append" if meta["many"] else None,
+                nargs="?" if meta["const"] is not None else None,
+                const=meta["const"],
             )
             if s.kind in (int, float, Path) and meta["parse"] is None:
                 kwargs["type"] = s.kind
@@ -141,9 +148,10 @@ def config_from_args(cls: type, args: argparse.Namespace, prefix: str = "", **gi
             values[f.name] = config_from_args(hint, args, path + ".", **given)
         elif "help" in f.metadata and getattr(args, path, None) is not None:
             value = getattr(args, path)
-            if f.metadata["parse"] is not None:
-                value = f.metadata["parse"](value, f.metadata["flag"] or "--" + f.name.replace("_", "-"))
-            elif f.metadata["many"]:
-                value = tuple(value)
+            parse, flag = f.metadata["parse"], f.metadata["flag"] or "--" + f.name.replace("_", "-")
+            if f.metadata["many"]:
+                value = tuple(value if parse is None else (parse(v, flag) for v in value))
+            elif parse is not None:
+                value = parse(value, flag)
             values[f.name] = value
     return cls(**values)

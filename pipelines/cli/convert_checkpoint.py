@@ -15,32 +15,25 @@ checkpoint (step 0) with ``encoder: "mvsplat"`` and no refiner: "SeeU w/o refine
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
+
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_out, shared_values
+
+SHARED_FLAGS = {"out": "out"}  # the shared flags and the ConvertConfig fields they set
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("format", choices=["mvsplat"], help="the checkpoint's model")
-    parser.add_argument("checkpoint", help="the checkpoint file to convert (e.g. MVSplat's re10k.ckpt)")
-    parser.add_argument(
-        "--out",
-        required=True,
-        help="a new directory for the SeeU checkpoint (ckpt-00000000.pt + conversion-report.txt)",
-    )
-    parser.add_argument(
-        "--allow-incomplete",
-        action="store_true",
-        help="write the checkpoint even with missing or unexpected keys (they are listed)",
-    )
+    from pipelines.convert_checkpoint import ConvertConfig
+
+    add_config_flags(parser, ConvertConfig)
+    add_out(parser, "a new directory for the SeeU checkpoint (ckpt-00000000.pt + conversion-report.txt)")
 
 
 def run(args: argparse.Namespace) -> int:
-    from pathlib import Path
+    from pipelines.convert_checkpoint import ConvertConfig, convert
 
-    from seeu_data.store.arrow_io import atomic_write_bytes
-    from seeu_model.mvsplat.convert import convert_checkpoint
-
-    written, report = convert_checkpoint(args.checkpoint, args.out, allow_incomplete=args.allow_incomplete)
-    report_path = Path(args.out) / "conversion-report.txt"
-    atomic_write_bytes(report_path, ("\n".join(report.lines()) + "\n").encode())
+    written, report, report_path = convert(config_from_args(ConvertConfig, args, **shared_values(args, SHARED_FLAGS)))
     for line in report.lines():
         if not line.startswith("mapped "):
             print(line)

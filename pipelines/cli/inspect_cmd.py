@@ -16,15 +16,18 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
+
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+
+# Every flag but --json (how the statistics are printed) comes from a `setting` of InspectConfig.
+OWN_FLAGS = ("json",)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("path", type=Path, help="triples directory (holds manifest.json)")
+    from pipelines.inspect_triples import InspectConfig
+
+    add_config_flags(p, InspectConfig)
     p.add_argument("--json", action="store_true", help="print the statistics as JSON")
-    p.add_argument("--sheet", type=Path, metavar="OUT.png", help="write a contact sheet of sample triples")
-    p.add_argument("--sheet-rows", type=int, default=6, help="examples on the contact sheet (default 6)")
-    p.add_argument("--verify", action="store_true", help="check every shard's sha256 against the manifest")
 
 
 def print_text(s: dict) -> None:
@@ -58,15 +61,14 @@ def print_text(s: dict) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.inspect_triples import contact_sheet, triple_statistics
+    from pipelines.inspect_triples import InspectConfig, inspect_triples
 
-    stats = triple_statistics(args.path, verify=args.verify)
-    if args.sheet:
-        stats["sheet"] = {"path": str(args.sheet), "samples": contact_sheet(args.path, args.sheet, args.sheet_rows)}
+    cfg = config_from_args(InspectConfig, args)
+    stats = inspect_triples(cfg)
     if args.json:
         print(json.dumps(stats, indent=1))
     else:
         print_text(stats)
-        if args.sheet:
-            print(f"contact sheet: {args.sheet} ({len(stats['sheet']['samples'])} examples)")
+        if cfg.sheet:
+            print(f"contact sheet: {cfg.sheet} ({len(stats['sheet']['samples'])} examples)")
     return 0

@@ -15,25 +15,16 @@ device (no memory) unless --shapes needs them. Add --shapes to run one CPU forwa
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from pipelines.model_info import PRESETS
-from seeu_data.settings import parse_dims
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+
+SHARED_FLAGS: dict[str, str] = {}  # every flag comes from a `setting` of ModelInfoConfig
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--preset", default="paper", choices=PRESETS, help="model preset")
-    parser.add_argument("--refiner", choices=["none", "unet", "transformer"], help="override the refiner (ablation)")
-    parser.add_argument(
-        "--condition", choices=["cls", "cea", "clip", "blip2"], help="override the condition (ablation)"
-    )
-    parser.add_argument("--sh-degree", type=int, help="override the SH degree")
-    parser.add_argument("--depth-candidates", type=int, help="override the number of depth candidates D")
-    parser.add_argument("--shapes", action="store_true", help="run one forward pass and print intermediate shapes")
-    parser.add_argument(
-        "--size", default=None, metavar="HxW", help="image size for --shapes, e.g. 64 or 64x96 (default: the preset's)"
-    )
-    parser.add_argument("--json", metavar="PATH", type=Path, help="also write the counts as JSON")
+    from pipelines.model_info import ModelInfoConfig
+
+    add_config_flags(parser, ModelInfoConfig)
 
 
 def _fmt(n: int) -> str:
@@ -43,18 +34,7 @@ def _fmt(n: int) -> str:
 def run(args: argparse.Namespace) -> int:
     from pipelines.model_info import ModelInfoConfig, model_info
 
-    info = model_info(
-        ModelInfoConfig(
-            preset=args.preset,
-            refiner=args.refiner,
-            condition=args.condition,
-            sh_degree=args.sh_degree,
-            depth_candidates=args.depth_candidates,
-            shapes=args.shapes,
-            size=parse_dims(args.size, "--size") if args.size else None,
-            json_out=args.json,
-        )
-    )
+    info = model_info(config_from_args(ModelInfoConfig, args))
     c = info["config"]
     print(
         f"SeeU ({args.preset}): refiner={c['refiner']} condition={c['condition']} D={c['num_depth_candidates']} "

@@ -26,44 +26,22 @@ from __future__ import annotations
 import argparse
 import json
 
-from pipelines.cli.options import add_out
-from seeu_data.settings import parse_dims
+from pipelines.cli.config_flags import add_config_flags, config_from_args
+from pipelines.cli.options import add_out, shared_values
+
+SHARED_FLAGS = {"out": "out"}  # the shared flags and the RenderConfig fields they set
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--checkpoint", required=True, help="a ckpt-*.pt file or a directory (its newest checkpoint)")
-    src = parser.add_mutually_exclusive_group(required=True)
-    src.add_argument("--data", help="triple shards to take the context views from")
-    src.add_argument("--cameras", help="JSON with your own context images and cameras (see above)")
-    parser.add_argument("--sample", default="0", help="with --data: sample index (in manifest order) or sample_id")
+    from pipelines.render import RenderConfig
+
+    add_config_flags(parser, RenderConfig)
     add_out(parser, "output directory")
-    parser.add_argument("--frames", type=int, default=30, help="frames per path (default 30)")
-    parser.add_argument(
-        "--extrapolate", type=float, default=0.5, help="extrapolated path runs from t=-e to 1+e (default 0.5)"
-    )
-    parser.add_argument("--fps", type=float, default=10.0)
-    parser.add_argument("--image-size", default=None, metavar="HxW", help="default: the training image size")
-    parser.add_argument("--device", default=None)
-    parser.add_argument("--rasterizer", default=None, help="auto | torch | gsplat")
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.render import RenderConfig, render
 
-    report = render(
-        RenderConfig(
-            checkpoint=args.checkpoint,
-            out=args.out,
-            data=args.data,
-            sample=args.sample,
-            cameras=args.cameras,
-            frames=args.frames,
-            extrapolate=args.extrapolate,
-            fps=args.fps,
-            image_size=parse_dims(args.image_size, "--image-size") if args.image_size else None,
-            device=args.device,
-            rasterizer=args.rasterizer,
-        )
-    )
+    report = render(config_from_args(RenderConfig, args, **shared_values(args, SHARED_FLAGS)))
     print(json.dumps(report, indent=2))
     return 0

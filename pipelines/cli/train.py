@@ -25,71 +25,27 @@ from __future__ import annotations
 import argparse
 import json
 
+from pipelines.cli.config_flags import add_config_flags, config_from_args
 from pipelines.cli.options import add_out, add_progress
-from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, NONFINITE_POLICIES, TrainConfig
+
+# The shared flags (pipelines/cli/options.py) and the TrainRunConfig fields they set; every other flag
+# comes from a `setting` of TrainRunConfig. --progress is passed on as given (None: the config's
+# log.progress, default on a terminal).
+SHARED_FLAGS = {"out": "out", "progress": "progress"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--data", required=True, help="training triple shards (directory or object-storage URL)")
-    parser.add_argument("--val", default=None, help="validation triple shards (evaluated every log.val_every steps)")
-    parser.add_argument(
-        "--config",
-        default=None,
-        help="config file, or a shipped preset by name: re10k_paper, cpu_small, cpu_tiny, demo (configs/*.json)",
-    )
+    from pipelines.train import TrainRunConfig
+
+    add_config_flags(parser, TrainRunConfig)
     add_out(parser, "run directory (checkpoints, TensorBoard, config)")
-    parser.add_argument(
-        "--resume",
-        nargs="?",
-        const=True,
-        default=None,
-        metavar="CKPT",
-        help="continue from the newest checkpoint in OUT (or from CKPT)",
-    )
-    parser.add_argument(
-        "--init-from",
-        default=None,
-        metavar="CKPT",
-        help="start from the weights (and model config) of a SeeU checkpoint, e.g. one written by "
-        "`seeu convert-checkpoint mvsplat`; step, optimizer and schedule start afresh",
-    )
-    parser.add_argument("--lpips-weights", default=None, metavar="PATH", help="torchvision's vgg16-397923af.pth")
-    parser.add_argument("--no-lpips", action="store_true", help="train with MSE only (loss.lpips_weight=0)")
-    parser.add_argument("--device", default=None, help="cpu, cuda, cuda:1 (default: this rank's GPU, else CPU)")
-    parser.add_argument("--max-steps", type=int, default=None, help="shortcut for optim.max_steps=N")
-    parser.add_argument(
-        "--on-nonfinite",
-        choices=NONFINITE_POLICIES,
-        default=None,
-        help="a step whose loss, gradients or weights hold NaN/inf: stop = exit 2 naming the step and the "
-        "batch's samples, the last good checkpoint stays the newest; skip-batch = drop that batch's update "
-        f"and go on ({MAX_CONSECUTIVE_SKIPS} such batches in a row stop the run as well; weights that went "
-        f"non-finite always stop). Default: the config's on_nonfinite ({TrainConfig.on_nonfinite})",
-    )
     add_progress(parser)
-    parser.add_argument("overrides", nargs="*", metavar="KEY=VALUE", help="config overrides, e.g. optim.lr=1e-4")
 
 
 def run(args: argparse.Namespace) -> int:
     from pipelines.train import TrainRunConfig, train
 
-    result = train(
-        TrainRunConfig(
-            data=args.data,
-            out=args.out,
-            config=args.config,
-            overrides=tuple(args.overrides),
-            max_steps=args.max_steps,
-            val=args.val,
-            resume=args.resume,
-            init_from=args.init_from,
-            lpips=not args.no_lpips,
-            lpips_weights=args.lpips_weights,
-            device=args.device,
-            progress=args.progress,  # None: the config's log.progress (default: on a terminal)
-            on_nonfinite=args.on_nonfinite,  # None: the config's on_nonfinite (default: stop)
-        )
-    )
+    result = train(config_from_args(TrainRunConfig, args, out=args.out, progress=args.progress))
     if result.get("rank", 0) == 0:
         print(json.dumps({k: result[k] for k in ("step", "checkpoint", "steps_per_s", "final")}, indent=2))
     return 0
