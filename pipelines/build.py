@@ -32,9 +32,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import suppress
+from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -43,7 +41,7 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
-from seeu_data.build.shard_task import ShardResult, materialise, write_pending
+from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
 from seeu_data.interrupts import end_pool
@@ -68,7 +66,6 @@ SHARD_FILES = "shard-*.arrow"
 PROGRESS_NAME = ".build-progress.jsonl"  # shards completed by a running (or interrupted) build
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
-_HASHES_BEHIND = 2  # written shards whose sha256 may still be running while the next is written
 MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
 
 
@@ -363,21 +360,8 @@ def run_local(
         bar.update(result.entry.rows if result.entry is not None else 0)
 
     if workers <= 1:
-        # The next shards are written while the last ones' sha256 finish (`write_pending`): on 2 cores
-        # waiting for each shard's hash before the next made `seeu build` 1.3x slower (RESULTS.md).
-        pending: deque[Callable[[], ShardResult]] = deque()
-        try:
-            for spec in specs:
-                pending.append(write_pending(spec, out_dir, fsync))
-                if len(pending) > _HASHES_BEHIND:
-                    collect(pending.popleft()())
-        except BaseException:
-            with suppress(Exception):  # the shards in place stay resumable
-                for result in pending:
-                    collect(result())
-            raise
-        for result in pending:
-            collect(result())
+        for spec in specs:
+            collect(materialise(spec, out_dir, fsync))
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
