@@ -19,6 +19,7 @@ from typing import Any
 
 import numpy as np
 import torch
+from torch.utils.data import get_worker_info
 
 from seeu_data import cameras
 from seeu_data.errors import SeeUError
@@ -38,10 +39,13 @@ def to_unit_float(images: np.ndarray, out: np.ndarray) -> np.ndarray:
 
 def images_to_tensor(images: np.ndarray, dtype: str = "float32") -> torch.Tensor:
     """(..., 3, H, W) uint8 -> a new float32 tensor in [0, 1] (or a uint8 copy), contiguous. In a
-    DataLoader worker, the DataLoader moves it to the main process through shared memory."""
-    if dtype == "uint8":
-        return torch.from_numpy(images.copy())
-    return torch.from_numpy(to_unit_float(images, np.empty(images.shape, dtype=np.float32)))
+    DataLoader worker it is made in shared memory, as torch's default collate does, so the DataLoader
+    hands it to the main process without another copy."""
+    out = torch.empty(images.shape, dtype=torch.uint8 if dtype == "uint8" else torch.float32)
+    if get_worker_info() is not None:
+        out.share_memory_()
+    to_unit_float(images, out.numpy()) if dtype != "uint8" else np.copyto(out.numpy(), images)
+    return out
 
 
 def collate_views(
