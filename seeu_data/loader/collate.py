@@ -55,8 +55,9 @@ def collate_views(
     images: np.ndarray | None = None,
     where: str = "",
 ) -> dict:
-    """Stack samples into the batch dict. `images`: the (B, V, 3, H, W) uint8 buffer the samples' images
-    live in (copied out: the buffer is reused)."""
+    """Stack samples into the batch dict, the images as tensors and the other fields as numpy arrays
+    (`StreamingLoader` makes them tensors in the main process). `images`: the (B, V, 3, H, W) uint8
+    buffer the samples' images live in (copied out: the buffer is reused)."""
     if not samples:
         raise ValueError("empty batch")
     vc, v = samples[0].num_context, len(samples[0].frame_index)
@@ -73,13 +74,13 @@ def collate_views(
     def part(sl: slice) -> dict:
         return {
             "image": images_to_tensor(images[:, sl], image_dtype),
-            "cam_to_world": torch.from_numpy(np.stack([s.cam_to_world[sl] for s in samples]).astype(np.float32)),
-            "intrinsics": torch.from_numpy(
-                cameras.intrinsics_norm_matrix(np.stack([s.intrinsics_norm[sl] for s in samples])).astype(np.float32)
+            "cam_to_world": np.stack([s.cam_to_world[sl] for s in samples]).astype(np.float32),
+            "intrinsics": cameras.intrinsics_norm_matrix(np.stack([s.intrinsics_norm[sl] for s in samples])).astype(
+                np.float32
             ),
-            "near": torch.from_numpy(np.stack([s.near[sl] for s in samples])),
-            "far": torch.from_numpy(np.stack([s.far[sl] for s in samples])),
-            "frame_index": torch.from_numpy(np.stack([s.frame_index[sl] for s in samples])),
+            "near": np.stack([s.near[sl] for s in samples]),
+            "far": np.stack([s.far[sl] for s in samples]),
+            "frame_index": np.stack([s.frame_index[sl] for s in samples]),
         }
 
     batch = {
@@ -87,7 +88,7 @@ def collate_views(
         "target": part(slice(vc, v)),
         "scene_id": [s.scene_id for s in samples],
         "sample_id": [s.sample_id for s in samples],
-        "is_padding": torch.from_numpy(np.asarray(is_padding, dtype=bool)),
+        "is_padding": np.asarray(is_padding, dtype=bool),
     }
     return batch
 
