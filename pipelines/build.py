@@ -492,6 +492,6 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 def default_workers(resize: bool = False) -> int:
     """Local engine processes for this machine: one per core, at most 8, except when copying images
     (no resize) on up to 4 cores, where one process was faster (measured on 2 cores: two processes
-    took 1.0-1.2x the time of one; benchmarks/RESULTS.md, plain I/O)."""
+    took 1.0-1.2x the time of one)."""
     cores = os.cpu_count() or 1
     return 1 if not resize and cores <= 4 else max(1, min(8, cores))
