@@ -17,8 +17,8 @@ Creates a posed-frames dataset in a temporary directory (`--scenes` scenes x `--
 
 Prints triples/s and MB/s (median run), the process CPU time, and the ratios seeu/bare (target
 >= 0.8; seeu's default policy: atomic renames, no fsync) and seeu+fsync/bare+fsync. seeu also
-hashes every shard (sha256 for the manifest) as it writes it, on a thread of its own that trails the
-writes through the page cache (`arrow_io._TrailingSha256`), so on 2 cores the ratio is bounded by about bare / max(bare, sha256). With
+hashes every shard once it is written (sha256 for the manifest, read back from the page cache), so the
+ratio is bounded by about bare / (bare + sha256). With
 `--resize 256x256` the seeu build decodes, resizes, crops and re-encodes (reported for information;
 the bare baseline stays the copy). On a shared machine, re-measure when it is quiet.
 

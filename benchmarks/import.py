@@ -17,8 +17,8 @@ Prints wall time, MB/s, frames/s and CPU time of each, the ratios against torch.
 >= 0.8x) and each child's peak RSS, also as growth over the RSS after the library imports: torch.load
 holds a whole chunk in memory; the import maps chunks (page cache, not process memory) and copies
 one scene's images at a time into the posed file's batch, so it holds little beyond the mapped chunk.
-The import reads chunks on one thread while it writes on another and hashes (sha256) on a third (a
-thread per file trails the writes through the page cache, `arrow_io._TrailingSha256`), so it needs the 2 cores free to reach the target: on a contended machine, read the CPU-time
+The import reads chunks on one thread while it writes and hashes (sha256 of each finished file) on
+another, so it needs the 2 cores free to reach the target: on a contended machine, read the CPU-time
 column too.
 
 Fresh memory on a VM: on a virtual machine whose balloon driver reports free pages to the host

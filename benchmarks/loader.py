@@ -8,8 +8,8 @@ frames), then measures side by side, interleaved, with DataLoader num_workers 1 
 output 256x256:
 
 * seeu:       `seeu_data.loader.make_loader` as it comes (mmap Arrow, OpenCV decode, bilinear cover
-              resize of the kept span + centre crop with intrinsics, workers decode into a reused
-              shared-memory ring; uint8 (B, V, 3, 256, 256) batches, made float32 on the device by
+              resize of the kept span + centre crop with intrinsics, workers hand plain tensors
+              to the DataLoader; uint8 (B, V, 3, 256, 256) batches, made float32 on the device by
               `batch_to_device` in the training/evaluation loops);
 * pixelsplat: the peers' dataset code path -- `torch.load` the chunk, PIL decode + `ToTensor`,
               back to uint8 + PIL Lanczos resize to 256x455, centre crop, w2c -> c2w, default collate;

@@ -32,9 +32,7 @@ from __future__ import annotations
 import hashlib
 import os
 import sys
-from collections import deque
-from collections.abc import Callable, Iterable, Iterator
-from contextlib import suppress
+from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
@@ -44,7 +42,7 @@ import pyarrow.compute as pc
 
 from seeu_data.build.eval_index import FORMATS as EVAL_INDEX_FORMATS
 from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
-from seeu_data.build.shard_task import ShardResult, materialise, write_pending
+from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
 from seeu_data.interrupts import end_pool
@@ -70,7 +68,6 @@ SHARD_FILES = "shard-*.arrow"
 PROGRESS_NAME = ".build-progress.jsonl"  # shards completed by a running (or interrupted) build
 _VIEW_OVERHEAD_BYTES = 200  # per-view camera/metadata bytes in a row (for the shard-size estimate)
 MAX_SHARD_BYTES = 1 << 30  # list<binary> has int32 offsets: a shard's image bytes must stay < 2 GiB
-_HASHES_BEHIND = 2  # written shards whose sha256 may still be running while the next is written
 MAX_REPORTED_PROBLEMS = 1000  # per-entry eval-index problems kept in the manifest (all are counted)
 
 
@@ -387,21 +384,8 @@ def run_local(
         bar.update(result.entry.rows if result.entry is not None else 0)
 
     if workers <= 1:
-        # The next shards are written while the last ones' sha256 finish (`write_pending`): on 2 cores,
-        # waiting for each shard's hash before the next makes `seeu build` 1.3x slower.
-        pending: deque[Callable[[], ShardResult]] = deque()
-        try:
-            for spec in specs:
-                pending.append(write_pending(spec, out_dir, fsync))
-                if len(pending) > _HASHES_BEHIND:
-                    collect(pending.popleft()())
-        except BaseException:
-            with suppress(Exception):  # the shards in place stay resumable
-                for result in pending:
-                    collect(result())
-            raise
-        for result in pending:
-            collect(result())
+        for spec in specs:
+            collect(materialise(spec, out_dir, fsync))
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
@@ -532,7 +516,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
 
 def default_workers(resize: bool = False) -> int:
     """Local engine processes for this machine: one per core, at most 8, except when copying images
-    (no resize) on up to 4 cores, where one process is faster (on 2 cores two take 1.0-1.2x the time of
-    one)."""
+    (no resize) on up to 4 cores, where one process was faster (measured on 2 cores: two processes
+    took 1.0-1.2x the time of one)."""
     cores = os.cpu_count() or 1
     return 1 if not resize and cores <= 4 else max(1, min(8, cores))

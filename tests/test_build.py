@@ -402,9 +402,9 @@ def test_undecodable_image_names_file_scene_and_frame(tmp_path, capsys):
 
 
 def test_written_shards_equal_their_tables(posed, tmp_path):
-    """What `materialise` writes (`write_shard`: images from the mapped posed files, not copied) equals
-    the file pyarrow writes for `build_shard_table`'s table (images copied into one column), shard by
-    shard, several scenes per shard and several batches per shard, with and without resizing."""
+    """What `materialise` writes (`write_shard`) equals the file pyarrow writes for `build_shard_table`'s
+    table, shard by shard, several scenes per shard and several batches per shard, with and without
+    resizing; the sha256 returned is the file's."""
     import pyarrow as pa
 
     from pipelines.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
@@ -432,7 +432,7 @@ def test_written_shards_equal_their_tables(posed, tmp_path):
             rows, size, digest = write_shard(spec, tmp_path / "shard.arrow")
             assert (tmp_path / "plain.arrow").read_bytes() == (tmp_path / "shard.arrow").read_bytes()
             plain = tmp_path / "plain.arrow"
-            assert (rows, size, digest()) == (table.num_rows, plain.stat().st_size, sha256_file(plain))
+            assert (rows, size, digest) == (table.num_rows, plain.stat().st_size, sha256_file(plain))
 
 
 def test_rewritten_posed_data_is_mapped_again(tmp_path):

@@ -84,9 +84,9 @@ def test_batch_layout_and_values(dataset, tmp_path):
         assert batch_to_device(a, "cpu")["target"]["image"] is a["target"]["image"]  # float32 just moves
 
 
-def test_worker_images_cross_through_a_reused_shared_ring(dataset, tmp_path):
-    # Workers decode into a few shared buffers each, reused round-robin once the main process has copied a
-    # batch out: many batches per worker, a slow consumer, and every batch still equals the in-process one.
+def test_worker_batches_equal_the_in_process_ones(dataset, tmp_path):
+    # Workers decode into a reused buffer and hand copies over: many batches per worker, a slow
+    # consumer, and every batch still equals the in-process one.
     import time
 
     ref = list(loader(dataset, tmp_path, batch_size=1, seed=3, flip_p=0.5))
@@ -96,35 +96,12 @@ def test_worker_images_cross_through_a_reused_shared_ring(dataset, tmp_path):
         if i % 4 == 0:
             time.sleep(0.05)  # the workers run ahead until their ring is full
         got.append(b)
-    assert len(got) == len(ref) == 21 and ld.stats["handoff_copies"] == 0
+    assert len(got) == len(ref) == 21
     for a, b in zip(ref, got):
         assert a["sample_id"] == b["sample_id"]
         assert torch.equal(a["context"]["image"], b["context"]["image"])
         assert torch.equal(a["target"]["image"], b["target"]["image"])
         assert b["target"]["image"].is_contiguous()
-
-
-def test_image_ring_never_overwrites_an_unreleased_buffer():
-    from seeu_data.loader.collate import ImageRing, ImageRingHost
-
-    host = ImageRingHost(1, slots=2)
-    ring = ImageRing(host.released, 0, 2)
-    shape = (2, 3, 3, 4, 4)
-    tickets = []
-    for n in range(3):
-        buf = ring.buffer(shape)
-        assert ring.buffer(shape) is not buf and np.shares_memory(ring.buffer(shape), buf)  # same until ticket()
-        buf[...] = n
-        tickets.append(ring.ticket())
-    # Batches 0 and 1 took the two slots (their handles sent once); batch 2 found slot 0 unreleased.
-    assert [t["slot"] for t in tickets] == [0, 1, None] and all(t["buffer"] is not None for t in tickets)
-    assert [int(host.images(t)[0, 0, 0, 0, 0]) for t in tickets] == [0, 1, 2] and host.misses == 1
-    for t in tickets:
-        host.release(t)
-    buf = ring.buffer(shape)  # batch 3: slot 1 again, already known to the host
-    buf[...] = 3
-    t = ring.ticket()
-    assert t["slot"] == 1 and t["buffer"] is None and int(host.images(t).max()) == 3
 
 
 # ------------------------------------------------------------------------- partition and resume

@@ -4,14 +4,15 @@ system, permission denied, an existing file given as --out. Each command answers
 complete-looking output.
 
 The tests run as root on CI machines, where file modes do not stop writes, and no test may mount
-a small file system: the failures are injected where bytes reach the disk (the IPC writer's and
-`Path.write_bytes`' writes fail half-way, as a full disk makes them fail) or where a directory is
+a small file system: the failures are injected where bytes reach the disk (the IPC writer's file writes go to /dev/full,
+`Path.write_bytes` fails half-way, as a full disk makes them fail) or where a directory is
 created; the rest of each command runs for real.
 """
 
 from __future__ import annotations
 
 import errno
+import io
 import os
 from pathlib import Path
 
@@ -39,19 +40,30 @@ def _leftovers(root: Path) -> list[str]:
 
 
 def _fail_writes(monkeypatch, code: int) -> None:
-    """Every write of file data fails after half of its bytes with OSError(code), as `write(2)`
-    fails on a full disk (the error names no file: the writer must say which)."""
-    real_write, real_write_bytes = arrow_io._HashingSink._write, Path.write_bytes
+    """Every write of file data fails with OSError(code), as `write(2)` fails on a full disk (the
+    error names no file: the writer must say which): the IPC writer's file is created, then its
+    writes go to /dev/full (the kernel's ENOSPC; other codes re-raised as `code`), and
+    `Path.write_bytes` writes half of its bytes."""
+    real_open, real_write_bytes = open, Path.write_bytes
 
-    def write(self, view):
-        real_write(self, view[: view.nbytes // 2])
-        raise OSError(code, os.strerror(code))
+    class Failing(io.FileIO):
+        def write(self, data):
+            try:
+                return super().write(data)
+            except OSError as exc:
+                raise OSError(code, os.strerror(code)) from exc
+
+    def open_for_arrow_io(path, mode="r", *args, **kwargs):
+        if "w" not in mode:
+            return real_open(path, mode, *args, **kwargs)
+        real_open(path, mode).close()  # the temporary file exists, as on a full disk
+        return io.BufferedWriter(Failing("/dev/full", "wb"))
 
     def write_bytes(self, data):
         real_write_bytes(self, bytes(data)[: len(data) // 2])
         raise OSError(code, os.strerror(code))
 
-    monkeypatch.setattr(arrow_io._HashingSink, "_write", write)
+    monkeypatch.setattr(arrow_io, "open", open_for_arrow_io, raising=False)
     monkeypatch.setattr(Path, "write_bytes", write_bytes)
 
 

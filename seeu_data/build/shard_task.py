@@ -6,7 +6,6 @@ writes the manifest; `ray_build.py` maps the same task over a Ray cluster. Both 
 
 from __future__ import annotations
 
-from collections.abc import Callable
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -44,20 +43,13 @@ class ShardResult:
         return cls(d["index"], d["plan_sha256"], entry, d.get("error"), d["resumed"])
 
 
-def write_pending(spec: ShardSpec, out_dir: str, fsync: bool = False) -> Callable[[], ShardResult]:
-    """Write one shard (`triples.write_shard`: in place, fsynced before its rename when `fsync`);
-    return a function that gives its result: its manifest entry once its sha256 (which trails the
-    writes) is done, or the error (a SeeUError's message). (Which shards a re-run keeps is decided
+def materialise(spec: ShardSpec, out_dir: str, fsync: bool = False) -> ShardResult:
+    """Write one shard (`triples.write_shard`: in place, fsynced before its rename when `fsync`); return
+    its manifest entry, or the error (a SeeUError's message). (Which shards a re-run keeps is decided
     before, on the driver: `resumable_shard`.)"""
     path = Path(out_dir) / spec.file
     try:
         rows, size, sha256 = write_shard(spec, path, fsync)
     except SeeUError as exc:
-        failed = ShardResult(spec.index, spec.plan_sha256, error=str(exc))
-        return lambda: failed
-    return lambda: ShardResult(spec.index, spec.plan_sha256, FileEntry(path.name, rows, size, sha256()))
-
-
-def materialise(spec: ShardSpec, out_dir: str, fsync: bool = False) -> ShardResult:
-    """Write one shard and wait for its result (`write_pending`)."""
-    return write_pending(spec, out_dir, fsync)()
+        return ShardResult(spec.index, spec.plan_sha256, error=str(exc))
+    return ShardResult(spec.index, spec.plan_sha256, FileEntry(path.name, rows, size, sha256))

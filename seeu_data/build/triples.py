@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 import pyarrow as pa
 
-from seeu_data.store.arrow_io import AtomicIpcWriter, binary_array, open_ipc_file
+from seeu_data.store.arrow_io import binary_array, open_ipc_file, write_table
 from seeu_data.errors import SeeUError
 from seeu_data.settings import parse_dims, setting
 from seeu_data.store.manifest import read_manifest
@@ -246,34 +246,9 @@ def _resize_views(
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
 
 
-@dataclass
-class ShardRows:
-    """The rows of one shard before their image column is made: `images` (L views in row order:
-    views into the memory-mapped posed files, or re-encoded bytes when resizing) and `table(column)`,
-    which makes the shard's table around a binary column of them."""
-
-    schema: pa.Schema
-    images: list
-    _columns: dict = field(repr=False)
-    _offsets: pa.Array | None = field(repr=False)
-
-    def table(self, images: pa.BinaryArray) -> pa.Table:
-        if self._offsets is None:
-            return self.schema.empty_table()
-        cols = dict(self._columns)
-        cols["image"] = _list_column(self._offsets, images, self.schema.field("image").type)
-        arrays = []
-        for f in self.schema:
-            col = cols[f.name]
-            if col.type != f.type:  # e.g. list field nullability: cast to the schema's exact type
-                col = col.cast(f.type)
-            arrays.append(col)
-        return pa.Table.from_arrays(arrays, schema=self.schema)
-
-
-def shard_rows(spec: ShardSpec) -> ShardRows:
-    """The rows of one shard from its spec (one row per sample, in order; `build_shard_table` /
-    `write_shard` make the table, schema `shard_schema`)."""
+def build_shard_table(spec: ShardSpec) -> pa.Table:
+    """The table of one shard from its spec (one row per sample, in order; schema `shard_schema`), its
+    images (views into the memory-mapped posed files, or re-encoded bytes when resizing) copied into one column."""
     samples = spec.samples
     opts = spec.image
     files: dict[str, pa.Table] = {}
@@ -288,7 +263,7 @@ def shard_rows(spec: ShardSpec) -> ShardRows:
             raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec.sources[s.scene_id].path)
     schema = shard_schema(spec.plan_sha256)
     if not samples:
-        return ShardRows(schema, [], {}, None)
+        return schema.empty_table()
     posed = pa.concat_tables(parts) if len(parts) > 1 else parts[0]
     view_scene = [s.scene_id for s in samples for _ in s.views]
     view_frame = np.array([v for s in samples for v in s.views], dtype=np.int64)
@@ -337,24 +312,20 @@ def shard_rows(spec: ShardSpec) -> ShardRows:
     }
     for name, values in per_view.items():
         cols[name] = _list_column(offsets, values, schema.field(name).type)
-    return ShardRows(schema, images, cols, offsets)
+    cols["image"] = _list_column(offsets, binary_array(images), schema.field("image").type)
+    arrays = []
+    for f in schema:
+        col = cols[f.name]
+        if col.type != f.type:  # e.g. list field nullability: cast to the schema's exact type
+            col = col.cast(f.type)
+        arrays.append(col)
+    return pa.Table.from_arrays(arrays, schema=schema)
 
 
-def build_shard_table(spec: ShardSpec) -> pa.Table:
-    """The table of one shard, its images copied into one column (`write_shard` writes it without that copy)."""
-    rows = shard_rows(spec)
-    return rows.table(binary_array(rows.images))
-
-
-def write_shard(spec: ShardSpec, path: str | Path, fsync: bool = False) -> tuple[int, int, Callable[[], str]]:
-    """Write the shard of `spec` atomically to `path`; return (rows, bytes, sha256), where `sha256()`
-    gives the file's sha256 once its hash, which trails the writes, is done (`AtomicIpcWriter.sha256`).
-    The encoded images go from the posed files into the shard without a copy in memory
-    (`AtomicIpcWriter.write_with_views`); the bytes equal those of `build_shard_table`'s table."""
-    rows = shard_rows(spec)
-    with AtomicIpcWriter(path, rows.schema, fsync=fsync) as writer:
-        writer.write_with_views(rows.images, rows.table, max_chunksize=spec.rows_per_batch)
-    return len(spec.samples), writer.size, writer.sha256
+def write_shard(spec: ShardSpec, path: str | Path, fsync: bool = False) -> tuple[int, int, str]:
+    """Write the shard of `spec` atomically to `path` (`build_shard_table`); return (rows, bytes, sha256)."""
+    size, sha256 = write_table(path, build_shard_table(spec), max_chunksize=spec.rows_per_batch, fsync=fsync)
+    return len(spec.samples), size, sha256
 
 
 # ---------------------------------------------------------------------------------------------

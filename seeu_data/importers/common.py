@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import sys
 from collections.abc import Callable, Iterable, Sequence
-from contextlib import suppress
 from dataclasses import asdict, dataclass, field, fields
 from itertools import takewhile
 from pathlib import Path
@@ -280,8 +279,7 @@ def write_import(
     each finished file is recorded (units covered, scenes, skips, bytes, sha256) in a journal
     (`RESUME_JOURNAL`, a `resume.Journal` stamped with the parameters and input fingerprint; removed
     when the manifest is written, the manifest's `report.resume` keeps the same for a later re-run)
-    once its hash is done: at the next unit end, at the end, or when the run is interrupted (a file's
-    hash trails its writes, `arrow_io.AtomicIpcWriter`). A re-run with the same parameters and inputs keeps the leading files
+    as soon as it is in place. A re-run with the same parameters and inputs keeps the leading files
     whose units are unchanged and whose bytes still have the recorded size and sha256, and reads only
     the units after them.
     """
@@ -346,7 +344,6 @@ def write_import(
     cur_skipped: list[list[str]] = []
     recordable = True
     new_records = list(done)
-    unjournaled: list[tuple[int, dict]] = []  # (file index, record) of closed files, journaled once hashed
 
     def record_file(entry: FileEntry | None) -> None:
         nonlocal cur_units, cur_skipped, recordable
@@ -359,20 +356,13 @@ def write_import(
                 "units": cur_units,
                 "skipped": cur_skipped,
                 "scenes": [s for s in writer.scenes if s["file"] == entry.path],
+                "file": asdict(entry),
             }
-            unjournaled.append((len(writer.files) - 1, rec))
+            new_records.append(rec)
+            journal.add(rec)
         else:
             recordable = False  # a file not recorded ends what a re-run can resume
         cur_units, cur_skipped = [], []
-
-    def journal_records() -> None:
-        """Journal the files recorded so far, with their sha256 (waits for hashes still running)."""
-        files = writer.hashed_files()
-        for i, rec in unjournaled:
-            rec["file"] = asdict(files[i])
-            new_records.append(rec)
-            journal.add(rec)
-        unjournaled.clear()
 
     try:
         for i, item in prefetch(stream()):
@@ -380,7 +370,6 @@ def write_import(
             if item is _UNIT_END:
                 if unit.key is not None:
                     cur_units.append([unit.key, unit.fingerprint])
-                    journal_records()  # files closed at earlier unit ends: hashed by now
                     record_file(writer.finish_file(force=False))
                 continue
             bar.update(1)
@@ -408,7 +397,6 @@ def write_import(
                 "no usable scene to import" + (f" ({len(report.skipped)} skipped; {reasons})" if report.skipped else "")
             )
         record_file(writer.finish_file(force=True))
-        journal_records()
         writer.report = report.as_dict()
         if resumable:
             writer.report["resume"] = {
@@ -418,8 +406,6 @@ def write_import(
                 ],
             }
     except BaseException as exc:
-        with suppress(Exception):
-            journal_records()  # the files in place stay resumable
         writer.__exit__(type(exc), exc, None)
         raise
     finally:

@@ -1,9 +1,8 @@
 """A bounded background prefetcher for the importers.
 
 `prefetch` runs an importer (reading image files or chunks, header checks, conversion) in a
-background thread a few scenes ahead of the writer; the file written is hashed on a thread of its
-own as it grows (`seeu_data.store.arrow_io.AtomicIpcWriter`), and file reads, hashlib and file writes
-release the GIL, so reading the next scene overlaps writing and hashing this one.
+background thread a few scenes ahead of the writer; file reads, hashlib and file writes release the
+GIL, so reading the next scene overlaps writing and hashing this one.
 """
 
 from __future__ import annotations

@@ -32,12 +32,11 @@ from typing import Any
 import numpy as np
 import torch
 from torch.utils.data import DataLoader, IterableDataset, get_worker_info
-from torch.utils.data._utils.pin_memory import pin_memory
 
 from seeu_data.errors import SeeUError
 from seeu_data.image_ops import single_threaded_cv2
 from seeu_data.limits import MAX_PIXELS
-from seeu_data.loader.collate import ImageRing, ImageRingHost, collate_views, finish_shipped_batch
+from seeu_data.loader.collate import collate_views
 from seeu_data.loader.curriculum import GapCurriculum
 from seeu_data.loader.formats import BATCH_FORMATS, to_pixelsplat
 from seeu_data.loader.order import (
@@ -163,13 +162,7 @@ class TripleStream(IterableDataset):
         self._gaps: np.ndarray | None = None
         self._readers: OrderedDict[int, ShardReader] = OrderedDict()
         self._bad_shards: dict[int, str] = {}
-        self._scratch: np.ndarray | None = None  # (B, V, 3, H, W) uint8 images of the current batch
-        self._scratch_own: np.ndarray | None = None  # the reused private buffer (when not shipping via a ring)
-        # Set by StreamingLoader: workers hand over numpy fields and ring-buffered uint8 images
-        # (collate.ImageRing / finish_shipped_batch); `ring` = (released counters, slots) of the ImageRingHost.
-        self.ship = False
-        self.ring: tuple[torch.Tensor, int] | None = None
-        self._ring: ImageRing | None = None  # worker side, made in __iter__
+        self._scratch: np.ndarray | None = None  # (B, V, 3, H, W) uint8 images of the current batch (reused)
 
     # ------------------------------------------------------------------ plan
     @property
@@ -256,13 +249,9 @@ class TripleStream(IterableDataset):
         k = int(np.searchsorted(self.offsets, row_id, side="right") - 1)
         raw = self._reader(k).sample(int(row_id - self.offsets[k]))
         shape = (batch_size, len(raw.images), 3) + tuple(self.config.image_hw)
-        if slot == 0:  # a new batch (or its first sample again, replaced): choose where its images go
-            if self._ring is not None:
-                self._scratch = self._ring.buffer(shape)  # shared memory the main process reads directly
-            else:
-                if self._scratch_own is None or self._scratch_own.shape != shape:
-                    self._scratch_own = np.empty(shape, dtype=np.uint8)  # reused: no fresh pages per batch
-                self._scratch = self._scratch_own
+        if slot == 0:  # a new batch (or its first sample again, replaced)
+            if self._scratch is None or self._scratch.shape != shape:
+                self._scratch = np.empty(shape, dtype=np.uint8)
         elif self._scratch is None or self._scratch.shape != shape:
             have = "?" if self._scratch is None else self._scratch.shape[1]
             raise SeeUError(
@@ -310,16 +299,7 @@ class TripleStream(IterableDataset):
                     break
                 except SeeUError:
                     fill += 1
-        ship = self.ship and get_worker_info() is not None
-        batch = collate_views(
-            samples,
-            pad,
-            c.image_dtype,
-            images=self._scratch,
-            where=self.source.url,
-            ship=ship,
-            ticket=self._ring.ticket() if ship and self._ring is not None else None,
-        )
+        batch = collate_views(samples, pad, c.image_dtype, images=self._scratch, where=self.source.url)
         batch["_skipped"] = skipped
         return batch
 
@@ -330,11 +310,6 @@ class TripleStream(IterableDataset):
         epoch = self.position.epoch
         ids, cols = rank_worker_batches(
             plan.num_batches, self.config.batch_size, self.rank, self.world_size, worker, num_workers
-        )
-        self._ring = (
-            ImageRing(self.ring[0], worker, self.ring[1])
-            if self.ship and self.ring is not None and info is not None
-            else None
         )
         for b in ids:
             try:
@@ -389,8 +364,7 @@ class StreamingLoader:
         self.prefetch_factor = prefetch_factor if num_workers > 0 else None
         self.multiprocessing_context = multiprocessing_context
         self.timeout = timeout
-        # handoff_copies: batches whose images could not use the worker's shared ring (expected 0)
-        self.stats = {"skipped_corrupt": 0, "skipped_curriculum": 0, "padding": 0, "handoff_copies": 0}
+        self.stats = {"skipped_corrupt": 0, "skipped_curriculum": 0, "padding": 0}
 
     # ------------------------------------------------------------------ state
     @property
@@ -453,26 +427,19 @@ class StreamingLoader:
         ds = self.dataset
         self._roll_over()
         plan = ds.plan()  # computed here once; forked workers inherit it
-        pin = self.pin_memory and torch.cuda.is_available()
         loader = DataLoader(
             ds,
             batch_size=None,
             collate_fn=_as_is,
             num_workers=self.num_workers,
-            pin_memory=False,
+            pin_memory=self.pin_memory and torch.cuda.is_available(),
             prefetch_factor=self.prefetch_factor,
             persistent_workers=False,
             multiprocessing_context=self.multiprocessing_context if self.num_workers else None,
             timeout=self.timeout,
         )
         skipped = plan.skipped
-        ds.ship = self.num_workers > 0
-        ring = None
         if self.num_workers:
-            # Images cross from the workers through a ring of shared buffers per worker (collate.ImageRing):
-            # one more than the batches a worker may have in flight.
-            ring = ImageRingHost(self.num_workers, (self.prefetch_factor or 2) + 1)
-            ds.ring = (ring.released, ring.slots)
             with single_threaded_cv2():
                 batches = iter(loader)  # forks the workers
         else:
@@ -480,13 +447,11 @@ class StreamingLoader:
         for batch in batches:
             if "_error" in batch:
                 raise SeeUError(*batch["_error"])
-            if ds.ship:
-                batch = finish_shipped_batch(batch, ds.config.image_dtype, ring, pin)
-                if ring is not None:
-                    self.stats["handoff_copies"] += ring.misses
-                    ring.misses = 0
-            if pin:  # the images are pinned already (pin_memory keeps a pinned tensor as it is)
-                batch = pin_memory(batch)
+            # The small fields cross from the workers as numpy (pickled by value): as tensors, each is a
+            # shared-memory file of its own, which made an epoch 1.2-1.4x slower (benchmarks/RESULTS.md).
+            for key in ("context", "target"):
+                batch[key] = {k: torch.as_tensor(v) for k, v in batch[key].items()}
+            batch["is_padding"] = torch.as_tensor(batch["is_padding"])
             cursor = batch.pop("_cursor")
             self.stats["skipped_corrupt"] += batch.pop("_skipped")
             self.stats["padding"] += int(batch["is_padding"].numpy().sum())

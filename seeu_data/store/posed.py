@@ -11,8 +11,8 @@ Rows follow `schemas/posed_frames.v1.json`; cameras follow `seeu_data.cameras`.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Iterator, Sequence
-from dataclasses import dataclass, field, replace
+from collections.abc import Iterable, Iterator, Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -78,8 +78,8 @@ class PosedScene:
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
 
-    def to_record_batch(self, images: pa.BinaryArray | None = None) -> pa.RecordBatch:
-        """The scene's rows (its images copied into one column, or `images` when given)."""
+    def to_record_batch(self) -> pa.RecordBatch:
+        """The scene's rows (its images copied into one column)."""
         n = len(self)
         schema = arrow_schema(SCHEMA)
         names = self.source_name or [""] * n
@@ -89,7 +89,7 @@ class PosedScene:
             "source_frame": pa.array(np.asarray(self.source_frame, dtype=np.int64)),
             "source_name": pa.array(names, pa.string()),
             "timestamp_us": pa.array(np.asarray(self.timestamp_us, dtype=np.int64)),
-            "image": binary_array(self.images) if images is None else images,
+            "image": binary_array(self.images),
             "image_format": pa.array([self.image_format] * n, pa.string()),
             "width": pa.array(np.asarray(self.width, dtype=np.int32)),
             "height": pa.array(np.asarray(self.height, dtype=np.int32)),
@@ -135,8 +135,8 @@ class PosedDatasetWriter:
     """Stream scenes into a posed-frames directory with bounded memory.
 
     Scenes are appended to the current file until it exceeds `target_file_bytes`; each file is
-    written under a temporary name and renamed when closed, its sha256 computed as it is written
-    (`arrow_io.AtomicIpcWriter`); `close()` writes the manifest last.
+    written under a temporary name, hashed and renamed when closed (`arrow_io.AtomicIpcWriter`);
+    `close()` writes the manifest last.
     Use as a context manager: an exception leaves no manifest, so the output never looks complete.
     """
 
@@ -155,8 +155,7 @@ class PosedDatasetWriter:
         self.provenance = provenance
         self.target_file_bytes = target_file_bytes
         self.prefix = prefix
-        self.files: list[FileEntry] = []  # closed files; the sha256 of the last ones may be "" (`hashed_files`)
-        self._hashing: list[tuple[int, Callable[[], str]]] = []  # (index in files, its sha256 when done)
+        self.files: list[FileEntry] = []  # closed files
         self.scenes: list[dict] = []
         self._seen: set[str] = set()
         self._writer: AtomicIpcWriter | None = None
@@ -184,15 +183,15 @@ class PosedDatasetWriter:
         self.add_checked(scene, may_close)
 
     def add_checked(self, scene: PosedScene, may_close: bool = True) -> None:
-        """`add` for a scene already `check()`ed. Its images are written from where they are (chunk
-        pages, bytes), not copied into a new column first (`AtomicIpcWriter.write_with_views`)."""
+        """`add` for a scene already `check()`ed."""
         if scene.scene_id in self._seen:
             raise SeeUError(f"duplicate scene id {scene.scene_id!r}")
         self._seen.add(scene.scene_id)
         if self._writer is None:
             self._open()
         assert self._path is not None and self._writer is not None
-        batch = self._writer.write_with_views(scene.images, scene.to_record_batch)
+        batch = scene.to_record_batch()
+        self._writer.write(batch)
         entry = {
             "scene_id": scene.scene_id,
             "file": self._path.name,
@@ -221,16 +220,7 @@ class PosedDatasetWriter:
         writer, self._writer = self._writer, None
         size = writer.close()
         assert self._path is not None
-        self.files.append(FileEntry(str(self._path.relative_to(self.out_dir)), int(self._rows), size, sha256=""))
-        self._hashing.append((len(self.files) - 1, writer.sha256))
-
-    def hashed_files(self) -> list[FileEntry]:
-        """The closed files with their sha256, waiting for the hashes still running (a file's hash
-        trails its writes and may end after the file is closed, while the next one is written)."""
-        for i, sha256 in self._hashing:
-            self.files[i] = replace(self.files[i], sha256=sha256())
-        self._hashing.clear()
-        return self.files
+        self.files.append(FileEntry(str(self._path.relative_to(self.out_dir)), int(self._rows), size, writer.sha256))
 
     def close(self) -> dict:
         self._finish_file()
@@ -240,7 +230,7 @@ class PosedDatasetWriter:
             self.out_dir,
             SCHEMA,
             schema_version(SCHEMA),
-            self.hashed_files(),
+            self.files,
             self.params,
             self.provenance,
             scenes=self.scenes,
