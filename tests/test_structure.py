@@ -144,26 +144,23 @@ def _data_part(module: str) -> str | None:
     return parts[1] if parts[0] == "seeu_data" and len(parts) > 2 else None
 
 
-def test_store_reads_only_the_basics():
+def _forbidden_imports(importer, forbidden) -> list[str]:
+    """'a imports b' for every import of the project's modules where `importer(a)` and `forbidden(a, b)`."""
     graph, _ = scan(module_files(PACKAGES))
-    bad = sorted(
-        f"{m} imports {t}"
-        for m, targets in graph.items()
-        if _data_part(m) == "store"
-        for t in targets
-        if t not in DATA_BASICS and _data_part(t) != "store"
+    return sorted(f"{m} imports {t}" for m, targets in graph.items() if importer(m) for t in targets if forbidden(m, t))
+
+
+def test_store_reads_only_the_basics():
+    bad = _forbidden_imports(
+        lambda m: _data_part(m) == "store", lambda m, t: t not in DATA_BASICS and _data_part(t) != "store"
     )
     assert not bad, "\n".join(bad)
 
 
 def test_data_stages_do_not_import_one_another():
-    graph, _ = scan(module_files(PACKAGES))
-    bad = sorted(
-        f"{m} imports {t}"
-        for m, targets in graph.items()
-        if _data_part(m) in DATA_STAGES
-        for t in targets
-        if _data_part(t) in DATA_STAGES and _data_part(t) != _data_part(m)
+    bad = _forbidden_imports(
+        lambda m: _data_part(m) in DATA_STAGES,
+        lambda m, t: _data_part(t) in DATA_STAGES and _data_part(t) != _data_part(m),
     )
     assert not bad, "\n".join(bad)
 
