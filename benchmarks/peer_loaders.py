@@ -146,7 +146,7 @@ def make_outputs(work: Path) -> None:
     # hd_ingest.txt and reported) our scene upscaled to 1280x720; then a default export
     hd, failed = work / "posed_hd" / "clip", work / "hd_ingest.txt"
     if not (hd / "manifest.json").exists() and not failed.exists():
-        run_cli(["synth", "--out", str(work / "hd"), "--frames", str(N_FRAMES), "--size", f"{HD_HW[1]}x{HD_HW[0]}"])
+        run_cli(["synth", "--out", str(work / "hd"), "--frames", str(N_FRAMES), "--size", f"{HD_HW[0]}x{HD_HW[1]}"])
         err = io.StringIO()
         try:
             with contextlib.redirect_stderr(err):

@@ -33,6 +33,8 @@ from seeu_data.synthetic import (
 )
 
 W, H, N = 320, 180, 36
+# The smallest synthetic walk that COLMAP's default initial-pair limits cannot map (forward motion)
+FORWARD_SIZE, FORWARD_FRAMES = (450, 800), 12
 
 
 pytestmark = pytest.mark.usefixtures("no_heartbeat")  # conftest: one-line error checks
@@ -500,6 +502,37 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
     assert "mapping runs" not in summary_line(report)
     retried = {**report, "sfm": {**report["sfm"], "mapping_attempts": attempts[:2], "solution_check": {"ran": False}}}
     assert f"{N}/{N} frames registered (100.0% after 2 mapping runs)" in summary_line(retried)
+
+
+def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
+    """The synthetic walk at 450x800 (so at 720x1280, a phone's video): every frame pair moves mostly
+    along the optical axis with small triangulation angles, so COLMAP's initial-pair limits find no
+    model in any run; the second round (`sfm.map_forward_motion`) poses every frame, accurately. A
+    static camera (planar/panoramic pairs) gets no second round: test_static_camera_no_model."""
+    from seeu_data.ingest.sfm import moves_forward_possibly
+
+    clip = tmp_path / "fwd.mp4"
+    write_clip(clip, n_frames=FORWARD_FRAMES, size=FORWARD_SIZE, seed=0)
+    out = tmp_path / "out"
+    assert cli_main(["ingest", str(clip), "--out", str(out), "--max-features", "4096"]) == 0
+    report = json.loads((out / "fwd" / "report.json").read_text())
+    attempts = report["sfm"]["mapping_attempts"]
+    assert [(a["seed"], a["registered"], a.get("init")) for a in attempts[:3]] == [
+        (0, 0, None),
+        (1, 0, None),
+        (2, 0, None),
+    ]
+    assert [a["seed"] for a in attempts[3:]] == [0, 1] and {a["init"] for a in attempts[3:]} == {"forward motion"}
+    assert report["sfm"]["solution_check"]["state"] == "passed"
+    assert "after 5 mapping runs, forward motion allowed for the initial pair)" in summary_line(report)
+    acc = ingest_accuracy(out / "fwd", clip, report["registered"], report["frames_selected"])
+    assert acc["registered_pct"] >= 95 and acc["largest"]["centre_rmse_pct_path"] <= 1.0, acc
+    pairs = report["sfm"]["solution_check"]
+    assert moves_forward_possibly(
+        {"verified": pairs["verified_pairs"], "planar_or_panoramic": pairs["planar_or_panoramic_pairs"]}
+    )
+    assert not moves_forward_possibly({"verified": 10, "planar_or_panoramic": 5})
+    assert not moves_forward_possibly({"verified": 0, "planar_or_panoramic": 0})
 
 
 def test_lens_distortion_is_estimated_and_undistorted(tmp_path):

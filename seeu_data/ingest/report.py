@@ -4,7 +4,8 @@ report.json keys: scene, input, frames_decoded (frames in the source), frames_ca
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
 mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, cpu_timings_s (the SfM child's
 stages: extract_s, match_s, map_s, undistort_s, export_s), models: [...], discarded_models: [...],
-mapping_attempts: [{seed, registered, models, seconds, disagreement_pct}], keyframes {stride, count, motion_px,
+mapping_attempts: [{seed, registered, models, seconds, disagreement_pct, init ("forward motion": a run
+of the second round, `sfm.map_forward_motion`)}], keyframes {stride, count, motion_px,
 target_px, registered_after},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
 planar_or_panoramic_pairs, verified_pairs, reason (why a failed check failed)}}, input_identity {path, fingerprint},
@@ -168,10 +169,12 @@ def summary_line(report: dict) -> str:
     attempts = len(report["sfm"].get("mapping_attempts", []))
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
+    forward = any(a.get("init") == "forward motion" for a in report["sfm"].get("mapping_attempts", []))
     skipped = skipped_line([(f["name"], f["reason"]) for f in report.get("skipped_files", [])])
     line = (
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
         + (f" after {attempts} mapping runs" if attempts > expected else "")
+        + (", forward motion allowed for the initial pair" if forward else "")
         + "), "
         + (f"{skipped}, " if skipped else "")
         + f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "

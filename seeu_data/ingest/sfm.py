@@ -9,7 +9,9 @@ SIFT extraction (one camera of `camera_model` per frame size: portrait and lands
 exhaustive for an image folder of up to `EXHAUSTIVE_MAX_IMAGES` images, else sequential over
 `UNORDERED_OVERLAP` neighbours in name order; verification RANSAC seeded per pair -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.ingest.keyframes`)
 -> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
-it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`) ->
+it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`; when
+incremental mapping finds no model, once more with the initial pair allowed to move forward, see
+`map_forward_motion`) ->
 a last global bundle adjustment of each mapped model with a robust loss (`final_ba_loss`, soft-L1 at
 0.5 px by default, `final_bundle_adjustment`) -> the other frames registered into the kept models
 (COLMAP's incremental-mapper step) -> undistortion of every model
@@ -29,7 +31,7 @@ Output directory layout::
 "fx", "fy", "cx", "cy"}] (one per frame size; used after undistortion), "camera" (the one of most frames), "undistorted": bool,
 "camera_distorted" (as mapped, when undistorted; "cameras_distorted": all of them), "image_dir", "images": [{"name",
 "world_to_cam" (3x4), "camera" (index into "cameras")}], "num_points3D", "mean_reprojection_error"}], "discarded_models",
-"num_keypoints", "num_verified_pairs", "matcher": {"requested", "used", "overlap", "reason"}, "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"]}],
+"num_keypoints", "num_verified_pairs", "matcher": {"requested", "used", "overlap", "reason"}, "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"][, "init": "forward motion"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed"[, "reason"], "planar_or_panoramic_pairs",
 "verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
@@ -83,6 +85,15 @@ _PROGRESS = "@@seeu"
 _COLMAP_PROGRESS = re.compile(r"\] Process(?:ed file|ing image) \[(\d+)/\d+\]")
 # COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
 _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
+# A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
+# along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair
+# (|t_z| >= init_max_forward_motion = 0.95, or a median triangulation angle below init_min_tri_angle =
+# 16 degrees, relaxed twice to 4) and, when no pair passes, finds no model at all. Incremental mapping
+# is then run once more with these initial-pair limits (IncrementalMapperOptions fields;
+# `map_forward_motion`): no forward-motion limit, the angle from 8 degrees (relaxed to 4, then 2).
+# (The focal length is not the cause: pycolmap 4.2 estimates it per pair from the fundamental matrix
+# when no focal is known, so the database camera's prior plays no part in choosing the initial pair.)
+FORWARD_MOTION_INIT = {"init_max_forward_motion": 1.0, "init_min_tri_angle": 8.0}
 
 
 @dataclass(frozen=True)
@@ -834,6 +845,8 @@ def _map(job: _Job, matches: Matches, kf: Keyframes) -> Mapped:
         runs.close()
     for attempt in attempts:  # the run's own wall time (map_with_retries saw only the wait for it)
         attempt["seconds"] = runs.seconds[attempt["seed"]]
+    if not recs and mapper == "incremental" and moves_forward_possibly(pairs):
+        recs, attempts, rejected, check = map_forward_motion(job, kf, attempts)
     sparse = job.out / "sparse"
     shutil.rmtree(sparse, ignore_errors=True)
     sparse.mkdir()
@@ -847,6 +860,33 @@ def _map(job: _Job, matches: Matches, kf: Keyframes) -> Mapped:
             + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else "")
         )
     return Mapped(recs, attempts, rejected, check, mapper_info)
+
+
+def moves_forward_possibly(pairs: dict) -> bool:
+    """Whether an incremental mapping that found no model is worth the `map_forward_motion` round:
+    most verified pairs (`geometry_counts`) have a general two-view geometry, so the camera translates
+    (a static or rotating camera gives planar/panoramic pairs, which no init limit can help)."""
+    return pairs["verified"] > 0 and pairs["planar_or_panoramic"] < 0.5 * pairs["verified"]
+
+
+def map_forward_motion(job: _Job, kf: Keyframes, attempts: list[dict]) -> tuple[dict, list[dict], list[dict], dict]:
+    """Incremental mapping again, as in `_map` (`map_with_retries` from the same seeds, the solution
+    check), with the initial pair allowed to move along the optical axis (`FORWARD_MOTION_INIT`); for
+    when the first round found no model. Returns `map_with_retries`' results, its runs appended to
+    `attempts`, each marked "init": "forward motion"."""
+    cfg = job.cfg
+    _emit("stage", "map-forward-motion", len(kf.names))
+    runs = _MapRuns(job, "incremental", kf.names if kf.stride > 1 else [], init=FORWARD_MOTION_INIT)
+    try:
+        recs, more, rejected, check = map_with_retries(
+            runs.collect, len(kf.names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2, start=runs.start
+        )
+    finally:
+        runs.close()
+    for attempt in more:
+        attempt["seconds"] = runs.seconds[attempt["seed"]]
+        attempt["init"] = "forward motion"
+    return recs, attempts + more, rejected, check
 
 
 def map_processes(cfg: SfmConfig) -> int:
@@ -877,8 +917,8 @@ class _MapRuns:
     a lone one, is read back from the model files it wrote, so the models do not depend on how many
     ran at once. A run's COLMAP log goes to sfm.log; the run started when none is going reports progress."""
 
-    def __init__(self, job: _Job, mapper: str, image_names: list[str]) -> None:
-        self.job, self.mapper, self.image_names = job, mapper, image_names
+    def __init__(self, job: _Job, mapper: str, image_names: list[str], init: dict | None = None) -> None:
+        self.job, self.mapper, self.image_names, self.init = job, mapper, image_names, init or {}
         self.limit = map_processes(job.cfg)
         self.root = job.out / "map_runs"
         shutil.rmtree(self.root, ignore_errors=True)
@@ -903,6 +943,7 @@ class _MapRuns:
             "mapper": self.mapper,
             "image_names": self.image_names,
             "seed": seed,
+            "init": self.init,
             "progress": self._running() == 0,
             "config": asdict(self.job.cfg),
         }
@@ -963,16 +1004,22 @@ def _map_run(run_path: str) -> int:
         global_options.num_threads = cfg.map_threads
         global_options.random_seed = run["seed"]
         global_options.image_names = run["image_names"]
-        recs = pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
+        recs = _retry_database_open(
+            lambda: pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
+        )
     else:
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
         options.num_threads = cfg.map_threads
         options.random_seed = run["seed"]
         options.image_names = run["image_names"]
+        for name, value in run.get("init", {}).items():  # initial-pair limits (`map_forward_motion`)
+            setattr(options.mapper, name, value)
         step = (lambda: _emit("step")) if run["progress"] else (lambda: None)
-        recs = pycolmap.incremental_mapping(
-            run["db_path"], run["image_dir"], sparse, options=options, next_image_callback=step
+        recs = _retry_database_open(
+            lambda: pycolmap.incremental_mapping(
+                run["db_path"], run["image_dir"], sparse, options=options, next_image_callback=step
+            )
         )
     seconds = time.perf_counter() - t0
     for k, rec in recs.items():
@@ -983,6 +1030,21 @@ def _map_run(run_path: str) -> int:
         json.dumps({"models": sorted(int(k) for k in recs), "seconds": seconds})
     )
     return 0
+
+
+def _retry_database_open(call, tries: int = 5):
+    """`call()`, called again after a pause when COLMAP could not open the database: two mapping runs
+    opening the same SQLite database at the same moment can make one open fail ("No registered
+    database factory succeeded"; about one ingest in ten with the solution check on 2 busy cores),
+    before anything is mapped."""
+    for attempt in range(tries):
+        try:
+            return call()
+        except RuntimeError as exc:
+            if "database factory" not in str(exc) or attempt == tries - 1:
+                raise
+            time.sleep(0.2 * (attempt + 1))
+    raise AssertionError("unreachable")
 
 
 def _final_ba(job: _Job, recs: dict) -> list[dict] | None:
