@@ -1004,9 +1004,7 @@ def _map_run(run_path: str) -> int:
         global_options.num_threads = cfg.map_threads
         global_options.random_seed = run["seed"]
         global_options.image_names = run["image_names"]
-        recs = _retry_database_open(
-            lambda: pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
-        )
+        recs = pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
     else:
         options = pycolmap.IncrementalPipelineOptions()
         options.min_model_size = cfg.min_model_size
@@ -1016,10 +1014,8 @@ def _map_run(run_path: str) -> int:
         for name, value in run.get("init", {}).items():  # initial-pair limits (`map_forward_motion`)
             setattr(options.mapper, name, value)
         step = (lambda: _emit("step")) if run["progress"] else (lambda: None)
-        recs = _retry_database_open(
-            lambda: pycolmap.incremental_mapping(
-                run["db_path"], run["image_dir"], sparse, options=options, next_image_callback=step
-            )
+        recs = pycolmap.incremental_mapping(
+            run["db_path"], run["image_dir"], sparse, options=options, next_image_callback=step
         )
     seconds = time.perf_counter() - t0
     for k, rec in recs.items():
@@ -1030,21 +1026,6 @@ def _map_run(run_path: str) -> int:
         json.dumps({"models": sorted(int(k) for k in recs), "seconds": seconds})
     )
     return 0
-
-
-def _retry_database_open(call, tries: int = 5):
-    """`call()`, called again after a pause when COLMAP could not open the database: two mapping runs
-    opening the same SQLite database at the same moment can make one open fail ("No registered
-    database factory succeeded"; about one ingest in ten with the solution check on 2 busy cores),
-    before anything is mapped."""
-    for attempt in range(tries):
-        try:
-            return call()
-        except RuntimeError as exc:
-            if "database factory" not in str(exc) or attempt == tries - 1:
-                raise
-            time.sleep(0.2 * (attempt + 1))
-    raise AssertionError("unreachable")
 
 
 def _final_ba(job: _Job, recs: dict) -> list[dict] | None:
