@@ -56,7 +56,7 @@ class AblateConfig:
     out: str | Path
     variants: tuple[str, ...] = setting(
         DEFAULT_VARIANTS,
-        f"comma list of {', '.join(MODEL_VARIANTS)} (default {','.join(DEFAULT_VARIANTS)})",
+        f"comma list of {', '.join(MODEL_VARIANTS)}",
         parse=parse_names,
     )
     ext_data: tuple[tuple[int, str], ...] = setting(
@@ -69,7 +69,7 @@ class AblateConfig:
     posed: str | None = setting(None, "posed frames to build the extrapolation-range shards from")
     ext_ranges: tuple[int, ...] = setting(
         DEFAULT_EXT_RANGES,
-        f"with --posed: ranges to build (default {','.join(map(str, DEFAULT_EXT_RANGES))})",
+        "with --posed: ranges to build",
         parse=parse_frame_counts,
     )
     max_eval_samples: int = setting(0, "evaluate at most N samples per variant; 0: all")

@@ -229,8 +229,12 @@ def test_help_states_the_declared_default():
             help_text = next(a.help for a in parser._actions if s.flag in a.option_strings or a.dest == s.path)
             if s.kind is not bool and default not in (MISSING, None, ()):
                 assert "default" in help_text, (cls.__name__, s.flag, help_text)
-                if "default:" not in help_text and not isinstance(default, tuple):
-                    assert f"default {default}" in help_text or "default 1/200" in help_text, (s.flag, help_text)
+                if isinstance(default, tuple):
+                    shown = ("x" if s.meta["metavar"] == "HxW" else ",").join(map(str, default))
+                else:
+                    shown = str(default)
+                if "default:" not in help_text:  # "default: ..." says what a sentinel (-1, auto) means
+                    assert f"default {shown}" in help_text, (s.flag, help_text)
 
 
 def test_build_and_index_values_arrive(tmp_path):

@@ -80,7 +80,8 @@ def _help(s: Setting) -> str:
     text = s.meta["help"]
     default = s.field.default
     if s.kind is not bool and default not in (MISSING, None, ()) and "default" not in text:
-        shown = "x".join(map(str, default)) if isinstance(default, tuple) else default
+        joiner = "x" if s.meta["metavar"] == "HxW" else ","  # sizes as written on the command line
+        shown = joiner.join(map(str, default)) if isinstance(default, tuple) else default
         text += f" (default {shown})"
     return text.replace("%", "%%")
 

@@ -46,7 +46,7 @@ class DtuImportConfig(ReadSettings):
         None, "scan numbers, e.g. 1,8,21 (default: every Rectified/scanN_train)", parse=parse_int_list
     )
     lighting: int = setting(3, "lighting index of the rectified images")
-    scale: float = setting(1 / 200, "translation scale (default 1/200, as MVSplat)")
+    scale: float = setting(1 / 200, "translation scale (MVSplat's 1/200)")
     near: float = setting(2.125, "near plane")
     far: float = setting(4.525, "far plane")
 
