@@ -98,11 +98,6 @@ def parse_video_dims(text: str, flag: str) -> tuple[int, int]:
     return parse_dims(text, flag, minimum=16, maximum=MAX_VIDEO_SIDE)
 
 
-def parse_dims_or_none(text: str, flag: str) -> tuple[int, int] | None:
-    """`parse_dims`, or None for 'none' (e.g. `--resize none`: keep the stored size)."""
-    return None if str(text).strip().lower() == "none" else parse_dims(text, flag)
-
-
 def parse_megabytes(text: str, flag: str) -> int:
     """'100', '0.5' (megabytes) -> bytes; not a finite number: 0 (the stage's range check names the flag)."""
     try:

@@ -1,10 +1,10 @@
-"""The options many `seeu` commands share, each defined once with one meaning, and one parser per
-kind of value given on the command line.
+"""The options many `seeu` commands share, each defined once with one meaning.
 
 Shared flags (`add_*`): `--out` (where the command writes), `--force` (redo every stage instead of
 resuming), `--progress` / `--no-progress` (progress bars even when stderr is not a terminal / none;
-default: bars on a terminal), `--fsync` (fsync every output file before its rename), `--workers N`
-(worker processes, 1..MAX_WORKERS), `--max-pixels N` (largest image a command reads, `limits.MAX_PIXELS`).
+default: bars on a terminal), `--fsync` (fsync every output file before its rename), `--max-pixels N`
+(largest image a command reads, `limits.MAX_PIXELS`); `shared_values` reads them back, keyed by the
+config field each one sets. Every other flag is a `setting` of the command's config.
 
 The value parsers (`parse_dims`, `parse_bytes`, ...) are in seeu_data/settings.py, beside `setting`,
 the declaration flags are generated from (pipelines/cli/config_flags.py).
@@ -16,8 +16,6 @@ import argparse
 import sys
 from pathlib import Path
 from typing import Any, Protocol
-
-from seeu_data.limits import MAX_WORKERS
 
 # ------------------------------------------------------------------------------------------------
 # Shared flags
@@ -85,14 +83,6 @@ def max_pixels(args: argparse.Namespace) -> int:
 
     text = getattr(args, "max_pixels", None)
     return MAX_PIXELS if text is None else parse_pixels(text, "--max-pixels")
-
-
-def add_workers(p: Flags, what: str, default: int | None) -> None:
-    """`--workers N`: worker processes (`what` they do and the default, for the help); checked 1..MAX_WORKERS
-    by the stage."""
-    p.add_argument(
-        "--workers", type=int, default=default, metavar="N", help=f"worker processes (at most {MAX_WORKERS}): {what}"
-    )
 
 
 def shared_values(args: argparse.Namespace, flags: dict[str, str]) -> dict[str, Any]:
