@@ -23,10 +23,10 @@ from pathlib import Path
 
 import numpy as np
 
+from seeu_data.build.sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 from seeu_data.errors import SeeUError
 from seeu_data.settings import setting
 from seeu_data.store.json_file import read_json
-from seeu_data.build.sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
 
 FORMATS = ("pixelsplat", "latentsplat", "dtu", "dl3dv")
 _DTU_KEY = re.compile(r"^(scan\d+)_train_(\d+)$")

@@ -16,9 +16,9 @@ import os
 from collections.abc import Callable
 from pathlib import Path
 
-from seeu_data.ray_cluster import ensure_ray
 from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import ShardSpec
+from seeu_data.ray_cluster import ensure_ray
 
 
 def _ray_task(row: dict) -> dict:

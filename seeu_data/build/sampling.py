@@ -33,8 +33,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from seeu_data.settings import setting
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_FRAMES, MAX_SAMPLES, MAX_TARGET_VIEWS, check_range
+from seeu_data.settings import setting
 
 MODES = ("interp", "extrap")
 

@@ -9,9 +9,9 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
+from seeu_data.build.triples import ShardSpec, write_shard
 from seeu_data.errors import SeeUError
 from seeu_data.store.manifest import FileEntry
-from seeu_data.build.triples import ShardSpec, write_shard
 
 
 @dataclass

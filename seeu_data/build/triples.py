@@ -19,18 +19,18 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pyarrow as pa
 
-from seeu_data.store.arrow_io import binary_array, open_ipc_file, write_table
+from seeu_data.build.sampling import Sample, make_sample
 from seeu_data.errors import SeeUError
 from seeu_data.settings import parse_dims, setting
+from seeu_data.store.arrow_io import binary_array, open_ipc_file, write_table
 from seeu_data.store.manifest import read_manifest
-from seeu_data.build.sampling import Sample, make_sample
 from seeu_data.store.schema import arrow_schema
 from seeu_data.store.triple_row import TripleRow
 

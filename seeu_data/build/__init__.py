@@ -1,0 +1,1 @@
+"""Build stage: triple sampling, shard rows, evaluation indices and the Ray engine."""
