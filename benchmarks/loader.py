@@ -90,9 +90,9 @@ def photo_like_frames(n: int, seed: int = 0) -> list[bytes]:
 INTRINSICS = [0.86, 1.53, 0.5, 0.5]  # RE10K-like normalised intrinsics
 
 
-def make_triples(samples: int) -> list[list[bytes]]:
-    """`samples` rows of VIEWS distinct JPEGs each (drawn from 64 photo-like frames, fixed seeds)."""
-    frames = photo_like_frames(64)
+def make_triples(samples: int, distinct: int = 64) -> list[list[bytes]]:
+    """`samples` rows of VIEWS distinct JPEGs each (drawn from `distinct` photo-like frames, fixed seeds)."""
+    frames = photo_like_frames(distinct)
     rng = np.random.default_rng(1)
     return [[frames[i] for i in rng.choice(len(frames), VIEWS, replace=False)] for _ in range(samples)]
 
