@@ -221,7 +221,8 @@ class Check:
             if CARRIED.is_dir()
             else [],
         }
-        for name in ("gsplat", "lpips", "tensorboard", "jsonschema"):
+        for name in ("timm", "gsplat", "lpips", "tensorboard", "jsonschema"):
+            env[f"{name}_version"] = _version(name)
             spec = importlib.util.find_spec(name)
             env[f"{name}_from"] = (
                 None if spec is None else ("carried" if str(CARRIED) in str(spec.origin) else "machine")
@@ -448,7 +449,7 @@ class Check:
         size = self.sizes.parity_size
         g, c2w, k = pixel_aligned_scene(size, views=2)
         g, c2w, k = g.map(lambda t: t.cuda()), c2w.cuda(), k.cuda()
-        cot = torch.randn(1, 2, 3, size, size, device="cuda", generator=torch.Generator("cuda").manual_seed(0))
+        cot = torch.randn(1, 2, 3, size, size, device="cuda", generator=torch.Generator(device="cuda").manual_seed(0))
         outs, grads = {}, {}
         for backend in ("torch", "gsplat"):
             leaves = g.map(lambda t: t.detach().clone().requires_grad_())
@@ -469,6 +470,15 @@ class Check:
                 for f in grads["torch"]
             },
         }
+
+
+def _version(dist: str) -> str | None:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version(dist)
+    except PackageNotFoundError:
+        return None
 
 
 def loader_samples_per_s(loader, batches: int, seconds: float) -> float:
