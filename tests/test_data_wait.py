@@ -6,6 +6,7 @@ from __future__ import annotations
 import time
 
 import pytest
+import torch
 
 from seeu_model.training.config import load_config
 
@@ -50,6 +51,7 @@ def _fit(out, loader):
 
 
 def test_slow_loader_raises_the_logged_data_wait(batches, tmp_path):
+    assert batches[0]["context"]["image"].dtype == torch.uint8  # the loop makes them float on the device
     delay = 0.3
     fast = _fit(tmp_path / "fast", batches)
     slow = _fit(tmp_path / "slow", SlowLoader(batches, delay))
