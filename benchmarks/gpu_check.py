@@ -224,12 +224,11 @@ class Check:
             if CARRIED.is_dir()
             else [],
         }
-        for name in ("timm", "gsplat", "lpips", "tensorboard", "jsonschema"):
-            env[f"{name}_version"] = _version(name)
-            spec = importlib.util.find_spec(name)
-            env[f"{name}_from"] = (
-                None if spec is None else ("carried" if str(CARRIED) in str(spec.origin) else "machine")
-            )
+        for name in ("timm", "gsplat", "lpips", "tensorboard", "jsonschema", "scipy"):
+            why = not_importable(name)
+            module = sys.modules.get(name)
+            where = "carried" if str(CARRIED) in str(getattr(module, "__file__", "")) else "machine"
+            env[name] = f"{_version(name)} ({where})" if why is None else f"missing: {why}"
         if self.device.type == "cuda":
             props = torch.cuda.get_device_properties(0)
             env.update(
@@ -389,9 +388,10 @@ class Check:
             "log.progress=false",
             f"rasterizer={rasterizer}",
         ]
-        if importlib.util.find_spec("lpips") is None:
+        why = not_importable("lpips")
+        if why is not None:
             overrides.append("loss.lpips_weight=0")
-            notes.append("LPIPS left out: the lpips package is not importable here")
+            notes.append(f"LPIPS left out: lpips does not import here ({why})")
         cfg = load_config(ROOT / "configs" / "re10k_paper.json", overrides)
         dist = DistInfo(device=self.device)
         batches = plan_batches(cfg.data.batch_size, cfg.optim.accumulate, 1)
@@ -496,6 +496,15 @@ def end_session(proc: subprocess.Popen) -> None:
         except (OSError, ValueError, IndexError):
             continue  # gone meanwhile
     proc.wait()
+
+
+def not_importable(name: str) -> str | None:
+    """None when module `name` imports here, else why not (one line)."""
+    try:
+        importlib.import_module(name)
+    except Exception as exc:  # noqa: BLE001 - any failure means the module cannot be used
+        return f"{type(exc).__name__}: {(str(exc).splitlines() or [''])[0][:200]}"
+    return None
 
 
 def _version(dist: str) -> str | None:
