@@ -31,8 +31,8 @@ stops the rest, and the JSON is rewritten after every step, so a run cut short k
   latency_paper_gsplat, latency_mvsplat_gsplat, train_gsplat: the same with gsplat
 
 Each step is time-boxed against --budget-s (training runs stop early and say so); the dry run uses the
-tiny preset at 32x32, 3 training steps and precision bf16 (CPU autocast), as close to the GPU path as a
-CPU goes.
+tiny preset (and a narrow MVSplat) at 32x32, 2 training steps of batch 2 with one loader worker, precision
+bf16 (CPU autocast) and no LPIPS, one thread: as close to the GPU path as a CPU goes, in seconds.
 """
 
 from __future__ import annotations
