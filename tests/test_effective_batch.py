@@ -1,5 +1,5 @@
 """Effective batch (per device x devices x accumulation): the plans, and --keep-effective-batch on 1 vs 2
-processes giving the same first steps (gradient accumulation on one, DDP on two)."""
+processes giving the same first steps (4 accumulation steps on one, DDP with 2 each on two)."""
 
 from __future__ import annotations
 
@@ -46,11 +46,12 @@ def test_keep_effective_batch_one_vs_two_processes_same_first_steps(workspace, t
 
     from pipelines.train import TrainRunConfig, train
 
-    # the preset: 2 samples per device, 2 accumulation steps (effective batch 4); a larger Adam eps keeps
-    # the update linear in the gradient (see tests/test_training.py's DDP test)
+    # the preset: 1 sample per device, 4 accumulation steps (effective batch 4): one process accumulates 4
+    # micro-batches, two accumulate 2 each (DDP all-reducing on the last); a larger Adam eps keeps the update
+    # linear in the gradient (see tests/test_training.py's DDP test)
     ov = [
-        "data.batch_size=2",
-        "optim.accumulate=2",
+        "data.batch_size=1",
+        "optim.accumulate=4",
         "data.num_workers=0",
         "data.image_size=[32,32]",
         "data.flip=true",
@@ -66,12 +67,12 @@ def test_keep_effective_batch_one_vs_two_processes_same_first_steps(workspace, t
     ]
     common = dict(data=str(workspace["triples"]), overrides=ov, keep_effective_batch=True)
     one = train(TrainRunConfig(out=tmp_path / "one", model_factory=tiny_model_factory, **common))
-    assert "effective batch 4 = 2 per device x 1 device x 2 accumulation steps" in capfd.readouterr().err
+    assert "effective batch 4 = 1 per device x 1 device x 4 accumulation steps" in capfd.readouterr().err
     kwargs = dict(out=str(tmp_path / "two"), model_factory=tiny_model_factory, **common)
     mp.spawn(ddp_worker, args=(2, _free_port(), kwargs), nprocs=2, join=True)
     two = json.loads((tmp_path / "two" / "train_summary.json").read_text())
-    assert one["effective_batch"] == {"per_device": 2, "devices": 1, "accumulate": 2, "effective": 4}
-    assert two["effective_batch"] == {"per_device": 2, "devices": 2, "accumulate": 1, "effective": 4}
+    assert one["effective_batch"] == {"per_device": 1, "devices": 1, "accumulate": 4, "effective": 4}
+    assert two["effective_batch"] == {"per_device": 1, "devices": 2, "accumulate": 2, "effective": 4}
     a = ckpt_io.load_checkpoint(tmp_path / "one" / "checkpoints")
     b = ckpt_io.load_checkpoint(tmp_path / "two" / "checkpoints")
     assert (a["effective_batch"]["effective"], b["effective_batch"]["effective"]) == (4, 4)
