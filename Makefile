@@ -5,7 +5,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint install clean-venv
+.PHONY: demo test lint install clean-venv gpu-carry gpu-check
 
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -28,3 +28,12 @@ test: lint
 
 clean-venv:
 	rm -rf $(VENV)
+
+# The GPU check (benchmarks/gpu_check.py, at most 8 minutes on one H100). gpu-carry runs where a package
+# index is and fills .gpu_carry/ (gsplat's sources, pure-Python packages a bare GPU machine may lack);
+# gpu-check runs on the GPU machine with the working tree and .gpu_carry/, with its own python3.
+gpu-carry: $(STAMP)
+	$(BIN)/python benchmarks/gpu_carry.py
+
+gpu-check:
+	$(PYTHON) benchmarks/gpu_check.py --write --json out/gpu_check.json

@@ -18,8 +18,11 @@ output 256x256:
               process), and raw decode + bilinear resize/crop (the least work any loader at this
               size must do).
 
-Prints samples/s (median of `--repeats` interleaved runs) and the ratios seeu/pixelsplat (target
->= 2) and seeu/raw (target >= 0.7). On a shared machine, re-measure when it is quiet.
+Prints samples/s (median of `--repeats` interleaved runs), the ratios seeu/pixelsplat (target
+>= 2) and seeu/raw (target >= 0.7), and each loader's CPU cost: CPU-seconds (main process plus its
+DataLoader workers, user + system) per 1,000 decoded images (`cpu_s_per_1k_images`; 5 images a
+sample), the figure that says how many cores a GPU's appetite needs. On a shared machine, re-measure
+when it is quiet (CPU-seconds vary less under load than wall time).
 
 Usage: .venv/bin/python benchmarks/loader.py [--samples 240] [--repeats 3] [--workers 1 2]
 """
@@ -30,6 +33,7 @@ import argparse
 import io
 import json
 import os
+import resource
 import statistics
 import sys
 import tempfile
@@ -86,9 +90,9 @@ def photo_like_frames(n: int, seed: int = 0) -> list[bytes]:
 INTRINSICS = [0.86, 1.53, 0.5, 0.5]  # RE10K-like normalised intrinsics
 
 
-def make_triples(samples: int) -> list[list[bytes]]:
-    """`samples` rows of VIEWS distinct JPEGs each (drawn from 64 photo-like frames, fixed seeds)."""
-    frames = photo_like_frames(64)
+def make_triples(samples: int, distinct: int = 64) -> list[list[bytes]]:
+    """`samples` rows of VIEWS distinct JPEGs each (drawn from `distinct` photo-like frames, fixed seeds)."""
+    frames = photo_like_frames(distinct)
     rng = np.random.default_rng(1)
     return [[frames[i] for i in rng.choice(len(frames), VIEWS, replace=False)] for _ in range(samples)]
 
@@ -243,8 +247,18 @@ class RawDecode(IterableDataset):
             yield torch.tensor(n)
 
 
+CPU_PER_1K: dict[str, list[float]] = {}  # variant -> CPU-seconds per 1,000 images of each pass
+
+
+def cpu_seconds() -> float:
+    """CPU seconds (user + system) of this process and of its children that ended (DataLoader workers
+    are joined when an epoch ends, so a pass's workers are counted once it is over)."""
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
 def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, triples, cache: Path) -> float:
-    """samples/s of one full pass."""
+    """samples/s of one full pass; its CPU-seconds per 1,000 images go to CPU_PER_1K[name]."""
     if name.startswith("seeu"):
         dtype = {"image_dtype": "float32"} if name == "seeu-float32" else {}  # "seeu": the defaults
         loader = make_loader(shards, batch, num_workers=workers, image_hw=OUT, seed=0, cache_dir=str(cache), **dtype)
@@ -254,11 +268,13 @@ def measure(name: str, workers: int, batch: int, shards: Path, chunks: Path, tri
         loader = DataLoader(
             RawDecode(triples, batch, resize=name == "raw+resize"), batch_size=None, num_workers=workers
         )
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), cpu_seconds()
     n = 0
     for b in loader:
         n += int(b) if name.startswith("raw") else len(b["context"]["image"])
     dt = time.perf_counter() - t0
+    del loader  # no worker outlives the pass
+    CPU_PER_1K.setdefault(name, []).append(1000 * (cpu_seconds() - c0) / (len(triples) * VIEWS))
     if name.startswith("raw"):
         n //= VIEWS
     assert n == len(triples), (name, n)
@@ -307,6 +323,8 @@ def main() -> int:
                 for name in runs:
                     runs[name].append(measure(name, workers, args.batch, shards, chunks, triples, cache))
             med = {k: statistics.median(v) for k, v in runs.items()}
+            cpu = {k: statistics.median(CPU_PER_1K.pop(k)) for k in runs}
+            cpu_line = "CPU-s per 1,000 images: " + ", ".join(f"{k} {c:.2f}" for k, c in cpu.items())
             if args.variants:  # a quick partial check: the figures, and each against raw decode if measured
                 print(
                     f"workers={workers}: samples/s  "
@@ -316,6 +334,7 @@ def main() -> int:
                     )
                     + "   runs: "
                     + json.dumps({k: [round(x) for x in v] for k, v in runs.items()})
+                    + f"\n    {cpu_line}"
                 )
                 continue
             results[workers] = {
@@ -323,6 +342,7 @@ def main() -> int:
                 "seeu/pixelsplat": med["seeu"] / med["pixelsplat"],
                 "seeu/raw": med["seeu"] / med["raw"],
                 "seeu-float32/raw": med["seeu-float32"] / med["raw"],
+                "cpu_s_per_1k_images": cpu,
                 "runs": runs,
             }
             print(
@@ -335,11 +355,13 @@ def main() -> int:
                 f"{100 * med['seeu'] / med['raw']:.0f} % (float32 out {100 * med['seeu-float32'] / med['raw']:.0f} %; "
                 f"target >= 70 %); seeu/(decode+resize) {100 * med['seeu'] / med['raw+resize']:.0f} %"
             )
+            print(f"    {cpu_line}")
             lines.append(
                 f"- workers={workers}: seeu {med['seeu']:.1f} (float32 out {med['seeu-float32']:.1f}), "
                 f"pixelSplat-style {med['pixelsplat']:.1f}, raw decode {med['raw']:.1f}, decode+resize "
                 f"{med['raw+resize']:.1f}; seeu/pixelSplat {med['seeu'] / med['pixelsplat']:.2f}x, "
-                f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (float32 {100 * med['seeu-float32'] / med['raw']:.0f} %)"
+                f"seeu/raw {100 * med['seeu'] / med['raw']:.0f} % (float32 {100 * med['seeu-float32'] / med['raw']:.0f} %); "
+                f"{cpu_line}"
             )
         if args.write:
             write_section("loader", "\n".join(lines))

@@ -46,6 +46,8 @@ class TrainRunConfig:
     (`loss.lpips_weight=0`); lpips_weights: torchvision's vgg16-397923af.pth; device: cpu, cuda,
     cuda:1 (None: this rank's GPU, else CPU); progress: a bar (None: the config's `log.progress`);
     on_nonfinite: shortcut for the config's `on_nonfinite` ("stop" or "skip-batch"; None: the config's).
+    keep_effective_batch: keep the config's effective batch (data.batch_size x optim.accumulate, a preset
+    being written for one device) on any number of processes (`seeu_model.training.effective_batch`).
     stop_after: stop (with a checkpoint) at that step although the schedule runs on, as an interrupted
     run would; model_factory(model_section) -> (module, model_config_dict) replaces the SeeU model (tests).
     """
@@ -76,6 +78,12 @@ class TrainRunConfig:
         f"and go on ({MAX_CONSECUTIVE_SKIPS} such batches in a row stop the run as well; weights that went "
         f"non-finite always stop). Default: the config's on_nonfinite ({TrainConfig.on_nonfinite})",
         choices=NONFINITE_POLICIES,
+    )
+    keep_effective_batch: bool = setting(
+        False,
+        "keep the config's effective batch (data.batch_size x optim.accumulate, as for one device) and so the "
+        "meaning of its learning rate on any number of processes: the per-process batch and the gradient "
+        "accumulation steps are chosen to give it (otherwise the effective batch grows with the process count)",
     )
     progress: bool | None = None
     overrides: tuple[str, ...] = setting(
@@ -123,13 +131,14 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
-def make_train_loader(data: str, cfg, dist, cache_dir: str | None = None) -> Any:
-    """`cache_dir`: shard verification stamps and object-storage downloads (None: $SEEU_CACHE_DIR)."""
+def make_train_loader(data: str, cfg, dist, cache_dir: str | None = None, batch_size: int | None = None) -> Any:
+    """`cache_dir`: shard verification stamps and object-storage downloads (None: $SEEU_CACHE_DIR);
+    `batch_size`: per process (None: the config's `data.batch_size`)."""
     from seeu_data.loader import make_loader
 
     return make_loader(
         data,
-        cfg.data.batch_size,
+        batch_size or cfg.data.batch_size,
         num_workers=cfg.data.num_workers,
         rank=dist.rank,
         world_size=dist.world_size,
@@ -188,7 +197,7 @@ def make_lpips(cfg, lpips_weights: str | None = None):
 @locks_output(lambda run: run.out if os.environ.get("RANK", "0") == "0" else None)  # rank 0 holds it
 def train(run: TrainRunConfig) -> dict:
     """Train; returns a summary dict: rank, step, checkpoint, steps_per_s, seconds, final (last logged
-    scalars), history, val, world_size, device (also OUT/train_summary.json from rank 0).
+    scalars), history, val, world_size, effective_batch, device (also OUT/train_summary.json from rank 0).
 
     The Python API of `seeu train` (used by `seeu demo` and `seeu ablate`).
     """
@@ -198,6 +207,7 @@ def train(run: TrainRunConfig) -> dict:
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import apply_overrides, config_from_dict, load_config
     from seeu_model.training.distributed import cleanup_distributed, setup_distributed
+    from seeu_model.training.effective_batch import plan_batches
     from seeu_model.training.factory import build_model, encode_context, make_render_fn, render_gaussians
     from seeu_model.training.loop import Trainer, autocast_context
 
@@ -233,8 +243,9 @@ def train(run: TrainRunConfig) -> dict:
     try:
         if dist.device.type == "cuda" and cfg.precision == "bf16" and not torch.cuda.is_bf16_supported():
             raise SeeUError("precision=bf16 but this GPU does not support bfloat16 (use precision=fp32)")
+        batches = plan_batches(cfg.data.batch_size, cfg.optim.accumulate, dist.world_size, run.keep_effective_batch)
         lpips_fn = make_lpips(cfg, run.lpips_weights)  # fail early: missing VGG weights, bad data
-        loader = make_train_loader(run.data, cfg, dist, run_cache_dir(out))
+        loader = make_train_loader(run.data, cfg, dist, run_cache_dir(out), batches.per_device)
         seed_everything(cfg.seed)
         factory = run.model_factory or build_model
         model, model_cfg = factory(cfg.model)
@@ -269,7 +280,9 @@ def train(run: TrainRunConfig) -> dict:
                 s = summarize(res.records)
                 return {k: s[k] for k in ("psnr", "ssim", "lpips", "num_targets") if not _isnan(s[k])}
 
-        trainer = Trainer(model, cfg, out, make_render_fn(cfg.rasterizer), dist, lpips_fn, model_cfg, eval_fn)
+        trainer = Trainer(
+            model, cfg, out, make_render_fn(cfg.rasterizer), dist, lpips_fn, model_cfg, eval_fn, batches=batches
+        )
         result = trainer.fit(loader, stop_after=run.stop_after, resume_from=resume_ckpt)
         summary = {
             "rank": dist.rank,
@@ -282,6 +295,7 @@ def train(run: TrainRunConfig) -> dict:
             "val": result.val,
             "skipped_batches": result.skipped_batches,
             "world_size": dist.world_size,
+            "effective_batch": batches.to_dict(),
             "device": str(dist.device),
         }
         if dist.is_main:

@@ -6,12 +6,15 @@ Examples:
   seeu train --data ... --config ... --out runs/re10k --resume          # continue from the newest checkpoint
   seeu train --data ... --config configs/re10k_paper.json --out runs/ft --init-from runs/mvsplat/checkpoints
   torchrun --nproc_per_node=8 -m pipelines.cli train --data ... --config configs/re10k_paper.json --out runs/ddp
+  torchrun --nproc_per_node=2 -m pipelines.cli train ... --config re10k_paper --keep-effective-batch   # 2 x 4 = 8
   (multi-node: torchrun --nnodes=N --node_rank=R --rdzv_endpoint=HOST:PORT --nproc_per_node=G -m pipelines.cli train ...)
 
 Overrides are `section.key=value` after the options (optim.lr=1e-4 data.batch_size=4 model.refiner=unet
 loss.lpips_weight=0). Writes OUT/config.json, OUT/checkpoints/ckpt-*.pt (atomic, last K kept),
 OUT/tb (TensorBoard: losses, PSNR, lr, rendered vs ground-truth images, validation), OUT/train_summary.json
 and OUT/cache (the loader's shard verification stamps and object-storage downloads; $SEEU_CACHE_DIR instead when set).
+The effective batch (data.batch_size per process x processes x optim.accumulate) is printed at the start
+and stored in every checkpoint; --keep-effective-batch keeps the config's (written for one device).
 LPIPS(VGG) needs torchvision's vgg16-397923af.pth in $TORCH_HOME/hub/checkpoints or --lpips-weights PATH;
 --no-lpips trains with MSE only.
 A step whose loss, gradients or weights hold NaN/inf stops the run (exit 2, one line naming the step and

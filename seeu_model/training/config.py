@@ -51,7 +51,7 @@ MAX_CONSECUTIVE_SKIPS = 20
 class DataConfig:
     """Loader settings. image_size: (H, W) after resize/centre-crop."""
 
-    batch_size: int = 8  # per process (global batch = batch_size x world size)
+    batch_size: int = 8  # per process and micro-batch (effective batch = batch_size x world size x optim.accumulate)
     image_size: tuple[int, int] = (256, 256)
     num_workers: int = 2
     seed: int = 0
@@ -73,6 +73,7 @@ class OptimConfig:
     max_steps: int = 300_000
     min_lr_ratio: float = 0.0
     grad_clip: float = 0.5  # max global grad norm; 0 = off
+    accumulate: int = 1  # micro-batches per optimizer step (gradient accumulation; effective_batch.py)
 
 
 @dataclass
@@ -107,7 +108,7 @@ class TrainConfig:
     loss: LossConfig = field(default_factory=LossConfig)
     checkpoint: CheckpointConfig = field(default_factory=CheckpointConfig)
     log: LogConfig = field(default_factory=LogConfig)
-    precision: str = "auto"  # "auto" (bf16 autocast on CUDA, fp32 on CPU) | "bf16" | "fp32"
+    precision: str = "auto"  # "auto" (bf16 autocast on CUDA, fp32 on CPU) | "bf16" (CUDA or CPU autocast) | "fp32"
     rasterizer: str = "auto"  # "auto" | "torch" | "gsplat"
     seed: int = 0  # model init and training RNG
     on_nonfinite: str = "stop"  # one of NONFINITE_POLICIES: a non-finite loss / gradient / weight
@@ -303,6 +304,7 @@ def validate(cfg: TrainConfig) -> None:
         ("data.val_max_samples", d.val_max_samples, 0, MAX_SAMPLES),
         ("optim.max_steps", o.max_steps, 1, MAX_STEPS),
         ("optim.warmup_steps", o.warmup_steps, 0, MAX_STEPS),
+        ("optim.accumulate", o.accumulate, 1, MAX_BATCH_SIZE),
         ("checkpoint.every", c.every, 1, MAX_STEPS),
         ("checkpoint.keep", c.keep, 1, MAX_STEPS),
         ("log.every", lg.every, 1, MAX_STEPS),

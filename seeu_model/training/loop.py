@@ -1,5 +1,6 @@
-"""The training loop: AdamW + warm-up/cosine, gradient clipping, bf16 autocast on CUDA, DDP,
-atomic checkpoints with exact resume, TensorBoard logs and a tqdm progress bar.
+"""The training loop: AdamW + warm-up/cosine, gradient clipping, gradient accumulation, bf16 autocast
+(CUDA, or CPU with precision="bf16"), DDP, atomic checkpoints with exact resume, TensorBoard logs and a
+tqdm progress bar.
 
 The loop never opens files of the dataset: it gets a loader object (``seeu_data.loader.make_loader``
 or anything with ``__iter__``, ``state_dict()`` and ``load_state_dict()``) from the pipeline, and a
@@ -13,6 +14,15 @@ parameters). `cfg.on_nonfinite` says what follows: "stop" raises SeeUError (one 
 and the batch's sample ids; nothing of that step is saved), "skip-batch" drops the batch's update and
 goes on, until `MAX_CONSECUTIVE_SKIPS` batches in a row were skipped. `save_checkpoint` refuses a
 non-finite tensor as well.
+
+Data wait: the seconds each step spends blocked on the loader (`data_wait_s`, mean per step of a
+logging interval) and their share of the interval's wall time (`data_wait_share`) are logged with the
+other scalars (history, TensorBoard `train/data_wait_*`, the progress bar's `wait`): a share near 0
+means the loader keeps up; a high one means the device waits for data (more `data.num_workers`).
+
+Effective batch: `BatchPlan` (effective_batch.py), printed when training starts and stored in every
+checkpoint (`effective_batch`); a step runs `accumulate` micro-batches, each loss weighed 1/accumulate,
+gradients all-reduced by DDP on the last one only.
 
 Resume restores model, optimizer, scheduler, step, the loader position and the RNG states of
 torch / CUDA / numpy / python of every rank, so a resumed run follows the same loss curve as an
@@ -39,6 +49,7 @@ from seeu_model.training import checkpoint as ckpt_io
 from seeu_model.training.checkpoint import load_model_state
 from seeu_model.training.config import MAX_CONSECUTIVE_SKIPS, TrainConfig, save_config
 from seeu_model.training.distributed import DistInfo, all_gather_objects, max_across, mean_across
+from seeu_model.training.effective_batch import BatchPlan, plan_batches
 from seeu_model.training.factory import model_state_for_checkpoint
 from seeu_model.training.loss import LossParts, photometric_loss
 from seeu_model.training.schedule import make_scheduler
@@ -92,9 +103,9 @@ def batch_to(batch: Any, device: torch.device) -> Any:
 
 
 def autocast_context(precision: str, device: torch.device):
-    """bf16 autocast on CUDA ("auto" or "bf16"); fp32 everywhere else."""
-    if device.type == "cuda" and precision in ("auto", "bf16"):
-        return torch.autocast("cuda", dtype=torch.bfloat16)
+    """bf16 autocast on CUDA ("auto" or "bf16") and on the CPU ("bf16" only: CPU autocast); fp32 otherwise."""
+    if precision == "bf16" or (precision == "auto" and device.type == "cuda"):
+        return torch.autocast(device.type, dtype=torch.bfloat16)
     return contextlib.nullcontext()
 
 
@@ -120,11 +131,19 @@ def _progress_enabled(flag: bool | None) -> bool:
     return sys.stderr.isatty() if flag is None else bool(flag)
 
 
+def _mean_parts(parts: list[LossParts]) -> LossParts:
+    """The loss parts of one optimizer step: the mean over its micro-batches."""
+    n = len(parts)
+    return LossParts(*(sum(getattr(p, f) for p in parts) / n for f in ("loss", "mse", "lpips", "psnr")))
+
+
 class Trainer:
     """Owns model, optimizer, scheduler and step; `fit(loader)` trains to `cfg.optim.max_steps`.
 
     model: an nn.Module (moved to `dist.device`; wrapped in DDP when the world size is > 1).
     model_config: stored in checkpoints so `seeu eval` / `seeu render` can rebuild the model.
+    batches: the run's `BatchPlan` (default: the config's batch size and accumulation on this world size);
+    the loader must yield `batches.per_device` samples per batch.
     """
 
     def __init__(
@@ -137,12 +156,14 @@ class Trainer:
         lpips_fn: nn.Module | None = None,
         model_config: dict | None = None,
         eval_fn: EvalFn | None = None,
+        batches: BatchPlan | None = None,
     ):
         self.cfg = cfg
         self.out_dir = Path(out_dir)
         self.ckpt_dir = self.out_dir / "checkpoints"
         self.dist = dist or DistInfo()
         self.device = self.dist.device
+        self.batches = batches or plan_batches(cfg.data.batch_size, cfg.optim.accumulate, self.dist.world_size)
         self.render_fn = render_fn
         self.eval_fn = eval_fn
         self.model_config = dict(model_config or {})
@@ -151,13 +172,16 @@ class Trainer:
         if self.dist.enabled:
             from torch.nn.parallel import DistributedDataParallel as DDP
 
-            self.ddp: nn.Module = DDP(
+            ddp = DDP(
                 self.model,
                 device_ids=[self.device] if self.device.type == "cuda" else None,
                 find_unused_parameters=True,
             )
+            self.ddp: nn.Module = ddp
+            self.no_sync: Callable[[], contextlib.AbstractContextManager] = ddp.no_sync  # no gradient all-reduce
         else:
             self.ddp = self.model
+            self.no_sync = contextlib.nullcontext
         o = cfg.optim
         fused = self.device.type == "cuda"
         self.optimizer = torch.optim.AdamW(
@@ -188,6 +212,7 @@ class Trainer:
             "rng": rngs[0],
             "rng_per_rank": rngs,
             "world_size": self.dist.world_size,
+            "effective_batch": self.batches.to_dict(),
             "history_tail": self.history[-20:],
             "skipped_batches": self.skipped_batches,
         }
@@ -226,26 +251,35 @@ class Trainer:
         return self.step
 
     # ------------------------------------------------------------------ one step
-    def train_step(self, batch: dict) -> tuple[LossParts, float]:
-        """One optimizer step on a loader batch; returns the loss parts and the pre-clip grad norm.
+    def train_step(self, batch: dict | list[dict]) -> tuple[LossParts, float]:
+        """One optimizer step on a loader batch, or on the micro-batches of one step (gradient
+        accumulation: each micro-batch's loss weighs 1/len); returns the loss parts (mean over the
+        micro-batches) and the pre-clip grad norm.
 
         Raises NonFiniteStep when the loss or the gradients are not finite (the update is not applied:
         gradients zeroed, no optimizer or scheduler step, `self.step` unchanged) or when the weights are
         not finite after the optimizer step (applied=True)."""
         self.ddp.train()
-        ids = batch_sample_ids(batch)
-        batch = batch_to(batch, self.device)
-        gt = batch["target"]["image"]
-        valid = ~batch["is_padding"] if "is_padding" in batch else None
-        with autocast_context(self.cfg.precision, self.device):
-            pred = self.render_fn(self.ddp, batch)
-            loss, parts = photometric_loss(pred, gt, valid, self.lpips_fn, self.cfg.loss.lpips_weight)
+        micro = batch if isinstance(batch, list) else [batch]
+        ids = ", ".join(batch_sample_ids(b) for b in micro)
         self.optimizer.zero_grad(set_to_none=True)
-        loss.backward()
+        all_parts = []
+        for i, one in enumerate(micro):
+            last = i == len(micro) - 1
+            with contextlib.nullcontext() if last else self.no_sync():  # all-reduce on the last one
+                one = batch_to(one, self.device)
+                gt = one["target"]["image"]
+                valid = ~one["is_padding"] if "is_padding" in one else None
+                with autocast_context(self.cfg.precision, self.device):
+                    pred = self.render_fn(self.ddp, one)
+                    loss, parts = photometric_loss(pred, gt, valid, self.lpips_fn, self.cfg.loss.lpips_weight)
+                (loss / len(micro)).backward()
+            all_parts.append(parts)
+        parts = _mean_parts(all_parts)
         params = [p for g in self.optimizer.param_groups for p in g["params"]]
         clip = self.cfg.optim.grad_clip
         grad_norm = float(torch.nn.utils.clip_grad_norm_(params, clip if clip > 0 else float("inf")))
-        code = 2 if not math.isfinite(parts.loss) else 0
+        code = 2 if not all(math.isfinite(p.loss) for p in all_parts) else 0
         if code == 0 and not math.isfinite(grad_norm) and not _finite_max(p.grad for p in params):
             code = 1  # not just a 2-norm overflowing: a gradient holds NaN / inf
         code = max_across(code, self.dist)  # a rank's bad loss stops (or skips) every rank
@@ -324,6 +358,8 @@ class Trainer:
             from torch.utils.tensorboard import SummaryWriter
 
             writer = SummaryWriter(str(self.out_dir / "tb"), purge_step=self.step if self.step else None)
+        if self.dist.is_main:
+            print(f"train: {self.batches.describe()}, learning rate {cfg.optim.lr:g}", file=sys.stderr, flush=True)
         bar = None
         if self.dist.is_main and _progress_enabled(cfg.log.progress):
             from tqdm import tqdm
@@ -340,62 +376,53 @@ class Trainer:
         t_start = time.perf_counter()
         start_step = self.step
         t_log, s_log = t_start, self.step
+        waited = 0.0  # seconds blocked on the loader since the last log
+        t_step = t_start
         try:
-            empty_passes = 0
-            while self.step < target:
-                got_batch = False
-                for batch in loader:
-                    got_batch = True
-                    empty_passes = 0
-                    try:
-                        parts, gnorm = self.train_step(batch)
-                    except NonFiniteStep as bad:
-                        self._nonfinite(bad, writer, bar)  # returns only when the batch is skipped
-                        continue
-                    self.skipped_in_a_row = 0
-                    if bar is not None:
-                        bar.update(1)
-                        bar.set_postfix(loss=f"{parts.loss:.4f}", psnr=f"{parts.psnr:.2f}", refresh=False)
-                    if self.step % cfg.log.every == 0 or self.step == target:
-                        now = time.perf_counter()
-                        rec = {
-                            "step": self.step,
-                            "loss": mean_across(parts.loss, self.dist),
-                            "mse": mean_across(parts.mse, self.dist),
-                            "lpips": mean_across(parts.lpips, self.dist),
-                            "psnr": mean_across(parts.psnr, self.dist),
-                            "grad_norm": gnorm,
-                            "lr": self.scheduler.get_last_lr()[0],
-                            "it_per_s": (self.step - s_log) / max(now - t_log, 1e-9),
-                        }
-                        t_log, s_log = now, self.step
-                        self.history.append(rec)
-                        if writer is not None:
-                            for k, v in rec.items():
-                                if k != "step":
-                                    writer.add_scalar(f"train/{k}", v, self.step)
-                    if writer is not None and (self.step % cfg.log.image_every == 0 or self.step == 1):
-                        self._log_images(writer)
-                    if self.step % cfg.checkpoint.every == 0 and self.step < target:
-                        self.save(loader)
-                    if (
-                        (val_loader is not None or self.eval_fn is not None)
-                        and cfg.log.val_every > 0
-                        and self.step % cfg.log.val_every == 0
-                        and self.step < target
-                    ):
-                        self._validate(writer)
-                    if self.step >= target:
-                        break
-                # one empty pass is the end of an epoch (a loader resumed right after an epoch's last
-                # batch); two in a row mean the data yields nothing
-                empty_passes += 0 if got_batch else 1
-                if empty_passes >= 2:
-                    raise SeeUError(
-                        "the training data yielded no batch (empty dataset, or batch larger than "
-                        "the dataset with remainder='drop')",
-                        self.out_dir,
-                    )
+            for batch, wait_s in self._step_batches(loader, target):
+                waited += wait_s
+                try:
+                    parts, gnorm = self.train_step(batch)
+                except NonFiniteStep as bad:
+                    self._nonfinite(bad, writer, bar)  # returns only when the batch is skipped
+                    continue
+                self.skipped_in_a_row = 0
+                now = time.perf_counter()
+                if bar is not None:
+                    bar.update(1)
+                    wait = f"{wait_s / max(now - t_step, 1e-9):.0%}"
+                    bar.set_postfix(loss=f"{parts.loss:.4f}", psnr=f"{parts.psnr:.2f}", wait=wait, refresh=False)
+                t_step = now
+                if self.step % cfg.log.every == 0 or self.step == target:
+                    rec = {
+                        "step": self.step,
+                        "loss": mean_across(parts.loss, self.dist),
+                        "mse": mean_across(parts.mse, self.dist),
+                        "lpips": mean_across(parts.lpips, self.dist),
+                        "psnr": mean_across(parts.psnr, self.dist),
+                        "grad_norm": gnorm,
+                        "lr": self.scheduler.get_last_lr()[0],
+                        "it_per_s": (self.step - s_log) / max(now - t_log, 1e-9),
+                        "data_wait_s": mean_across(waited / max(self.step - s_log, 1), self.dist),
+                        "data_wait_share": mean_across(waited / max(now - t_log, 1e-9), self.dist),
+                    }
+                    t_log, s_log, waited = now, self.step, 0.0
+                    self.history.append(rec)
+                    if writer is not None:
+                        for k, v in rec.items():
+                            if k != "step":
+                                writer.add_scalar(f"train/{k}", v, self.step)
+                if writer is not None and (self.step % cfg.log.image_every == 0 or self.step == 1):
+                    self._log_images(writer)
+                if self.step % cfg.checkpoint.every == 0 and self.step < target:
+                    self.save(loader)
+                if (
+                    (val_loader is not None or self.eval_fn is not None)
+                    and cfg.log.val_every > 0
+                    and self.step % cfg.log.val_every == 0
+                    and self.step < target
+                ):
+                    self._validate(writer)
             if self.eval_fn is not None:
                 self._validate(writer)
             self.save(loader)
@@ -416,6 +443,37 @@ class Trainer:
             (self.step - start_step) / max(seconds, 1e-9),
             self.skipped_batches,
         )
+
+    def _step_batches(self, loader, target: int):
+        """The loader's batches grouped into optimizer steps (`batches.accumulate` each), across epochs,
+        while `self.step` < `target`: yields (micro-batches, seconds spent waiting for them).
+
+        One empty pass over the loader is the end of an epoch (a loader resumed right after an epoch's
+        last batch); two in a row mean the data yields nothing."""
+        micro: list = []
+        waited, empty_passes = 0.0, 0
+        while self.step < target:
+            got_batch = False
+            t0 = time.perf_counter()
+            batches = iter(loader)
+            while self.step < target:
+                batch = next(batches, None)
+                waited += time.perf_counter() - t0
+                if batch is None:
+                    break
+                got_batch = True
+                micro.append(batch)
+                if len(micro) == self.batches.accumulate:
+                    yield micro, waited
+                    micro, waited = [], 0.0
+                t0 = time.perf_counter()
+            empty_passes = 0 if got_batch else empty_passes + 1
+            if empty_passes >= 2:
+                raise SeeUError(
+                    "the training data yielded no batch (empty dataset, or batch larger than "
+                    "the dataset with remainder='drop')",
+                    self.out_dir,
+                )
 
     def _validate(self, writer) -> None:
         if not self.dist.is_main or self.eval_fn is None:
