@@ -201,7 +201,9 @@ def test_a_masked_moving_object_changes_no_gradient(tmp_path):
         if not masked:
             for side in ("context", "target"):
                 del batch[side]["mask"]
-        trainer = Trainer(tiny_model_factory({})[0], cfg, tmp_path / name / "run", make_render_fn("torch"), lpips_fn=lpips_fn)
+        trainer = Trainer(
+            tiny_model_factory({})[0], cfg, tmp_path / name / "run", make_render_fn("torch"), lpips_fn=lpips_fn
+        )
         parts, _ = trainer.train_step(batch)
         return parts.loss, [p.grad.clone() for p in trainer.model.parameters()]
 
@@ -211,3 +213,200 @@ def test_a_masked_moving_object_changes_no_gradient(tmp_path):
     assert any(x.abs().max() > 0 for x in ga)
     (_, ua), (_, ub) = grads("a", masked=False), grads("b", masked=False)
     assert not all(torch.allclose(x, y, rtol=1e-3, atol=1e-7) for x, y in zip(ua, ub))
+
+
+# ---- import / export -------------------------------------------------------------------------
+
+
+def _posed_dir(tmp_path, scene) -> str:
+    with PosedDatasetWriter(tmp_path / "posed", params={}, provenance={}) as w:
+        w.add(scene)
+    return str(tmp_path / "posed")
+
+
+def test_nerfstudio_masks_exported_in_its_convention_and_imported_back(tmp_path):
+    from pipelines.cli import main as cli_main
+
+    scene = masked_scene("walk")
+    assert cli_main(["export", "nerfstudio", _posed_dir(tmp_path, scene), "--out", str(tmp_path / "ns")]) == 0
+    doc = json.loads((tmp_path / "ns" / "walk" / "transforms.json").read_text())
+    for i, frame in enumerate(doc["frames"]):
+        if i % 2:
+            assert "mask_path" not in frame
+            continue
+        # nerfstudio's dataparser reads the mask as bool(pixel): True = the pixel is used
+        kept = cv2.imread(str(tmp_path / "ns" / "walk" / frame["mask_path"]), cv2.IMREAD_UNCHANGED).astype(bool)
+        assert np.array_equal(kept, ~box_mask(48, 64, i))
+    out = tmp_path / "back"
+    assert cli_main(["import", "nerfstudio", str(tmp_path / "ns" / "walk" / "transforms.json"), "--out", str(out)]) == 0
+    got = PosedDataset(out).load_scene("walk")
+    assert [m is None for m in got.masks] == [m is None for m in scene.masks]
+    for i in range(0, 6, 2):
+        assert np.array_equal(decode_mask(got.masks[i]), box_mask(48, 64, i))
+
+
+def test_nerfstudio_mask_path_of_its_own_convention(tmp_path, capsys):
+    """A nerfstudio folder written by hand: masks 0 = ignore, any nonzero value (here 1) = keep."""
+    from pipelines.cli import main as cli_main
+
+    folder = tmp_path / "ns"
+    (folder / "images").mkdir(parents=True)
+    (folder / "m").mkdir()
+    frames = []
+    for i in range(3):
+        cv2.imwrite(str(folder / "images" / f"f{i}.png"), np.full((20, 30, 3), 60 * i, np.uint8))
+        keep = np.ones((20, 30), np.uint8)
+        keep[5:9, i : i + 10] = 0
+        cv2.imwrite(str(folder / "m" / f"f{i}.png"), keep)
+        frames.append(
+            {"file_path": f"images/f{i}.png", "mask_path": f"m/f{i}.png", "transform_matrix": np.eye(4).tolist()}
+        )
+    doc = {"fl_x": 30.0, "fl_y": 30.0, "w": 30, "h": 20, "camera_model": "PINHOLE", "frames": frames}
+    (folder / "transforms.json").write_text(json.dumps(doc))
+    assert cli_main(["import", "nerfstudio", str(folder / "transforms.json"), "--out", str(tmp_path / "o")]) == 0
+    scene = PosedDataset(tmp_path / "o").load_scene("ns")
+    for i in range(3):
+        expect = np.zeros((20, 30), bool)
+        expect[5:9, i : i + 10] = True
+        assert np.array_equal(decode_mask(scene.masks[i]), expect)
+    cv2.imwrite(str(folder / "m" / "f1.png"), np.ones((10, 30), np.uint8))
+    assert cli_main(["import", "nerfstudio", str(folder / "transforms.json"), "--out", str(tmp_path / "o2")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "mask is 30x10, its frame 30x20" in err and "f1.png" in err
+
+
+def test_a_users_mask_folder_on_import(tmp_path, capsys):
+    """--masks DIR: files matched by frame name (or number), nonzero = excluded by default, --mask-convention
+    keep for the other polarity; a folder that matches no frame or a mask of another size: one line, exit 2."""
+    from pipelines.cli import main as cli_main
+
+    scene = make_posed_scene("walk", n=6)  # frames named frame_00000.jpg, frame_00003.jpg, ...
+    assert cli_main(["export", "nerfstudio", _posed_dir(tmp_path, scene), "--out", str(tmp_path / "ns")]) == 0
+    transforms = str(tmp_path / "ns" / "walk" / "transforms.json")
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for i in (1, 4):
+        cv2.imwrite(str(masks / f"frame_{3 * i:05d}.png"), box_mask(48, 64, i).astype(np.uint8) * 255)
+    assert cli_main(["import", "nerfstudio", transforms, "--out", str(tmp_path / "o"), "--masks", str(masks)]) == 0
+    got = PosedDataset(tmp_path / "o").load_scene("walk")
+    assert [m is not None for m in got.masks] == [False, True, False, False, True, False]
+    assert np.array_equal(decode_mask(got.masks[4]), box_mask(48, 64, 4))
+    assert got.meta["masks"]["frames"] == 2
+    argv = ["import", "nerfstudio", transforms, "--masks", str(masks), "--mask-convention", "keep"]
+    assert cli_main([*argv, "--out", str(tmp_path / "k")]) == 0
+    got = PosedDataset(tmp_path / "k").load_scene("walk")
+    assert np.array_equal(decode_mask(got.masks[1]), ~box_mask(48, 64, 1))
+    (masks / "frame_00003.png").rename(masks / "other_7.png")
+    cv2.imwrite(str(masks / "frame_00012.png"), np.zeros((40, 64), np.uint8))
+    capsys.readouterr()
+    assert cli_main([*argv, "--out", str(tmp_path / "bad")]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "mask is 64x40, its frame 64x48" in err and "frame_00012.png" in err
+    for p in masks.iterdir():
+        p.rename(masks / f"x{p.name}")
+    (masks / "xframe_00012.png").unlink()  # left: xother_7.png, whose number is no frame's
+    assert cli_main([*argv, "--out", str(tmp_path / "none")]) == 2
+    assert "no mask file matches a frame (frames are named like 'frame_00000'" in capsys.readouterr().err
+
+
+# ---- metrics and evaluation --------------------------------------------------------------------
+
+
+def test_masked_psnr_and_ssim_against_closed_form_and_scikit_image():
+    from skimage.metrics import structural_similarity
+
+    from seeu_model.metrics import fill_masked, psnr, ssim
+
+    rng = np.random.default_rng(0)
+    gt = torch.from_numpy(rng.random((2, 3, 32, 40)))
+    pred = (gt + torch.from_numpy(rng.normal(0, 0.05, gt.shape))).clamp(0, 1)
+    mask = torch.zeros(2, 32, 40, dtype=torch.bool)
+    mask[0, 8:20, 10:30] = True
+    gt[0, :, 8:20, 10:30] = 1.0 - pred[0, :, 8:20, 10:30]  # a "moving object" the masked metrics must not see
+    keep = ~mask[0]
+    err = (pred[0] - gt[0]).pow(2)[:, keep]
+    assert psnr(pred, gt, mask=mask)[0].item() == pytest.approx(-10 * np.log10(err.mean().item()), rel=1e-9)
+    assert psnr(pred, gt, mask=mask)[1].item() == pytest.approx(psnr(pred, gt)[1].item(), rel=1e-9)
+    filled = fill_masked(pred, gt, mask)
+    for k in range(2):
+        _, smap = structural_similarity(
+            pred[k].numpy(),
+            filled[k].numpy(),
+            win_size=11,
+            gaussian_weights=True,
+            sigma=1.5,
+            use_sample_covariance=True,
+            data_range=1.0,
+            channel_axis=0,
+            full=True,
+        )
+        centre = smap.mean(0)[5:-5, 5:-5]
+        expect = centre[(~mask[k]).numpy()[5:-5, 5:-5]].mean()
+        assert ssim(pred, gt, mask=mask)[k].item() == pytest.approx(expect, abs=1e-6)
+    assert ssim(pred, gt, mask=mask)[1].item() == pytest.approx(ssim(pred, gt)[1].item(), abs=1e-12)
+
+
+def test_eval_reports_metrics_with_and_without_masked_pixels():
+    from seeu_model.evaluation import evaluate_model, summarize
+    from seeu_model.rasterizer import RenderOutput
+
+    rng = np.random.default_rng(1)
+    gt = torch.from_numpy(rng.random((2, 2, 3, 24, 24)).astype(np.float32))
+    pred = (gt + 0.02).clamp(0, 1)
+    mask = torch.zeros(2, 2, 24, 24, dtype=torch.bool)
+    mask[0, 1, :12] = True  # one target half masked; its top half is wrong in the data
+    gt_moving = gt.clone()
+    gt_moving[0, 1, :, :12] = 1 - pred[0, 1, :, :12]
+
+    def batches(target_image, with_mask):
+        target = {"image": target_image, "frame_index": torch.zeros(2, 2, dtype=torch.int64)}
+        if with_mask:
+            target["mask"] = mask
+        yield {"context": {}, "target": target, "scene_id": ["a", "b"], "sample_id": ["a/0", "b/0"]}
+
+    def run(image, with_mask):
+        render = lambda g, t: RenderOutput(pred, torch.zeros(2, 2, 1, 24, 24), torch.ones(2, 2, 1, 24, 24))  # noqa: E731
+        out = evaluate_model(
+            NoModel(), batches(image, with_mask), torch.device("cpu"), lambda m, c: None, render, warmup=0
+        )
+        return summarize(out.records)
+
+    class NoModel(torch.nn.Module):
+        pass
+
+    plain, masked, clean = run(gt_moving, False), run(gt_moving, True), run(gt, True)
+    assert "psnr_kept" not in plain and plain["psnr"] == masked["psnr"] and plain["ssim"] == masked["ssim"]
+    assert masked["masked_fraction"] == pytest.approx(0.5 * 0.5 * 0.5)  # half of 1 of 2 targets, scene a; 0 in b
+    assert masked["psnr_kept"] == pytest.approx(clean["psnr_kept"], abs=1e-9)  # the moving content is not seen
+    assert masked["psnr_kept"] > masked["psnr"] + 5
+
+
+def test_ingest_masks_follow_the_downscale_and_the_undistortion(tmp_path):
+    """`seeu ingest --masks`: masks at the video's size, frames decoded at half size (--max-size) and
+    undistorted by SfM: each mask is halved and warped like its frame (the frame's own undistortion,
+    `undistort_files`, applied to the mask as an image gives the same pixels)."""
+    from types import SimpleNamespace
+
+    import pycolmap
+
+    from pipelines.ingest import IngestConfig, chunk_masks
+    from seeu_data.undistort import undistort_files
+
+    cam = {"model": "SIMPLE_RADIAL", "width": 64, "height": 48, "params": [60.0, 32.0, 24.0, 0.08]}
+    chunk = SimpleNamespace(
+        meta={"camera_as_mapped": cam, "undistorted": True}, width=np.full(3, 64), height=np.full(3, 48)
+    )
+    frames = [{"source_name": "", "source_frame": 10 * i} for i in range(3)]
+    folder = tmp_path / "masks" / "clip"
+    folder.mkdir(parents=True)
+    big = np.kron(box_mask(48, 64, 3), np.ones((2, 2), bool))  # the video's 96x128: each mask pixel 2x2
+    cv2.imwrite(str(folder / "frame_000010.png"), big.astype(np.uint8) * 255)
+    cfg = IngestConfig(out=tmp_path / "o", inputs=("clip.mp4",), masks=str(tmp_path / "masks"))
+    got = chunk_masks(cfg, "clip", chunk, frames)
+    assert got[0] is None and got[2] is None
+    (tmp_path / "img").mkdir()
+    cv2.imwrite(str(tmp_path / "img" / "m.png"), np.repeat(box_mask(48, 64, 3)[..., None], 3, 2).astype(np.uint8) * 255)
+    camera = pycolmap.Camera(model=cam["model"], width=64, height=48, params=cam["params"])
+    undistort_files(camera, tmp_path / "img", ["m.png"], tmp_path / "und")
+    expect = cv2.imread(str(tmp_path / "und" / "m.png"), cv2.IMREAD_GRAYSCALE) > 0
+    assert np.array_equal(decode_mask(got[1]), expect) and expect.sum() > box_mask(48, 64, 3).sum() * 0.8
