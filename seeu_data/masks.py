@@ -142,3 +142,14 @@ def masks_from_folder(
             raise SeeUError(f"mask is {mask.shape[1]}x{mask.shape[0]}, its frame {w}x{h}", path)
         out.append(encode_mask(mask))
     return out
+
+
+def tint_masked(rgb: np.ndarray, mask_png, colour: tuple[int, int, int] = (255, 0, 255)) -> np.ndarray:
+    """(H, W, 3) uint8 RGB with its masked pixels (`mask_png`: the frame's stored mask, or None)
+    blended half-way towards `colour`: how `seeu view` and `seeu inspect --sheet` show masks."""
+    if mask_png is None:
+        return rgb
+    mask = decode_mask(mask_png)
+    out = rgb.copy()
+    out[mask] = (out[mask].astype(np.uint16) + np.asarray(colour, np.uint16)) // 2
+    return out

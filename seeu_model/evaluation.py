@@ -223,6 +223,14 @@ def _reported(records: list[TargetRecord]) -> tuple[str, ...]:
     return (*METRICS, "depth_rmse", *(KEPT_METRICS if masked else ()))
 
 
+def _value(r: TargetRecord, m: str) -> float:
+    """Metric `m` of a target; a target measured without a mask (its batch had none) counts for the
+    kept-pixel metrics with its plain values (masked_fraction 0)."""
+    if m in KEPT_METRICS and math.isnan(r.masked_fraction):
+        return 0.0 if m == "masked_fraction" else getattr(r, m.removesuffix("_kept"))
+    return getattr(r, m)
+
+
 def per_scene(records: list[TargetRecord]) -> OrderedDict[str, dict]:
     """scene_id -> {num_targets, psnr, ssim, lpips, depth_rmse (, KEPT_METRICS)}: means over the scene's targets."""
     groups: OrderedDict[str, list[TargetRecord]] = OrderedDict()
@@ -232,7 +240,7 @@ def per_scene(records: list[TargetRecord]) -> OrderedDict[str, dict]:
     for scene, rs in groups.items():
         row: dict[str, float] = {"num_targets": len(rs)}
         for m in _reported(records):
-            vals = [getattr(r, m) for r in rs if not math.isnan(getattr(r, m))]
+            vals = [v for v in (_value(r, m) for r in rs) if not math.isnan(v)]
             row[m] = sum(vals) / len(vals) if vals else math.nan
         out[scene] = row
     return out
@@ -250,7 +258,7 @@ def summarize(records: list[TargetRecord]) -> dict:
     for m in _reported(records):
         vals = [row[m] for row in scenes.values() if not math.isnan(row[m])]
         out[m] = sum(vals) / len(vals) if vals else math.nan
-        flat = [getattr(r, m) for r in records if not math.isnan(getattr(r, m))]
+        flat = [v for v in (_value(r, m) for r in records) if not math.isnan(v)]
         out[f"{m}_all_targets"] = sum(flat) / len(flat) if flat else math.nan
     return out
 

@@ -369,7 +369,10 @@ def test_eval_reports_metrics_with_and_without_masked_pixels():
         out = evaluate_model(
             NoModel(), batches(image, with_mask), torch.device("cpu"), lambda m, c: None, render, warmup=0
         )
+        records.extend(out.records)
         return summarize(out.records)
+
+    records: list = []
 
     class NoModel(torch.nn.Module):
         pass
@@ -379,6 +382,10 @@ def test_eval_reports_metrics_with_and_without_masked_pixels():
     assert masked["masked_fraction"] == pytest.approx(0.5 * 0.5 * 0.5)  # half of 1 of 2 targets, scene a; 0 in b
     assert masked["psnr_kept"] == pytest.approx(clean["psnr_kept"], abs=1e-9)  # the moving content is not seen
     assert masked["psnr_kept"] > masked["psnr"] + 5
+    # a batch without masks counts with its plain values among the kept-pixel numbers
+    both = summarize(records[:4] + records[4:8])  # plain (no mask key) + masked, same targets
+    kept = [r.psnr for r in records[:4]] + [r.psnr_kept for r in records[4:8]]
+    assert both["psnr_kept_all_targets"] == pytest.approx(sum(kept) / 8)
 
 
 def test_ingest_masks_follow_the_downscale_and_the_undistortion(tmp_path):
@@ -410,3 +417,14 @@ def test_ingest_masks_follow_the_downscale_and_the_undistortion(tmp_path):
     undistort_files(camera, tmp_path / "img", ["m.png"], tmp_path / "und")
     expect = cv2.imread(str(tmp_path / "und" / "m.png"), cv2.IMREAD_GRAYSCALE) > 0
     assert np.array_equal(decode_mask(got[1]), expect) and expect.sum() > box_mask(48, 64, 3).sum() * 0.8
+
+
+def test_view_and_sheet_tint_masked_pixels(tmp_path):
+    from pipelines.view import thumbnail
+
+    scene = masked_scene()
+    plain = thumbnail(scene.images[2], 64)
+    tinted = thumbnail(scene.images[2], 64, scene.masks[2])
+    m = box_mask(48, 64, 2)
+    assert np.array_equal(tinted[~m], plain[~m])
+    assert np.array_equal(tinted[m], (plain[m].astype(int) + [255, 0, 255]) // 2)
