@@ -1,10 +1,11 @@
-"""Per-frame masks of excluded pixels (moving or transient content): encode, decode, resize.
+"""Per-frame masks of excluded pixels (moving or transient content): encode, decode, resize, read.
 
 A mask is stored beside its frame (posed frames' and triples' `mask` column) as a PNG, 8-bit single
 channel, of the frame's size: nonzero = excluded pixel, 0 = kept; null = no mask. In memory it is an
-(H, W) bool array, True = excluded. Wherever a frame is resized and cropped (build --resize, the
-loader, ingest --size, export --resize) its mask follows with `resize_mask`. `seeu ingest` writes the masks it finds with `encode_mask`;
-importers convert a data set's own convention to this one.
+(H, W) bool array, True = excluded. Whoever makes masks stores them with `encode_mask` (`seeu
+ingest`, the importers: a data set's own convention converted, `read_mask_file`; a user's folder,
+`masks_from_folder`). Wherever a frame is resized and cropped (`build --resize`, the loader, `ingest
+--size`) its mask follows with `resize_mask`, and through an undistortion with `undistort_mask`.
 
 Example:
     >>> import numpy as np
