@@ -272,7 +272,9 @@ class Trainer:
                 valid = ~one["is_padding"] if "is_padding" in one else None
                 with autocast_context(self.cfg.precision, self.device):
                     pred = self.render_fn(self.ddp, one)
-                    loss, parts = photometric_loss(pred, gt, valid, self.lpips_fn, self.cfg.loss.lpips_weight)
+                    loss, parts = photometric_loss(
+                        pred, gt, valid, self.lpips_fn, self.cfg.loss.lpips_weight, mask=one["target"].get("mask")
+                    )
                 (loss / len(micro)).backward()
             all_parts.append(parts)
         parts = _mean_parts(all_parts)
