@@ -139,13 +139,14 @@ def evenly(n: int, limit: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, limit)).astype(int))
 
 
-def thumbnail(encoded, side: int) -> np.ndarray:
-    """Encoded image bytes -> (h, w, 3) uint8 RGB with its longest side at most `side`."""
+def thumbnail(encoded, side: int, wh: tuple[int, int]) -> np.ndarray:
+    """Encoded image bytes -> (h, w, 3) uint8 RGB with its longest side at most `side`; `wh` the
+    recorded (width, height), the most the image-size gate lets it decode."""
     import cv2
 
     from seeu_data.image_ops import decode_rgb
 
-    img = decode_rgb(bytes(encoded))
+    img = decode_rgb(bytes(encoded), None, wh[0] * wh[1])
     h, w = img.shape[:2]
     s = min(1.0, side / max(h, w))
     if s < 1.0:
@@ -313,7 +314,7 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
             wh,
             state["scale"] * 2.0,
             FRAME_RGB,
-            thumbnail(scene.images[k], FRAME_SIDE),
+            thumbnail(scene.images[k], FRAME_SIDE, wh),
         )
         info.content = f"**{scene.scene_id}**: frame {k} of {len(scene)} (source frame {int(scene.source_frame[k])})"
 
@@ -339,7 +340,7 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
                 wh,
                 scale,
                 CONTEXT_RGB,
-                thumbnail(scene.images[i], THUMB_SIDE),
+                thumbnail(scene.images[i], THUMB_SIDE, wh),
             )
         if len(centres) > 1:
             server.scene.add_line_segments(
@@ -427,7 +428,7 @@ def show_triple(server: viser.ViserServer, path: Path, sample: str, on_row=None)
                 (int(row.width[k]), int(row.height[k])),
                 scale,
                 CONTEXT_RGB if ctx else TARGET_RGB,
-                thumbnail(row.images[k], THUMB_SIDE),
+                thumbnail(row.images[k], THUMB_SIDE, (int(row.width[k]), int(row.height[k]))),
             )
             label = f"frame {int(row.frame_index[k])}" + ("" if ctx else f" (offset {int(row.target_offset[k - v])})")
             server.scene.add_label(f"/triple/label_{k}", label, position=tuple(c2w[k, :3, 3]))
@@ -627,7 +628,7 @@ def posed_context(scene, hw) -> dict:
 
     ids = list(auto_context_pair(len(scene)))
     return context_from_views(
-        [decode_rgb(bytes(scene.images[i])) for i in ids],
+        [decode_rgb(bytes(scene.images[i]), None, int(scene.width[i]) * int(scene.height[i])) for i in ids],
         np.asarray(scene.cam_to_world)[ids],
         np.asarray(scene.intrinsics_norm)[ids],
         float(scene.near),

@@ -1021,12 +1021,49 @@ _PEAK_RSS = (
 )
 
 
+def _png_bomb(side: int = 20000) -> bytes:
+    """A valid 1-bit grey PNG of `side` x `side` black pixels (~50 KB): a decoder that trusts it
+    allocates side^2 x 3 bytes of BGR (1.2 GB at 20000), then works on them."""
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    row = bytes(1 + -(-side // 8))  # filter byte + the packed bits of one row
+    packer = zlib.compressobj(9)
+    idat = b"".join(packer.compress(row) for _ in range(side)) + packer.flush()
+    ihdr = struct.pack(">IIBBBBB", side, side, 1, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def _ingest_folder_bomb(ws, tmp) -> list[str]:
+    """An image folder whose second image is a valid PNG declaring 20000x20000 (400 MP)."""
+    folder = _folder_with(tmp, ws)
+    (folder / "f001.png").write_bytes(_png_bomb())
+    return ["ingest", str(folder), "--out", str(tmp / "o"), "--threads", "1"]
+
+
+def _render_cameras_bomb(ws, tmp) -> list[str]:
+    """A cameras file whose first context image is a valid 400 MP PNG."""
+    (tmp / "big.png").write_bytes(_png_bomb())
+    frames = [_good_frame(tmp), _good_frame(tmp, "b.png")]
+    frames[0]["image"] = "big.png"
+    return _render(ws, tmp, "--cameras", str(_cameras(tmp, frames)))
+
+
 def test_header_bomb_refused_in_little_memory(ws, tmp_path):
     """A JPEG declaring 60000x60000 (10.8 GB of pixels) in posed data (build) and in a pixelSplat chunk
-    (import): refused in one line by a real `seeu` process whose peak RSS stays under 1 GB."""
-    (tmp_path / "ps").mkdir()
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    for argv in (_build(_rewrite(ws, tmp_path, "posed", BOMB), tmp_path), _ps_bomb(ws, tmp_path / "ps")):
+    (import), a valid 400 MP PNG in an image folder (ingest) and as a context image of a cameras file
+    (render): refused in one line by a real `seeu` process whose peak RSS stays under 1 GB."""
+    for d in ("ps", "ing", "ren"):
+        (tmp_path / d).mkdir()
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "SEEU_HEARTBEAT_S": "0"}
+    for argv in (
+        _build(_rewrite(ws, tmp_path, "posed", BOMB), tmp_path),
+        _ps_bomb(ws, tmp_path / "ps"),
+        _ingest_folder_bomb(ws, tmp_path / "ing"),
+        _render_cameras_bomb(ws, tmp_path / "ren"),
+    ):
         cmd = [sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "pipelines.cli", *argv]
         done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
         peak_kb, rc = (int(v) for v in done.stdout.split()[-2:])
@@ -1055,6 +1092,21 @@ def _folder_with(tmp: Path, ws, *bad: str) -> Path:
     return folder
 
 
+case("ingest-folder-png-bomb", text="f001.png: image header declares 20000x20000 (400.0 MP) is over the 64 MP limit")(
+    _ingest_folder_bomb
+)
+case("ingest-folder-over-max-pixels", text="f000.jpg: image header declares 64x48 (0.0 MP) is over the 0.003 MP")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws)), "--out", str(tmp / "o"), "--max-pixels", "3000"]
+)
+case("ingest-video-over-max-pixels", text="clip.mp4: video frame size 64x48 (0.0 MP) is over the 0.003 MP limit")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--max-pixels", "3000"]
+)
+case("render-cameras-png-bomb", text="big.png (frame 0): image header declares 20000x20000")(_render_cameras_bomb)
+case("render-cameras-over-max-pixels", text="a.png (frame 0): image header declares 32x32")(
+    lambda ws, tmp: _render(
+        ws, tmp, "--max-pixels", "1000", "--cameras", str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png")]))
+    )
+)
 case("ingest-strict-fifo", text="pipe.jpg: cannot be read as an image: a FIFO (--strict)")(
     lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "pipe.jpg")), "--out", str(tmp / "o"), "--strict"]
 )
