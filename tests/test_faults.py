@@ -8,6 +8,12 @@ nothing complete-looking left behind.
 
 from __future__ import annotations
 
+import os
+import shutil
+import subprocess
+import sys
+import time
+from collections.abc import Callable
 from pathlib import Path
 
 import cv2
@@ -16,6 +22,10 @@ import pytest
 
 from seeu_data.errors import SeeUError
 from seeu_data.ingest.video import discover_sources, iter_frames
+from seeu_data.loader import make_loader
+from seeu_data.loader.shard_reader import ShardChanged
+
+ROOT = Path(__file__).resolve().parents[1]
 
 # ------------------------------------------------------------------------------------------ VFR video
 
@@ -61,3 +71,85 @@ def test_vfr_video_decodes_every_frame_at_its_container_time(tmp_path):
     cut.write_bytes(data[: len(data) * 6 // 10])
     with pytest.raises(SeeUError, match=r"cut\.mkv: decoding stopped after \d+ frames .*\(truncated"):
         list(iter_frames(discover_sources([cut])[0]))
+
+
+# ------------------------------------------------------------------------------------------ shards changed under a run
+
+
+def _seeu(*argv: str, **kw) -> subprocess.Popen:
+    """The real `seeu` process (stdout and stderr captured)."""
+    env = {**os.environ, "PYTHONPATH": str(ROOT), "SEEU_HEARTBEAT_S": "0", **kw.pop("env", {})}
+    return subprocess.Popen(
+        [sys.executable, "-m", "pipelines.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env=env,
+        **kw,
+    )
+
+
+def _wait_for(path_glob: Callable[[], list], proc: subprocess.Popen, timeout: float = 240.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not path_glob():
+        assert proc.poll() is None, proc.communicate()[1][-800:]
+        assert time.monotonic() < deadline, "timed out"
+        time.sleep(0.05)
+
+
+def _error_lines(stderr: str) -> list[str]:
+    return [ln for ln in stderr.splitlines() if ": error: " in ln or "internal error" in ln]
+
+
+def _train_argv(data: Path, out: Path, *more: str) -> list[str]:
+    return [
+        "train",
+        "--data",
+        str(data),
+        "--config",
+        str(ROOT / "configs" / "cpu_tiny.json"),
+        "--out",
+        str(out),
+        "--max-steps",
+        "100000",
+        "checkpoint.every=1",
+        "log.val_every=0",
+        *more,
+    ]
+
+
+def test_a_shard_truncated_under_seeu_train_is_one_line(workspace, tmp_path):
+    """`seeu train` (data.num_workers 0, as the CPU presets ship) reading a shard that is truncated
+    in place after its first steps: one line naming the shard, exit 2; no SIGBUS (exit -7)."""
+    data = tmp_path / "shards"
+    shutil.copytree(workspace["triples"], data)
+    proc = _seeu(*_train_argv(data, tmp_path / "run"))
+    _wait_for(lambda: list((tmp_path / "run" / "checkpoints").glob("ckpt-*.pt")), proc)
+    shard = next(data.glob("*.arrow"))
+    os.truncate(shard, shard.stat().st_size // 3)
+    _, err = proc.communicate(timeout=240)
+    errors = _error_lines(err)
+    assert proc.returncode == 2 and len(errors) == 1, (proc.returncode, err[-800:])
+    assert f"{shard}: shard changed while this run reads it (size" in errors[0], errors
+
+
+def test_a_shard_rewritten_in_place_is_refused_by_the_loader(workspace, tmp_path):
+    """A shard whose image bytes are rewritten in place (same size) after the loader (num_workers 0)
+    read it: the next read is `ShardChanged` naming it, also with on_error="skip"."""
+    data = tmp_path / "shards"
+    shutil.copytree(workspace["triples"], data)
+    shard = next(data.glob("*.arrow"))
+    loader = make_loader(data, 2, image_hw=(32, 32), on_error="skip", shuffle=False)
+    first = next(iter(loader))
+    assert first["context"]["image"].shape[0] == 2
+    raw = bytearray(shard.read_bytes())
+    at = raw.index(b"\xff\xd8\xff")  # the first JPEG: its bytes change, the file's size does not
+    raw[at + 200 : at + 260] = bytes(60)
+    time.sleep(0.02)  # a later modification time than the opening's, whatever the clock's grain
+    with open(shard, "r+b") as f:  # in place: the same inode, as a sync tool or a careless rebuild writes
+        f.write(raw)
+    with pytest.raises(
+        ShardChanged, match=rf"{shard.name}: shard changed while this run reads it \(modified in place\)"
+    ):
+        for _ in range(3):
+            list(loader)
