@@ -735,9 +735,13 @@ def _all_checkpoints_finite(run: Path):
 
 
 def _edited_ckpt(ws, tmp, edit) -> Path:
-    """A copy of the workspace run's checkpoint with `edit(ckpt)` applied."""
+    """A copy of the workspace run's checkpoint with `edit(ckpt)` applied, its digest made anew (as
+    if a run had written those values)."""
+    from seeu_model.training.checkpoint import payload_digest
+
     ck = torch.load(ws["ckpt"], weights_only=True)
     edit(ck)
+    ck["digest"] = payload_digest(ck)
     path = tmp / "edited" / ws["ckpt"].name
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(ck, path)
@@ -825,6 +829,48 @@ case("render-nan-checkpoint", text=NAN_CKPT)(
         "--out",
         str(tmp / "r"),
     ]
+)
+
+
+def _flipped_bit(ws, tmp) -> Path:
+    """A copy of the workspace run's checkpoint with one bit of one weight flipped in the file (as a bad
+    disk or copy does): the model still loads, and would be another model."""
+    ck = torch.load(ws["ckpt"], weights_only=True)
+    weight = ck["model"][_first_weight(ck)].contiguous().numpy().tobytes()
+    data = bytearray(ws["ckpt"].read_bytes())
+    at = data.index(weight[:64])
+    data[at + 5] ^= 0x04
+    path = tmp / "flipped" / ws["ckpt"].name
+    _put(path, bytes(data))
+    return path
+
+
+FLIPPED = "checkpoint damaged: its contents do not match the digest written with them"
+case("eval-checkpoint-flipped-bit", text=FLIPPED)(
+    lambda ws, tmp: [
+        "eval",
+        "--checkpoint",
+        str(_flipped_bit(ws, tmp)),
+        "--data",
+        str(ws["triples"]),
+        "--no-lpips",
+        "--out",
+        str(tmp / "e"),
+    ]
+)
+case("render-checkpoint-flipped-bit", text=FLIPPED)(
+    lambda ws, tmp: [
+        "render",
+        "--checkpoint",
+        str(_flipped_bit(ws, tmp)),
+        "--data",
+        str(ws["triples"]),
+        "--out",
+        str(tmp / "r"),
+    ]
+)
+case("train-resume-flipped-bit", text=FLIPPED)(
+    lambda ws, tmp: (_train_argv(ws, tmp, "--resume", str(_flipped_bit(ws, tmp))), _nothing_written(tmp / "r"))
 )
 
 
