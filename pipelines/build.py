@@ -100,6 +100,7 @@ class BuildConfig:
     progress: bool = False  # a progress bar on stderr
     verify_inputs: bool = setting(False, "check the posed files' sha256 first")
     fsync: bool = False  # fsync every shard and the manifest before its rename (`--fsync`)
+    force: bool = False  # rebuild every shard instead of keeping those a previous run completed (`--force`)
     near: float | None = setting(
         None,
         "near plane for every view instead of the posed data's (e.g. 1 with --far 100: the peers' "
@@ -462,7 +463,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
             cfg.inputs[0],
         )
     out.mkdir(parents=True, exist_ok=True)
-    known = known_shards(out)
+    known = {} if cfg.force else known_shards(out)
     journal = Journal(out / PROGRESS_NAME, cfg.fsync)
     # Before the manifest goes: what a previous run completed stays known if this one is interrupted
     # (every record is verified again before a shard is kept: `resumable_shard`).
