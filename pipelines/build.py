@@ -45,7 +45,7 @@ from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_sc
 from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
-from seeu_data.interrupts import end_pool
+from seeu_data.interrupts import end_pool, quiet_worker, raise_if_terminated
 from seeu_data.limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
@@ -383,6 +383,7 @@ def run_local(
         if journal is not None and result.entry is not None:
             journal.add(shard_record(result))
         bar.update(result.entry.rows if result.entry is not None else 0)
+        raise_if_terminated()
 
     if workers <= 1:
         for spec in specs:
@@ -397,7 +398,10 @@ def run_local(
         from seeu_data.image_ops import single_threaded_cv2
 
         # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
-        with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with (
+            single_threaded_cv2(),
+            ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=quiet_worker) as pool,
+        ):
             try:
                 futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
                 for fut in as_completed(futures):

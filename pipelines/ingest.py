@@ -582,7 +582,7 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
     from tqdm import tqdm
 
     from seeu_data.ingest.video import discover_sources
-    from seeu_data.interrupts import end_pool, raise_on_sigterm
+    from seeu_data.interrupts import end_pool, quiet_worker
 
     cfg.check()
     sources = discover_sources(list(cfg.inputs), cfg.strict)
@@ -620,7 +620,7 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
         quiet = replace(cfg, run=replace(cfg.run, progress=False, heartbeat_s=heartbeat_seconds(cfg)))
         ctx = multiprocessing.get_context("spawn")
         # workers end their SfM child on SIGTERM (`end_pool` sends it) before they go
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=raise_on_sigterm) as pool:
+        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=quiet_worker) as pool:
             try:
                 futures = pool.map(_scene_worker, [(s, quiet) for s in sources])
                 for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.run.progress):

@@ -7,14 +7,25 @@ Python's default SIGTERM kills the process without running any cleanup: a child 
 pool workers) outlives it, and the next run collides with it. Under `sigterm_raises` the first
 SIGTERM raises `Terminated` in the main thread and later ones are ignored while the cleanup runs.
 `end_process` / `end_pool` are what the cleanup calls: children are killed and reaped before the
-parent goes on. `seeu` (pipelines/cli) installs it around every command; ingest's worker processes
-install it too (`raise_on_sigterm`), so a terminated worker ends its own SfM child.
+parent goes on (a child started in its own session, as the SfM child is, is ended with its whole
+process group: its mapping processes too). `seeu` (pipelines/cli) installs it first thing, before
+any command's imports, so a SIGTERM at any moment ends the command with its one line.
+
+A library may swallow the exception (one raised inside a lazy import that catches everything): the
+SIGTERM is still recorded (`terminated()`), long work stops at its next progress point
+(`raise_if_terminated`, called by `progress.StageProgress` and the build's shard loop), and `seeu`
+exits 143 with the one line whatever the command did after it.
+
+Pool workers run `quiet_worker` first: Ctrl-C is the parent's to handle (it reaches the whole process
+group; the parent then ends its pools), and SIGTERM raises `Terminated`, a `SystemExit`, so a worker
+ends its own children and exits without printing a traceback.
 """
 
 from __future__ import annotations
 
 import contextlib
 import multiprocessing
+import os
 import signal
 import subprocess
 import threading
@@ -26,17 +37,37 @@ from concurrent.futures import Executor
 _WORKER_GRACE_S = 5.0
 
 
-class Terminated(BaseException):
-    """SIGTERM arrived (under `sigterm_raises`); a BaseException like KeyboardInterrupt."""
+class Terminated(SystemExit):
+    """SIGTERM arrived (under `sigterm_raises`); like KeyboardInterrupt, no `Exception`. A `SystemExit`
+    (code 143), so a process it ends untended (a pool worker) exits without a traceback."""
+
+    def __init__(self, signum: int = signal.SIGTERM):
+        super().__init__(128 + signum)
+
+
+_received: list[int] = []  # the SIGTERMs this process got under `sigterm_raises` / `quiet_worker`
 
 
 def _raise_terminated(signum, frame) -> None:
     signal.signal(signal.SIGTERM, signal.SIG_IGN)  # the cleanup this starts is not cut short by a second one
+    _received.append(signum)
     raise Terminated(signum)
 
 
-def raise_on_sigterm() -> None:
-    """Make SIGTERM raise `Terminated` in this process (main thread only; a pool initializer)."""
+def terminated() -> bool:
+    """Whether a SIGTERM arrived (even if a library swallowed the `Terminated` it raised)."""
+    return bool(_received)
+
+
+def raise_if_terminated() -> None:
+    """Raise `Terminated` again when a SIGTERM arrived: long work calls it at its progress points."""
+    if _received:
+        raise Terminated(_received[0])
+
+
+def quiet_worker() -> None:
+    """Pool initializer: SIGINT ignored (the parent ends the pool), SIGTERM raises `Terminated`."""
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _raise_terminated)
 
 
@@ -46,6 +77,8 @@ def sigterm_raises() -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
+    if signal.getsignal(signal.SIGTERM) is not _raise_terminated:
+        _received.clear()  # a new command (tests run several in one process)
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
     try:
         yield
@@ -54,10 +87,14 @@ def sigterm_raises() -> Iterator[None]:
 
 
 def end_process(proc: subprocess.Popen) -> None:
-    """Kill `proc` (SIGKILL: nothing in it can delay its end) and reap it."""
+    """Kill `proc` (SIGKILL: nothing in it can delay its end) and reap it; a `proc` started in a session
+    of its own (`start_new_session=True`) with its whole process group, the processes it started too."""
     if proc.poll() is None:
         with contextlib.suppress(OSError):
-            proc.kill()
+            if os.getpgid(proc.pid) == proc.pid:
+                os.killpg(proc.pid, signal.SIGKILL)
+            else:
+                proc.kill()
     proc.wait()
 
 

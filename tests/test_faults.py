@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import os
 import shutil
+import signal
 import subprocess
 import sys
 import time
@@ -153,3 +154,76 @@ def test_a_shard_rewritten_in_place_is_refused_by_the_loader(workspace, tmp_path
     ):
         for _ in range(3):
             list(loader)
+
+
+# ------------------------------------------------------------------------------------------ signals
+
+
+def _build_argv(posed: Path, out: Path, *more: str) -> list[str]:
+    return ["build", str(posed), "--out", str(out), "--gap-min", "3", "--gap-max", "5", *more]
+
+
+def test_sigterm_at_any_moment_of_seeu_build_is_one_line(workspace, tmp_path):
+    """SIGTERM while `seeu build` starts (its modules, the libraries' lazy imports: a half-imported
+    pandas was an internal error, or the Terminated was swallowed and the build went on to exit 0):
+    exit 143 with the one line, or the default death before `seeu` runs at all; never 0, 1 or a
+    traceback, and no manifest."""
+    outcomes = set()
+    for delay in (0.4, 0.8, 1.2, 1.6, 2.0, 2.5, 3.0, 4.0):
+        out = tmp_path / f"o{delay}"
+        proc = _seeu(*_build_argv(workspace["posed"], out, "--samples-per-scene", "400", "--resize", "64x64"))
+        time.sleep(delay)
+        if proc.poll() is not None:  # done before the signal (a quiet machine): nothing to check
+            continue
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=120)
+        outcomes.add(proc.returncode)
+        assert proc.returncode in (143, -signal.SIGTERM), (delay, proc.returncode, err[-600:])
+        lines = err.strip().splitlines()
+        if proc.returncode == 143:
+            assert len(lines) == 1 and lines[0].endswith("interrupted (SIGTERM); re-run the same command to resume"), (
+                err
+            )
+        else:
+            assert lines == [], err
+        assert not (out / "manifest.json").exists(), delay
+    assert 143 in outcomes
+
+
+def test_ctrl_c_during_a_two_worker_build_is_one_line(workspace, tmp_path):
+    """Ctrl-C at a terminal (SIGINT to the whole process group) while two build workers run: the
+    workers leave it to `seeu build` (no traceback from each), which ends them and exits 130 with one
+    line; no worker outlives it, no manifest."""
+    out = tmp_path / "o"
+    proc = _seeu(
+        *_build_argv(workspace["posed"], out, "--workers", "2", "--samples-per-scene", "4000", "--resize", "64x64"),
+        start_new_session=True,  # its own process group, as a shell gives a command
+    )
+    workers: list[int] = []
+
+    def two_workers() -> list:
+        workers[:] = [int(d.name) for d in Path("/proc").iterdir() if d.name.isdigit() and _parent_of(d) == proc.pid]
+        return workers if len(workers) >= 2 else []
+
+    _wait_for(two_workers, proc)
+    time.sleep(0.5)  # the workers are at work
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-800:]
+    assert err.strip().splitlines() == ["seeu build: interrupted (SIGINT); re-run the same command to resume"], err
+    assert not any(Path(f"/proc/{w}").exists() and _state(w) != "Z" for w in workers)
+    assert not (out / "manifest.json").exists()
+
+
+def _parent_of(proc_dir: Path) -> int:
+    try:
+        return int((proc_dir / "stat").read_text().rsplit(")", 1)[1].split()[1])
+    except (OSError, IndexError, ValueError):
+        return -1
+
+
+def _state(pid: int) -> str:
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except (OSError, IndexError):
+        return "gone"
