@@ -45,7 +45,7 @@ from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_sc
 from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
-from seeu_data.interrupts import end_pool, quiet_worker, raise_if_terminated
+from seeu_data.interrupts import end_pool, ended_workers, quiet_worker, raise_if_terminated
 from seeu_data.limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
@@ -391,6 +391,7 @@ def run_local(
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures.process import BrokenProcessPool
 
         # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
         # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
@@ -404,8 +405,15 @@ def run_local(
         ):
             try:
                 futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
+                started = sorted(mp.active_children(), key=lambda p: p.pid or 0)  # the pool's workers, forked by now
                 for fut in as_completed(futures):
                     collect(fut.result())
+            except BrokenProcessPool:  # a worker was killed (the out-of-memory killer, kill -9)
+                end_pool(pool)
+                raise SeeUError(
+                    f"build {ended_workers(started)}; re-run the same command to resume (finished shards are kept)",
+                    out_dir,
+                ) from None
             except BaseException:  # Ctrl-C, SIGTERM, an error: no worker outlives the build
                 end_pool(pool)
                 raise

@@ -19,6 +19,11 @@ exits 143 with the one line whatever the command did after it.
 Pool workers run `quiet_worker` first: Ctrl-C is the parent's to handle (it reaches the whole process
 group; the parent then ends its pools), and SIGTERM raises `Terminated`, a `SystemExit`, so a worker
 ends its own children and exits without printing a traceback.
+
+A worker that died (killed, out of memory) is one line, not an internal error: `died` words it from
+the exit status (`worker 2 (pid 4242) died (killed by SIGKILL: out of memory?)`), `worker_death` reads
+it from the loader's error (PyTorch's DataLoader names the pid and the signal), `ended_workers` from
+a broken process pool; the command exits 2 and resumes when run again.
 """
 
 from __future__ import annotations
@@ -26,6 +31,7 @@ from __future__ import annotations
 import contextlib
 import multiprocessing
 import os
+import re
 import signal
 import subprocess
 import threading
@@ -84,6 +90,53 @@ def sigterm_raises() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+
+
+def died(who: str, exitcode: int | None) -> str:
+    """`WHO died (killed by SIGKILL: out of memory?)` / `(exit status 3)` for a process's exit status."""
+    if exitcode is not None and exitcode < 0:
+        try:
+            name = signal.Signals(-exitcode).name
+        except ValueError:
+            name = f"signal {-exitcode}"
+        hint = ": out of memory?" if -exitcode == signal.SIGKILL else ""
+        return f"{who} died (killed by {name}{hint})"
+    return f"{who} died (exit status {exitcode})" if exitcode is not None else f"{who} died"
+
+
+_DATALOADER_DEATH = re.compile(
+    r"DataLoader worker \(pid(?:\(s\))? ([\d, ]+)\) (?:is killed by signal: ([^.]+)|exited unexpectedly(?: with exit code (-?\d+))?)"
+)
+
+
+def worker_death(exc: BaseException) -> str | None:
+    """The one line for PyTorch's "DataLoader worker (pid N) is killed by signal: Killed." (and "exited
+    unexpectedly"), found in `exc` or the exceptions it arose from (PyTorch's SIGCHLD handler raises it
+    wherever the main thread is, e.g. while a read from that worker fails), or None."""
+    seen: list[BaseException] = []
+    m = None
+    while exc is not None and exc not in seen and m is None:
+        seen.append(exc)
+        m = _DATALOADER_DEATH.search(str(exc))
+        exc = exc.__cause__ or exc.__context__  # type: ignore[assignment]
+    if m is None:
+        return None
+    pids, signame, code = m.groups()
+    who = f"loader worker (pid {pids.strip()})"
+    if signame:
+        return f"{who} died (killed by signal: {signame.strip()}); re-run to resume (train: --resume)"
+    return died(who, int(code) if code else None) + "; re-run to resume (train: --resume)"
+
+
+def ended_workers(workers: list) -> str:
+    """`worker 1 (pid 4242) died (killed by SIGKILL: ...)` for the pool's processes `workers`
+    (multiprocessing.Process, in start order) that ended abnormally, but those the broken pool ended
+    itself (SIGTERM); a general line when none is known."""
+    ended_by_pool = (None, 0, 128 + signal.SIGTERM, -signal.SIGTERM)
+    found = [
+        died(f"worker {i} (pid {p.pid})", p.exitcode) for i, p in enumerate(workers) if p.exitcode not in ended_by_pool
+    ]
+    return "; ".join(found) or "a worker process died (killed, or out of memory?)"
 
 
 def end_process(proc: subprocess.Popen) -> None:

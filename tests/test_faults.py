@@ -227,3 +227,46 @@ def _state(pid: int) -> str:
         return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
     except (OSError, IndexError):
         return "gone"
+
+
+# ------------------------------------------------------------------------------------------ dead workers
+
+
+def _children(pid: int) -> list[int]:
+    return [int(d.name) for d in Path("/proc").iterdir() if d.name.isdigit() and _parent_of(d) == pid]
+
+
+def test_a_killed_build_worker_is_one_line(workspace, tmp_path):
+    """A build worker killed (kill -9, as the out-of-memory killer does): exit 2 with one line naming
+    the worker and the signal, never "internal error"; no manifest."""
+    out = tmp_path / "o"
+    proc = _seeu(
+        *_build_argv(workspace["posed"], out, "--workers", "2", "--samples-per-scene", "4000", "--resize", "64x64")
+    )
+    _wait_for(lambda: _children(proc.pid)[1:], proc)
+    time.sleep(0.5)
+    victim = min(_children(proc.pid))
+    os.kill(victim, signal.SIGKILL)
+    _, err = proc.communicate(timeout=120)
+    errors = _error_lines(err)
+    assert proc.returncode == 2 and len(errors) == 1, (proc.returncode, err[-800:])
+    assert f"(pid {victim}) died (killed by SIGKILL: out of memory?); re-run the same command to resume" in errors[0]
+    assert not (out / "manifest.json").exists()
+
+
+def test_a_killed_loader_worker_is_one_line(workspace, tmp_path):
+    """A DataLoader worker killed while the loader runs: PyTorch's error becomes the one line the CLI
+    prints (`interrupts.worker_death`), naming the worker's pid and the signal."""
+    from seeu_data.interrupts import worker_death
+
+    loader = make_loader(workspace["triples"], 1, image_hw=(32, 32), num_workers=2, shuffle=False)
+    batches = iter(loader)
+    next(batches)
+    pids = [p for p in _children(os.getpid()) if b"python" in Path(f"/proc/{p}/cmdline").read_bytes()]
+    assert pids
+    os.kill(pids[0], signal.SIGKILL)
+    with pytest.raises(Exception) as caught:  # noqa: B017 - PyTorch raises it in whatever the main thread does
+        for _ in batches:
+            time.sleep(0.1)
+    line = worker_death(caught.value)
+    assert line is not None and f"loader worker (pid {pids[0]}) died (killed by" in line, str(caught.value)

@@ -21,7 +21,7 @@ import sys
 
 from seeu_data import __version__
 from seeu_data.errors import SeeUError, os_error_line
-from seeu_data.interrupts import Terminated, sigterm_raises, terminated
+from seeu_data.interrupts import Terminated, sigterm_raises, terminated, worker_death
 
 # name -> (module, one-line help). Commands whose module is not present are not offered.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -115,6 +115,10 @@ def _run(args: argparse.Namespace) -> int:
             return 2
         if isinstance(exc, OSError):  # the environment (disk full, read-only, permissions, a file in the way)
             print(f"{who}: error: {os_error_line(exc)}", file=sys.stderr)
+            return 2
+        died = worker_death(exc)  # a loader worker killed (out of memory, kill -9): PyTorch's RuntimeError
+        if died is not None:
+            print(f"{who}: error: {died}", file=sys.stderr)
             return 2
         msg = str(exc).splitlines()[0] if str(exc) else ""  # unexpected: still one line, with a way to see more
         print(
