@@ -8,6 +8,7 @@ nothing complete-looking left behind.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import shutil
 import signal
@@ -270,3 +271,58 @@ def test_a_killed_loader_worker_is_one_line(workspace, tmp_path):
             time.sleep(0.1)
     line = worker_death(caught.value)
     assert line is not None and f"loader worker (pid {pids[0]}) died (killed by" in line, str(caught.value)
+
+
+# ------------------------------------------------------------------------------------------ ranks
+
+
+def _rank_pids(agent: int, world: int) -> dict[int, int]:
+    """{rank: pid} of the torchrun agent's worker processes (their RANK environment variable)."""
+    found = {}
+    for pid in _children(agent):
+        try:
+            env = dict(kv.split(b"=", 1) for kv in Path(f"/proc/{pid}/environ").read_bytes().split(b"\0") if b"=" in kv)
+        except OSError:
+            continue
+        if b"RANK" in env:
+            found[int(env[b"RANK"])] = pid
+    return found if len(found) == world else {}
+
+
+@pytest.mark.parametrize("fault", ["frozen", "killed"])
+def test_a_frozen_or_dead_rank_ends_the_run_in_one_line(workspace, tmp_path, fault):
+    """Two ranks under torchrun (gloo on the CPU): rank 1 stopped with SIGSTOP ends the run within
+    --rank-timeout (not the 30-minute collective timeout) with one line naming it; rank 1 killed is
+    `rank 1 died`, never an internal error."""
+    data = tmp_path / "shards"
+    shutil.copytree(workspace["triples"], data)
+    argv = _train_argv(data, tmp_path / "run", "data.batch_size=1")
+    argv[argv.index("--max-steps") : argv.index("--max-steps")] = ["--rank-timeout", "6"]
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "torch.distributed.run", "--standalone", "--nproc_per_node", "2"]
+        + ["-m", "pipelines.cli", *argv],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+        env={**os.environ, "PYTHONPATH": str(ROOT), "OMP_NUM_THREADS": "1"},
+    )
+    ranks: dict[int, int] = {}
+    try:
+        _wait_for(lambda: list((tmp_path / "run" / "checkpoints").glob("ckpt-*.pt")), proc)
+        _wait_for(lambda: ranks.update(_rank_pids(proc.pid, 2)) or ranks, proc)
+        t0 = time.monotonic()
+        os.kill(ranks[1], signal.SIGSTOP if fault == "frozen" else signal.SIGKILL)
+        _, err = proc.communicate(timeout=180)
+        took = time.monotonic() - t0
+    finally:
+        for pid in ranks.values():
+            with contextlib.suppress(OSError):
+                os.kill(pid, signal.SIGKILL)
+        proc.kill()
+    ours = [ln for ln in err.splitlines() if ln.startswith("seeu ") or "internal error" in ln]
+    assert proc.returncode != 0 and len(ours) == 1, (proc.returncode, err[-1500:])
+    if fault == "frozen":
+        assert ours[0].startswith("seeu train: error: rank 1 stopped responding: no heartbeat for 6 s"), ours
+        assert took < 60, took
+    else:
+        assert ours[0].startswith(("seeu train: error: rank 1 died", "seeu train: interrupted (SIGTERM)")), ours
