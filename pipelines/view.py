@@ -474,15 +474,24 @@ def show_ply(server: viser.ViserServer, path: Path, notes: Notes) -> None:
     """A 3DGS .ply as Gaussians (a point-cloud .ply as points) with cameras.json's cameras beside it."""
     from plyfile import PlyData, PlyParseError
 
+    from seeu_model.ply import binary_vertex_layout
+
     ply = path if path.is_file() else sorted(path.glob("*.ply"))[0]
-    try:
-        names = {p.name for p in PlyData.read(str(ply))["vertex"].properties}
+    try:  # the header alone (a 3DGS .ply is binary: streamed below, never read whole)
+        layout = binary_vertex_layout(ply)
+        if layout is None:
+            vertex = PlyData.read(str(ply))["vertex"]
+            names, total = {p.name for p in vertex.properties}, vertex.count
+        else:
+            names, total = set(layout[0].names or ()), layout[1]
     except (OSError, KeyError, ValueError, IndexError, PlyParseError) as exc:
         raise SeeUError(f"not a readable .ply with a vertex element ({exc})", ply) from exc
     if "f_dc_0" in names:
         from seeu_model.ply import load_ply
 
-        g = load_ply(ply)
+        g = load_ply(ply, most=MAX_GAUSSIANS)  # memory: the drawn Gaussians, not the file (docs/view.md)
+        if total > MAX_GAUSSIANS:
+            notes(f"{total} Gaussians, drawing the {MAX_GAUSSIANS} most opaque (MAX_GAUSSIANS)")
         n = add_splats(server, "/gaussians", g, notes)
         aim(server, g.means[0].numpy())
         what = f"{n} Gaussians"
