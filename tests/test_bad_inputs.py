@@ -1289,7 +1289,7 @@ def test_bad_input(ws, tmp_path, capsys, make, rc, text):
 
 def test_enough_cases():
     commands = {p.id.split("-")[0] for p in CASES}
-    assert len(CASES) >= 120 and commands >= {
+    assert len(CASES) >= 190 and commands >= {
         "ingest",
         "import",
         "export",
