@@ -807,29 +807,18 @@ case("train-resume-negative-step", text="negative")(
     lambda ws, tmp: _train_argv(ws, tmp, "--resume", str(_edited_ckpt(ws, tmp, lambda ck: ck.update(step=-3))))
 )
 case("train-resume-step-number", text="not a step number")(lambda ws, tmp: _train_argv(ws, tmp, "--resume", "-1"))
-case("eval-nan-checkpoint", text=NAN_CKPT)(
-    lambda ws, tmp: [
-        "eval",
-        "--checkpoint",
-        str(_edited_ckpt(ws, tmp, _nan_weight)),
-        "--data",
-        str(ws["triples"]),
-        "--no-lpips",
-        "--out",
-        str(tmp / "e"),
-    ]
-)
-case("render-nan-checkpoint", text=NAN_CKPT)(
-    lambda ws, tmp: [
-        "render",
-        "--checkpoint",
-        str(_edited_ckpt(ws, tmp, _nan_weight)),
-        "--data",
-        str(ws["triples"]),
-        "--out",
-        str(tmp / "r"),
-    ]
-)
+
+
+def _eval_ckpt(ws, tmp, ckpt: Path) -> list[str]:
+    return ["eval", "--checkpoint", str(ckpt), "--data", str(ws["triples"]), "--no-lpips", "--out", str(tmp / "e")]
+
+
+def _render_ckpt(ws, tmp, ckpt: Path) -> list[str]:
+    return ["render", "--checkpoint", str(ckpt), "--data", str(ws["triples"]), "--out", str(tmp / "r")]
+
+
+case("eval-nan-checkpoint", text=NAN_CKPT)(lambda ws, tmp: _eval_ckpt(ws, tmp, _edited_ckpt(ws, tmp, _nan_weight)))
+case("render-nan-checkpoint", text=NAN_CKPT)(lambda ws, tmp: _render_ckpt(ws, tmp, _edited_ckpt(ws, tmp, _nan_weight)))
 
 
 def _flipped_bit(ws, tmp) -> Path:
@@ -846,29 +835,8 @@ def _flipped_bit(ws, tmp) -> Path:
 
 
 FLIPPED = "checkpoint damaged: its contents do not match the digest written with them"
-case("eval-checkpoint-flipped-bit", text=FLIPPED)(
-    lambda ws, tmp: [
-        "eval",
-        "--checkpoint",
-        str(_flipped_bit(ws, tmp)),
-        "--data",
-        str(ws["triples"]),
-        "--no-lpips",
-        "--out",
-        str(tmp / "e"),
-    ]
-)
-case("render-checkpoint-flipped-bit", text=FLIPPED)(
-    lambda ws, tmp: [
-        "render",
-        "--checkpoint",
-        str(_flipped_bit(ws, tmp)),
-        "--data",
-        str(ws["triples"]),
-        "--out",
-        str(tmp / "r"),
-    ]
-)
+case("eval-checkpoint-flipped-bit", text=FLIPPED)(lambda ws, tmp: _eval_ckpt(ws, tmp, _flipped_bit(ws, tmp)))
+case("render-checkpoint-flipped-bit", text=FLIPPED)(lambda ws, tmp: _render_ckpt(ws, tmp, _flipped_bit(ws, tmp)))
 case("train-resume-flipped-bit", text=FLIPPED)(
     lambda ws, tmp: (_train_argv(ws, tmp, "--resume", str(_flipped_bit(ws, tmp))), _nothing_written(tmp / "r"))
 )
