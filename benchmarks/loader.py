@@ -7,7 +7,7 @@ images list of uint8 tensors, key; one example per triple, so the peer loader re
 frames), then measures side by side, interleaved, with DataLoader num_workers 1 and 2, batch 4,
 output 256x256:
 
-* seeu:       `seeu_data.loader.make_loader` as it comes (mmap Arrow, OpenCV decode, bilinear cover
+* seeu:       `seeu_data.loader.make_loader` as it comes (Arrow, image bytes by pread, OpenCV decode, bilinear cover
               resize of the kept span + centre crop with intrinsics, workers hand plain tensors
               to the DataLoader; uint8 (B, V, 3, 256, 256) batches, made float32 on the device by
               `batch_to_device` in the training/evaluation loops);

@@ -45,7 +45,7 @@ from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_sc
 from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
-from seeu_data.interrupts import end_pool
+from seeu_data.interrupts import end_pool, ended_workers, quiet_worker, raise_if_terminated
 from seeu_data.limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
@@ -100,6 +100,7 @@ class BuildConfig:
     progress: bool = False  # a progress bar on stderr
     verify_inputs: bool = setting(False, "check the posed files' sha256 first")
     fsync: bool = False  # fsync every shard and the manifest before its rename (`--fsync`)
+    force: bool = False  # rebuild every shard instead of keeping those a previous run completed (`--force`)
     near: float | None = setting(
         None,
         "near plane for every view instead of the posed data's (e.g. 1 with --far 100: the peers' "
@@ -382,6 +383,7 @@ def run_local(
         if journal is not None and result.entry is not None:
             journal.add(shard_record(result))
         bar.update(result.entry.rows if result.entry is not None else 0)
+        raise_if_terminated()
 
     if workers <= 1:
         for spec in specs:
@@ -389,6 +391,7 @@ def run_local(
     else:
         import multiprocessing as mp
         from concurrent.futures import ProcessPoolExecutor, as_completed
+        from concurrent.futures.process import BrokenProcessPool
 
         # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
         # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
@@ -396,11 +399,21 @@ def run_local(
         from seeu_data.image_ops import single_threaded_cv2
 
         # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
-        with single_threaded_cv2(), ProcessPoolExecutor(max_workers=workers, mp_context=ctx) as pool:
+        with (
+            single_threaded_cv2(),
+            ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=quiet_worker) as pool,
+        ):
             try:
                 futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
+                started = sorted(mp.active_children(), key=lambda p: p.pid or 0)  # the pool's workers, forked by now
                 for fut in as_completed(futures):
                     collect(fut.result())
+            except BrokenProcessPool:  # a worker was killed (the out-of-memory killer, kill -9)
+                end_pool(pool)
+                raise SeeUError(
+                    f"build {ended_workers(started)}; re-run the same command to resume (finished shards are kept)",
+                    out_dir,
+                ) from None
             except BaseException:  # Ctrl-C, SIGTERM, an error: no worker outlives the build
                 end_pool(pool)
                 raise
@@ -462,7 +475,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
             cfg.inputs[0],
         )
     out.mkdir(parents=True, exist_ok=True)
-    known = known_shards(out)
+    known = {} if cfg.force else known_shards(out)
     journal = Journal(out / PROGRESS_NAME, cfg.fsync)
     # Before the manifest goes: what a previous run completed stays known if this one is interrupted
     # (every record is verified again before a shard is kept: `resumable_shard`).

@@ -57,13 +57,15 @@ FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 @dataclass(frozen=True)
 class ImportConfig:
     """One `seeu import` run: `source` (a format's config), `out` (the posed-frames directory),
-    `strict` (fail on the first bad scene instead of skipping it), `progress` (a bar), `fsync`."""
+    `strict` (fail on the first bad scene instead of skipping it), `progress` (a bar), `fsync`, `force`
+    (write every posed file anew instead of keeping those a previous run completed)."""
 
     source: SourceConfig
     out: Path
     strict: bool = setting(False, "fail on the first bad scene instead of skipping it")
     progress: bool = False
     fsync: bool = False
+    force: bool = False
 
     @property
     def format(self) -> str:
@@ -95,5 +97,6 @@ def import_dataset(cfg: ImportConfig):
         progress=cfg.progress,
         total=job.total,
         fsync=cfg.fsync,
+        force=cfg.force,
     )
     return report

@@ -32,14 +32,14 @@ from seeu_data.errors import SeeUError
 from seeu_data.ingest.chunks import ChunkConfig
 from seeu_data.ingest.frame_select import SelectConfig
 from seeu_data.ingest.sfm import SfmConfig
-from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
+from seeu_data.limits import MAX_IMAGE_SIDE, MAX_PIXELS, MAX_PIXELS_CEILING, MAX_WORKERS, check_range
 from seeu_data.masks import MASK_CONVENTIONS
 from seeu_data.settings import parse_dims, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
-DECODE_STAGE_FORMAT = 3
+DECODE_STAGE_FORMAT = 4  # 4: container timestamps (variable frame rate), frames counted as decoded
 SFM_STAGE_FORMAT = 7
 
 
@@ -72,6 +72,7 @@ class IngestRunConfig:
     force: bool = False
     progress: bool = False
     fsync: bool = False
+    max_pixels: int = MAX_PIXELS  # largest frame or image (width x height) decoded, `--max-pixels`
 
 
 @dataclass(frozen=True)
@@ -132,6 +133,7 @@ class IngestConfig:
         if not self.inputs:
             raise SeeUError("no input given")
         check_range(run.workers, "--workers", 1, MAX_WORKERS)
+        check_range(run.max_pixels, "--max-pixels", 1, MAX_PIXELS_CEILING)
         if self.max_size is not None:
             check_range(self.max_size, "--max-size", 1, MAX_IMAGE_SIDE)
         for side in self.size or ():
@@ -189,11 +191,16 @@ def _decode_stage(source, cfg: IngestConfig, prog):
     def fn(d: Path) -> dict:
         frames_dir = d / "frames"
         frames_dir.mkdir()
-        in_source = probe_video(source.path).frame_count if source.kind == "video" else len(source.image_files)
+        in_source = (
+            probe_video(source.path, cfg.run.max_pixels).frame_count
+            if source.kind == "video"
+            else len(source.image_files)
+        )
         total = -(-in_source // cfg.select.stride)
         frames: list[dict] = []
+        counted: list[int] = []  # the frames the source holds, as its stream gave them
         prog.stage("decode", total)
-        for fr in iter_frames(source, cfg.select.stride):
+        for fr in iter_frames(source, cfg.select.stride, cfg.run.max_pixels, counted):
             prog.advance()
             rgb = resize_max_side(fr.rgb, cfg.max_size)
             name = f"{fr.source_frame:06d}.jpg"
@@ -212,7 +219,7 @@ def _decode_stage(source, cfg: IngestConfig, prog):
             )
         if not frames:
             raise SeeUError("no frames decoded", source.path)
-        return {"frames": frames, "frames_in_source": int(in_source)}
+        return {"frames": frames, "frames_in_source": counted[0]}
 
     return fn
 
@@ -619,7 +626,7 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
     from tqdm import tqdm
 
     from seeu_data.ingest.video import discover_sources
-    from seeu_data.interrupts import end_pool, raise_on_sigterm
+    from seeu_data.interrupts import end_pool, quiet_worker
 
     cfg.check()
     sources = discover_sources(list(cfg.inputs), cfg.strict)
@@ -657,7 +664,7 @@ def ingest(cfg: IngestConfig, on_result: Callable[[SceneResult], None] | None = 
         quiet = replace(cfg, run=replace(cfg.run, progress=False, heartbeat_s=heartbeat_seconds(cfg)))
         ctx = multiprocessing.get_context("spawn")
         # workers end their SfM child on SIGTERM (`end_pool` sends it) before they go
-        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=raise_on_sigterm) as pool:
+        with ProcessPoolExecutor(workers, mp_context=ctx, initializer=quiet_worker) as pool:
             try:
                 futures = pool.map(_scene_worker, [(s, quiet) for s in sources])
                 for result in tqdm(futures, total=len(sources), desc="scenes", disable=not cfg.run.progress):

@@ -148,8 +148,13 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
                 ax.axis("off")
                 continue
             try:
-                ax.imshow(tint_masked(decode_rgb(row.images[c]), row.masks[c] if row.masks else None))
-            except ValueError:
+                ax.imshow(
+                    tint_masked(
+                        decode_rgb(row.images[c], None, int(row.width[c]) * int(row.height[c])),
+                        row.masks[c] if row.masks else None,
+                    )
+                )
+            except SeeUError:
                 ax.text(0.5, 0.5, "undecodable", ha="center", va="center", transform=ax.transAxes)
             if c < v:
                 ax.set_title(f"context f={row.frame_index[c]}", fontsize=8, color="tab:blue")

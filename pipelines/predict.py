@@ -133,10 +133,8 @@ def predict(cfg: PredictConfig) -> dict:
     hw = loaded.image_hw
     images = []
     for i in context:
-        try:
-            images.append(decode_rgb(bytes(scene.images[i])))
-        except ValueError:
-            raise SeeUError(f"scene {scene.scene_id!r} frame {i}: not a decodable image", cfg.scene_dir) from None
+        where = f"{cfg.scene_dir} scene {scene.scene_id!r} frame {i}"
+        images.append(decode_rgb(bytes(scene.images[i]), where, cfg.max_pixels))
     ctx = context_from_views(
         images, scene.cam_to_world[list(context)], scene.intrinsics_norm[list(context)], scene.near, scene.far, hw
     )

@@ -26,7 +26,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 from seeu_data.errors import SeeUError
-from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_IMAGE_SIDE, MAX_RENDER_FRAMES, check_range
+from seeu_data.limits import (
+    MAX_CONTEXT_VIEWS,
+    MAX_IMAGE_SIDE,
+    MAX_PIXELS,
+    MAX_PIXELS_CEILING,
+    MAX_RENDER_FRAMES,
+    check_range,
+)
 from seeu_data.settings import parse_dims, setting
 from seeu_data.store.json_file import read_json
 
@@ -56,9 +63,11 @@ class RenderConfig:
     )
     device: str | None = setting(None, "default: cuda when available")
     rasterizer: str | None = setting(None, "auto | torch | gsplat (default: the training config's)")
+    max_pixels: int = MAX_PIXELS  # largest image (width x height) decoded, `--max-pixels`
 
     def check(self) -> None:
         check_range(self.frames, "--frames", 2, MAX_RENDER_FRAMES)
+        check_range(self.max_pixels, "--max-pixels", 1, MAX_PIXELS_CEILING)
         if self.image_size is not None:
             for side in self.image_size:
                 check_range(side, "--image-size", 1, MAX_IMAGE_SIDE)
@@ -101,8 +110,9 @@ def context_from_views(images: list, cam_to_world, intrinsics_norm, near: float,
     }
 
 
-def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
-    """Context dict (B=1) from a cameras JSON and its images, resized/cropped to `image_hw`."""
+def load_user_views(path: str | Path, image_hw: tuple[int, int], max_pixels: int = MAX_PIXELS) -> dict:
+    """Context dict (B=1) from a cameras JSON and its images (each at most `max_pixels`, checked
+    before it is decoded), resized/cropped to `image_hw`."""
     import numpy as np
 
     from seeu_data.cameras import intrinsics_norm_from_pixels, rotation_orthonormality_error
@@ -134,10 +144,7 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
         img_path = (path.parent / f["image"]).resolve()
         if not img_path.is_file():
             raise SeeUError(f"frame {i}: image not found", img_path)
-        try:
-            img = decode_rgb(img_path.read_bytes())
-        except ValueError:
-            raise SeeUError(f"frame {i}: not a decodable image", img_path) from None
+        img = decode_rgb(img_path.read_bytes(), f"{img_path} (frame {i})", max_pixels)
         try:
             pose = np.asarray(f["cam_to_world"], dtype=np.float64).reshape(4, 4)
         except (KeyError, ValueError, TypeError):
@@ -168,11 +175,11 @@ def load_user_views(path: str | Path, image_hw: tuple[int, int]) -> dict:
     return context_from_views(images, poses, intrs, near, far, image_hw)
 
 
-def shard_sample(data: str, sample: str, image_hw) -> dict:
+def shard_sample(data: str, sample: str, image_hw, max_pixels: int = MAX_PIXELS) -> dict:
     """The batch (B=1) of one example of triple shards: `sample` is its index in manifest order or its sample_id."""
     from pipelines.train import make_eval_loader
 
-    loader = make_eval_loader(data, image_hw, 1)
+    loader = make_eval_loader(data, image_hw, 1, max_pixels=max_pixels)
     index = int(sample) if sample.isdigit() else None
     for i, batch in enumerate(loader):
         if (index is not None and i == index) or (index is None and batch["sample_id"][0] == sample):
@@ -341,10 +348,10 @@ def render(cfg: RenderConfig) -> dict:
     ck, model, hw, backend, dev = loaded.ck, loaded.model, loaded.image_hw, loaded.backend, loaded.device
     data, cameras, frames, extrapolate, fps = cfg.data, cfg.cameras, cfg.frames, cfg.extrapolate, cfg.fps
     if data is not None:
-        batch = shard_sample(data, str(cfg.sample), hw)
+        batch = shard_sample(data, str(cfg.sample), hw, cfg.max_pixels)
     else:
         assert cameras is not None  # cfg.check: one of the two
-        batch = {"context": load_user_views(cameras, hw)}
+        batch = {"context": load_user_views(cameras, hw, cfg.max_pixels)}
     out = Path(cfg.out)
     out.mkdir(parents=True, exist_ok=True)
     (out / "render.json").unlink(missing_ok=True)

@@ -48,6 +48,7 @@ class TrainRunConfig:
     on_nonfinite: shortcut for the config's `on_nonfinite` ("stop" or "skip-batch"; None: the config's).
     keep_effective_batch: keep the config's effective batch (data.batch_size x optim.accumulate, a preset
     being written for one device) on any number of processes (`seeu_model.training.effective_batch`).
+    rank_timeout_s: the distributed watchdog's wait (`training.distributed.Watchdog`).
     stop_after: stop (with a checkpoint) at that step although the schedule runs on, as an interrupted
     run would; model_factory(model_section) -> (module, model_config_dict) replaces the SeeU model (tests).
     """
@@ -85,6 +86,13 @@ class TrainRunConfig:
         "meaning of its learning rate on any number of processes: the per-process batch and the gradient "
         "accumulation steps are chosen to give it (otherwise the effective batch grows with the process count)",
     )
+    rank_timeout_s: float = setting(
+        300.0,
+        "with several ranks: a rank whose heartbeat stops this long (frozen, stopped, cut off) ends the run on "
+        "every rank with one line naming it",
+        flag="--rank-timeout",
+        metavar="SECONDS",
+    )
     progress: bool | None = None
     overrides: tuple[str, ...] = setting(
         (), "config overrides, e.g. optim.lr=1e-4", positional=True, many=True, optional=True, metavar="KEY=VALUE"
@@ -97,6 +105,8 @@ class TrainRunConfig:
             check_range(self.stop_after, "stop_after", 1, MAX_STEPS)
         if self.max_steps is not None:
             check_range(self.max_steps, "--max-steps", 1, MAX_STEPS)
+        if not (math.isfinite(self.rank_timeout_s) and self.rank_timeout_s >= 1):
+            raise SeeUError(f"--rank-timeout must be a number of seconds >= 1, got {self.rank_timeout_s}")
         resume = self.resume
         if resume is not None and not isinstance(resume, (bool, str, Path)):
             raise SeeUError(f"resume must be True or a checkpoint path, got {resume!r}")
@@ -206,7 +216,7 @@ def train(run: TrainRunConfig) -> dict:
     from seeu_data.store.arrow_io import atomic_write_text
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import apply_overrides, config_from_dict, load_config
-    from seeu_model.training.distributed import cleanup_distributed, setup_distributed
+    from seeu_model.training.distributed import Watchdog, cleanup_distributed, setup_distributed
     from seeu_model.training.effective_batch import plan_batches
     from seeu_model.training.factory import build_model, encode_context, make_render_fn, render_gaussians
     from seeu_model.training.loop import Trainer, autocast_context
@@ -240,6 +250,8 @@ def train(run: TrainRunConfig) -> dict:
         cfg.model = section
 
     dist = setup_distributed(run.device)
+    # every rank's heartbeat from the moment the group is joined (see training/distributed.py)
+    watchdog = Watchdog(dist, run.rank_timeout_s).start() if dist.enabled and "MASTER_PORT" in os.environ else None
     try:
         if dist.device.type == "cuda" and cfg.precision == "bf16" and not torch.cuda.is_bf16_supported():
             raise SeeUError("precision=bf16 but this GPU does not support bfloat16 (use precision=fp32)")
@@ -283,7 +295,13 @@ def train(run: TrainRunConfig) -> dict:
         trainer = Trainer(
             model, cfg, out, make_render_fn(cfg.rasterizer), dist, lpips_fn, model_cfg, eval_fn, batches=batches
         )
-        result = trainer.fit(loader, stop_after=run.stop_after, resume_from=resume_ckpt)
+        try:
+            result = trainer.fit(loader, stop_after=run.stop_after, resume_from=resume_ckpt)
+        except RuntimeError as exc:  # a collective failed: a peer that died is named, not an internal error
+            dead = watchdog.dead_peer() if watchdog is not None else None
+            if dead is None:
+                raise
+            _peer_died(dead, exc, dist)
         summary = {
             "rank": dist.rank,
             "step": result.step,
@@ -302,7 +320,18 @@ def train(run: TrainRunConfig) -> dict:
             atomic_write_text(out / "train_summary.json", json.dumps(summary, indent=2) + "\n")
         return summary
     finally:
+        if watchdog is not None:
+            watchdog.stop()
         cleanup_distributed(dist)
+
+
+def _peer_died(rank: int, exc: BaseException, dist) -> None:
+    """End this rank after rank `rank` died: the lowest surviving rank says so in one line (exit 2), the
+    others exit 2 quietly."""
+    if dist.rank != min(r for r in range(dist.world_size) if r != rank):
+        raise SystemExit(2)
+    what = str(exc).strip().splitlines()[0][:160] if str(exc).strip() else type(exc).__name__
+    raise SeeUError(f"rank {rank} died: the collective with it failed ({what}); resume with --resume") from None
 
 
 def _load_init_state(model, ckpt: dict) -> None:

@@ -139,15 +139,16 @@ def evenly(n: int, limit: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, limit)).astype(int))
 
 
-def thumbnail(encoded, side: int, mask=None) -> np.ndarray:
-    """Encoded image bytes -> (h, w, 3) uint8 RGB with its longest side at most `side`; the pixels of
-    `mask` (the frame's stored mask PNG, or None) tinted (`masks.tint_masked`)."""
+def thumbnail(encoded, side: int, wh: tuple[int, int], mask=None) -> np.ndarray:
+    """Encoded image bytes -> (h, w, 3) uint8 RGB with its longest side at most `side`; `wh` the
+    recorded (width, height), the most the image-size gate lets it decode; the pixels of `mask`
+    (the frame's stored mask PNG, or None) tinted (`masks.tint_masked`)."""
     import cv2
 
     from seeu_data.image_ops import decode_rgb
     from seeu_data.masks import tint_masked
 
-    img = tint_masked(decode_rgb(bytes(encoded)), mask)
+    img = tint_masked(decode_rgb(bytes(encoded), None, wh[0] * wh[1]), mask)
     h, w = img.shape[:2]
     s = min(1.0, side / max(h, w))
     if s < 1.0:
@@ -315,7 +316,7 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
             wh,
             state["scale"] * 2.0,
             FRAME_RGB,
-            thumbnail(scene.images[k], FRAME_SIDE, scene.masks[k] if scene.masks else None),
+            thumbnail(scene.images[k], FRAME_SIDE, wh, scene.masks[k] if scene.masks else None),
         )
         info.content = f"**{scene.scene_id}**: frame {k} of {len(scene)} (source frame {int(scene.source_frame[k])})"
 
@@ -341,7 +342,7 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
                 wh,
                 scale,
                 CONTEXT_RGB,
-                thumbnail(scene.images[i], THUMB_SIDE, scene.masks[i] if scene.masks else None),
+                thumbnail(scene.images[i], THUMB_SIDE, wh, scene.masks[i] if scene.masks else None),
             )
         if len(centres) > 1:
             server.scene.add_line_segments(
@@ -429,7 +430,12 @@ def show_triple(server: viser.ViserServer, path: Path, sample: str, on_row=None)
                 (int(row.width[k]), int(row.height[k])),
                 scale,
                 CONTEXT_RGB if ctx else TARGET_RGB,
-                thumbnail(row.images[k], THUMB_SIDE, row.masks[k] if row.masks else None),
+                thumbnail(
+                    row.images[k],
+                    THUMB_SIDE,
+                    (int(row.width[k]), int(row.height[k])),
+                    row.masks[k] if row.masks else None,
+                ),
             )
             label = f"frame {int(row.frame_index[k])}" + ("" if ctx else f" (offset {int(row.target_offset[k - v])})")
             server.scene.add_label(f"/triple/label_{k}", label, position=tuple(c2w[k, :3, 3]))
@@ -475,15 +481,24 @@ def show_ply(server: viser.ViserServer, path: Path, notes: Notes) -> None:
     """A 3DGS .ply as Gaussians (a point-cloud .ply as points) with cameras.json's cameras beside it."""
     from plyfile import PlyData, PlyParseError
 
+    from seeu_model.ply import binary_vertex_layout
+
     ply = path if path.is_file() else sorted(path.glob("*.ply"))[0]
-    try:
-        names = {p.name for p in PlyData.read(str(ply))["vertex"].properties}
+    try:  # the header alone (a 3DGS .ply is binary: streamed below, never read whole)
+        layout = binary_vertex_layout(ply)
+        if layout is None:
+            vertex = PlyData.read(str(ply))["vertex"]
+            names, total = {p.name for p in vertex.properties}, vertex.count
+        else:
+            names, total = set(layout[0].names or ()), layout[1]
     except (OSError, KeyError, ValueError, IndexError, PlyParseError) as exc:
         raise SeeUError(f"not a readable .ply with a vertex element ({exc})", ply) from exc
     if "f_dc_0" in names:
         from seeu_model.ply import load_ply
 
-        g = load_ply(ply)
+        g = load_ply(ply, most=MAX_GAUSSIANS)  # memory: the drawn Gaussians, not the file (docs/view.md)
+        if total > MAX_GAUSSIANS:
+            notes(f"{total} Gaussians, drawing the {MAX_GAUSSIANS} most opaque (MAX_GAUSSIANS)")
         n = add_splats(server, "/gaussians", g, notes)
         aim(server, g.means[0].numpy())
         what = f"{n} Gaussians"
@@ -629,7 +644,7 @@ def posed_context(scene, hw) -> dict:
 
     ids = list(auto_context_pair(len(scene)))
     return context_from_views(
-        [decode_rgb(bytes(scene.images[i])) for i in ids],
+        [decode_rgb(bytes(scene.images[i]), None, int(scene.width[i]) * int(scene.height[i])) for i in ids],
         np.asarray(scene.cam_to_world)[ids],
         np.asarray(scene.intrinsics_norm)[ids],
         float(scene.near),

@@ -246,11 +246,10 @@ def sampson_error(F: np.ndarray, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
 
 
 def _decode(scene: PosedScene, k: int) -> np.ndarray:
-    """Frame k as (H, W, 3) uint8 BGR (`image_ops.decode_rgb`); SeeUError when it does not decode."""
-    try:
-        rgb = decode_rgb(memoryview(scene.images[k]))  # type: ignore[arg-type]
-    except ValueError:
-        raise SeeUError(f"scene {scene.scene_id}: frame {k} does not decode") from None
+    """Frame k as (H, W, 3) uint8 BGR (`image_ops.decode_rgb`, at most its recorded size); SeeUError
+    when it does not decode."""
+    recorded = int(scene.width[k]) * int(scene.height[k])
+    rgb = decode_rgb(memoryview(scene.images[k]), f"scene {scene.scene_id}: frame {k}", recorded)  # type: ignore[arg-type]
     return np.ascontiguousarray(rgb[..., ::-1])
 
 

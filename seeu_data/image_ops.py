@@ -9,11 +9,14 @@ from __future__ import annotations
 import math
 from collections.abc import Iterator
 from contextlib import contextmanager
+from pathlib import Path
 
 import cv2
 import numpy as np
 
 from seeu_data.cameras import cover_crop_geometry, crop_intrinsics_norm
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.image_header import decode_image
 
 INTERPOLATIONS = {
     "area": cv2.INTER_AREA,
@@ -23,13 +26,10 @@ INTERPOLATIONS = {
 }
 
 
-def decode_rgb(data: bytes | memoryview) -> np.ndarray:
-    """Encoded JPEG/PNG bytes -> (H, W, 3) uint8 RGB. Raises ValueError when undecodable."""
-    arr = np.frombuffer(data, dtype=np.uint8)
-    img = cv2.imdecode(arr, cv2.IMREAD_COLOR) if arr.size else None
-    if img is None:
-        raise ValueError("image bytes cannot be decoded")
-    return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+def decode_rgb(data: bytes | memoryview, where: str | Path | None, max_pixels: int = MAX_PIXELS) -> np.ndarray:
+    """Encoded image bytes -> (H, W, 3) uint8 RGB through the image-size gate
+    (`image_header.decode_image`: at most `max_pixels`). SeeUError naming `where` when it is refused."""
+    return cv2.cvtColor(decode_image(data, where, max_pixels), cv2.COLOR_BGR2RGB)
 
 
 # Source-pixel radius of each filter's footprint (INTER_AREA when shrinking: at most one pixel past the box).

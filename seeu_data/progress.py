@@ -16,6 +16,8 @@ import sys
 import threading
 import time
 
+from seeu_data.interrupts import raise_if_terminated
+
 
 class StageProgress:
     def __init__(self, label: str, bar: bool = False, heartbeat_s: float = 0.0, stream=None):
@@ -55,6 +57,7 @@ class StageProgress:
             self._bar = tqdm(total=total, desc=f"{self.label.split(': ')[-1]} {name}", leave=False)
 
     def set(self, done: int) -> None:
+        raise_if_terminated()  # a SIGTERM whose exception a library swallowed (seeu_data/interrupts.py)
         with self._lock:
             step, self.done = done - self.done, done
         if self._bar is not None and step:

@@ -22,7 +22,8 @@ def resize_scene(
 
     images, intr = [], []
     for i, data in enumerate(scene.images):
-        img = decode_rgb(bytes(data))
+        recorded = int(scene.width[i]) * int(scene.height[i])  # checked against --max-pixels when read
+        img = decode_rgb(bytes(data), f"scene {scene.scene_id!r} frame {i}", recorded)
         in_hw = img.shape[:2]
         if in_hw != (int(scene.height[i]), int(scene.width[i])):
             raise SeeUError(

@@ -25,7 +25,8 @@ from pathlib import Path
 import numpy as np
 
 from seeu_data.limits import MAX_PIXELS
-from seeu_data.store.dataset_check import check_image, check_pixels
+from seeu_data.store.dataset_check import check_image
+from seeu_data.store.image_header import check_pixels, decode_image
 
 # Border samples per image side used to find the largest undistorted rectangle.
 _BORDER_SAMPLES = 256
@@ -120,9 +121,7 @@ def undistort_files(
         path = Path(image_dir) / name
         data = path.read_bytes()
         check_image(data, pin.width, pin.height, path, max_pixels)
-        img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_COLOR)
-        if img is None:
-            raise ValueError(f"cannot read frame {Path(image_dir) / name}")
+        img = decode_image(data, path, max_pixels)
         if img.shape[:2] != (pin.height, pin.width):
             raise ValueError(f"frame {name} is {img.shape[1]}x{img.shape[0]}, the camera {pin.width}x{pin.height}")
         out = cv2.remap(img, map_x, map_y, cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)

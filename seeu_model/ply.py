@@ -128,15 +128,92 @@ def save_ply_bundle(
     return sidecar
 
 
-def load_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> Gaussians:
-    """Read a 3DGS `.ply` into Gaussians with B = 1 (sigmoid opacity, exp scales, unit wxyz quaternions)."""
+_PLY_TYPES = {
+    **dict.fromkeys(("char", "int8"), "i1"),
+    **dict.fromkeys(("uchar", "uint8"), "u1"),
+    **dict.fromkeys(("short", "int16"), "i2"),
+    **dict.fromkeys(("ushort", "uint16"), "u2"),
+    **dict.fromkeys(("int", "int32"), "i4"),
+    **dict.fromkeys(("uint", "uint32"), "u4"),
+    **dict.fromkeys(("float", "float32"), "f4"),
+    **dict.fromkeys(("double", "float64"), "f8"),
+}
+CHUNK_ROWS = 1 << 16  # vertices read at a time when a .ply is streamed
+
+
+def binary_vertex_layout(path: str | Path) -> tuple[np.dtype, int, int] | None:
+    """(row dtype, vertex count, file offset of the first vertex) of a binary `.ply` whose first element
+    is `vertex` with scalar properties (every 3DGS .ply), read from the header alone; None for any
+    other layout (ASCII, list properties), which `plyfile` reads whole."""
+    with open(path, "rb") as f:
+        head = f.read(1 << 16)
+    end = head.find(b"end_header\n")
+    if not head.startswith(b"ply\n") or end < 0:
+        return None
+    order, count, fields = None, None, []
+    for line in head[:end].decode("ascii", "replace").splitlines()[1:]:
+        words = line.split()
+        if words[:1] == ["format"] and len(words) > 1:
+            order = {"binary_little_endian": "<", "binary_big_endian": ">"}.get(words[1])
+        elif words[:1] == ["element"]:
+            if count is not None:
+                break  # elements after the vertices are not read
+            if len(words) != 3 or words[1] != "vertex" or not words[2].isdigit():
+                return None
+            count = int(words[2])
+        elif words[:1] == ["property"] and count is not None:
+            if len(words) != 3 or words[1] not in _PLY_TYPES:
+                return None  # a list property
+            fields.append((words[2], _PLY_TYPES[words[1]]))
+    if order is None or count is None or not fields:
+        return None
+    return np.dtype([(name, order + kind) for name, kind in fields]), count, end + len(b"end_header\n")
+
+
+def _stream_rows(path: Path, row: np.dtype, n: int, offset: int, most: int | None) -> np.ndarray:
+    """The vertex rows of a binary .ply, `CHUNK_ROWS` at a time: all of them, or (when there are more
+    than `most`) the `most` with the largest opacity, in file order. Memory: the kept rows, one chunk
+    and 4 bytes per vertex (the opacities), never the whole file."""
+    with open(path, "rb") as f:
+
+        def chunks():
+            f.seek(offset)
+            for start in range(0, n, CHUNK_ROWS):
+                block = np.fromfile(f, row, count=min(CHUNK_ROWS, n - start))
+                if len(block) < min(CHUNK_ROWS, n - start):
+                    raise SeeUError(f"truncated: {start + len(block)} of the {n} vertices its header declares", path)
+                yield start, block
+
+        if most is None or n <= most:
+            return np.concatenate([b for _, b in chunks()]) if n else np.zeros(0, row)
+        opacity = np.concatenate([b["opacity"].astype(np.float32) for _, b in chunks()])
+        keep = np.sort(np.argpartition(-opacity, most)[:most])
+        del opacity
+        out = np.empty(most, row)
+        done = 0
+        for start, block in chunks():
+            lo, hi = np.searchsorted(keep, [start, start + len(block)])
+            out[done : done + hi - lo] = block[keep[lo:hi] - start]
+            done += hi - lo
+        return out
+
+
+def load_ply(path: str | Path, dtype: torch.dtype = torch.float32, most: int | None = None) -> Gaussians:
+    """Read a 3DGS `.ply` into Gaussians with B = 1 (sigmoid opacity, exp scales, unit wxyz quaternions).
+
+    `most`: at most this many Gaussians, the most opaque (`seeu view`'s bound): a binary file is then
+    streamed (`_stream_rows`), so a 0.74 GB file of 3 M Gaussians never sits in memory whole."""
     path = Path(path)
     try:
-        ply = PlyData.read(str(path))
-        vertex = ply["vertex"]
+        layout = binary_vertex_layout(path)
+        if layout is None:
+            ply = PlyData.read(str(path))
+            rows = ply["vertex"].data
+            names = [p.name for p in ply["vertex"].properties]
+        else:
+            names = list(layout[0].names or ())
     except (OSError, KeyError, ValueError, IndexError, PlyParseError) as exc:
         raise SeeUError(f"not a readable .ply with a vertex element ({exc})", path) from exc
-    names = [p.name for p in vertex.properties]
     n_rest = sum(1 for name in names if name.startswith("f_rest_"))
     if n_rest % 3:
         raise SeeUError(f"{n_rest} f_rest properties is not a multiple of 3", path)
@@ -147,9 +224,13 @@ def load_ply(path: str | Path, dtype: torch.dtype = torch.float32) -> Gaussians:
     missing = [name for name in ply_property_names(degree) if name not in names and name[0] != "n"]
     if missing:
         raise SeeUError(f"missing 3DGS properties: {', '.join(missing[:5])}", path)
-    col = lambda name: np.asarray(vertex[name], dtype=np.float64)  # noqa: E731
+    if layout is not None:
+        rows = _stream_rows(path, *layout, most)
+    elif most is not None and len(rows) > most:
+        rows = rows[np.sort(np.argpartition(-np.asarray(rows["opacity"]), most)[:most])]
+    col = lambda name: np.asarray(rows[name], dtype=np.float64)  # noqa: E731
     stack = lambda keys: torch.from_numpy(np.stack([col(key) for key in keys], -1))  # noqa: E731
-    n = len(vertex.data)
+    n = len(rows)
     k = (degree + 1) ** 2
     means = stack(["x", "y", "z"])
     dc = stack(["f_dc_0", "f_dc_1", "f_dc_2"])

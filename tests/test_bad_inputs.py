@@ -735,9 +735,13 @@ def _all_checkpoints_finite(run: Path):
 
 
 def _edited_ckpt(ws, tmp, edit) -> Path:
-    """A copy of the workspace run's checkpoint with `edit(ckpt)` applied."""
+    """A copy of the workspace run's checkpoint with `edit(ckpt)` applied, its digest made anew (as
+    if a run had written those values)."""
+    from seeu_model.training.checkpoint import payload_digest
+
     ck = torch.load(ws["ckpt"], weights_only=True)
     edit(ck)
+    ck["digest"] = payload_digest(ck)
     path = tmp / "edited" / ws["ckpt"].name
     path.parent.mkdir(parents=True, exist_ok=True)
     torch.save(ck, path)
@@ -803,28 +807,38 @@ case("train-resume-negative-step", text="negative")(
     lambda ws, tmp: _train_argv(ws, tmp, "--resume", str(_edited_ckpt(ws, tmp, lambda ck: ck.update(step=-3))))
 )
 case("train-resume-step-number", text="not a step number")(lambda ws, tmp: _train_argv(ws, tmp, "--resume", "-1"))
-case("eval-nan-checkpoint", text=NAN_CKPT)(
-    lambda ws, tmp: [
-        "eval",
-        "--checkpoint",
-        str(_edited_ckpt(ws, tmp, _nan_weight)),
-        "--data",
-        str(ws["triples"]),
-        "--no-lpips",
-        "--out",
-        str(tmp / "e"),
-    ]
-)
-case("render-nan-checkpoint", text=NAN_CKPT)(
-    lambda ws, tmp: [
-        "render",
-        "--checkpoint",
-        str(_edited_ckpt(ws, tmp, _nan_weight)),
-        "--data",
-        str(ws["triples"]),
-        "--out",
-        str(tmp / "r"),
-    ]
+
+
+def _eval_ckpt(ws, tmp, ckpt: Path) -> list[str]:
+    return ["eval", "--checkpoint", str(ckpt), "--data", str(ws["triples"]), "--no-lpips", "--out", str(tmp / "e")]
+
+
+def _render_ckpt(ws, tmp, ckpt: Path) -> list[str]:
+    return ["render", "--checkpoint", str(ckpt), "--data", str(ws["triples"]), "--out", str(tmp / "r")]
+
+
+case("eval-nan-checkpoint", text=NAN_CKPT)(lambda ws, tmp: _eval_ckpt(ws, tmp, _edited_ckpt(ws, tmp, _nan_weight)))
+case("render-nan-checkpoint", text=NAN_CKPT)(lambda ws, tmp: _render_ckpt(ws, tmp, _edited_ckpt(ws, tmp, _nan_weight)))
+
+
+def _flipped_bit(ws, tmp) -> Path:
+    """A copy of the workspace run's checkpoint with one bit of one weight flipped in the file (as a bad
+    disk or copy does): the model still loads, and would be another model."""
+    ck = torch.load(ws["ckpt"], weights_only=True)
+    weight = ck["model"][_first_weight(ck)].contiguous().numpy().tobytes()
+    data = bytearray(ws["ckpt"].read_bytes())
+    at = data.index(weight[:64])
+    data[at + 5] ^= 0x04
+    path = tmp / "flipped" / ws["ckpt"].name
+    _put(path, bytes(data))
+    return path
+
+
+FLIPPED = "checkpoint damaged: its contents do not match the digest written with them"
+case("eval-checkpoint-flipped-bit", text=FLIPPED)(lambda ws, tmp: _eval_ckpt(ws, tmp, _flipped_bit(ws, tmp)))
+case("render-checkpoint-flipped-bit", text=FLIPPED)(lambda ws, tmp: _render_ckpt(ws, tmp, _flipped_bit(ws, tmp)))
+case("train-resume-flipped-bit", text=FLIPPED)(
+    lambda ws, tmp: (_train_argv(ws, tmp, "--resume", str(_flipped_bit(ws, tmp))), _nothing_written(tmp / "r"))
 )
 
 
@@ -1021,12 +1035,49 @@ _PEAK_RSS = (
 )
 
 
+def _png_bomb(side: int = 20000) -> bytes:
+    """A valid 1-bit grey PNG of `side` x `side` black pixels (~50 KB): a decoder that trusts it
+    allocates side^2 x 3 bytes of BGR (1.2 GB at 20000), then works on them."""
+    import zlib
+
+    def chunk(kind: bytes, body: bytes) -> bytes:
+        return struct.pack(">I", len(body)) + kind + body + struct.pack(">I", zlib.crc32(kind + body))
+
+    row = bytes(1 + -(-side // 8))  # filter byte + the packed bits of one row
+    packer = zlib.compressobj(9)
+    idat = b"".join(packer.compress(row) for _ in range(side)) + packer.flush()
+    ihdr = struct.pack(">IIBBBBB", side, side, 1, 0, 0, 0, 0)
+    return b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", idat) + chunk(b"IEND", b"")
+
+
+def _ingest_folder_bomb(ws, tmp) -> list[str]:
+    """An image folder whose second image is a valid PNG declaring 20000x20000 (400 MP)."""
+    folder = _folder_with(tmp, ws)
+    (folder / "f001.png").write_bytes(_png_bomb())
+    return ["ingest", str(folder), "--out", str(tmp / "o"), "--threads", "1"]
+
+
+def _render_cameras_bomb(ws, tmp) -> list[str]:
+    """A cameras file whose first context image is a valid 400 MP PNG."""
+    (tmp / "big.png").write_bytes(_png_bomb())
+    frames = [_good_frame(tmp), _good_frame(tmp, "b.png")]
+    frames[0]["image"] = "big.png"
+    return _render(ws, tmp, "--cameras", str(_cameras(tmp, frames)))
+
+
 def test_header_bomb_refused_in_little_memory(ws, tmp_path):
     """A JPEG declaring 60000x60000 (10.8 GB of pixels) in posed data (build) and in a pixelSplat chunk
-    (import): refused in one line by a real `seeu` process whose peak RSS stays under 1 GB."""
-    (tmp_path / "ps").mkdir()
-    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
-    for argv in (_build(_rewrite(ws, tmp_path, "posed", BOMB), tmp_path), _ps_bomb(ws, tmp_path / "ps")):
+    (import), a valid 400 MP PNG in an image folder (ingest) and as a context image of a cameras file
+    (render): refused in one line by a real `seeu` process whose peak RSS stays under 1 GB."""
+    for d in ("ps", "ing", "ren"):
+        (tmp_path / d).mkdir()
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1]), "SEEU_HEARTBEAT_S": "0"}
+    for argv in (
+        _build(_rewrite(ws, tmp_path, "posed", BOMB), tmp_path),
+        _ps_bomb(ws, tmp_path / "ps"),
+        _ingest_folder_bomb(ws, tmp_path / "ing"),
+        _render_cameras_bomb(ws, tmp_path / "ren"),
+    ):
         cmd = [sys.executable, "-c", _PEAK_RSS, sys.executable, "-m", "pipelines.cli", *argv]
         done = subprocess.run(cmd, capture_output=True, text=True, env=env, timeout=300)
         peak_kb, rc = (int(v) for v in done.stdout.split()[-2:])
@@ -1055,6 +1106,21 @@ def _folder_with(tmp: Path, ws, *bad: str) -> Path:
     return folder
 
 
+case("ingest-folder-png-bomb", text="f001.png: image header declares 20000x20000 (400.0 MP) is over the 64 MP limit")(
+    _ingest_folder_bomb
+)
+case("ingest-folder-over-max-pixels", text="f000.jpg: image header declares 64x48 (0.0 MP) is over the 0.003 MP")(
+    lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws)), "--out", str(tmp / "o"), "--max-pixels", "3000"]
+)
+case("ingest-video-over-max-pixels", text="clip.mp4: video frame size 64x48 (0.0 MP) is over the 0.003 MP limit")(
+    lambda ws, tmp: ["ingest", str(ws["clip"]), "--out", str(tmp / "o"), "--max-pixels", "3000"]
+)
+case("render-cameras-png-bomb", text="big.png (frame 0): image header declares 20000x20000")(_render_cameras_bomb)
+case("render-cameras-over-max-pixels", text="a.png (frame 0): image header declares 32x32")(
+    lambda ws, tmp: _render(
+        ws, tmp, "--max-pixels", "1000", "--cameras", str(_cameras(tmp, [_good_frame(tmp), _good_frame(tmp, "b.png")]))
+    )
+)
 case("ingest-strict-fifo", text="pipe.jpg: cannot be read as an image: a FIFO (--strict)")(
     lambda ws, tmp: ["ingest", str(_folder_with(tmp, ws, "pipe.jpg")), "--out", str(tmp / "o"), "--strict"]
 )
@@ -1191,7 +1257,7 @@ def test_bad_input(ws, tmp_path, capsys, make, rc, text):
 
 def test_enough_cases():
     commands = {p.id.split("-")[0] for p in CASES}
-    assert len(CASES) >= 120 and commands >= {
+    assert len(CASES) >= 190 and commands >= {
         "ingest",
         "import",
         "export",

@@ -124,6 +124,12 @@ def test_resume_keeps_good_shards_and_rebuilds_damaged(posed, tmp_path):
     doc = json.loads((out / "manifest.json").read_text())
     assert doc["report"]["shards_resumed"] == len(before)
     assert {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.arrow")} == mtimes
+    # --force: every shard written anew (new files, the same bytes)
+    assert _build(posed, out, "--force") == 0
+    assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == 0
+    assert (
+        all(p.stat().st_mtime_ns != mtimes[p.name] for p in out.glob("shard-*.arrow")) and _shard_bytes(out) == before
+    )
     # a truncated shard (crash mid-copy) is rebuilt, the others kept
     victim = out / "shard-00001.arrow"
     victim.write_bytes(victim.read_bytes()[:100])

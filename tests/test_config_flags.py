@@ -48,6 +48,7 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
         demo,
         evaluate,
         export,
+        import_cmd,
         index,
         inspect_cmd,
         model_info,
@@ -73,7 +74,6 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
     from seeu_data.camera_check import CameraCheckConfig
     from seeu_data.synthetic import ClipConfig
 
-    import_shared = {"out": "out", "progress": "progress", "fsync": "fsync"}
     out = [
         (("ingest",), [IngestConfig], SHARED_FLAGS, (), ()),
         (("build",), [BuildConfig], build_cli.SHARED_FLAGS, build_cli.SKIP, ()),
@@ -92,7 +92,7 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
         (("inspect",), [InspectConfig], {}, (), inspect_cmd.OWN_FLAGS),
         (("convert-checkpoint",), [ConvertConfig], convert_checkpoint.SHARED_FLAGS, (), ()),
     ]
-    out += [(("import", f), [cls, ImportConfig], import_shared, (), ()) for f, (cls, _) in IMPORTERS.items()]
+    out += [(("import", f), [cls, ImportConfig], import_cmd.SHARED_FLAGS, (), ()) for f, (cls, _) in IMPORTERS.items()]
     formats = export._formats().items()
     out += [(("export", f), [cls], export.SHARED_FLAGS, (), export.OWN_FLAGS) for f, (cls, _) in formats]
     return out
@@ -149,6 +149,14 @@ def test_run_flags_arrive_in_the_stage_configs(tmp_path, capsys):
     assert cfg.val is None and cfg.max_steps is None and cfg.on_nonfinite is None
     cfg = config_from_args(TrainRunConfig, _parse([*train, "--resume", "c.pt", "--max-steps", "5"]), out="r")
     assert cfg.resume == "c.pt" and cfg.max_steps == 5 and cfg.overrides == () and cfg.lpips is True
+    # an override right after --resume is an override, never the checkpoint path (#39)
+    cfg = config_from_args(TrainRunConfig, _parse([*train, "--resume", "optim.lr=1e-3", "log.every=2"]), out="r")
+    assert cfg.resume is True and cfg.overrides == ("optim.lr=1e-3", "log.every=2")
+    cfg = config_from_args(TrainRunConfig, _parse([*train, "--resume", "seed=3"]), out="r")
+    assert cfg.resume is True and cfg.overrides == ("seed=3",)
+    for path in ("./seed=3", "runs/lr=1e-3/checkpoints"):  # a path of that form, written as a path
+        cfg = config_from_args(TrainRunConfig, _parse([*train, "--resume", path]), out="r")
+        assert cfg.resume == path and cfg.overrides == ()
     ablate_argv = ["ablate", "--config", "c", "--data", "d", "--eval", "e", "--out", "o"]
     ablate = config_from_args(AblateConfig, _parse([*ablate_argv, "--ext-data", "0=a"]), out="o")
     assert ablate.eval_data == "e" and ablate.ext_data == ((0, "a"),) and ablate.ext_ranges == (0, 45, 90)

@@ -420,6 +420,12 @@ def test_cli_rerun_resumes_and_reports_skips_again(tmp_path, capsys):
     assert doc1["files"] == doc2["files"] and doc1["scenes"] == doc2["scenes"]
     assert doc1["report"]["skipped"] == doc2["report"]["skipped"]
     assert validate_dataset(tmp_path / "o")["unlisted_files"] == []
+    # --force: nothing kept, the same files written anew
+    mtime = (tmp_path / "o" / "posed-00000.arrow").stat().st_mtime_ns
+    assert cli_main([*cmd, "--force"]) == 0
+    assert "kept from a previous run" not in capsys.readouterr().out
+    assert json.loads((tmp_path / "o" / "manifest.json").read_text())["files"] == doc1["files"]
+    assert (tmp_path / "o" / "posed-00000.arrow").stat().st_mtime_ns != mtime
 
 
 def test_import_fsyncs_only_with_the_flag(tmp_path, fsyncs):

@@ -295,7 +295,7 @@ def test_rng_state_round_trips_through_v2_and_v1_checkpoints(tmp_path):
         ckpt_io.set_rng_state(ck["rng"])
         got = (np.random.rand(3), random.random(), torch.rand(3))
         assert np.array_equal(got[0], expected[0]) and got[1] == expected[1] and torch.equal(got[2], expected[2])
-    assert ckpt_io.load_checkpoint(v2_path)["version"] == 2
+    assert ckpt_io.load_checkpoint(v2_path)["version"] == ckpt_io.VERSION  # the current writer's (3: the digest)
 
 
 # ------------------------------------------------------------------------------------------------
@@ -359,6 +359,7 @@ def test_checkpoint_whose_model_config_disagrees_with_its_weights(seeu_run, shar
     ck = torch.load(ckpt_io.latest_checkpoint(seeu_run / "checkpoints"), weights_only=True)
     ck["model_config"]["head_hidden"] = ck["model_config"]["head_hidden"] * 2  # the weights stay as they were
     bad = tmp_path / "ckpt-00000001.pt"
+    ck["digest"] = ckpt_io.payload_digest(ck)  # written so (the digest checks the file, not the values)
     torch.save(ck, bad)
     for argv in (
         ["eval", "--checkpoint", str(bad), "--data", str(shards), "--out", str(tmp_path / "e"), "--no-lpips"],
@@ -467,6 +468,7 @@ def test_resume_from_a_checkpoint_with_unfit_state_is_one_line(seeu_run, shards,
         ck["rng"]["numpy"] = [1, 2]
         ck.pop("rng_per_rank", None)
     bad = tmp_path / "ckpt-00000001.pt"
+    ck["digest"] = ckpt_io.payload_digest(ck)  # written so (the digest checks the file, not the values)
     torch.save(ck, bad)
     err = _one_line_exit_2(
         ["train", "--data", str(shards), "--out", str(tmp_path / "o"), "--resume", str(bad)]

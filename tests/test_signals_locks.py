@@ -121,8 +121,9 @@ def _ingest_argv(folder: Path, out: Path) -> list[str]:
     return ["ingest", str(folder), "--out", str(out), "--threads", "1", "--no-sfm-check", "--no-progress"]
 
 
-def _sfm_child(parent: int, timeout: float = 120.0) -> int:
-    """The pid of `parent`'s SfM child process (`python -m seeu_data.ingest.sfm`), once it exists."""
+def _sfm_child(parent: int, timeout: float = 120.0, marker: bytes = b"seeu_data.ingest.sfm") -> int:
+    """The pid of `parent`'s SfM child process (`python -m seeu_data.ingest.sfm`; with `marker` b"--map":
+    the SfM child's mapping process), once it exists."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for d in Path("/proc").iterdir():
@@ -133,14 +134,24 @@ def _sfm_child(parent: int, timeout: float = 120.0) -> int:
                 cmd = (d / "cmdline").read_bytes()
             except (OSError, IndexError, ValueError):
                 continue
-            if ppid == parent and b"seeu_data.ingest.sfm" in cmd:
+            if ppid == parent and marker in cmd:
                 return int(d.name)
-        time.sleep(0.05)
+        time.sleep(0.01)
     raise AssertionError("no SfM child appeared")
 
 
-def _interrupt(folder: Path, out: Path, sig: signal.Signals) -> tuple[int, str, int]:
-    """Start `seeu ingest`, send `sig` once its SfM child runs; (exit status, stderr, the child's pid)."""
+def _alive(pid: int) -> bool:
+    """Whether `pid` runs (a zombie left to a parent that does not reap it has ended)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0] != "Z"
+    except (OSError, IndexError):
+        return False
+
+
+def _interrupt(folder: Path, out: Path, sig: signal.Signals, at_mapping: bool = False) -> tuple[int, str, int]:
+    """Start `seeu ingest`, send `sig` once its SfM child runs (`at_mapping`: the moment the SfM child
+    starts its mapping process, which then must end with ingest, not when it notices, seconds later);
+    (exit status, stderr, the child's pid)."""
     if not Path("/proc/self/stat").exists():
         pytest.skip("needs Linux /proc")
     proc = subprocess.Popen(
@@ -153,8 +164,10 @@ def _interrupt(folder: Path, out: Path, sig: signal.Signals) -> tuple[int, str, 
     )
     try:
         child = _sfm_child(proc.pid)
+        mapping = _sfm_child(child, marker=b"--map") if at_mapping else None
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
+        assert mapping is None or not _alive(mapping), "the mapping process outlived seeu ingest"
     finally:
         proc.kill()
     deadline = time.monotonic() + 1.0
@@ -165,10 +178,11 @@ def _interrupt(folder: Path, out: Path, sig: signal.Signals) -> tuple[int, str, 
 
 
 def test_sigterm_ends_the_sfm_child_and_a_rerun_resumes(folder, tmp_path, capsys):
-    """SIGTERM while SfM runs: exit 143 with one line, the SfM child is gone, no lock is held; the same
+    """SIGTERM while SfM starts mapping: exit 143 with one line, the SfM child and its mapping process
+    are gone when ingest exits, no lock is held; the same
     command right after completes, naming the two image-named entries it skipped (summary, report)."""
     out = tmp_path / "posed"
-    rc, err, _ = _interrupt(folder, out, signal.SIGTERM)
+    rc, err, _ = _interrupt(folder, out, signal.SIGTERM, at_mapping=True)
     assert rc == 143, err
     assert err.strip().splitlines() == ["seeu ingest: interrupted (SIGTERM); re-run the same command to resume"]
     assert not (out / ".lock").exists()

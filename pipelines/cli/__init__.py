@@ -6,7 +6,9 @@ flags into the stage's typed config, calls the stage function and prints its sum
 heavy imports inside `run`. The module docstring is the command's `--help` description.
 
 Errors the user can fix (SeeUError) print one line and exit 2; `--debug` shows tracebacks. Ctrl-C
-(SIGINT) and SIGTERM end the command's child processes and print one line: exit 130 / 143.
+(SIGINT) and SIGTERM end the command's child processes and print one line: exit 130 / 143. The
+SIGTERM handler is installed first thing, before the commands' modules are imported; a SIGTERM that
+a library swallowed still ends the command with that line and 143 (`interrupts.terminated`).
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ import sys
 
 from seeu_data import __version__
 from seeu_data.errors import SeeUError, os_error_line
-from seeu_data.interrupts import Terminated, sigterm_raises
+from seeu_data.interrupts import Terminated, sigterm_raises, terminated, worker_death
 
 # name -> (module, one-line help). Commands whose module is not present are not offered.
 COMMANDS: dict[str, tuple[str, str]] = {
@@ -71,37 +73,56 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    parser = build_parser()
-    args = parser.parse_args(argv)
-    if not getattr(args, "command", None):
-        parser.print_help()
-        return 2
+    # SIGTERM unwinds like Ctrl-C (children are ended, the outputs stay resumable), from the first
+    # moment: before the commands' modules and their libraries are imported
+    with sigterm_raises():
+        try:
+            parser = build_parser()
+            args = parser.parse_args(argv)
+        except Terminated:
+            return _interrupted("seeu", "SIGTERM", 143)
+        if not getattr(args, "command", None):
+            parser.print_help()
+            return 2
+        code = _run(args)
+    if terminated() and code != 143:  # a library swallowed the Terminated it raised: the command still ends so
+        return _interrupted(f"seeu {args.command}", "SIGTERM", 143)
+    return code
+
+
+def _interrupted(who: str, signal_name: str, code: int) -> int:
+    print(f"{who}: interrupted ({signal_name}); re-run the same command to resume", file=sys.stderr)
+    return code
+
+
+def _run(args: argparse.Namespace) -> int:
+    """The command's `run`, its errors and interruptions as one line and an exit status."""
+    who = f"seeu {args.command}"
     debug = args.debug or os.environ.get("SEEU_DEBUG") == "1"
     try:
-        with sigterm_raises():  # SIGTERM unwinds like Ctrl-C: children are ended, the outputs stay resumable
-            return int(args._module.run(args) or 0)
-    except SeeUError as exc:
-        if debug:
-            raise
-        print(f"seeu {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except OSError as exc:  # the environment (disk full, read-only, permissions, a file in the way)
-        if debug:
-            raise
-        print(f"seeu {args.command}: error: {os_error_line(exc)}", file=sys.stderr)
-        return 2
+        return int(args._module.run(args) or 0)
     except KeyboardInterrupt:
-        print(f"seeu {args.command}: interrupted (SIGINT); re-run the same command to resume", file=sys.stderr)
-        return 130
+        return _interrupted(who, "SIGINT", 130)
     except Terminated:
-        print(f"seeu {args.command}: interrupted (SIGTERM); re-run the same command to resume", file=sys.stderr)
-        return 143
-    except Exception as exc:  # unexpected: still one line, with a way to see more
+        return _interrupted(who, "SIGTERM", 143)
+    except Exception as exc:
+        if terminated():  # the consequence of a SIGTERM a library swallowed (e.g. a half-imported module)
+            return _interrupted(who, "SIGTERM", 143)
         if debug:
             raise
-        msg = str(exc).splitlines()[0] if str(exc) else ""
+        if isinstance(exc, SeeUError):
+            print(f"{who}: error: {exc}", file=sys.stderr)
+            return 2
+        if isinstance(exc, OSError):  # the environment (disk full, read-only, permissions, a file in the way)
+            print(f"{who}: error: {os_error_line(exc)}", file=sys.stderr)
+            return 2
+        died = worker_death(exc)  # a loader worker killed (out of memory, kill -9): PyTorch's RuntimeError
+        if died is not None:
+            print(f"{who}: error: {died}", file=sys.stderr)
+            return 2
+        msg = str(exc).splitlines()[0] if str(exc) else ""  # unexpected: still one line, with a way to see more
         print(
-            f"seeu {args.command}: internal error: {type(exc).__name__}: {msg} (re-run with --debug for the traceback)",
+            f"{who}: internal error: {type(exc).__name__}: {msg} (re-run with --debug for the traceback)",
             file=sys.stderr,
         )
         return 1

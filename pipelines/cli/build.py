@@ -29,13 +29,13 @@ from dataclasses import replace
 from typing import Any
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
-from pipelines.cli.options import add_fsync, add_max_pixels, add_out, add_progress, shared_values
+from pipelines.cli.options import add_force, add_fsync, add_max_pixels, add_out, add_progress, shared_values
 from seeu_data.errors import SeeUError
 
 # The shared flags (pipelines/cli/options.py) and the BuildConfig fields they set; every other flag
 # comes from a `setting` of BuildConfig or its nested configs (SamplingConfig, ImageOptions) but
 # `sampling.mode`, which is --mode (SKIP).
-SHARED_FLAGS = {"out": "out", "progress": "progress", "fsync": "fsync", "max_pixels": "max_pixels"}
+SHARED_FLAGS = {"out": "out", "force": "force", "progress": "progress", "fsync": "fsync", "max_pixels": "max_pixels"}
 SKIP = ("sampling.mode",)
 
 
@@ -52,6 +52,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
     add_config_flags(p, BuildConfig, skip=SKIP)
     add_out(p, "output shards directory")
+    add_force(p, also=" (every shard is written anew)")
     add_progress(p)
     add_fsync(p)
     add_max_pixels(p)

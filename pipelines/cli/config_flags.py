@@ -10,11 +10,17 @@ default is True a `--no-<name>` switch that sets it False; a `many` flag may be 
 its parsed values), a `const` one given without a value; choices and the default come into the help
 from the declaration (unless the help already says what the default is). Nested configs' settings are
 flattened into one flag namespace (a name used twice is an error when the parser is built).
+
+A `const` flag's value is never a KEY=VALUE override (a dotted name, `=`, anything): argparse hands
+`--resume optim.lr=1e-3` the override as the checkpoint path, so `config_from_args` gives the flag
+its `const` (`--resume` alone) and the override to the command's KEY=VALUE positionals, ahead of the
+others. A checkpoint whose path has that form is written with its directory (`./seed=3`).
 """
 
 from __future__ import annotations
 
 import argparse
+import re
 import types
 import typing
 from dataclasses import MISSING, Field, dataclass, fields, is_dataclass
@@ -134,10 +140,26 @@ def add_config_flags(p: Flags, cls: type, skip: tuple[str, ...] = ()) -> list[Se
     return added
 
 
+_KEY_VALUE = re.compile(r"[A-Za-z_]\w*(\.\w+)*=.*", re.DOTALL)  # an override, never a path
+
+
+def _overrides_out_of_const_flags(cls: type, args: argparse.Namespace) -> None:
+    """A `const` flag given a KEY=VALUE: the flag takes its `const`, the positional `many` setting the value."""
+    settings = settings_of(cls)
+    rest = next((s for s in settings if s.meta["positional"] and s.meta["many"]), None)
+    for s in settings:
+        value = getattr(args, s.path, None)
+        if rest is not None and s.meta["const"] is not None and isinstance(value, str) and _KEY_VALUE.fullmatch(value):
+            setattr(args, s.path, s.meta["const"])
+            setattr(args, rest.path, [value, *(getattr(args, rest.path, None) or [])])
+
+
 def config_from_args(cls: type, args: argparse.Namespace, prefix: str = "", **given: Any) -> Any:
     """The config `cls` from parsed flags: each setting's value as given (its `parse` applied, a
     positional `many` as a tuple), else its declared default; `given` sets fields directly (dotted
     paths for nested ones: `**{"run.progress": True}`), e.g. the shared flags (`--out`, `--progress`)."""
+    if not prefix:
+        _overrides_out_of_const_flags(cls, args)
     hints = typing.get_type_hints(cls)
     values: dict[str, Any] = {}
     for f in fields(cls):

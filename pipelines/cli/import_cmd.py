@@ -37,7 +37,9 @@ from __future__ import annotations
 import argparse
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
-from pipelines.cli.options import add_fsync, add_out, add_progress, progress_wanted
+from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, shared_values
+
+SHARED_FLAGS = {"out": "out", "force": "force", "progress": "progress", "fsync": "fsync"}  # -> ImportConfig fields
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -46,6 +48,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     common = argparse.ArgumentParser(add_help=False)
     add_out(common, "output posed-frames directory")
     add_config_flags(common, ImportConfig)
+    add_force(common, also=" (every posed file is written anew)")
     add_progress(common)
     add_fsync(common)
     sub = p.add_subparsers(dest="format", metavar="FORMAT", required=True)
@@ -59,9 +62,7 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.import_data import ImportConfig, import_dataset
 
     source = config_from_args(args.source_cls, args)
-    cfg = config_from_args(
-        ImportConfig, args, source=source, out=args.out, progress=progress_wanted(args), fsync=args.fsync
-    )
+    cfg = config_from_args(ImportConfig, args, source=source, **shared_values(args, SHARED_FLAGS))
     report = import_dataset(cfg)
     print(report.summary_line(args.out))
     return 0

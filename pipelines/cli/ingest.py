@@ -30,11 +30,17 @@ import argparse
 import sys
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
-from pipelines.cli.options import add_force, add_fsync, add_out, add_progress, shared_values
+from pipelines.cli.options import add_force, add_fsync, add_max_pixels, add_out, add_progress, shared_values
 
 # The shared flags (pipelines/cli/options.py) and the IngestConfig fields they set; every other flag
 # comes from a `setting` of IngestConfig or its nested configs.
-SHARED_FLAGS = {"out": "out", "force": "run.force", "progress": "run.progress", "fsync": "run.fsync"}
+SHARED_FLAGS = {
+    "out": "out",
+    "force": "run.force",
+    "progress": "run.progress",
+    "fsync": "run.fsync",
+    "max_pixels": "run.max_pixels",
+}
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -45,6 +51,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     add_force(p, also=", and replace OUT/<scene> even when it holds another input's scene")
     add_progress(p)
     add_fsync(p)
+    add_max_pixels(p)
 
 
 def run(args: argparse.Namespace) -> int:

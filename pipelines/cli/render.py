@@ -27,9 +27,9 @@ import argparse
 import json
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
-from pipelines.cli.options import add_out, shared_values
+from pipelines.cli.options import add_max_pixels, add_out, shared_values
 
-SHARED_FLAGS = {"out": "out"}  # the shared flags and the RenderConfig fields they set
+SHARED_FLAGS = {"out": "out", "max_pixels": "max_pixels"}  # the shared flags and the RenderConfig fields they set
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -37,6 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     add_config_flags(parser, RenderConfig)
     add_out(parser, "output directory")
+    add_max_pixels(parser)
 
 
 def run(args: argparse.Namespace) -> int:

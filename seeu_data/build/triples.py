@@ -227,12 +227,8 @@ def _resize_views(
     for i, (sid, f) in enumerate(zip(view_scene, view_frame)):
         key = (sid, int(f))
         if key not in cache:
-            try:
-                img = decode_rgb(images[i])
-            except ValueError:
-                raise SeeUError(
-                    f"scene {sid!r} frame {int(f)}: image bytes cannot be decoded", sources[sid].path
-                ) from None
+            where = f"{sources[sid].path} scene {sid!r} frame {int(f)}"
+            img = decode_rgb(images[i], where, int(heights[i]) * int(widths[i]))  # the recorded size, checked
             if img.shape[:2] != (heights[i], widths[i]):
                 raise SeeUError(
                     f"scene {sid!r} frame {int(f)}: image is {img.shape[1]}x{img.shape[0]}, "

@@ -342,6 +342,7 @@ def write_import(
     total: int | None = None,
     target_file_bytes: int = 256 << 20,
     fsync: bool = False,
+    force: bool = False,
 ) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
@@ -358,7 +359,7 @@ def write_import(
     when the manifest is written, the manifest's `report.resume` keeps the same for a later re-run)
     as soon as it is in place. A re-run with the same parameters and inputs keeps the leading files
     whose units are unchanged and whose bytes still have the recorded size and sha256, and reads only
-    the units after them.
+    the units after them; `force` keeps none.
     """
     from tqdm import tqdm
 
@@ -368,7 +369,7 @@ def write_import(
     resumable = any(u.key is not None for u in units)
     key = stamp_of({"params": params, "inputs": plan.fingerprint})
     out_dir.mkdir(parents=True, exist_ok=True)
-    records = _read_records(out_dir, key) if resumable else []
+    records = _read_records(out_dir, key) if resumable and not force else []
     name_of = lambda i: f"posed-{i:05d}.arrow"  # noqa: E731  (PosedDatasetWriter's file names)
     done, covered = _resumable_prefix(out_dir, records, units, name_of)
     journal = Journal(out_dir / RESUME_JOURNAL, fsync)

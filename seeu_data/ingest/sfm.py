@@ -268,6 +268,7 @@ def run_sfm(
                 stdout=subprocess.PIPE,
                 stderr=subprocess.STDOUT,
                 env=env,
+                start_new_session=True,  # its own process group: `end_process` ends its mapping processes too
             )
             assert proc.stdout is not None
             try:

@@ -5,9 +5,18 @@
         ...
 
 Bad input raises SeeUError naming the file: missing path, a file that is not a video (or an
-unknown extension), a video OpenCV cannot open, or one that stops decoding early (truncated or
-corrupt). A folder of videos gives one scene per video; a folder of images is one scene (entries
-with an image name that cannot be read as images are left out and named: `SceneSource.skipped`).
+unknown extension), a video OpenCV cannot open, one that stops decoding early (truncated or
+corrupt), a frame or image over `max_pixels` (`--max-pixels`: a video's frame size from its stream
+header, an image's from its file header, both before anything is decoded; images decode through the
+image-size gate `image_header.decode_image`). A folder of videos gives one scene per video; a folder
+of images is one scene (entries with an image name that cannot be read as images are left out and
+named: `SceneSource.skipped`).
+
+Variable frame rate (phone and screen recordings): frames are counted as the stream gives them and
+each frame's `timestamp_us` is its presentation time from the container (OpenCV's
+`CAP_PROP_POS_MSEC`), not index / fps. A container's frame count can be an estimate (Matroska:
+duration x nominal rate), so a video counts as truncated only when decoding stops short of both the
+header's frame count and the header's duration.
 """
 
 from __future__ import annotations
@@ -24,6 +33,8 @@ import cv2
 import numpy as np
 
 from seeu_data.errors import SeeUError
+from seeu_data.limits import MAX_PIXELS
+from seeu_data.store.image_header import check_pixels, read_image_file
 
 # FFmpeg prints its own lines ("moov atom not found") on stderr, which would break the one-line error;
 # OpenCV reads this when it first opens a video. Set OPENCV_FFMPEG_LOGLEVEL=24 to see them.
@@ -33,7 +44,8 @@ VIDEO_EXTENSIONS = {".mp4", ".mov", ".mkv", ".avi", ".m4v", ".webm"}
 IMAGE_EXTENSIONS = {".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp"}
 # The first bytes of the formats of IMAGE_EXTENSIONS (WebP: RIFF....WEBP, checked apart)
 _IMAGE_MAGIC = (b"\xff\xd8\xff", b"\x89PNG\r\n\x1a\n", b"BM", b"II*\x00", b"MM\x00*")
-# A video that decodes fewer frames than its header promises by more than this is truncated.
+# A video that decodes fewer frames than its header promises by more than this (and ends more than
+# this many nominal frame intervals before the header's duration) is truncated.
 _MISSING_FRAMES_TOLERANCE = 2
 
 
@@ -200,13 +212,17 @@ def unique_scene_names(sources: list[SceneSource]) -> list[SceneSource]:
     return [s if s.name == n else replace(s, name=n) for s, n in zip(sources, final)]
 
 
-def probe_video(path: str | Path) -> VideoInfo:
-    """Open a video and read its header; SeeUError if OpenCV cannot read it as a video."""
+def probe_video(path: str | Path, max_pixels: int = MAX_PIXELS) -> VideoInfo:
+    """Open a video and read its header; SeeUError if OpenCV cannot read it as a video or its frames
+    are over `max_pixels` (checked on the stream header's size, before a frame is decoded).
+    `frame_count` is the container's (an estimate for some, e.g. Matroska: `iter_frames` counts)."""
     path = Path(path)
     cap = cv2.VideoCapture(str(path))
     try:
         if not cap.isOpened():
             raise SeeUError("cannot be opened as a video (not a video, or truncated/corrupt)", path)
+        width, height = int(cap.get(cv2.CAP_PROP_FRAME_WIDTH)), int(cap.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        check_pixels(width, height, max_pixels, "video frame size", path)
         ok, frame = cap.read()
         if not ok or frame is None:
             raise SeeUError("no decodable video frames (not a video, or truncated/corrupt)", path)
@@ -217,11 +233,16 @@ def probe_video(path: str | Path) -> VideoInfo:
         cap.release()
 
 
-def iter_frames(source: SceneSource, stride: int = 1) -> Iterator[DecodedFrame]:
-    """Decode every `stride`-th frame of a source as RGB. Raises SeeUError on decode failures.
+def iter_frames(
+    source: SceneSource, stride: int = 1, max_pixels: int = MAX_PIXELS, counted: list[int] | None = None
+) -> Iterator[DecodedFrame]:
+    """Decode every `stride`-th frame of a source as RGB. Raises SeeUError on decode failures and on
+    frames over `max_pixels`. `counted`, when given, receives the number of frames the source holds
+    (a video's as its stream gave them) once the iteration ends.
 
-    Videos are read sequentially (grab() skips cheaply); if decoding stops more than a couple of
-    frames before the header's frame count the file is reported as truncated or corrupt.
+    Videos are read sequentially (grab() skips cheaply), each frame stamped with its container time;
+    if decoding stops more than a couple of frames before both the header's frame count and its
+    duration, the file is reported as truncated or corrupt.
     """
     if stride < 1:
         raise SeeUError(f"--stride must be >= 1, got {stride}")
@@ -229,36 +250,51 @@ def iter_frames(source: SceneSource, stride: int = 1) -> Iterator[DecodedFrame]:
         for i, f in enumerate(source.image_files):
             if i % stride:
                 continue
-            # IMREAD_COLOR applies the EXIF orientation (a phone's portrait photo stored landscape with
-            # orientation 6 comes out upright, portrait); IMREAD_IGNORE_ORIENTATION would not
-            bgr = cv2.imread(str(f), cv2.IMREAD_COLOR)
-            if bgr is None:
-                raise SeeUError("cannot be decoded as an image (corrupt?)", f)
+            # the EXIF orientation is applied (a phone's portrait photo stored landscape with
+            # orientation 6 comes out upright, portrait)
+            bgr = read_image_file(f, max_pixels)
             yield DecodedFrame(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), i, int(round(i * 1e6 / 30.0)), f.name)
+        if counted is not None:
+            counted.append(len(source.image_files))
         return
-    info = probe_video(source.path)
+    info = probe_video(source.path, max_pixels)
     cap = cv2.VideoCapture(str(source.path))
-    index = 0
+    index, last_us = 0, -1
     try:
         while True:
             if index % stride:
                 if not cap.grab():
                     break
+                last_us = _frame_time_us(cap, index, info.fps, last_us)
                 index += 1
                 continue
             ok, bgr = cap.read()
             if not ok or bgr is None:
                 break
-            yield DecodedFrame(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), index, int(round(index * 1e6 / info.fps)))
+            last_us = _frame_time_us(cap, index, info.fps, last_us)
+            yield DecodedFrame(cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB), index, last_us)
             index += 1
     finally:
         cap.release()
     if index == 0:
         raise SeeUError("no decodable video frames (truncated or corrupt)", source.path)
-    if info.frame_count - index > _MISSING_FRAMES_TOLERANCE:
+    slack_us = (_MISSING_FRAMES_TOLERANCE + 1) * 1e6 / info.fps
+    if info.frame_count - index > _MISSING_FRAMES_TOLERANCE and last_us < info.frame_count * 1e6 / info.fps - slack_us:
         raise SeeUError(
-            f"decoding stopped after {index} of {info.frame_count} frames (truncated or corrupt video)", source.path
+            f"decoding stopped after {index} frames ({last_us / 1e6:.2f} s) of the {info.frame_count} frames "
+            f"({info.frame_count / info.fps:.2f} s) its header declares (truncated or corrupt video)",
+            source.path,
         )
+    if counted is not None:
+        counted.append(index)
+
+
+def _frame_time_us(cap, index: int, fps: float, previous_us: int) -> int:
+    """The presentation time (microseconds from the stream's start) of the frame just grabbed: the
+    container's timestamp; index / fps where the container gives none that moves forward."""
+    ms = cap.get(cv2.CAP_PROP_POS_MSEC)
+    us = int(round(ms * 1000.0)) if np.isfinite(ms) else -1
+    return us if us > previous_us else max(previous_us + 1, int(round(index * 1e6 / fps)))
 
 
 def resize_max_side(rgb: np.ndarray, max_size: int | None) -> np.ndarray:

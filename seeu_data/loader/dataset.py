@@ -47,7 +47,7 @@ from seeu_data.loader.order import (
     rank_worker_batches,
     shard_offsets,
 )
-from seeu_data.loader.shard_reader import ShardReader
+from seeu_data.loader.shard_reader import ShardChanged, ShardReader
 from seeu_data.loader.source import DEFAULT_CACHE_LIMIT, ShardSource
 from seeu_data.loader.transforms import ViewsSample, transform_sample
 from seeu_data.loader.types import Batch
@@ -283,7 +283,7 @@ class TripleStream(IterableDataset):
                 samples.append(self._load(int(order[pos]), bool(flips[i]), i, size))
                 continue
             except SeeUError as exc:
-                if c.on_error == "raise":
+                if c.on_error == "raise" or isinstance(exc, ShardChanged):  # data changed under the run: stop
                     raise
                 warnings.warn(f"seeu loader: skipping unreadable sample: {exc}", stacklevel=2)
                 skipped += 1
@@ -297,6 +297,8 @@ class TripleStream(IterableDataset):
                     pad[i] = True
                     fill += 1
                     break
+                except ShardChanged:
+                    raise
                 except SeeUError:
                     fill += 1
         batch = collate_views(samples, pad, c.image_dtype, images=self._scratch, where=self.source.url)

@@ -1,13 +1,25 @@
-"""Random access to the rows of one triple shard (Arrow IPC file, memory-mapped, zero-copy).
+"""Random access to the rows of one triple shard (Arrow IPC file), safe against the file changing
+under the reader.
 
 A shard holds record batches of `seeu.triples` rows (`schemas/triples.v1.json`). The reader keeps
 a row -> (batch, row in batch) table and, per record batch it has touched, the per-view columns as
-flat numpy arrays. A row comes back as a `triple_row.TripleRow`, its encoded images (and masks, where
-the shard has them) memoryviews straight into the memory map (no copy).
+flat numpy arrays (copies). A row comes back as a `triple_row.TripleRow`, its encoded images (and
+masks, where the shard has them) read with `os.pread` at their offsets in the file.
+
+A shard truncated or rewritten in place while a run reads it (a rebuild into the same directory, a
+sync tool, a full disk) must not kill the reader with SIGBUS, the signal a memory map raises when a
+page beyond the file's new end is touched, nor feed it changed rows. So: the file is memory-mapped
+only to learn its layout (the footer, each record batch's small columns, copied out at once, and the
+place of its image bytes); image bytes, nearly all of a shard, are never read through the map. The
+file's size and modification time are taken when the reader opens it and compared on every read
+(`fstat`, before the map is touched and after the image bytes are read): a difference, or a short
+read, is `ShardChanged`, one line naming the shard; the loader never skips it (`on_error="skip"`
+skips unreadable samples, not a dataset that changes under the run).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
 import numpy as np
@@ -15,26 +27,40 @@ import pyarrow as pa
 
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS
-from seeu_data.store.arrow_io import open_ipc_file
+from seeu_data.store.arrow_io import open_ipc_mapped
 from seeu_data.store.dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
 from seeu_data.store.triple_row import PER_VIEW_COLUMNS, TripleRow
 
 _REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + PER_VIEW_COLUMNS
 
 
-def _binary_parts(arr: pa.Array) -> tuple[np.ndarray, np.ndarray]:
-    """(offsets (n + 1,) int64, data uint8) of a binary array, zero-copy."""
+class ShardChanged(SeeUError):
+    """A shard's size or modification time differs from when the reader opened it (truncated or
+    rewritten under the run), or its image bytes are no longer there."""
+
+
+def _binary_parts(arr: pa.Array, map_address: int) -> tuple[np.ndarray, int]:
+    """(offsets (n + 1,) int64, the file position of the values) of a binary array of a
+    memory-mapped file whose first byte is at `map_address`; reads the offsets only."""
     bufs = arr.buffers()
     dtype = np.int64 if pa.types.is_large_binary(arr.type) else np.int32
     offsets = np.frombuffer(bufs[1], dtype=dtype)[arr.offset : arr.offset + len(arr) + 1].astype(np.int64)
-    data = np.frombuffer(bufs[2], dtype=np.uint8) if bufs[2] is not None else np.zeros(0, np.uint8)
-    return offsets, data
+    return offsets, (bufs[2].address - map_address if bufs[2] is not None else 0)
+
+
+def _pread(fd: int, offsets: np.ndarray, start: int, k: int, what: str) -> memoryview:
+    """Value `k` of a binary column whose values begin at file position `start` (EOFError if short)."""
+    size = int(offsets[k + 1] - offsets[k])
+    data = os.pread(fd, size, start + int(offsets[k]))
+    if len(data) != size:
+        raise EOFError(f"{what}: {len(data)} of {size} bytes")
+    return memoryview(data)
 
 
 class _BatchColumns:
     """The columns of one record batch as numpy (per-view columns flattened over all views)."""
 
-    def __init__(self, batch: pa.RecordBatch, where: str):
+    def __init__(self, batch: pa.RecordBatch, where: str, map_address: int):
         col = batch.column
         self.sample_id = col("sample_id").to_pylist()
         self.scene_id = col("scene_id").to_pylist()
@@ -49,8 +75,8 @@ class _BatchColumns:
             if not np.array_equal(np.asarray(col(name).offsets), self.view_offsets):
                 raise SeeUError(f"column {name} has a different number of views than frame_index", where)
 
-        def flat(name: str) -> np.ndarray:
-            return col(name).values.to_numpy(zero_copy_only=False)
+        def flat(name: str) -> np.ndarray:  # a copy: nothing later reads the map
+            return np.array(col(name).values.to_numpy(zero_copy_only=False))
 
         self.frame_index = flat("frame_index").astype(np.int64)
         self.source_frame = flat("source_frame").astype(np.int64)
@@ -58,24 +84,26 @@ class _BatchColumns:
         self.height = flat("height")
         self.near = flat("near").astype(np.float32)
         self.far = flat("far").astype(np.float32)
-        self.intrinsics = col("intrinsics_norm").values.flatten().to_numpy().reshape(-1, 4)
-        self.cam_to_world = col("cam_to_world").values.flatten().to_numpy().reshape(-1, 4, 4)
-        self.image_offsets, self.image_data = _binary_parts(col("image").values)
+        self.intrinsics = np.array(col("intrinsics_norm").values.flatten().to_numpy()).reshape(-1, 4)
+        self.cam_to_world = np.array(col("cam_to_world").values.flatten().to_numpy()).reshape(-1, 4, 4)
+        self.image_offsets, self.image_start = _binary_parts(col("image").values, map_address)
         self.has_mask = None  # (views,) bool, or None: no view of the batch has a mask
         if "mask" in batch.schema.names and col("mask").values.null_count < len(col("mask").values):
             if not np.array_equal(np.asarray(col("mask").offsets), self.view_offsets):
                 raise SeeUError("column mask has a different number of views than frame_index", where)
             masks = col("mask").values
-            self.has_mask = masks.is_valid().to_numpy(zero_copy_only=False)
-            self.mask_offsets, self.mask_data = _binary_parts(masks)
+            self.has_mask = np.array(masks.is_valid().to_numpy(zero_copy_only=False))
+            self.mask_offsets, self.mask_start = _binary_parts(masks, map_address)
 
-    def sample(self, j: int) -> TripleRow:
+    def sample(self, j: int, fd: int) -> TripleRow:
+        """Row `j` of the batch, its images read from the open file `fd` (a short read: ShardChanged
+        by the caller, which knows the shard's name)."""
         lo, hi = int(self.view_offsets[j]), int(self.view_offsets[j + 1])
-        io, data = self.image_offsets, self.image_data
+        images = [_pread(fd, self.image_offsets, self.image_start, k, f"image {k - lo}") for k in range(lo, hi)]
         masks = None
         if self.has_mask is not None and self.has_mask[lo:hi].any():
-            mo, md = self.mask_offsets, self.mask_data
-            masks = [md[mo[k] : mo[k + 1]].data if self.has_mask[k] else None for k in range(lo, hi)]
+            mo, ms = self.mask_offsets, self.mask_start
+            masks = [_pread(fd, mo, ms, k, f"mask {k - lo}") if self.has_mask[k] else None for k in range(lo, hi)]
         return TripleRow(
             sample_id=self.sample_id[j],
             scene_id=self.scene_id[j],
@@ -83,7 +111,7 @@ class _BatchColumns:
             num_context=int(self.num_context[j]),
             frame_index=self.frame_index[lo:hi],
             source_frame=self.source_frame[lo:hi],
-            images=[data[io[k] : io[k + 1]].data for k in range(lo, hi)],
+            images=images,
             image_format=self.image_format[j],
             width=self.width[lo:hi],
             height=self.height[lo:hi],
@@ -103,15 +131,22 @@ class ShardReader:
     Opening a shard runs the cheap per-file checks of `seeu_data.store.dataset_check`: the file's schema
     metadata (`seeu.triples`, a major version this seeu reads), its row count against the manifest's,
     finite rigid cameras with 0 < near < far, recorded image sizes under `max_pixels` (each image's
-    header is checked against them when it is decoded: `transforms.transform_sample`)."""
+    header is checked against them when it is decoded: `transforms.transform_sample`). From then on
+    every read compares the file's size and modification time with those at the opening
+    (`ShardChanged`, see the module docstring)."""
 
     def __init__(self, path: str | Path, name: str, expected_rows: int | None = None, max_pixels: int = MAX_PIXELS):
         self.path = Path(path)
         self.name = name
         try:
-            self._reader = open_ipc_file(self.path)
+            self._file = open(self.path, "rb", buffering=0)  # held while the reader lives: image bytes are read from it
+            self._stamp = self._stat()
+            self._reader, self._map_address = open_ipc_mapped(self.path)
+        except OSError as exc:
+            raise SeeUError(f"cannot be opened ({exc.strerror})", name) from None
         except SeeUError as exc:
             raise SeeUError(str(exc).split(": ", 1)[-1], name) from None
+        self.check_unchanged()
         check_file_schema(self._reader.schema, "seeu.triples", name)
         missing = [c for c in _REQUIRED if c not in self._reader.schema.names]
         if missing:
@@ -133,14 +168,31 @@ class ShardReader:
                 check_recorded_sizes(w, h, max_pixels, name)
         except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, ValueError) as exc:
             raise SeeUError(f"unreadable record batch (corrupt?): {exc}".splitlines()[0], name) from None
+        self.check_unchanged()
         self._batches: dict[int, _BatchColumns] = {}
+
+    def _stat(self) -> tuple[int, int]:
+        st = os.fstat(self._file.fileno())
+        return st.st_size, st.st_mtime_ns
+
+    def check_unchanged(self) -> None:
+        """ShardChanged when the file's size or modification time is not what it was at the opening."""
+        (size, _), now = self._stamp, self._stat()
+        if now != self._stamp:
+            what = f"size {size} -> {now[0]} bytes" if now[0] != size else "modified in place"
+            raise ShardChanged(
+                f"shard changed while this run reads it ({what}); a shard must not be rewritten under a "
+                "running job: restore it (or rebuild into another directory) and resume",
+                self.name,
+            )
 
     def _columns(self, b: int) -> _BatchColumns:
         cols = self._batches.get(b)
         if cols is None:
+            self.check_unchanged()  # before the map is touched: a shrunk file must not be read through it
             try:
                 batch = self._reader.get_batch(b)
-                cols = _BatchColumns(batch, self.name)
+                cols = _BatchColumns(batch, self.name, self._map_address)
             except (pa.ArrowInvalid, pa.ArrowTypeError, OSError, ValueError, KeyError) as exc:
                 raise SeeUError(f"unreadable record batch {b} (corrupt?): {exc}".splitlines()[0], self.name) from None
             self._batches[b] = cols
@@ -151,12 +203,22 @@ class ShardReader:
         if not 0 <= row < self.num_rows:
             raise IndexError(f"row {row} outside [0, {self.num_rows}) in {self.name}")
         b = int(np.searchsorted(self.batch_starts, row, side="right") - 1)
-        return self._columns(b).sample(row - int(self.batch_starts[b]))
+        cols = self._columns(b)
+        self.check_unchanged()
+        try:
+            out = cols.sample(row - int(self.batch_starts[b]), self._file.fileno())
+        except (EOFError, OSError) as exc:
+            raise ShardChanged(
+                f"row {row}: image bytes cannot be read ({exc}): truncated under the run?", self.name
+            ) from None
+        self.check_unchanged()  # a write while the bytes were read
+        return out
 
     def gaps(self) -> np.ndarray:
         """`(rows,) int64` context gap of every row (reads only the gap column's buffers)."""
+        self.check_unchanged()
         out = [
-            np.asarray(self._reader.get_batch(b).column("gap").to_numpy(), dtype=np.int64)
+            np.array(self._reader.get_batch(b).column("gap").to_numpy(), dtype=np.int64)  # a copy
             for b in range(len(self.batch_starts) - 1)
         ]
         return np.concatenate(out) if out else np.zeros(0, np.int64)

@@ -33,6 +33,7 @@ from seeu_data.image_ops import INTERPOLATIONS, resize_cover_crop
 from seeu_data.limits import MAX_PIXELS
 from seeu_data.masks import decode_mask, resize_mask
 from seeu_data.store.dataset_check import check_image, check_mask
+from seeu_data.store.image_header import decode_image
 from seeu_data.store.triple_row import TripleRow
 
 
@@ -57,15 +58,6 @@ class ViewsSample:
     frame_index: np.ndarray
     gap: int
     masks: np.ndarray | None = None
-
-
-def decode_bgr(buf, where: str) -> np.ndarray:
-    """Encoded JPEG/PNG bytes (bytes-like) -> (H, W, 3) uint8 BGR; SeeUError naming `where` if undecodable."""
-    arr = np.frombuffer(buf, np.uint8)
-    img = cv2.imdecode(arr, cv2.IMREAD_COLOR) if len(arr) else None
-    if img is None:
-        raise SeeUError("image does not decode (corrupt or truncated)", where)
-    return img
 
 
 _BGR_TO_PLANAR_RGB = [2, 0, 1, 1, 0, 2]
@@ -97,9 +89,9 @@ def transform_sample(
     images = out if out is not None else np.empty((num_views, 3, oh, ow), dtype=np.uint8)
     sizes = []
     for v in range(num_views):
-        # the header first (microseconds): a tiny file declaring 60000x60000 must not reach the decoder
+        # the header first (microseconds): the recorded size, the trailer; then the gate's decode
         check_image(raw.images[v], raw.width[v], raw.height[v], f"{name} view {v}", max_pixels)
-        bgr = decode_bgr(raw.images[v], f"{name} view {v}")
+        bgr = decode_image(raw.images[v], f"{name} view {v}", max_pixels)
         h, w = bgr.shape[:2]
         if h != raw.height[v] or w != raw.width[v]:
             raise SeeUError(f"view {v} decodes to {w}x{h}, the row says {raw.width[v]}x{raw.height[v]}", name)

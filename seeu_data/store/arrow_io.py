@@ -185,12 +185,30 @@ def write_table(
 
 def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:
     """Open an Arrow IPC file for random access (memory-mapped by default)."""
+    return open_ipc_mapped(path)[0] if memory_map else _open_ipc(path, lambda p: pa.OSFile(p, "rb"))
+
+
+def open_ipc_mapped(path: str | Path) -> tuple[pa.ipc.RecordBatchFileReader, int]:
+    """A memory-mapped IPC file reader and the address of the map's first byte: a buffer the reader
+    returns starts at file position `buffer.address - address` (`loader/shard_reader.py` reads image
+    bytes there with `os.pread` instead of through the map)."""
+    maps: list[pa.MemoryMappedFile] = []
+
+    def source(p: str) -> pa.MemoryMappedFile:
+        maps.append(pa.memory_map(p, "r"))
+        return maps[0]
+
+    reader = _open_ipc(path, source)
+    maps[0].seek(0)
+    return reader, maps[0].read_buffer(1).address
+
+
+def _open_ipc(path: str | Path, source) -> pa.ipc.RecordBatchFileReader:
     path = Path(path)
     if not path.exists():
         raise SeeUError("file not found", path)
     try:
-        source = pa.memory_map(str(path), "r") if memory_map else pa.OSFile(str(path), "rb")
-        reader = pa.ipc.open_file(source)
+        reader = pa.ipc.open_file(source(str(path)))
         _ = reader.schema.names  # every name decodes (a flipped byte there is a UnicodeDecodeError later)
         return reader
     except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:

@@ -40,7 +40,7 @@ from seeu_data.cameras import rotation_orthonormality_error
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS
 from seeu_data.store.arrow_io import open_ipc_file
-from seeu_data.store.image_header import ImageInfo, image_info
+from seeu_data.store.image_header import ImageInfo, check_pixels, image_info
 from seeu_data.store.manifest import read_manifest, verify_file
 from seeu_data.store.schema import arrow_schema, check_version
 
@@ -50,16 +50,6 @@ _ORTHONORMAL_TOL = 1e-4
 # ------------------------------------------------------------------------------------------------
 # Images
 # ------------------------------------------------------------------------------------------------
-
-
-def check_pixels(width: int, height: int, max_pixels: int, what: str, where: str | Path | None) -> None:
-    """Refuse an image of `width` x `height` over `max_pixels`."""
-    if int(width) * int(height) > max_pixels:
-        raise SeeUError(
-            f"{what} {int(width)}x{int(height)} ({int(width) * int(height) / 1e6:.1f} MP) is over the "
-            f"{max_pixels / 1e6:g} MP limit (--max-pixels)",
-            where,
-        )
 
 
 def check_image(

@@ -5,7 +5,7 @@ A checkpoint ``ckpt-{step:08d}.pt`` is one ``torch.save`` dict of tensors and pl
 (`seeu_model.safe_load`): a file that needs any other object is refused before anything is built.
 
 ```
-{"format": "seeu-train-checkpoint", "version": 2, "step": int,
+{"format": "seeu-train-checkpoint", "version": 3, "step": int, "digest": sha256 hex (see below),
  "config": TrainConfig as dict, "model_config": dict (SeeUConfig fields),
  "model": trainable state dict (frozen sub-modules, e.g. DINOv3, are not stored),
  "optimizer": ..., "scheduler": ..., "loader": loader.state_dict() (integers),
@@ -17,6 +17,13 @@ Every tensor of a checkpoint is finite: `save_checkpoint` refuses to write one h
 and `load_checkpoint` (every reader: eval, render, demo, --resume, --init-from) refuses to read one;
 `check_tensors` is that check, and with the model's state it also checks every shape.
 
+A checkpoint carries a digest of its contents (`payload_digest`: sha256 over every tensor's name,
+dtype, shape and bytes and every other value's name and repr, in order), computed when it is written
+and checked by `load_checkpoint` before anything else looks at it: a damaged file (one flipped bit
+in a weight) is one line, `checkpoint damaged: its tensors do not match the digest written with
+them`, exit 2, never a different model evaluated without a warning. Versions 1 and 2 carry none and
+are read without this check.
+
 Version 1 stored numpy's RNG state as a numpy array; v1 files are still read, with exactly the numpy
 globals that array needs allow-listed (array reconstruction and the uint32 dtype, nothing callable
 beyond them).
@@ -24,6 +31,7 @@ beyond them).
 
 from __future__ import annotations
 
+import hashlib
 import io
 import os
 import random
@@ -40,7 +48,7 @@ from seeu_data.store.arrow_io import atomic_write_bytes
 from seeu_model.safe_load import safe_torch_load
 
 FORMAT = "seeu-train-checkpoint"
-VERSION = 2
+VERSION = 3  # 3: the digest
 # what a v1 checkpoint's numpy RNG state (a uint32 array) needs beyond tensors and plain containers
 _reconstruct = (getattr(np, "_core", None) or np.core).multiarray._reconstruct
 _V1_NUMPY_GLOBALS = [
@@ -155,6 +163,33 @@ def check_tensors(
             )
 
 
+def payload_digest(tree: Any) -> str:
+    """sha256 (hex) of a checkpoint's contents: every tensor's dotted name, dtype, shape and bytes, every
+    other leaf's name and repr, in the order of the (nested) dicts, lists and tuples. The top-level
+    "digest" and "path" entries are left out (the digest itself; the path `load_checkpoint` adds)."""
+    h = hashlib.sha256()
+
+    def walk(node: Any, name: str) -> None:
+        if isinstance(node, torch.Tensor):
+            t = node.detach().cpu().contiguous().reshape(-1)
+            h.update(f"{name}:{t.dtype}:{tuple(node.shape)}\n".encode())
+            h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+        elif isinstance(node, Mapping):
+            items = [(k, v) for k, v in node.items() if name or k not in ("digest", "path")]
+            h.update(f"{name}:{type(node).__name__}{len(items)}\n".encode())
+            for key, value in items:
+                walk(value, f"{name}.{key}")
+        elif isinstance(node, (list, tuple)):
+            h.update(f"{name}:{type(node).__name__}{len(node)}\n".encode())
+            for i, value in enumerate(node):
+                walk(value, f"{name}.{i}")
+        else:
+            h.update(f"{name}={node!r}\n".encode())
+
+    walk(tree, "")
+    return h.hexdigest()
+
+
 def save_checkpoint(directory: str | Path, step: int, payload: dict[str, Any], keep: int) -> Path:
     """Write ``ckpt-{step}.pt`` atomically, then delete all but the newest `keep` checkpoints.
     A payload holding a non-finite tensor is refused (SeeUError) before anything is written."""
@@ -163,7 +198,8 @@ def save_checkpoint(directory: str | Path, step: int, payload: dict[str, Any], k
     if bad is not None:
         raise SeeUError(f"refusing to write a checkpoint whose tensor {bad} holds NaN or inf values", path)
     buf = io.BytesIO()
-    torch.save({"format": FORMAT, "version": VERSION, "step": step, **payload}, buf)
+    content = {"format": FORMAT, "version": VERSION, "step": step, **payload}
+    torch.save({**content, "digest": payload_digest(content)}, buf)
     atomic_write_bytes(path, buf.getvalue())
     for old in list_checkpoints(directory)[:-keep]:
         old.unlink(missing_ok=True)
@@ -172,7 +208,8 @@ def save_checkpoint(directory: str | Path, step: int, payload: dict[str, Any], k
 
 def load_checkpoint(path: str | Path) -> dict:
     """Read a checkpoint written by `save_checkpoint` (or a directory: its newest checkpoint).
-    Refused (SeeUError naming the file): a file that is not one, a negative step, a non-finite tensor."""
+    Refused (SeeUError naming the file): a file that is not one, contents that do not match their
+    digest (version 3), a negative step, a non-finite tensor."""
     p = Path(path)
     if p.is_dir():
         latest = latest_checkpoint(p)
@@ -195,6 +232,12 @@ def load_checkpoint(path: str | Path) -> dict:
         raise SeeUError("not a valid SeeU training checkpoint (version, step, config or model of the wrong type)", p)
     if int(ckpt.get("version", 0)) > VERSION:
         raise SeeUError(f"checkpoint version {ckpt.get('version')} is newer than this toolkit reads ({VERSION})", p)
+    if (int(ckpt.get("version", 0)) >= 3 or "digest" in ckpt) and ckpt.get("digest") != payload_digest(ckpt):
+        raise SeeUError(
+            "checkpoint damaged: its contents do not match the digest written with them (a flipped bit, a "
+            "bad copy or disk?); use another checkpoint of the run",
+            p,
+        )
     if ckpt["step"] < 0:
         raise SeeUError(f"checkpoint step {ckpt['step']} is negative: not a checkpoint a run wrote", p)
     check_tensors(ckpt, p)

@@ -3,11 +3,29 @@
 ``torchrun --nproc_per_node=G [--nnodes=N --node_rank=R --rdzv_endpoint=HOST:PORT] -m pipelines.cli train ...``
 sets RANK / WORLD_SIZE / LOCAL_RANK / MASTER_ADDR / MASTER_PORT; `setup_distributed` reads them and
 joins the group with NCCL on CUDA, gloo on CPU. Without them it is a no-op (world size 1).
+
+Watchdog (`Watchdog`, started by `seeu train` on every rank of a run of more than one): a collective
+waits for every rank, up to the process group's timeout (30 minutes), so one frozen rank (stopped,
+swapping, cut off) held the others for half an hour. Each rank's watchdog thread adds 1 to its own
+counter in the rendezvous store (MASTER_ADDR:MASTER_PORT, the TCPStore torchrun or rank 0 serves)
+every `interval` seconds and reads the others'. A rank whose counter has not moved for `timeout_s`
+(`seeu train --rank-timeout`) has stopped: the watchdog of every other rank ends its process (exit 2,
+`os._exit`: the main thread waits inside a collective and cannot unwind), the lowest such rank
+printing the one line `rank N stopped responding: no heartbeat for T s ...`; torchrun then ends the
+frozen one. A store that stops answering (its host frozen or gone) ends the run the same way. Long
+work of one rank (rank 0's validation) does not stop its thread: only a stopped process does.
+
+A rank that died makes the others' next collective fail at once; `Watchdog.dead_peer` names it (the
+rank whose counter stopped), so the survivors exit 2 with `rank N died` instead of an internal error.
 """
 
 from __future__ import annotations
 
 import os
+import sys
+import threading
+import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import timedelta
 
@@ -99,3 +117,93 @@ def max_across(value: int, info: DistInfo) -> int:
     if not info.enabled:
         return value
     return int(_all_reduce(value, torch.int64, dist.ReduceOp.MAX, info).item())
+
+
+class Watchdog:
+    """Heartbeats of every rank through the rendezvous store (see the module docstring).
+
+    `on_silent(rank, seconds, report)` is called (on the watchdog thread) when rank `rank` has not
+    beaten for `seconds`; `report`: whether this rank is the one to print the line. The default prints
+    it (`seeu train: error: ...`) and ends the process with exit status 2."""
+
+    def __init__(
+        self,
+        info: DistInfo,
+        timeout_s: float,
+        on_silent: Callable[[int, float, bool], None] | None = None,
+        interval_s: float | None = None,
+    ):
+        self.info, self.timeout_s = info, float(timeout_s)
+        self.interval_s = interval_s if interval_s is not None else min(5.0, max(0.2, self.timeout_s / 10))
+        self.on_silent = on_silent or _end_run
+        self.store = dist.TCPStore(
+            os.environ["MASTER_ADDR"],
+            int(os.environ["MASTER_PORT"]),
+            is_master=False,
+            timeout=timedelta(seconds=max(1.0, self.timeout_s)),
+            wait_for_workers=False,
+        )
+        now = time.monotonic()
+        self.counts = [-1] * info.world_size
+        self.changed = [now] * info.world_size  # when each rank's counter last moved (this clock)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="seeu-rank-watchdog", daemon=True)
+
+    def start(self) -> Watchdog:
+        self._beat()
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+
+    def _beat(self) -> None:
+        """Add one to this rank's counter and read every rank's (`add 0` reads without waiting)."""
+        now = time.monotonic()
+        for r in range(self.info.world_size):
+            count = int(self.store.add(f"seeu/beat/{r}", 1 if r == self.info.rank else 0))
+            if count != self.counts[r]:
+                self.counts[r], self.changed[r] = count, now
+
+    def silent(self, seconds: float) -> list[int]:
+        """The ranks (not this one) whose counter has not moved for `seconds`."""
+        now = time.monotonic()
+        return [r for r in range(self.info.world_size) if r != self.info.rank and now - self.changed[r] >= seconds]
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval_s):
+            try:
+                self._beat()
+            except Exception:  # the store's host stopped answering within the timeout
+                self.on_silent(-1, self.timeout_s, True)
+                return
+            silent = self.silent(self.timeout_s)
+            if silent:
+                alive = [r for r in range(self.info.world_size) if r not in silent]
+                self.on_silent(silent[0], self.timeout_s, self.info.rank == min(alive))
+                return
+
+    def dead_peer(self, wait_s: float | None = None) -> int | None:
+        """After a collective failed: the rank that stopped beating (dead), waiting up to `wait_s`
+        (default three intervals) for its counter to fall behind; None when every rank still beats."""
+        deadline = time.monotonic() + (3 * self.interval_s if wait_s is None else wait_s)
+        while True:
+            silent = self.silent(2 * self.interval_s)
+            if silent or time.monotonic() >= deadline:
+                return silent[0] if silent else None
+            time.sleep(self.interval_s / 2)
+
+
+def silent_rank_line(rank: int, seconds: float) -> str:
+    """What the watchdog prints for a rank (-1: the rendezvous store) that stopped responding."""
+    who = f"rank {rank}" if rank >= 0 else "the rendezvous store (MASTER_ADDR:MASTER_PORT)"
+    return (
+        f"{who} stopped responding: no heartbeat for {seconds:g} s (frozen, stopped or cut off?); the run "
+        "ends on every rank (resume with --resume; --rank-timeout sets the wait)"
+    )
+
+
+def _end_run(rank: int, seconds: float, report: bool) -> None:
+    if report:
+        print(f"seeu train: error: {silent_rank_line(rank, seconds)}", file=sys.stderr, flush=True)
+    os._exit(2)
