@@ -167,15 +167,15 @@ def plan_global_batches(
         if full == run:
             continue
         # The epoch ends inside batch `step`, whose limit is still `limit` (full < run).
-        rest = take[full * g :]
-        skipped.append(_passed_over(cur, num_samples, rest))
-        if remainder == "pad" and len(rest):
+        last = take[full * g :]
+        skipped.append(_passed_over(cur, num_samples, last))
+        if remainder == "pad" and len(last):
             pool = np.flatnonzero(gaps <= limit)
-            rows.append(np.concatenate([rest, _pad_positions(g - len(rest), pool)])[None])
-            pads.append((np.arange(g) >= len(rest))[None])
+            rows.append(np.concatenate([last, _pad_positions(g - len(last), pool)])[None])
+            pads.append((np.arange(g) >= len(last))[None])
             cursors.append(np.array([num_samples], dtype=np.int64))
         elif remainder == "drop":
-            skipped.append(rest)  # never trained on: counted with the skipped ones
+            skipped.append(last)  # never trained on: counted with the skipped ones
         cur = num_samples
     if rows:
         pos, pad = np.concatenate(rows).astype(np.int64), np.concatenate(pads)
