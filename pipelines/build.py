@@ -274,29 +274,32 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
 
 
 class _ViewBytes:
-    """Estimated stored bytes per frame of a scene (read once per scene from its posed file): the
-    image size, pixel-scaled when resizing, plus the row's other columns."""
+    """Estimated stored bytes per frame of a scene: the image size, pixel-scaled when resizing, plus
+    the row's other columns. The first time a scene of a posed file is asked for, the sizes of all the
+    file's scenes are read from its image offsets (no image byte) and the file is released."""
 
     def __init__(self, scenes: dict[str, SceneRows], resize: tuple[int, int] | None):
         self.scenes, self.resize = scenes, resize
-        self._tables: dict[str, pa.Table] = {}
         self._sizes: dict[str, np.ndarray] = {}
+        self._in_file: dict[str, list[str]] = {}
+        for sid, src in scenes.items():
+            self._in_file.setdefault(src.path, []).append(sid)
 
     def __call__(self, sample: Sample) -> float:
-        sizes = self._sizes.get(sample.scene_id)
-        if sizes is None:
-            sizes = self._sizes[sample.scene_id] = self._scene(self.scenes[sample.scene_id])
-        return float(sizes[list(sample.views)].sum())
+        if sample.scene_id not in self._sizes:
+            self._read_file(self.scenes[sample.scene_id].path)
+        return float(self._sizes[sample.scene_id][list(sample.views)].sum())
 
-    def _scene(self, src: SceneRows) -> np.ndarray:
-        if src.path not in self._tables:
-            self._tables[src.path] = open_ipc_file(src.path).read_all().select(["image", "width", "height"])
-        rows = self._tables[src.path].slice(src.row_start, src.num_frames)
-        nbytes = pc.binary_length(rows.column("image")).to_numpy().astype(np.float64)
+    def _read_file(self, path: str) -> None:
+        table = open_ipc_file(path, random_access=True).read_all().select(["image", "width", "height"])
+        nbytes = pc.binary_length(table.column("image")).to_numpy().astype(np.float64)
         if self.resize is not None:
-            pix = rows.column("width").to_numpy().astype(np.float64) * rows.column("height").to_numpy()
+            pix = table.column("width").to_numpy().astype(np.float64) * table.column("height").to_numpy()
             nbytes = nbytes * (self.resize[0] * self.resize[1]) / np.maximum(pix, 1)
-        return nbytes + _VIEW_OVERHEAD_BYTES
+        for sid in self._in_file[path]:
+            src = self.scenes[sid]
+            self._sizes[sid] = nbytes[src.row_start : src.row_start + src.num_frames] + _VIEW_OVERHEAD_BYTES
+        del table
 
 
 def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneRows]) -> Iterator[ShardSpec]:

@@ -183,18 +183,40 @@ def write_table(
     return writer.size, writer.sha256
 
 
-def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:
-    """Open an Arrow IPC file for random access (memory-mapped by default)."""
+def open_ipc_file(
+    path: str | Path, memory_map: bool = True, random_access: bool = False
+) -> pa.ipc.RecordBatchFileReader:
+    """Open an Arrow IPC file for random access (memory-mapped by default).
+
+    `random_access`: mapped with the kernel's read-ahead off (`MADV_RANDOM`), for checks that read a
+    few bytes here and there (image headers): each byte touched reads its page, not the read-ahead
+    window around it (which would read most of a file of 50 kB images).
+    """
     path = Path(path)
     if not path.exists():
         raise SeeUError("file not found", path)
     try:
-        source = pa.memory_map(str(path), "r") if memory_map else pa.OSFile(str(path), "rb")
+        if random_access:
+            source = _random_access_map(path)
+        else:
+            source = pa.memory_map(str(path), "r") if memory_map else pa.OSFile(str(path), "rb")
         reader = pa.ipc.open_file(source)
         _ = reader.schema.names  # every name decodes (a flipped byte there is a UnicodeDecodeError later)
         return reader
-    except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
+    except (pa.ArrowInvalid, OSError, UnicodeDecodeError, ValueError) as exc:
         raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0], path) from None
+
+
+def _random_access_map(path: Path) -> pa.BufferReader:
+    """A read-only memory map of `path` without read-ahead, as an Arrow reader (its buffers are slices
+    of the map: nothing is copied; the map goes when the last of them does)."""
+    import mmap
+
+    with open(path, "rb") as fh:
+        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)  # ValueError on an empty file
+    if hasattr(mmap, "MADV_RANDOM"):
+        mapped.madvise(mmap.MADV_RANDOM)
+    return pa.BufferReader(pa.py_buffer(mapped))
 
 
 def read_table(path: str | Path, memory_map: bool = True) -> pa.Table:
