@@ -57,11 +57,17 @@ FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 @dataclass(frozen=True)
 class ImportConfig:
     """One `seeu import` run: `source` (a format's config), `out` (the posed-frames directory),
-    `strict` (fail on the first bad scene instead of skipping it), `progress` (a bar), `fsync`."""
+    `strict` (fail on the first bad scene instead of skipping it), `verify` (hash the files a re-run
+    keeps), `progress` (a bar), `fsync`."""
 
     source: SourceConfig
     out: Path
     strict: bool = setting(False, "fail on the first bad scene instead of skipping it")
+    verify: bool = setting(
+        False,
+        "a re-run hashes (sha256) the files it keeps; default: it trusts a file whose size and mtime are "
+        "the ones recorded with its sha256 (reads nothing)",
+    )
     progress: bool = False
     fsync: bool = False
 
@@ -94,5 +100,6 @@ def import_dataset(cfg: ImportConfig):
         progress=cfg.progress,
         total=job.total,
         fsync=cfg.fsync,
+        verify=cfg.verify,
     )
     return report
