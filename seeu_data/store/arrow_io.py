@@ -6,7 +6,8 @@ bytes + sha256 per file), so a crash, Ctrl-C or kill never leaves a half-written
 name. fsync is a parameter of every writer here (`fsync=True`: the file is fsynced before its rename);
 the commands' `--fsync` flag reaches it through their configs. Without it data reaches the page cache
 and a file torn by a power loss is caught by its manifest sha256 (`read_manifest(verify=True)`,
-`seeu validate`, the size/sha256 checks before a resume keeps a file).
+`seeu validate`, and `--verify` on the re-runs of import and build, which otherwise keep a file from
+its recorded size, mtime and sha256).
 
 IPC files are written by pyarrow's own writer into a plain file; the manifest's sha256 of each file is
 that of the finished file (`hashlib.file_digest`, read back from the page cache) before its rename.
