@@ -50,6 +50,10 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT))
+
+from benchmarks.ingest_scaling import growth_exponent  # noqa: E402
+
 RE10K_SCENES = 67_477
 DL3DV_SCENES = 10_510
 NODE_CORES = 16
@@ -160,7 +164,6 @@ def write_dl3dv(root: Path, scenes: int, frames: int, resolution: str) -> int:
 
 def run_step(step: str, kind: str, data: Path, work: Path, resolution: str) -> None:
     """Runs in the child: one step on `data` (inputs) / `work` (outputs), measured around the call."""
-    sys.path.insert(0, str(ROOT))
     from pipelines.build import BuildConfig, build
     from pipelines.import_data import ImportConfig, import_dataset
     from pipelines.index import IndexFileConfig, write_index
@@ -238,11 +241,11 @@ def measure(step: str, kind: str, data: Path, work: Path, resolution: str) -> di
 # --------------------------------------------------------------------------------------------- report
 
 
-def exponent(ns: list[int], cpu: list[float]) -> float:
-    """Least-squares slope of log CPU over log N (1: linear)."""
-    xs, ys = [math.log(n) for n in ns], [math.log(max(c, 1e-6)) for c in cpu]
-    mx, my = sum(xs) / len(xs), sum(ys) / len(ys)
-    return sum((x - mx) * (y - my) for x, y in zip(xs, ys)) / max(sum((x - mx) ** 2 for x in xs), 1e-12)
+def extrapolate_hours(cpu_s: float, n: int, total: int, exponent: float) -> float:
+    """CPU hours for `total` scenes from `cpu_s` measured on `n`: per scene x total x (total / n)^(b - 1),
+    b the step's growth exponent, never below 1 (fixed costs make small runs look sub-linear)."""
+    b = exponent if math.isfinite(exponent) else 1.0
+    return cpu_s / n * total * (total / n) ** (max(b, 1.0) - 1) / 3600
 
 
 def report(results: dict, args) -> str:
@@ -262,7 +265,7 @@ def report(results: dict, args) -> str:
             cells.append(
                 f"{1e3 * r['cpu_s'] / n:.2f} ms, {r['peak_rss'] / 2**20:.0f} / {r['peak_anon'] / 2**20:.0f} MB"
             )
-        growth[step] = exponent(ns, [tiny[str(n)][step]["cpu_s"] for n in ns]) if len(ns) > 1 else 1.0
+        growth[step] = growth_exponent(ns, [tiny[str(n)][step]["cpu_s"] for n in ns], lo=ns[0], hi=ns[-1])
         rerun = ""
         if step in RERUNS:
             rerun = f"{100 * tiny[str(ns[-1])][step]['cpu_s'] / tiny[str(ns[-1])][RERUNS[step]]['cpu_s']:.1f} %"
@@ -276,7 +279,8 @@ def report(results: dict, args) -> str:
         )
         lines += [
             "",
-            f"{n} scenes of {what}, extrapolated to {total:,} scenes (CPU x (N / {n})^(exponent - 1)) on one {NODE_CORES}-core node",
+            f"{n} scenes of {what}, extrapolated to {total:,} scenes (CPU x (N / {n})^(max(exponent, 1) - 1)) "
+            f"on one {NODE_CORES}-core node",
             "",
             "| step | CPU s per scene | wall s per scene | peak RSS / anon MB | CPU h, all scenes | wall h on 16 cores |",
             "|---|---|---|---|---|---|",
@@ -285,7 +289,7 @@ def report(results: dict, args) -> str:
         for step in steps:
             r = res[step]
             per = r["cpu_s"] / n
-            hours = per * total * (total / n) ** (growth.get(step, 1.0) - 1) / 3600
+            hours = extrapolate_hours(r["cpu_s"], n, total, growth.get(step, 1.0))
             cores = STEP_CORES.get(step, lambda c: 1)(NODE_CORES)
             wall = hours / cores
             if step not in RERUNS:
@@ -363,7 +367,6 @@ def main() -> int:
     if args.json:
         args.json.write_text(json.dumps(results, indent=1))
     if args.write:
-        sys.path.insert(0, str(ROOT))
         from benchmarks.results_md import write_section
 
         load = os.getloadavg()[0]
