@@ -58,7 +58,8 @@ FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 class ImportConfig:
     """One `seeu import` run: `source` (a format's config), `out` (the posed-frames directory),
     `strict` (fail on the first bad scene instead of skipping it), `verify` (hash the files a re-run
-    keeps), `progress` (a bar), `fsync`."""
+    keeps), `engine` / `ray_address` (where the inputs are read: `importers.ray_import`), `progress`
+    (a bar), `fsync`."""
 
     source: SourceConfig
     out: Path
@@ -68,6 +69,12 @@ class ImportConfig:
         "a re-run hashes (sha256) the files it keeps; default: it trusts a file whose size and mtime are "
         "the ones recorded with its sha256 (reads nothing)",
     )
+    engine: str = setting(
+        "local",
+        "local: read and write in this process; ray: read the inputs on a Ray cluster, write here (the same bytes)",
+        choices=("local", "ray"),
+    )
+    ray_address: str | None = setting(None, "Ray cluster address (default: start a local instance)")
     progress: bool = False
     fsync: bool = False
 
@@ -76,6 +83,8 @@ class ImportConfig:
         return FORMATS[type(self.source)]
 
     def check(self) -> None:
+        if self.engine not in ("local", "ray"):
+            raise SeeUError(f"unknown engine {self.engine!r} (local or ray)")
         if type(self.source) not in FORMATS:
             raise SeeUError(f"unknown import source {type(self.source).__name__}; one of {', '.join(FORMATS.values())}")
 
@@ -101,5 +110,7 @@ def import_dataset(cfg: ImportConfig):
         total=job.total,
         fsync=cfg.fsync,
         verify=cfg.verify,
+        engine=cfg.engine,
+        ray_address=cfg.ray_address,
     )
     return report

@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import asdict, dataclass, field, fields
+from functools import partial
 from itertools import takewhile
 from pathlib import Path
 
@@ -206,6 +207,11 @@ def _prepare(item: PosedScene | SkippedScene) -> PosedScene | SkippedScene:
     return item
 
 
+def read_checked(read: Callable[[], Iterable[PosedScene | SkippedScene]]) -> list[PosedScene | SkippedScene]:
+    """A unit's items, each checked (`_prepare`): what a Ray task returns for a unit (`ray_import`)."""
+    return [_prepare(item) for item in read()]
+
+
 def _read_records(out_dir: Path, key: str) -> list[dict]:
     """Files a previous run with the same stamp `key` completed, as journal records: the journal of
     an interrupted run, else the manifest's report."""
@@ -273,6 +279,8 @@ def write_import(
     target_file_bytes: int = 256 << 20,
     fsync: bool = False,
     verify: bool = False,
+    engine: str = "local",
+    ray_address: str | None = None,
 ) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
@@ -290,6 +298,9 @@ def write_import(
     as soon as it is in place. A re-run with the same parameters and inputs keeps the leading files
     whose units are unchanged and that are still the files recorded (`resume.file_intact`: size and
     mtime, sha256 with `verify`), and reads only the units after them.
+
+    `engine="ray"`: the units with a key are read on a Ray cluster at `ray_address` (None: a local
+    instance), as `ray_import.read_units` says; everything else, the writing included, stays here.
     """
     from tqdm import tqdm
 
@@ -332,11 +343,22 @@ def write_import(
             pos += 1
 
     def stream():
-        for i, u in enumerate(units):
-            if i in skip_units:
-                continue
-            for item in u.read():
-                yield i, _prepare(item)
+        todo = [i for i in range(len(units)) if i not in skip_units]
+        remote: Iterator[list] = iter(())
+        if engine == "ray":
+            from seeu_data.importers.ray_import import read_units
+
+            remote = read_units(
+                [partial(read_checked, units[i].read) for i in todo if units[i].key is not None], ray_address
+            )
+        for i in todo:
+            if engine == "ray" and units[i].key is not None:
+                items = next(remote)
+                plan.seen.update(item.scene_id for item in items)  # what the unit's own read adds there
+            else:
+                items = (_prepare(item) for item in units[i].read())
+            for item in items:
+                yield i, item
             yield i, _UNIT_END
 
     bar = tqdm(
