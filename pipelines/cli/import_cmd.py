@@ -27,6 +27,7 @@ Examples:
   seeu import nerfstudio scene/transforms.json --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --skip-missing --out data/posed/scene
   seeu import dl3dv DL3DV-480P --resolution 480p --exclude @benchmark_hashes.txt --out data/posed/dl3dv
+  seeu import dl3dv /shared/DL3DV-480P --engine ray --ray-address auto --out /shared/posed/dl3dv
 
 Paths read from input files (index.json chunk names, COLMAP image names, nerfstudio file_paths)
 must stay inside their dataset folder: an entry leading outside (../x, an absolute path, a link) is
