@@ -5,7 +5,7 @@ Stages:
 1. Scan the posed-frames directories with the one dataset validator (`dataset_check.check_dataset`:
    manifest, files present with the listed size, rows and schema metadata, finite rigid cameras,
    frames numbered 0..n-1 per scene, scene rows inside their files, image headers equal to the
-   recorded sizes and under `max_pixels`; sha256 too with `verify_inputs`), before anything is
+   recorded sizes and under `max_pixels`; sha256 too with `verify`), before anything is
    written. Scene ids must be unique across inputs.
 2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.build.sampling`,
    scenes in sorted order, drawn lazily so that the first shards are written while the rest is
@@ -58,9 +58,10 @@ from seeu_data.limits import (
 from seeu_data.settings import parse_bytes, setting
 from seeu_data.store.arrow_io import open_ipc_file
 from seeu_data.store.dataset_check import check_dataset
+from seeu_data.store.json_file import read_json
 from seeu_data.store.manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
 from seeu_data.store.out_lock import locks_output
-from seeu_data.store.resume import Journal, file_intact, sweep
+from seeu_data.store.resume import Journal, file_intact, file_stat, files_fingerprint, stamp_of, sweep
 from seeu_data.store.schema import schema_version
 
 SHARD_PATTERN = "shard-{:05d}.arrow"
@@ -98,7 +99,12 @@ class BuildConfig:
     )
     ray_address: str | None = setting(None, "Ray cluster address (default: start a local instance)")
     progress: bool = False  # a progress bar on stderr
-    verify_inputs: bool = setting(False, "check the posed files' sha256 first")
+    verify: bool = setting(
+        False,
+        "hash (sha256) the posed inputs before anything else and the shards a re-run keeps; default: a "
+        "file whose size and mtime are those recorded is taken as its recorded sha256",
+        aliases=("--verify-inputs",),
+    )
     fsync: bool = False  # fsync every shard and the manifest before its rename (`--fsync`)
     force: bool = False  # rebuild every shard instead of keeping those a previous run completed (`--force`)
     near: float | None = setting(
@@ -275,29 +281,32 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
 
 
 class _ViewBytes:
-    """Estimated stored bytes per frame of a scene (read once per scene from its posed file): the
-    image size, pixel-scaled when resizing, plus the row's other columns."""
+    """Estimated stored bytes per frame of a scene: the image size, pixel-scaled when resizing, plus
+    the row's other columns. The first time a scene of a posed file is asked for, the sizes of all the
+    file's scenes are read from its image offsets (no image byte) and the file is released."""
 
     def __init__(self, scenes: dict[str, SceneRows], resize: tuple[int, int] | None):
         self.scenes, self.resize = scenes, resize
-        self._tables: dict[str, pa.Table] = {}
         self._sizes: dict[str, np.ndarray] = {}
+        self._in_file: dict[str, list[str]] = {}
+        for sid, src in scenes.items():
+            self._in_file.setdefault(src.path, []).append(sid)
 
     def __call__(self, sample: Sample) -> float:
-        sizes = self._sizes.get(sample.scene_id)
-        if sizes is None:
-            sizes = self._sizes[sample.scene_id] = self._scene(self.scenes[sample.scene_id])
-        return float(sizes[list(sample.views)].sum())
+        if sample.scene_id not in self._sizes:
+            self._read_file(self.scenes[sample.scene_id].path)
+        return float(self._sizes[sample.scene_id][list(sample.views)].sum())
 
-    def _scene(self, src: SceneRows) -> np.ndarray:
-        if src.path not in self._tables:
-            self._tables[src.path] = open_ipc_file(src.path).read_all().select(["image", "width", "height"])
-        rows = self._tables[src.path].slice(src.row_start, src.num_frames)
-        nbytes = pc.binary_length(rows.column("image")).to_numpy().astype(np.float64)
+    def _read_file(self, path: str) -> None:
+        table = open_ipc_file(path, random_access=True).read_all().select(["image", "width", "height"])
+        nbytes = pc.binary_length(table.column("image")).to_numpy().astype(np.float64)
         if self.resize is not None:
-            pix = rows.column("width").to_numpy().astype(np.float64) * rows.column("height").to_numpy()
+            pix = table.column("width").to_numpy().astype(np.float64) * table.column("height").to_numpy()
             nbytes = nbytes * (self.resize[0] * self.resize[1]) / np.maximum(pix, 1)
-        return nbytes + _VIEW_OVERHEAD_BYTES
+        for sid in self._in_file[path]:
+            src = self.scenes[sid]
+            self._sizes[sid] = nbytes[src.row_start : src.row_start + src.num_frames] + _VIEW_OVERHEAD_BYTES
+        del table
 
 
 def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneRows]) -> Iterator[ShardSpec]:
@@ -347,28 +356,36 @@ def existing_shard_matches(path: Path, spec: ShardSpec) -> bool:
     return meta.get(PLAN_KEY) == spec.plan_sha256.encode() and rows == len(spec.samples)
 
 
-def resumable_shard(out: Path, spec: ShardSpec, known: dict[str, dict]) -> FileEntry | None:
+def resumable_shard(out: Path, spec: ShardSpec, known: dict[str, dict], verify: bool = False) -> FileEntry | None:
     """The manifest entry of a shard a previous run completed for this very spec, or None.
 
     Not trusted blindly: the shard must be recorded (`known`: journal records by file name, from the
-    previous manifest's files and the journal of an interrupted run), with the spec's plan hash as
-    its stamp when the record has one, and the file must still have the recorded size and sha256,
-    the plan hash in its metadata and the planned rows.
+    previous manifest's `report.resume` and the journal of an interrupted run) with the spec's plan
+    hash as its stamp and the planned rows, and still be the file recorded: its size and mtime (or,
+    with `verify` or without a recorded mtime, its sha256, plan hash in its metadata and row count).
     """
     rec = known.get(spec.file)
     if rec is None or rec.get("stamp", spec.plan_sha256) != spec.plan_sha256:
         return None
     entry = FileEntry(**rec["file"])
     path = out / spec.file
-    if entry.rows != len(spec.samples) or not existing_shard_matches(path, spec):
+    if entry.rows != len(spec.samples):
         return None
-    return entry if file_intact(path, entry.bytes, entry.sha256) else None
+    mtime = None if verify or "stamp" not in rec else rec.get("mtime_ns")
+    if mtime is None and not existing_shard_matches(path, spec):
+        return None
+    return entry if file_intact(path, entry.bytes, entry.sha256, mtime) else None
 
 
-def shard_record(result: ShardResult) -> dict:
-    """The journal record of a shard in place: unit = its file, stamp = its plan hash."""
+def shard_record(result: ShardResult, out: Path) -> dict:
+    """The journal record of a shard in place: unit = its file, stamp = its plan hash, its mtime."""
     assert result.entry is not None
-    return {"unit": result.entry.path, "stamp": result.plan_sha256, "file": asdict(result.entry)}
+    return {
+        "unit": result.entry.path,
+        "stamp": result.plan_sha256,
+        "file": asdict(result.entry),
+        "mtime_ns": file_stat(out / result.entry.path),
+    }
 
 
 def run_local(
@@ -381,7 +398,7 @@ def run_local(
     def collect(result: ShardResult) -> None:
         results.append(result)
         if journal is not None and result.entry is not None:
-            journal.add(shard_record(result))
+            journal.add(shard_record(result, Path(out_dir)))
         bar.update(result.entry.rows if result.entry is not None else 0)
         raise_if_terminated()
 
@@ -433,16 +450,55 @@ def _progress_bar(total: int, enabled: bool):
 
 def known_shards(out: Path) -> dict[str, dict]:
     """Shards a previous run recorded as complete, as journal records by file name: its manifest's
-    files (no stamp: the plan hash is checked in the shard's metadata), then its journal."""
+    (with the plan hash and mtime its `report.resume` kept; without them the shard's metadata is
+    checked), then its journal."""
     known: dict[str, dict] = {}
     if (out / MANIFEST_NAME).exists():
         try:
             doc = read_manifest(out, expect_schema=SCHEMA)
-            known.update({f["path"]: {"unit": f["path"], "file": f} for f in doc["files"]})
         except SeeUError:
-            pass
+            doc = {"files": []}
+        kept = ((doc.get("report") or {}).get("resume") or {}).get("shards") or {}
+        for f in doc["files"]:
+            rec = {"unit": f["path"], "file": f}
+            if f["path"] in kept:
+                rec["stamp"], rec["mtime_ns"] = kept[f["path"]]
+            known[f["path"]] = rec
     known.update({rec["unit"]: rec for rec in Journal(out / PROGRESS_NAME).read()})
     return known
+
+
+def build_stamp(cfg: BuildConfig) -> str:
+    """What a complete build is made from: its parameters, and of each input the digest of what its
+    manifest records of the data (files with their sha256, scenes; not its provenance or report) and the
+    size and mtime of each file (`resume.files_fingerprint`)."""
+    inputs = []
+    for root in cfg.inputs:
+        try:
+            doc = read_json(Path(root) / MANIFEST_NAME, "manifest")
+            listed = {"files": doc["files"], "scenes": doc.get("scenes", [])}
+            files = [Path(root) / f["path"] for f in doc["files"]]
+        except (SeeUError, AttributeError, TypeError, KeyError):
+            listed, files = {}, []  # no usable manifest: scan_inputs says why
+        inputs.append([stamp_of(listed), files_fingerprint(files)])
+    return stamp_of({"params": cfg.params(), "inputs": inputs})
+
+
+def unchanged_build(out: Path, stamp: str) -> dict | None:
+    """The manifest of the complete build in `out` when it was made with `stamp` and each of its shards
+    still has the size and mtime recorded (nothing is read but the manifest); else None."""
+    try:
+        doc = read_manifest(out, expect_schema=SCHEMA)
+    except SeeUError:
+        return None
+    resume = (doc.get("report") or {}).get("resume") or {}
+    shards = resume.get("shards") or {}
+    if resume.get("stamp") != stamp:
+        return None
+    for f in doc["files"]:
+        if f["path"] not in shards or not file_intact(out / f["path"], f["bytes"], f["sha256"], shards[f["path"]][1]):
+            return None
+    return doc
 
 
 @locks_output(lambda cfg, *_, **__: cfg.out)
@@ -464,7 +520,12 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     for p in cfg.inputs:
         if Path(p).resolve() == out.resolve():
             raise SeeUError("the output directory is also an input", out)
-    scenes = scan_inputs(cfg.inputs, cfg.verify_inputs, cfg.max_pixels)
+    stamp = build_stamp(cfg)
+    done = None if cfg.verify else unchanged_build(out, stamp)
+    if done is not None:  # nothing to do: the report says every shard was kept
+        report = dict(done["report"], shards_resumed=len(done["files"]), stale_files_removed=[])
+        return dict(done, report=report)
+    scenes = scan_inputs(cfg.inputs, cfg.verify, cfg.max_pixels)
     if not scenes:
         raise SeeUError("the inputs hold no scenes", cfg.inputs[0])
     plan = plan_eval(cfg, scenes) if cfg.mode == "eval" else plan_sampled(cfg, scenes)
@@ -489,7 +550,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         """The shard specs, planned as they are taken; the shards a previous run completed are kept."""
         for spec in shard_specs(cfg, plan, scenes):
             plan_hashes.append(spec.plan_sha256)
-            entry = resumable_shard(out, spec, known)
+            entry = resumable_shard(out, spec, known, cfg.verify)
             if entry is None:
                 (out / spec.file).unlink(missing_ok=True)  # not resumable: never served from a stale file
                 yield spec
@@ -504,7 +565,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
             specs = list(todo(bar))
             if specs:
                 results += run_ray(
-                    specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r)), fsync=cfg.fsync
+                    specs, str(out), cfg.ray_address, bar, lambda r: journal.add(shard_record(r, out)), fsync=cfg.fsync
                 )
         else:
             results += run_local(todo(bar), str(out), workers, bar, journal, fsync=cfg.fsync)
@@ -520,6 +581,10 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         shards_resumed=sum(1 for r in results if r.resumed),
         stale_files_removed=sorted(removed),
         plan_sha256=hashlib.sha256("".join(plan_hashes).encode()).hexdigest(),
+        resume={
+            "stamp": stamp,
+            "shards": {r.entry.path: [r.plan_sha256, file_stat(out / r.entry.path)] for r in results if r.entry},
+        },
     )
     prov = provenance(argv_command, list(cfg.inputs), engine=cfg.engine, workers=workers)
     doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report, fsync=cfg.fsync)

@@ -57,12 +57,25 @@ FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 @dataclass(frozen=True)
 class ImportConfig:
     """One `seeu import` run: `source` (a format's config), `out` (the posed-frames directory),
-    `strict` (fail on the first bad scene instead of skipping it), `progress` (a bar), `fsync`, `force`
-    (write every posed file anew instead of keeping those a previous run completed)."""
+    `strict` (fail on the first bad scene instead of skipping it), `verify` (hash the files a re-run
+    keeps), `engine` / `ray_address` (where the inputs are read: `importers.ray_import`), `progress`
+    (a bar), `fsync`, `force` (write every posed file anew instead of keeping those a previous run
+    completed)."""
 
     source: SourceConfig
     out: Path
     strict: bool = setting(False, "fail on the first bad scene instead of skipping it")
+    verify: bool = setting(
+        False,
+        "a re-run hashes (sha256) the files it keeps; default: it trusts a file whose size and mtime are "
+        "the ones recorded with its sha256 (reads nothing)",
+    )
+    engine: str = setting(
+        "local",
+        "local: read and write in this process; ray: read the inputs on a Ray cluster, write here (the same bytes)",
+        choices=("local", "ray"),
+    )
+    ray_address: str | None = setting(None, "Ray cluster address (default: start a local instance)")
     progress: bool = False
     fsync: bool = False
     force: bool = False
@@ -72,6 +85,8 @@ class ImportConfig:
         return FORMATS[type(self.source)]
 
     def check(self) -> None:
+        if self.engine not in ("local", "ray"):
+            raise SeeUError(f"unknown engine {self.engine!r} (local or ray)")
         if type(self.source) not in FORMATS:
             raise SeeUError(f"unknown import source {type(self.source).__name__}; one of {', '.join(FORMATS.values())}")
 
@@ -98,5 +113,8 @@ def import_dataset(cfg: ImportConfig):
         total=job.total,
         fsync=cfg.fsync,
         force=cfg.force,
+        verify=cfg.verify,
+        engine=cfg.engine,
+        ray_address=cfg.ray_address,
     )
     return report

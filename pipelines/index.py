@@ -74,19 +74,24 @@ def write_index(cfg: IndexFileConfig) -> dict:
             generation, sampling=dataclasses.replace(generation.sampling, samples_per_scene=1)
         )
     scenes = scan_inputs([str(p) for p in cfg.inputs], max_pixels=cfg.max_pixels)
-    tables: dict = {}
-    per_scene = {}
+    in_file: dict[str, list[str]] = {}
     for sid in sorted(scenes):
-        src = scenes[sid]
-        if src.path not in tables:
-            tables[src.path] = (
-                open_ipc_file(src.path).read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
-            )
-        rows = tables[src.path].slice(src.row_start, src.num_frames)
-        c2w = rows.column("cam_to_world").combine_chunks().flatten().to_numpy().reshape(-1, 4, 4)
-        intr = rows.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
-        near, far = float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
-        per_scene[sid] = generate_entries(generation, sid, np.asarray(c2w), np.asarray(intr), near, far, cfg.seed)
+        in_file.setdefault(scenes[sid].path, []).append(sid)
+    drawn = {}
+    for path, sids in in_file.items():  # one posed file's camera columns mapped at a time
+        table = (
+            open_ipc_file(path, random_access=True)
+            .read_all()
+            .select(["cam_to_world", "intrinsics_norm", "near", "far"])
+        )
+        for sid in sids:
+            rows = table.slice(scenes[sid].row_start, scenes[sid].num_frames)
+            c2w = rows.column("cam_to_world").combine_chunks().flatten().to_numpy().reshape(-1, 4, 4)
+            intr = rows.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
+            near, far = float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
+            drawn[sid] = generate_entries(generation, sid, np.asarray(c2w), np.asarray(intr), near, far, cfg.seed)
+        del table
+    per_scene = {sid: drawn[sid] for sid in sorted(scenes)}
     empty = [sid for sid, entries in per_scene.items() if not entries]
     if len(empty) == len(per_scene):  # nothing written: the index would be useless
         reasons = "; ".join(no_entry_reason(generation, sid, scenes[sid].num_frames) for sid in empty[:3])

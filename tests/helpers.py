@@ -50,3 +50,38 @@ def make_posed_scene(
         timestamp_us=np.arange(n, dtype=np.int64) * 100_000,
         source_name=[f"frame_{i * 3:05d}{ext}" for i in range(n)],
     )
+
+
+def page_cache_bytes(path) -> int:
+    """Bytes of the file `path` in the kernel's page cache: what was read from the disk since it was
+    last evicted (`evict`), by any means (read(), a memory map, read-ahead). Linux `mincore` over a
+    map of the file that touches nothing."""
+    import ctypes
+    import mmap
+    import os
+
+    size = os.path.getsize(path)
+    if size == 0:
+        return 0
+    with open(path, "rb") as fh:
+        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)
+    view = np.frombuffer(mapped, np.uint8)
+    vec = (ctypes.c_ubyte * ((size + mmap.PAGESIZE - 1) // mmap.PAGESIZE))()
+    assert ctypes.CDLL(None).mincore(ctypes.c_void_p(view.ctypes.data), ctypes.c_size_t(size), vec) == 0
+    del view
+    mapped.close()
+    return sum(v & 1 for v in vec) * mmap.PAGESIZE
+
+
+def evict(path) -> bool:
+    """Drop the file `path` from the page cache (fsync, then `POSIX_FADV_DONTNEED`); False where the
+    file system keeps it (tmpfs)."""
+    import os
+
+    fd = os.open(path, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+        os.posix_fadvise(fd, 0, 0, os.POSIX_FADV_DONTNEED)
+    finally:
+        os.close(fd)
+    return page_cache_bytes(path) == 0

@@ -115,11 +115,20 @@ def test_extrap_rows(posed, tmp_path):
             assert (t < lo and off == t - lo >= -6) or (t > hi and 0 < off == t - hi <= 6)
 
 
-def test_resume_keeps_good_shards_and_rebuilds_damaged(posed, tmp_path):
+def test_resume_keeps_good_shards_and_rebuilds_damaged(posed, tmp_path, capsys):
     out = tmp_path / "res"
     assert _build(posed, out) == 0
     before = _shard_bytes(out)
+    manifest = (out / "manifest.json").read_bytes()
     mtimes = {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.arrow")}
+    capsys.readouterr()
+    # nothing to do: the output is left as it is (the manifest too)
+    assert _build(posed, out) == 0
+    assert f"; {len(before)} kept from a previous run" in capsys.readouterr().out
+    assert (out / "manifest.json").read_bytes() == manifest
+    assert {p.name: p.stat().st_mtime_ns for p in out.glob("shard-*.arrow")} == mtimes
+    # an input touched (same content): planned again, every shard kept by its recorded size and mtime
+    os.utime(next(posed.glob("posed-*.arrow")))
     assert _build(posed, out) == 0
     doc = json.loads((out / "manifest.json").read_text())
     assert doc["report"]["shards_resumed"] == len(before)
@@ -143,6 +152,15 @@ def test_resume_keeps_good_shards_and_rebuilds_damaged(posed, tmp_path):
     torn[len(torn) // 2] ^= 0xFF
     victim.write_bytes(bytes(torn))
     assert _build(posed, out) == 0
+    doc = json.loads((out / "manifest.json").read_text())
+    assert doc["report"]["shards_resumed"] == len(before) - 1
+    assert _shard_bytes(out) == before
+    # ... and when it kept its mtime too, only --verify hashes it: rebuilt then
+    stat = victim.stat()
+    victim.write_bytes(bytes(torn))
+    os.utime(victim, ns=(stat.st_atime_ns, stat.st_mtime_ns))
+    assert _build(posed, out) == 0 and _shard_bytes(out)["shard-00002.arrow"] == bytes(torn)
+    assert _build(posed, out, "--verify") == 0
     doc = json.loads((out / "manifest.json").read_text())
     assert doc["report"]["shards_resumed"] == len(before) - 1
     assert _shard_bytes(out) == before
@@ -325,13 +343,13 @@ def test_an_interrupted_resume_loses_no_completed_shard(posed, tmp_path, monkeyp
     good = _shard_bytes(out)
     real = build_mod.resumable_shard
 
-    def interrupted(out_dir, spec, known):
+    def interrupted(out_dir, spec, known, verify):
         if spec.index == 2:
             raise KeyboardInterrupt
-        return real(out_dir, spec, known)
+        return real(out_dir, spec, known, verify)
 
     monkeypatch.setattr(build_mod, "resumable_shard", interrupted)
-    assert _build(posed, out) == 130 and not (out / "manifest.json").exists()
+    assert _build(posed, out, "--verify") == 130 and not (out / "manifest.json").exists()
     monkeypatch.setattr(build_mod, "resumable_shard", real)
     assert _build(posed, out) == 0
     assert json.loads((out / "manifest.json").read_text())["report"]["shards_resumed"] == len(good) > 3

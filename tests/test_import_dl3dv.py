@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 
 import numpy as np
 
@@ -59,3 +60,15 @@ def test_benchmark_layout_960p(tmp_path):
     K = cam.intrinsics_norm_matrix(scene.intrinsics_norm)
     np.testing.assert_allclose(K[:, 0, 0] * W, FL[0], rtol=1e-6)
     np.testing.assert_allclose(scene.cam_to_world, poses[HASHES[0]], atol=1e-6)
+
+
+def test_progress_line_counts_scenes_with_an_eta_and_resumes_from_the_kept_ones(tmp_path, capsys):
+    """`--progress`: the bar counts scenes of the whole release with elapsed<remaining time; a re-run
+    starts it at the scenes already kept."""
+    make_release(tmp_path / "dl3dv")
+    argv = ["import", "dl3dv", str(tmp_path / "dl3dv"), "--out", str(tmp_path / "out"), "--progress"]
+    assert cli_main(argv) == 0
+    err = capsys.readouterr().err
+    assert re.search(r"import dl3dv: +0%\|.*\| 0/3 \[00:00<\?", err) and re.search(r"3/3 \[\d\d:\d\d<00:00", err)
+    assert cli_main(argv) == 0
+    assert re.search(r"import dl3dv: +100%\|.*\| 3/3 \[", capsys.readouterr().err)

@@ -19,7 +19,7 @@ from seeu_data.errors import SeeUError
 from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
 from seeu_data.importers import ImportReport, write_import
 from seeu_data.importers import pixelsplat as ps
-from seeu_data.store.posed import PosedDataset, PosedDatasetWriter
+from seeu_data.store.posed import PosedDataset, PosedDatasetWriter, PosedScene
 from tests.helpers import look_at_cam_to_world, make_posed_scene
 
 H, W = 36, 64
@@ -446,3 +446,62 @@ def test_import_fsyncs_only_with_the_flag(tmp_path, fsyncs):
     assert cli_main([*cmd, "--out", str(tmp_path / "c")]) == 0
     assert [c for c in fsyncs if c[0] == "fsync"] == []  # --fsync is a parameter of that one import
     assert _files(tmp_path / "a") == _files(tmp_path / "b")
+
+
+class _CountingIndex(dict):
+    """index.json as a dict that counts every entry it hands out (iteration, lookups, items)."""
+
+    visits = 0
+
+    def __iter__(self):
+        for key in super().__iter__():
+            _CountingIndex.visits += 1
+            yield key
+
+    def items(self):
+        for item in super().items():
+            _CountingIndex.visits += 1
+            yield item
+
+    def keys(self):
+        return list(iter(self))
+
+    def values(self):
+        return [v for _, v in self.items()]
+
+    def get(self, key, default=None):
+        _CountingIndex.visits += 1
+        return super().get(key, default)
+
+    def __getitem__(self, key):
+        _CountingIndex.visits += 1
+        return super().__getitem__(key)
+
+    def __contains__(self, key):
+        _CountingIndex.visits += 1
+        return super().__contains__(key)
+
+
+def test_import_of_2000_scenes_in_200_chunks_visits_the_index_o_scenes_times(tmp_path, monkeypatch):
+    """index.json is grouped by chunk once: an import touches each entry a few times, not once per chunk
+    (the scan per chunk it replaced touched 2,000 x 200 = 400,000 entries)."""
+    rng = np.random.default_rng(13)
+    example = make_example("x", 1, rng)
+    directory = tmp_path / "ds" / "train"
+    directory.mkdir(parents=True)
+    index = {}
+    for c in range(200):
+        chunk = [dict(example, key=f"c{c:03d}s{i}") for i in range(10)]
+        index.update({ex["key"]: f"{c:06d}.torch" for ex in chunk})
+        torch.save(chunk, directory / f"{c:06d}.torch")
+    index["lost"] = "000000.torch"  # listed, not held: reported by name
+    (directory / "index.json").write_text(json.dumps(index))
+    real = ps.read_index
+    monkeypatch.setattr(ps, "read_index", lambda d: _CountingIndex(real(d)))
+    _CountingIndex.visits = 0
+    items = list(ps.iter_scenes(ps.PixelSplatImportConfig(root=tmp_path / "ds")))
+    assert sum(isinstance(s, PosedScene) for s in items) == 2000
+    assert [(s.scene_id, s.reason) for s in items if not isinstance(s, PosedScene)] == [
+        ("lost", "index.json lists it in 000000.torch, which does not hold it")
+    ]
+    assert _CountingIndex.visits <= 3 * len(index), _CountingIndex.visits

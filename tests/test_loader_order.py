@@ -243,3 +243,75 @@ def test_curriculum_plan_filters_deterministically_and_resumes(
     after = [p for b in range(other.num_batches) for p in other.positions[b][~other.is_padding[b]].tolist()]
     skipped_before = plan.skipped[plan.skipped < seen].tolist()
     assert sorted(before + after + skipped_before + other.skipped.tolist()) == list(range(n))
+
+
+def _plan_rescanning(num_samples, samples_seen, g, remainder, gaps, max_gap, start_step):
+    """The curriculum plan as first written (it rescanned the rest of the epoch for every batch): the
+    reference the linear plan must equal."""
+    rows, pads, cursors, skipped = [], [], [], []
+    cur, step = samples_seen, start_step
+    while cur < num_samples:
+        limit = max_gap(step)
+        ok = np.flatnonzero(gaps[cur:] <= limit)
+        if len(ok) >= g:
+            take = cur + ok[:g]
+            end = int(take[-1]) + 1
+            skipped.append(np.setdiff1d(np.arange(cur, end, dtype=np.int64), take, assume_unique=True))
+            rows.append(take)
+            pads.append(np.zeros(g, dtype=bool))
+            cursors.append(end)
+            cur, step = end, step + 1
+            continue
+        take = cur + ok
+        skipped.append(np.setdiff1d(np.arange(cur, num_samples, dtype=np.int64), take, assume_unique=True))
+        if remainder == "pad" and len(take):
+            pool = np.flatnonzero(gaps <= limit)
+            rows.append(np.concatenate([take, pool[np.arange(g - len(take)) % len(pool)]]))
+            pads.append(np.arange(g) >= len(take))
+            cursors.append(num_samples)
+        elif remainder == "drop":
+            skipped.append(take)
+        cur = num_samples
+    pos = np.stack(rows).astype(np.int64) if rows else np.zeros((0, g), dtype=np.int64)
+    pad = np.stack(pads) if pads else np.zeros((0, g), dtype=bool)
+    skip = np.sort(np.concatenate(skipped)) if skipped else np.zeros(0, dtype=np.int64)
+    return pos, pad, np.asarray(cursors, dtype=np.int64), skip
+
+
+@settings(max_examples=400, deadline=None)
+@given(
+    gaps=st.lists(st.integers(0, 12), min_size=1, max_size=300),
+    g=st.integers(1, 9),
+    seen_frac=st.floats(0, 1),
+    start=st.integers(0, 40),
+    remainder=st.sampled_from(["pad", "drop"]),
+    ramp=st.one_of(
+        st.tuples(st.integers(0, 6), st.one_of(st.none(), st.integers(6, 12)), st.integers(0, 60)),
+        st.lists(st.integers(-1, 12), min_size=1, max_size=8),  # any limit per step, not monotone
+    ),
+)
+def test_curriculum_plan_equals_the_rescanning_plan(gaps, g, seen_frac, start, remainder, ramp):
+    gaps = np.asarray(gaps)
+    n = len(gaps)
+    if isinstance(ramp, tuple):
+        max_gap = GapCurriculum(*ramp).max_gap
+    else:
+        max_gap = lambda step: float(ramp[(step // 3) % len(ramp)])  # noqa: E731
+    seen = int(seen_frac * n)
+    plan = plan_global_batches(n, seen, g, remainder, gaps=gaps, max_gap=max_gap, start_step=start)
+    expected = _plan_rescanning(n, seen, g, remainder, gaps, max_gap, start)
+    for got, want in zip((plan.positions, plan.is_padding, plan.cursor_after, plan.skipped), expected):
+        assert got.dtype == want.dtype and np.array_equal(got, want)
+
+
+def test_curriculum_plan_of_200000_samples_takes_under_a_second():
+    """RE10K-size epoch with the peers' ramp (25 -> 45) half way through its warm-up: linear in the samples."""
+    import time
+
+    gaps = np.random.default_rng(0).integers(25, 46, size=200_000)
+    cur = GapCurriculum(25, 45, 150_000)
+    t0 = time.process_time()
+    plan = plan_global_batches(len(gaps), 0, 8, "pad", gaps=gaps, max_gap=cur.max_gap, start_step=75_000)
+    seconds = time.process_time() - t0
+    assert plan.num_batches > 10_000 and len(plan.skipped) > 10_000
+    assert seconds < 1.0, seconds

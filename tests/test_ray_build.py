@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import pytest
@@ -70,7 +71,12 @@ def test_ray_engine_byte_identical_to_local(ray_local, posed, tmp_path, extra):
     ml, mr = (json.loads((tmp_path / d / "manifest.json").read_text()) for d in ("local", "ray"))
     assert ml["files"] == mr["files"] and ml["params"] == mr["params"]
     assert mr["provenance"]["engine"] == "ray" and mr["report"]["scenes_skipped_too_short"] == 1
-    # a re-run on Ray resumes: every shard kept
+    # a re-run on Ray with nothing to do leaves the output as it is; with an input touched it plans
+    # again and keeps every shard
+    manifest = (tmp_path / "ray" / "manifest.json").read_bytes()
+    assert cli_main([*common, "--out", str(tmp_path / "ray"), "--engine", "ray"]) == 0
+    assert (tmp_path / "ray" / "manifest.json").read_bytes() == manifest
+    os.utime(next(posed.glob("posed-*.arrow")))
     assert cli_main([*common, "--out", str(tmp_path / "ray"), "--engine", "ray"]) == 0
     assert json.loads((tmp_path / "ray" / "manifest.json").read_text())["report"]["shards_resumed"] == len(local)
     assert _shards(tmp_path / "ray") == local

@@ -122,3 +122,29 @@ def test_claim_dir_keeps_partial_work_of_the_same_stamp_only(tmp_path):
     (d / "ckpt").write_text("step 5")
     assert claim_dir(d, "s2") is False and not (d / "ckpt").exists()
     assert claim_dir(d, "s2") is True
+
+
+def test_file_intact_trusts_size_and_mtime_and_hashes_with_verify(tmp_path, monkeypatch):
+    import os
+
+    from seeu_data.store import resume
+
+    path = tmp_path / "f.arrow"
+    path.write_bytes(b"x" * 1000)
+    size, sha, mtime = 1000, hashlib.sha256(b"x" * 1000).hexdigest(), resume.file_stat(path)
+    hashed = []
+    real = resume.sha256_file
+    monkeypatch.setattr(resume, "sha256_file", lambda p: hashed.append(p) or real(p))
+    assert resume.file_intact(path, size, sha, mtime) and hashed == []  # size + mtime: nothing read
+    assert resume.file_intact(path, size, sha, mtime, verify=True) and hashed == [path]
+    assert resume.file_intact(path, size, sha) and len(hashed) == 2  # no recorded mtime: hashed
+    assert not resume.file_intact(path, size + 1, sha, mtime) and len(hashed) == 2
+    # torn by a power loss that kept size and mtime: only verify sees it
+    path.write_bytes(b"x" * 500 + b"\0" * 500)
+    os.utime(path, ns=(mtime, mtime))
+    assert resume.file_intact(path, size, sha, mtime)
+    assert not resume.file_intact(path, size, sha, mtime, verify=True)
+    # rewritten (a new mtime): hashed, and the new bytes fail
+    os.utime(path, ns=(mtime, mtime + 1))
+    assert not resume.file_intact(path, size, sha, mtime)
+    assert not resume.file_intact(tmp_path / "missing", size, sha, mtime)

@@ -9,7 +9,8 @@ Modes:
           missing scene or frame are reported and not written
 
 The same inputs and seed give byte-identical shards with either engine; a re-run resumes (shards
-already written for the same plan are kept once their recorded size and sha256 check out). Scenes
+already written for the same plan are kept while they have the size and mtime recorded with their
+sha256; --verify hashes them and the inputs; unchanged inputs and options: nothing is read). Scenes
 too short for the gaps are skipped and counted. Writes are atomic (temporary name, rename, manifest
 last); --fsync also fsyncs every shard and the manifest before their rename, for durability across
 a power loss.

@@ -13,7 +13,8 @@ non-finite or non-orthonormal poses) are skipped, counted and named in the manif
 
 A re-run resumes: output files already complete for the same options and unchanged inputs
 (pixelsplat chunks, re10k camera files with their frames, dtu scans, dl3dv scenes, the colmap or
-nerfstudio scene; recorded size and sha256 still matching) are kept, only the other inputs are read.
+nerfstudio scene; still of the size and mtime recorded with their sha256, or of that sha256 with
+--verify) are kept, only the other inputs are read: a re-run with nothing to do reads no file.
 Writes are atomic (temporary name, rename, manifest last); --fsync also fsyncs
 every file before its rename, for durability across a power loss.
 
@@ -26,6 +27,7 @@ Examples:
   seeu import nerfstudio scene/transforms.json --out data/posed/scene
   seeu import nerfstudio scene/transforms.json --skip-missing --out data/posed/scene
   seeu import dl3dv DL3DV-480P --resolution 480p --exclude @benchmark_hashes.txt --out data/posed/dl3dv
+  seeu import dl3dv /shared/DL3DV-480P --engine ray --ray-address auto --out /shared/posed/dl3dv
 
 Paths read from input files (index.json chunk names, COLMAP image names, nerfstudio file_paths)
 must stay inside their dataset folder: an entry leading outside (../x, an absolute path, a link) is

@@ -21,7 +21,8 @@ from seeu_data.build.triples import ShardSpec
 from seeu_data.ray_cluster import ensure_ray
 
 
-def _ray_task(row: dict) -> dict:
+def ray_task(row: dict) -> dict:
+    """One shard: a Ray Data row (the spec as JSON) -> its `ShardResult` as JSON."""
     import cv2
 
     cv2.setNumThreads(1)  # Ray schedules one task per CPU
@@ -49,7 +50,7 @@ def run_ray(
     ctx = ray.data.DataContext.get_current()
     ctx.enable_progress_bars = False
     items = [{"spec": json.dumps(s.as_dict()), "out_dir": str(Path(out_dir).resolve()), "fsync": fsync} for s in specs]
-    ds = ray.data.from_items(items, override_num_blocks=len(items)).map(_ray_task, num_cpus=1)
+    ds = ray.data.from_items(items, override_num_blocks=len(items)).map(ray_task, num_cpus=1)
     results = []
     for row in ds.iter_rows():
         result = ShardResult.from_dict(json.loads(row["result"]))

@@ -21,7 +21,7 @@ from seeu_data.store.dataset_check import check_image
 from seeu_data.store.image_header import decode_check
 from seeu_data.store.manifest import FileEntry, read_manifest
 from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
-from seeu_data.store.resume import Journal, file_intact, files_fingerprint, stamp_of, sweep
+from seeu_data.store.resume import Journal, file_intact, file_stat, files_fingerprint, stamp_of, sweep
 
 RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
 _UNIT_END = object()
@@ -283,6 +283,11 @@ def _prepare(item: PosedScene | SkippedScene) -> PosedScene | SkippedScene:
     return item
 
 
+def read_checked(read: Callable[[], Iterable[PosedScene | SkippedScene]]) -> list[PosedScene | SkippedScene]:
+    """A unit's items, each checked (`_prepare`): what a Ray task returns for a unit (`ray_import`)."""
+    return [_prepare(item) for item in read()]
+
+
 def _read_records(out_dir: Path, key: str) -> list[dict]:
     """Files a previous run with the same stamp `key` completed, as journal records: the journal of
     an interrupted run, else the manifest's report."""
@@ -297,6 +302,9 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
     if resume.get("key") != key:
         return []
     entries = {f["path"]: f for f in doc["files"]}
+    scenes_in: dict[str, list[dict]] = {}
+    for scene in doc.get("scenes", []):
+        scenes_in.setdefault(scene["file"], []).append(scene)
     for rec in resume.get("files", []):
         if rec.get("file") not in entries:
             break
@@ -305,17 +313,21 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
                 "unit": rec["file"],
                 "stamp": key,
                 "file": entries[rec["file"]],
+                "mtime_ns": rec.get("mtime_ns"),
                 "units": rec["units"],
                 "skipped": rec["skipped"],
-                "scenes": [s for s in doc.get("scenes", []) if s["file"] == rec["file"]],
+                "scenes": scenes_in.get(rec["file"], []),
             }
         )
     return records
 
 
-def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit], name_of) -> tuple[list[dict], int]:
+def _resumable_prefix(
+    out_dir: Path, records: list[dict], units: list[ImportUnit], name_of, verify: bool = False
+) -> tuple[list[dict], int]:
     """The records (in order) whose units are the next planned keyed units and whose file is intact
-    (present, its recorded size and sha256), and how many keyed units they cover."""
+    (`resume.file_intact`: its recorded size and mtime, or sha256 with `verify`), and how many keyed
+    units they cover."""
     keyed = [[u.key, u.fingerprint] for u in units if u.key is not None]
     done: list[dict] = []
     pos = 0
@@ -324,7 +336,7 @@ def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit
         n = len(rec.get("units") or [])
         if n == 0 or rec["units"] != keyed[pos : pos + n] or entry.get("path") != name_of(i):
             break
-        if not file_intact(out_dir / entry["path"], entry["bytes"], entry["sha256"]):
+        if not file_intact(out_dir / entry["path"], entry["bytes"], entry["sha256"], rec.get("mtime_ns"), verify):
             break
         done.append(rec)
         pos += n
@@ -343,6 +355,9 @@ def write_import(
     target_file_bytes: int = 256 << 20,
     fsync: bool = False,
     force: bool = False,
+    verify: bool = False,
+    engine: str = "local",
+    ray_address: str | None = None,
 ) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
@@ -358,8 +373,11 @@ def write_import(
     (`RESUME_JOURNAL`, a `resume.Journal` stamped with the parameters and input fingerprint; removed
     when the manifest is written, the manifest's `report.resume` keeps the same for a later re-run)
     as soon as it is in place. A re-run with the same parameters and inputs keeps the leading files
-    whose units are unchanged and whose bytes still have the recorded size and sha256, and reads only
-    the units after them; `force` keeps none.
+    whose units are unchanged and that are still the files recorded (`resume.file_intact`: size and
+    mtime, sha256 with `verify`), and reads only the units after them; `force` keeps none.
+
+    `engine="ray"`: the units with a key are read on a Ray cluster at `ray_address` (None: a local
+    instance), as `ray_import.read_units` says; everything else, the writing included, stays here.
     """
     from tqdm import tqdm
 
@@ -371,7 +389,7 @@ def write_import(
     out_dir.mkdir(parents=True, exist_ok=True)
     records = _read_records(out_dir, key) if resumable and not force else []
     name_of = lambda i: f"posed-{i:05d}.arrow"  # noqa: E731  (PosedDatasetWriter's file names)
-    done, covered = _resumable_prefix(out_dir, records, units, name_of)
+    done, covered = _resumable_prefix(out_dir, records, units, name_of, verify)
     journal = Journal(out_dir / RESUME_JOURNAL, fsync)
     if resumable:
         journal.reset(done)  # before the manifest goes
@@ -402,11 +420,22 @@ def write_import(
             pos += 1
 
     def stream():
-        for i, u in enumerate(units):
-            if i in skip_units:
-                continue
-            for item in u.read():
-                yield i, _prepare(item)
+        todo = [i for i in range(len(units)) if i not in skip_units]
+        remote: Iterator[list] = iter(())
+        if engine == "ray":
+            from seeu_data.importers.ray_import import read_units
+
+            remote = read_units(
+                [partial(read_checked, units[i].read) for i in todo if units[i].key is not None], ray_address
+            )
+        for i in todo:
+            if engine == "ray" and units[i].key is not None:
+                items = next(remote)
+                plan.seen.update(item.scene_id for item in items)  # what the unit's own read adds there
+            else:
+                items = (_prepare(item) for item in units[i].read())
+            for item in items:
+                yield i, item
             yield i, _UNIT_END
 
     bar = tqdm(
@@ -433,8 +462,9 @@ def write_import(
                 "stamp": key,
                 "units": cur_units,
                 "skipped": cur_skipped,
-                "scenes": [s for s in writer.scenes if s["file"] == entry.path],
+                "scenes": list(reversed(list(takewhile(lambda s: s["file"] == entry.path, reversed(writer.scenes))))),
                 "file": asdict(entry),
+                "mtime_ns": file_stat(out_dir / entry.path),
             }
             new_records.append(rec)
             journal.add(rec)
@@ -480,7 +510,13 @@ def write_import(
             writer.report["resume"] = {
                 "key": key,
                 "files": [
-                    {"file": r["file"]["path"], "units": r["units"], "skipped": r["skipped"]} for r in new_records
+                    {
+                        "file": r["file"]["path"],
+                        "mtime_ns": r.get("mtime_ns"),
+                        "units": r["units"],
+                        "skipped": r["skipped"],
+                    }
+                    for r in new_records
                 ],
             }
     except BaseException as exc:

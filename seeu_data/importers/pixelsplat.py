@@ -66,10 +66,10 @@ class PixelSplatImportConfig(ReadSettings):
         return (near if self.near is None else self.near, far if self.far is None else self.far)
 
     def plan(self) -> ImportJob:
-        directory, chunks, missing, total = find_chunks(self)
+        found = find_chunks(self)
         near, far = self.near_far()
         params = recorded_params(self, "pixelsplat", near=near, far=far)
-        return ImportJob(import_plan(self, chunks, directory, missing), params, total, [str(directory)])
+        return ImportJob(import_plan(self, found), params, found.total, [str(found.directory)])
 
 
 def stage_dir(cfg: PixelSplatImportConfig) -> Path:
@@ -95,8 +95,22 @@ def read_index(directory: Path) -> dict[str, str] | None:
     return index
 
 
-def find_chunks(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[SkippedScene], int | None]:
-    """Which chunks to read: `(stage_dir, chunk paths in order, scenes already known missing, scene total)`."""
+@dataclass(frozen=True)
+class ChunkList:
+    """What an import reads, from one pass over `index.json`: `chunks` in order; `keys` (None without
+    an index.json): chunk file name -> the wanted scene keys index.json places in it; `missing`: scenes
+    asked for that index.json lacks (or places in a chunk outside the stage directory); `total`: the
+    scenes wanted (None: unknown)."""
+
+    directory: Path
+    chunks: list[Path]
+    keys: dict[str, list[str]] | None
+    missing: list[SkippedScene]
+    total: int | None
+
+
+def find_chunks(cfg: PixelSplatImportConfig) -> ChunkList:
+    """Which chunks to read, with index.json grouped by chunk once (O(scenes), not scenes x chunks)."""
     directory = stage_dir(cfg)
     index = read_index(directory)
     missing: list[SkippedScene] = []
@@ -104,22 +118,26 @@ def find_chunks(cfg: PixelSplatImportConfig) -> tuple[Path, list[Path], list[Ski
         chunks = sorted(directory.glob("*.torch"))
         if not chunks:
             raise SeeUError("no *.torch chunks", directory)
-        return directory, chunks, missing, (len(cfg.scenes) if cfg.scenes else None)
+        return ChunkList(directory, chunks, None, missing, len(cfg.scenes) if cfg.scenes else None)
     wanted = sorted(index) if cfg.scenes is None else sorted(cfg.scenes)
-    names = []
+    keys: dict[str, list[str]] = {}
+    outside: dict[str, str] = {}  # chunk name -> why it is never read
     for key in wanted:
-        if key not in index:
+        name = index.get(key)
+        if name is None:
             missing.append(SkippedScene(key, "not in index.json"))
             continue
-        try:  # a chunk name leading out of the stage directory is never read
-            contained_path(directory, index[key], "index.json entry", directory / "index.json")
-        except SeeUError as exc:
-            missing.append(SkippedScene(key, str(exc)))
-            continue
-        if index[key] not in names:
-            names.append(index[key])
-    names.sort()
-    return directory, [directory / n for n in names], missing, len(wanted)
+        if name not in keys and name not in outside:
+            try:  # a chunk name leading out of the stage directory is never read
+                contained_path(directory, name, "index.json entry", directory / "index.json")
+                keys[name] = []
+            except SeeUError as exc:
+                outside[name] = str(exc)
+        if name in outside:
+            missing.append(SkippedScene(key, outside[name]))
+        else:
+            keys[name].append(key)
+    return ChunkList(directory, [directory / n for n in sorted(keys)], keys, missing, len(wanted))
 
 
 def load_chunk(path: Path) -> list:
@@ -255,14 +273,14 @@ def read_sidecar(directory: Path) -> dict | None:
 
 
 def _chunk_items(
-    path: Path, cfg: PixelSplatImportConfig, sidecar: dict | None, index: dict[str, str], seen: set[str]
+    path: Path, cfg: PixelSplatImportConfig, sidecar: dict | None, keys: list[str] | None, seen: set[str]
 ) -> Iterator[PosedScene | SkippedScene]:
     """One chunk's scenes (one chunk in memory), its malformed examples as SkippedScene, and the
-    scenes index.json places in it that it does not hold; every id yielded is added to `seen`."""
+    scenes index.json places in it (`keys`; None without an index.json) that it does not hold; every
+    id yielded is added to `seen`."""
     try:
         chunk = load_chunk(path)
     except SeeUError as exc:
-        keys = sorted(k for k, v in index.items() if v == path.name and (cfg.scenes is None or k in cfg.scenes))
         for key in keys or [path.name]:
             seen.add(key)
             yield SkippedScene(key, str(exc))
@@ -283,18 +301,13 @@ def _chunk_items(
             yield SkippedScene(example["key"], str(exc))
         del example
     del chunk
-    expected = {k for k, v in index.items() if v == path.name and (cfg.scenes is None or k in cfg.scenes)}
-    for key in sorted(expected - found):
-        seen.add(key)
-        yield SkippedScene(key, f"index.json lists it in {path.name}, which does not hold it")
+    for key in keys or []:
+        if key not in found:
+            seen.add(key)
+            yield SkippedScene(key, f"index.json lists it in {path.name}, which does not hold it")
 
 
-def import_plan(
-    cfg: PixelSplatImportConfig,
-    chunks: list[Path] | None = None,
-    directory: Path | None = None,
-    missing: list[SkippedScene] | None = None,
-):
+def import_plan(cfg: PixelSplatImportConfig, found: ChunkList | None = None):
     """The import as resumable units (`importers.common.ImportPlan`): one unit per chunk (fingerprint:
     size and mtime), scenes asked for but not in index.json first, and, without an index.json,
     scenes asked for that no chunk held last. index.json and the sidecar are the plan's fingerprint."""
@@ -303,18 +316,20 @@ def import_plan(
     from seeu_data.importers.common import ImportPlan, ImportUnit
     from seeu_data.store.resume import file_fingerprint
 
-    if chunks is None or directory is None:
-        directory, chunks, missing, _ = find_chunks(cfg)
-    missing = list(missing or [])
+    found = found or find_chunks(cfg)
+    directory, missing, keys = found.directory, list(found.missing), found.keys
     sidecar = read_sidecar(directory)
-    index = read_index(directory)
     seen: set[str] = {s.scene_id for s in missing}
     units = [ImportUnit(None, "", lambda: iter(missing))] if missing else []
     units += [
-        ImportUnit(p.name, file_fingerprint(p), partial(_chunk_items, p, cfg, sidecar, index or {}, seen))
-        for p in chunks
+        ImportUnit(
+            p.name,
+            file_fingerprint(p),
+            partial(_chunk_items, p, cfg, sidecar, None if keys is None else keys[p.name], seen),
+        )
+        for p in found.chunks
     ]
-    if index is None and cfg.scenes is not None:
+    if keys is None and cfg.scenes is not None:
 
         def not_found():
             return (SkippedScene(k, "not found in any chunk") for k in sorted(set(cfg.scenes) - seen))
@@ -324,11 +339,8 @@ def import_plan(
     return ImportPlan(units, seen, fingerprint)
 
 
-def iter_scenes(
-    cfg: PixelSplatImportConfig, chunks: list[Path] | None = None, directory: Path | None = None
-) -> Iterator[PosedScene | SkippedScene]:
+def iter_scenes(cfg: PixelSplatImportConfig, found: ChunkList | None = None) -> Iterator[PosedScene | SkippedScene]:
     """Yield scenes chunk by chunk (one chunk in memory); malformed examples and unreadable chunks
-    are yielded as SkippedScene (and, when the chunks are not given, scenes asked for but missing
-    from index.json first)."""
-    for unit in import_plan(cfg, chunks, directory).units:
+    are yielded as SkippedScene, scenes asked for but missing from index.json first."""
+    for unit in import_plan(cfg, found).units:
         yield from unit.read()

@@ -149,34 +149,60 @@ def plan_global_batches(
     rows, pads, cursors, skipped = [], [], [], []
     cur, step = samples_seen, start_step
     while cur < num_samples:
+        # The run of steps from `step` on that share its limit (at most the batches that can remain)
+        # takes the next run * g allowed positions at once: work in proportion to the positions passed.
         limit = max_gap(step)
-        ok = np.flatnonzero(gaps[cur:] <= limit)
-        if len(ok) >= g:
-            take = cur + ok[:g]
-            end = int(take[-1]) + 1
-            skipped.append(np.setdiff1d(np.arange(cur, end, dtype=np.int64), take, assume_unique=True))
-            rows.append(take)
-            pads.append(np.zeros(g, dtype=bool))
-            cursors.append(end)
-            cur, step = end, step + 1
+        run, most = 1, -(-(num_samples - cur) // g)
+        while run < most and max_gap(step + run) == limit:
+            run += 1
+        take = _allowed_from(gaps, cur, run * g, limit)
+        full = len(take) // g
+        if full:
+            end = int(take[full * g - 1]) + 1
+            skipped.append(_passed_over(cur, end, take[: full * g]))
+            rows.append(take[: full * g].reshape(full, g))
+            pads.append(np.zeros((full, g), dtype=bool))
+            cursors.append(take[g - 1 : full * g : g] + 1)
+            cur, step = end, step + full
+        if full == run:
             continue
-        # The epoch ends inside this batch.
-        take = cur + ok
-        skipped.append(np.setdiff1d(np.arange(cur, num_samples, dtype=np.int64), take, assume_unique=True))
-        if remainder == "pad" and len(take):
+        # The epoch ends inside batch `step`, whose limit is still `limit` (full < run).
+        last = take[full * g :]
+        skipped.append(_passed_over(cur, num_samples, last))
+        if remainder == "pad" and len(last):
             pool = np.flatnonzero(gaps <= limit)
-            rows.append(np.concatenate([take, _pad_positions(g - len(take), pool)]))
-            pads.append(np.arange(g) >= len(take))
-            cursors.append(num_samples)
+            rows.append(np.concatenate([last, _pad_positions(g - len(last), pool)])[None])
+            pads.append((np.arange(g) >= len(last))[None])
+            cursors.append(np.array([num_samples], dtype=np.int64))
         elif remainder == "drop":
-            skipped.append(take)  # never trained on: counted with the skipped ones
+            skipped.append(last)  # never trained on: counted with the skipped ones
         cur = num_samples
     if rows:
-        pos, pad = np.stack(rows).astype(np.int64), np.stack(pads)
+        pos, pad = np.concatenate(rows).astype(np.int64), np.concatenate(pads)
     else:
         pos, pad = np.zeros((0, g), dtype=np.int64), np.zeros((0, g), dtype=bool)
     skip = np.sort(np.concatenate(skipped)) if skipped else empty
-    return GlobalPlan(pos, pad, np.asarray(cursors, dtype=np.int64), skip.astype(np.int64))
+    cursor_after = np.concatenate(cursors).astype(np.int64) if cursors else empty
+    return GlobalPlan(pos, pad, cursor_after, skip.astype(np.int64))
+
+
+def _allowed_from(gaps: np.ndarray, start: int, count: int, limit: float) -> np.ndarray:
+    """The first `count` positions from `start` on whose gap is at most `limit` (all of them when fewer
+    remain), ascending `(<= count,) int64`. The window looked at doubles until it holds them, so the
+    work is at most about four times the positions passed over."""
+    window = count
+    while True:
+        ok = np.flatnonzero(gaps[start : start + window] <= limit)
+        if len(ok) >= count or start + window >= len(gaps):
+            return (start + ok[:count]).astype(np.int64)
+        window *= 2
+
+
+def _passed_over(start: int, end: int, taken: np.ndarray) -> np.ndarray:
+    """The positions of `[start, end)` not in `taken` (a subset of them), ascending."""
+    mask = np.ones(end - start, dtype=bool)
+    mask[taken - start] = False
+    return start + np.flatnonzero(mask).astype(np.int64)
 
 
 def rank_worker_batches(

@@ -6,7 +6,8 @@ bytes + sha256 per file), so a crash, Ctrl-C or kill never leaves a half-written
 name. fsync is a parameter of every writer here (`fsync=True`: the file is fsynced before its rename);
 the commands' `--fsync` flag reaches it through their configs. Without it data reaches the page cache
 and a file torn by a power loss is caught by its manifest sha256 (`read_manifest(verify=True)`,
-`seeu validate`, the size/sha256 checks before a resume keeps a file).
+`seeu validate`, and `--verify` on the re-runs of import and build, which otherwise keep a file from
+its recorded size, mtime and sha256).
 
 IPC files are written by pyarrow's own writer into a plain file; the manifest's sha256 of each file is
 that of the finished file (`hashlib.file_digest`, read back from the page cache) before its rename.
@@ -183,8 +184,17 @@ def write_table(
     return writer.size, writer.sha256
 
 
-def open_ipc_file(path: str | Path, memory_map: bool = True) -> pa.ipc.RecordBatchFileReader:
-    """Open an Arrow IPC file for random access (memory-mapped by default)."""
+def open_ipc_file(
+    path: str | Path, memory_map: bool = True, random_access: bool = False
+) -> pa.ipc.RecordBatchFileReader:
+    """Open an Arrow IPC file for random access (memory-mapped by default).
+
+    `random_access`: mapped with the kernel's read-ahead off (`MADV_RANDOM`), for checks that read a
+    few bytes here and there (image headers): each byte touched reads its page, not the read-ahead
+    window around it (which would read most of a file of 50 kB images).
+    """
+    if random_access:
+        return _open_ipc(path, lambda p: _random_access_map(Path(p)))
     return open_ipc_mapped(path)[0] if memory_map else _open_ipc(path, lambda p: pa.OSFile(p, "rb"))
 
 
@@ -203,6 +213,18 @@ def open_ipc_mapped(path: str | Path) -> tuple[pa.ipc.RecordBatchFileReader, int
     return reader, maps[0].read_buffer(1).address
 
 
+def _random_access_map(path: Path) -> pa.BufferReader:
+    """A read-only memory map of `path` without read-ahead, as an Arrow reader (its buffers are slices
+    of the map: nothing is copied; the map goes when the last of them does)."""
+    import mmap
+
+    with open(path, "rb") as fh:
+        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)  # ValueError on an empty file
+    if hasattr(mmap, "MADV_RANDOM"):
+        mapped.madvise(mmap.MADV_RANDOM)
+    return pa.BufferReader(pa.py_buffer(mapped))
+
+
 def _open_ipc(path: str | Path, source) -> pa.ipc.RecordBatchFileReader:
     path = Path(path)
     if not path.exists():
@@ -211,7 +233,7 @@ def _open_ipc(path: str | Path, source) -> pa.ipc.RecordBatchFileReader:
         reader = pa.ipc.open_file(source(str(path)))
         _ = reader.schema.names  # every name decodes (a flipped byte there is a UnicodeDecodeError later)
         return reader
-    except (pa.ArrowInvalid, OSError, UnicodeDecodeError) as exc:
+    except (pa.ArrowInvalid, OSError, UnicodeDecodeError, ValueError) as exc:
         raise SeeUError(f"not a readable Arrow IPC file (truncated or corrupt?): {exc}".splitlines()[0], path) from None
 
 

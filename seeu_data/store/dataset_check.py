@@ -26,6 +26,13 @@ What is checked:
 * masks (the optional `mask` column, posed and triples): each non-null one a PNG, 8-bit greyscale,
   of its frame's width/height (`check_mask`, header only).
 
+What is read: each file is mapped without read-ahead (`open_ipc_file(random_access=True)`) and read
+where the checks look, and released before the next: the columns of cameras and ids, the image
+column's offsets, and the header bytes of each image (read from the column's buffers in place, no copy;
+the trailers are not read: the sha256 vouches for a stored file's bytes, and the loader checks each
+image whole before it decodes it). So a check of a posed data set reads a few pages per image, not its
+images, and holds one file's columns at a time.
+
 Every problem is a `SeeUError` naming the file: one line at the CLI, exit 2.
 """
 
@@ -53,11 +60,17 @@ _ORTHONORMAL_TOL = 1e-4
 
 
 def check_image(
-    data, width: int | None, height: int | None, where: str | Path | None, max_pixels: int = MAX_PIXELS
+    data,
+    width: int | None,
+    height: int | None,
+    where: str | Path | None,
+    max_pixels: int = MAX_PIXELS,
+    trailer: bool = True,
 ) -> ImageInfo:
-    """Header check of one encoded image (microseconds, no decode): a JPEG/PNG (`image_info`), at most
-    `max_pixels`, and of the recorded `width` x `height` (None: not recorded yet, as in importers)."""
-    info = image_info(data, None if where is None else str(where))
+    """Header check of one encoded image (microseconds, no decode): a JPEG/PNG (`image_info`; its
+    trailer too unless `trailer=False`), at most `max_pixels`, and of the recorded `width` x `height`
+    (None: not recorded yet, as in importers)."""
+    info = image_info(data, None if where is None else str(where), trailer)
     check_pixels(info.width, info.height, max_pixels, "image header declares", where)
     if width is not None and height is not None and (info.width, info.height) != (int(width), int(height)):
         raise SeeUError(
@@ -78,30 +91,35 @@ def check_recorded_sizes(width: np.ndarray, height: np.ndarray, max_pixels: int,
     check_pixels(int(w[i]), int(h[i]), max_pixels, "recorded image size", where)
 
 
-def _binary_values(col: pa.ChunkedArray | pa.Array) -> pa.Array:
-    """The values of a binary or list<binary> column as one binary array."""
-    arr = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
+def check_table_images(table: pa.Table | pa.RecordBatch, max_pixels: int, where: Path) -> None:
+    """`check_image` (header only) on every image of a table (posed or triples) against its recorded
+    size, read from the image column's buffers in place: its offsets and each image's first bytes."""
+    width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
+    height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
+    col = table.column("image")
+    chunks = [_binary_values(c) for c in (col.chunks if isinstance(col, pa.ChunkedArray) else [col])]
+    count = sum(len(c) for c in chunks)
+    if count != len(width):
+        raise SeeUError(f"{count} images for {len(width)} recorded sizes", where)
+    check_recorded_sizes(width, height, max_pixels, where)
+    i = 0
+    for images in chunks:
+        bufs = images.buffers()
+        offsets = np.frombuffer(bufs[1], np.int32)[images.offset : images.offset + len(images) + 1]
+        data = memoryview(bufs[2]) if bufs[2] is not None else memoryview(b"")
+        for j in range(len(images)):
+            try:
+                check_image(data[offsets[j] : offsets[j + 1]], width[i], height[i], None, max_pixels, trailer=False)
+            except SeeUError as exc:
+                raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
+            i += 1
+
+
+def _binary_values(arr: pa.Array) -> pa.Array:
+    """The values of one chunk of a binary or list<binary> column as one binary array (a slice: no copy)."""
     while pa.types.is_list(arr.type):
         arr = arr.flatten()
     return arr
-
-
-def check_table_images(table: pa.Table, max_pixels: int, where: Path) -> None:
-    """`check_image` on every image of a table (posed or triples) against its recorded size."""
-    images = _binary_values(table.column("image"))
-    width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
-    height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
-    if len(images) != len(width):
-        raise SeeUError(f"{len(images)} images for {len(width)} recorded sizes", where)
-    check_recorded_sizes(width, height, max_pixels, where)
-    bufs = images.buffers()
-    offsets = np.frombuffer(bufs[1], np.int32)[images.offset : images.offset + len(images) + 1]
-    data = memoryview(bufs[2]) if bufs[2] is not None else memoryview(b"")
-    for i in range(len(images)):
-        try:
-            check_image(data[offsets[i] : offsets[i + 1]], width[i], height[i], None, max_pixels)
-        except SeeUError as exc:
-            raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
 
 
 def check_mask(data, width: int, height: int, where: str | Path | None, max_pixels: int = MAX_PIXELS) -> None:
@@ -118,19 +136,24 @@ def check_mask(data, width: int, height: int, where: str | Path | None, max_pixe
         raise SeeUError(f"mask is {info.width}x{info.height}, its frame {int(width)}x{int(height)}", where)
 
 
-def check_table_masks(table: pa.Table, max_pixels: int, where: Path) -> None:
-    """`check_mask` on every non-null mask of a table (posed: `mask`; triples: per view)."""
-    masks = _binary_values(table.column("mask"))
+def check_table_masks(table: pa.Table | pa.RecordBatch, max_pixels: int, where: Path) -> None:
+    """`check_mask` on every non-null mask of a table (posed: `mask`; triples: per view), chunk by chunk."""
     width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
     height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
-    if len(masks) != len(width):
-        raise SeeUError(f"{len(masks)} masks for {len(width)} images", where)
-    for i, data in enumerate(masks):
-        if data.is_valid:
-            try:
-                check_mask(data.as_buffer(), width[i], height[i], None, max_pixels)
-            except SeeUError as exc:
-                raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
+    col = table.column("mask")
+    chunks = [_binary_values(c) for c in (col.chunks if isinstance(col, pa.ChunkedArray) else [col])]
+    count = sum(len(c) for c in chunks)
+    if count != len(width):
+        raise SeeUError(f"{count} masks for {len(width)} images", where)
+    i = 0
+    for masks in chunks:
+        for data in masks:
+            if data.is_valid:
+                try:
+                    check_mask(data.as_buffer(), width[i], height[i], None, max_pixels)
+                except SeeUError as exc:
+                    raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
+            i += 1
 
 
 def _image_label(table: pa.Table, i: int) -> str:
@@ -243,29 +266,11 @@ def _unreadable(exc: Exception, where: Path) -> SeeUError:
     return SeeUError(f"unreadable (corrupt?): {type(exc).__name__}: {str(exc).splitlines()[0][:160]}", where)
 
 
-def check_dataset(
-    root: str | Path, check_sha: bool = True, max_pixels: int = MAX_PIXELS, expect_schema: str | None = None
-) -> dict:
-    """Every check above on a dataset directory; SeeUError on the first problem; returns a summary
-    (path, schema, schema_version, files, rows, scenes, bytes, sha256_checked, unlisted_files)."""
-    root = Path(root)
-    manifest = read_manifest(root, expect_schema=expect_schema)
-    expected = arrow_schema(manifest["schema"], int(manifest["schema_version"].split(".")[0]))
-    tables: dict[str, pa.Table] = {}
-    for entry in manifest["files"]:
-        where = root / entry["path"]
-        try:
-            verify_file(root, entry, check_sha=check_sha)
-            table = open_ipc_file(where).read_all()
-            check_table(table, expected, where, max_pixels)
-        except (pa.ArrowException, UnicodeDecodeError, ValueError, IndexError, TypeError, OverflowError) as exc:
-            raise _unreadable(exc, where) from None  # corrupt bytes (seen with --no-sha)
-        tables[entry["path"]] = table
-    for scene in manifest.get("scenes", []):
-        sid, where = scene["scene_id"], root / scene["file"]
-        if scene["file"] not in tables:
-            raise SeeUError(f"scene {sid!r} points at a file the manifest does not list", where)
-        table = tables[scene["file"]]
+def check_scene_rows(table: pa.Table, scenes: list[dict], where: Path) -> None:
+    """The manifest's scenes in one posed file: rows inside the file, holding that scene's id, frames
+    numbered 0..n-1."""
+    for scene in scenes:
+        sid = scene["scene_id"]
         end = scene["row_start"] + scene["num_frames"]
         if end > table.num_rows:
             raise SeeUError(
@@ -277,7 +282,36 @@ def check_dataset(
         if ids != {sid}:
             raise SeeUError(f"rows of scene {sid!r} hold scene ids {sorted(ids)[:3]}", where)
         check_frame_order(rows.column("frame_index").to_numpy(), sid, where)
+
+
+def check_dataset(
+    root: str | Path, check_sha: bool = True, max_pixels: int = MAX_PIXELS, expect_schema: str | None = None
+) -> dict:
+    """Every check above on a dataset directory; SeeUError on the first problem; returns a summary
+    (path, schema, schema_version, files, rows, scenes, bytes, sha256_checked, unlisted_files)."""
+    root = Path(root)
+    manifest = read_manifest(root, expect_schema=expect_schema)
+    expected = arrow_schema(manifest["schema"], int(manifest["schema_version"].split(".")[0]))
     listed = {e["path"] for e in manifest["files"]}
+    scenes_in: dict[str, list[dict]] = {}
+    for scene in manifest.get("scenes", []):
+        if scene["file"] not in listed:
+            raise SeeUError(
+                f"scene {scene['scene_id']!r} points at a file the manifest does not list", root / scene["file"]
+            )
+        scenes_in.setdefault(scene["file"], []).append(scene)
+    for entry in manifest["files"]:
+        where = root / entry["path"]
+        try:
+            verify_file(root, entry, check_sha=check_sha, count_rows=False)
+            table = open_ipc_file(where, random_access=True).read_all()
+            if table.num_rows != entry["rows"]:
+                raise SeeUError(f"{table.num_rows} rows, the manifest says {entry['rows']}", where)
+            check_table(table, expected, where, max_pixels)
+            check_scene_rows(table, scenes_in.get(entry["path"], []), where)
+        except (pa.ArrowException, UnicodeDecodeError, ValueError, IndexError, TypeError, OverflowError) as exc:
+            raise _unreadable(exc, where) from None  # corrupt bytes (seen with --no-sha)
+        del table  # one file's columns mapped at a time
     stray = sorted(p.name for p in root.glob("*.arrow") if p.name not in listed)
     return {
         "path": str(root),

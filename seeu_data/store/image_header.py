@@ -82,10 +82,13 @@ def _jpeg_complete(data: memoryview) -> bool:
     return tail.endswith(b"\xff\xd9")
 
 
-def image_info(data, where: str | None = None) -> ImageInfo:
+def image_info(data, where: str | None = None, trailer: bool = True) -> ImageInfo:
     """Format and size of an encoded JPEG or PNG image from its header; checks the trailer too.
 
-    `data`: any bytes-like object (bytes, memoryview, uint8 numpy array); nothing is copied.
+    `data`: any bytes-like object (bytes, memoryview, uint8 numpy array); nothing is copied, and only
+    the bytes parsed are touched (a JPEG's markers are walked by their lengths), so over a memory map
+    the header reads the first page of the image, the trailer check its last one. `trailer=False`:
+    the header alone (a stored file whose sha256 vouches for the bytes).
     Raises SeeUError("image failed to decode: ...", where) for anything else, a truncated file,
     or a zero size.
     """
@@ -93,14 +96,14 @@ def image_info(data, where: str | None = None) -> ImageInfo:
     try:
         if data[:2] == b"\xff\xd8":
             width, height = _jpeg_size(data)
-            if not _jpeg_complete(data):
+            if trailer and not _jpeg_complete(data):
                 raise ValueError("JPEG has no end-of-image marker (truncated)")
             fmt = "jpeg"
         elif data[:8] == _PNG_SIGNATURE:
             if len(data) < 33 or data[12:16] != b"IHDR":
                 raise ValueError("PNG without an IHDR chunk")
             width, height = struct.unpack_from(">II", data, 16)
-            if data[-12:] != _PNG_IEND:
+            if trailer and data[-12:] != _PNG_IEND:
                 raise ValueError("PNG does not end with IEND (truncated)")
             fmt = "png"
         else:

@@ -21,25 +21,32 @@ from seeu_data.errors import SeeUError
 from seeu_data.store.arrow_io import atomic_write_text, open_ipc_file, sha256_file
 from seeu_data.store.json_file import read_json
 from seeu_data.store.paths import contained_key, contained_path
-from seeu_data.store.schema import MANIFEST_VERSION, check_version, manifest_json_schema
+from seeu_data.store.schema import MANIFEST_VERSION, check_version, json_check, manifest_json_schema
 
 MANIFEST_NAME = "manifest.json"
 _VALIDATOR = None
+_QUICK = None
 
 
 def _validator():
-    """The manifest JSON-schema validator, built once per process. (The schema file itself is not
-    re-checked against the JSON-schema meta-schema on every write: that took ~20 ms a call.)"""
-    global _VALIDATOR
+    """The manifest JSON-schema validator and its fast path (`schema.json_check`), built once per
+    process. (The schema file itself is not re-checked against the JSON-schema meta-schema on every
+    write: that took ~20 ms a call.)"""
+    global _VALIDATOR, _QUICK
     if _VALIDATOR is None:
         schema = manifest_json_schema()
         _VALIDATOR = jsonschema.validators.validator_for(schema)(schema)
+        _QUICK = json_check(schema)
     return _VALIDATOR
 
 
 def _validate(doc: dict) -> None:
-    """jsonschema.validate(doc, manifest schema) without re-checking the schema on every call."""
-    error = jsonschema.exceptions.best_match(_validator().iter_errors(doc))
+    """jsonschema.validate(doc, manifest schema) without re-checking the schema on every call; a
+    manifest the fast path accepts is not walked again (67,477 scenes: 0.3 s instead of 35 s)."""
+    validator = _validator()
+    if _QUICK is not None and _QUICK(doc):
+        return
+    error = jsonschema.exceptions.best_match(validator.iter_errors(doc))
     if error is not None:
         raise error
 
@@ -150,19 +157,23 @@ def check_entries(root: Path, doc: dict, where: Path) -> None:
             raise SeeUError(f"file {entry['path']!r} is listed twice", where)
         seen.add(key)
     scene_ids: set[str] = set()
+    scene_files: set[str] = set()  # each file name checked once, not once per scene
     for scene in doc.get("scenes", []):
         if scene.get("scene_id") in scene_ids:
             raise SeeUError(f"scene {scene.get('scene_id')!r} is listed twice", where)
         scene_ids.add(scene.get("scene_id"))
-        contained_key(scene["file"], f"scene {scene.get('scene_id')!r} file", where)
-        contained_path(root, scene["file"], f"scene {scene.get('scene_id')!r} file", where)
+        if scene["file"] not in scene_files:
+            contained_key(scene["file"], f"scene {scene.get('scene_id')!r} file", where)
+            contained_path(root, scene["file"], f"scene {scene.get('scene_id')!r} file", where)
+            scene_files.add(scene["file"])
     rows = sum(int(e["rows"]) for e in doc["files"])
     if int(doc["total_rows"]) != rows:
         raise SeeUError(f"total_rows {doc['total_rows']} disagrees with the {rows} rows its files list", where)
 
 
-def verify_file(root: str | Path, entry: dict, check_sha: bool = True) -> None:
-    """Check one listed file: present, byte size, sha256 (optional), row count."""
+def verify_file(root: str | Path, entry: dict, check_sha: bool = True, count_rows: bool = True) -> None:
+    """Check one listed file: present, byte size, sha256 (optional), row count (unless `count_rows`
+    is False: a caller that opens the file itself counts them)."""
     path = Path(root) / entry["path"]
     if not path.exists():
         raise SeeUError("listed in the manifest but missing", path)
@@ -173,6 +184,8 @@ def verify_file(root: str | Path, entry: dict, check_sha: bool = True) -> None:
         )
     if check_sha and sha256_file(path) != entry["sha256"]:
         raise SeeUError("sha256 differs from the manifest (corrupt or replaced)", path)
+    if not count_rows:
+        return
     rows = open_ipc_file(path).read_all().num_rows  # memory-mapped: no copy of the data
     if rows != entry["rows"]:
         raise SeeUError(f"{rows} rows, the manifest says {entry['rows']}", path)

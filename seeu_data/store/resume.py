@@ -14,7 +14,10 @@ of an import.
   per line: an interruption tears at most the last line, which is ignored). `reset` rewrites it
   atomically; users reset it to what a previous run completed *before* they touch the output, so
   that an interrupted re-run loses nothing either. Each record is checked again before its output
-  is kept (`file_intact`: the recorded size and sha256).
+  is kept (`file_intact`): by default from the file's size and modification time against those
+  recorded when it was put in place (`file_stat`), the recorded sha256 taken as it is, so a re-run
+  with nothing to do reads no file's content; with `verify` (the commands' `--verify`, e.g. after a
+  power loss without `--fsync`) the file is hashed again.
 - `sweep(directory, outputs, keep)`: removes the partial writes of an interrupted run and the
   outputs that no completed unit claims.
 - `StageCache`: the stages of a pipeline on a journal (`stages.jsonl` in its work directory): a
@@ -78,14 +81,24 @@ def files_fingerprint(paths: Iterable[str | Path]) -> str:
     return h.hexdigest()
 
 
-def file_intact(path: Path, size: int, sha256: str) -> bool:
-    """True when `path` has the recorded size and sha256 (a file torn by a power loss without fsync
-    can keep its size, not its hash)."""
+def file_stat(path: str | Path) -> int:
+    """The modification time (ns) to record with a file as it is put in place, for `file_intact`."""
+    return os.stat(path).st_mtime_ns
+
+
+def file_intact(path: Path, size: int, sha256: str, mtime_ns: int | None = None, verify: bool = False) -> bool:
+    """True when `path` still is the recorded file: its size, then its modification time against the
+    recorded `mtime_ns` (the recorded sha256 is then trusted: nothing is read), else, and always with
+    `verify`, its sha256 (a file torn by a power loss without fsync can keep its size and mtime, not
+    its hash)."""
     try:
-        if path.stat().st_size != size:
-            return False
+        st = path.stat()
     except OSError:
         return False
+    if st.st_size != size:
+        return False
+    if not verify and mtime_ns is not None and st.st_mtime_ns == mtime_ns:
+        return True
     return sha256_file(path) == sha256
 
 

@@ -1,0 +1,159 @@
+"""What the checks of a posed data set read: headers, not images.
+
+`seeu validate --no-sha`, `seeu build`'s scan and plan of its inputs and `seeu index` over a 300 MB posed
+file must read each image's header, not its bytes, and hold one file's columns at a time. Measured in
+a child process from the kernel's own counters, each step starting with the file out of the page cache
+(fsync, `POSIX_FADV_DONTNEED`): the bytes of the file in the page cache after the step (`mincore`: what
+was read from the disk, the kernel's read-ahead included, through the memory map or read() alike),
+the bytes read with read() calls (`rchar`) and the growth of the peak resident set (`VmHWM`, reset just
+before the step). A first pass of the same steps loads every module, so the counters see the steps alone.
+(A plain `pyarrow.memory_map` of this file reads 118 MB of it on `read_all()` alone: read-ahead.)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import struct
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from seeu_data.store.posed import PosedDatasetWriter, PosedScene
+
+ROOT = Path(__file__).resolve().parents[1]
+SIDE = 1000  # the size each fake JPEG's header declares
+IMAGE_BYTES = 2 << 20
+SCENES, FRAMES = 15, 10  # 150 images: 300 MB
+
+CHILD = r"""
+import json, sys
+from pathlib import Path
+
+import pyarrow.compute  # noqa: F401  (imports and their files read before the counters start)
+
+from pipelines.build import BuildConfig, plan_sampled, scan_inputs, shard_specs
+from pipelines.index import IndexFileConfig, write_index
+from seeu_data.build.eval_index import IndexConfig
+from seeu_data.build.sampling import SamplingConfig
+from seeu_data.store.dataset_check import check_dataset
+from tests.helpers import evict, page_cache_bytes
+
+
+def counters():
+    io = dict(line.split(": ") for line in Path("/proc/self/io").read_text().splitlines())
+    status = dict(line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines())
+    return int(io["rchar"]), int(status["VmRSS"].split()[0]) << 10, int(status["VmHWM"].split()[0]) << 10
+
+
+def measure(step):
+    evicted = evict(data)
+    Path("/proc/self/clear_refs").write_text("5")  # VmHWM := VmRSS
+    rchar0, rss0, _ = counters()
+    step()
+    rchar1, _, hwm = counters()
+    return {"evicted": evicted, "disk": page_cache_bytes(data), "read": rchar1 - rchar0, "peak_growth": hwm - rss0}
+
+
+posed, out = sys.argv[1], Path(sys.argv[2])
+data = next(Path(posed).glob("posed-*.arrow"))
+
+
+def build_reads():
+    cfg = BuildConfig(inputs=(posed,), out=out / "shards", sampling=SamplingConfig(gap_min=2, gap_max=4))
+    scenes = scan_inputs(cfg.inputs)
+    specs = list(shard_specs(cfg, plan_sampled(cfg, scenes), scenes))
+    assert sum(len(s.samples) for s in specs) > 0
+
+
+def index_reads():
+    gen = IndexConfig(SamplingConfig(gap_min=2, gap_max=4), min_overlap=0.0)
+    write_index(IndexFileConfig(inputs=(posed,), out=out / "index.json", generation=gen))
+
+
+steps = {"validate": lambda: check_dataset(posed, check_sha=False), "build": build_reads, "index": index_reads}
+for step in steps.values():  # modules loaded, caches filled
+    step()
+print(json.dumps({name: measure(step) for name, step in steps.items()}))
+"""
+
+
+def fake_jpeg(nbytes: int, side: int) -> bytes:
+    """SOI, a baseline frame header declaring `side` x `side`, filler, EOI: what the header check reads."""
+    sof = b"\xff\xc0" + struct.pack(">HBHHB", 17, 8, side, side, 3) + bytes([1, 0x22, 0, 2, 0x11, 1, 3, 0x11, 1])
+    return b"\xff\xd8" + sof + b"\x00" * (nbytes - len(sof) - 4) + b"\xff\xd9"
+
+
+@pytest.mark.skipif(not Path("/proc/self/clear_refs").exists(), reason="needs Linux /proc counters")
+def test_validate_build_and_index_read_headers_not_images(tmp_path):
+    image = fake_jpeg(IMAGE_BYTES, SIDE)
+    posed = tmp_path / "posed"
+    with PosedDatasetWriter(posed, params={}, provenance={}, target_file_bytes=1 << 40) as writer:
+        for s in range(SCENES):
+            c2w = np.tile(np.eye(4), (FRAMES, 1, 1))
+            c2w[:, 0, 3] = 0.1 * np.arange(FRAMES)
+            writer.add(
+                PosedScene(
+                    scene_id=f"s{s:02d}",
+                    images=[image] * FRAMES,
+                    image_format="jpeg",
+                    width=np.full(FRAMES, SIDE),
+                    height=np.full(FRAMES, SIDE),
+                    intrinsics_norm=np.tile([0.9, 0.9, 0.5, 0.5], (FRAMES, 1)),
+                    cam_to_world=c2w,
+                    near=0.5,
+                    far=10.0,
+                    source_frame=np.arange(FRAMES, dtype=np.int64),
+                    timestamp_us=np.arange(FRAMES, dtype=np.int64),
+                )
+            )
+    files = list(posed.glob("posed-*.arrow"))
+    size = sum(p.stat().st_size for p in files)
+    assert len(files) == 1 and size > 300e6
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    res = subprocess.run(
+        [sys.executable, "-c", CHILD, str(posed), str(tmp_path)], capture_output=True, text=True, env=env, cwd=ROOT
+    )
+    assert res.returncode == 0, res.stderr[-2000:]
+    result = json.loads(res.stdout.strip().splitlines()[-1])
+    if not result["validate"]["evicted"]:
+        pytest.skip("this file system keeps the file in the page cache (tmpfs?): nothing to measure reads by")
+    for step, got in result.items():
+        assert got["disk"] < 0.01 * size and got["read"] < 0.01 * size, (step, got)
+        assert got["peak_growth"] < 0.05 * size, (step, got)
+
+
+def test_a_rerun_with_nothing_to_do_reads_no_file_content(tmp_path, capsys):
+    """`seeu import` and `seeu build` run again on unchanged inputs decide from sizes, mtimes and the
+    recorded digests: no page of a chunk, posed file or shard is read (page cache emptied before,
+    looked at after); with --verify they hash what they keep, which the same counter sees."""
+    from pipelines.cli import main as cli_main
+    from tests.helpers import evict, page_cache_bytes
+    from tests.test_import_pixelsplat import make_example, write_chunks
+
+    rng = np.random.default_rng(5)
+    chunks = write_chunks(
+        tmp_path / "ds", "train", [[make_example(f"c{c}s{i}", 5, rng) for i in range(2)] for c in range(3)]
+    )
+    posed, shards = tmp_path / "posed", tmp_path / "shards"
+    imp = ["import", "pixelsplat", str(tmp_path / "ds"), "--out", str(posed)]
+    bld = ["build", str(posed), "--out", str(shards), "--gap-min", "1", "--gap-max", "3", "--shard-size", "30kB"]
+    assert cli_main(imp) == 0 and cli_main(bld) == 0
+    outputs = sorted(posed.glob("posed-*.arrow")) + sorted(shards.glob("shard-*.arrow"))
+    data = sorted(chunks.glob("*.torch")) + outputs
+    assert len(outputs) >= 3
+    if not all([evict(p) for p in data]):
+        pytest.skip("this file system keeps files in the page cache (tmpfs?): nothing to measure reads by")
+    capsys.readouterr()
+    assert cli_main(imp) == 0 and cli_main(bld) == 0
+    said = capsys.readouterr().out
+    assert (
+        "(6 scenes in 1 files kept from a previous run)" in said and "kept from a previous run" in said.splitlines()[1]
+    )
+    assert {str(p): page_cache_bytes(p) for p in data} == {str(p): 0 for p in data}
+    assert cli_main(imp + ["--verify"]) == 0 and cli_main(bld + ["--verify"]) == 0
+    assert all(page_cache_bytes(p) > 0 for p in outputs)
+    assert all(page_cache_bytes(p) == 0 for p in chunks.glob("*.torch"))  # kept: not read again
