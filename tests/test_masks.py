@@ -423,8 +423,8 @@ def test_view_and_sheet_tint_masked_pixels(tmp_path):
     from pipelines.view import thumbnail
 
     scene = masked_scene()
-    plain = thumbnail(scene.images[2], 64)
-    tinted = thumbnail(scene.images[2], 64, scene.masks[2])
+    plain = thumbnail(scene.images[2], 64, (64, 48))
+    tinted = thumbnail(scene.images[2], 64, (64, 48), scene.masks[2])
     m = box_mask(48, 64, 2)
     assert np.array_equal(tinted[~m], plain[~m])
     assert np.array_equal(tinted[m], (plain[m].astype(int) + [255, 0, 255]) // 2)
