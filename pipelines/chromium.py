@@ -73,10 +73,11 @@ class Chromium:
     def __enter__(self) -> Chromium:
         from websockets.sync.client import connect
 
+        exe = chromium_exe()
         self.profile = Path(tempfile.mkdtemp(prefix="seeu-chromium-"))
         log = (self.profile / "stderr.log").open("w")
         argv = [
-            chromium_exe(),
+            exe,
             "--headless",
             "--no-sandbox",  # as root (CI containers) chromium refuses to start with its sandbox
             "--use-angle=swiftshader",

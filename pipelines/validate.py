@@ -241,6 +241,11 @@ def check_ply(path: Path, cfg: ValidateConfig) -> dict:
 
 
 def check_render(path: Path, cfg: ValidateConfig) -> dict:
+    """What `seeu render` writes (pipelines/render.py), render.json last: the camera paths' MP4s (their
+    frame counts) or PNG frames, context.png, gaussians.ply (as many Gaussians as render.json says) and
+    cameras.json (rigid poses, positive focal lengths)."""
+    import cv2
+
     from seeu_data.store.dataset_check import check_cameras
     from seeu_data.store.image_header import image_info
     from seeu_data.store.json_file import read_json
@@ -248,13 +253,27 @@ def check_render(path: Path, cfg: ValidateConfig) -> dict:
     if not (path / "render.json").is_file():
         raise SeeUError("no render.json (written last): the render did not finish", path)
     report = read_json(path / "render.json", "render.json")
-    named = [Path(v) for v in walk_strings(report) if Path(v).suffix in (".png", ".mp4", ".ply", ".json")]
-    missing = [p for p in named if not (p if p.is_absolute() else path / p.name).exists()]
+    files = [path / "context.png", path / "gaussians.ply", path / "cameras.json"]
+    for name in ("interp", "extrap"):
+        entry = report.get(name) or {}
+        files += (
+            [path / f"{name}.mp4"] if "mp4" in entry else [path / "frames" / Path(p).name for p in entry.get("png", [])]
+        )
+    missing = [f for f in files if not f.is_file()]
     if missing:
-        raise SeeUError(f"render.json names {len(missing)} missing file(s), e.g. {missing[0].name}", path)
-    for png in sorted(path.rglob("*.png")):
-        image_info(png.read_bytes(), str(png))
+        raise SeeUError("missing (render.json names it)", missing[0])
+    for f in files:
+        if f.suffix == ".png":
+            image_info(f.read_bytes(), str(f))
+        elif f.suffix == ".mp4":
+            video = cv2.VideoCapture(str(f))
+            frames = int(video.get(cv2.CAP_PROP_FRAME_COUNT))
+            video.release()
+            if frames != report[f.stem]["frames"]:
+                raise SeeUError(f"{frames} frames, render.json says {report[f.stem]['frames']}", f)
     g = check_ply(path / "gaussians.ply", cfg)
+    if g.get("gaussians") != report.get("num_gaussians"):
+        raise SeeUError(f"{g['what']}, render.json says {report.get('num_gaussians')}", path / "gaussians.ply")
     cams = read_json(path / "cameras.json", "cameras.json")
     try:
         c2w = np.tile(np.eye(4), (len(cams), 1, 1))
@@ -263,21 +282,11 @@ def check_render(path: Path, cfg: ValidateConfig) -> dict:
         intr = np.array([[c["fx"] / c["width"], c["fy"] / c["height"], 0.5, 0.5] for c in cams], np.float64)
     except (TypeError, KeyError, ValueError, ZeroDivisionError):
         raise SeeUError(
-            "cameras.json: every camera needs rotation (3x3), position (3), fx, fy, width, height", path
+            "every camera needs rotation (3x3), position (3), fx, fy, width, height", path / "cameras.json"
         ) from None
     check_cameras(c2w, intr, np.ones(len(cams)), np.full(len(cams), 2.0), path / "cameras.json")
-    what = (
-        f"{g['what']}, {len(cams)} cameras, {len(list(path.rglob('*.png')))} PNG, {len(list(path.glob('*.mp4')))} MP4"
-    )
-    return {"kind": "render", "what": what, "cameras": len(cams), "gaussians": g.get("gaussians")}
-
-
-def walk_strings(doc) -> list[str]:
-    """Every string in a JSON document (nested dicts and lists)."""
-    if isinstance(doc, str):
-        return [doc]
-    values = doc.values() if isinstance(doc, dict) else doc if isinstance(doc, list) else []
-    return [s for v in values for s in walk_strings(v)]
+    what = f"{g['what']}, {len(cams)} cameras, {len(files) - 3} path file(s)"
+    return {"kind": "render", "what": what, "cameras": len(cams), "gaussians": g["gaussians"]}
 
 
 def check_run(path: Path, cfg: ValidateConfig) -> dict:

@@ -91,8 +91,7 @@ def _look(path: Path, tmp_path: Path) -> None:
         url = served.wait_for(" at http://").split(" at ")[1].split()[0]
         png = tmp_path / "page.png"
         with Chromium((1000, 700)) as browser:
-            browser.shoot(url, png)
-        assert served.saw("connected")
+            browser.shoot(url, png, drawn=lambda seconds: served.wait_for("connected", seconds))
         assert canvas_spread(png) > 10.0, "the 3D canvas looks blank"
     finally:
         rc = served.stop()
