@@ -160,16 +160,19 @@ def check_manifest_dataset(path: Path, cfg: ValidateConfig) -> dict:
     return {**s, "kind": kind, "what": what, "notes": notes}
 
 
-def scenes_or_first_problem(items) -> list:
-    """The PosedScenes an importer yields, each checked (`PosedScene.check`); SeeUError for the first scene it
-    skips (a problem here: the layout must read whole) or whose cameras fail."""
+def scenes_or_first_problem(items, where: Path) -> list:
+    """The PosedScenes an importer yields from `where`, each checked (`PosedScene.check`); SeeUError for
+    the first scene it skips (a problem here: the layout must read whole) or whose cameras fail."""
     from seeu_data.importers.common import SkippedScene
 
     scenes = []
     for item in items:
         if isinstance(item, SkippedScene):
-            raise SeeUError(f"scene {item.scene_id!r}: {item.reason}")
-        item.check()
+            raise SeeUError(f"scene {item.scene_id!r}: {item.reason}", where)
+        try:
+            item.check()
+        except SeeUError as exc:  # "scene ID: problem"
+            raise SeeUError(str(exc), where) from None
         scenes.append(item)
     return scenes
 
@@ -180,11 +183,11 @@ def check_pixelsplat(path: Path, cfg: ValidateConfig) -> dict:
 
     stages, notes, frames, scenes = [], [], 0, 0
     for directory in pixelsplat_stages(path):
-        if read_index(directory) is None:
+        index = read_index(directory)
+        if index is None:
             raise SeeUError("no index.json beside the chunks: not a finished pixelSplat dataset or export", directory)
-        stage = directory.name if directory != path else "train"
         found = scenes_or_first_problem(
-            iter_scenes(PixelSplatImportConfig(root=directory, stage=stage, max_pixels=cfg.max_pixels))
+            iter_scenes(PixelSplatImportConfig(root=directory, max_pixels=cfg.max_pixels)), directory
         )
         skipped = [(s.scene_id, peer_skip_reason(s.width, s.height, s.intrinsics_norm, peer_of(s.meta))) for s in found]
         skipped = [(sid, why) for sid, why in skipped if why]
@@ -192,8 +195,7 @@ def check_pixelsplat(path: Path, cfg: ValidateConfig) -> dict:
             notes.append(
                 f"{directory.name}: {len(skipped)} scene(s) the peers' loaders skip ({skipped[0][0]}: {skipped[0][1]})"
             )
-        listed = set(read_index(directory).values())  # type: ignore[union-attr]
-        stray = sorted(p.name for p in directory.glob("*.torch") if p.name not in listed)
+        stray = sorted(p.name for p in directory.glob("*.torch") if p.name not in set(index.values()))
         if stray:
             notes.append(
                 f"{directory.name}: chunks index.json does not list (ignored by the loaders): {', '.join(stray[:5])}"
@@ -210,7 +212,7 @@ def check_nerfstudio(path: Path, cfg: ValidateConfig) -> dict:
 
     transforms = path if path.is_file() else path / "transforms.json"
     (scene,) = scenes_or_first_problem(
-        iter_scenes(NerfstudioImportConfig(transforms=transforms, max_pixels=cfg.max_pixels))
+        iter_scenes(NerfstudioImportConfig(transforms=transforms, max_pixels=cfg.max_pixels)), transforms
     )
     dropped = scene.meta.get("skipped_frames") or []
     if dropped:
