@@ -1,11 +1,12 @@
 # The two set-up commands of the README: `make demo` and `make test`.
-# Both create .venv (idempotently: re-installs only when pyproject.toml or constraints.txt change).
+# Both create .venv (idempotently: re-installs only when pyproject.toml or constraints.txt change);
+# `make test` first installs what the tests need outside Python (chromium: scripts/system-deps.sh).
 PYTHON ?= python3
 VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: demo test lint install clean-venv gpu-carry gpu-check
+.PHONY: demo test lint install system-deps clean-venv gpu-carry gpu-check
 
 $(STAMP): pyproject.toml constraints.txt
 	@test -x $(BIN)/python || $(PYTHON) -m venv $(VENV)
@@ -23,7 +24,10 @@ lint: $(STAMP)
 	$(BIN)/ruff format --check .
 	$(BIN)/mypy
 
-test: lint
+system-deps:
+	@scripts/system-deps.sh
+
+test: system-deps lint
 	$(BIN)/python -m pytest -q --durations=15 tests
 
 clean-venv:

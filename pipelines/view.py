@@ -33,7 +33,6 @@ import contextlib
 import errno
 import math
 import socket
-import subprocess
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -61,8 +60,6 @@ THUMB_SIDE = 96  # px: longest side of a frustum's image thumbnail
 FRAME_SIDE = 320  # px: longest side of the image on the frame the slider picks
 LIVE_RENDER_WIDTH = 160  # px: width of the live render of the browser's camera (--checkpoint)
 SCREENSHOT_SIZE = (1000, 700)  # px (width, height) of `--screenshot`
-SCREENSHOT_WAIT_MS = 8000  # chromium's virtual-time budget for the page to load and draw (doubled per retry)
-SCREENSHOT_ATTEMPTS = 3
 CONTEXT_RGB = (40, 90, 230)
 TARGET_RGB = (240, 140, 20)
 FRAME_RGB = (220, 30, 30)
@@ -755,42 +752,30 @@ def save_scene(server: viser.ViserServer, path: Path) -> int:
     return len(data)
 
 
-def chromium_screenshot(
-    url: str, png: Path, size: tuple[int, int] = SCREENSHOT_SIZE, ready: Callable[[], bool] | None = None
-) -> None:
-    """Open `url` in headless chromium (software WebGL), wait SCREENSHOT_WAIT_MS of virtual time,
-    write the page to `png`. `ready()` tells whether that screenshot shows the page as served (e.g. the
-    server saw the client: on a busy machine the websocket may connect after the virtual time ran out);
-    when it does not, chromium runs again with twice the time, SCREENSHOT_ATTEMPTS runs in all. SeeUError
-    when chromium is missing or writes nothing, or the page never got ready."""
-    import shutil
+def screenshot_scene(server: viser.ViserServer, png: Path, size: tuple[int, int] = SCREENSHOT_SIZE) -> None:
+    """`--screenshot`: the server's page in headless chromium (pipelines/chromium.py), written to
+    `png` once drawn: the client connected and applied what the server had sent it (a get_render
+    round trip: viser's client handles the messages queued before the request, then renders), and
+    the page came to rest (the thumbnails decode after their messages). SeeUError when chromium is
+    missing or the page is not drawn within SHOT_TIMEOUT_S."""
+    import queue
 
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    if exe is None:
-        raise SeeUError("chromium not found: install it (apt-get install chromium) to take screenshots")
-    png = Path(png).resolve()
-    png.parent.mkdir(parents=True, exist_ok=True)
-    png.unlink(missing_ok=True)
-    for attempt in range(SCREENSHOT_ATTEMPTS):
-        png.unlink(missing_ok=True)
-        argv = [
-            exe,
-            "--headless",
-            "--no-sandbox",  # as root (CI containers) chromium refuses to start with its sandbox
-            "--use-angle=swiftshader",
-            "--enable-unsafe-swiftshader",
-            "--hide-scrollbars",
-            f"--window-size={size[0]},{size[1]}",
-            f"--virtual-time-budget={SCREENSHOT_WAIT_MS * 2**attempt}",
-            f"--screenshot={png}",
-            url,
-        ]
-        done = subprocess.run(argv, capture_output=True, text=True, timeout=240)
-        if not png.is_file():
-            raise SeeUError(f"chromium wrote no screenshot (exit {done.returncode}): {done.stderr.strip()[-300:]}", png)
-        if ready is None or ready():
-            return
-    raise SeeUError(f"the page did not load in chromium ({SCREENSHOT_ATTEMPTS} tries)", url)
+    from pipelines.chromium import SHOT_TIMEOUT_S, Chromium
+
+    clients: queue.Queue[viser.ClientHandle] = queue.Queue()
+    server.on_client_connect(clients.put)
+    url = server_url(server.get_host(), server.get_port())
+
+    def drawn(seconds: float) -> None:
+        try:
+            clients.get(timeout=seconds).get_render(8, 8, timeout=seconds)
+        except (queue.Empty, TimeoutError):
+            raise SeeUError(f"the page was not drawn in chromium within {SHOT_TIMEOUT_S:.0f} s", url) from None
+        except RuntimeError:  # get_render: the client disconnected
+            raise SeeUError("the page disconnected before it was drawn", url) from None
+
+    with Chromium(size) as browser:
+        browser.shoot(url, png, drawn)
 
 
 def serve(server: viser.ViserServer, out: Callable[[str], None] = print, stop: threading.Event | None = None) -> None:

@@ -156,6 +156,9 @@ def test_validate_missing_path_and_not_a_dataset(tmp_path, capsys):
     assert "not found" in capsys.readouterr().err
     (tmp_path / "empty").mkdir()
     assert cli_main(["validate", str(tmp_path / "empty")]) == 2
+    assert "not a layout seeu validate knows" in capsys.readouterr().err
+    (tmp_path / "empty" / "posed-00000.arrow").write_bytes(b"")  # a write that did not finish
+    assert cli_main(["validate", str(tmp_path / "empty")]) == 2
     assert "no manifest.json" in capsys.readouterr().err
 
 

@@ -146,3 +146,47 @@ def test_bad_out_and_options(tmp_path, capsys):
         err = capsys.readouterr().err.strip()
         assert err.count("\n") == 0 and err.startswith("seeu demo: error:") and needle in err, err
     assert not (tmp_path / "d" / "report.md").exists()
+
+
+@pytest.mark.slow
+def test_validate_reads_everything_the_demo_wrote(demo, tmp_path, capsys):
+    """`seeu validate OUT` checks each layout the demo wrote by its own rules (the training run's
+    checkpoints, the render directory, the posed frames and shards); damaged copies are refused."""
+    import shutil
+
+    import torch
+
+    out: Path = demo["out"]
+    assert cli_main(["validate", str(out)]) == 0
+    printed = capsys.readouterr().out
+    kinds = {
+        ln.split(": ")[0][len(f"OK {out}/") :]: ln.split(": ")[1].split(",")[0]
+        for ln in printed.splitlines()
+        if ln.startswith(f"OK {out}/")
+    }
+    assert kinds == {
+        "posed/clip": "posed frames",
+        "posed/heldout": "posed frames",
+        "posed": "folder of datasets",
+        "render": "render directory",
+        "run": "training run",
+        "shards/eval_extrap": "triple shards",
+        "shards/eval_interp": "triple shards",
+        "shards/train": "triple shards",
+        "shards": "folder of datasets",
+    }, printed
+    steps = [int(p.stem.split("-")[1]) for p in sorted((out / "run" / "checkpoints").glob("ckpt-*.pt"))]
+    assert f"training run, {len(steps)} checkpoint(s), steps {', '.join(map(str, steps))}" in printed
+    assert "note: not checked (not a layout seeu validate knows): eval" in printed
+
+    run = shutil.copytree(out / "run" / "checkpoints", tmp_path / "checkpoints")
+    newest = sorted(run.glob("ckpt-*.pt"))[-1]
+    ckpt = torch.load(newest, weights_only=True)
+    next(iter(ckpt["model"].values())).view(-1)[0] = float("nan")
+    torch.save(ckpt, newest)
+    assert cli_main(["validate", str(run)]) == 2
+    assert "holds NaN or inf values" in capsys.readouterr().err
+    render = shutil.copytree(out / "render", tmp_path / "render")
+    (render / "render.json").unlink()
+    assert cli_main(["validate", str(render)]) == 2
+    assert "no render.json (written last): the render did not finish" in capsys.readouterr().err

@@ -91,3 +91,24 @@ def test_scale_bad_input_is_one_line_before_any_work(tmp_path, capsys):
         assert cli_main(["ingest", str(video), "--out", str(tmp_path / "o")] + extra) == 2
         err = capsys.readouterr().err.strip()
         assert needle in err and "\n" not in err, err
+
+
+def test_each_rule_is_said_once_in_help_meta_and_docs(tmp_path, capsys, monkeypatch):
+    """The rule of each convention (SCALE_RULES) is what `seeu ingest --help` says for --scale, what
+    the chunk meta records and, word for word, what docs/ingest.md says."""
+    from seeu_data.ingest.scale import SCALE_RULES, SCALES
+
+    def words(text: str) -> str:
+        return " ".join(text.split())
+
+    monkeypatch.setenv("COLUMNS", "1000")  # argparse wraps the help at hyphens too
+    with pytest.raises(SystemExit):
+        cli_main(["ingest", "--help"])
+    help_text = words(capsys.readouterr().out)
+    docs = words((Path(__file__).resolve().parents[1] / "docs" / "ingest.md").read_text())
+    assert set(SCALE_RULES) == set(SCALES)
+    for name, rule in SCALE_RULES.items():
+        assert f"{name}: {words(rule)}" in help_text, name
+        assert f"- `{name}`{' (default)' if name == ScaleConfig().scale else ''}: {words(rule)}" in docs, name
+    for name in ("re10k", "median-depth"):
+        assert _chunk(tmp_path, ScaleConfig(name)).meta["scale_method"] == SCALE_RULES[name]

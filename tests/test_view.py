@@ -1,6 +1,7 @@
 """`seeu view` in a real browser: the command serves, headless chromium (software WebGL) opens the
 page, the server logs the client (viser's on_client_connect) and the screenshot's canvas is not
-blank. Chromium is required: a missing one fails these tests (`.ci/run` installs it)."""
+blank; `--screenshot` shoots once the scene is drawn, run after run. Chromium is required: a missing
+one fails these tests (`make test` installs it: scripts/system-deps.sh)."""
 
 from __future__ import annotations
 
@@ -17,8 +18,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from benchmarks.view_screenshot import Drawn, magenta_posed
+from pipelines.chromium import Chromium
 from pipelines.cli import main as cli_main
-from pipelines.view import chromium_screenshot
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -26,7 +28,7 @@ ROOT = Path(__file__).resolve().parents[1]
 @pytest.fixture(scope="module", autouse=True)
 def chromium() -> None:
     if shutil.which("chromium") is None and shutil.which("chromium-browser") is None:
-        pytest.fail("chromium is not installed: `apt-get install -y chromium` (.ci/run does it on CI)")
+        pytest.fail("chromium is not installed: `make system-deps` (run by `make test`) installs it")
 
 
 def canvas_spread(png: Path) -> float:
@@ -88,8 +90,8 @@ def _look(path: Path, tmp_path: Path) -> None:
     try:
         url = served.wait_for(" at http://").split(" at ")[1].split()[0]
         png = tmp_path / "page.png"
-        chromium_screenshot(url, png, ready=lambda: served.saw("connected") and canvas_spread(png) > 10.0)
-        assert served.saw("connected")
+        with Chromium((1000, 700)) as browser:
+            browser.shoot(url, png, drawn=lambda seconds: served.wait_for("connected", seconds))
         assert canvas_spread(png) > 10.0, "the 3D canvas looks blank"
     finally:
         rc = served.stop()
@@ -102,6 +104,29 @@ def test_view_posed_frames_in_browser(workspace, tmp_path):
 
 def test_view_triple_shards_in_browser(workspace, tmp_path):
     _look(workspace["triples"], tmp_path)
+
+
+def test_screenshot_waits_until_drawn(tmp_path, capsys):
+    """`--screenshot` run after run (benchmarks/view_screenshot.py does 20): each PNG shows the
+    thumbnails (the images' own magenta), a filled control panel and no browser notice (the top left
+    is background), and all are the same picture."""
+    posed = magenta_posed(tmp_path / "posed", frames=12, hw=(32, 32))
+    shots = [tmp_path / f"shot_{k}.png" for k in range(2)]
+    for png in shots:
+        assert cli_main(["view", str(posed), "--screenshot", str(png)]) == 0
+        drawn = Drawn.of(png)
+        assert drawn.complete(), (png.name, drawn)
+        assert (read_rgb(png)[15:150, 15:310] >= 250).all(), "a notice is shown at the top left"
+    assert all(np.array_equal(read_rgb(shots[0]), read_rgb(png)) for png in shots[1:])
+    assert capsys.readouterr().out.count("(posed)") == len(shots)
+
+
+def read_rgb(png: Path) -> np.ndarray:
+    import cv2
+
+    img = cv2.imread(str(png))
+    assert img is not None, png
+    return img[:, :, ::-1]
 
 
 def gaussians_dir(root: Path, n: int = 2000) -> Path:

@@ -1,14 +1,21 @@
-"""Check a dataset directory (posed frames or triple shards) against its schema and manifest.
+"""Check what a seeu command wrote, by the rules of its layout (detected).
 
-Checks (`seeu_data.store.dataset_check`, the checks every stage applies to what it reads): the manifest
-(JSON shape, known schema and major version, no file or scene listed twice), every listed file
+PATH: posed frames or triple shards (manifest.json), pixelSplat chunks (`seeu export pixelsplat`:
+read as `seeu import pixelsplat` reads them), a nerfstudio folder (`seeu export nerfstudio`), a render
+directory or a .ply (`seeu render`), a training run or checkpoint (`seeu train`), an evaluation index
+(`seeu index`), or a folder of these (each one is checked; e.g. `seeu ingest --out`, `seeu demo --out`).
+
+Datasets with a manifest (`seeu_data.store.dataset_check`, the checks every stage applies to what it
+reads): the manifest (JSON shape, known schema and major version, no file or scene listed twice), every listed file
 (present, byte size, sha256, row count, its own schema metadata), column names and types against
 `schemas/`, finite cameras, orthonormal rotations, positive focal lengths, 0 < near < far, for
 posed frames that each scene's rows are where the manifest says and numbered 0..n-1, and every
 image's header size equal to the recorded size and under --max-pixels.
 
-Example:
+Examples:
   seeu validate data/posed/clip
+  seeu validate datasets/mine          # a pixelSplat export
+  seeu validate out/demo               # everything the demo wrote
 """
 
 from __future__ import annotations
@@ -30,19 +37,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from pipelines.validate import ValidateConfig, validate_dataset
+    from pipelines.validate import KINDS, ValidateConfig, validate
 
     cfg = config_from_args(ValidateConfig, args, **shared_values(args, SHARED_FLAGS))
-    summary = validate_dataset(cfg.path, check_sha=cfg.check_sha, max_pixels=cfg.max_pixels)
+    summary = validate(cfg)
     if cfg.json:
         print(json.dumps(summary, indent=1))
-    else:
-        scenes = f", {summary['scenes']} scenes" if summary["scenes"] else ""
-        print(
-            f"OK {summary['path']}: {summary['schema']} v{summary['schema_version']}, {summary['files']} files, "
-            f"{summary['rows']} rows{scenes}, {summary['bytes'] / 1e6:.1f} MB"
-            + ("" if summary["sha256_checked"] else " (sha256 not checked)")
-        )
-        if summary["unlisted_files"]:
-            print(f"note: files not in the manifest (ignored): {', '.join(summary['unlisted_files'][:5])}")
+        return 0
+    for item in flatten(summary):
+        print(f"OK {item['path']}: {KINDS[item['kind']]}, {item['what']}")
+        for note in item["notes"]:
+            print(f"note: {note}")
     return 0
+
+
+def flatten(summary: dict) -> list[dict]:
+    """A folder's summaries (depth first), then its own."""
+    return [i for item in summary.get("items", []) for i in flatten(item)] + [summary]

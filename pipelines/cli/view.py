@@ -14,7 +14,8 @@ view is rendered live by SeeU's rasterizer (small, on the CPU) in the side panel
 Serves until Ctrl-C and prints the URL. Large scenes are subsampled with a printed note.
 --save writes the scene as first drawn (the first scene / the chosen sample; GUI controls are not
 part of it) as a .viser file for viser's offline player, and exits without serving.
---screenshot serves on a free port, opens the page in headless chromium, writes a PNG and exits.
+--screenshot serves on a free port, opens the page in headless chromium, writes a PNG once the
+scene is drawn (thumbnails, panel) and exits.
 
 Examples:
   seeu view data/posed/clip
@@ -26,7 +27,6 @@ Examples:
 from __future__ import annotations
 
 import argparse
-import threading
 from dataclasses import replace
 
 from pipelines.cli.config_flags import add_config_flags, config_from_args
@@ -45,8 +45,8 @@ def run(args: argparse.Namespace) -> int:
         DEFAULT_HOST,
         ViewConfig,
         build_scene,
-        chromium_screenshot,
         save_scene,
+        screenshot_scene,
         serve,
         server_url,
         stop_server,
@@ -65,16 +65,14 @@ def run(args: argparse.Namespace) -> int:
         stop_server(server)
         say(f"wrote {cfg.save} ({kind}, {size} bytes)")
         return 0
-    url = server_url(cfg.host, server.get_port())
     if cfg.screenshot is not None:
-        seen = threading.Event()
-        server.on_client_connect(lambda client: seen.set())
         try:
-            chromium_screenshot(url, cfg.screenshot, ready=seen.is_set)
+            screenshot_scene(server, cfg.screenshot)
         finally:
             stop_server(server)
         say(f"wrote {cfg.screenshot} ({kind})")
         return 0
+    url = server_url(cfg.host, server.get_port())
     say(f"seeu view: {kind} {cfg.path} at {url} (Ctrl-C stops)")
     serve(server, say)
     return 0

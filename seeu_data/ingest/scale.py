@@ -38,6 +38,17 @@ RE10K_NEAR_FAR = (1.0, 100.0)
 # the FAR_PERCENTILE-th (SfM triangulates few points on the nearest, most foreshortened surfaces)
 NEAR_PERCENTILE, FAR_PERCENTILE = 0.1, 99.9
 NEAR_MARGIN, FAR_MARGIN = 0.4, 1.5
+# each convention's rule, said once: in the --scale help, in each chunk's meta (`scale_method`) and, word
+# for word, in docs/ingest.md (tests/test_scale.py)
+SCALE_RULES = {
+    "re10k": f"the scene's near bound ({NEAR_MARGIN:g} x percentile {NEAR_PERCENTILE:g} of the SfM point depths) "
+    f"becomes 1 and near/far are {RE10K_NEAR_FAR[0]:g}/{RE10K_NEAR_FAR[1]:g}, as in the pixelSplat/MVSplat "
+    "RealEstate10K setup",
+    "median-depth": f"the median SfM point depth becomes 1; near/far are {NEAR_MARGIN:g} x percentile "
+    f"{NEAR_PERCENTILE:g} / {FAR_MARGIN:g} x percentile {FAR_PERCENTILE:g} of the SfM point depths",
+    "metric": "metres, from the real distance D (--known-distance) between the cameras of the first and the "
+    "last selected frame, or of two source frames named with --distance-frames; near/far as for median-depth",
+}
 
 
 def near_far_from_depths(
@@ -62,9 +73,7 @@ class ScaleConfig:
 
     scale: str = setting(
         "re10k",
-        "scale convention, recorded in each chunk's meta: re10k (5th-percentile point depth = 2, near/far "
-        "1/100 as the pixelSplat/MVSplat RealEstate10K setup), median-depth (median point depth = 1, near/far "
-        "from the points), metric (metres, needs --known-distance)",
+        "scale convention, recorded in each chunk's meta: " + "; ".join(f"{k}: {v}" for k, v in SCALE_RULES.items()),
         choices=SCALES,
     )
     known_distance: float | None = setting(
@@ -119,7 +128,7 @@ def chunk_scale(
             s,
             near_far_unit[0] * s,
             near_far_unit[1] * s,
-            {"scale_convention": "median-depth", "scale_method": "median SfM point depth = 1"},
+            {"scale_convention": "median-depth", "scale_method": SCALE_RULES["median-depth"]},
         )
     if cfg.scale == "re10k":
         near, far = RE10K_NEAR_FAR
@@ -130,8 +139,7 @@ def chunk_scale(
             far,
             {
                 "scale_convention": "re10k",
-                "scale_method": "the scene's near bound (0.4 x the 0.1th percentile of SfM point depths) = the peers' "
-                "fixed near 1; near/far = the RE10K setup's 1 / 100",
+                "scale_method": SCALE_RULES["re10k"],
                 "points_nearer_than_near_pct": float(100.0 * np.mean(depths * s < near)),
                 "points_farther_than_far_pct": float(100.0 * np.mean(depths * s > far)),
                 "near_far_method": "fixed 1 / 100 (the pixelSplat / MVSplat RealEstate10K setup)",
