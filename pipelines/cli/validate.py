@@ -43,6 +43,12 @@ def run(args: argparse.Namespace) -> int:
             f"{summary['rows']} rows{scenes}, {summary['bytes'] / 1e6:.1f} MB"
             + ("" if summary["sha256_checked"] else " (sha256 not checked)")
         )
+        ov = summary["overlap"]
+        if ov is not None:
+            methods = ", ".join(f"{n} from {m}" for m, n in sorted(ov["scenes_by_method"].items()))
+            print(f"overlap tables: {ov['files']} files ({methods})")
+        elif summary["schema"] == "seeu.posed_frames":
+            print(f"note: no overlap table (add one with: seeu overlap {summary['path']})")
         if summary["unlisted_files"]:
             print(f"note: files not in the manifest (ignored): {', '.join(summary['unlisted_files'][:5])}")
     return 0
