@@ -156,11 +156,18 @@ def overlap_from_cameras(
 
     Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4). Computed on normalised images (1 x 1), so
     it does not depend on the resolution."""
-    return from_matrix(camera_overlap_matrix(cam_to_world, intrinsics_norm, near, far, grid, depths), "cameras", floor, max_partners)
+    return from_matrix(
+        camera_overlap_matrix(cam_to_world, intrinsics_norm, near, far, grid, depths), "cameras", floor, max_partners
+    )
 
 
 def camera_overlap_matrix(
-    cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, near: float, far: float, grid: int = GRID, depths: int = DEPTHS
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    near: float,
+    far: float,
+    grid: int = GRID,
+    depths: int = DEPTHS,
 ) -> np.ndarray:
     """The dense (N, N) matrix of `overlap_from_cameras`. Each sample point of view a counts for view b
     when it lies in front of camera b and inside its image, weighted by the chance that b sees the

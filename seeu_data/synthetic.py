@@ -301,12 +301,19 @@ def make_orbit_scene(seed: int = 0) -> Scene:
         a = 2 * np.pi * i / 5 + rng.uniform(-0.3, 0.3)
         sx, sy, sz = rng.uniform(0.3, 0.6), rng.uniform(0.4, 1.3), rng.uniform(0.3, 0.6)
         cx, cz = 0.45 * np.cos(a), 0.45 * np.sin(a)
-        boxes.append((np.array([cx - sx / 2, rmax[1] - sy, cz - sz / 2]), np.array([cx + sx / 2, rmax[1], cz + sz / 2])))
+        boxes.append(
+            (np.array([cx - sx / 2, rmax[1] - sy, cz - sz / 2]), np.array([cx + sx / 2, rmax[1], cz + sz / 2]))
+        )
     for i in range(8):  # along the walls
         a = 2 * np.pi * i / 8 + rng.uniform(-0.2, 0.2)
         s = rng.uniform(0.4, 0.9, size=3)
         cx, cz = 3.3 * np.cos(a), 3.3 * np.sin(a)
-        boxes.append((np.array([cx - s[0] / 2, rmax[1] - s[1] - 0.3, cz - s[2] / 2]), np.array([cx + s[0] / 2, rmax[1], cz + s[2] / 2])))
+        boxes.append(
+            (
+                np.array([cx - s[0] / 2, rmax[1] - s[1] - 0.3, cz - s[2] / 2]),
+                np.array([cx + s[0] / 2, rmax[1], cz + s[2] / 2]),
+            )
+        )
     return _scene_of(rects, rng, boxes, light, seed)
 
 

@@ -18,6 +18,7 @@ from seeu_data.store.arrow_io import BytesLike
 from seeu_data.store.dataset_check import check_image
 from seeu_data.store.image_header import decode_check
 from seeu_data.store.manifest import FileEntry, read_manifest
+from seeu_data.store.overlap_table import OVERLAP_FILES
 from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
 from seeu_data.store.resume import Journal, file_intact, stamp_of, sweep
 
@@ -190,8 +191,9 @@ class _ImportWriter(PosedDatasetWriter):
         return self.files[-1]
 
     def restore(self, record: dict) -> None:
-        """Take a verified file of a previous run as this run's next file."""
+        """Take a verified file of a previous run (and its overlap file) as this run's next file."""
         self.files.append(FileEntry(**record["file"]))
+        self.overlap_files.append(record["overlap"])
         self.scenes.extend(record["scenes"])
         self._seen.update(s["scene_id"] for s in record["scenes"])
 
@@ -220,14 +222,16 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
     if resume.get("key") != key:
         return []
     entries = {f["path"]: f for f in doc["files"]}
+    overlaps = {f["posed"]: f for f in (doc.get("overlap") or {}).get("files", [])}
     for rec in resume.get("files", []):
-        if rec.get("file") not in entries:
+        if rec.get("file") not in entries or rec["file"] not in overlaps:
             break
         records.append(
             {
                 "unit": rec["file"],
                 "stamp": key,
                 "file": entries[rec["file"]],
+                "overlap": overlaps[rec["file"]],
                 "units": rec["units"],
                 "skipped": rec["skipped"],
                 "scenes": [s for s in doc.get("scenes", []) if s["file"] == rec["file"]],
@@ -237,17 +241,18 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
 
 
 def _resumable_prefix(out_dir: Path, records: list[dict], units: list[ImportUnit], name_of) -> tuple[list[dict], int]:
-    """The records (in order) whose units are the next planned keyed units and whose file is intact
-    (present, its recorded size and sha256), and how many keyed units they cover."""
+    """The records (in order) whose units are the next planned keyed units and whose file and overlap
+    file are intact (present, their recorded size and sha256), and how many keyed units they cover."""
     keyed = [[u.key, u.fingerprint] for u in units if u.key is not None]
     done: list[dict] = []
     pos = 0
     for i, rec in enumerate(records):
         entry = rec.get("file") or {}
+        overlap = rec.get("overlap") or {}
         n = len(rec.get("units") or [])
         if n == 0 or rec["units"] != keyed[pos : pos + n] or entry.get("path") != name_of(i):
             break
-        if not file_intact(out_dir / entry["path"], entry["bytes"], entry["sha256"]):
+        if not all(e and file_intact(out_dir / e["path"], e["bytes"], e["sha256"]) for e in (entry, overlap)):
             break
         done.append(rec)
         pos += n
@@ -303,6 +308,7 @@ def write_import(
         out_dir, params=params, provenance=provenance, target_file_bytes=target_file_bytes, fsync=fsync
     )
     sweep(out_dir, POSED_FILES, keep={r["file"]["path"] for r in done})  # files not kept, partial writes
+    sweep(out_dir, OVERLAP_FILES, keep={r["overlap"]["path"] for r in done})
     for rec in done:
         writer.restore(rec)
         report.scenes += len(rec["scenes"])
@@ -357,6 +363,7 @@ def write_import(
                 "skipped": cur_skipped,
                 "scenes": [s for s in writer.scenes if s["file"] == entry.path],
                 "file": asdict(entry),
+                "overlap": writer.overlap_files[-1],
             }
             new_records.append(rec)
             journal.add(rec)

@@ -258,7 +258,9 @@ def check_dataset(
             raise SeeUError(f"rows of scene {sid!r} hold scene ids {sorted(ids)[:3]}", where)
         check_frame_order(rows.column("frame_index").to_numpy(), sid, where)
     overlap = check_overlap_files(root, manifest, tables, check_sha)
-    listed = {e["path"] for e in manifest["files"]} | {e["path"] for e in (manifest.get("overlap") or {}).get("files", [])}
+    listed = {e["path"] for e in manifest["files"]} | {
+        e["path"] for e in (manifest.get("overlap") or {}).get("files", [])
+    }
     stray = sorted(p.name for p in root.glob("*.arrow") if p.name not in listed)
     return {
         "path": str(root),

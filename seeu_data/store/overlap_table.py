@@ -65,7 +65,10 @@ def from_arrow(table: pa.Table) -> dict[str, OverlapTable]:
     out = {}
     cols = {name: table.column(name).to_pylist() for name in ("scene_id", "num_frames", "method")}
     lists = {
-        name: (table.column(name).combine_chunks().offsets.to_numpy(), table.column(name).combine_chunks().values.to_numpy())
+        name: (
+            table.column(name).combine_chunks().offsets.to_numpy(),
+            table.column(name).combine_chunks().values.to_numpy(),
+        )
         for name in ("frame_a", "frame_b", "overlap_ab", "overlap_ba")
     }
     for i, sid in enumerate(cols["scene_id"]):

@@ -21,8 +21,8 @@ import numpy as np
 import pyarrow as pa
 
 from seeu_data.errors import SeeUError
-from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
 from seeu_data.overlap import OverlapTable, overlap_from_cameras, overlap_from_observations
+from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
 from seeu_data.store.manifest import FileEntry, read_manifest, write_manifest
 from seeu_data.store.overlap_table import manifest_block, write_overlap_file
 from seeu_data.store.schema import arrow_schema, schema_version
@@ -318,4 +318,6 @@ def scene_overlap(scene: PosedScene) -> OverlapTable:
     `TrackedScene` with some, else from its cameras and near/far."""
     if isinstance(scene, TrackedScene) and scene.observations is not None and len(scene.observations[0]):
         return overlap_from_observations(len(scene), *scene.observations)
-    return overlap_from_cameras(scene.cam_to_world, scene.intrinsics_norm, scene.near, scene.far)
+    # near/far as stored (float32), so the table measured again from the written scene is the same
+    near, far = float(np.float32(scene.near)), float(np.float32(scene.far))
+    return overlap_from_cameras(scene.cam_to_world, scene.intrinsics_norm, near, far)
