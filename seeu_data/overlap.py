@@ -46,6 +46,8 @@ DEPTHS = 2  # ... at this many depths inside [near, far]
 METHODS = ("tracks", "cameras")
 PATH_STEP_FACTOR = 3.0  # a step i -> i + 1 is a path step when at most this times a nearest-neighbour distance
 PATH_STEP_SHARE = 0.8  # ... and the frame order is a path when this share of the steps are
+# NoPoSplat's overlap bins (src/misc/utils.py get_overlap_tag), inclusive upper edges; outside them: no bin
+BINS = {"small": (0.05, 0.3), "medium": (0.3, 0.55), "large": (0.55, 0.8)}
 _CAMERA_BLOCK = 32  # cameras projected onto at once (bounds memory: block x N x GRID^2 x DEPTHS points)
 
 
@@ -81,6 +83,21 @@ class OverlapTable:
         """(N, N) float32 symmetric pair score min(m[a, b], m[b, a])."""
         m = self.matrix()
         return np.minimum(m, m.T)
+
+
+def context_overlap(m: np.ndarray, views) -> float:
+    """The overlap of a set of context views: the smallest pair score min(m[a, b], m[b, a]) among them."""
+    v = list(views)
+    return float(min(min(m[a, b], m[b, a]) for i, a in enumerate(v) for b in v[i + 1 :]))
+
+
+def overlap_bin(value: float) -> str | None:
+    """The `BINS` name of a context overlap (small, medium, large), None outside them (as NoPoSplat's
+    evaluation ignores such pairs)."""
+    for name, (lo, hi) in BINS.items():
+        if (lo <= value if name == "small" else lo < value) and value <= hi:
+            return name
+    return None
 
 
 def from_matrix(m: np.ndarray, method: str, floor: float = FLOOR, max_partners: int = MAX_PARTNERS) -> OverlapTable:

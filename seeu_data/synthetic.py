@@ -630,14 +630,17 @@ def synthetic_posed_scene(
     path_length_m: float = 7.0,
     world: str = "corridor",
     poses: np.ndarray | None = None,
+    tracks: bool = False,
 ):
     """A ground-truth `PosedScene` of a synthetic scene (JPEG images, exact cameras, no SfM): `world`
     corridor (`make_scene`, walked by `camera_path`) or orbit (`make_orbit_scene`, circled by
-    `orbit_camera_path`); `poses` `(n, 4, 4)` replace the path (then `n_frames` is their number).
+    `orbit_camera_path`); `poses` `(n, 4, 4)` replace the path (then `n_frames` is their number);
+    `tracks`: a `TrackedScene` with the exact observations of `exact_observations` (its view overlap
+    then is measured from them, as from an ingest's SfM tracks).
 
     near/far are the min/max rendered depth over all frames with a 10 % margin (recorded in meta).
     """
-    from seeu_data.store.posed import PosedScene
+    from seeu_data.store.posed import PosedScene, TrackedScene
 
     scene = world_scene(world, seed)
     if poses is None:
@@ -654,7 +657,9 @@ def synthetic_posed_scene(
         images.append(buf.tobytes())
         finite = depth[np.isfinite(depth)]
         dmin, dmax = min(dmin, float(finite.min())), max(dmax, float(finite.max()))
-    return PosedScene(
+    extra = {"observations": exact_observations(scene, poses, np.tile(intr, (n_frames, 1)))} if tracks else {}
+    return (TrackedScene if tracks else PosedScene)(
+        **extra,
         scene_id=scene_id or f"synthetic_s{seed}",
         images=images,
         image_format="jpeg",
@@ -739,6 +744,32 @@ def world_scene(world: str, seed: int = 0) -> Scene:
     return make_orbit_scene(seed) if world == "orbit" else make_scene(seed)
 
 
+def _visible(
+    points: np.ndarray, cam_to_world: np.ndarray, intr: np.ndarray, depth: np.ndarray, tol: float
+) -> np.ndarray:
+    """(M,) which world points `(M, 3)` a view sees: in front, inside its image, and not hidden (their
+    depth within `tol` (relative) of the view's rendered `depth` (H, W) at their pixel)."""
+    height, width = depth.shape
+    uv, z = project_points(points, cam_to_world, intr, width, height)
+    inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+    px = np.clip(np.floor(np.where(inside[:, None], uv, 0)).astype(int), 0, [width - 1, height - 1])
+    return inside & (np.abs(z - depth[px[:, 1], px[:, 0]]) <= tol * np.abs(z))
+
+
+def _lifted(depth: np.ndarray, cam_to_world: np.ndarray, intr: np.ndarray, step: int = 1) -> np.ndarray:
+    """World points `(M, 3)` of every `step`-th pixel centre of a view, at its rendered `depth` (H, W)."""
+    height, width = depth.shape
+    jj, ii = np.meshgrid(np.arange(step // 2, width, step), np.arange(step // 2, height, step), indexing="xy")
+    centres = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], -1)
+    return unproject_pixels(
+        centres, depth[ii.ravel(), jj.ravel()].astype(np.float64), cam_to_world, intr, width, height
+    )
+
+
+def _depths(scene: Scene, cam_to_world: np.ndarray, intr: np.ndarray, width: int, height: int) -> np.ndarray:
+    return np.stack([render_view(scene, c, k, width, height)[1] for c, k in zip(cam_to_world, intr)])
+
+
 def true_overlap(
     scene: Scene,
     cam_to_world: np.ndarray,
@@ -753,19 +784,32 @@ def true_overlap(
     Views rendered at `width` x `height`; cam_to_world `(N, 4, 4)`, intrinsics_norm `(N, 4)`."""
     c2w = np.asarray(cam_to_world, np.float64)
     intr = np.asarray(intrinsics_norm, np.float64)
-    n = len(c2w)
-    depth = np.stack([render_view(scene, c2w[k], intr[k], width, height)[1] for k in range(n)])
-    jj, ii = np.meshgrid(np.arange(width), np.arange(height), indexing="xy")
-    centres = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], -1)
-    out = np.eye(n)
-    for a in range(n):
-        pts = unproject_pixels(centres, depth[a].ravel().astype(np.float64), c2w[a], intr[a], width, height)
-        for b in range(n):
-            if a == b:
-                continue
-            uv, z = project_points(pts, c2w[b], intr[b], width, height)
-            inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
-            px = np.clip(np.floor(uv[inside]).astype(int), 0, [width - 1, height - 1])
-            seen = np.abs(z[inside] - depth[b][px[:, 1], px[:, 0]]) <= depth_tolerance * z[inside]
-            out[a, b] = seen.sum() / len(pts)
+    depth = _depths(scene, c2w, intr, width, height)
+    out = np.eye(len(c2w))
+    for a in range(len(c2w)):
+        pts = _lifted(depth[a], c2w[a], intr[a])
+        for b in range(len(c2w)):
+            if a != b:
+                out[a, b] = _visible(pts, c2w[b], intr[b], depth[b], depth_tolerance).mean()
     return out
+
+
+def exact_observations(
+    scene: Scene,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int = 64,
+    height: int = 48,
+    step: int = 4,
+    depth_tolerance: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact "SfM tracks" of a synthetic scene: surface points lifted from every `step`-th pixel of each
+    view, each observed by every view that sees it (`true_overlap`'s visibility test). Returns (frame
+    index (M,), point id (M,)) of every observation, as `overlap.overlap_from_observations` takes them."""
+    c2w = np.asarray(cam_to_world, np.float64)
+    intr = np.asarray(intrinsics_norm, np.float64)
+    depth = _depths(scene, c2w, intr, width, height)
+    pts = np.concatenate([_lifted(depth[a], c2w[a], intr[a], step) for a in range(len(c2w))])
+    seen = np.stack([_visible(pts, c2w[b], intr[b], depth[b], depth_tolerance) for b in range(len(c2w))])
+    frame, point = np.nonzero(seen)
+    return frame.astype(np.int64), point.astype(np.int64)

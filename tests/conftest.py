@@ -64,7 +64,7 @@ def fsyncs(monkeypatch):
 
 @pytest.fixture(scope="session")
 def overlap_scenes(tmp_path_factory) -> dict:
-    """The view-overlap test scenes, exact cameras, 160x120 JPEGs (`tests/overlap_fixtures.py`): posed
+    """The view-overlap test scenes, exact cameras and tracks, 160x120 JPEGs (`tests/overlap_fixtures.py`): posed
     datasets `orbit` (24 views on a circle, in order), `shuffled` (the same photos shuffled and renamed:
     `shuffled_order[k]` is the orbit frame at position k) and `wide` (10 views scattered around the
     object, in no path order); `truth_orbit` / `truth_wide` their exact overlap matrices."""

@@ -181,7 +181,7 @@ def test_nested_configs_are_walked():
     build = _flag_dests(_subparser(build_parser(), "build"))
     assert build["--num-context"] == "sampling.num_context" and build["--resize"] == "image.resize"
     index = _flag_dests(_subparser(build_parser(), "index"))
-    assert index["--mode"] == "generation.sampling.mode" and index["--min-overlap"] == "generation.min_overlap"
+    assert index["--mode"] == "generation.sampling.mode" and index["--min-overlap"] == "generation.sampling.min_overlap"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:

@@ -35,6 +35,10 @@ CAMERAS_MEDIAN_TOL = 0.15
 TRACKS_MEDIAN_TOL = 0.1
 TRACKS_MAX_TOL = 0.25
 TRACKS_OVER = 0.1
+# exact tracks (`synthetic.exact_observations`: points lifted from every 4th pixel) sample a view's
+# content by point density, not by area
+EXACT_TRACKS_MEDIAN_TOL = 0.1
+EXACT_TRACKS_MAX_TOL = 0.2
 
 
 def test_tracks_overlap_counts_shared_points():
@@ -84,6 +88,23 @@ def test_camera_overlap_against_the_exact_overlap(overlap_scenes):
             assert best in np.argsort(-np.where(np.arange(len(truth)) == a, -1, truth[a]))[:3], (name, a)
 
 
+def test_stored_tables_of_the_test_scenes(overlap_scenes):
+    """The test scenes' stored tables (from their exact tracks) against the exact overlap, and the
+    shuffled orbit's table equal to the orbit's, permuted."""
+    for name in ("orbit", "wide"):
+        ds = PosedDataset(overlap_scenes[name])
+        table = ds.overlap(name)
+        err = np.abs(table.matrix() - overlap_scenes[f"truth_{name}"])
+        assert (
+            table.method == "tracks" and np.median(err) < EXACT_TRACKS_MEDIAN_TOL and err.max() < EXACT_TRACKS_MAX_TOL
+        )
+    order = overlap_scenes["shuffled_order"]
+    orbit = PosedDataset(overlap_scenes["orbit"]).overlap("orbit").matrix()
+    assert np.array_equal(
+        PosedDataset(overlap_scenes["shuffled"]).overlap("orbit").matrix(), orbit[np.ix_(order, order)]
+    )
+
+
 def test_frame_order_detection(overlap_scenes):
     orbit = PosedDataset(overlap_scenes["orbit"]).load_scene("orbit").cam_to_world
     assert frame_order_is_path(orbit) and frame_order_is_path(camera_path(40))
@@ -99,14 +120,15 @@ def test_canonical_order_ignores_numbering(overlap_scenes):
     assert np.array_equal(a, order[b])  # the same cameras in the same canonical order
 
 
-def test_written_table_is_validated(overlap_scenes, tmp_path, capsys):
-    root = tmp_path / "wide"
-    shutil.copytree(overlap_scenes["wide"], root)
+def test_written_table_is_validated(workspace, tmp_path, capsys):
+    root = tmp_path / "posed"
+    shutil.copytree(workspace["posed"], root)
     assert cli_main(["validate", str(root)]) == 0
     assert "overlap tables: 1 files (1 from cameras)" in capsys.readouterr().out
     ds = PosedDataset(root)
-    scene = ds.load_scene("wide")
-    stored = OverlapReader(root, ds.manifest).table("wide")
+    (sid,) = ds.scene_ids
+    scene = ds.load_scene(sid)
+    stored = OverlapReader(root, ds.manifest).table(sid)
     again = overlap_from_cameras(scene.cam_to_world, scene.intrinsics_norm, scene.near, scene.far)
     assert stored is not None and np.array_equal(stored.matrix(), again.matrix())
     # a damaged overlap (out of [0, 1]) written with a true size and sha256: validate refuses it in one line
@@ -123,11 +145,12 @@ def test_written_table_is_validated(overlap_scenes, tmp_path, capsys):
     assert err.count("\n") == 0 and "an overlap is not in [0, 1]" in err and entry["path"] in err
 
 
-def test_seeu_overlap_adds_the_table_to_old_data(overlap_scenes, tmp_path, capsys):
+def test_seeu_overlap_adds_the_table_to_old_data(workspace, tmp_path, capsys):
     root = tmp_path / "old"
-    shutil.copytree(overlap_scenes["orbit"], root)
+    shutil.copytree(workspace["posed"], root)
     doc = json.loads((root / "manifest.json").read_text())
-    written = OverlapReader(root, doc).table("orbit")
+    (sid,) = [s["scene_id"] for s in doc["scenes"]]
+    written = OverlapReader(root, doc).table(sid)
     for f in doc.pop("overlap")["files"]:  # as written before overlap tables existed
         (root / f["path"]).unlink()
     (root / "manifest.json").write_text(json.dumps(doc))
@@ -136,7 +159,7 @@ def test_seeu_overlap_adds_the_table_to_old_data(overlap_scenes, tmp_path, capsy
     assert cli_main(["overlap", str(root)]) == 0
     assert "1 scenes measured" in capsys.readouterr().out
     ds = PosedDataset(root)
-    added = OverlapReader(root, ds.manifest).table("orbit")
+    added = OverlapReader(root, ds.manifest).table(sid)
     assert added is not None and written is not None and np.array_equal(added.matrix(), written.matrix())
     assert cli_main(["validate", str(root)]) == 0
     assert cli_main(["overlap", str(root)]) == 0 and "already has its overlap tables" in capsys.readouterr().out

@@ -24,7 +24,7 @@ from seeu_data.errors import SeeUError
 from seeu_data.overlap import OverlapTable, overlap_from_cameras, overlap_from_observations
 from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
 from seeu_data.store.manifest import FileEntry, read_manifest, write_manifest
-from seeu_data.store.overlap_table import manifest_block, write_overlap_file
+from seeu_data.store.overlap_table import OverlapReader, manifest_block, write_overlap_file
 from seeu_data.store.schema import arrow_schema, schema_version
 
 SCHEMA = "seeu.posed_frames"
@@ -260,6 +260,7 @@ class PosedDataset:
         self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
         self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
         self._batch_index: dict[str, dict[int, int]] = {}
+        self._overlaps = OverlapReader(self.root, self.manifest)
 
     @property
     def scene_ids(self) -> list[str]:
@@ -302,6 +303,23 @@ class PosedDataset:
     def iter_scenes(self, scene_ids: Iterable[str] | None = None) -> Iterator[PosedScene]:
         for sid in scene_ids if scene_ids is not None else self.scene_ids:
             yield self.load_scene(sid)
+
+    def load_cameras(self, scene_id: str) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """A scene's cameras without its images: cam_to_world (N, 4, 4), intrinsics_norm (N, 4), near, far."""
+        info = self.scene_info(scene_id)
+        rows = self._reader(info["file"]).read_all().slice(info["row_start"], info["num_frames"])
+        c2w = rows.column("cam_to_world").combine_chunks().values.to_numpy().reshape(-1, 4, 4)
+        intr = rows.column("intrinsics_norm").combine_chunks().values.to_numpy().reshape(-1, 4)
+        return c2w, intr, float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
+
+    def overlap(self, scene_id: str) -> OverlapTable:
+        """The scene's stored overlap table (`store.overlap_table`); measured from its cameras when the
+        dataset was written without one (`seeu overlap` stores it)."""
+        table = self._overlaps.table(scene_id)
+        if table is not None:
+            return table
+        c2w, intr, near, far = self.load_cameras(scene_id)
+        return overlap_from_cameras(c2w, intr, near, far)
 
 
 @dataclass
