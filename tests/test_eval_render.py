@@ -13,6 +13,7 @@ import pytest
 from skimage.metrics import structural_similarity
 
 from pipelines.cli import main
+from seeu_data.store.posed import PosedDataset
 from seeu_model.camera_path import camera_path, interpolate_pose, path_parameters, so3_exp, so3_log
 from seeu_model.evaluation import TargetRecord, summarize
 from tests.training_fixtures import synthetic_triples
@@ -291,6 +292,11 @@ def test_predict_and_python_api_give_the_gaussians_render_gives(run, tmp_path, c
         assert ref.shape == getattr(predicted, name).shape == getattr(api, name).shape
         assert (ref - getattr(predicted, name)).abs().max() <= 1e-6, name
         assert (ref - getattr(api, name)).abs().max() <= 1e-6, name
-    # --auto-context: frames (N-1-g)//2 and + g, g = min(45, N-1): the whole 16-frame scene
+    # --auto-context: the pair of the scene's overlap table that covers its frames best, above the floor
     assert main(["predict", str(posed), "--scene", scene_id, "--out", str(tmp_path / "a"), *common]) == 0
-    assert json.loads((tmp_path / "a" / "predict.json").read_text())["context_frames"] == [0, 15]
+    rep = json.loads((tmp_path / "a" / "predict.json").read_text())
+    m = PosedDataset(posed).overlap(scene_id).matrix()
+    i, j = rep["context_frames"]
+    assert rep["context_rule"] == "auto" and rep["auto_context"]["overlap"] == pytest.approx(min(m[i, j], m[j, i]))
+    assert rep["auto_context"]["overlap"] >= rep["auto_context"]["floor"]
+    assert 0 <= rep["auto_context"]["extrapolate"]["used"] <= rep["auto_context"]["extrapolate"]["requested"]
