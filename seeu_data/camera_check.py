@@ -450,7 +450,8 @@ def check_scene(
     table = overlap if overlap is not None else scene_overlap(scene)
     scores = table.pair_scores()
     rep["overlap_method"] = table.method
-    matched, details = [], []
+    matched: list[tuple[tuple[int, int], np.ndarray, np.ndarray]] = []
+    details: list[dict] = []
     for i, j in pick_pairs(scores, c2w, intr, CANDIDATES * cfg.pairs):
         if len(matched) == cfg.pairs:
             break
