@@ -9,8 +9,9 @@ Stages:
    written. Scene ids must be unique across inputs.
 2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.build.sampling`,
    scenes in sorted order, drawn lazily so that the first shards are written while the rest is
-   planned), or the entries of an evaluation index (file order; entries naming a missing scene or
-   frame are reported and not written).
+   planned; context pairs by frame gap or by view overlap, `--pairs`), or the entries of an
+   evaluation index (file order; entries naming a missing scene or frame are reported and not
+   written; each row's context overlap is recorded in the report for `seeu eval`'s bins).
 3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
    (scaled by the pixel ratio when resizing); each `triples.ShardSpec` is handed on as soon as it is
    complete.
@@ -63,7 +64,7 @@ from seeu_data.limits import (
     MAX_WORKERS,
     check_range,
 )
-from seeu_data.overlap import OverlapTable
+from seeu_data.overlap import OverlapTable, context_overlap
 from seeu_data.settings import parse_bytes, setting
 from seeu_data.store.arrow_io import open_ipc_file
 from seeu_data.store.dataset_check import check_dataset
@@ -289,7 +290,9 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
     if not cfg.index_path:
         raise SeeUError("--mode eval needs --index FILE")
     index = read_index(cfg.index_path, cfg.index_format)
+    views = InputScenes(cfg.inputs)
     samples, problems = [], []
+    overlaps: dict[str, float | str] = {}
     for e in index.entries:
         src = scenes.get(e.scene_id)
         if src is None:
@@ -302,6 +305,10 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
             )
             continue
         samples.append(make_sample(e.scene_id, "eval", e.k, e.context, e.target))
+        if e.overlap is not None:
+            overlaps[samples[-1].sample_id] = e.overlap
+        elif len(e.context) > 1:
+            overlaps[samples[-1].sample_id] = round(context_overlap(views.overlap(e.scene_id).matrix(), e.context), 4)
     kinds: dict[str, int] = {}
     for prob in problems:
         kind = "scene not in the posed data" if prob["problem"].startswith("scene") else "frames out of range"
@@ -317,6 +324,9 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
         "problems_by_kind": kinds,
         "problems": problems[:MAX_REPORTED_PROBLEMS],
         "problems_truncated": len(problems) > MAX_REPORTED_PROBLEMS,
+        # each row's context overlap: the index entry's "overlap" (NoPoSplat's value or bin name), else
+        # measured from the posed data's overlap table (`overlap.context_overlap`); `seeu eval` bins by it
+        "context_overlap": overlaps,
     }
     if not samples:
         raise SeeUError(
