@@ -16,7 +16,7 @@ from pipelines.view import best_partners
 from seeu_data.build.sampling import SamplingConfig
 from seeu_data.cameras import intrinsics_norm_matrix
 from seeu_data.store.posed import PosedDataset
-from tests.test_check_cameras import BROKEN, _broken
+from tests.test_check_cameras import BROKEN, broken_copy
 from tests.test_view import read_viser_file
 
 FLOOR = SamplingConfig().min_overlap
@@ -58,7 +58,7 @@ def test_check_cameras_passes_in_every_frame_order(overlap_scenes, tmp_path, cap
 def test_broken_cameras_named_on_the_shuffled_orbit(overlap_scenes, tmp_path, capsys, variant):
     change, words = BROKEN[variant]
     rc = cli_main(
-        ["check-cameras", str(_broken(overlap_scenes["shuffled"], tmp_path, change)), "--out", str(tmp_path / "o")]
+        ["check-cameras", str(broken_copy(overlap_scenes["shuffled"], tmp_path, change)), "--out", str(tmp_path / "o")]
     )
     out = capsys.readouterr().out
     scene = json.loads((tmp_path / "o" / "check.json").read_text())["scenes"][0]
