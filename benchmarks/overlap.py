@@ -7,6 +7,8 @@ against the exact overlap. These are not timings: any machine gives the same num
 
     python benchmarks/overlap.py            # 160x120 views, as the tests
     python benchmarks/overlap.py --write    # and the "overlap" section of benchmarks/RESULTS.md
+    python benchmarks/overlap.py --timing   # CPU seconds of the cameras measure per scene (50-300 frames): a timing,
+                                            # to run on a quiet machine (what every importer adds per scene)
 """
 
 from __future__ import annotations
@@ -120,12 +122,36 @@ def table(rows: list[dict], h: int, w: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+def timing(repeats: int = 3) -> str:
+    """CPU seconds (best of `repeats`) of `overlap_from_cameras` on a walk of 50, 150 and 300 frames
+    (RE10K scenes hold about 50-300), and the stored pairs."""
+    import time
+
+    from seeu_data.overlap import overlap_from_cameras
+    from seeu_data.synthetic import camera_path, default_intrinsics_norm
+
+    lines = ["| frames | CPU s per scene | pairs stored |", "|---|---|---|"]
+    for n in (50, 150, 300):
+        poses, intr = camera_path(n), np.tile(default_intrinsics_norm(640, 360), (n, 1))
+        best, pairs = float("inf"), 0
+        for _ in range(repeats):
+            t0 = time.process_time()
+            pairs = len(overlap_from_cameras(poses, intr, 1.0, 100.0))
+            best = min(best, time.process_time() - t0)
+        lines.append(f"| {n} | {best:.3f} | {pairs} |")
+    return "\n".join(lines) + "\n"
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--size", default="120x160", help="HxW of the views (default 120x160, as the tests)")
     ap.add_argument("--json", action="store_true", help="print the measurements as JSON")
     ap.add_argument("--write", action="store_true", help="write the 'overlap' section of benchmarks/RESULTS.md")
+    ap.add_argument("--timing", action="store_true", help="only time the cameras measure (print; a quiet machine's)")
     args = ap.parse_args()
+    if args.timing:
+        print(timing())
+        return
     h, w = (int(v) for v in args.size.split("x"))
     with tempfile.TemporaryDirectory() as tmp:
         rows = measure(Path(tmp), h, w)

@@ -205,14 +205,17 @@ def camera_overlap_matrix(
     rays = np.repeat(c2w[:, :3, 3], len(z_all), axis=0) - pts
     rays /= np.linalg.norm(rays, axis=-1, keepdims=True)  # (N * S, 3): unit, from each point to its own camera
     along = np.einsum("pk,pk->p", pts, rays)
+    sq = np.einsum("pk,pk->p", pts, pts)
     centres = c2w[:, :3, 3]
     m = np.empty((n, n), np.float64)
     for b0 in range(0, n, _CAMERA_BLOCK):
         b1 = min(n, b0 + _CAMERA_BLOCK)
+        c = centres[b0:b1]
         uv_b, z_b = project_points_to_cameras(pts, c2w[b0:b1], intr[b0:b1])  # (B, N*S, 2), (B, N*S)
         seen = (z_b > 0) & (uv_b >= 0).all(-1) & (uv_b <= 1).all(-1)
-        dist = np.linalg.norm(pts[None] - centres[b0:b1, None], axis=-1)  # (B, N*S)
-        cos = ((centres[b0:b1] @ rays.T) - along[None]) / np.maximum(dist, 1e-12)
+        # |p - c|^2 and (c - p) . ray by matrix products: (B, N*S) each
+        dist = np.sqrt(np.maximum(sq[None] - 2.0 * (c @ pts.T) + (c * c).sum(-1)[:, None], 1e-24))
+        cos = ((c @ rays.T) - along[None]) / dist
         facing = 1.0 - np.arccos(np.clip(cos, -1.0, 1.0)) / np.pi
         m[:, b0:b1] = np.where(seen, facing, 0.0).reshape(b1 - b0, n, -1).mean(-1).T
     np.fill_diagonal(m, 1.0)
