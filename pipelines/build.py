@@ -232,6 +232,9 @@ class InputScenes:
     def overlap(self, scene_id: str) -> OverlapTable:
         return self._ds[scene_id].overlap(scene_id)
 
+    def stored_overlap(self, scene_id: str) -> OverlapTable | None:
+        return self._ds[scene_id].stored_overlap(scene_id)
+
 
 def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
     """interp / extrap: `samples_per_scene` samples of every usable scene, scenes sorted by id.
@@ -305,10 +308,11 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
             )
             continue
         samples.append(make_sample(e.scene_id, "eval", e.k, e.context, e.target))
+        table = views.stored_overlap(e.scene_id) if e.overlap is None and len(e.context) > 1 else None
         if e.overlap is not None:
             overlaps[samples[-1].sample_id] = e.overlap
-        elif len(e.context) > 1:
-            overlaps[samples[-1].sample_id] = round(context_overlap(views.overlap(e.scene_id).matrix(), e.context), 4)
+        elif table is not None:  # data without a stored table: not measured here (thousands of scenes)
+            overlaps[samples[-1].sample_id] = round(context_overlap(table.matrix(), e.context), 4)
     kinds: dict[str, int] = {}
     for prob in problems:
         kind = "scene not in the posed data" if prob["problem"].startswith("scene") else "frames out of range"
@@ -325,7 +329,7 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
         "problems": problems[:MAX_REPORTED_PROBLEMS],
         "problems_truncated": len(problems) > MAX_REPORTED_PROBLEMS,
         # each row's context overlap: the index entry's "overlap" (NoPoSplat's value or bin name), else
-        # measured from the posed data's overlap table (`overlap.context_overlap`); `seeu eval` bins by it
+        # from the posed data's stored overlap table (`overlap.context_overlap`); `seeu eval` bins by it
         "context_overlap": overlaps,
     }
     if not samples:

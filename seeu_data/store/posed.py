@@ -312,9 +312,13 @@ class PosedDataset:
         intr = rows.column("intrinsics_norm").combine_chunks().values.to_numpy().reshape(-1, 4)
         return c2w, intr, float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
 
+    def stored_overlap(self, scene_id: str) -> OverlapTable | None:
+        """The scene's stored overlap table (`store.overlap_table`), None when the dataset has none."""
+        return self._overlaps.table(scene_id)
+
     def overlap(self, scene_id: str) -> OverlapTable:
-        """The scene's stored overlap table (`store.overlap_table`); measured from its cameras when the
-        dataset was written without one (`seeu overlap` stores it)."""
+        """The scene's stored overlap table; measured from its cameras when the dataset was written
+        without one (`seeu overlap` stores it)."""
         table = self._overlaps.table(scene_id)
         if table is not None:
             return table
