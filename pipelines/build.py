@@ -9,8 +9,9 @@ Stages:
    written. Scene ids must be unique across inputs.
 2. Plan on the driver (indices only, cheap): interp/extrap samples per scene (`seeu_data.build.sampling`,
    scenes in sorted order, drawn lazily so that the first shards are written while the rest is
-   planned), or the entries of an evaluation index (file order; entries naming a missing scene or
-   frame are reported and not written).
+   planned; context pairs by frame gap or by view overlap, `--pairs`), or the entries of an
+   evaluation index (file order; entries naming a missing scene or frame are reported and not
+   written; each row's context overlap is recorded in the report for `seeu eval`'s bins).
 3. Cut the plan into shards of about `shard_bytes`, estimated from the source images' byte sizes
    (scaled by the pixel ratio when resizing); each `triples.ShardSpec` is handed on as soon as it is
    complete.
@@ -41,7 +42,15 @@ import pyarrow as pa
 import pyarrow.compute as pc
 
 from seeu_data.build.eval_index import FORMATS as EVAL_INDEX_FORMATS
-from seeu_data.build.sampling import Sample, SamplingConfig, make_sample, min_scene_length, sample_scene
+from seeu_data.build.sampling import (
+    Sample,
+    SamplingConfig,
+    make_sample,
+    min_scene_length,
+    pair_rule,
+    sample_overlap_scene,
+    sample_scene,
+)
 from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
@@ -55,12 +64,14 @@ from seeu_data.limits import (
     MAX_WORKERS,
     check_range,
 )
+from seeu_data.overlap import OverlapTable, context_overlap
 from seeu_data.settings import parse_bytes, setting
 from seeu_data.store.arrow_io import open_ipc_file
 from seeu_data.store.dataset_check import check_dataset
 from seeu_data.store.json_file import read_json
 from seeu_data.store.manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
 from seeu_data.store.out_lock import locks_output
+from seeu_data.store.posed import PosedDataset
 from seeu_data.store.resume import Journal, file_intact, file_stat, files_fingerprint, stamp_of, sweep
 from seeu_data.store.schema import schema_version
 
@@ -213,14 +224,51 @@ class Plan:
     report: dict
 
 
+class InputScenes:
+    """The posed datasets of the inputs, by scene id: cameras and overlap tables read when asked."""
+
+    def __init__(self, inputs: tuple[str, ...] | list[str]):
+        self._ds: dict[str, PosedDataset] = {}
+        for root in inputs:
+            ds = PosedDataset(root)
+            self._ds.update({sid: ds for sid in ds.scene_ids})
+
+    def cameras(self, scene_id: str) -> tuple[np.ndarray, np.ndarray, float, float]:
+        return self._ds[scene_id].load_cameras(scene_id)
+
+    def overlap(self, scene_id: str) -> OverlapTable:
+        return self._ds[scene_id].overlap(scene_id)
+
+    def stored_overlap(self, scene_id: str) -> OverlapTable | None:
+        return self._ds[scene_id].stored_overlap(scene_id)
+
+
 def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
-    """interp / extrap: `samples_per_scene` samples of every long-enough scene, scenes sorted by id.
-    The samples are drawn lazily, scene by scene, so the first shards are written while the rest of
-    the plan is drawn (its counts are known up front: a scene gives all its samples or none)."""
+    """interp / extrap: `samples_per_scene` samples of every usable scene, scenes sorted by id.
+
+    Each scene's context pairs come by frame gap or by view overlap (`sampling.pair_rule`: with
+    ``--pairs auto`` the poses are read to tell a camera path from a photo set); with ``gap`` alone
+    nothing but the frame counts is read. The samples are drawn lazily, scene by scene, so the first
+    shards are written while the rest of the plan is drawn; which scenes are usable is settled first
+    (a scene gives all its samples or none)."""
     s = cfg.sampling
     need = min_scene_length(s)
-    used = [sid for sid in sorted(scenes) if scenes[sid].num_frames >= need]
-    short = sorted(set(scenes) - set(used))
+    views = InputScenes(cfg.inputs) if s.pairs != "gap" else None
+    rule: dict[str, str] = {}
+    draws_of: dict[str, list[Sample]] = {}  # overlap-rule scenes, drawn while settling usability
+    for sid in sorted(scenes):
+        n = scenes[sid].num_frames
+        c2w = views.cameras(sid)[0] if views is not None and s.pairs == "auto" and n >= need else None
+        rule[sid] = pair_rule(s, n, c2w)
+        if rule[sid] == "overlap":
+            assert views is not None
+            c2w, intr, _, _ = views.cameras(sid)
+            draws_of[sid] = sample_overlap_scene(s, views.overlap(sid), c2w, intr, sid, cfg.seed)
+    used = [
+        sid for sid in sorted(scenes) if (draws_of[sid] if rule[sid] == "overlap" else scenes[sid].num_frames >= need)
+    ]
+    short = sorted(sid for sid in set(scenes) - set(used) if rule[sid] == "gap")
+    no_pair = sorted(sid for sid in set(scenes) - set(used) if rule[sid] == "overlap")
     report = {
         "scenes": len(scenes),
         "scenes_used": len(used),
@@ -229,7 +277,19 @@ def plan_sampled(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
         "min_scene_frames": need,
         "samples": len(used) * s.samples_per_scene,
     }
-    draws = (sample for sid in used for sample in sample_scene(s, scenes[sid].num_frames, sid, cfg.seed))
+    if s.pairs != "gap":
+        report["pairs"] = {
+            "gap": sum(1 for sid in used if rule[sid] == "gap"),
+            "overlap": sum(1 for sid in used if rule[sid] == "overlap"),
+            "overlap_scenes_without_a_pair": len(no_pair),
+            "overlap_scenes_without_a_pair_examples": no_pair[:20],
+            "overlap_range": [s.min_overlap, s.max_overlap],
+        }
+
+    def scene_samples(sid: str) -> list[Sample]:
+        return draws_of[sid] if rule[sid] == "overlap" else sample_scene(s, scenes[sid].num_frames, sid, cfg.seed)
+
+    draws = (sample for sid in used for sample in scene_samples(sid))
     return Plan(draws, len(used) * s.samples_per_scene, report)
 
 
@@ -240,7 +300,9 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
     if not cfg.index_path:
         raise SeeUError("--mode eval needs --index FILE")
     index = read_index(cfg.index_path, cfg.index_format)
+    views = InputScenes(cfg.inputs)
     samples, problems = [], []
+    overlaps: dict[str, float | str] = {}
     for e in index.entries:
         src = scenes.get(e.scene_id)
         if src is None:
@@ -253,6 +315,11 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
             )
             continue
         samples.append(make_sample(e.scene_id, "eval", e.k, e.context, e.target))
+        table = views.stored_overlap(e.scene_id) if e.overlap is None and len(e.context) > 1 else None
+        if e.overlap is not None:
+            overlaps[samples[-1].sample_id] = e.overlap
+        elif table is not None:  # data without a stored table: not measured here (thousands of scenes)
+            overlaps[samples[-1].sample_id] = round(context_overlap(table.matrix(), e.context), 4)
     kinds: dict[str, int] = {}
     for prob in problems:
         kind = "scene not in the posed data" if prob["problem"].startswith("scene") else "frames out of range"
@@ -268,6 +335,9 @@ def plan_eval(cfg: BuildConfig, scenes: dict[str, SceneRows]) -> Plan:
         "problems_by_kind": kinds,
         "problems": problems[:MAX_REPORTED_PROBLEMS],
         "problems_truncated": len(problems) > MAX_REPORTED_PROBLEMS,
+        # each row's context overlap: the index entry's "overlap" (NoPoSplat's value or bin name), else
+        # from the posed data's stored overlap table (`overlap.context_overlap`); `seeu eval` bins by it
+        "context_overlap": overlaps,
     }
     if not samples:
         raise SeeUError(
@@ -470,14 +540,16 @@ def known_shards(out: Path) -> dict[str, dict]:
 
 def build_stamp(cfg: BuildConfig) -> str:
     """What a complete build is made from: its parameters, and of each input the digest of what its
-    manifest records of the data (files with their sha256, scenes; not its provenance or report) and the
+    manifest records of the data (files and overlap tables with their sha256, scenes; not its provenance
+    or report) and the
     size and mtime of each file (`resume.files_fingerprint`)."""
     inputs = []
     for root in cfg.inputs:
         try:
             doc = read_json(Path(root) / MANIFEST_NAME, "manifest")
-            listed = {"files": doc["files"], "scenes": doc.get("scenes", [])}
-            files = [Path(root) / f["path"] for f in doc["files"]]
+            overlap = (doc.get("overlap") or {}).get("files", [])
+            listed = {"files": doc["files"], "scenes": doc.get("scenes", []), "overlap": overlap}
+            files = [Path(root) / f["path"] for f in doc["files"] + overlap]
         except (SeeUError, AttributeError, TypeError, KeyError):
             listed, files = {}, []  # no usable manifest: scan_inputs says why
         inputs.append([stamp_of(listed), files_fingerprint(files)])
@@ -530,11 +602,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         raise SeeUError("the inputs hold no scenes", cfg.inputs[0])
     plan = plan_eval(cfg, scenes) if cfg.mode == "eval" else plan_sampled(cfg, scenes)
     if not plan.total:
-        raise SeeUError(
-            f"no scene is long enough: all {len(scenes)} scenes have fewer than "
-            f"{plan.report.get('min_scene_frames')} frames (lower --gap-min?)",
-            cfg.inputs[0],
-        )
+        raise SeeUError(no_samples_reason(cfg, plan.report), cfg.inputs[0])
     out.mkdir(parents=True, exist_ok=True)
     known = {} if cfg.force else known_shards(out)
     journal = Journal(out / PROGRESS_NAME, cfg.fsync)
@@ -590,6 +658,27 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
     doc = write_manifest(out, SCHEMA, schema_version(SCHEMA), files, cfg.params(), prov, report=report, fsync=cfg.fsync)
     journal.remove()
     return doc
+
+
+def no_samples_reason(cfg: BuildConfig, report: dict) -> str:
+    """Why a sampled build drew nothing, in one line, with what to change."""
+    pairs = report.get("pairs")
+    s = cfg.sampling
+    if pairs is None:
+        return (
+            f"no scene is long enough: all {report['scenes']} scenes have fewer than {report['min_scene_frames']} "
+            "frames for --pairs gap (lower --gap-min, or choose pairs by view overlap: --pairs overlap)"
+        )
+    parts = []
+    if report["scenes_skipped_too_short"]:
+        parts.append(f"{report['scenes_skipped_too_short']} scenes too short for the gaps")
+    if pairs["overlap_scenes_without_a_pair"]:
+        parts.append(
+            f"{pairs['overlap_scenes_without_a_pair']} scenes without a context pair of overlap "
+            f"{s.min_overlap:g}..{s.max_overlap:g} that has the targets --mode {s.mode} needs "
+            f"(e.g. {pairs['overlap_scenes_without_a_pair_examples'][0]!r}; widen --min-overlap / --max-overlap)"
+        )
+    return "no scene yields a sample: " + "; ".join(parts)
 
 
 def default_workers(resize: bool = False) -> int:

@@ -4,7 +4,9 @@
 (OUT/chamfer.csv) and OUT/summary.json (last) and returns the summary. Protocol (pixelSplat / MVSplat /
 SeeU): renders and ground truth clipped to [0, 1]; PSNR per image from its MSE; SSIM with an 11-pixel
 Gaussian window (sigma 1.5) as scikit-image computes it; LPIPS(VGG) on [0, 1] inputs; each metric
-averaged over the targets of a scene, then over scenes. Encoder and renderer are timed separately
+averaged over the targets of a scene, then over scenes; for eval builds that recorded their rows'
+context overlap, the same per NoPoSplat overlap bin (small / medium / large, summary "by_overlap").
+Encoder and renderer are timed separately
 per sample after `warmup` batches. With ground truth (`seeu_data.dtu_gt`): depth RMSE of the rendered
 expected depth, and the DTUeval Chamfer distance of the Gaussian centres with opacity >= 0.5.
 `evaluate_on_data` evaluates a model already in memory (the demo, tests).
@@ -167,9 +169,32 @@ def evaluate_on_data(
     )
 
 
-@locks_output(lambda out, *_: out)
-def write_results(out: Path, res, extra: dict) -> dict:
-    """per_target.csv, per_scene.csv, then summary.json (last). Returns the summary document."""
+def overlap_bins(data: str | Path) -> dict[str, str] | None:
+    """sample_id -> overlap bin (`seeu_data.overlap.BINS`: small, medium, large) of the rows of an eval
+    build whose manifest records their context overlap (`seeu build --mode eval`); rows outside the
+    bins are left out (as NoPoSplat's evaluation ignores them). None when nothing is recorded (other
+    builds, shards not on a local disk)."""
+    from seeu_data.overlap import BINS, overlap_bin
+    from seeu_data.store.json_file import read_json
+
+    path = Path(str(data)) / "manifest.json"
+    if not path.is_file():
+        return None
+    recorded = ((read_json(path, "manifest") or {}).get("report") or {}).get("context_overlap")
+    if not isinstance(recorded, dict) or not recorded:
+        return None
+    out = {}
+    for sid, value in recorded.items():
+        name = value if value in BINS else overlap_bin(float(value)) if isinstance(value, (int, float)) else None
+        if name is not None:
+            out[str(sid)] = name
+    return out
+
+
+@locks_output(lambda out, *_, **__: out)
+def write_results(out: Path, res, extra: dict, bins: dict[str, str] | None = None) -> dict:
+    """per_target.csv, per_scene.csv, then summary.json (last). Returns the summary document. `bins`:
+    sample_id -> overlap bin (`overlap_bins`): the summary's "by_overlap" holds the metrics of each bin."""
     from dataclasses import asdict
 
     from seeu_data.store.arrow_io import atomic_write_text
@@ -189,9 +214,17 @@ def write_results(out: Path, res, extra: dict) -> dict:
         for key in ("accuracy", "completeness", "overall"):
             vals = [sum(g[key] for g in gs) / len(gs) for gs in by_scene.values()]
             metrics[f"chamfer_{key}"] = sum(vals) / len(vals)
+    by_overlap = None
+    if bins:
+        by_overlap = {
+            name: summarize(recs)
+            for name in ("small", "medium", "large")
+            if (recs := [r for r in res.records if bins.get(r.sample_id) == name])
+        }
     summary = {
         **extra,
         "metrics": metrics,
+        "by_overlap": by_overlap,
         "timing": timing_dict(res.timing),
         "out": str(out),
         "protocol": {
@@ -276,7 +309,7 @@ def evaluate(cfg: EvalConfig) -> dict:
         "device": str(dev),
         "geometry": geometry_note,
     }
-    return write_results(Path(out), res, extra)
+    return write_results(Path(out), res, extra, overlap_bins(cfg.data))
 
 
 # ------------------------------------------------------------------------------------------------

@@ -518,17 +518,19 @@ def _write(
     timings added) and trajectory.png, the manifest last."""
     import numpy as np
 
-    from seeu_data.ingest.points import POINTS_DIR, write_chunk_points
+    from seeu_data.ingest.points import POINTS_DIR, chunk_observations, write_chunk_points
     from seeu_data.ingest.report import plot_trajectory, write_report
     from seeu_data.resize import resize_scene
     from seeu_data.store.manifest import provenance
-    from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
+    from seeu_data.store.overlap_table import OVERLAP_FILES
+    from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, TrackedScene
     from seeu_data.store.resume import sweep
 
     t0 = time.perf_counter()
     params = {**cfg.params(), "inputs": [str(source.path)], "sfm": asdict(cfg.stage_sfm())}
     prov = provenance("seeu ingest", [str(source.path)], input_fingerprint=identity["fingerprint"])
     sweep(out_dir, POSED_FILES, keep=())  # an earlier run's files: this run writes its own
+    sweep(out_dir, OVERLAP_FILES, keep=())
     sweep(out_dir / POINTS_DIR, "*.ply", keep=())
     with PosedDatasetWriter(out_dir, params=params, provenance=prov, fsync=cfg.run.fsync) as writer:
         for c in chunked.chunks:
@@ -541,7 +543,7 @@ def _write(
             points = write_chunk_points(
                 cache.stage_dir("sfm"), c.model_index, c.meta["sfm_to_chunk"], out_dir, c.scene_id, cfg.run.fsync
             )
-            scene = PosedScene(
+            scene = TrackedScene(
                 scene_id=c.scene_id,
                 images=imgs,
                 image_format="jpeg",
@@ -555,6 +557,9 @@ def _write(
                 timestamp_us=np.array([f["timestamp_us"] for f in fr], np.int64),
                 source_name=[f["source_name"] for f in fr],
                 meta={**c.meta, "source": str(source.path), **points},
+                observations=chunk_observations(
+                    cache.stage_dir("sfm"), c.model_index, [selected.frames[p]["name"] for p in c.frame_positions]
+                ),
             )
             if cfg.masks is not None:
                 scene.masks = chunk_masks(cfg, source.name, c, fr)

@@ -2,9 +2,14 @@
 
 Input: a posed scene (the output of `seeu ingest` or `seeu import`: a posed-frames directory with
 manifest.json; `scene` picks one when it holds several) and context frames: `context` (frame indices
-0 .. N-1 of the scene, at least two) or, when None, `auto_context_pair`: the widest context gap the
-build sampler's default interpolation setting allows (`SamplingConfig().gap_max` = 45 frames, at most
-N - 1), centred in the scene -- frames (N-1-g)//2 and that + g, g = min(45, N - 1).
+0 .. N-1 of the scene, at least two) or, when None, `auto_context_pair`: by the scene's view overlap
+(its stored table, `seeu_data.overlap`), the pair that covers the scene's views best (the mean over
+its frames of the larger share either context sees) among the pairs that overlap at least the build
+sampler's floor (`SamplingConfig().min_overlap`); when none does, the pair that overlaps most, with a
+warning. The frames' numbering and names do not matter (the cameras' canonical order breaks ties).
+With the auto pair, the extrapolated path is also kept where the contexts see something
+(`extrapolation_limit`: at most `extrapolate`, as far as the path's end cameras still share the
+floor with a context, by the cameras measure).
 
 The context frames are decoded, resized to cover the model's input size and centre-cropped (the
 intrinsics updated), with the scene's near/far: the same context `seeu render --cameras` builds
@@ -76,17 +81,51 @@ class PredictConfig:
                 raise SeeUError(f"--context frames must differ, got {','.join(map(str, self.context))}")
 
 
-def auto_context_pair(num_frames: int) -> tuple[int, int]:
-    """The context pair `--auto-context` picks in a scene of `num_frames` frames: the widest gap the
-    build sampler's default interpolation setting draws (`SamplingConfig().gap_max`), clipped to the
-    scene (`sampling.max_gap`), centred."""
-    from seeu_data.build.sampling import SamplingConfig, max_gap
+def auto_context_pair(table, cam_to_world, intrinsics_norm) -> tuple[tuple[int, int], float, float]:
+    """The context pair `--auto-context` picks (module docstring): ((i, j) with i < j, its overlap, its
+    coverage of the scene's views). `table`: the scene's OverlapTable; cam_to_world (N, 4, 4),
+    intrinsics_norm (N, 4) fix the canonical order that breaks ties."""
+    import numpy as np
 
-    if num_frames < 2:
-        raise SeeUError(f"the scene has {num_frames} frame(s): at least two are needed as context views")
-    gap = max_gap(SamplingConfig(), num_frames)
-    left = (num_frames - 1 - gap) // 2
-    return left, left + gap
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.overlap import canonical_order
+
+    n = table.num_frames
+    if n < 2:
+        raise SeeUError(f"the scene has {n} frame(s): at least two are needed as context views")
+    order = canonical_order(cam_to_world, intrinsics_norm)
+    m = table.matrix()[np.ix_(order, order)]
+    score = np.minimum(m, m.T)
+    a, b = np.triu_indices(n, 1)
+    cover = np.maximum(m[:, a], m[:, b]).mean(0)  # (P,) per pair: mean over frames of the larger share seen
+    ok = score[a, b] >= SamplingConfig().min_overlap
+    best = int(np.argmax(np.where(ok, cover, -1.0))) if ok.any() else int(np.argmax(score[a, b]))
+    i, j = sorted((int(order[a[best]]), int(order[b[best]])))
+    return (i, j), float(score[a[best], b[best]]), float(cover[best])
+
+
+def extrapolation_limit(c2w, intr, near: float, far: float, extrapolate: float, steps: int = 10) -> float:
+    """The largest e in [0, `extrapolate`] (in `steps` steps) for which the extrapolated path's end
+    cameras (t = -e and 1 + e, `camera_path`) still share at least `SamplingConfig().min_overlap` with
+    a context camera (`overlap.camera_overlap_matrix`). c2w (2, 4, 4), intr (2, 3, 3) normalised."""
+    import numpy as np
+
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.cameras import intrinsics_norm_vector
+    from seeu_data.overlap import camera_overlap_matrix
+    from seeu_model.camera_path import camera_path
+
+    floor = SamplingConfig().min_overlap
+    k = np.stack([intrinsics_norm_vector(x) for x in intr])
+    for e in np.linspace(extrapolate, 0.0, steps + 1):
+        poses, ks = camera_path(c2w[0], c2w[-1], intr[0], intr[-1], np.array([-e, 1.0 + e]))
+        cams = np.concatenate([c2w[[0, -1]], poses])
+        m = camera_overlap_matrix(
+            cams, np.concatenate([k[[0, -1]], [intrinsics_norm_vector(x) for x in ks]]), near, far
+        )
+        if min(m[2, :2].max(), m[3, :2].max()) >= floor:
+            return float(e)
+    return 0.0
 
 
 def load_posed_scene(scene_dir: str | Path, scene: str | None, max_pixels: int = MAX_PIXELS):
@@ -123,7 +162,23 @@ def predict(cfg: PredictConfig) -> dict:
     scene = load_posed_scene(cfg.scene_dir, cfg.scene, cfg.max_pixels)
     n = len(scene)
     picked = "auto" if cfg.context is None else "given"
-    context = auto_context_pair(n) if cfg.context is None else tuple(sorted(cfg.context))
+    auto: dict = {}
+    context: tuple[int, ...]
+    if cfg.context is None:
+        from seeu_data.build.sampling import SamplingConfig
+        from seeu_data.store.posed import PosedDataset
+
+        table = PosedDataset(cfg.scene_dir).overlap(scene.scene_id)
+        context, overlap, cover = auto_context_pair(table, scene.cam_to_world, scene.intrinsics_norm)
+        floor = SamplingConfig().min_overlap
+        auto = {"overlap": overlap, "coverage": cover, "floor": floor, "overlap_method": table.method}
+        if overlap < floor:
+            auto["warning"] = (
+                f"the best context pair overlaps by {overlap:.2f}, under {floor:g}: its novel views will be poor "
+                "(no two frames of this scene see enough of the same content)"
+            )
+    else:
+        context = tuple(sorted(cfg.context))
     bad = [i for i in context if not 0 <= i < n]
     if bad:
         raise SeeUError(
@@ -150,6 +205,7 @@ def predict(cfg: PredictConfig) -> dict:
         "num_frames": n,
         "context_frames": list(context),
         "context_rule": picked,
+        **({"auto_context": auto} if auto else {}),
         "image_hw": list(hw),
         "near": float(scene.near),
         "far": float(scene.far),
@@ -158,7 +214,13 @@ def predict(cfg: PredictConfig) -> dict:
     with torch.no_grad():
         g = encode_context(loaded.model, ctx)
     report["timing_s"] = {"encode": time.perf_counter() - t0}
-    render_paths(loaded, ctx, g, out, cfg.frames, cfg.extrapolate, None, report)
+    extrapolate = cfg.extrapolate
+    if auto:
+        c2w = ctx["cam_to_world"][0].double().cpu().numpy()
+        intr = ctx["intrinsics"][0].double().cpu().numpy()
+        extrapolate = extrapolation_limit(c2w, intr, scene.near, scene.far, cfg.extrapolate)
+        auto["extrapolate"] = {"requested": cfg.extrapolate, "used": extrapolate}
+    render_paths(loaded, ctx, g, out, cfg.frames, extrapolate, None, report)
     write_png(out / "context.png", np.concatenate([to_uint8(v) for v in ctx["image"][0]], axis=1))
     report.update(export_gaussians(out, g, {"context": ctx}, hw))
     report["num_gaussians"] = int(g.means.shape[1])

@@ -157,6 +157,12 @@ def check_manifest_dataset(path: Path, cfg: ValidateConfig) -> dict:
         f"{s['schema']} v{s['schema_version']}, {s['files']} files, {s['rows']} rows{scenes}, {s['bytes'] / 1e6:.1f} MB"
         + ("" if s["sha256_checked"] else " (sha256 not checked)")
     )
+    ov = s["overlap"]
+    if ov is not None:
+        methods = ", ".join(f"{n} from {m}" for m, n in sorted(ov["scenes_by_method"].items()))
+        what += f"; overlap tables: {ov['files']} files ({methods})"
+    elif kind == "posed":
+        notes.append(f"no overlap table (add one with: seeu overlap {path})")
     return {**s, "kind": kind, "what": what, "notes": notes}
 
 

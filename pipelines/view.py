@@ -54,6 +54,8 @@ DEFAULT_HOST = "127.0.0.1"  # `--host`: only this machine can connect
 DEFAULT_PORT = 8080  # `--port`: viser's default
 MAX_FRAMES = 300  # camera frustums drawn per scene (evenly spaced beyond it)
 MAX_POINTS = 200_000  # SfM points drawn per scene (evenly spaced beyond it)
+MAX_OVERLAP_LINES = 5_000  # overlap-graph pairs drawn per scene (evenly spaced beyond it)
+PARTNERS = 3  # best partners shown for the slider's frame
 MAX_GAUSSIANS = 300_000  # Gaussians drawn (the most opaque beyond it)
 MAX_SCENES = 200  # scenes offered in the dropdown (the first ones)
 THUMB_SIDE = 96  # px: longest side of a frustum's image thumbnail
@@ -287,6 +289,12 @@ class SceneSource:
             self._cache = {scene_id: self.ds.load_scene(scene_id)}
         return self._cache[scene_id]
 
+    def overlap(self, scene):
+        """The scene's view-overlap table: stored (posed frames), else measured (`posed.scene_overlap`)."""
+        from seeu_data.store.posed import scene_overlap
+
+        return self.ds.overlap(scene.scene_id) if self.kind == "posed" else scene_overlap(scene)
+
     def points(self, scene) -> tuple[np.ndarray, np.ndarray] | None:
         """The scene's kept SfM points ((P, 3), (P, 3) uint8) or None."""
         from seeu_data.ingest.points import read_points_ply
@@ -297,8 +305,23 @@ class SceneSource:
         return read_points_ply(self.path / rel)
 
 
+def best_partners(scores: np.ndarray, k: int, count: int = PARTNERS) -> list[tuple[int, float]]:
+    """Frame k's `count` best partners by overlap score (`scores` (N, N) symmetric): [(frame, score)],
+    best first, only those above 0."""
+    row = np.where(np.arange(len(scores)) == k, -1.0, scores[k])
+    best = np.argsort(-row, kind="stable")[:count]
+    return [(int(j), float(row[j])) for j in best if row[j] > 0]
+
+
 def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_scene=None) -> None:
-    """Scene dropdown + frame slider; draws the chosen scene under /scene."""
+    """Scene dropdown + frame slider; draws the chosen scene under /scene: its frustums, the camera path
+    (when the frame order is one), the overlap graph (/scene/overlap: the pairs overlapping at least
+    `seeu build`'s --min-overlap default, brighter the more they overlap) and, for the slider's frame,
+    its best partners (/scene/frame_partners and the text panel), the views `seeu build`,
+    `check-cameras` and `predict --auto-context` choose from."""
+    from seeu_data.build.sampling import SamplingConfig
+    from seeu_data.overlap import frame_order_is_path
+
     state: dict[str, Any] = {}
 
     def draw_frame(k: int) -> None:
@@ -315,7 +338,30 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
             FRAME_RGB,
             thumbnail(scene.images[k], FRAME_SIDE, wh, scene.masks[k] if scene.masks else None),
         )
-        info.content = f"**{scene.scene_id}**: frame {k} of {len(scene)} (source frame {int(scene.source_frame[k])})"
+        partners = best_partners(state["scores"], k)
+        names = scene.source_name or []
+
+        def label(j: int) -> str:
+            return f"{j}" + (f" ({names[j]})" if names and names[j] else "")
+
+        listed = ", ".join(f"{label(j)} {v:.2f}" for j, v in partners) or "none above the floor of the table"
+        info.content = (
+            f"**{scene.scene_id}**: frame {label(k)} of {len(scene)} (source frame {int(scene.source_frame[k])})  \n"
+            f"best partners by view overlap ({state['method']}): {listed}"
+        )
+        centres = np.asarray(scene.cam_to_world)[:, :3, 3]
+        if partners:
+            server.scene.add_line_segments(
+                "/scene/frame_partners",
+                np.stack(
+                    [np.repeat(centres[k : k + 1], len(partners), 0), centres[[j for j, _ in partners]]], 1
+                ).astype(np.float32),
+                colors=FRAME_RGB,
+                thickness=4.0,
+                thickness_units="screen",
+            )
+        else:
+            server.scene.remove_by_name("/scene/frame_partners")
 
     def draw_scene(scene_id: str) -> None:
         scene = source.load(scene_id)
@@ -341,12 +387,26 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
                 CONTEXT_RGB,
                 thumbnail(scene.images[i], THUMB_SIDE, wh, scene.masks[i] if scene.masks else None),
             )
-        if len(centres) > 1:
+        if len(centres) > 1 and frame_order_is_path(c2w):
             server.scene.add_line_segments(
                 "/scene/trajectory",
                 np.stack([centres[:-1], centres[1:]], 1).astype(np.float32),
                 colors=(60, 60, 60),
                 thickness=2.0,
+                thickness_units="screen",
+            )
+        table = source.overlap(scene)
+        scores = table.pair_scores()
+        state["scores"], state["method"] = scores, table.method
+        a, b = np.nonzero(np.triu(scores >= SamplingConfig().min_overlap, 1))
+        keep = evenly(len(a), MAX_OVERLAP_LINES)
+        if len(a):
+            shade = (80 + 175 * np.clip(scores[a[keep], b[keep]], 0, 1)).astype(np.uint8)
+            server.scene.add_line_segments(
+                "/scene/overlap",
+                np.stack([centres[a[keep]], centres[b[keep]]], 1).astype(np.float32),
+                colors=np.repeat(np.stack([shade // 3, shade, shade // 2], -1)[:, None], 2, 1),
+                thickness=1.5,
                 thickness_units="screen",
             )
         pts = source.points(scene)
@@ -633,13 +693,13 @@ class Prediction:
                 self.lock.release()
 
 
-def posed_context(scene, hw) -> dict:
-    """A two-view context of a posed scene: the pair `seeu predict --auto-context` picks."""
+def posed_context(scene, table, hw) -> dict:
+    """A two-view context of a posed scene (`table`: its overlap): the pair `seeu predict --auto-context` picks."""
     from pipelines.predict import auto_context_pair
     from pipelines.render import context_from_views
     from seeu_data.image_ops import decode_rgb
 
-    ids = list(auto_context_pair(len(scene)))
+    ids = list(auto_context_pair(table, scene.cam_to_world, scene.intrinsics_norm)[0])
     return context_from_views(
         [decode_rgb(bytes(scene.images[i]), None, int(scene.width[i]) * int(scene.height[i])) for i in ids],
         np.asarray(scene.cam_to_world)[ids],
@@ -734,8 +794,11 @@ def build_scene(cfg: ViewConfig, out: Callable[[str], None] = print) -> tuple[vi
                 on_row = lambda i: pred.predict(shard_sample(str(cfg.path), str(i), pred.hw)["context"])  # noqa: E731
             show_triple(server, cfg.path, cfg.sample, on_row)
         else:
-            on_scene = None if pred is None else (lambda scene: pred.predict(posed_context(scene, pred.hw)))
-            show_posed(server, SceneSource(cfg.path, kind, notes), notes, on_scene)
+            source = SceneSource(cfg.path, kind, notes)
+            on_scene = None
+            if pred is not None:
+                on_scene = lambda scene: pred.predict(posed_context(scene, source.overlap(scene), pred.hw))  # noqa: E731
+            show_posed(server, source, notes, on_scene)
     except BaseException:
         stop_server(server)
         raise

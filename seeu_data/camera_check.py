@@ -1,8 +1,14 @@
 """Check that stored cameras agree with the images: SIFT matches against the cameras' epipolar geometry.
 
-For a few frame pairs per scene (frames far enough apart), SIFT features are matched (OpenCV, Lowe's
-ratio test) and the Sampson error (pixels) of each match is computed under the fundamental matrix
-the stored cameras give, `F = K2^-T [t]x R K1^-1` with (R, t) the pose of camera 1 in camera 2. A
+For a few frame pairs per scene, chosen by the scene's view-overlap table (`seeu_data.overlap`): the
+pairs whose overlap is just above PAIR_OVERLAP (wide enough for a camera error to show, close enough
+for matches), apart by at least MIN_BASELINE_FRACTION of the scene's extent, ranked in the cameras'
+canonical order so the frames' numbering and names do not matter (`pick_pairs`; a pair with fewer
+than MIN_PAIR_INLIERS inliers is passed over for the next), SIFT features are
+matched (OpenCV; Lowe's ratio test, mutual best matches,
+then the inliers of a RANSAC fundamental matrix fitted to the matches themselves, so outliers do not
+reach the check) and the Sampson error (pixels) of each inlier is computed under the fundamental
+matrix the stored cameras give, `F = K2^-T [t]x R K1^-1` with (R, t) the pose of camera 1 in camera 2. A
 median under `max_error` means the cameras are consistent with the images, unless a convention fix
 fits at least BETTER_FACTOR times better (a principal point off by 5 % of the width moves epipolar
 lines of forward motion by well under a pixel: 0.55 px median on the synthetic clip). The common
@@ -44,15 +50,21 @@ from seeu_data.errors import SeeUError
 from seeu_data.exporters.pixelsplat import peer_skip_reason
 from seeu_data.image_ops import decode_rgb
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.overlap import OverlapTable, canonical_order
 from seeu_data.settings import setting
 from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
-from seeu_data.store.posed import PosedScene
+from seeu_data.store.posed import PosedDataset, PosedScene, scene_overlap
 
 MAX_ERROR_PX = 2.0  # median Sampson error (pixels) under which cameras are consistent, `--max-error`
 PAIRS_PER_SCENE = 3  # frame pairs matched per scene, `--pairs`
 MAX_SCENES = 20  # scenes checked at most, `--max-scenes`
 MIN_MATCHES = 15  # fewer SIFT matches in a scene: not checked
 RATIO = 0.75  # Lowe's ratio test
+PAIR_OVERLAP = 0.4  # pairs overlapping just above this are matched: wide enough to show a camera error, enough matches
+MIN_PAIR_INLIERS = 8  # a pair with fewer inlier matches is passed over for the next candidate ...
+CANDIDATES = 3  # ... among at most this many times --pairs candidates
+RANSAC_PX = 1.5  # inlier threshold (pixels) of the fundamental matrix fitted to the matches
+RANSAC_CONFIDENCE = 0.999
 MIN_BASELINE_FRACTION = 0.1  # a pair's camera centres at least this fraction of the scene's extent apart
 SIFT_FEATURES = 2000
 BETTER_FACTOR = 3.0  # a convention fix whose median error is this many times lower flags the scene ...
@@ -180,8 +192,6 @@ def iter_scenes(cfg: CameraCheckConfig, kind: str) -> Iterator[PosedScene | tupl
 
     path = Path(cfg.path)
     if kind == "posed":
-        from seeu_data.store.posed import PosedDataset
-
         ds = PosedDataset(path)
         yield from ds.iter_scenes(ds.scene_ids[: cfg.max_scenes])
         return
@@ -257,39 +267,58 @@ def _gray(bgr: np.ndarray) -> np.ndarray:
     return np.asarray(cv2.cvtColor(bgr, cv2.COLOR_BGR2GRAY))
 
 
-def match_sift(img1: np.ndarray, img2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """SIFT matches between two grayscale images with the ratio test: pixel coordinates (M, 2) each,
-    corner-at-origin (OpenCV keypoints are pixel-centre based: +0.5)."""
+def match_sift(img1: np.ndarray, img2: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
+    """SIFT matches between two grayscale images that pass the ratio test both ways (mutual best
+    matches) and are inliers of a RANSAC fundamental matrix fitted to them (`RANSAC_PX`): pixel
+    coordinates (M, 2) each, corner-at-origin (OpenCV keypoints are pixel-centre based: +0.5), and
+    the number of ratio-test matches before the filters."""
     sift = cv2.SIFT_create(nfeatures=SIFT_FEATURES)  # type: ignore[attr-defined]
     k1, d1 = sift.detectAndCompute(img1, None)
     k2, d2 = sift.detectAndCompute(img2, None)
+    empty = np.zeros((0, 2))
     if d1 is None or d2 is None or len(k1) < 2 or len(k2) < 2:
-        return np.zeros((0, 2)), np.zeros((0, 2))
-    good = [
-        m[0]
-        for m in cv2.BFMatcher(cv2.NORM_L2).knnMatch(d1, d2, k=2)
-        if len(m) == 2 and m[0].distance < RATIO * m[1].distance
-    ]
-    x1 = np.array([k1[m.queryIdx].pt for m in good], dtype=np.float64).reshape(-1, 2) + 0.5
-    x2 = np.array([k2[m.trainIdx].pt for m in good], dtype=np.float64).reshape(-1, 2) + 0.5
-    return x1, x2
+        return empty, empty, 0
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+
+    def ratio(da, db) -> dict[int, int]:
+        return {
+            m[0].queryIdx: m[0].trainIdx
+            for m in bf.knnMatch(da, db, k=2)
+            if len(m) == 2 and m[0].distance < RATIO * m[1].distance
+        }
+
+    forward, backward = ratio(d1, d2), ratio(d2, d1)
+    mutual = [(q, t) for q, t in forward.items() if backward.get(t) == q]
+    x1 = np.array([k1[q].pt for q, _ in mutual], dtype=np.float64).reshape(-1, 2) + 0.5
+    x2 = np.array([k2[t].pt for _, t in mutual], dtype=np.float64).reshape(-1, 2) + 0.5
+    if len(x1) < 8:
+        return empty, empty, len(forward)
+    _, inlier = cv2.findFundamentalMat(x1, x2, cv2.FM_RANSAC, RANSAC_PX, RANSAC_CONFIDENCE)
+    keep = np.zeros(len(x1), bool) if inlier is None else inlier.ravel().astype(bool)
+    return x1[keep], x2[keep], len(forward)
 
 
-def pick_pairs(cam_to_world: np.ndarray, pairs: int) -> list[tuple[int, int]]:
-    """Up to `pairs` frame pairs (i, j), i evenly spread, j the first later frame whose camera centre is
-    at least MIN_BASELINE_FRACTION of the scene's extent from i's (none when the cameras do not move)."""
-    centres = cam_to_world[:, :3, 3]
+def pick_pairs(
+    scores: np.ndarray, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, limit: int
+) -> list[tuple[int, int]]:
+    """Up to `limit` candidate frame pairs (i, j), best first: the pairs whose overlap score (`scores`
+    (N, N), symmetric) is at least PAIR_OVERLAP, least first (the widest that still match well), then
+    the others, most first; only pairs whose camera centres are at least MIN_BASELINE_FRACTION of the
+    scene's extent (its largest centre distance) apart. Ranked in the cameras' canonical order
+    (`overlap.canonical_order`; ties go to the canonically earlier pair, i before j canonically), so
+    renaming or shuffling the frames picks the same photos. None when the cameras do not move."""
+    c2w = np.asarray(cam_to_world, np.float64)
+    order = canonical_order(c2w, intrinsics_norm)
+    centres = c2w[order, :3, 3]
     n = len(centres)
-    extent = float(np.linalg.norm(centres - centres[0], axis=1).max()) if n else 0.0
+    dist = np.linalg.norm(centres[:, None] - centres[None], axis=-1)
+    extent = float(dist.max()) if n else 0.0
     if n < 2 or extent <= 0:
         return []
-    out: list[tuple[int, int]] = []
-    for i in sorted({int(round(v)) for v in np.linspace(0, n - 2, pairs)}):
-        dist = np.linalg.norm(centres[i + 1 :] - centres[i], axis=1)
-        far = np.nonzero(dist >= MIN_BASELINE_FRACTION * extent)[0]
-        if len(far):
-            out.append((i, i + 1 + int(far[0])))
-    return out
+    s = np.asarray(scores, np.float64)[np.ix_(order, order)]
+    a, b = np.nonzero(np.triu(dist >= MIN_BASELINE_FRACTION * extent, 1) & (s > 0))
+    ranked = sorted(zip(a.tolist(), b.tolist()), key=lambda p: (s[p] < PAIR_OVERLAP, abs(s[p] - PAIR_OVERLAP), p))
+    return [(int(order[i]), int(order[j])) for i, j in ranked[:limit]]
 
 
 # ---------------------------------------------------------------------------------------------
@@ -402,22 +431,39 @@ def peer_loader_skips(scene: PosedScene) -> list[str]:
 
 
 def check_scene(
-    scene: PosedScene, cfg: CameraCheckConfig, root: Path | None = None, stored_near_far: bool = True
+    scene: PosedScene,
+    cfg: CameraCheckConfig,
+    root: Path | None = None,
+    stored_near_far: bool = True,
+    overlap: OverlapTable | None = None,
 ) -> tuple[dict, tuple | None]:
     """One scene's report (and its first pair with matches, for the figure: (i, j, x1, x2)). `root`: the
     posed dataset holding the scene (its kept SfM points give the near/far suggestion; else the
     matches triangulated with the stored cameras do, when they are consistent); `stored_near_far`:
-    the scene's near/far come from the data (not a reader's placeholder), so their clipping is checked."""
+    the scene's near/far come from the data (not a reader's placeholder), so their clipping is checked;
+    `overlap`: the scene's stored overlap table (None: measured, `posed.scene_overlap`)."""
     c2w = np.asarray(scene.cam_to_world, dtype=np.float64)
     intr = np.asarray(scene.intrinsics_norm, dtype=np.float64)
     wh = np.stack([np.asarray(scene.width), np.asarray(scene.height)], -1)
     rep: dict = {"scene_id": scene.scene_id, "frames": len(scene), "peer_loader_skips": peer_loader_skips(scene)}
-    matched = []
-    for i, j in pick_pairs(c2w, cfg.pairs):
-        x1, x2 = match_sift(_gray(_decode(scene, i)), _gray(_decode(scene, j)))
-        if len(x1):
+    table = overlap if overlap is not None else scene_overlap(scene)
+    scores = table.pair_scores()
+    rep["overlap_method"] = table.method
+    matched: list[tuple[tuple[int, int], np.ndarray, np.ndarray]] = []
+    details: list[dict] = []
+    for i, j in pick_pairs(scores, c2w, intr, CANDIDATES * cfg.pairs):
+        if len(matched) == cfg.pairs:
+            break
+        x1, x2, raw = match_sift(_gray(_decode(scene, i)), _gray(_decode(scene, j)))
+        names = [scene.source_name[k] for k in (i, j)] if scene.source_name else []
+        details.append(
+            {"frames": [i, j], "names": names, "overlap": float(scores[i, j]), "matches": raw, "inliers": len(x1)}
+        )
+        details[-1]["used"] = len(x1) >= MIN_PAIR_INLIERS
+        if details[-1]["used"]:
             matched.append(((i, j), x1, x2))
     rep["pairs"] = [list(p) for p, _, _ in matched]
+    rep["pair_details"] = details
     rep["matches"] = int(sum(len(x1) for _, x1, _ in matched))
     if rep["matches"] < MIN_MATCHES:
         rep["verdict"] = "unchecked"
@@ -426,6 +472,9 @@ def check_scene(
         )
         return rep, None
     err = _errors(matched, c2w, intr, wh)
+    used = (d for d in details if d["used"])
+    for d, e in zip(used, np.split(err, np.cumsum([len(x1) for _, x1, _ in matched])[:-1])):
+        d["median_error_px"] = float(np.median(e))
     rep["median_error_px"] = float(np.median(err))
     rep["p90_error_px"] = float(np.percentile(err, 90))
     tried = {}
@@ -501,7 +550,9 @@ def epipolar_figure(
 def check_cameras(cfg: CameraCheckConfig) -> dict:
     """Check every scene (up to `max_scenes`); the report written to `out/check.json` when `out` is set.
 
-    Returns {"path", "kind", "max_error_px", "scenes": [per scene: frames, pairs, matches,
+    Returns {"path", "kind", "max_error_px", "scenes": [per scene: frames, pairs (those with inliers),
+    pair_details ([{frames, names, overlap, matches (ratio test), inliers, used (enough inliers),
+    median_error_px}] of every pair tried), overlap_method, matches (inliers of the pairs used),
     median_error_px, p90_error_px, verdict (consistent / inconsistent / unchecked), cause, cause_text,
     suggestion, hypotheses_median_px, peer_loader_skips, near_far (`suggest_near_far`; absent when
     there are no points: no kept SfM points and inconsistent cameras)], "skipped": [{scene_id, reason}],
@@ -522,7 +573,8 @@ def check_cameras(cfg: CameraCheckConfig) -> dict:
             continue
         item.check()  # finite rigid poses, positive focal lengths (a bad dataset, not a convention mistake)
         root = Path(cfg.path) if kind == "posed" else None
-        rep, pair = check_scene(item, cfg, root, stored_near_far=kind in STORED_NEAR_FAR)
+        stored = PosedDataset(root).overlap(item.scene_id) if root is not None else None
+        rep, pair = check_scene(item, cfg, root, stored_near_far=kind in STORED_NEAR_FAR, overlap=stored)
         scenes.append(rep)
         if pair is not None and (
             figure_pair is None or (rep["verdict"] != "consistent" and figure_pair[0] == "consistent")

@@ -286,3 +286,25 @@ def unproject_pixels(
     y = (uv[..., 1] - cy[..., None]) / fy[..., None] * depth
     cam = _stack([x, y, depth], -1)
     return cam @ _t(cam_to_world[..., :3, :3]) + cam_to_world[..., None, :3, 3]
+
+
+def project_points_to_cameras(
+    points_world: np.ndarray, cam_to_world: np.ndarray, intrinsics_norm: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """`project_points` of one point set into many cameras at once, on the normalised (1 x 1) image,
+    numpy only, as one matrix product (fast for thousands of points and cameras).
+
+    Shapes: points `(M, 3)`, cam_to_world `(B, 4, 4)`, intrinsics_norm `(B, 4)`. Returns image
+    coordinates `(B, M, 2)` in [0, 1] inside the image (corner-at-origin) and camera depth `(B, M)`.
+    """
+    pts = np.asarray(points_world, np.float64)
+    w2c = world_to_cam_from_cam_to_world(np.asarray(cam_to_world, np.float64))
+    b = len(w2c)
+    cam = (pts @ w2c[:, :3, :3].transpose(0, 2, 1).transpose(1, 0, 2).reshape(3, 3 * b)).reshape(len(pts), b, 3)
+    cam = cam.transpose(1, 0, 2) + w2c[:, None, :3, 3]
+    k = np.asarray(intrinsics_norm, np.float64)
+    depth = cam[..., 2]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        u = k[:, None, 0] * cam[..., 0] / depth + k[:, None, 2]
+        v = k[:, None, 1] * cam[..., 1] / depth + k[:, None, 3]
+    return np.stack([u, v], -1), depth

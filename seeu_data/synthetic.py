@@ -286,6 +286,68 @@ def pan_camera_path(n_frames: int, sweep_deg: float = 60.0, arm_m: float = 0.3, 
     return np.stack(poses)
 
 
+def make_orbit_scene(seed: int = 0) -> Scene:
+    """A room (8 x 8 m, 2.7 m high, floor at y = 1.2) with a cluster of boxes in its middle (within 0.9 m
+    of the room's vertical axis, up to 1.3 m tall) and boxes along the walls: an object to walk around,
+    with a textured background on every side. Viewed by `orbit_camera_path` and `wide_camera_set`."""
+    rng = np.random.default_rng(seed)
+    light = np.array([0.3, -0.8, 0.5])
+    light /= np.linalg.norm(light)
+    rmin, rmax = np.array([-4.0, -1.5, -4.0]), np.array([4.0, 1.2, 4.0])
+    rects: list = []
+    _add_box(rects, rng, rmin, rmax, light, inward=True)
+    boxes = []
+    for i in range(5):  # the object: boxes of several heights around the axis
+        a = 2 * np.pi * i / 5 + rng.uniform(-0.3, 0.3)
+        sx, sy, sz = rng.uniform(0.3, 0.6), rng.uniform(0.4, 1.3), rng.uniform(0.3, 0.6)
+        cx, cz = 0.45 * np.cos(a), 0.45 * np.sin(a)
+        boxes.append(
+            (np.array([cx - sx / 2, rmax[1] - sy, cz - sz / 2]), np.array([cx + sx / 2, rmax[1], cz + sz / 2]))
+        )
+    for i in range(8):  # along the walls
+        a = 2 * np.pi * i / 8 + rng.uniform(-0.2, 0.2)
+        s = rng.uniform(0.4, 0.9, size=3)
+        cx, cz = 3.3 * np.cos(a), 3.3 * np.sin(a)
+        boxes.append(
+            (
+                np.array([cx - s[0] / 2, rmax[1] - s[1] - 0.3, cz - s[2] / 2]),
+                np.array([cx + s[0] / 2, rmax[1], cz + s[2] / 2]),
+            )
+        )
+    return _scene_of(rects, rng, boxes, light, seed)
+
+
+ORBIT_TARGET = np.array([0.0, 0.5, 0.0])  # the middle of `make_orbit_scene`'s object
+
+
+def _look_at(eye: np.ndarray, target: np.ndarray = ORBIT_TARGET) -> np.ndarray:
+    return _look_along(np.asarray(eye, float), np.asarray(target, float) - np.asarray(eye, float))
+
+
+def orbit_camera_path(n_frames: int, radius: float = 2.4, height: float = -0.3) -> np.ndarray:
+    """A full circle around `make_orbit_scene`'s object: `(n_frames, 4, 4)` OpenCV camera-to-world, evenly
+    spaced, at `radius` metres from the room's axis and y = `height` (above the object), looking at it."""
+    if n_frames < 1:
+        raise SeeUError(f"n_frames must be >= 1, got {n_frames}")
+    angles = 2 * np.pi * np.arange(n_frames) / n_frames
+    return np.stack([_look_at(np.array([radius * np.sin(a), height, -radius * np.cos(a)])) for a in angles])
+
+
+def wide_camera_set(n_frames: int = 10, seed: int = 0) -> np.ndarray:
+    """Photos taken around `make_orbit_scene`'s object from scattered places: `(n_frames, 4, 4)`, azimuths
+    spread over the circle (about 360 / n degrees apart, jittered by a quarter of that), 1.9-3.0 m
+    from the axis, y between -0.6 and 0.1, each aimed near the object; in a shuffled (non-path) order."""
+    rng = np.random.default_rng(seed)
+    step = 2 * np.pi / n_frames
+    angles = step * np.arange(n_frames) + rng.uniform(-0.25, 0.25, n_frames) * step
+    poses = []
+    for a in angles:
+        r, y = rng.uniform(1.9, 3.0), rng.uniform(-0.6, 0.1)
+        aim = ORBIT_TARGET + rng.uniform(-0.25, 0.25, 3) * np.array([1.0, 0.4, 1.0])
+        poses.append(_look_at(np.array([r * np.sin(a), y, -r * np.cos(a)]), aim))
+    return np.stack(poses)[rng.permutation(n_frames)]
+
+
 def path_length(cam_to_world: np.ndarray) -> float:
     """Sum of distances between consecutive camera centres of `(N, 4, 4)` poses."""
     c = np.asarray(cam_to_world)[:, :3, 3]
@@ -566,15 +628,25 @@ def synthetic_posed_scene(
     jpeg_quality: int = 95,
     hfov_deg: float = 70.0,
     path_length_m: float = 7.0,
+    world: str = "corridor",
+    poses: np.ndarray | None = None,
+    tracks: bool = False,
 ):
-    """A ground-truth `PosedScene` of the synthetic corridor (JPEG images, exact cameras, no SfM).
+    """A ground-truth `PosedScene` of a synthetic scene (JPEG images, exact cameras, no SfM): `world`
+    corridor (`make_scene`, walked by `camera_path`) or orbit (`make_orbit_scene`, circled by
+    `orbit_camera_path`); `poses` `(n, 4, 4)` replace the path (then `n_frames` is their number);
+    `tracks`: a `TrackedScene` with the exact observations of `exact_observations` (its view overlap
+    then is measured from them, as from an ingest's SfM tracks).
 
     near/far are the min/max rendered depth over all frames with a 10 % margin (recorded in meta).
     """
-    from seeu_data.store.posed import PosedScene
+    from seeu_data.store.posed import PosedScene, TrackedScene
 
-    scene = make_scene(seed)
-    poses = camera_path(n_frames, path_length_m)
+    scene = world_scene(world, seed)
+    if poses is None:
+        poses = orbit_camera_path(n_frames) if world == "orbit" else camera_path(n_frames, path_length_m)
+    poses = np.asarray(poses, np.float64)
+    n_frames = len(poses)
     intr = default_intrinsics_norm(width, height, hfov_deg)
     images, dmin, dmax = [], np.inf, 0.0
     for pose in poses:
@@ -585,7 +657,9 @@ def synthetic_posed_scene(
         images.append(buf.tobytes())
         finite = depth[np.isfinite(depth)]
         dmin, dmax = min(dmin, float(finite.min())), max(dmax, float(finite.max()))
-    return PosedScene(
+    extra = {"observations": exact_observations(scene, poses, np.tile(intr, (n_frames, 1)))} if tracks else {}
+    return (TrackedScene if tracks else PosedScene)(
+        **extra,
         scene_id=scene_id or f"synthetic_s{seed}",
         images=images,
         image_format="jpeg",
@@ -600,6 +674,7 @@ def synthetic_posed_scene(
         source_name=[""] * n_frames,
         meta={
             "synthetic": True,
+            "world": world,
             "seed": seed,
             "ground_truth": True,
             "near_far_method": "min/max rendered depth over the frames with a 10% margin",
@@ -653,3 +728,88 @@ def accuracy_line(acc: dict) -> str:
         f"vs ground truth: centre RMSE {best['centre_rmse_pct_path']:.3f}% of path, "
         f"rel. rotation {best['rel_rot_err_mean_deg']:.3f} deg, focal {best['focal_err_pct']:.2f}%"
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# Ground-truth view overlap
+# ---------------------------------------------------------------------------------------------
+
+WORLDS = ("corridor", "orbit")  # the scenes `synthetic_posed_scene` and `world_scene` build
+
+
+def world_scene(world: str, seed: int = 0) -> Scene:
+    """The scene named `world` (one of WORLDS)."""
+    if world not in WORLDS:
+        raise SeeUError(f"world must be one of {', '.join(WORLDS)}, got {world!r}")
+    return make_orbit_scene(seed) if world == "orbit" else make_scene(seed)
+
+
+def _visible(
+    points: np.ndarray, cam_to_world: np.ndarray, intr: np.ndarray, depth: np.ndarray, tol: float
+) -> np.ndarray:
+    """(M,) which world points `(M, 3)` a view sees: in front, inside its image, and not hidden (their
+    depth within `tol` (relative) of the view's rendered `depth` (H, W) at their pixel)."""
+    height, width = depth.shape
+    uv, z = project_points(points, cam_to_world, intr, width, height)
+    inside = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < width) & (uv[:, 1] >= 0) & (uv[:, 1] < height)
+    px = np.clip(np.floor(np.where(inside[:, None], uv, 0)).astype(int), 0, [width - 1, height - 1])
+    return inside & (np.abs(z - depth[px[:, 1], px[:, 0]]) <= tol * np.abs(z))
+
+
+def _lifted(depth: np.ndarray, cam_to_world: np.ndarray, intr: np.ndarray, step: int = 1) -> np.ndarray:
+    """World points `(M, 3)` of every `step`-th pixel centre of a view, at its rendered `depth` (H, W)."""
+    height, width = depth.shape
+    jj, ii = np.meshgrid(np.arange(step // 2, width, step), np.arange(step // 2, height, step), indexing="xy")
+    centres = np.stack([jj.ravel() + 0.5, ii.ravel() + 0.5], -1)
+    return unproject_pixels(
+        centres, depth[ii.ravel(), jj.ravel()].astype(np.float64), cam_to_world, intr, width, height
+    )
+
+
+def _depths(scene: Scene, cam_to_world: np.ndarray, intr: np.ndarray, width: int, height: int) -> np.ndarray:
+    return np.stack([render_view(scene, c, k, width, height)[1] for c, k in zip(cam_to_world, intr)])
+
+
+def true_overlap(
+    scene: Scene,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int = 64,
+    height: int = 48,
+    depth_tolerance: float = 0.02,
+) -> np.ndarray:
+    """The exact view overlap of `seeu_data.overlap` for a synthetic scene: `(N, N)`, [a, b] = the share
+    of view a's pixels whose surface point view b sees (in front, inside its image and not hidden:
+    its depth in b within `depth_tolerance` (relative) of b's rendered depth at that pixel).
+    Views rendered at `width` x `height`; cam_to_world `(N, 4, 4)`, intrinsics_norm `(N, 4)`."""
+    c2w = np.asarray(cam_to_world, np.float64)
+    intr = np.asarray(intrinsics_norm, np.float64)
+    depth = _depths(scene, c2w, intr, width, height)
+    out = np.eye(len(c2w))
+    for a in range(len(c2w)):
+        pts = _lifted(depth[a], c2w[a], intr[a])
+        for b in range(len(c2w)):
+            if a != b:
+                out[a, b] = _visible(pts, c2w[b], intr[b], depth[b], depth_tolerance).mean()
+    return out
+
+
+def exact_observations(
+    scene: Scene,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int = 64,
+    height: int = 48,
+    step: int = 4,
+    depth_tolerance: float = 0.02,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Exact "SfM tracks" of a synthetic scene: surface points lifted from every `step`-th pixel of each
+    view, each observed by every view that sees it (`true_overlap`'s visibility test). Returns (frame
+    index (M,), point id (M,)) of every observation, as `overlap.overlap_from_observations` takes them."""
+    c2w = np.asarray(cam_to_world, np.float64)
+    intr = np.asarray(intrinsics_norm, np.float64)
+    depth = _depths(scene, c2w, intr, width, height)
+    pts = np.concatenate([_lifted(depth[a], c2w[a], intr[a], step) for a in range(len(c2w))])
+    seen = np.stack([_visible(pts, c2w[b], intr[b], depth[b], depth_tolerance) for b in range(len(c2w))])
+    frame, point = np.nonzero(seen)
+    return frame.astype(np.int64), point.astype(np.int64)

@@ -60,3 +60,14 @@ def fsyncs(monkeypatch):
     monkeypatch.setattr(os, "fsync", fsync)
     monkeypatch.setattr(os, "replace", replace)
     return calls
+
+
+@pytest.fixture(scope="session")
+def overlap_scenes(tmp_path_factory) -> dict:
+    """The view-overlap test scenes, exact cameras and tracks, 160x120 JPEGs (`tests/overlap_fixtures.py`): posed
+    datasets `orbit` (24 views on a circle, in order), `shuffled` (the same photos shuffled and renamed:
+    `shuffled_order[k]` is the orbit frame at position k) and `wide` (10 views scattered around the
+    object, in no path order); `truth_orbit` / `truth_wide` their exact overlap matrices."""
+    from tests.overlap_fixtures import make_overlap_scenes
+
+    return make_overlap_scenes(tmp_path_factory.mktemp("overlap_scenes"))

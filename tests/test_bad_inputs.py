@@ -1013,7 +1013,7 @@ case("import-pixelsplat-header-bomb", text="over the 64 MP limit")(_ps_bomb)
 def _damage_scene_ids(ws, tmp) -> list[str]:
     """A posed file whose scene_id strings are no longer UTF-8 (same size: only the sha256 would see it)."""
     root = _copy(ws["posed"], tmp, "ds")
-    path = sorted(root.glob("*.arrow"))[0]
+    path = sorted(root.glob("posed-*.arrow"))[0]
     data = bytearray(path.read_bytes())
     data[data.find(b"syn0syn0") + 4] = 0x82
     path.write_bytes(bytes(data))
@@ -1023,7 +1023,18 @@ def _damage_scene_ids(ws, tmp) -> list[str]:
 case("validate-no-sha-damaged-strings", text="corrupt")(_damage_scene_ids)
 case("index-gap-no-scene-holds", text="scene 'syn0' has 12 frames, a gap of 40 needs 41")(
     lambda ws, tmp: (
-        ["index", str(ws["posed"]), "--out", str(tmp / "i.json"), "--gap-min", "40", "--gap-max", "45"],
+        [
+            "index",
+            str(ws["posed"]),
+            "--out",
+            str(tmp / "i.json"),
+            "--gap-min",
+            "40",
+            "--gap-max",
+            "45",
+            "--pairs",
+            "gap",
+        ],
         _nothing_written(tmp / "i.json"),
     )
 )

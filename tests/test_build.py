@@ -49,6 +49,8 @@ def _build(posed: Path, out: Path, *extra: str) -> int:
             "3",
             "--shard-size",
             "20kB",
+            "--pairs",
+            "gap",  # the frame-gap protocol alone (by default gamma, too short for it, gets overlap pairs)
             *extra,
         ]
     )
@@ -255,9 +257,26 @@ def test_resize_jpeg_reencode_is_deterministic(posed, tmp_path):
 
 def test_skipped_scenes_and_bad_inputs(posed, tmp_path, capsys):
     # every scene too short -> one line, exit 2, no manifest
-    assert cli_main(["build", str(posed), "--out", str(tmp_path / "o"), "--gap-min", "100", "--gap-max", "120"]) == 2
+    assert (
+        cli_main(
+            [
+                "build",
+                str(posed),
+                "--out",
+                str(tmp_path / "o"),
+                "--gap-min",
+                "100",
+                "--gap-max",
+                "120",
+                "--pairs",
+                "gap",
+            ]
+        )
+        == 2
+    )
     err = capsys.readouterr().err
     assert err.startswith("seeu build: error:") and "no scene is long enough" in err and err.count("\n") == 1
+    assert "--pairs overlap" in err
     assert not (tmp_path / "o" / "manifest.json").exists()
     # an unreadable posed chunk names the file
     broken = tmp_path / "broken"

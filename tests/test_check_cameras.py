@@ -37,7 +37,7 @@ def _check(argv: list[str], capsys) -> tuple[int, str]:
     return rc, cap.out + cap.err
 
 
-def _broken(good: Path, tmp: Path, change) -> Path:
+def broken_copy(good: Path, tmp: Path, change) -> Path:
     """A copy of `good` whose cameras are `change(cam_to_world (N,4,4), intrinsics_norm (N,4))`,
     written into the Arrow file with the manifest's size and sha256 kept true."""
     root = tmp / "broken"
@@ -94,7 +94,7 @@ BROKEN = {
 @pytest.mark.parametrize("variant", sorted(BROKEN))
 def test_broken_cameras_fail_and_name_the_cause(good, tmp_path, capsys, variant):
     change, words = BROKEN[variant]
-    rc, out = _check([str(_broken(good, tmp_path, change)), "--out", str(tmp_path / "o")], capsys)
+    rc, out = _check([str(broken_copy(good, tmp_path, change)), "--out", str(tmp_path / "o")], capsys)
     assert rc == 1, out
     assert "INCONSISTENT" in out and words in out and "after the fix" in out
     scene = json.loads((tmp_path / "o" / "check.json").read_text())["scenes"][0]

@@ -52,6 +52,7 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
         index,
         inspect_cmd,
         model_info,
+        overlap,
         predict,
         render,
         synth,
@@ -66,6 +67,7 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
     from pipelines.index import IndexFileConfig
     from pipelines.inspect_triples import InspectConfig
     from pipelines.model_info import ModelInfoConfig
+    from pipelines.overlap import OverlapConfig
     from pipelines.predict import PredictConfig
     from pipelines.render import RenderConfig
     from pipelines.train import TrainRunConfig
@@ -79,6 +81,7 @@ def _commands() -> list[tuple[tuple[str, ...], list[type], dict[str, str], tuple
         (("build",), [BuildConfig], build_cli.SHARED_FLAGS, build_cli.SKIP, ()),
         (("index",), [IndexFileConfig], index.SHARED_FLAGS, (), ()),
         (("validate",), [ValidateConfig], validate.SHARED_FLAGS, (), ()),
+        (("overlap",), [OverlapConfig], overlap.SHARED_FLAGS, (), ()),
         (("synth",), [ClipConfig], {}, (), synth.OWN_FLAGS),
         (("demo",), [DemoConfig], demo.SHARED_FLAGS, (), ()),
         (("check-cameras",), [CameraCheckConfig], check_cameras.SHARED_FLAGS, (), ()),
@@ -189,7 +192,7 @@ def test_nested_configs_are_walked():
     build = _flag_dests(_subparser(build_parser(), "build"))
     assert build["--num-context"] == "sampling.num_context" and build["--resize"] == "image.resize"
     index = _flag_dests(_subparser(build_parser(), "index"))
-    assert index["--mode"] == "generation.sampling.mode" and index["--min-overlap"] == "generation.min_overlap"
+    assert index["--mode"] == "generation.sampling.mode" and index["--min-overlap"] == "generation.sampling.min_overlap"
 
 
 def _parse(argv: list[str]) -> argparse.Namespace:

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from pipelines.cli import main as cli_main
-from seeu_data.build.eval_index import pair_overlap, read_index
+from seeu_data.build.eval_index import read_index
 from seeu_data.build.triples import TripleShards
 from seeu_data.store.posed import PosedDatasetWriter
 from tests.helpers import make_posed_scene
@@ -174,6 +174,7 @@ def test_seeu_index_generation_round_trip(tmp_path):
     posed = _write_posed(tmp_path / "posed", {"s0": 40, "s1": 60, "tiny": 5})
     idx_path = tmp_path / "own.json"
     args = ["index", str(posed), "--out", str(idx_path), "--gap-min", "10", "--gap-max", "20", "--seed", "3"]
+    args += ["--pairs", "gap"]  # the frame-gap rule alone: a scene too short for it gets null
     assert cli_main(args) == 0
     first = idx_path.read_bytes()
     assert cli_main(args) == 0 and idx_path.read_bytes() == first  # seeded: identical
@@ -200,50 +201,29 @@ def test_seeu_index_generation_round_trip(tmp_path):
     ]
 
 
-def test_seeu_index_latentsplat_extrap_with_overlap_window(tmp_path):
+def test_seeu_index_latentsplat_extrap_by_overlap_bins(tmp_path):
+    """--bins: entries spread over NoPoSplat's bins, each context pair's stored overlap inside its bin
+    and recorded in the entry; extrapolation targets share at least the bin's floor with a context."""
+    from seeu_data.overlap import BINS, context_overlap
+    from seeu_data.store.posed import PosedDataset
+
     posed = _write_posed(tmp_path / "posed", {"s0": 60})
     idx_path = tmp_path / "extra.json"
-    # make_posed_scene: cameras 0.1 apart sideways, fx_n 0.9 -> overlap falls with the gap
-    assert (
-        cli_main(
-            [
-                "index",
-                str(posed),
-                "--out",
-                str(idx_path),
-                "--format",
-                "latentsplat",
-                "--mode",
-                "extrap",
-                "--gap-min",
-                "2",
-                "--gap-max",
-                "40",
-                "--extrap-frames",
-                "5",
-                "--samples-per-scene",
-                "6",
-                "--min-overlap",
-                "0.5",
-                "--max-overlap",
-                "0.8",
-                "--overlap-depth",
-                "2.0",
-            ]
-        )
-        == 0
-    )
+    args = ["index", str(posed), "--out", str(idx_path), "--format", "latentsplat", "--mode", "extrap"]
+    assert cli_main([*args, "--samples-per-scene", "6", "--bins", "small,medium,large"]) == 0
     entries = json.loads(idx_path.read_text())["s0"]
+    m = PosedDataset(posed).overlap("s0").matrix()
     assert len(entries) == 6
-    scene = make_posed_scene("s0", n=60, height=16, width=16, seed=0)
-    for e in entries:
-        l, r = e["context"]
-        ov = pair_overlap(scene.cam_to_world, scene.intrinsics_norm, l, r, 2.0)
-        assert 0.5 <= ov <= 0.8
-        # closed form: view width at depth 2 is 2 / 0.9; a sideways shift of 0.1 * gap hides that fraction
-        assert abs(ov - (1 - 0.1 * (r - l) * 0.9 / 2)) <= 1 / 16 + 1e-9
-        assert all((l - 5 <= t < l) or (r < t <= r + 5) for t in e["target"])
-    assert read_index(idx_path).format == "latentsplat"
+    for k, e in enumerate(entries):
+        lo, hi = BINS[("small", "medium", "large")[k % 3]]
+        assert lo <= e["overlap"] <= hi and e["overlap"] == pytest.approx(context_overlap(m, e["context"]), abs=1e-4)
+        a, b = e["context"]
+        assert all(t not in (a, b) and max(m[t, a], m[t, b]) >= lo for t in e["target"])
+    assert (
+        read_index(idx_path).format == "latentsplat"
+        and read_index(idx_path).entries[0].overlap == entries[0]["overlap"]
+    )
+    assert cli_main([*args, "--bins", "tiny"]) == 2
 
 
 DEPTHSPLAT = Path(__file__).resolve().parent / "fixtures" / "depthsplat"  # copies of DepthSplat's assets/

@@ -13,6 +13,7 @@ import pytest
 from skimage.metrics import structural_similarity
 
 from pipelines.cli import main
+from seeu_data.store.posed import PosedDataset
 from seeu_model.camera_path import camera_path, interpolate_pose, path_parameters, so3_exp, so3_log
 from seeu_model.evaluation import TargetRecord, summarize
 from tests.training_fixtures import synthetic_triples
@@ -291,6 +292,47 @@ def test_predict_and_python_api_give_the_gaussians_render_gives(run, tmp_path, c
         assert ref.shape == getattr(predicted, name).shape == getattr(api, name).shape
         assert (ref - getattr(predicted, name)).abs().max() <= 1e-6, name
         assert (ref - getattr(api, name)).abs().max() <= 1e-6, name
-    # --auto-context: frames (N-1-g)//2 and + g, g = min(45, N-1): the whole 16-frame scene
+    # --auto-context: the pair of the scene's overlap table that covers its frames best, above the floor
     assert main(["predict", str(posed), "--scene", scene_id, "--out", str(tmp_path / "a"), *common]) == 0
-    assert json.loads((tmp_path / "a" / "predict.json").read_text())["context_frames"] == [0, 15]
+    rep = json.loads((tmp_path / "a" / "predict.json").read_text())
+    m = PosedDataset(posed).overlap(scene_id).matrix()
+    i, j = rep["context_frames"]
+    assert rep["context_rule"] == "auto" and rep["auto_context"]["overlap"] == pytest.approx(min(m[i, j], m[j, i]))
+    assert rep["auto_context"]["overlap"] >= rep["auto_context"]["floor"]
+    assert 0 <= rep["auto_context"]["extrapolate"]["used"] <= rep["auto_context"]["extrapolate"]["requested"]
+
+
+def test_eval_reports_metrics_per_overlap_bin(run, tmp_path, capsys):
+    """An index whose entries carry NoPoSplat's "overlap" (a value, or a bin name): the eval build
+    records it per row, and `seeu eval` reports each bin's metrics, aggregated like the whole (mean
+    over targets, then scenes), recomputed here from per_target.csv."""
+    shards, run_dir = run
+    posed = shards.parent / "posed"
+    index = {
+        "syn0": [
+            {"context": [0, 5], "target": [2, 3], "overlap": 0.7},
+            {"context": [2, 12], "target": [6], "overlap": "small"},
+            {"context": [1, 4], "target": [2], "overlap": 0.95},  # outside every bin
+        ],
+        "syn1": [{"context": [3, 9], "target": [5, 6], "overlap": 0.2}],
+    }
+    (tmp_path / "index.json").write_text(json.dumps(index))
+    data = tmp_path / "ev"
+    assert (
+        main(["build", str(posed), "--out", str(data), "--mode", "eval", "--index", str(tmp_path / "index.json")]) == 0
+    )
+    out = tmp_path / "e"
+    common = ["--checkpoint", str(run_dir / "checkpoints"), "--no-lpips", "--warmup", "0"]
+    assert main(["eval", "--data", str(data), "--out", str(out), *common]) == 0
+    assert '"by_overlap"' in capsys.readouterr().out
+    summary = json.loads((out / "summary.json").read_text())
+    rows = list(csv.DictReader((out / "per_target.csv").open()))
+    bins = {"syn0/eval/0": "large", "syn0/eval/1": "small", "syn1/eval/0": "small"}
+    assert set(summary["by_overlap"]) == {"small", "large"}
+    for name, got in summary["by_overlap"].items():
+        picked = [r for r in rows if bins.get(r["sample_id"]) == name]
+        per_scene: dict[str, list[float]] = {}
+        for r in picked:
+            per_scene.setdefault(r["scene_id"], []).append(float(r["psnr"]))
+        expect = np.mean([np.mean(v) for v in per_scene.values()])
+        assert got["psnr"] == pytest.approx(expect, abs=1e-5) and got["num_targets"] == len(picked)

@@ -1,4 +1,5 @@
-"""Samplers (seeu_data.build.sampling): hypothesis properties, statistics, determinism, frustum overlap."""
+"""Samplers (seeu_data.build.sampling): hypothesis properties, statistics, determinism. (The view
+overlap and the overlap rule: tests/test_overlap.py, tests/test_build_pairs.py.)"""
 
 from __future__ import annotations
 
@@ -9,13 +10,11 @@ from hypothesis import strategies as st
 
 from seeu_data.build.sampling import (
     SamplingConfig,
-    frustum_overlap,
     min_scene_length,
     sample_scene,
     scene_rng,
     target_offsets,
 )
-from tests.helpers import look_at_cam_to_world
 
 
 @st.composite
@@ -164,16 +163,3 @@ def test_invalid_config_is_refused():
         SamplingConfig(num_context=3, gap_min=1)
     with pytest.raises(ValueError):
         SamplingConfig(mode="extrap", interp_ratio=1.5)
-
-
-def test_frustum_overlap_closed_forms():
-    intr = np.array([1.0, 1.0, 0.5, 0.5])  # 90-degree field of view; view width at depth d is d
-    a = look_at_cam_to_world(np.array([0.0, 0, 0]), np.array([0.0, 0, 1]))
-    assert frustum_overlap(a, intr, a, intr, depth=4.0) == 1.0
-    back = look_at_cam_to_world(np.array([0.0, 0, 0]), np.array([0.0, 0, -1]))
-    assert frustum_overlap(a, intr, back, intr, depth=4.0) == 0.0
-    # shifted sideways by half the view width at depth 4: exactly half of the grid columns stay visible
-    half = look_at_cam_to_world(np.array([2.0, 0, 0]), np.array([2.0, 0, 1]))
-    assert frustum_overlap(a, intr, half, intr, depth=4.0) == pytest.approx(0.5)
-    far = look_at_cam_to_world(np.array([5.0, 0, 0]), np.array([5.0, 0, 1]))
-    assert frustum_overlap(a, intr, far, intr, depth=4.0) == 0.0

@@ -134,7 +134,7 @@ def test_layering(package, forbidden):
 # seeu_data's sub-packages, by the data they hold. store/ (files, schemas, manifests, posed frames) is
 # the bottom: it reads only the shared basics. The stages beside it (ingest, build, importers,
 # exporters, loader) read store/ and the basics, never one another.
-DATA_BASICS = {"seeu_data", "seeu_data.errors", "seeu_data.limits", "seeu_data.cameras"}
+DATA_BASICS = {"seeu_data", "seeu_data.errors", "seeu_data.limits", "seeu_data.cameras", "seeu_data.overlap"}
 DATA_STAGES = ("ingest", "build", "importers", "exporters", "loader")
 
 

@@ -34,6 +34,7 @@ COMMANDS: dict[str, tuple[str, str]] = {
     "index": ("pipelines.cli.index", "generate an evaluation index for your own posed data"),
     "inspect": ("pipelines.cli.inspect_cmd", "statistics and a contact sheet of a shards directory"),
     "validate": ("pipelines.cli.validate", "check a dataset directory against its schema and manifest"),
+    "overlap": ("pipelines.cli.overlap", "add the view-overlap table to posed frames written without one"),
     "check-cameras": ("pipelines.cli.check_cameras", "check that a dataset's cameras agree with its images (epipolar)"),
     "view": ("pipelines.cli.view", "look at posed frames, triple shards or Gaussians in the browser (viser)"),
     "train": ("pipelines.cli.train", "train SeeU on triple shards"),

@@ -4,6 +4,14 @@ Modes:
   interp  context gap in [--gap-min, --gap-max], targets inside the pair (the peers' sampler)
   extrap  targets up to --extrap-frames (default 45; 0 and 90 for the ablation) before and after the
           pair, clipped to the scene; --interp-ratio of the targets are drawn inside instead
+
+Context pairs (--pairs): gap, by frame gap as above (the peers' protocol for video: it skips scenes
+too short for the gaps); overlap, by the scene's view overlap (the overlap table of the posed data):
+a pair whose overlap is in [--min-overlap, --max-overlap], interpolation targets seen by both
+contexts at least as well as they see each other, extrapolation targets partly outside both but
+sharing at least --min-overlap with one; auto (default): gap for scenes whose frame order is a
+camera path (told from the poses) with frames enough for the gaps, overlap for the others (photo
+sets in any order, short scenes). The overlap rule ignores how frames are numbered or named.
   eval    exactly the entries of an evaluation index (pixelSplat JSON, latentSplat list-per-scene,
           MVSplat DTU `scanN_train_0K`); null entries are skipped and counted, entries naming a
           missing scene or frame are reported and not written
@@ -21,6 +29,7 @@ Examples:
   seeu build data/posed/re10k_test --out data/shards/eval --mode eval \\
       --index seeu_data/assets/evaluation_index_re10k.json --resize 256x256
   seeu build data/posed/re10k --out data/shards/x --engine ray --ray-address auto
+  seeu build data/posed/photos --out data/shards/photos --pairs overlap --min-overlap 0.3 --max-overlap 0.8
 """
 
 from __future__ import annotations
@@ -85,9 +94,22 @@ def run(args: argparse.Namespace) -> int:
         if rep["not_written"] > 10:
             kinds = ", ".join(f"{n} {k}" for k, n in rep["problems_by_kind"].items())
             print(f"  ... {rep['not_written'] - 10} more ({kinds}; see manifest.json report.problems)")
-    elif rep.get("scenes_skipped_too_short"):
-        print(
-            f"skipped {rep['scenes_skipped_too_short']} of {rep['scenes']} scenes with fewer than "
-            f"{rep['min_scene_frames']} frames (e.g. {', '.join(rep['skipped_scene_examples'][:3])})"
-        )
+    else:
+        if rep.get("scenes_skipped_too_short"):
+            print(
+                f"skipped {rep['scenes_skipped_too_short']} of {rep['scenes']} scenes with fewer than "
+                f"{rep['min_scene_frames']} frames (e.g. {', '.join(rep['skipped_scene_examples'][:3])})"
+            )
+        pairs = rep.get("pairs")
+        if pairs and pairs["overlap"] + pairs["overlap_scenes_without_a_pair"]:
+            lo, hi = pairs["overlap_range"]
+            print(
+                f"context pairs: {pairs['gap']} scenes by frame gap, {pairs['overlap']} by view overlap {lo:g}..{hi:g}"
+                + (
+                    f"; {pairs['overlap_scenes_without_a_pair']} scenes without such a pair skipped "
+                    f"(e.g. {', '.join(pairs['overlap_scenes_without_a_pair_examples'][:3])})"
+                    if pairs["overlap_scenes_without_a_pair"]
+                    else ""
+                )
+            )
     return 0

@@ -3,7 +3,9 @@
 PATH: a posed-frames folder (manifest.json), a nerfstudio transforms.json (or its folder), a COLMAP
 model folder (cameras.bin/.txt; images from --images, else the images/ folder beside sparse/), or
 pixelSplat chunks (*.torch, or a folder holding train/ or test/). For a few frame pairs per scene,
-SIFT matches are compared with the epipolar lines of the stored cameras (Sampson error, pixels).
+those that overlap most (the view-overlap table; however the frames are numbered or named), SIFT
+matches (ratio test, mutual, RANSAC inliers) are compared with the epipolar lines of the stored
+cameras (Sampson error, pixels); check.json lists the pairs used.
 Exit 0: consistent (median under --max-error). Exit 1: not (or a convention fix fits 3x better),
 with the likely cause when a common convention mistake fits (c2w/w2c swapped, OpenGL axes, pixel vs normalised intrinsics, principal
 point, transposed rotations). Exit 2: PATH is not a dataset. Also notes scenes the pixelSplat /
@@ -43,9 +45,11 @@ def run(args: argparse.Namespace) -> int:
         if s["verdict"] == "unchecked":
             line = f"  {s['scene_id']}: unchecked ({s['reason']})"
         else:
+            overlaps = ", ".join(f"{d['overlap']:.2f}" for d in s["pair_details"] if d["used"])
             line = (
                 f"  {s['scene_id']}: {s['verdict']}, median Sampson error {s['median_error_px']:.2f} px "
-                f"(p90 {s['p90_error_px']:.2f}) over {s['matches']} matches in {len(s['pairs'])} pairs"
+                f"(p90 {s['p90_error_px']:.2f}) over {s['matches']} inlier matches in {len(s['pairs'])} pairs "
+                f"(overlap {overlaps}, from {s['overlap_method']})"
             )
         print(line)
         if s.get("cause_text"):

@@ -44,5 +44,6 @@ def run(args: argparse.Namespace) -> int:
     from pipelines.evaluate import EvalConfig, evaluate
 
     summary = evaluate(config_from_args(EvalConfig, args, **shared_values(args, SHARED_FLAGS)))
-    print(json.dumps({k: summary[k] for k in ("metrics", "timing", "out")}, indent=2))
+    keys = ("metrics", "by_overlap", "timing", "out") if summary.get("by_overlap") else ("metrics", "timing", "out")
+    print(json.dumps({k: summary[k] for k in keys}, indent=2))
     return 0

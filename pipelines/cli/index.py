@@ -1,16 +1,19 @@
 """Generate an evaluation index for your own posed data (seeded), in the peers' formats.
 
-pixelsplat: {scene: {"context": [l, r], "target": [t1, t2, t3]} | null}  (one entry per scene)
+pixelsplat: {scene: {"context": [l, r], "target": [t1, t2, t3], "overlap": o} | null}  (one entry per scene)
 latentsplat: {scene: [entry, ...]}  (--samples-per-scene entries per scene)
-Scenes too short for the gaps get null. With --min-overlap / --max-overlap the context pair is
-redrawn until the two views' frustum overlap (a pixel grid unprojected at --overlap-depth, default
-sqrt(near * far), seen by the other camera; the smaller of both directions) falls in the window.
-The index is read back by `seeu build --mode eval --index FILE`.
+Context pairs as `seeu build` chooses them (--pairs: by frame gap on camera paths, by view overlap in
+[--min-overlap, --max-overlap] elsewhere), or with --bins by NoPoSplat's overlap bins (small
+0.05-0.3, medium 0.3-0.55, large 0.55-0.8), the entries spread evenly over the bins named. Every
+entry records its contexts' overlap ("overlap", from the posed data's overlap table), so
+`seeu eval` reports metrics per bin. Scenes without a usable pair get null. The index is read back by
+`seeu build --mode eval --index FILE`.
 
 Examples:
   seeu index data/posed/clip --out data/clip_eval.json --gap-min 30 --gap-max 60 --seed 0
+  seeu index data/posed/photos --out data/photos_eval.json --bins small,medium,large
   seeu index data/posed/clip --out data/clip_extra.json --format latentsplat --mode extrap \\
-      --extrap-frames 45 --samples-per-scene 3 --min-overlap 0.3 --max-overlap 0.9
+      --extrap-frames 45 --samples-per-scene 3
 """
 
 from __future__ import annotations
@@ -39,8 +42,9 @@ def run(args: argparse.Namespace) -> int:
 
     cfg = config_with_sampling(IndexFileConfig, args, **shared_values(args, SHARED_FLAGS))
     s = write_index(cfg)
+    bins = ", ".join(f"{n} {k}" for k, n in s["bins"].items())
     print(
         f"wrote {args.out}: {s['scenes']} scenes, {s['scenes_with_entries']} with entries "
-        f"({s['entries']} entries), {s['scenes'] - s['scenes_with_entries']} null"
+        f"({s['entries']} entries; overlap: {bins}), {s['scenes'] - s['scenes_with_entries']} null"
     )
     return 0

@@ -8,6 +8,9 @@ Formats (frame indices are posed `frame_index` values, contexts and targets in t
   of such entries (null items skipped).
 * ``dl3dv`` (DepthSplat ``assets/dl3dv_*.json``, 2/4/6/12 context views): the pixelsplat layout keyed by
   DL3DV scene hashes (64 hex digits); the scene is ``dl3dv_<hash>`` (the DL3DV importer's scene key).
+* NoPoSplat's indices are the pixelsplat layout with an ``"overlap"`` per entry (the context pair's
+  overlap, or a bin name ``small`` / ``medium`` / ``large``), kept as `IndexEntry.overlap`; `seeu index`
+  writes it too.
 * ``dtu`` (MVSplat DTU protocol, ``evaluation_index_dtu_nctx2.json``): keys ``scanN_train_0K`` whose
   scene is ``scanN`` (the DTU importer's scene id) and whose view ids are frame indices.
 
@@ -18,14 +21,24 @@ order (the sample id of the written row is ``{scene}/eval/{k}``).
 from __future__ import annotations
 
 import re
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
-from seeu_data.build.sampling import SamplingConfig, frustum_overlap, max_gap, scene_rng
+from seeu_data.build.sampling import (
+    Sample,
+    SamplingConfig,
+    max_gap,
+    min_scene_length,
+    pair_rule,
+    sample_one,
+    sample_overlap_scene,
+    scene_rng,
+)
 from seeu_data.errors import SeeUError
-from seeu_data.settings import setting
+from seeu_data.overlap import BINS, OverlapTable, context_overlap
+from seeu_data.settings import parse_names, setting
 from seeu_data.store.json_file import read_json
 
 FORMATS = ("pixelsplat", "latentsplat", "dtu", "dl3dv")
@@ -43,6 +56,7 @@ class IndexEntry:
     k: int  # ordinal of the entry among its scene's entries, in file order
     context: tuple[int, ...]
     target: tuple[int, ...]
+    overlap: float | str | None = None  # the entry's "overlap" (NoPoSplat: a value or a bin name), if any
 
 
 @dataclass
@@ -118,7 +132,10 @@ def read_index(path: str | Path, fmt: str = "auto") -> EvalIndex:
             ctx, tgt = _entry(raw, key if fmt != "latentsplat" else f"{key}[{j}]", path)
             k = per_scene.get(scene, 0)
             per_scene[scene] = k + 1
-            entries.append(IndexEntry(key, scene, k, ctx, tgt))
+            overlap = raw.get("overlap")
+            entries.append(
+                IndexEntry(key, scene, k, ctx, tgt, overlap if isinstance(overlap, (int, float, str)) else None)
+            )
     return EvalIndex(str(path), fmt, entries, len(doc), nulls)
 
 
@@ -129,76 +146,79 @@ def read_index(path: str | Path, fmt: str = "auto") -> EvalIndex:
 
 @dataclass(frozen=True)
 class IndexConfig:
-    """What `seeu index` draws per scene: a SamplingConfig plus an optional overlap window."""
+    """What `seeu index` draws per scene: a SamplingConfig (its context pairs by frame gap or by view
+    overlap, `sampling.pair_rule`), or with `bins` contexts by overlap bin."""
 
     sampling: SamplingConfig
-    min_overlap: float = setting(0.0, "smallest allowed context view overlap (0..1)")
-    max_overlap: float = setting(1.0, "largest allowed context view overlap (0..1)")
-    overlap_depth: float | None = setting(None, "depth of the overlap test (default sqrt(near*far))")
-    max_tries: int = 64
-
-
-def pair_overlap(cam_to_world: np.ndarray, intrinsics_norm: np.ndarray, a: int, b: int, depth: float) -> float:
-    """Symmetric view overlap of frames a and b: min of the two directed frustum overlaps."""
-    return min(
-        frustum_overlap(cam_to_world[a], intrinsics_norm[a], cam_to_world[b], intrinsics_norm[b], depth),
-        frustum_overlap(cam_to_world[b], intrinsics_norm[b], cam_to_world[a], intrinsics_norm[a], depth),
+    bins: tuple[str, ...] | None = setting(
+        None,
+        "draw the context pairs by overlap bin, the entries spread evenly over them: small (0.05-0.3), "
+        "medium (0.3-0.55), large (0.55-0.8), NoPoSplat's (default: by --pairs)",
+        parse=parse_names,
+        metavar="BIN,...",
     )
+
+
+def _index_entry(sample: Sample, m: np.ndarray) -> dict:
+    return {
+        "context": list(sample.context),
+        "target": list(sample.target),
+        "overlap": round(context_overlap(m, sample.context), 4),
+    }
 
 
 def generate_entries(
     cfg: IndexConfig,
     scene_id: str,
+    table: OverlapTable,
     cam_to_world: np.ndarray,
     intrinsics_norm: np.ndarray,
-    near: float,
-    far: float,
     seed: int,
+    ordinal: int = 0,
 ) -> list[dict] | None:
-    """Up to `samples_per_scene` entries {"context", "target"} for one scene, or None (scene unusable).
+    """Up to `samples_per_scene` entries {"context", "target", "overlap"} for one scene, or None (scene
+    unusable). "overlap" is the contexts' overlap (`overlap.context_overlap`; NoPoSplat's index field).
 
-    Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4). Context pairs whose overlap falls outside
-    [min_overlap, max_overlap] are redrawn (at most `max_tries` draws per entry).
+    Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4); `table` the scene's overlap. With `bins`,
+    entry k of the scene of `ordinal` (its position among the scenes) is drawn in bin
+    (ordinal + k) mod len(bins), else in the next bin that has a pair.
     """
-    from seeu_data.build.sampling import min_scene_length, sample_one
-
     s = cfg.sampling
     n = len(cam_to_world)
-    if n < min_scene_length(s) or max_gap(s, n) < s.gap_min:
-        return None
-    # a stream of its own: an index drawn with the same seed and options as a training build does not
-    # repeat that build's samples
-    rng = scene_rng(seed, f"seeu-index/{scene_id}")
-    use_overlap = cfg.min_overlap > 0.0 or cfg.max_overlap < 1.0
-    depth = cfg.overlap_depth if cfg.overlap_depth is not None else float(np.sqrt(near * far))
-    out = []
-    for k in range(s.samples_per_scene):
-        for _ in range(cfg.max_tries):
-            smp = sample_one(rng, s, n, scene_id, k)
-            if not use_overlap:
-                break
-            ov = pair_overlap(cam_to_world, intrinsics_norm, smp.context[0], smp.context[-1], depth)
-            if cfg.min_overlap <= ov <= cfg.max_overlap:
-                break
-        else:
-            continue  # no pair in the overlap window for this entry
-        out.append({"context": list(smp.context), "target": list(smp.target)})
-    return out or None
+    m = table.matrix()
+    # streams of their own: an index drawn with the same seed and options as a training build does
+    # not repeat that build's samples
+    stream = f"seeu-index/{scene_id}"
+    if cfg.bins:
+        out = []
+        for k in range(s.samples_per_scene):
+            for j in range(len(cfg.bins)):
+                lo, hi = BINS[cfg.bins[(ordinal + k + j) % len(cfg.bins)]]
+                one = replace(s, pairs="overlap", min_overlap=lo, max_overlap=hi, samples_per_scene=1)
+                got = sample_overlap_scene(one, table, cam_to_world, intrinsics_norm, scene_id, seed, f"{stream}/{k}")
+                if got:
+                    out.append(_index_entry(replace(got[0], k=k), m))
+                    break
+        return out or None
+    if pair_rule(s, n, cam_to_world) == "overlap":
+        samples = sample_overlap_scene(s, table, cam_to_world, intrinsics_norm, scene_id, seed, stream)
+    else:
+        if n < min_scene_length(s) or max_gap(s, n) < s.gap_min:
+            return None
+        rng = scene_rng(seed, stream)
+        samples = [sample_one(rng, s, n, scene_id, k) for k in range(s.samples_per_scene)]
+    return [_index_entry(x, m) for x in samples] or None
 
 
-def no_entry_reason(cfg: IndexConfig, scene_id: str, num_frames: int) -> str:
-    """Why `generate_entries` gave a scene of `num_frames` frames no entry, in words."""
-    from seeu_data.build.sampling import min_scene_length
-
+def no_entry_reason(cfg: IndexConfig, scene_id: str, num_frames: int, rule: str) -> str:
+    """Why `generate_entries` gave a scene of `num_frames` frames no entry, in words (`rule`: its pair rule)."""
     s = cfg.sampling
-    need = min_scene_length(s)
-    if num_frames < need:
-        outside = " and one frame outside the pair" if s.wants_outside else ""
-        return f"scene {scene_id!r} has {num_frames} frames, a gap of {s.gap_min}{outside} needs {need}"
-    return (
-        f"scene {scene_id!r}: no context pair with overlap in [{cfg.min_overlap:g}, {cfg.max_overlap:g}] "
-        f"in {cfg.max_tries} draws"
-    )
+    if cfg.bins:
+        return f"scene {scene_id!r}: no context pair in the overlap bins {', '.join(cfg.bins)}"
+    if rule == "overlap":
+        return f"scene {scene_id!r}: no context pair with overlap in [{s.min_overlap:g}, {s.max_overlap:g}] and targets"
+    outside = " and one frame outside the pair" if s.wants_outside else ""
+    return f"scene {scene_id!r} has {num_frames} frames, a gap of {s.gap_min}{outside} needs {min_scene_length(s)}"
 
 
 def index_document(per_scene: dict[str, list[dict] | None], fmt: str) -> dict:

@@ -19,6 +19,24 @@ Modes (frame indices are the posed frames' `frame_index`, 0 .. N-1):
 With V > 2 context views, left/right are placed by the gap and the other V - 2 contexts are drawn
 without replacement strictly inside (left, right). Contexts are listed in ascending order.
 
+Context pairs (`pairs`): ``gap`` is the frame-gap sampler above (the peers' protocol for video);
+``overlap`` chooses them by the scene's view overlap (`seeu_data.overlap`), for scenes whose frame
+numbers mean nothing (photo sets) or are too few for the gaps:
+
+* the pair (a, b) is drawn uniformly among the pairs whose score min(o[a, b], o[b, a]) lies in
+  [min_overlap, max_overlap] and that have the targets the mode needs;
+* an interpolation target t (not a context) is seen by both contexts at least as well as they see
+  each other: min(o[t, a], o[t, b]) >= score(a, b);
+* an extrapolation target is any other frame that still shares at least `min_overlap` with one
+  context: max(o[t, a], o[t, b]) >= min_overlap (partly outside both, never out of sight);
+* V > 2: the other contexts are drawn without replacement among the interpolation targets, and the
+  targets among the rest; targets with replacement, as in ``gap``. `extrap_frames` is not used.
+
+The draws run over the frames in `overlap.canonical_order` (sorted by their cameras), so shuffling or
+renaming a scene's frames changes no drawn view (up to naming). ``auto`` takes ``gap`` for a scene
+whose frame order is a camera path (`overlap.frame_order_is_path`) with frames enough for the gaps,
+else ``overlap`` (`pair_rule`).
+
 `target_offset` of a target t: 0 when min(ctx) <= t <= max(ctx), t - min(ctx) (< 0) before,
 t - max(ctx) (> 0) after.
 
@@ -34,9 +52,11 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from seeu_data.limits import MAX_CONTEXT_VIEWS, MAX_FRAMES, MAX_SAMPLES, MAX_TARGET_VIEWS, check_range
+from seeu_data.overlap import OverlapTable, canonical_order, frame_order_is_path
 from seeu_data.settings import setting
 
 MODES = ("interp", "extrap")
+PAIRS = ("auto", "gap", "overlap")
 
 
 @dataclass(frozen=True)
@@ -51,6 +71,14 @@ class SamplingConfig:
     extrap_frames: int = setting(45, "extrap: targets at most this many frames before/after the pair")
     interp_ratio: float = setting(0.0, "extrap: probability that a target is drawn inside the pair instead")
     samples_per_scene: int = setting(4, "examples drawn per scene")
+    pairs: str = setting(
+        "auto",
+        "context pairs by frame gap (the peers' protocol for video), by view overlap, or auto: gap where the "
+        "frame order is a camera path with frames enough for the gaps, else overlap",
+        choices=PAIRS,
+    )
+    min_overlap: float = setting(0.3, "overlap pairs: smallest context-pair overlap; a target shares at least this")
+    max_overlap: float = setting(0.8, "overlap pairs: largest context-pair overlap")
 
     def __post_init__(self) -> None:
         if self.mode not in MODES:
@@ -68,6 +96,10 @@ class SamplingConfig:
             raise ValueError("gap_max must be >= gap_min")
         if not 0.0 <= self.interp_ratio <= 1.0:
             raise ValueError("interp_ratio must be in [0, 1]")
+        if self.pairs not in PAIRS:
+            raise ValueError(f"pairs must be one of {PAIRS}, got {self.pairs!r}")
+        if not 0.0 <= self.min_overlap <= self.max_overlap <= 1.0:
+            raise ValueError("need 0 <= min_overlap <= max_overlap <= 1")
 
     @property
     def wants_outside(self) -> bool:
@@ -173,27 +205,78 @@ def sample_scene(cfg: SamplingConfig, num_frames: int, scene_id: str, seed: int)
     return [sample_one(rng, cfg, num_frames, scene_id, k) for k in range(cfg.samples_per_scene)]
 
 
-def frustum_overlap(
-    cam_to_world_a: np.ndarray,
-    intrinsics_a: np.ndarray,
-    cam_to_world_b: np.ndarray,
-    intrinsics_b: np.ndarray,
-    depth: float,
-    grid: int = 16,
-) -> float:
-    """Fraction of camera A's view (a grid of pixels unprojected at `depth`) that camera B sees.
+# ---------------------------------------------------------------------------------------------
+# Context pairs by view overlap
+# ---------------------------------------------------------------------------------------------
 
-    Shapes: cam_to_world (4, 4), intrinsics_norm (4,). Computed on a normalised 1x1 image (the
-    intrinsics are normalised), so the result does not depend on the resolution. Symmetrise with
-    min(overlap(a, b), overlap(b, a)) for a pair score.
-    """
-    from seeu_data.cameras import project_points, unproject_pixels
 
-    ticks = (np.arange(grid) + 0.5) / grid
-    uv = np.stack(np.meshgrid(ticks, ticks, indexing="xy"), -1).reshape(-1, 2)
-    pts = unproject_pixels(
-        uv, np.full(len(uv), float(depth)), np.asarray(cam_to_world_a, float), np.asarray(intrinsics_a, float), 1, 1
-    )
-    uv_b, z_b = project_points(pts, np.asarray(cam_to_world_b, float), np.asarray(intrinsics_b, float), 1, 1)
-    seen = (z_b > 0) & (uv_b >= 0).all(-1) & (uv_b <= 1).all(-1)
-    return float(seen.mean())
+def pair_rule(cfg: SamplingConfig, num_frames: int, cam_to_world: np.ndarray | None) -> str:
+    """'gap' or 'overlap' for one scene (see the module docstring); `cam_to_world` (N, 4, 4) is only
+    read for ``auto``."""
+    if cfg.pairs != "auto":
+        return cfg.pairs
+    if num_frames < min_scene_length(cfg) or max_gap(cfg, num_frames) < cfg.gap_min:
+        return "overlap"
+    return "gap" if cam_to_world is not None and frame_order_is_path(cam_to_world) else "overlap"
+
+
+@dataclass(frozen=True)
+class _PairViews:
+    """A usable context pair (a, b) in canonical positions, with its interpolation and extrapolation
+    targets (canonical positions, ascending)."""
+
+    a: int
+    b: int
+    interp: np.ndarray
+    extrap: np.ndarray
+
+
+def usable_pairs(cfg: SamplingConfig, m: np.ndarray) -> list[_PairViews]:
+    """The context pairs of a directed overlap matrix `m` (N, N) (canonical order) that the overlap
+    rule may draw, in (a, b) order."""
+    n = len(m)
+    score = np.minimum(m, m.T)
+    wants_interp = cfg.mode == "interp" or cfg.interp_ratio > 0 or not cfg.wants_outside
+    out = []
+    for a, b in zip(*np.nonzero(np.triu((score >= cfg.min_overlap) & (score <= cfg.max_overlap), 1))):
+        others = np.ones(n, bool)
+        others[[a, b]] = False
+        inside = others & (np.minimum(m[:, a], m[:, b]) >= score[a, b])
+        outside = others & ~inside & (np.maximum(m[:, a], m[:, b]) >= cfg.min_overlap)
+        need_inside = cfg.num_context - 2 + (1 if wants_interp else 0)
+        if inside.sum() < need_inside or (cfg.wants_outside and not outside.any()):
+            continue
+        out.append(_PairViews(int(a), int(b), np.flatnonzero(inside), np.flatnonzero(outside)))
+    return out
+
+
+def sample_overlap_scene(
+    cfg: SamplingConfig,
+    table: OverlapTable,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    scene_id: str,
+    seed: int,
+    stream: str | None = None,
+) -> list[Sample]:
+    """All `cfg.samples_per_scene` samples of one scene by the overlap rule; [] when no pair is usable.
+    Shapes: cam_to_world (N, 4, 4), intrinsics_norm (N, 4) (they fix the canonical order). `stream`:
+    the random stream's name (default the scene id, as `sample_scene`)."""
+    order = canonical_order(cam_to_world, intrinsics_norm)
+    m = table.matrix()[np.ix_(order, order)]
+    pairs = usable_pairs(cfg, m)
+    if not pairs:
+        return []
+    rng = scene_rng(seed, stream or scene_id)
+    out = []
+    for k in range(cfg.samples_per_scene):
+        p = pairs[int(rng.integers(0, len(pairs)))]
+        extra = rng.choice(p.interp, cfg.num_context - 2, replace=False) if cfg.num_context > 2 else np.zeros(0, int)
+        inside = np.setdiff1d(p.interp, extra)
+        targets = []
+        for _ in range(cfg.num_target):
+            pool = inside if not cfg.wants_outside or rng.random() < cfg.interp_ratio else p.extrap
+            targets.append(int(pool[rng.integers(0, len(pool))]))
+        context = sorted(int(order[c]) for c in (p.a, p.b, *extra))
+        out.append(make_sample(scene_id, cfg.mode, k, context, sorted(int(order[t]) for t in targets)))
+    return out

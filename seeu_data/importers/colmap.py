@@ -15,7 +15,8 @@ Conversion: `image.cam_from_world()` (world-to-camera) -> camera-to-world with
 are kept as they are (JPEG or PNG). Frames are ordered by image name; `source_name` is the name,
 `source_frame` the number in the name when every name has a distinct one (else the position);
 timestamps are 0 (COLMAP has none). near/far: given, or from the depths of each image's observed
-3D points (0.5 x 1st percentile, 1.5 x 99th percentile; the method is kept in the meta).
+3D points (0.5 x 1st percentile, 1.5 x 99th percentile; the method is kept in the meta). The scene
+carries the model's observations (a `TrackedScene`), so its view overlap is measured from the tracks.
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, pr
 from seeu_data.limits import MAX_PIXELS
 from seeu_data.settings import setting
 from seeu_data.store.paths import contained_path
-from seeu_data.store.posed import PosedScene
+from seeu_data.store.posed import PosedScene, TrackedScene
 from seeu_data.undistort import PinholeCamera, undistort_files
 
 PINHOLE_MODELS = {"SIMPLE_PINHOLE", "PINHOLE"}
@@ -218,7 +219,12 @@ def scene_from_model(
     else:
         meta["near_far_method"] = "given"
     scene_id = cfg.scene_id or default_scene_id(cfg.model_dir)
-    return PosedScene(
+    frame_of_obs, point_of_obs = [], []
+    for k, iid in enumerate(ids):
+        pids = [p.point3D_id for p in rec.image(iid).points2D if p.has_point3D()]
+        frame_of_obs.append(np.full(len(pids), k, np.int64))
+        point_of_obs.append(np.asarray(pids, np.int64))
+    return TrackedScene(
         scene_id=scene_id,
         images=data,
         image_format=fmt,
@@ -232,6 +238,7 @@ def scene_from_model(
         timestamp_us=np.zeros(len(ids), dtype=np.int64),
         source_name=names,
         meta=meta,
+        observations=(np.concatenate(frame_of_obs), np.concatenate(point_of_obs)),
     )
 
 

@@ -20,6 +20,7 @@ from seeu_data.store.arrow_io import BytesLike
 from seeu_data.store.dataset_check import check_image
 from seeu_data.store.image_header import decode_check
 from seeu_data.store.manifest import FileEntry, read_manifest
+from seeu_data.store.overlap_table import OVERLAP_FILES
 from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
 from seeu_data.store.resume import Journal, file_intact, file_stat, files_fingerprint, stamp_of, sweep
 
@@ -205,8 +206,9 @@ class _ImportWriter(PosedDatasetWriter):
         return self.files[-1]
 
     def restore(self, record: dict) -> None:
-        """Take a verified file of a previous run as this run's next file."""
+        """Take a verified file of a previous run (and its overlap file) as this run's next file."""
         self.files.append(FileEntry(**record["file"]))
+        self.overlap_files.append(record["overlap"])
         self.scenes.extend(record["scenes"])
         self._seen.update(s["scene_id"] for s in record["scenes"])
 
@@ -305,8 +307,9 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
     scenes_in: dict[str, list[dict]] = {}
     for scene in doc.get("scenes", []):
         scenes_in.setdefault(scene["file"], []).append(scene)
+    overlaps = {f["posed"]: f for f in (doc.get("overlap") or {}).get("files", [])}
     for rec in resume.get("files", []):
-        if rec.get("file") not in entries:
+        if rec.get("file") not in entries or rec["file"] not in overlaps:
             break
         records.append(
             {
@@ -314,6 +317,8 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
                 "stamp": key,
                 "file": entries[rec["file"]],
                 "mtime_ns": rec.get("mtime_ns"),
+                "overlap": overlaps[rec["file"]],
+                "overlap_mtime_ns": rec.get("overlap_mtime_ns"),
                 "units": rec["units"],
                 "skipped": rec["skipped"],
                 "scenes": scenes_in.get(rec["file"], []),
@@ -325,18 +330,23 @@ def _read_records(out_dir: Path, key: str) -> list[dict]:
 def _resumable_prefix(
     out_dir: Path, records: list[dict], units: list[ImportUnit], name_of, verify: bool = False
 ) -> tuple[list[dict], int]:
-    """The records (in order) whose units are the next planned keyed units and whose file is intact
-    (`resume.file_intact`: its recorded size and mtime, or sha256 with `verify`), and how many keyed
-    units they cover."""
+    """The records (in order) whose units are the next planned keyed units and whose file and overlap
+    file are intact (`resume.file_intact`: their recorded size and mtime, or sha256 with `verify`), and
+    how many keyed units they cover."""
     keyed = [[u.key, u.fingerprint] for u in units if u.key is not None]
     done: list[dict] = []
     pos = 0
     for i, rec in enumerate(records):
         entry = rec.get("file") or {}
+        overlap = rec.get("overlap") or {}
         n = len(rec.get("units") or [])
         if n == 0 or rec["units"] != keyed[pos : pos + n] or entry.get("path") != name_of(i):
             break
-        if not file_intact(out_dir / entry["path"], entry["bytes"], entry["sha256"], rec.get("mtime_ns"), verify):
+        intact = [
+            e and file_intact(out_dir / e["path"], e["bytes"], e["sha256"], rec.get(mtime), verify)
+            for e, mtime in ((entry, "mtime_ns"), (overlap, "overlap_mtime_ns"))
+        ]
+        if not all(intact):
             break
         done.append(rec)
         pos += n
@@ -399,6 +409,7 @@ def write_import(
         out_dir, params=params, provenance=provenance, target_file_bytes=target_file_bytes, fsync=fsync
     )
     sweep(out_dir, POSED_FILES, keep={r["file"]["path"] for r in done})  # files not kept, partial writes
+    sweep(out_dir, OVERLAP_FILES, keep={r["overlap"]["path"] for r in done})
     for rec in done:
         writer.restore(rec)
         report.scenes += len(rec["scenes"])
@@ -465,6 +476,8 @@ def write_import(
                 "scenes": list(reversed(list(takewhile(lambda s: s["file"] == entry.path, reversed(writer.scenes))))),
                 "file": asdict(entry),
                 "mtime_ns": file_stat(out_dir / entry.path),
+                "overlap": writer.overlap_files[-1],
+                "overlap_mtime_ns": file_stat(out_dir / writer.overlap_files[-1]["path"]),
             }
             new_records.append(rec)
             journal.add(rec)

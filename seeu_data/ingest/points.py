@@ -75,3 +75,22 @@ def write_chunk_points(
     rel = f"{POINTS_DIR}/{scene_id}.ply"
     write_points_ply(Path(dataset_dir) / rel, xyz, pts[:, 3:6], fsync)
     return {"points3d": rel, "points3d_count": len(pts)}
+
+
+def chunk_observations(
+    sfm_dir: str | Path, model_index: int, frame_names: list[str]
+) -> tuple[np.ndarray, np.ndarray] | None:
+    """The SfM observations of a chunk's frames (`frame_names`, in chunk order) in model `model_index`
+    (`observations_<k>.npz` in `sfm_dir`): (chunk frame index (M,), 3D point id (M,)), what
+    `seeu_data.overlap.overlap_from_observations` counts; None when the model has no such file (an SfM
+    stage run before it was written)."""
+    src = Path(sfm_dir) / f"observations_{model_index}.npz"
+    if not src.exists():
+        return None
+    with np.load(src) as data:
+        names, obs = [str(n) for n in data["names"]], data["obs"]
+    frame_of = {n: j for j, n in enumerate(frame_names)}
+    image_to_frame = np.array([frame_of.get(n, -1) for n in names], np.int64)
+    frame = image_to_frame[obs[:, 0]] if len(obs) else np.zeros(0, np.int64)
+    keep = frame >= 0
+    return frame[keep], obs[keep, 1]

@@ -26,6 +26,8 @@ Output directory layout::
     undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
     points3d_<k>.npy        (P, 6) the 3D points of model k: world x y z, colour R G B (0-255)
+    observations_<k>.npz    names (I,) the registered images; obs (M, 2) int64: image position in
+                            names, 3D point id of every observation (the tracks, for the view overlap)
 
 `result.json`: {"models": [{"index", "cameras": [{"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}] (one per frame size; used after undistortion), "camera" (the one of most frames), "undistorted": bool,
@@ -650,13 +652,14 @@ def _export_model(rec, index: int, image_dir: str, out: Path, cameras: dict[int,
 
     camera_ids = sorted(cameras)
     position = {cid: j for j, cid in enumerate(camera_ids)}
-    images, depths = [], []
+    images, depths, obs = [], [], []
     points = {pid: p.xyz for pid, p in rec.points3D.items()}
     for iid in sorted(rec.reg_image_ids()):
         img = rec.image(iid)
         w2c = img.cam_from_world().matrix()
         images.append({"name": img.name, "world_to_cam": np.asarray(w2c).tolist(), "camera": position[img.camera_id]})
         pids = [p.point3D_id for p in img.points2D if p.has_point3D()]
+        obs.append(np.stack([np.full(len(pids), len(images) - 1), np.asarray(pids, np.int64)], 1).reshape(-1, 2))
         if pids:
             xyz = np.stack([points[p] for p in pids])
             depths.append(xyz @ np.asarray(w2c)[:, :3].T[:, 2] + np.asarray(w2c)[2, 3])
@@ -666,6 +669,10 @@ def _export_model(rec, index: int, image_dir: str, out: Path, cameras: dict[int,
     xyz = np.array([points[p] for p in ids], np.float64).reshape(-1, 3)
     rgb = np.array([rec.points3D[p].color for p in ids], np.float64).reshape(-1, 3)
     np.save(out / f"points3d_{index}.npy", np.concatenate([xyz, rgb], 1))  # (M, 6) world xyz + RGB 0-255
+    names = np.array([im["name"] for im in images])
+    np.savez(
+        out / f"observations_{index}.npz", names=names, obs=np.concatenate(obs) if obs else np.zeros((0, 2), np.int64)
+    )
     uses = [sum(im["camera"] == j for im in images) for j in range(len(camera_ids))]
     return {
         "index": index,

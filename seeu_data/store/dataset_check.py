@@ -20,6 +20,9 @@ What is checked:
   lengths, finite 0 < near < far;
 * posed frames: each scene's rows lie inside its file, hold that scene id, and number their frames
   0, 1, ..., n - 1 (unique and in order: `seeu build` samples by that position);
+* posed frames' overlap tables (`store.overlap_table`, when the manifest has an overlap block): each
+  file present with its size, sha256 and rows, its schema, one row per scene of the posed file it
+  covers with valid pairs and overlaps in [0, 1], every posed file covered once;
 * images: the size in the JPEG/PNG header (`image_header.image_info`, no decode) equals the
   recorded width/height and is at most `max_pixels` (`MAX_PIXELS`, 64 MP, raised with `--max-pixels`),
   so a tiny file whose header declares 60000x60000 is refused before anything allocates for it;
@@ -49,6 +52,9 @@ from seeu_data.limits import MAX_PIXELS
 from seeu_data.store.arrow_io import open_ipc_file
 from seeu_data.store.image_header import ImageInfo, check_pixels, image_info
 from seeu_data.store.manifest import read_manifest, verify_file
+from seeu_data.store.overlap_table import MANIFEST_KEY as OVERLAP_KEY
+from seeu_data.store.overlap_table import SCHEMA as OVERLAP_SCHEMA
+from seeu_data.store.overlap_table import check_overlap_table
 from seeu_data.store.schema import arrow_schema, check_version
 
 _ORTHONORMAL_TOL = 1e-4
@@ -312,6 +318,8 @@ def check_dataset(
         except (pa.ArrowException, UnicodeDecodeError, ValueError, IndexError, TypeError, OverflowError) as exc:
             raise _unreadable(exc, where) from None  # corrupt bytes (seen with --no-sha)
         del table  # one file's columns mapped at a time
+    overlap = check_overlap_files(root, manifest, listed, check_sha)
+    listed |= {e["path"] for e in (manifest.get("overlap") or {}).get("files", [])}
     stray = sorted(p.name for p in root.glob("*.arrow") if p.name not in listed)
     return {
         "path": str(root),
@@ -323,5 +331,44 @@ def check_dataset(
         "bytes": int(sum(e["bytes"] for e in manifest["files"])),
         "sha256_checked": check_sha,
         "unlisted_files": stray,
+        "overlap": overlap,
         "manifest": manifest,
     }
+
+
+def check_overlap_files(root: Path, manifest: dict, posed_files: set[str], check_sha: bool) -> dict | None:
+    """The overlap files a posed dataset's manifest lists (`store.overlap_table`): each present with its
+    size, sha256 and rows, its schema, one row per scene of its posed file (`check_overlap_table`),
+    and every posed file covered once. Returns {"files", "scenes_by_method"}, or None without a block."""
+    block = manifest.get(OVERLAP_KEY)
+    if block is None:
+        return None
+    check_version(OVERLAP_SCHEMA, block["schema_version"], root / "manifest.json")
+    covered: dict[str, str] = {}
+    methods: dict[str, int] = {}
+    scenes_in: dict[str, list[dict]] = {}
+    for scene in manifest.get("scenes", []):
+        scenes_in.setdefault(scene["file"], []).append(scene)
+    for entry in block["files"]:
+        where = root / entry["path"]
+        if entry["posed"] not in posed_files:
+            raise SeeUError(f"covers {entry['posed']!r}, a file the manifest does not list", where)
+        if entry["posed"] in covered:
+            raise SeeUError(f"{entry['posed']!r} is covered twice (also by {covered[entry['posed']]})", where)
+        covered[entry["posed"]] = entry["path"]
+        try:
+            verify_file(root, entry, check_sha=check_sha)
+            table = open_ipc_file(where, random_access=True).read_all()
+            check_file_schema(table.schema, OVERLAP_SCHEMA, where)
+            check_columns(table.schema, arrow_schema(OVERLAP_SCHEMA), where)
+            table.validate(full=True)
+        except (pa.ArrowException, UnicodeDecodeError, ValueError, IndexError, TypeError, OverflowError) as exc:
+            raise _unreadable(exc, where) from None
+        frames = {s["scene_id"]: int(s["num_frames"]) for s in scenes_in.get(entry["posed"], [])}
+        check_overlap_table(table, frames, where)
+        for m in table.column("method").to_pylist():
+            methods[m] = methods.get(m, 0) + 1
+    missing = sorted(posed_files - set(covered))
+    if missing:
+        raise SeeUError(f"the overlap block covers no table for {missing[0]}", root / "manifest.json")
+    return {"files": len(block["files"]), "scenes_by_method": methods}

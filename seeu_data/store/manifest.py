@@ -90,9 +90,10 @@ def write_manifest(
     scenes: list[dict] | None = None,
     report: dict | None = None,
     fsync: bool = False,
+    overlap: dict | None = None,
 ) -> dict:
     """Validate and atomically write `root/manifest.json` (fsynced first when `fsync`). Call after
-    every data file is in place."""
+    every data file is in place. `overlap`: posed frames' overlap block (`store.overlap_table`)."""
     root = Path(root)
     doc: dict[str, Any] = {
         "manifest_version": MANIFEST_VERSION,
@@ -105,6 +106,8 @@ def write_manifest(
     }
     if scenes is not None:
         doc["scenes"] = scenes
+    if overlap is not None:
+        doc["overlap"] = overlap
     if report is not None:
         doc["report"] = report
     _validate(doc)
@@ -166,6 +169,13 @@ def check_entries(root: Path, doc: dict, where: Path) -> None:
             contained_key(scene["file"], f"scene {scene.get('scene_id')!r} file", where)
             contained_path(root, scene["file"], f"scene {scene.get('scene_id')!r} file", where)
             scene_files.add(scene["file"])
+    for entry in (doc.get("overlap") or {}).get("files", []):
+        contained_key(entry["path"], "overlap file", where)
+        contained_path(root, entry["path"], "overlap file", where)
+        key = str(Path(entry["path"]))
+        if key in seen:
+            raise SeeUError(f"file {entry['path']!r} is listed twice", where)
+        seen.add(key)
     rows = sum(int(e["rows"]) for e in doc["files"])
     if int(doc["total_rows"]) != rows:
         raise SeeUError(f"total_rows {doc['total_rows']} disagrees with the {rows} rows its files list", where)

@@ -6,6 +6,8 @@ Layout of a posed-frames directory::
     posed-00000.arrow      Arrow IPC files; each holds whole scenes, one record batch per scene
     posed-00001.arrow ...
 
+    overlap-posed-00000.arrow ...   the view-overlap table of each posed file's scenes (`overlap_table`)
+
 Rows follow `schemas/posed_frames.v1.json`; cameras follow `seeu_data.cameras`.
 """
 
@@ -19,8 +21,10 @@ import numpy as np
 import pyarrow as pa
 
 from seeu_data.errors import SeeUError
+from seeu_data.overlap import OverlapTable, overlap_from_cameras, overlap_from_observations
 from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
 from seeu_data.store.manifest import FileEntry, read_manifest, write_manifest
+from seeu_data.store.overlap_table import OverlapReader, manifest_block, write_overlap_file
 from seeu_data.store.schema import arrow_schema, schema_version
 
 SCHEMA = "seeu.posed_frames"
@@ -151,7 +155,8 @@ class PosedDatasetWriter:
     """Stream scenes into a posed-frames directory with bounded memory.
 
     Scenes are appended to the current file until it exceeds `target_file_bytes`; each file is
-    written under a temporary name, hashed and renamed when closed (`arrow_io.AtomicIpcWriter`);
+    written under a temporary name, hashed and renamed when closed (`arrow_io.AtomicIpcWriter`),
+    followed by its overlap file (each scene's `scene_overlap`, `store.overlap_table`);
     `close()` writes the manifest last.
     Use as a context manager: an exception leaves no manifest, so the output never looks complete.
     """
@@ -172,6 +177,8 @@ class PosedDatasetWriter:
         self.target_file_bytes = target_file_bytes
         self.prefix = prefix
         self.files: list[FileEntry] = []  # closed files
+        self.overlap_files: list[dict] = []  # their overlap files' manifest entries
+        self._overlap_rows: list[tuple[str, OverlapTable]] = []  # the open file's scenes
         self.scenes: list[dict] = []
         self._seen: set[str] = set()
         self._writer: AtomicIpcWriter | None = None
@@ -208,6 +215,7 @@ class PosedDatasetWriter:
         assert self._path is not None and self._writer is not None
         batch = scene.to_record_batch()
         self._writer.write(batch)
+        self._overlap_rows.append((scene.scene_id, scene_overlap(scene)))
         entry = {
             "scene_id": scene.scene_id,
             "file": self._path.name,
@@ -236,7 +244,10 @@ class PosedDatasetWriter:
         writer, self._writer = self._writer, None
         size = writer.close()
         assert self._path is not None
-        self.files.append(FileEntry(str(self._path.relative_to(self.out_dir)), int(self._rows), size, writer.sha256))
+        name = str(self._path.relative_to(self.out_dir))
+        self.files.append(FileEntry(name, int(self._rows), size, writer.sha256))
+        self.overlap_files.append(write_overlap_file(self.out_dir, name, self._overlap_rows, self.fsync))
+        self._overlap_rows = []
 
     def close(self) -> dict:
         self._finish_file()
@@ -252,6 +263,7 @@ class PosedDatasetWriter:
             scenes=self.scenes,
             report=self.report or None,
             fsync=self.fsync,
+            overlap=manifest_block(self.overlap_files),
         )
 
 
@@ -264,6 +276,7 @@ class PosedDataset:
         self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
         self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
         self._batch_index: dict[str, dict[int, int]] = {}
+        self._overlaps = OverlapReader(self.root, self.manifest)
 
     @property
     def scene_ids(self) -> list[str]:
@@ -306,3 +319,43 @@ class PosedDataset:
     def iter_scenes(self, scene_ids: Iterable[str] | None = None) -> Iterator[PosedScene]:
         for sid in scene_ids if scene_ids is not None else self.scene_ids:
             yield self.load_scene(sid)
+
+    def load_cameras(self, scene_id: str) -> tuple[np.ndarray, np.ndarray, float, float]:
+        """A scene's cameras without its images: cam_to_world (N, 4, 4), intrinsics_norm (N, 4), near, far."""
+        info = self.scene_info(scene_id)
+        rows = self._reader(info["file"]).read_all().slice(info["row_start"], info["num_frames"])
+        c2w = rows.column("cam_to_world").combine_chunks().values.to_numpy().reshape(-1, 4, 4)
+        intr = rows.column("intrinsics_norm").combine_chunks().values.to_numpy().reshape(-1, 4)
+        return c2w, intr, float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
+
+    def stored_overlap(self, scene_id: str) -> OverlapTable | None:
+        """The scene's stored overlap table (`store.overlap_table`), None when the dataset has none."""
+        return self._overlaps.table(scene_id)
+
+    def overlap(self, scene_id: str) -> OverlapTable:
+        """The scene's stored overlap table; measured from its cameras when the dataset was written
+        without one (`seeu overlap` stores it)."""
+        table = self._overlaps.table(scene_id)
+        if table is not None:
+            return table
+        c2w, intr, near, far = self.load_cameras(scene_id)
+        return overlap_from_cameras(c2w, intr, near, far)
+
+
+@dataclass
+class TrackedScene(PosedScene):
+    """A `PosedScene` with its structure-from-motion observations (an ingest's or a COLMAP model's), from
+    which its view overlap is measured: `observations` = (frame index (M,), 3D point id (M,)) of every
+    observation of a 3D point."""
+
+    observations: tuple[np.ndarray, np.ndarray] | None = None
+
+
+def scene_overlap(scene: PosedScene) -> OverlapTable:
+    """The view overlap of a scene (`seeu_data.overlap`): from its SfM observations when it is a
+    `TrackedScene` with some, else from its cameras and near/far."""
+    if isinstance(scene, TrackedScene) and scene.observations is not None and len(scene.observations[0]):
+        return overlap_from_observations(len(scene), *scene.observations)
+    # near/far as stored (float32), so the table measured again from the written scene is the same
+    near, far = float(np.float32(scene.near)), float(np.float32(scene.far))
+    return overlap_from_cameras(scene.cam_to_world, scene.intrinsics_norm, near, far)

@@ -32,6 +32,7 @@ SCHEMAS_DIR = files("seeu_data") / "schemas"
 _SCHEMA_FILES = {
     "seeu.posed_frames": "posed_frames",
     "seeu.triples": "triples",
+    "seeu.overlap": "overlap",
 }
 MANIFEST_VERSION = "1.0"
 
