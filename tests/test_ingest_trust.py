@@ -24,7 +24,8 @@ from seeu_data.ingest.report import (
     scene_warnings,
     summary_line,
 )
-from seeu_data.ingest.sfm import SfmConfig, map_with_retries, model_disagreement_pct, run_sfm
+from seeu_data.ingest.sfm import SfmConfig, run_sfm
+from seeu_data.ingest.solution_check import map_with_retries, model_disagreement_pct
 from seeu_data.ingest.video import SceneSource, discover_sources, unique_scene_names
 from seeu_data.progress import StageProgress
 from seeu_data.store.posed import PosedDataset
@@ -384,7 +385,7 @@ def test_final_bundle_adjustment_keeps_a_model_it_cannot_fix_the_gauge_of():
     returns a summary without a Ceres part; the model is kept as mapped (once a crash of the SfM child)."""
     import pycolmap
 
-    from seeu_data.ingest.sfm import final_bundle_adjustment
+    from seeu_data.ingest.mapping import final_bundle_adjustment
 
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(
