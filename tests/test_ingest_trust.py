@@ -23,6 +23,7 @@ from seeu_data.ingest.report import (
     degeneracy,
     scene_warnings,
     summary_line,
+    weak_geometry,
 )
 from seeu_data.ingest.sfm import SfmConfig, run_sfm
 from seeu_data.ingest.solution_check import map_with_retries, model_disagreement_pct
@@ -56,8 +57,8 @@ class _Recorder(StageProgress):
         super().__init__("test")
         self.events: list[tuple[str, int]] = []
 
-    def stage(self, name, total=None):
-        super().stage(name, total)
+    def stage(self, name, total=None, unit=""):
+        super().stage(name, total, unit)
         self.events.append((name, 0))
 
     def set(self, done):
@@ -265,8 +266,21 @@ def test_solution_check_starts_at_once_only_the_runs_it_certainly_needs():
         assert [s for e, s in events if e == "collect"] == sorted(runs)
 
 
-def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summary():
+def test_failed_check_names_the_weak_geometry_and_chunks_are_warned_otherwise():
+    """A failed solution check is warned with its likely causes, each from its own figure: low parallax
+    (the smallest chunk baseline/depth), a dominant plane (planar/panoramic share of the verified pairs),
+    too few matches (median inliers, matched frames per frame); without a failed check, chunks whose
+    camera rotates in place and low-parallax chunks are warned each."""
     reason = "the 3 mapping runs that registered enough frames disagree (closest 28% of the path apart)"
+    check = {
+        "ran": True,
+        "passed": False,
+        "state": "failed",
+        "disagreement_pct": 27.9,
+        "reason": reason,
+        "planar_or_panoramic_pairs": 60,
+        "verified_pairs": 64,
+    }
     base = {
         "scene": "s",
         "registered": 30,
@@ -278,15 +292,8 @@ def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summa
         "output": "out/s",
         "sfm": {
             "mapping_attempts": [{}, {}, {}],
-            "solution_check": {
-                "ran": True,
-                "passed": False,
-                "state": "failed",
-                "disagreement_pct": 27.9,
-                "reason": reason,
-                "planar_or_panoramic_pairs": 60,
-                "verified_pairs": 64,
-            },
+            "solution_check": check,
+            "mapper": {"match_graph": {"median_inliers": 31.0, "mean_degree": 5.2}},
         },
         "chunks": [
             {"scene_id": "s_c0", "baseline_over_depth": 0.04, "degeneracy": ROTATES_IN_PLACE},
@@ -294,14 +301,34 @@ def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summa
             {"scene_id": "s_c2", "baseline_over_depth": 0.07},  # a report without degeneracy
         ],
     }
-    warnings = scene_warnings(base)
-    assert warnings[0] == f"SfM solution check failed: {reason}; the poses may be wrong"
-    assert warnings[1] == f"{ROTATES_IN_PLACE} in s_c0 (baseline/depth 0.040, 60/64 verified pairs planar or panoramic)"
-    assert warnings[2] == "low parallax: baseline/depth 0.070 < 0.1 in s_c2 (geometry weakly constrained)"
-    assert len(warnings) == 3
-    line = summary_line({**base, "warnings": warnings})
-    assert line.count("WARNING") == 3 and "\n" not in line and "after 3 mapping runs" in line
-    assert "camera mostly rotates in place: depth is unreliable" in line
+    causes = weak_geometry(base)
+    assert causes == [
+        "low parallax (baseline/depth 0.040 < 0.1)",
+        "a dominant plane or a camera turning in place (60/64 verified pairs planar or panoramic)",
+        "too few matches (median 31 inliers per verified pair, each frame matched to 5.2 others)",
+    ]
+    failed = {**base, "sfm": {**base["sfm"], "solution_check": {**check, "weak_geometry": causes}}}
+    (warning,) = scene_warnings(failed)
+    assert warning == f"SfM solution check failed: {reason}; likely owed to {', '.join(causes)}; the poses may be wrong"
+    line = summary_line({**failed, "warnings": [warning]})
+    assert line.count("WARNING") == 1 and "\n" not in line and "after 3 mapping runs" in line
+    assert "low parallax" in line and "dominant plane" in line and "too few matches" in line
+    # each cause only from its own figure
+    wide = {**base, "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.5}]}
+    many = {"mapper": {"match_graph": {"median_inliers": 400.0, "mean_degree": 5.0}}}
+    general = {**check, "planar_or_panoramic_pairs": 10}
+    assert weak_geometry({**wide, "sfm": {**base["sfm"], **many, "solution_check": general}}) == []
+    none_found = {**wide, "sfm": {**many, "solution_check": {**general, "weak_geometry": []}}}
+    assert scene_warnings(none_found)[0].endswith(
+        "; no sign of low parallax, a dominant plane or too few matches; the poses may be wrong"
+    )
+    # the check did not fail: the chunks are warned one by one
+    passed = {**base, "sfm": {**base["sfm"], "solution_check": {**check, "state": "passed", "passed": True}}}
+    warnings = scene_warnings(passed)
+    assert warnings[0] == f"{ROTATES_IN_PLACE} in s_c0 (baseline/depth 0.040, 60/64 verified pairs planar or panoramic)"
+    assert warnings[1] == "low parallax: baseline/depth 0.070 < 0.1 in s_c2 (geometry weakly constrained)"
+    assert len(warnings) == 2
+    assert "camera mostly rotates in place: depth is unreliable" in summary_line({**passed, "warnings": warnings})
     # an SfM result from before the reason was recorded: the old wording
     old = {**base, "sfm": {"solution_check": {"state": "failed", "disagreement_pct": 27.9}}}
     assert (

@@ -1,12 +1,29 @@
 """The SfM database and its features: the cameras and images written in frame order, SIFT extraction,
-and matching with two-view verification (steps of the SfM child, `seeu_data.ingest.sfm_child`)."""
+and matching of the pairs that can overlap (`seeu_data.ingest.pairs`) with two-view verification (steps
+of the SfM child, `seeu_data.ingest.sfm_child`).
+
+Both commit to the database as they go (COLMAP's extractor one image at a time, the matching here batch
+by batch), and both leave alone what the database already holds: a run interrupted in either continues
+from what it finished, with the same result (each image's features and each pair's verification are
+the same whoever computes them, whenever).
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
 
+from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import FEATURES, Failed, Job, SfmConfig, emit
+
+# SIFT's first octave is the frame doubled (COLMAP's first_octave -1) only below this longer side
+DOUBLE_BELOW = 640
+# features kept per megapixel of SIFT's first octave (`feature_budget`): 1,152 on a 640x360 frame
+FEATURES_PER_MEGAPIXEL = 5000
+MIN_FEATURES = 1024
+# --vocab-tree: each keyframe is matched with this many keyframes most like it (COLMAP's loop detection
+# default: 50 images every 10th frame)
+LOOP_IMAGES = 20
 
 
 def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmConfig) -> None:
@@ -51,36 +68,114 @@ def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmCo
 @dataclass(frozen=True)
 class Matches:
     """The match step's facts: verified pairs, the match graph's statistics, the median image motion
-    between consecutive frames (px; None when keyframes are off)."""
+    between consecutive frames (px; None when not matched in order or keyframes are off), the matcher
+    chosen with its pair counts, and the keyframes (every frame when not matched in order)."""
 
     num_pairs: int
     graph: dict
     motion_px: float | None
     matcher: dict
+    keyframes: Keyframes
+
+
+def open_database(job: Job) -> bool:
+    """The database of `job`: kept when an earlier run of this stage created it (its journal says so;
+    SQLite rolls back what an interruption left half-written), else created afresh (`create_database`).
+    Returns whether it was kept."""
+    if job.finished("database"):
+        return True
+    for stale in (job.db_path, *(job.db_path.with_name(job.db_path.name + s) for s in ("-wal", "-shm", "-journal"))):
+        stale.unlink(missing_ok=True)  # a leftover -shm of an earlier database makes SQLite fail to open a new one
+    create_database(job.db_path, Path(job.image_dir), job.names, job.cfg)
+    job.journal.add({"unit": "database"})
+    return False
+
+
+def feature_budget(sizes: list[tuple[int, int]], feature_size: int, max_features: int) -> dict:
+    """At what size SIFT runs on frames of `sizes` ((width, height) each) and how many features it keeps.
+
+    The frames are downscaled so the longer side is at most `feature_size` (COLMAP's `max_image_size`;
+    keypoints are scaled back to the full frame). SIFT's first octave is that image itself, or, for frames
+    whose longer side is under `DOUBLE_BELOW` px, the image doubled (COLMAP's default `first_octave` -1,
+    which it applies to every size): doubling a 640x360 frame costs 3x the extraction time for features
+    at scales the mapping does not need, and a 3072x2048 photo doubled is a 25-megapixel pyramid per
+    thread (about 1.6 GB). The features kept: `FEATURES_PER_MEGAPIXEL` per megapixel of the first
+    octave, at least `MIN_FEATURES`, at most `max_features` (matching costs the square of it).
+
+    Returns {"max_image_size", "first_octave", "max_features", "first_octave_size" ((W, H) of the largest)}.
+
+    >>> feature_budget([(640, 360)], 1600, 8192)["max_features"]
+    1152
+    """
+    w, h = max(sizes, key=lambda s: s[0] * s[1])
+    scale = min(1.0, feature_size / max(w, h))
+    first_octave = -1 if max(w, h) * scale < DOUBLE_BELOW else 0
+    base = (round(w * scale * 2**-first_octave), round(h * scale * 2**-first_octave))
+    budget = round(FEATURES_PER_MEGAPIXEL * base[0] * base[1] / 1e6)
+    return {
+        "max_image_size": feature_size,
+        "first_octave": first_octave,
+        "max_features": min(max_features, max(MIN_FEATURES, budget)),
+        "first_octave_size": base,
+    }
+
+
+def _frame_sizes(db_path: Path) -> list[tuple[int, int]]:
+    """(width, height) of every camera in the database (one per frame size)."""
+    import pycolmap
+
+    db = pycolmap.Database.open(db_path)
+    try:
+        return [(int(c.width), int(c.height)) for c in db.read_all_cameras()]
+    finally:
+        db.close()
+
+
+def _images_with_features(db_path: Path) -> set[str]:
+    import pycolmap
+
+    db = pycolmap.Database.open(db_path)
+    try:
+        return {
+            im.name
+            for im in db.read_all_images()
+            if db.exists_keypoints(im.image_id) and db.exists_descriptors(im.image_id)
+        }
+    finally:
+        db.close()
 
 
 def extract(job: Job) -> int:
-    """The database (camera and images in frame order) and SIFT features; returns the keypoint count."""
+    """SIFT features of every frame without them yet (COLMAP commits each image's as it finishes, so an
+    interrupted extraction keeps what it finished); returns the keypoint count. `job.resumed["images"]`:
+    the frames whose features an earlier run had extracted."""
     import pycolmap
 
     cfg, clock = job.cfg, job.clock
-    emit("stage", "extract", len(job.names))
     t0 = clock.mark()
-    create_database(job.db_path, Path(job.image_dir), job.names, cfg)
-    reader = pycolmap.ImageReaderOptions()
-    reader.camera_model = cfg.camera_model
-    extraction = pycolmap.FeatureExtractionOptions()
-    extraction.sift.max_num_features = cfg.max_features
-    extraction.num_threads = cfg.threads
-    extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
-    pycolmap.extract_features(
-        job.db_path,
-        job.image_dir,
-        image_names=job.names,
-        camera_mode=pycolmap.CameraMode.AUTO,  # the images' cameras are in the database already
-        reader_options=reader,
-        extraction_options=extraction,
-    )
+    done = _images_with_features(job.db_path)
+    todo = [n for n in job.names if n not in done]
+    job.resumed["images"] = len(job.names) - len(todo)
+    emit("stage", "extract", len(job.names), "images")
+    emit("done", len(job.names) - len(todo))  # COLMAP's "Processed file [k/N]" lines count from here
+    if todo:
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = cfg.camera_model
+        extraction = pycolmap.FeatureExtractionOptions()
+        budget = feature_budget(_frame_sizes(job.db_path), cfg.feature_size, cfg.max_features)
+        extraction.max_image_size = budget["max_image_size"]
+        extraction.sift.first_octave = budget["first_octave"]
+        extraction.sift.max_num_features = budget["max_features"]
+        extraction.num_threads = cfg.threads
+        extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
+        pycolmap.extract_features(
+            job.db_path,
+            job.image_dir,
+            image_names=todo,
+            camera_mode=pycolmap.CameraMode.AUTO,  # the images' cameras are in the database already
+            reader_options=reader,
+            extraction_options=extraction,
+        )
     clock.add("extract_s", t0)
     db = pycolmap.Database.open(job.db_path)
     num_kp = int(db.num_keypoints())
@@ -90,50 +185,149 @@ def extract(job: Job) -> int:
     return num_kp
 
 
+class _PairMatching:
+    """Matches image pairs (frame numbers into `job.names`) with COLMAP, in batches, each committed to the
+    database as it finishes; pairs the database already holds (an earlier, interrupted run's) are kept.
+    Reports the pairs done against the planned total (`emit`)."""
+
+    def __init__(self, job: Job) -> None:
+        import pycolmap
+
+        self.job = job
+        cfg = job.cfg
+        self.matching = pycolmap.FeatureMatchingOptions()
+        # Matching on the mapping threads (default 1): even with a seeded RANSAC per pair, two matching
+        # threads can change the database under load; one thread cannot.
+        self.matching.num_threads = cfg.map_threads
+        if cfg.features != "sift":
+            self.matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
+        self.verification = pycolmap.TwoViewGeometryOptions()
+        # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
+        # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
+        self.verification.ransac.random_seed = cfg.random_seed
+        self.index = {n: i for i, n in enumerate(job.names)}
+        self.inlier_counts: dict[tuple[int, int], int] = {}
+        self._read()
+        self.kept = len(self.inlier_counts)
+        self.done = 0  # pairs of the plan done (matched here or kept)
+        self.list_path = job.out / "pairs.txt"
+
+    def _read(self) -> None:
+        """The verified inliers of every pair the database holds (a failed pair: 0)."""
+        import pycolmap
+
+        db = pycolmap.Database.open(self.job.db_path)
+        try:
+            by_id = {im.image_id: self.index.get(im.name) for im in db.read_all_images()}
+            pair_ids, geometries = db.read_two_view_geometries()
+        finally:
+            db.close()
+        for pid, g in zip(pair_ids, geometries):
+            a, b = (by_id.get(int(i)) for i in pycolmap.pair_id_to_image_pair(pid))
+            if a is not None and b is not None:
+                self.inlier_counts[(min(a, b), max(a, b))] = len(g.inlier_matches)
+
+    def inliers(self, a: int, b: int) -> int:
+        return self.inlier_counts.get((min(a, b), max(a, b)), 0)
+
+    def run(self, pairs: list[tuple[int, int]]) -> None:
+        """Match `pairs` not matched yet, in batches (about 2 % of the planned total each, at least 8)."""
+        import pycolmap
+
+        todo = [p for p in dict.fromkeys(pairs) if (min(p), max(p)) not in self.inlier_counts]
+        self.done += len(pairs) - len(todo)
+        emit("done", self.done)
+        batch = max(8, len(todo) // 50)
+        pairing = pycolmap.ImportedPairingOptions()
+        pairing.match_list_path = str(self.list_path)
+        for k in range(0, len(todo), batch):
+            part = todo[k : k + batch]
+            names = self.job.names
+            self.list_path.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in part))
+            pycolmap.match_image_pairs(
+                self.job.db_path,
+                matching_options=self.matching,
+                pairing_options=pairing,
+                verification_options=self.verification,
+            )
+            self.done += len(part)
+            emit("done", self.done)
+        self.list_path.unlink(missing_ok=True)
+        self._read()
+
+
 def match(job: Job) -> Matches:
-    """Sequential or exhaustive matching (`choose_matcher`) and two-view verification (RANSAC seeded per
-    pair), then the facts read back."""
+    """Match the pairs that can overlap (`seeu_data.ingest.pairs`; which ones: `choose_matcher`) with
+    two-view verification (RANSAC seeded per pair), choosing the keyframes of a video on the way; then the
+    facts read back. `job.resumed["pairs"]`: the pairs an earlier run had matched."""
     import pycolmap
 
-    from seeu_data.ingest.keyframes import consecutive_motion_px
+    from seeu_data.ingest.keyframes import choose_keyframes, consecutive_motion_px
     from seeu_data.ingest.match_graph import choose_matcher, match_graph_stats
+    from seeu_data.ingest.pairs import (
+        exhaustive_pairs,
+        keyframe_distances,
+        keyframe_pairs,
+        neighbour_pairs,
+        other_frame_pairs,
+        window_pairs,
+    )
 
-    cfg, clock = job.cfg, job.clock
-    matcher = choose_matcher(cfg.matcher, job.video, len(job.names), cfg.overlap)
-    pairing = pycolmap.SequentialPairingOptions()
-    pairing.overlap = matcher["overlap"] or cfg.overlap
-    # frames 1, 2, 4, ..., 2**(overlap-1) apart (COLMAP's default; the keyframe stride relies on it), or
-    # (the fallback for a large image folder) every one of the next `overlap` images
-    pairing.quadratic_overlap = matcher["quadratic"]
-    pairing.loop_detection = cfg.vocab_tree is not None
-    if cfg.vocab_tree is not None:
-        pairing.vocab_tree_path = str(cfg.vocab_tree)
-    emit("stage", "match", len(job.names))
+    cfg, clock, n = job.cfg, job.clock, len(job.names)
+    matcher = choose_matcher(cfg.matcher, job.video, n, cfg.overlap)
     t0 = clock.mark()
-    matching = pycolmap.FeatureMatchingOptions()
-    # Matching on the mapping threads (default 1): even with a seeded RANSAC per pair, two matching threads
-    # can change the database under load; one thread cannot.
-    matching.num_threads = cfg.map_threads
-    if cfg.features != "sift":
-        matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
-    verification = pycolmap.TwoViewGeometryOptions()
-    # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
-    # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
-    verification.ransac.random_seed = cfg.random_seed
-    if matcher["used"] == "exhaustive":
-        pycolmap.match_exhaustive(job.db_path, matching_options=matching, verification_options=verification)
+    pm = _PairMatching(job)
+    job.resumed["pairs"] = pm.kept
+    motion = None
+    if matcher["used"] == "exhaustive" or not matcher["quadratic"]:
+        plan = exhaustive_pairs(n) if matcher["used"] == "exhaustive" else window_pairs(n, matcher["overlap"])
+        emit("stage", "match", len(plan), "pairs")
+        pm.run(plan)
+        kf = choose_keyframes(job.names, None, 0.0, cfg.min_keyframes, cfg.overlap)
     else:
-        pycolmap.match_sequential(
-            job.db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
-        )
+        # the most pairs the rounds can come to: every frame a keyframe, no distance left out
+        distances = keyframe_distances(n, cfg.overlap)
+        emit("stage", "match", sum(n - d for d in distances), "pairs")
+        pm.run(neighbour_pairs(n))
+        if cfg.keyframe_motion > 0:
+            db = pycolmap.Database.open(job.db_path)
+            motion = consecutive_motion_px(db, job.names)
+            db.close()
+        kf = choose_keyframes(job.names, motion, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
+        keys = [pm.index[k] for k in kf.names]
+        rest = other_frame_pairs(n, keys)
+        distances = [d for d in keyframe_distances(len(keys), cfg.overlap) if d > 1 or kf.stride > 1]
+        for j, d in enumerate(distances):
+            emit("total", pm.done + sum(len(keys) - e for e in distances[j:]) + len(rest))
+            pm.run(keyframe_pairs(keys, d, pm.inliers))
+        emit("total", pm.done + len(rest))
+        pm.run(rest)
+        if cfg.vocab_tree is not None:
+            _loop_pairs(job, pm, kf.names)
+    matcher["pairs_matched"] = len(pm.inlier_counts)
     clock.add("match_s", t0)
     t0 = clock.mark()
     db = pycolmap.Database.open(job.db_path)
     num_pairs = int(db.num_verified_image_pairs())
     graph = match_graph_stats(db, job.names)
-    # keyframes are for sequentially matched frames (the stride relies on the quadratic overlap)
-    keyframes = cfg.keyframe_motion > 0 and matcher["quadratic"]
-    motion = consecutive_motion_px(db, job.names) if keyframes else None
     db.close()
     clock.add("map_s", t0)
-    return Matches(num_pairs, graph, motion, matcher)
+    return Matches(num_pairs, graph, motion, matcher, kf)
+
+
+def _loop_pairs(job: Job, pm: _PairMatching, keyframes: list[str]) -> None:
+    """Loop detection with the vocabulary-tree file `--vocab-tree`: each keyframe with the
+    `LOOP_IMAGES` keyframes most like it (COLMAP's vocabulary-tree retrieval), matched and verified."""
+    import pycolmap
+
+    queries = job.out / "loop_queries.txt"
+    queries.write_text("".join(f"{k}\n" for k in keyframes))
+    pairing = pycolmap.VocabTreePairingOptions()
+    pairing.vocab_tree_path = str(job.cfg.vocab_tree)
+    pairing.num_images = LOOP_IMAGES
+    pairing.match_list_path = str(queries)
+    emit("stage", "match-loops", None)
+    pycolmap.match_vocabtree(
+        job.db_path, matching_options=pm.matching, pairing_options=pairing, verification_options=pm.verification
+    )
+    queries.unlink(missing_ok=True)

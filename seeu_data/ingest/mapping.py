@@ -58,7 +58,7 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
     mapper_info = {"requested": cfg.mapper, "used": mapper, "reason": why, "match_graph": matches.graph}
     if matches.num_pairs == 0:
         raise Failed("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
-    emit("stage", "map", len(kf.names))
+    emit("stage", "map", len(kf.names), "registered")
     t0 = clock.mark()
     pairs = geometry_counts(job.db_path)
     runs = _MapRuns(job, mapper, kf.names if kf.stride > 1 else [])
@@ -68,10 +68,14 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
         )
     finally:
         runs.close()
+    job.resumed["map_runs"] = runs.kept
     for attempt in attempts:  # the run's own wall time (map_with_retries saw only the wait for it)
         attempt["seconds"] = runs.seconds[attempt["seed"]]
     if not recs and mapper == "incremental" and moves_forward_possibly(pairs):
         recs, attempts, rejected, check = map_forward_motion(job, kf, attempts)
+    if mapper == "incremental":  # the runs leave the points' colours out: the kept one's frames read once here
+        for rec in recs.values():
+            rec.extract_colors_for_all_images(job.image_dir, 1)
     sparse = job.out / "sparse"
     shutil.rmtree(sparse, ignore_errors=True)
     sparse.mkdir()
@@ -100,7 +104,7 @@ def map_forward_motion(job: Job, kf: Keyframes, attempts: list[dict]) -> tuple[d
     when the first round found no model. Returns `map_with_retries`' results, its runs appended to
     `attempts`, each marked "init": "forward motion"."""
     cfg = job.cfg
-    emit("stage", "map-forward-motion", len(kf.names))
+    emit("stage", "map-forward-motion", len(kf.names), "registered")
     runs = _MapRuns(job, "incremental", kf.names if kf.stride > 1 else [], init=FORWARD_MOTION_INIT)
     try:
         recs, more, rejected, check = map_with_retries(
@@ -108,6 +112,7 @@ def map_forward_motion(job: Job, kf: Keyframes, attempts: list[dict]) -> tuple[d
         )
     finally:
         runs.close()
+    job.resumed["map_runs"] = job.resumed.get("map_runs", 0) + runs.kept
     for attempt in more:
         attempt["seconds"] = runs.seconds[attempt["seed"]]
         attempt["init"] = "forward motion"
@@ -138,30 +143,31 @@ def _copy_database(src: Path, dst: Path) -> None:
 
 class _MapRuns:
     """Mapping runs, each in its own process (`python -m seeu_data.ingest.mapping RUN.json`, see
-    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/<seed>/. Every run, even
-    a lone one, is read back from the model files it wrote, so the models do not depend on how many
-    ran at once. A run's COLMAP log goes to sfm.log; the run started when none is going reports progress."""
+    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/<round>-<seed>/. Every run,
+    even a lone one, is read back from the model files it wrote, so the models do not depend on how many
+    ran at once, nor on whether a run was made by an earlier, interrupted SfM child: a finished run
+    (done.json) made with the same settings is kept, not run again (counted in `kept`). A run's COLMAP
+    log goes to sfm.log; the run started when none is going reports its registered frames."""
 
     def __init__(self, job: Job, mapper: str, image_names: list[str], init: dict | None = None) -> None:
         self.job, self.mapper, self.image_names, self.init = job, mapper, image_names, init or {}
         self.limit = map_processes(job.cfg)
         self.root = job.out / "map_runs"
-        shutil.rmtree(self.root, ignore_errors=True)
-        self.root.mkdir()
-        self.procs: dict[int, subprocess.Popen] = {}
+        self.round = "forward-motion" if init else "first"
+        self.root.mkdir(exist_ok=True)
+        self.procs: dict[int, subprocess.Popen | None] = {}  # None: a finished run kept
         self.seconds: dict[int, float] = {}
+        self.kept = 0
+
+    def _dir(self, seed: int) -> Path:
+        return self.root / f"{self.round}-{seed}"
 
     def _running(self) -> int:
-        return sum(p.poll() is None for p in self.procs.values())
+        return sum(p is not None and p.poll() is None for p in self.procs.values())
 
     def _launch(self, seed: int) -> None:
-        run_dir = self.root / str(seed)
-        run_dir.mkdir()
-        # Each run maps its own copy of the database: COLMAP opens it for writing (global mapping writes
-        # to it), and two runs opening one file at once failed with "database is locked".
-        _copy_database(self.job.db_path, run_dir / "database.db")
+        run_dir = self._dir(seed)
         run = {
-            "parent": os.getpid(),
             "db_path": str(run_dir / "database.db"),
             "image_dir": self.job.image_dir,
             "dir": str(run_dir),
@@ -169,16 +175,28 @@ class _MapRuns:
             "image_names": self.image_names,
             "seed": seed,
             "init": self.init,
-            "progress": self._running() == 0,
             "config": asdict(self.job.cfg),
         }
-        (run_dir / "run.json").write_text(json.dumps(run))
+        try:
+            earlier = json.loads((run_dir / "run.json").read_text())
+            if (run_dir / "done.json").exists() and {k: earlier.get(k) for k in run} == run:
+                self.procs[seed] = None
+                self.kept += 1
+                return
+        except (OSError, ValueError):
+            pass
+        shutil.rmtree(run_dir, ignore_errors=True)
+        run_dir.mkdir()
+        # Each run maps its own copy of the database: COLMAP opens it for writing (global mapping writes
+        # to it), and two runs opening one file at once failed with "database is locked".
+        _copy_database(self.job.db_path, run_dir / "database.db")
+        (run_dir / "run.json").write_text(json.dumps({**run, "parent": os.getpid(), "progress": self._running() == 0}))
         self.procs[seed] = subprocess.Popen(
             [sys.executable, "-m", "seeu_data.ingest.mapping", str(run_dir / "run.json")]
         )
 
     def start(self, seed: int) -> None:
-        """Begin mapping `seed` if a core is free for it."""
+        """Begin mapping `seed` if a core is free for it (or keep its finished run)."""
         if seed not in self.procs and self._running() < self.limit:
             self._launch(seed)
 
@@ -188,28 +206,35 @@ class _MapRuns:
 
         if seed not in self.procs:
             self._launch(seed)
-        rc = self.procs[seed].wait()
+        proc = self.procs[seed]
+        rc = 0 if proc is None else proc.wait()
         if rc != 0:  # COLMAP aborted the run: this process ends the same way (run_sfm reports it)
             self.close()
             if rc < 0:
                 signal.signal(-rc, signal.SIG_DFL)
                 os.kill(os.getpid(), -rc)
             sys.exit(rc)
-        run_dir = self.root / str(seed)
+        run_dir = self._dir(seed)
         done = json.loads((run_dir / "done.json").read_text())
         self.seconds[seed] = done["seconds"]
         return {k: pycolmap.Reconstruction(run_dir / "sparse" / str(k)) for k in done["models"]}
 
     def close(self) -> None:
-        """End the runs still going (those begun but not needed) and remove their files."""
+        """End the runs still going (those begun but not needed); the finished ones stay for a re-run of
+        an interrupted SfM child (`sfm_child` removes map_runs/ once it is done)."""
         for proc in self.procs.values():
-            end_process(proc)
-        shutil.rmtree(self.root, ignore_errors=True)
+            if proc is not None:
+                end_process(proc)
+        for seed in self.procs:
+            if not (self._dir(seed) / "done.json").exists():
+                shutil.rmtree(self._dir(seed), ignore_errors=True)
 
 
 def _map_run(run_path: str) -> int:
     """One mapping run (a `_MapRuns` child): incremental or global mapping of the database from one
-    seed; every model written to <dir>/sparse/<index>/, then done.json {"models": [index], "seconds"}."""
+    seed; every model written to <dir>/sparse/<index>/, the database copy removed, then done.json
+    {"models": [index], "seconds"}. Incremental mapping reports the frames registered so far (in every
+    model it holds) after each one (`emit("done", n)`)."""
     run = json.loads(Path(run_path).read_text())
     if sys.platform.startswith("linux"):  # end with the SfM child (killed when ingest is interrupted)
         import ctypes
@@ -236,17 +261,30 @@ def _map_run(run_path: str) -> int:
         options.num_threads = cfg.map_threads
         options.random_seed = run["seed"]
         options.image_names = run["image_names"]
+        options.image_path = run["image_dir"]
+        options.extract_colors = False  # read once, for the kept run only (`map_frames`)
         for name, value in run.get("init", {}).items():  # initial-pair limits (`map_forward_motion`)
             setattr(options.mapper, name, value)
-        step = (lambda: emit("step")) if run["progress"] else (lambda: None)
-        recs = pycolmap.incremental_mapping(
-            run["db_path"], run["image_dir"], sparse, options=options, next_image_callback=step
-        )
+        # pycolmap.incremental_mapping's own steps, with the reconstructions at hand for the progress
+        manager = pycolmap.ReconstructionManager()
+        db = pycolmap.Database.open(run["db_path"])
+        try:
+            pipeline = pycolmap.IncrementalPipeline(options, db, manager)
+            if run["progress"]:
+                pipeline.add_callback(
+                    pycolmap.IncrementalPipelineCallback.NEXT_IMAGE_REG_CALLBACK,
+                    lambda: emit("done", sum(manager.get(i).num_reg_images() for i in range(manager.size()))),
+                )
+            pipeline.run()
+        finally:
+            db.close()
+        recs = {i: manager.get(i) for i in range(manager.size())}
     seconds = time.perf_counter() - t0
     for k, rec in recs.items():
         if not (sparse / str(k) / "images.bin").exists():
             (sparse / str(k)).mkdir(exist_ok=True)
             rec.write(sparse / str(k))
+    Path(run["db_path"]).unlink(missing_ok=True)
     (Path(run["dir"]) / "done.json").write_text(
         json.dumps({"models": sorted(int(k) for k in recs), "seconds": seconds})
     )
@@ -324,10 +362,11 @@ def register_rest(job: Job, recs: dict, kf: Keyframes, seed: int) -> None:
     if kf.stride <= 1:
         return
     mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
-    emit("stage", "register", len(job.names) - len(mapped))
+    emit("stage", "register", len(job.names) - len(mapped), "frames")
     t0 = job.clock.mark()
+    tried = iter(range(1, len(job.names) + 1))
     kf.info["registered_after"] = register_frames(
-        job.db_path, recs, job.names, kf.names, seed, job.cfg.map_threads, on_frame=lambda: emit("step")
+        job.db_path, recs, job.names, kf.names, seed, job.cfg.map_threads, on_frame=lambda: emit("done", next(tried))
     )
     job.clock.add("register_s", t0)
 

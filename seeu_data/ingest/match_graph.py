@@ -48,12 +48,14 @@ def match_graph_stats(db, names: list[str]) -> dict:
     by_id = {img.image_id: pos.get(img.name) for img in db.read_all_images()}
     pair_ids, geoms = db.read_two_view_geometries()
     edges = set()
+    inliers = []
     for pid, g in zip(pair_ids, geoms):
         if len(g.inlier_matches) < MIN_INLIERS:
             continue
         a, b = (by_id.get(i) for i in pycolmap.pair_id_to_image_pair(pid))
         if a is not None and b is not None and a != b:
             edges.add((min(a, b), max(a, b)))
+            inliers.append(len(g.inlier_matches))
     n = len(names)
     chain = sum((i, i + 1) in edges for i in range(n - 1))
     gaps = np.array([b - a for a, b in edges]) if edges else np.zeros(0)
@@ -64,6 +66,7 @@ def match_graph_stats(db, names: list[str]) -> dict:
         "consecutive_matched_pct": 100.0 * chain / max(n - 1, 1),
         "mean_index_gap": float(gaps.mean()) if len(gaps) else 0.0,
         "mean_degree": float(degree.mean()) if n else 0.0,
+        "median_inliers": float(np.median(inliers)) if inliers else 0.0,
     }
 
 

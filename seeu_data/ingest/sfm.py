@@ -62,14 +62,15 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
 from seeu_data.ingest.match_graph import EXHAUSTIVE_MAX_IMAGES, UNORDERED_OVERLAP
 from seeu_data.interrupts import end_process
-from seeu_data.limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_WORKERS, check_range
+from seeu_data.limits import MAX_ATTEMPTS, MAX_FEATURES, MAX_FRAMES, MAX_IMAGE_SIDE, MAX_WORKERS, check_range
 from seeu_data.settings import setting
+from seeu_data.store.resume import Journal, claim_dir, stamp_of
 
 CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV")
 MAPPERS = ("incremental", "global", "auto")
@@ -78,8 +79,8 @@ FINAL_BA_LOSSES = ("none", "soft_l1", "cauchy", "huber")  # pycolmap.LossFunctio
 # --features: (pycolmap FeatureExtractorType, FeatureMatcherType) names; only SIFT needs no ONNX runtime
 FEATURES = {"sift": ("SIFT", "SIFT_BRUTEFORCE"), "aliked": ("ALIKED_N16ROT", "ALIKED_LIGHTGLUE")}
 _PROGRESS = "@@seeu"
-# COLMAP's log lines for one image done: "Processed file [k/N]" (extraction), "Processing image [k/N]" (matching)
-_COLMAP_PROGRESS = re.compile(r"\] Process(?:ed file|ing image) \[(\d+)/\d+\]")
+# COLMAP's log line for one image's features done: "Processed file [k/N]"
+_COLMAP_PROGRESS = re.compile(r"\] Processed file \[(\d+)/\d+\]")
 
 
 @dataclass(frozen=True)
@@ -102,7 +103,17 @@ class SfmConfig:
     )
     vocab_tree: str | None = setting(None, "vocabulary-tree file: enables loop detection (default: off)")
     min_model_size: int = 10
-    max_features: int = setting(8192, "SIFT features per frame")
+    max_features: int = setting(
+        8192,
+        "most SIFT features per frame; fewer on smaller frames: about 5,000 per megapixel of the size they are "
+        "extracted at (--feature-size)",
+    )
+    feature_size: int = setting(
+        1600,
+        "extract features on the frames downscaled so the longer side is at most PX pixels (never enlarged beyond "
+        "COLMAP's doubling of frames under 640 px); keypoints are mapped back to the full frame",
+        metavar="PX",
+    )
     threads: int = setting(
         -1,
         "COLMAP threads per scene for feature extraction (default: all cores / workers; 1 with --engine ray, "
@@ -177,6 +188,7 @@ class SfmConfig:
         check_range(self.threads, "--threads", -1, MAX_WORKERS)
         check_range(self.overlap, "--overlap", 1, MAX_FRAMES)
         check_range(self.max_features, "--max-features", 1, MAX_FEATURES)
+        check_range(self.feature_size, "--feature-size", 16, MAX_IMAGE_SIDE)
         if not (self.keyframe_motion >= 0 and math.isfinite(self.keyframe_motion)):
             raise SeeUError(f"--keyframe-motion must be a finite number >= 0, got {self.keyframe_motion}")
         check_range(self.min_keyframes, "min_keyframes", 3, MAX_FRAMES)
@@ -219,20 +231,24 @@ def run_sfm(
     source: str | Path,
     progress=False,
     video: bool = True,
+    resume: bool = True,
 ) -> dict:
     """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
 
     `video`: the frames come from a video (ordered; `matcher` auto matches them sequentially) rather
-    than an image folder. `source` names the user's input in error messages. `progress`: a `StageProgress` (or True for bars
-    only) that follows the child: stages `sfm extract` (images), `sfm match` (images), `sfm map`
-    (registered images), read from the child's own lines and COLMAP's log lines as they come.
+    than an image folder. `source` names the user's input in error messages. `progress`: a `StageProgress`
+    (or True for bars only) that follows the child, stage by stage in its own unit: `sfm extract` (images),
+    `sfm match` (image pairs), `sfm map` (registered frames), `sfm register` (frames), read from the
+    child's own lines and COLMAP's extraction log lines as they come.
+    `resume`: `out_dir` keeps what an interrupted run of the same job (frames, settings; not `threads`)
+    finished there: the database with its features and verified pairs, the finished mapping runs; the
+    child continues from there (`claim_dir`; anything else there is removed first).
     Raises SeeUError when the child aborts, crashes, or reports that no model could be built.
     """
     from seeu_data.progress import StageProgress
 
     config.check()
     out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
     job = {
         "image_dir": str(Path(image_dir).resolve()),
         "image_names": list(image_names),
@@ -240,15 +256,19 @@ def run_sfm(
         "video": bool(video),
         "config": asdict(config),
     }
+    # what the work depends on: not the thread count (image ids and RANSAC seeds are fixed by the frames)
+    made_from = {**job, "out_dir": None, "config": {**asdict(config), "threads": None}}
+    claim_dir(out_dir, stamp_of(made_from), not resume)
     (out_dir / "job.json").write_text(json.dumps(job, indent=1))
     log_path = out_dir / "sfm.log"
     env = dict(os.environ, GLOG_minloglevel=os.environ.get("GLOG_minloglevel", "0"))
     own = not isinstance(progress, StageProgress)
     prog = StageProgress("sfm", bar=bool(progress)) if own else progress
+    base = 0  # extraction: the images done before COLMAP's "Processed file [k/N]" count starts
     try:
-        with open(log_path, "wb") as log:
+        with open(log_path, "ab") as log:
             # COLMAP's log (stderr) comes through the same pipe: it goes to sfm.log, and its
-            # "Processed file [k/N]" / "Processing image [k/N]" lines move the extract and match stages.
+            # "Processed file [k/N]" lines move the extract stage.
             proc = subprocess.Popen(
                 [sys.executable, "-m", "seeu_data.ingest.sfm_child", str(out_dir / "job.json")],
                 stdout=subprocess.PIPE,
@@ -262,14 +282,18 @@ def run_sfm(
                     if not line.startswith(_PROGRESS):
                         log.write(raw)
                         m = _COLMAP_PROGRESS.search(line)
-                        if m and prog.name in ("sfm extract", "sfm match"):
-                            prog.set(int(m.group(1)))
+                        if m and prog.name == "sfm extract":
+                            prog.set(base + int(m.group(1)))
                         continue
                     parts = line.split()
                     if parts[1] == "stage":
-                        prog.stage(f"sfm {parts[2]}", int(parts[3]) if len(parts) > 3 else None)
-                    elif parts[1] == "step":
-                        prog.advance()
+                        total = int(parts[3]) if len(parts) > 3 and parts[3] != "None" else None
+                        prog.stage(f"sfm {parts[2]}", total, parts[4] if len(parts) > 4 else "")
+                    elif parts[1] == "done":
+                        base = int(parts[2])
+                        prog.set(base)
+                    elif parts[1] == "total":
+                        prog.set_total(int(parts[2]))
                 rc = proc.wait()
             except BaseException:  # Ctrl-C, SIGTERM (interrupts.Terminated), an error: the child goes too
                 end_process(proc)
@@ -354,7 +378,9 @@ class Failed(Exception):
 
 @dataclass
 class Job:
-    """What the child works on: job.json's fields, the database path and the stage clock."""
+    """What the child works on: job.json's fields, the database path, the stage clock, the journal of
+    the steps finished (`steps.jsonl` in `out`, kept by a resumed run) and what was kept of an earlier
+    run (result.json's "resumed": {"images" with features, verified "pairs", "map_runs"})."""
 
     cfg: SfmConfig
     out: Path
@@ -363,3 +389,12 @@ class Job:
     db_path: Path
     clock: Clock
     video: bool = True
+    journal: Journal = field(init=False)
+    resumed: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        self.journal = Journal(self.out / "steps.jsonl")
+
+    def finished(self, step: str) -> bool:
+        """Whether `step` is in the journal (finished by this run or an earlier one of the same job)."""
+        return any(r["unit"] == step for r in self.journal.read())

@@ -62,8 +62,9 @@ def map_with_retries(
             start(cfg.random_seed + i)
     for i in range(cfg.sfm_attempts):
         seed = cfg.random_seed + i
-        if i:
-            emit("stage", f"map-retry-{i}", num_frames)
+        if i:  # a second run for the check (the runs so far registered enough), else a retry
+            what = "map-check" if check and len(good) == i else f"map-retry-{i}"
+            emit("stage", what, num_frames, "registered")
         usable, rejected = {}, []
         t0 = time.perf_counter()
         mapped = map_once(seed)

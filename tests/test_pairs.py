@@ -1,0 +1,49 @@
+"""Which image pairs SfM matches (`seeu_data.ingest.pairs`) and at which size it extracts features
+(`seeu_data.ingest.features.feature_budget`): closed-form counts and cases."""
+
+from __future__ import annotations
+
+from seeu_data.ingest.features import feature_budget
+from seeu_data.ingest.pairs import (
+    OVERLAP_INLIERS,
+    exhaustive_pairs,
+    keyframe_distances,
+    keyframe_pairs,
+    neighbour_pairs,
+    other_frame_pairs,
+    window_pairs,
+)
+
+
+def test_pair_lists_have_their_closed_form_counts():
+    assert neighbour_pairs(5) == [(0, 1), (1, 2), (2, 3), (3, 4)]
+    assert len(exhaustive_pairs(11)) == 55 and len(set(exhaustive_pairs(11))) == 55
+    assert len(window_pairs(10, 3)) == 3 * 7 + 2 + 1  # the last three frames have fewer ahead
+    assert keyframe_distances(51, 10) == [1, 2, 4, 8, 16, 32]
+    assert keyframe_distances(400, 3) == [1, 2, 4]
+
+
+def test_keyframe_pairs_stop_where_the_view_stopped_overlapping():
+    keys = [0, 4, 8, 12, 16]
+    assert keyframe_pairs(keys, 1, lambda a, b: 0) == [(0, 4), (4, 8), (8, 12), (12, 16)]
+    # 4 keyframes apart only from keyframes whose pair 2 apart overlapped well: from 0, not from 4
+    strong = {(0, 8): OVERLAP_INLIERS, (4, 12): OVERLAP_INLIERS - 1}
+    assert keyframe_pairs(keys, 2, lambda a, b: 100) == [(0, 8), (4, 12), (8, 16)]
+    assert keyframe_pairs(keys, 4, lambda a, b: strong.get((a, b), 0)) == [(0, 16)]
+
+
+def test_other_frames_are_paired_with_the_keyframes_around_them_but_not_twice_with_a_neighbour():
+    # keyframes 0, 4, 8 and the last frame 9
+    pairs = other_frame_pairs(10, [0, 4, 8, 9])
+    assert pairs == [(1, 4), (0, 2), (2, 4), (0, 3), (5, 8), (4, 6), (6, 8), (4, 7)]
+
+
+def test_features_are_extracted_at_a_size_that_follows_the_frame():
+    small = feature_budget([(320, 180)], 1600, 8192)  # doubled, as COLMAP does every frame
+    assert small["first_octave"] == -1 and small["first_octave_size"] == (640, 360)
+    video = feature_budget([(640, 360)], 1600, 8192)  # not doubled: 1,152 features
+    assert video["first_octave"] == 0 and video["max_features"] == round(5000 * 640 * 360 / 1e6)
+    photo = feature_budget([(3072, 2048), (2048, 3072)], 1600, 8192)  # downscaled to 1600 px, capped
+    assert photo["first_octave_size"] == (1600, 1067) and photo["max_features"] == 8192
+    assert feature_budget([(240, 136)], 1600, 8192)["max_features"] == 1024  # the floor
+    assert feature_budget([(3072, 2048)], 1600, 2000)["max_features"] == 2000  # --max-features caps
