@@ -276,7 +276,7 @@ def main() -> int:
     ap.add_argument("--size", default=None, help="HxW for every kind (default 360x640; walk720 720x1280)")
     ap.add_argument("--pairs", type=int, default=2, help="A B pairs run in turn; medians reported")
     ap.add_argument("--out", type=Path, default=Path("out/bench_ingest"))
-    ap.add_argument("--quick", action="store_true", help="walk and photos, 24 frames 180x320, one pair")
+    ap.add_argument("--quick", action="store_true", help="walk and photos, 30 frames 270x480, one pair")
     ap.add_argument("--write", action="store_true", help="put the table in benchmarks/RESULTS.md")
     ap.add_argument("--one", choices=("seeu", "bare"), help=argparse.SUPPRESS)
     ap.add_argument("--target", type=Path, help=argparse.SUPPRESS)
@@ -293,7 +293,7 @@ def main() -> int:
     from seeu_data.settings import parse_dims
 
     kinds = ["walk", "photos"] if args.quick else args.kinds.split(",")
-    counts = [24] if args.quick else [int(n) for n in args.frames.split(",")]
+    counts = [30] if args.quick else [int(n) for n in args.frames.split(",")]
     pairs = 1 if args.quick else args.pairs
     for k in kinds:
         if k not in KINDS:
@@ -302,7 +302,7 @@ def main() -> int:
     load_before = _load()
     for kind in kinds:
         for n in counts:
-            size = (180, 320) if args.quick else DEFAULT_SIZE.get(kind, (360, 640))
+            size = (270, 480) if args.quick else DEFAULT_SIZE.get(kind, (360, 640))
             if args.size:
                 size = parse_dims(args.size, "--size", minimum=16)
             t0 = time.perf_counter()

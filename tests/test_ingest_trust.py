@@ -396,6 +396,9 @@ def test_tripod_pan_is_flagged_under_default_options_and_the_figure_ignores_scal
         (chunk,) = report["chunks"]
         assert chunk["baseline_over_depth"] < LOW_PARALLAX and chunk["degeneracy"] == ROTATES_IN_PLACE
         assert any(w.startswith(ROTATES_IN_PLACE) for w in report["warnings"]), report["warnings"]
+        # what a failed check would name, computed whether or not it failed
+        causes = report["sfm"]["solution_check"]["weak_geometry"]
+        assert causes[0].startswith("low parallax") and causes[1].startswith("a dominant plane"), causes
         assert f"WARNING: {ROTATES_IN_PLACE}" in line
         meta = PosedDataset(out / "pan").load_scene("pan_c0").meta
         assert meta["degeneracy"] == ROTATES_IN_PLACE and meta["baseline_over_depth"] == chunk["baseline_over_depth"]

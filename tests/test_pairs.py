@@ -1,9 +1,7 @@
-"""Which image pairs SfM matches (`seeu_data.ingest.pairs`) and at which size it extracts features
-(`seeu_data.ingest.features.feature_budget`): closed-form counts and cases."""
+"""Which image pairs SfM matches (`seeu_data.ingest.pairs`): closed-form counts and cases."""
 
 from __future__ import annotations
 
-from seeu_data.ingest.features import feature_budget
 from seeu_data.ingest.pairs import (
     OVERLAP_INLIERS,
     exhaustive_pairs,
@@ -36,14 +34,3 @@ def test_other_frames_are_paired_with_the_keyframes_around_them_but_not_twice_wi
     # keyframes 0, 4, 8 and the last frame 9
     pairs = other_frame_pairs(10, [0, 4, 8, 9])
     assert pairs == [(1, 4), (0, 2), (2, 4), (0, 3), (5, 8), (4, 6), (6, 8), (4, 7)]
-
-
-def test_features_are_extracted_at_a_size_that_follows_the_frame():
-    small = feature_budget([(320, 180)], 1600, 8192)  # doubled, as COLMAP does every frame
-    assert small["first_octave"] == -1 and small["first_octave_size"] == (640, 360)
-    video = feature_budget([(640, 360)], 1600, 8192)  # not doubled: 1,152 features
-    assert video["first_octave"] == 0 and video["max_features"] == round(5000 * 640 * 360 / 1e6)
-    photo = feature_budget([(3072, 2048), (2048, 3072)], 1600, 8192)  # downscaled to 1600 px, capped
-    assert photo["first_octave_size"] == (1600, 1067) and photo["max_features"] == 8192
-    assert feature_budget([(240, 136)], 1600, 8192)["max_features"] == 1024  # the floor
-    assert feature_budget([(3072, 2048)], 1600, 2000)["max_features"] == 2000  # --max-features caps

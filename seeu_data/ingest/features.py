@@ -2,10 +2,10 @@
 and matching of the pairs that can overlap (`seeu_data.ingest.pairs`) with two-view verification (steps
 of the SfM child, `seeu_data.ingest.sfm_child`).
 
-Both commit to the database as they go (COLMAP's extractor one image at a time, the matching here batch
-by batch), and both leave alone what the database already holds: a run interrupted in either continues
-from what it finished, with the same result (each image's features and each pair's verification are
-the same whoever computes them, whenever).
+Both commit to the database as they go (COLMAP's extractor one image at a time, matched pairs batch by batch),
+and both leave alone what the database already holds: a run interrupted in either continues from what
+it finished, with the same result (each image's features and each pair's verification are the same
+whoever computes them, whenever: RANSAC is seeded per pair).
 """
 
 from __future__ import annotations
@@ -16,11 +16,6 @@ from pathlib import Path
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import FEATURES, Failed, Job, SfmConfig, emit
 
-# SIFT's first octave is the frame doubled (COLMAP's first_octave -1) only below this longer side
-DOUBLE_BELOW = 640
-# features kept per megapixel of SIFT's first octave (`feature_budget`): 1,152 on a 640x360 frame
-FEATURES_PER_MEGAPIXEL = 5000
-MIN_FEATURES = 1024
 # --vocab-tree: each keyframe is matched with this many keyframes most like it (COLMAP's loop detection
 # default: 50 images every 10th frame)
 LOOP_IMAGES = 20
@@ -34,7 +29,7 @@ def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmCo
     thread count and the machine's load; the ids fix the pair ids, the matching order and the mapper's
     tie-breaks. Each camera is the one the extractor would create (`default_focal_length_factor` x the
     longer side, principal point at the centre): a portrait and a landscape photo of one phone get the
-    same focal length in pixels, as separate cameras. The extractor then adds the features of these images.
+    same focal length in pixels, as separate cameras. `extract` then adds the features of these images.
     """
     import pycolmap
 
@@ -91,47 +86,8 @@ def open_database(job: Job) -> bool:
     return False
 
 
-def feature_budget(sizes: list[tuple[int, int]], feature_size: int, max_features: int) -> dict:
-    """At what size SIFT runs on frames of `sizes` ((width, height) each) and how many features it keeps.
-
-    The frames are downscaled so the longer side is at most `feature_size` (COLMAP's `max_image_size`;
-    keypoints are scaled back to the full frame). SIFT's first octave is that image itself, or, for frames
-    whose longer side is under `DOUBLE_BELOW` px, the image doubled (COLMAP's default `first_octave` -1,
-    which it applies to every size): doubling a 640x360 frame costs 3x the extraction time for features
-    at scales the mapping does not need, and a 3072x2048 photo doubled is a 25-megapixel pyramid per
-    thread (about 1.6 GB). The features kept: `FEATURES_PER_MEGAPIXEL` per megapixel of the first
-    octave, at least `MIN_FEATURES`, at most `max_features` (matching costs the square of it).
-
-    Returns {"max_image_size", "first_octave", "max_features", "first_octave_size" ((W, H) of the largest)}.
-
-    >>> feature_budget([(640, 360)], 1600, 8192)["max_features"]
-    1152
-    """
-    w, h = max(sizes, key=lambda s: s[0] * s[1])
-    scale = min(1.0, feature_size / max(w, h))
-    first_octave = -1 if max(w, h) * scale < DOUBLE_BELOW else 0
-    base = (round(w * scale * 2**-first_octave), round(h * scale * 2**-first_octave))
-    budget = round(FEATURES_PER_MEGAPIXEL * base[0] * base[1] / 1e6)
-    return {
-        "max_image_size": feature_size,
-        "first_octave": first_octave,
-        "max_features": min(max_features, max(MIN_FEATURES, budget)),
-        "first_octave_size": base,
-    }
-
-
-def _frame_sizes(db_path: Path) -> list[tuple[int, int]]:
-    """(width, height) of every camera in the database (one per frame size)."""
-    import pycolmap
-
-    db = pycolmap.Database.open(db_path)
-    try:
-        return [(int(c.width), int(c.height)) for c in db.read_all_cameras()]
-    finally:
-        db.close()
-
-
 def _images_with_features(db_path: Path) -> set[str]:
+    """The names of the images whose keypoints and descriptors the database holds."""
     import pycolmap
 
     db = pycolmap.Database.open(db_path)
@@ -146,9 +102,11 @@ def _images_with_features(db_path: Path) -> set[str]:
 
 
 def extract(job: Job) -> int:
-    """SIFT features of every frame without them yet (COLMAP commits each image's as it finishes, so an
-    interrupted extraction keeps what it finished); returns the keypoint count. `job.resumed["images"]`:
-    the frames whose features an earlier run had extracted."""
+    """SIFT features (or `features`') of every frame without them yet, with COLMAP's extractor on
+    `threads` threads, on the frames downscaled to `feature_size` (keypoints in full-frame pixels), at
+    most `max_features` each; COLMAP commits each image's as it finishes, so an interrupted extraction
+    keeps what it finished. Returns the keypoint count; `job.resumed["images"]`: the frames whose
+    features an earlier run had extracted. COLMAP reports "Processed file [k/N]" (the parent follows it)."""
     import pycolmap
 
     cfg, clock = job.cfg, job.clock
@@ -162,10 +120,8 @@ def extract(job: Job) -> int:
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = cfg.camera_model
         extraction = pycolmap.FeatureExtractionOptions()
-        budget = feature_budget(_frame_sizes(job.db_path), cfg.feature_size, cfg.max_features)
-        extraction.max_image_size = budget["max_image_size"]
-        extraction.sift.first_octave = budget["first_octave"]
-        extraction.sift.max_num_features = budget["max_features"]
+        extraction.max_image_size = cfg.feature_size
+        extraction.sift.max_num_features = cfg.max_features
         extraction.num_threads = cfg.threads
         extraction.type = getattr(pycolmap.FeatureExtractorType, FEATURES[cfg.features][0])
         pycolmap.extract_features(
@@ -283,7 +239,7 @@ def match(job: Job) -> Matches:
         plan = exhaustive_pairs(n) if matcher["used"] == "exhaustive" else window_pairs(n, matcher["overlap"])
         emit("stage", "match", len(plan), "pairs")
         pm.run(plan)
-        kf = choose_keyframes(job.names, None, 0.0, cfg.min_keyframes, cfg.overlap)
+        kf = choose_keyframes(job.names, None, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
     else:
         # the most pairs the rounds can come to: every frame a keyframe, no distance left out
         distances = keyframe_distances(n, cfg.overlap)

@@ -271,10 +271,11 @@ def _map_run(run_path: str) -> int:
         try:
             pipeline = pycolmap.IncrementalPipeline(options, db, manager)
             if run["progress"]:
-                pipeline.add_callback(
-                    pycolmap.IncrementalPipelineCallback.NEXT_IMAGE_REG_CALLBACK,
-                    lambda: emit("done", sum(manager.get(i).num_reg_images() for i in range(manager.size()))),
-                )
+                for event in ("INITIAL_IMAGE_PAIR_REG_CALLBACK", "NEXT_IMAGE_REG_CALLBACK"):
+                    pipeline.add_callback(
+                        getattr(pycolmap.IncrementalPipelineCallback, event),
+                        lambda: emit("done", sum(manager.get(i).num_reg_images() for i in range(manager.size()))),
+                    )
             pipeline.run()
         finally:
             db.close()

@@ -6,12 +6,14 @@ vocabulary tree), so `run_sfm` starts `python -m seeu_data.ingest.sfm_child JOB.
 into a SeeUError. The child's steps live in modules named for them: `features` (database, extraction,
 matching), `keyframes`, `mapping` (mapping runs, final BA, registration of the other frames),
 `solution_check`, `sfm_export`. The child runs: the database's camera and images written in frame order ->
-SIFT extraction (one camera of `camera_model` per frame size: portrait and landscape photos get one each)
--> matching (`matcher`, see `seeu_data.ingest.match_graph.choose_matcher`): sequential for a video
-(`overlap`: frames 1, 2, 4, ..., 2**(overlap-1) apart; loop detection only with a vocabulary-tree file),
-exhaustive for an image folder of up to `EXHAUSTIVE_MAX_IMAGES` images, else sequential over
-`UNORDERED_OVERLAP` neighbours in name order; verification RANSAC seeded per pair -> keyframes: a video is mapped on every s-th frame (`keyframe_motion`, `seeu_data.ingest.keyframes`)
--> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
+SIFT extraction (one camera of `camera_model` per frame size: portrait and landscape photos get one each;
+on the frames downscaled to `feature_size`, at most `max_features` each) -> matching (`matcher`, see
+`seeu_data.ingest.match_graph.choose_matcher`; the pairs: `seeu_data.ingest.pairs`): in frame order for
+a video (neighbours; then the keyframes, every s-th frame, s from the neighbours' image motion
+(`keyframe_motion`, `seeu_data.ingest.keyframes`), 1, 2, 4, ..., 2**(overlap-1) keyframes apart while
+they still overlap; the other frames with the keyframes around them; loop detection only with a
+vocabulary-tree file), exhaustive for an image folder of up to `EXHAUSTIVE_MAX_IMAGES` images, else
+each with the next `UNORDERED_OVERLAP` in name order; verification RANSAC seeded per pair -> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
 it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`; when
 incremental mapping finds no model, once more with the initial pair allowed to move forward, see
 `map_forward_motion`) ->
@@ -24,7 +26,8 @@ with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
 
 Output directory layout::
 
-    database.db  sfm.log  result.json
+    database.db  sfm.log  result.json  job.json  steps.jsonl (the child's finished steps)
+    map_runs/<round>-<seed>/  a mapping run (kept for a re-run of an interrupted child; removed at the end)
     sparse/<k>/             COLMAP binary model k (as mapped, adjusted, the other frames registered)
     undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
@@ -34,7 +37,7 @@ Output directory layout::
 "fx", "fy", "cx", "cy"}] (one per frame size; used after undistortion), "camera" (the one of most frames), "undistorted": bool,
 "camera_distorted" (as mapped, when undistorted; "cameras_distorted": all of them), "image_dir", "images": [{"name",
 "world_to_cam" (3x4), "camera" (index into "cameras")}], "num_points3D", "mean_reprojection_error"}], "discarded_models",
-"num_keypoints", "num_verified_pairs", "matcher": {"requested", "used", "overlap", "reason"}, "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"][, "init": "forward motion"]}],
+"num_keypoints", "num_verified_pairs", "matcher": {"requested", "used", "overlap", "reason", "pairs_matched"}, "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"][, "init": "forward motion"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed"[, "reason"], "planar_or_panoramic_pairs",
 "verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
@@ -42,14 +45,16 @@ frames, null when not a video), "target_px"[, "registered_after" (frames registe
 solution unusable, the model kept as mapped), "reprojection_before_px", "reprojection_after_px"}] (null with `final_ba_loss` none),
 "timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
 "final_ba_s", "undistort_s" (when undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings":
-the same in CPU seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
+the same in CPU seconds (all threads), "resumed": {"images", "pairs", "map_runs"} (what was kept of an
+interrupted run of the same job)} or {"error": "...", "timings", "cpu_timings", "resumed"}.
 
 Determinism: the same frames give the same database and the same poses whatever `threads`
 (tested with 2 threads x 3 runs and 1 thread), with matching and mapping on `map_threads` = 1. COLMAP's parallel extractor would number images in completion
 order and each matching thread's RANSAC state would carry over between the pairs it happens to
 verify; both are fixed here (`create_database`, `ransac.random_seed`). Progress comes from COLMAP's
-log lines, not from polling the database: a second SQLite connection reading while COLMAP writes can
-leave an image's keypoints missing, silently.
+log lines (extraction) and the child's own lines (matching batches, mapping callbacks), not from polling
+the database: a second SQLite connection reading while COLMAP writes can leave an image's keypoints
+missing, silently.
 """
 
 from __future__ import annotations
@@ -90,13 +95,14 @@ class SfmConfig:
     camera_model: str = setting(
         "SIMPLE_RADIAL", "shared camera model; models with distortion are undistorted", choices=CAMERA_MODELS
     )
-    overlap: int = setting(10, "sequential matching overlap in frames")
+    overlap: int = setting(10, "sequential matching: keyframes up to 2**(N-1) keyframes apart", metavar="N")
     # auto: a video sequential; an image folder exhaustive up to EXHAUSTIVE_MAX_IMAGES images, else
     # sequential over UNORDERED_OVERLAP neighbours in name order (seeu_data.ingest.match_graph.choose_matcher)
     matcher: str = setting(
         "auto",
-        "which frame pairs are matched: sequential (frames 1, 2, 4, ... apart, --overlap), exhaustive (every "
-        "pair), or auto: sequential for a video; for an image folder exhaustive up to "
+        "which frame pairs are matched: sequential (in frame order: neighbours, keyframes 1, 2, 4, ... apart "
+        "while they still overlap, --overlap), exhaustive (every pair), or auto: sequential for a video; for "
+        "an image folder exhaustive up to "
         f"{EXHAUSTIVE_MAX_IMAGES} images, above that each image with the next {UNORDERED_OVERLAP} in name order "
         "(recorded in report.json)",
         choices=MATCHERS,
@@ -104,14 +110,14 @@ class SfmConfig:
     vocab_tree: str | None = setting(None, "vocabulary-tree file: enables loop detection (default: off)")
     min_model_size: int = 10
     max_features: int = setting(
-        8192,
-        "most SIFT features per frame; fewer on smaller frames: about 5,000 per megapixel of the size they are "
-        "extracted at (--feature-size)",
+        4096,
+        "most SIFT features per frame (COLMAP's default is 8192; the mapping uses a few thousand, and matching "
+        "costs the square of the count; a 640x360 frame has about 2,000)",
     )
     feature_size: int = setting(
         1600,
-        "extract features on the frames downscaled so the longer side is at most PX pixels (never enlarged beyond "
-        "COLMAP's doubling of frames under 640 px); keypoints are mapped back to the full frame",
+        "extract features on the frames downscaled so the longer side is at most PX pixels (COLMAP: 3200), "
+        "keypoints mapped back to the full frame",
         metavar="PX",
     )
     threads: int = setting(
