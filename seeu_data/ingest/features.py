@@ -10,12 +10,17 @@ whoever computes them, whenever: RANSAC is seeded per pair).
 
 from __future__ import annotations
 
+import os
+from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import FEATURES, Failed, Job, SfmConfig, emit
 
+# Fewer pairs than this (in one round) are matched in this process: starting the matching processes
+# (Python and pycolmap, a copy of the database each) costs about a second of CPU
+PARALLEL_MIN_PAIRS = 64
 # --vocab-tree: each keyframe is matched with this many keyframes most like it (COLMAP's loop detection
 # default: 50 images every 10th frame)
 LOOP_IMAGES = 20
@@ -141,32 +146,75 @@ def extract(job: Job) -> int:
     return num_kp
 
 
+def copy_database(src: Path, dst: Path) -> None:
+    """A consistent copy of the SQLite database `src` (SQLite's backup: pages still in a -wal file included)."""
+    import sqlite3
+
+    with sqlite3.connect(src) as a, sqlite3.connect(dst) as b:
+        a.backup(b)
+    a.close()
+    b.close()
+
+
+def _options(features: str, seed: int) -> tuple:
+    """COLMAP's (matching, verification) options: one thread (a matching thread's result could depend on
+    the others under load; processes give the parallelism, `_PairMatching`), RANSAC seeded per pair (each
+    pair's verification then does not depend on the pairs verified before it)."""
+    import pycolmap
+
+    matching = pycolmap.FeatureMatchingOptions()
+    matching.num_threads = 1
+    if features != "sift":
+        matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[features][1])
+    verification = pycolmap.TwoViewGeometryOptions()
+    verification.ransac.random_seed = seed
+    return matching, verification
+
+
+def _match_pairs(db_path: str, names: list[tuple[str, str]], features: str, seed: int) -> None:
+    """Match and verify the image pairs `names` into the database `db_path` (COLMAP commits them)."""
+    import pycolmap
+
+    matching, verification = _options(features, seed)
+    list_path = Path(db_path).with_suffix(".pairs.txt")
+    list_path.write_text("".join(f"{a} {b}\n" for a, b in names))
+    pairing = pycolmap.ImportedPairingOptions()
+    pairing.match_list_path = str(list_path)
+    pycolmap.match_image_pairs(
+        db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
+    )
+    list_path.unlink()
+
+
+def _end_with_parent() -> None:
+    """A matching worker ends when the SfM child does (killed when ingest is interrupted)."""
+    import signal
+    import sys
+
+    if sys.platform.startswith("linux"):
+        import ctypes
+
+        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+
+
 class _PairMatching:
     """Matches image pairs (frame numbers into `job.names`) with COLMAP, in batches, each committed to the
     database as it finishes; pairs the database already holds (an earlier, interrupted run's) are kept.
-    Reports the pairs done against the planned total (`emit`)."""
+    With `threads` > 1 (and at least `PARALLEL_MIN_PAIRS` pairs) each batch is split among as many worker processes, each matching on one thread
+    into a copy of the database, and the copies' pairs are written to the database in one transaction:
+    each pair's result is the same whichever process computes it, so the database is too (its tables
+    are keyed by pair). Reports the pairs done against the planned total (`emit`)."""
 
     def __init__(self, job: Job) -> None:
-        import pycolmap
-
         self.job = job
-        cfg = job.cfg
-        self.matching = pycolmap.FeatureMatchingOptions()
-        # Matching on the mapping threads (default 1): even with a seeded RANSAC per pair, two matching
-        # threads can change the database under load; one thread cannot.
-        self.matching.num_threads = cfg.map_threads
-        if cfg.features != "sift":
-            self.matching.type = getattr(pycolmap.FeatureMatcherType, FEATURES[cfg.features][1])
-        self.verification = pycolmap.TwoViewGeometryOptions()
-        # RANSAC seeded per pair: otherwise each worker thread's random state carries over from the pairs it
-        # happened to verify before, and the verified inliers (even the pairs kept) change with the thread count.
-        self.verification.ransac.random_seed = cfg.random_seed
         self.index = {n: i for i, n in enumerate(job.names)}
         self.inlier_counts: dict[tuple[int, int], int] = {}
         self._read()
         self.kept = len(self.inlier_counts)
         self.done = 0  # pairs of the plan done (matched here or kept)
-        self.list_path = job.out / "pairs.txt"
+        self.workers = max(1, job.cfg.threads if job.cfg.threads > 0 else len(os.sched_getaffinity(0)))
+        self.pool: ProcessPoolExecutor | None = None
+        self.copies = [job.out / "match_dbs" / f"{k}.db" for k in range(self.workers)]
 
     def _read(self) -> None:
         """The verified inliers of every pair the database holds (a failed pair: 0)."""
@@ -174,10 +222,11 @@ class _PairMatching:
 
         db = pycolmap.Database.open(self.job.db_path)
         try:
-            by_id = {im.image_id: self.index.get(im.name) for im in db.read_all_images()}
+            self.ids = {im.name: im.image_id for im in db.read_all_images()}
             pair_ids, geometries = db.read_two_view_geometries()
         finally:
             db.close()
+        by_id = {i: self.index.get(n) for n, i in self.ids.items()}
         for pid, g in zip(pair_ids, geometries):
             a, b = (by_id.get(int(i)) for i in pycolmap.pair_id_to_image_pair(pid))
             if a is not None and b is not None:
@@ -187,29 +236,63 @@ class _PairMatching:
         return self.inlier_counts.get((min(a, b), max(a, b)), 0)
 
     def run(self, pairs: list[tuple[int, int]]) -> None:
-        """Match `pairs` not matched yet, in batches (about 2 % of the planned total each, at least 8)."""
-        import pycolmap
-
+        """Match `pairs` not matched yet, in batches (about 4 % of them each, at least 16)."""
         todo = [p for p in dict.fromkeys(pairs) if (min(p), max(p)) not in self.inlier_counts]
         self.done += len(pairs) - len(todo)
         emit("done", self.done)
-        batch = max(8, len(todo) // 50)
-        pairing = pycolmap.ImportedPairingOptions()
-        pairing.match_list_path = str(self.list_path)
+        batch = max(16, len(todo) // 25)
+        names = self.job.names
         for k in range(0, len(todo), batch):
-            part = todo[k : k + batch]
-            names = self.job.names
-            self.list_path.write_text("".join(f"{names[a]} {names[b]}\n" for a, b in part))
-            pycolmap.match_image_pairs(
-                self.job.db_path,
-                matching_options=self.matching,
-                pairing_options=pairing,
-                verification_options=self.verification,
-            )
+            part = [(names[a], names[b]) for a, b in todo[k : k + batch]]
+            if self.workers == 1 or len(todo) < PARALLEL_MIN_PAIRS:
+                _match_pairs(str(self.job.db_path), part, self.job.cfg.features, self.job.cfg.random_seed)
+            else:
+                self._in_parallel(part)
             self.done += len(part)
             emit("done", self.done)
-        self.list_path.unlink(missing_ok=True)
         self._read()
+
+    def _in_parallel(self, part: list[tuple[str, str]]) -> None:
+        """`part` split among the workers (each into its copy of the database), then copied into the database."""
+        import multiprocessing
+
+        import pycolmap
+
+        if self.pool is None:
+            self.copies[0].parent.mkdir(exist_ok=True)
+            for copy in self.copies:
+                copy.unlink(missing_ok=True)
+                copy_database(self.job.db_path, copy)
+            ctx = multiprocessing.get_context("spawn")
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_end_with_parent)
+        parts = [part[w :: self.workers] for w in range(self.workers)]
+        cfg = self.job.cfg
+        list(
+            self.pool.map(
+                _match_pairs, map(str, self.copies), parts, [cfg.features] * len(parts), [cfg.random_seed] * len(parts)
+            )
+        )
+        db = pycolmap.Database.open(self.job.db_path)
+        try:
+            transaction = pycolmap.DatabaseTransaction(db)
+            for copy, names in zip(self.copies, parts):
+                src = pycolmap.Database.open(copy)
+                for a, b in names:
+                    i, j = self.ids[a], self.ids[b]
+                    db.write_matches(i, j, src.read_matches(i, j))
+                    db.write_two_view_geometry(i, j, src.read_two_view_geometry(i, j))
+                src.close()
+            del transaction  # commits
+        finally:
+            db.close()
+
+    def close(self) -> None:
+        """Stop the workers and remove the database copies."""
+        import shutil
+
+        if self.pool is not None:
+            self.pool.shutdown(cancel_futures=True)
+        shutil.rmtree(self.copies[0].parent, ignore_errors=True)
 
 
 def match(job: Job) -> Matches:
@@ -235,31 +318,35 @@ def match(job: Job) -> Matches:
     pm = _PairMatching(job)
     job.resumed["pairs"] = pm.kept
     motion = None
-    if matcher["used"] == "exhaustive" or not matcher["quadratic"]:
-        plan = exhaustive_pairs(n) if matcher["used"] == "exhaustive" else window_pairs(n, matcher["overlap"])
-        emit("stage", "match", len(plan), "pairs")
-        pm.run(plan)
-        kf = choose_keyframes(job.names, None, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
-    else:
-        # the most pairs the rounds can come to: every frame a keyframe, no distance left out
-        distances = keyframe_distances(n, cfg.overlap)
-        emit("stage", "match", sum(n - d for d in distances), "pairs")
-        pm.run(neighbour_pairs(n))
-        if cfg.keyframe_motion > 0:
-            db = pycolmap.Database.open(job.db_path)
-            motion = consecutive_motion_px(db, job.names)
-            db.close()
-        kf = choose_keyframes(job.names, motion, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
-        keys = [pm.index[k] for k in kf.names]
-        rest = other_frame_pairs(n, keys)
-        distances = [d for d in keyframe_distances(len(keys), cfg.overlap) if d > 1 or kf.stride > 1]
-        for j, d in enumerate(distances):
-            emit("total", pm.done + sum(len(keys) - e for e in distances[j:]) + len(rest))
-            pm.run(keyframe_pairs(keys, d, pm.inliers))
-        emit("total", pm.done + len(rest))
-        pm.run(rest)
-        if cfg.vocab_tree is not None:
-            _loop_pairs(job, pm, kf.names)
+    try:
+        if matcher["used"] == "exhaustive" or not matcher["quadratic"]:
+            plan = exhaustive_pairs(n) if matcher["used"] == "exhaustive" else window_pairs(n, matcher["overlap"])
+            emit("stage", "match", len(plan), "pairs")
+            pm.run(plan)
+            kf = choose_keyframes(job.names, None, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
+        else:
+            # the most pairs the rounds can come to: every frame a keyframe, no distance left out
+            distances = keyframe_distances(n, cfg.overlap)
+            emit("stage", "match", sum(n - d for d in distances), "pairs")
+            pm.run(neighbour_pairs(n))
+            if cfg.keyframe_motion > 0:
+                db = pycolmap.Database.open(job.db_path)
+                motion = consecutive_motion_px(db, job.names)
+                db.close()
+            kf = choose_keyframes(job.names, motion, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
+            keys = [pm.index[k] for k in kf.names]
+            rest = other_frame_pairs(n, keys)
+            distances = [d for d in keyframe_distances(len(keys), cfg.overlap) if d > 1 or kf.stride > 1]
+            for j, d in enumerate(distances):
+                emit("total", pm.done + sum(len(keys) - e for e in distances[j:]) + len(rest))
+                pm.run(keyframe_pairs(keys, d, pm.inliers))
+            emit("total", pm.done + len(rest))
+            pm.run(rest)
+    finally:
+        pm.close()
+    if cfg.vocab_tree is not None and kf.names:
+        _loop_pairs(job, kf.names)
+        pm._read()
     matcher["pairs_matched"] = len(pm.inlier_counts)
     clock.add("match_s", t0)
     t0 = clock.mark()
@@ -271,7 +358,7 @@ def match(job: Job) -> Matches:
     return Matches(num_pairs, graph, motion, matcher, kf)
 
 
-def _loop_pairs(job: Job, pm: _PairMatching, keyframes: list[str]) -> None:
+def _loop_pairs(job: Job, keyframes: list[str]) -> None:
     """Loop detection with the vocabulary-tree file `--vocab-tree`: each keyframe with the
     `LOOP_IMAGES` keyframes most like it (COLMAP's vocabulary-tree retrieval), matched and verified."""
     import pycolmap
@@ -282,8 +369,9 @@ def _loop_pairs(job: Job, pm: _PairMatching, keyframes: list[str]) -> None:
     pairing.vocab_tree_path = str(job.cfg.vocab_tree)
     pairing.num_images = LOOP_IMAGES
     pairing.match_list_path = str(queries)
+    matching, verification = _options(job.cfg.features, job.cfg.random_seed)
     emit("stage", "match-loops", None)
     pycolmap.match_vocabtree(
-        job.db_path, matching_options=pm.matching, pairing_options=pairing, verification_options=pm.verification
+        job.db_path, matching_options=matching, pairing_options=pairing, verification_options=verification
     )
     queries.unlink(missing_ok=True)

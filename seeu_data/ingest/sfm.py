@@ -122,16 +122,17 @@ class SfmConfig:
     )
     threads: int = setting(
         -1,
-        "COLMAP threads per scene for feature extraction (default: all cores / workers; 1 with --engine ray, "
-        "where each task reserves max(--threads, --map-threads) CPUs); results do not depend on it",
+        "COLMAP threads per scene for feature extraction, and single-threaded matching processes (default: all "
+        "cores / workers; 1 with --engine ray, where each task reserves max(--threads, --map-threads) CPUs); "
+        "results do not depend on it",
     )
     # Incremental mapping's threads (bundle adjustment of models above 50,000 residuals, and more):
     # with more than one, re-mapping the same database differed in 1 of 15 runs (2 threads, 20-frame
-    # clip); with one, never. Matching runs on these threads too; extraction uses `threads` and stays deterministic.
+    # clip); with one, never. Extraction and matching use `threads` and stay deterministic.
     map_threads: int = setting(
         1,
-        "threads for matching and mapping (1: poses identical run after run; more speeds them up on large "
-        "inputs, but results then depend on thread timing; -1 = all cores)",
+        "threads of each mapping run (1: poses identical run after run; more speeds up large inputs, but "
+        "results then depend on thread timing; -1 = all cores)",
     )
     random_seed: int = 0
     # Incremental mapping is re-run with the next seed (up to this many runs in all) while its usable
