@@ -82,10 +82,11 @@ def _db_rows(db: Path) -> dict:
 
 @pytest.mark.slow
 def test_sfm_is_identical_run_after_run_with_two_threads(tmp_path):
-    """The planar clip, 2 COLMAP threads, 3 runs, then 1 thread: the same database (image ids in frame
-    order, the same matches and verified geometries) and bit-identical poses, every frame registered
-    and accurate against the ground truth. Before the fix, image ids followed extraction completion
-    order and such runs gave different poses. The extract and match stages report progress while they work."""
+    """The planar clip, 2 COLMAP threads and 2 matching processes, 3 runs, then 1 thread and one process:
+    the same database (image ids in frame order, the same matches and verified geometries) and
+    bit-identical poses, every frame registered and accurate against the ground truth. Before the fix,
+    image ids followed extraction completion order and such runs gave different poses. The extract and
+    match stages report progress while they work."""
     n = 20
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -102,7 +103,8 @@ def test_sfm_is_identical_run_after_run_with_two_threads(tmp_path):
     rec = _Recorder()
     for r, threads in enumerate((2, 2, 2, 1)):
         out = tmp_path / f"sfm{r}"
-        cfg = SfmConfig(threads=threads, sfm_check=False, min_model_size=5)
+        # every pair (190): enough to be matched by `threads` worker processes, each into a database copy
+        cfg = SfmConfig(threads=threads, sfm_check=False, min_model_size=5, matcher="exhaustive")
         results.append(run_sfm(frames, names, out, cfg, frames, progress=rec if r == 0 else False))
         dbs.append(_db_rows(out / "database.db"))
     assert dbs[0]["images"] == [(i + 1, name) for i, name in enumerate(names)]

@@ -10,7 +10,6 @@ whoever computes them, whenever: RANSAC is seeded per pair).
 
 from __future__ import annotations
 
-import os
 from concurrent.futures import ProcessPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
@@ -212,7 +211,7 @@ class _PairMatching:
         self._read()
         self.kept = len(self.inlier_counts)
         self.done = 0  # pairs of the plan done (matched here or kept)
-        self.workers = max(1, job.cfg.threads if job.cfg.threads > 0 else len(os.sched_getaffinity(0)))
+        self.workers = job.cfg.cores()
         self.pool: ProcessPoolExecutor | None = None
         self.copies = [job.out / "match_dbs" / f"{k}.db" for k in range(self.workers)]
 

@@ -129,11 +129,7 @@ def map_processes(cfg: SfmConfig) -> int:
     affinity) over each run's `map_threads` (-1: one run at a time)."""
     if cfg.map_threads < 1:
         return 1
-    if cfg.threads > 0:
-        cores = cfg.threads
-    else:
-        cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
-    return max(1, cores // cfg.map_threads)
+    return max(1, cfg.cores() // cfg.map_threads)
 
 
 class _MapRuns:

@@ -185,6 +185,12 @@ class SfmConfig:
     )
     final_ba_loss_scale: float = setting(0.5, "scale of --final-ba-loss in pixels", metavar="PX")
 
+    def cores(self) -> int:
+        """The cores SfM may use: `threads`, or with -1 this process's CPU affinity."""
+        if self.threads > 0:
+            return self.threads
+        return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count() or 1
+
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
             raise SeeUError(f"--camera-model must be one of {', '.join(CAMERA_MODELS)}, got {self.camera_model!r}")
