@@ -1,6 +1,9 @@
-"""Which image pairs SfM matches (`seeu_data.ingest.pairs`): closed-form counts and cases."""
+"""Which image pairs SfM matches (`seeu_data.ingest.pairs`): closed-form counts and cases, and the
+shortlist of an unordered set against groups of images built to share features."""
 
 from __future__ import annotations
+
+import numpy as np
 
 from seeu_data.ingest.pairs import (
     OVERLAP_INLIERS,
@@ -9,6 +12,7 @@ from seeu_data.ingest.pairs import (
     keyframe_pairs,
     neighbour_pairs,
     other_frame_pairs,
+    shortlist_pairs,
     window_pairs,
 )
 
@@ -34,3 +38,27 @@ def test_other_frames_are_paired_with_the_keyframes_around_them_but_not_twice_wi
     # keyframes 0, 4, 8 and the last frame 9
     pairs = other_frame_pairs(10, [0, 4, 8, 9])
     assert pairs == [(1, 4), (0, 2), (2, 4), (0, 3), (5, 8), (4, 6), (6, 8), (4, 7)]
+
+
+def test_shortlist_keeps_the_pairs_that_share_features_and_only_those():
+    """12 images in 3 groups of 4: the images of a group share 40 of their 64 descriptors (with a little
+    noise), the rest are random. Every pair within a group is kept, none across groups (their
+    nearest neighbours fail the ratio test); the list follows the images when they are reordered."""
+    rng = np.random.default_rng(0)
+    groups = [rng.integers(0, 120, (40, 128)) for _ in range(3)]
+    images = []
+    for g in range(3):
+        for _ in range(4):
+            own = rng.integers(0, 120, (24, 128))
+            shared = np.clip(groups[g] + rng.integers(-3, 4, groups[g].shape), 0, 255)
+            images.append(np.concatenate([shared, own]))
+    desc = np.stack(images).astype(np.uint8)  # (12, 64, 128)
+    within = [(a, b) for a in range(12) for b in range(a + 1, 12) if a // 4 == b // 4]
+    assert shortlist_pairs(desc) == within
+    order = rng.permutation(12)
+    back = {int(new): int(old) for new, old in enumerate(order)}
+    shuffled = shortlist_pairs(desc[order])
+    assert sorted((min(back[a], back[b]), max(back[a], back[b])) for a, b in shuffled) == within
+    # an image with fewer features (rows of zeros) still finds its group
+    desc[0, 48:] = 0
+    assert shortlist_pairs(desc) == within

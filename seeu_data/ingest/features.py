@@ -303,11 +303,13 @@ def match(job: Job) -> Matches:
     from seeu_data.ingest.keyframes import choose_keyframes, consecutive_motion_px
     from seeu_data.ingest.match_graph import choose_matcher, match_graph_stats
     from seeu_data.ingest.pairs import (
+        SHORTLIST_FEATURES,
         exhaustive_pairs,
         keyframe_distances,
         keyframe_pairs,
         neighbour_pairs,
         other_frame_pairs,
+        shortlist_pairs,
         window_pairs,
     )
 
@@ -320,6 +322,9 @@ def match(job: Job) -> Matches:
     try:
         if matcher["used"] == "exhaustive" or not matcher["quadratic"]:
             plan = exhaustive_pairs(n) if matcher["used"] == "exhaustive" else window_pairs(n, matcher["overlap"])
+            if matcher["shortlist"]:
+                plan = shortlist_pairs(_prominent_descriptors(job, SHORTLIST_FEATURES))
+                matcher["pairs_shortlisted"] = f"{len(plan)} of {n * (n - 1) // 2}"
             emit("stage", "match", len(plan), "pairs")
             pm.run(plan)
             kf = choose_keyframes(job.names, None, cfg.keyframe_motion, cfg.min_keyframes, cfg.overlap)
@@ -355,6 +360,28 @@ def match(job: Job) -> Matches:
     db.close()
     clock.add("map_s", t0)
     return Matches(num_pairs, graph, motion, matcher, kf)
+
+
+def _prominent_descriptors(job: Job, count: int):
+    """`(n, count, 128)` uint8: each frame's `count` largest-scale SIFT descriptors (zeros where fewer)."""
+    import numpy as np
+    import pycolmap
+
+    out = np.zeros((len(job.names), count, 128), np.uint8)
+    db = pycolmap.Database.open(job.db_path)
+    try:
+        ids = {im.name: im.image_id for im in db.read_all_images()}
+        for i, name in enumerate(job.names):
+            kp = np.asarray(db.read_keypoints(ids[name]), np.float64)
+            desc = np.asarray(db.read_descriptors(ids[name]).data, np.uint8)
+            if not len(kp):
+                continue
+            scale = np.sqrt(np.abs(kp[:, 2] * kp[:, 5] - kp[:, 3] * kp[:, 4]))  # COLMAP's affine shape
+            top = np.argsort(-scale, kind="stable")[:count]
+            out[i, : len(top)] = desc[top]
+    finally:
+        db.close()
+    return out
 
 
 def _loop_pairs(job: Job, keyframes: list[str]) -> None:

@@ -1,8 +1,9 @@
 """Which image pairs SfM matches: only those that can overlap.
 
 Frames are numbered 0..n-1 in input order. An image folder of up to `EXHAUSTIVE_MAX_IMAGES` images may be
-unordered: every pair (`exhaustive_pairs`). A larger folder: each image with the next `UNORDERED_OVERLAP`
-in name order (`window_pairs`). A video (and `--matcher sequential`) is matched in rounds, each round
+unordered: every pair (`exhaustive_pairs`), or, above `match_graph.SHORTLIST_ABOVE` images, every pair that shares
+enough of the images' most prominent features (`shortlist_pairs`). A larger folder: each image with the
+next `UNORDERED_OVERLAP` in name order (`window_pairs`). A video (and `--matcher sequential`) is matched in rounds, each round
 chosen from what the ones before found:
 
 1. every frame with the next (`neighbour_pairs`): the image motion between neighbours gives the keyframe
@@ -26,11 +27,20 @@ from __future__ import annotations
 
 from collections.abc import Callable
 
+import numpy as np
+
 from seeu_data.ingest.match_graph import MIN_INLIERS
 
 # A keyframe pair d keyframes apart is tried only when the pair d/2 apart from the same keyframe had at
 # least this many verified inliers (twice what the mapper needs of a pair to use it).
 OVERLAP_INLIERS = 2 * MIN_INLIERS
+# The shortlist: each image's this many largest-scale features; a pair is kept when both images find at
+# least SHORTLIST_SHARED of theirs in the other (nearest neighbour passing the ratio test), and each image
+# keeps its SHORTLIST_KEEP best pairs whatever their count
+SHORTLIST_FEATURES = 128
+SHORTLIST_SHARED = 8
+SHORTLIST_KEEP = 8
+RATIO = 0.8  # COLMAP's matching ratio test
 
 
 def neighbour_pairs(n: int) -> list[tuple[int, int]]:
@@ -85,3 +95,37 @@ def other_frame_pairs(n: int, keys: list[int]) -> list[tuple[int, int]]:
             if k is not None and abs(k - i) > 1:
                 out.append((min(i, k), max(i, k)))
     return out
+
+
+def shortlist_pairs(descriptors: np.ndarray) -> list[tuple[int, int]]:
+    """The pairs of an unordered image set worth matching in full, from a few features of each.
+
+    `descriptors`: `(n, M, 128)` uint8, image i's M most prominent SIFT descriptors (rows of zeros where
+    an image has fewer). For each ordered pair (a, b), count the descriptors of a whose nearest neighbour
+    in b passes the ratio test (`RATIO`, on the angle between descriptors, as COLMAP); a pair's score is
+    the smaller of its two counts. Kept: every pair scoring at least `SHORTLIST_SHARED`, and each image's
+    `SHORTLIST_KEEP` best-scoring pairs (score > 0). The dot products are of whole numbers below 2**24,
+    exact in float32 whatever the summation order, so the list does not depend on the BLAS threads.
+    Returns the pairs (i, j), i < j, sorted.
+    """
+    n, m, _ = descriptors.shape
+    x = descriptors.astype(np.float32)
+    norms = np.linalg.norm(x.astype(np.float64), axis=2)  # (n, M)
+    flat = x.reshape(n * m, -1)
+    counts = np.zeros((n, n), np.int64)
+    for a in range(n):
+        dots = (x[a] @ flat.T).astype(np.float64).reshape(m, n, m)  # (M of a, n, M of b)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            cos = dots / (norms[a][:, None, None] * norms[None, :, :])
+        cos = np.nan_to_num(cos, nan=0.0)
+        best2 = -np.partition(-cos, 1, axis=2)[:, :, :2]  # (M, n, 2): best, second best
+        angle = np.arccos(np.clip(best2, -1.0, 1.0))
+        passed = (angle[:, :, 0] < RATIO * angle[:, :, 1]) & (norms[a][:, None] > 0)
+        counts[a] = passed.sum(0)
+    np.fill_diagonal(counts, 0)
+    score = np.minimum(counts, counts.T)
+    keep = {(min(a, b), max(a, b)) for a, b in zip(*np.nonzero(score >= SHORTLIST_SHARED))}
+    for a in range(n):
+        order = np.argsort(-score[a], kind="stable")
+        keep.update((min(a, int(b)), max(a, int(b))) for b in order[:SHORTLIST_KEEP] if score[a, b] > 0)
+    return sorted(keep)
