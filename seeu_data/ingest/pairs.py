@@ -111,15 +111,14 @@ def shortlist_pairs(descriptors: np.ndarray) -> list[tuple[int, int]]:
     n, m, _ = descriptors.shape
     x = descriptors.astype(np.float32)
     norms = np.linalg.norm(x.astype(np.float64), axis=2)  # (n, M)
+    inv = np.divide(1.0, norms, out=np.zeros_like(norms), where=norms > 0).astype(np.float32)
     flat = x.reshape(n * m, -1)
     counts = np.zeros((n, n), np.int64)
     for a in range(n):
-        dots = (x[a] @ flat.T).astype(np.float64).reshape(m, n, m)  # (M of a, n, M of b)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            cos = dots / (norms[a][:, None, None] * norms[None, :, :])
-        cos = np.nan_to_num(cos, nan=0.0)
-        best2 = -np.partition(-cos, 1, axis=2)[:, :, :2]  # (M, n, 2): best, second best
-        angle = np.arccos(np.clip(best2, -1.0, 1.0))
+        # cosines up to a's own norm (the same along a row): element-wise, so exact products stay deterministic
+        cos = (x[a] @ flat.T).reshape(m, n, m) * inv[None, :, :]  # (M of a, n, M of b)
+        best2 = -np.partition(-cos, 1, axis=2)[:, :, :2].astype(np.float64) * inv[a][:, None, None]
+        angle = np.arccos(np.clip(best2, -1.0, 1.0))  # (M, n, 2): best, second best
         passed = (angle[:, :, 0] < RATIO * angle[:, :, 1]) & (norms[a][:, None] > 0)
         counts[a] = passed.sum(0)
     np.fill_diagonal(counts, 0)
