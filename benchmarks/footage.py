@@ -7,7 +7,8 @@ coordinate and depth (1 / the third homogeneous coordinate) from it, a depth tes
 plane, and the texture is sampled with OpenCV's `remap` from a mip pyramid (trilinear, the level from
 the homography's Jacobian, so far and grazing surfaces do not alias). Textures are photographs
 (scikit-image's sample images: astronaut, coffee, chelsea, rocket, ...) cut, tinted and tiled into
-facades, plus the images' own grass, gravel and brick; light falls off from a point light; each frame
+facades, plus the images' own grass, gravel and brick, every texture marked with unique strokes so no
+two places look alike; light falls off from a point light; each frame
 gets a little sensor noise. Ground truth (cam_to_world in OpenCV axes, normalised intrinsics) is written
 in the format of `seeu_data.synthetic.load_ground_truth`, so `ingest_accuracy` reads it.
 
@@ -64,6 +65,25 @@ def _sample(name: str) -> np.ndarray:
     return cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
 
 
+def _marks(rng: np.random.Generator, img: np.ndarray, per_megatexel: float = 2000.0) -> None:
+    """Unique marks drawn on `img` in place (lines, dots, strokes of random colour): the photos and ground
+    textures are reused across tiles, and a scene of repeats gives SfM wrong matches between places."""
+    h, w = img.shape[:2]
+    for _ in range(int(per_megatexel * h * w / 1e6) + 1):
+        colour = tuple(int(c) for c in rng.integers(0, 256, 3))
+        x, y = int(rng.integers(0, w)), int(rng.integers(0, h))
+        kind = rng.integers(0, 3)
+        if kind == 0:
+            cv2.line(img, (x, y), (x + int(rng.integers(-30, 30)), y + int(rng.integers(-30, 30))), colour, 2)
+        elif kind == 1:
+            cv2.circle(img, (x, y), int(rng.integers(2, 9)), colour, -1)
+        else:
+            pts = np.array(
+                [[x, y], [x + int(rng.integers(-20, 20)), y + int(rng.integers(5, 25))], [x + 12, y]], np.int32
+            )
+            cv2.fillPoly(img, [pts], colour)
+
+
 def _facade(rng: np.random.Generator, width_m: float, height_m: float, texels_per_m: float = 96.0) -> np.ndarray:
     """A wall of photo tiles (windows, posters) on a plaster of tinted noise, `(H, W, 3)` uint8."""
     h, w = int(height_m * texels_per_m), int(width_m * texels_per_m)
@@ -84,11 +104,12 @@ def _facade(rng: np.random.Generator, width_m: float, height_m: float, texels_pe
             wall[y : y + tile.shape[0], x : x + tile.shape[1]] = np.clip(tile * tint, 0, 255).astype(np.uint8)
             y += th + int(rng.integers(20, 80))
         x += tw + int(rng.integers(20, 90))
+    _marks(rng, wall)
     return wall
 
 
 def _ground(rng: np.random.Generator, width_m: float, depth_m: float, texels_per_m: float = 64.0) -> np.ndarray:
-    """Ground `(H, W, 3)`: the sample textures tiled with random flips and tints (no exact repeats)."""
+    """Ground `(H, W, 3)`: the sample textures tiled with random flips and tints, marked (`_marks`)."""
     h, w = int(depth_m * texels_per_m), int(width_m * texels_per_m)
     out = np.zeros((h, w, 3), np.uint8)
     step = 256
@@ -101,6 +122,7 @@ def _ground(rng: np.random.Generator, width_m: float, depth_m: float, texels_per
                 tile = tile[::-1]
             tile = np.clip(tile * rng.uniform(0.75, 1.15, 3), 0, 255)
             out[y : y + step, x : x + step] = tile[: h - y, : w - x].astype(np.uint8)
+    _marks(rng, out)
     return out
 
 
@@ -288,7 +310,7 @@ def render_kind(kind: str, n_frames: int, size: tuple[int, int], out_dir: str | 
     height, width = size
     target = out_dir / ("photos" if kind == "photos" else f"{kind}.mp4")
     gt_path = target.with_suffix(".json")
-    stamp = {"kind": kind, "frames": n_frames, "size": [height, width], "seed": seed, "renderer": 1}
+    stamp = {"kind": kind, "frames": n_frames, "size": [height, width], "seed": seed, "renderer": 2}
     if gt_path.exists() and target.exists() and json.loads(gt_path.read_text()).get("stamp") == stamp:
         return target
     out_dir.mkdir(parents=True, exist_ok=True)
