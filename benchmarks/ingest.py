@@ -87,12 +87,18 @@ def run_seeu(target: Path, out: Path) -> dict:
     import hashlib
 
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
+    from seeu_data.errors import SeeUError
     from seeu_data.ingest.video import discover_sources
     from seeu_data.synthetic import ingest_accuracy
 
     (source,) = discover_sources([target])
     cfg = IngestConfig(out=out / "posed", inputs=(target,), run=IngestRunConfig(force=True, heartbeat_s=0))
-    report = ingest_scene(source, cfg)
+    frames_dir = str(out / "posed" / ".work" / source.name / "decode" / "frames")
+    try:
+        report = ingest_scene(source, cfg)
+    except SeeUError as exc:  # e.g. no model: a result of the benchmark too
+        failed = {"stages": {}, "stages_cpu": {}, "registered_pct": 0.0, "largest": None, "poses_sha256": None}
+        return {**failed, "error": str(exc), "frames_dir": frames_dir}
     t, sfm, cpu = report["timings_s"], report["sfm"]["timings_s"], report["sfm"]["cpu_timings_s"]
     in_sfm = ("extract_s", "match_s", "map_s", "final_ba_s", "register_s")
     stages = {
@@ -119,7 +125,7 @@ def run_seeu(target: Path, out: Path) -> dict:
         "solution_check": report["sfm"]["solution_check"].get("state"),
         "keyframes": report["sfm"].get("keyframes"),
         "matcher": report["sfm"].get("matcher"),
-        "frames_dir": str(out / "posed" / ".work" / source.name / "decode" / "frames"),
+        "frames_dir": frames_dir,
     }
 
 
@@ -218,6 +224,8 @@ def measure(argv: list[str]) -> dict:
 
 
 def _acc(side: dict) -> str:
+    if side.get("error"):
+        return f"failed: {side['error'].split(': ', 1)[-1][:70]}"
     best = side.get("largest")
     if best is None:
         return f"{side['registered_pct']:.0f} %, no model"
@@ -226,7 +234,8 @@ def _acc(side: dict) -> str:
 
 def _stages(runs: list[dict], key: str = "stages") -> str:
     med = statistics.median
-    return ", ".join(f"{k} {med(r[key][k] for r in runs):.1f}" for k in runs[0][key])
+    done = [r for r in runs if r[key]]
+    return ", ".join(f"{k} {med(r[key][k] for r in done):.1f}" for k in done[0][key]) if done else "failed"
 
 
 def table(rows: list[dict]) -> str:
