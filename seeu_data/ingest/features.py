@@ -235,11 +235,12 @@ class _PairMatching:
         return self.inlier_counts.get((min(a, b), max(a, b)), 0)
 
     def run(self, pairs: list[tuple[int, int]]) -> None:
-        """Match `pairs` not matched yet, in batches (about 4 % of them each, at least 16)."""
+        """Match `pairs` not matched yet, in batches (a tenth of them each, at least 32: each batch starts
+        COLMAP's matcher, which reads the descriptors of its images again)."""
         todo = [p for p in dict.fromkeys(pairs) if (min(p), max(p)) not in self.inlier_counts]
         self.done += len(pairs) - len(todo)
         emit("done", self.done)
-        batch = max(16, len(todo) // 25)
+        batch = max(32, len(todo) // 10)
         names = self.job.names
         for k in range(0, len(todo), batch):
             part = [(names[a], names[b]) for a, b in todo[k : k + batch]]
