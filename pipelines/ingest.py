@@ -39,7 +39,7 @@ from seeu_data.store.out_lock import locks_output
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 3
-SFM_STAGE_FORMAT = 7
+SFM_STAGE_FORMAT = 8
 
 
 @dataclass(frozen=True)
