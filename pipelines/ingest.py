@@ -40,7 +40,7 @@ from seeu_data.store.out_lock import locks_output
 
 # Bump when a stage's output layout changes, so old work directories are redone rather than misread.
 DECODE_STAGE_FORMAT = 4  # 4: container timestamps (variable frame rate), frames counted as decoded
-SFM_STAGE_FORMAT = 7
+SFM_STAGE_FORMAT = 8
 
 
 @dataclass(frozen=True)
@@ -199,7 +199,7 @@ def _decode_stage(source, cfg: IngestConfig, prog):
         total = -(-in_source // cfg.select.stride)
         frames: list[dict] = []
         counted: list[int] = []  # the frames the source holds, as its stream gave them
-        prog.stage("decode", total)
+        prog.stage("decode", total, "frames")
         for fr in iter_frames(source, cfg.select.stride, cfg.run.max_pixels, counted):
             prog.advance()
             rgb = resize_max_side(fr.rgb, cfg.max_size)
@@ -367,7 +367,7 @@ def _select(source, cfg: IngestConfig, cache, decoded: Decoded) -> Selected:
 
 
 def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected, prog) -> dict:
-    """COLMAP SfM in a child process (resumable stage "sfm"); its result.json."""
+    """COLMAP SfM in a child process (resumable stage "sfm", resuming inside itself too); its result.json."""
     from seeu_data.ingest.sfm import run_sfm
     from seeu_data.store.resume import stamp_of
 
@@ -378,8 +378,14 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
     key = {"decode": stamp_of(decoded.key), "names": names, "sfm": params, "format": SFM_STAGE_FORMAT}
     d = cache.stage_dir("sfm")
     video = source.kind == "video"
+    # the stage resumes inside itself: run_sfm keeps what an interrupted run of the same job finished in d
     result, _ = cache.run(
-        "sfm", key, lambda: run_sfm(decoded.frames_dir, names, d, sfm_cfg, source.path, prog, video=video), d
+        "sfm",
+        key,
+        lambda: run_sfm(
+            decoded.frames_dir, names, d, sfm_cfg, source.path, prog, video=video, resume=not cfg.run.force
+        ),
+        outputs=lambda _: [d / "result.json"],
     )
     return result
 
@@ -439,7 +445,7 @@ def _scene_report(
     out_dir: Path,
 ) -> dict:
     """report.json's content (seeu_data/ingest/report.py documents its fields), without the timings."""
-    from seeu_data.ingest.report import mean_reprojection_error, scene_warnings
+    from seeu_data.ingest.report import mean_reprojection_error, scene_warnings, weak_geometry
 
     frames, chunks = selected.frames, chunked.chunks
     report = {
@@ -479,6 +485,7 @@ def _scene_report(
             "solution_check": {**sfm_result.get("solution_check", {}), "state": chunked.check_state},
             "keyframes": sfm_result.get("keyframes"),
             "final_ba": sfm_result.get("final_ba"),
+            "resumed": sfm_result.get("resumed", {}),
         },
         "chunks": [
             {
@@ -499,6 +506,7 @@ def _scene_report(
         "dropped_frames": chunked.dropped,
         "output": str(out_dir),
     }
+    report["sfm"]["solution_check"]["weak_geometry"] = weak_geometry(report)
     report["warnings"] = scene_warnings(report)
     return report
 

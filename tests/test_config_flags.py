@@ -212,7 +212,7 @@ def test_ingest_values_arrive_in_the_nested_config(tmp_path):
     assert cfg.chunks.scale.scale == "metric" and cfg.chunks.scale.known_distance == 2.5
     assert cfg.run.workers == 2 and cfg.run.heartbeat_s == 0 and cfg.run.force is True
     # what was not given keeps the declared default
-    assert cfg.sfm.max_features == 8192 and cfg.select.stride == 1 and cfg.sfm.random_seed == 0
+    assert cfg.sfm.max_features == 4096 and cfg.select.stride == 1 and cfg.sfm.random_seed == 0
     defaults = config_from_args(IngestConfig, _parse(["ingest", "x", "--out", "o"]), out=Path("o"))
     assert defaults == IngestConfig(out=Path("o"), inputs=("x",))
 

@@ -455,7 +455,8 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
     frame ends the retries; when every run fails, nothing is returned."""
     import pycolmap
 
-    from seeu_data.ingest.sfm import SfmConfig, map_with_retries
+    from seeu_data.ingest.sfm import SfmConfig
+    from seeu_data.ingest.solution_check import map_with_retries
 
     sfm_dir = ingested["out"] / ".work" / "walk" / "sfm"
     job = json.loads((sfm_dir / "job.json").read_text())
@@ -509,7 +510,7 @@ def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
     along the optical axis with small triangulation angles, so COLMAP's initial-pair limits find no
     model in any run; the second round (`sfm.map_forward_motion`) poses every frame, accurately. A
     static camera (planar/panoramic pairs) gets no second round: test_static_camera_no_model."""
-    from seeu_data.ingest.sfm import moves_forward_possibly
+    from seeu_data.ingest.mapping import moves_forward_possibly
 
     clip = tmp_path / "fwd.mp4"
     write_clip(clip, n_frames=FORWARD_FRAMES, size=FORWARD_SIZE, seed=0)

@@ -23,8 +23,10 @@ from seeu_data.ingest.report import (
     degeneracy,
     scene_warnings,
     summary_line,
+    weak_geometry,
 )
-from seeu_data.ingest.sfm import SfmConfig, map_with_retries, model_disagreement_pct, run_sfm
+from seeu_data.ingest.sfm import SfmConfig, run_sfm
+from seeu_data.ingest.solution_check import map_with_retries, model_disagreement_pct
 from seeu_data.ingest.video import SceneSource, discover_sources, unique_scene_names
 from seeu_data.progress import StageProgress
 from seeu_data.store.posed import PosedDataset
@@ -55,8 +57,8 @@ class _Recorder(StageProgress):
         super().__init__("test")
         self.events: list[tuple[str, int]] = []
 
-    def stage(self, name, total=None):
-        super().stage(name, total)
+    def stage(self, name, total=None, unit=""):
+        super().stage(name, total, unit)
         self.events.append((name, 0))
 
     def set(self, done):
@@ -80,10 +82,11 @@ def _db_rows(db: Path) -> dict:
 
 @pytest.mark.slow
 def test_sfm_is_identical_run_after_run_with_two_threads(tmp_path):
-    """The planar clip, 2 COLMAP threads, 3 runs, then 1 thread: the same database (image ids in frame
-    order, the same matches and verified geometries) and bit-identical poses, every frame registered
-    and accurate against the ground truth. Before the fix, image ids followed extraction completion
-    order and such runs gave different poses. The extract and match stages report progress while they work."""
+    """The planar clip, 2 COLMAP threads and 2 matching processes, 3 runs, then 1 thread and one process:
+    the same database (image ids in frame order, the same matches and verified geometries) and
+    bit-identical poses, every frame registered and accurate against the ground truth. Before the fix,
+    image ids followed extraction completion order and such runs gave different poses. The extract and
+    match stages report progress while they work."""
     n = 20
     frames = tmp_path / "frames"
     frames.mkdir()
@@ -100,7 +103,8 @@ def test_sfm_is_identical_run_after_run_with_two_threads(tmp_path):
     rec = _Recorder()
     for r, threads in enumerate((2, 2, 2, 1)):
         out = tmp_path / f"sfm{r}"
-        cfg = SfmConfig(threads=threads, sfm_check=False, min_model_size=5)
+        # every pair (190): enough to be matched by `threads` worker processes, each into a database copy
+        cfg = SfmConfig(threads=threads, sfm_check=False, min_model_size=5, matcher="exhaustive")
         results.append(run_sfm(frames, names, out, cfg, frames, progress=rec if r == 0 else False))
         dbs.append(_db_rows(out / "database.db"))
     assert dbs[0]["images"] == [(i + 1, name) for i, name in enumerate(names)]
@@ -264,8 +268,21 @@ def test_solution_check_starts_at_once_only_the_runs_it_certainly_needs():
         assert [s for e, s in events if e == "collect"] == sorted(runs)
 
 
-def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summary():
+def test_failed_check_names_the_weak_geometry_and_chunks_are_warned_otherwise():
+    """A failed solution check is warned with its likely causes, each from its own figure: low parallax
+    (the smallest chunk baseline/depth), a dominant plane (planar/panoramic share of the verified pairs),
+    too few matches (median inliers, matched frames per frame); without a failed check, chunks whose
+    camera rotates in place and low-parallax chunks are warned each."""
     reason = "the 3 mapping runs that registered enough frames disagree (closest 28% of the path apart)"
+    check = {
+        "ran": True,
+        "passed": False,
+        "state": "failed",
+        "disagreement_pct": 27.9,
+        "reason": reason,
+        "planar_or_panoramic_pairs": 60,
+        "verified_pairs": 64,
+    }
     base = {
         "scene": "s",
         "registered": 30,
@@ -277,15 +294,8 @@ def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summa
         "output": "out/s",
         "sfm": {
             "mapping_attempts": [{}, {}, {}],
-            "solution_check": {
-                "ran": True,
-                "passed": False,
-                "state": "failed",
-                "disagreement_pct": 27.9,
-                "reason": reason,
-                "planar_or_panoramic_pairs": 60,
-                "verified_pairs": 64,
-            },
+            "solution_check": check,
+            "mapper": {"match_graph": {"median_inliers": 31.0, "mean_degree": 5.2}},
         },
         "chunks": [
             {"scene_id": "s_c0", "baseline_over_depth": 0.04, "degeneracy": ROTATES_IN_PLACE},
@@ -293,14 +303,34 @@ def test_failed_check_rotation_in_place_and_low_parallax_are_warned_in_the_summa
             {"scene_id": "s_c2", "baseline_over_depth": 0.07},  # a report without degeneracy
         ],
     }
-    warnings = scene_warnings(base)
-    assert warnings[0] == f"SfM solution check failed: {reason}; the poses may be wrong"
-    assert warnings[1] == f"{ROTATES_IN_PLACE} in s_c0 (baseline/depth 0.040, 60/64 verified pairs planar or panoramic)"
-    assert warnings[2] == "low parallax: baseline/depth 0.070 < 0.1 in s_c2 (geometry weakly constrained)"
-    assert len(warnings) == 3
-    line = summary_line({**base, "warnings": warnings})
-    assert line.count("WARNING") == 3 and "\n" not in line and "after 3 mapping runs" in line
-    assert "camera mostly rotates in place: depth is unreliable" in line
+    causes = weak_geometry(base)
+    assert causes == [
+        "low parallax (baseline/depth 0.040 < 0.1)",
+        "a dominant plane or a camera turning in place (60/64 verified pairs planar or panoramic)",
+        "too few matches (median 31 inliers per verified pair, each frame matched to 5.2 others)",
+    ]
+    failed = {**base, "sfm": {**base["sfm"], "solution_check": {**check, "weak_geometry": causes}}}
+    (warning,) = scene_warnings(failed)
+    assert warning == f"SfM solution check failed: {reason}; likely owed to {', '.join(causes)}; the poses may be wrong"
+    line = summary_line({**failed, "warnings": [warning]})
+    assert line.count("WARNING") == 1 and "\n" not in line and "after 3 mapping runs" in line
+    assert "low parallax" in line and "dominant plane" in line and "too few matches" in line
+    # each cause only from its own figure
+    wide = {**base, "chunks": [{"scene_id": "s_c0", "baseline_over_depth": 0.5}]}
+    many = {"mapper": {"match_graph": {"median_inliers": 400.0, "mean_degree": 5.0}}}
+    general = {**check, "planar_or_panoramic_pairs": 10}
+    assert weak_geometry({**wide, "sfm": {**base["sfm"], **many, "solution_check": general}}) == []
+    none_found = {**wide, "sfm": {**many, "solution_check": {**general, "weak_geometry": []}}}
+    assert scene_warnings(none_found)[0].endswith(
+        "; no sign of low parallax, a dominant plane or too few matches; the poses may be wrong"
+    )
+    # the check did not fail: the chunks are warned one by one
+    passed = {**base, "sfm": {**base["sfm"], "solution_check": {**check, "state": "passed", "passed": True}}}
+    warnings = scene_warnings(passed)
+    assert warnings[0] == f"{ROTATES_IN_PLACE} in s_c0 (baseline/depth 0.040, 60/64 verified pairs planar or panoramic)"
+    assert warnings[1] == "low parallax: baseline/depth 0.070 < 0.1 in s_c2 (geometry weakly constrained)"
+    assert len(warnings) == 2
+    assert "camera mostly rotates in place: depth is unreliable" in summary_line({**passed, "warnings": warnings})
     # an SfM result from before the reason was recorded: the old wording
     old = {**base, "sfm": {"solution_check": {"state": "failed", "disagreement_pct": 27.9}}}
     assert (
@@ -368,6 +398,9 @@ def test_tripod_pan_is_flagged_under_default_options_and_the_figure_ignores_scal
         (chunk,) = report["chunks"]
         assert chunk["baseline_over_depth"] < LOW_PARALLAX and chunk["degeneracy"] == ROTATES_IN_PLACE
         assert any(w.startswith(ROTATES_IN_PLACE) for w in report["warnings"]), report["warnings"]
+        # what a failed check would name, computed whether or not it failed
+        causes = report["sfm"]["solution_check"]["weak_geometry"]
+        assert causes[0].startswith("low parallax") and causes[1].startswith("a dominant plane"), causes
         assert f"WARNING: {ROTATES_IN_PLACE}" in line
         meta = PosedDataset(out / "pan").load_scene("pan_c0").meta
         assert meta["degeneracy"] == ROTATES_IN_PLACE and meta["baseline_over_depth"] == chunk["baseline_over_depth"]
@@ -384,7 +417,7 @@ def test_final_bundle_adjustment_keeps_a_model_it_cannot_fix_the_gauge_of():
     returns a summary without a Ceres part; the model is kept as mapped (once a crash of the SfM child)."""
     import pycolmap
 
-    from seeu_data.ingest.sfm import final_bundle_adjustment
+    from seeu_data.ingest.mapping import final_bundle_adjustment
 
     rec = pycolmap.Reconstruction()
     rec.add_camera_with_trivial_rig(

@@ -64,7 +64,8 @@ def test_exif_orientation_is_applied_when_decoding(tmp_path):
 def test_choose_matcher():
     assert choose_matcher("auto", True, 1000, 10)["used"] == "sequential"
     small = choose_matcher("auto", False, EXHAUSTIVE_MAX_IMAGES, 10)
-    assert small["used"] == "exhaustive" and not small["quadratic"]
+    assert small["used"] == "exhaustive" and not small["quadratic"] and small["shortlist"]
+    assert not choose_matcher("auto", False, 21, 10)["shortlist"]  # few enough: every pair
     large = choose_matcher("auto", False, EXHAUSTIVE_MAX_IMAGES + 1, 10)
     assert (large["used"], large["overlap"], large["quadratic"]) == ("sequential", UNORDERED_OVERLAP, False)
     assert choose_matcher("sequential", False, 20, 10)["overlap"] == 10

@@ -24,6 +24,7 @@ other at 1, 2, 4, ... keyframes apart, the same graph the mapper sees on a spars
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
@@ -156,3 +157,24 @@ def register_frames(
             mapper.end_reconstruction(False)
         pending = [(n, c) for n, c in pending if n in failed]
     return added
+
+
+@dataclass(frozen=True)
+class Keyframes:
+    """The frames mapped: every `stride`-th frame (`names`); `info` is the SfM result's "keyframes"."""
+
+    stride: int
+    names: list[str]
+    info: dict
+
+
+def choose_keyframes(
+    names: list[str], motion_px: float | None, target_px: float, min_keyframes: int, overlap: int
+) -> Keyframes:
+    """The frames to map (`keyframe_stride`, `keyframe_names`) of a video matched with quadratic
+    overlap `overlap`: keyframes `stride` apart stay matched to each other at 1, 2 and 4 keyframes apart."""
+    stride = keyframe_stride(len(names), motion_px, target_px, min_keyframes, 2 ** max(overlap - 3, 0))
+    keys = keyframe_names(names, stride)
+    return Keyframes(
+        stride, keys, {"stride": stride, "count": len(keys), "motion_px": motion_px, "target_px": target_px}
+    )

@@ -36,6 +36,9 @@ MIN_INLIERS = 15
 EXHAUSTIVE_MAX_IMAGES = 150
 # Above it, each image is matched with this many next images in name order
 UNORDERED_OVERLAP = 40
+# An image folder of more images than this (up to EXHAUSTIVE_MAX_IMAGES) is matched on the pairs that
+# share enough of the images' most prominent features (`seeu_data.ingest.pairs.shortlist_pairs`)
+SHORTLIST_ABOVE = 30
 CHAIN_PCT = 90.0  # consecutive frames matched, at or above which the input is treated as a video
 
 
@@ -48,12 +51,14 @@ def match_graph_stats(db, names: list[str]) -> dict:
     by_id = {img.image_id: pos.get(img.name) for img in db.read_all_images()}
     pair_ids, geoms = db.read_two_view_geometries()
     edges = set()
+    inliers = []
     for pid, g in zip(pair_ids, geoms):
         if len(g.inlier_matches) < MIN_INLIERS:
             continue
         a, b = (by_id.get(i) for i in pycolmap.pair_id_to_image_pair(pid))
         if a is not None and b is not None and a != b:
             edges.add((min(a, b), max(a, b)))
+            inliers.append(len(g.inlier_matches))
     n = len(names)
     chain = sum((i, i + 1) in edges for i in range(n - 1))
     gaps = np.array([b - a for a, b in edges]) if edges else np.zeros(0)
@@ -64,6 +69,7 @@ def match_graph_stats(db, names: list[str]) -> dict:
         "consecutive_matched_pct": 100.0 * chain / max(n - 1, 1),
         "mean_index_gap": float(gaps.mean()) if len(gaps) else 0.0,
         "mean_degree": float(degree.mean()) if n else 0.0,
+        "median_inliers": float(np.median(inliers)) if inliers else 0.0,
     }
 
 
@@ -78,12 +84,19 @@ def choose_mapper(stats: dict) -> tuple[str, str]:
 def choose_matcher(requested: str, video: bool, num_images: int, overlap: int) -> dict:
     """The matching `requested` (auto, exhaustive or sequential) resolved for `num_images` frames of a
     video (`video`) or an image folder: {"requested", "used" (exhaustive | sequential), "overlap",
-    "quadratic" (sequential pairs 1, 2, 4, ..., 2**(overlap-1) apart, else the next `overlap`), "reason"}."""
-    used, quadratic, why = requested, True, "requested"
+    "quadratic" (sequential pairs 1, 2, 4, ..., 2**(overlap-1) apart, else the next `overlap`),
+    "shortlist" (exhaustive over the pairs `seeu_data.ingest.pairs.shortlist_pairs` keeps), "reason"}."""
+    used, quadratic, why, shortlist = requested, True, "requested", False
     if requested == "auto" and video:
         used, why = "sequential", "a video: ordered frames"
+    elif requested == "auto" and num_images <= SHORTLIST_ABOVE:
+        used, why = "exhaustive", f"an image folder of {num_images} <= {SHORTLIST_ABOVE} images: every pair"
     elif requested == "auto" and num_images <= EXHAUSTIVE_MAX_IMAGES:
-        used, why = "exhaustive", f"an image folder of {num_images} <= {EXHAUSTIVE_MAX_IMAGES} images: every pair"
+        used, shortlist = "exhaustive", True
+        why = (
+            f"an image folder of {num_images} <= {EXHAUSTIVE_MAX_IMAGES} images: every pair that shares enough "
+            "of the images' most prominent features"
+        )
     elif requested == "auto":
         used, quadratic, overlap = "sequential", False, UNORDERED_OVERLAP
         why = (
@@ -95,5 +108,6 @@ def choose_matcher(requested: str, video: bool, num_images: int, overlap: int) -
         "used": used,
         "overlap": overlap if used == "sequential" else None,
         "quadratic": quadratic if used == "sequential" else False,
+        "shortlist": shortlist,
         "reason": why,
     }

@@ -6,9 +6,11 @@ mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, c
 stages: extract_s, match_s, map_s, undistort_s, export_s), models: [...], discarded_models: [...],
 mapping_attempts: [{seed, registered, models, seconds, disagreement_pct, init ("forward motion": a run
 of the second round, `sfm.map_forward_motion`)}], keyframes {stride, count, motion_px,
-target_px, registered_after},
+target_px, registered_after}, resumed {images, pairs, map_runs: what the SfM run kept of an interrupted
+one of the same job: frames with features, matched pairs, finished mapping runs},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
-planar_or_panoramic_pairs, verified_pairs, reason (why a failed check failed)}}, input_identity {path, fingerprint},
+planar_or_panoramic_pairs, verified_pairs, reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
+too few matches; the likely causes a failed check names)}}, input_identity {path, fingerprint},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth (widest
 baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or
 why the chunk's depth is unreliable: the camera mostly rotated in place)}],
@@ -102,6 +104,10 @@ LOW_PARALLAX = 0.1
 # wall has planar pairs too, but its baseline is large.
 MOSTLY_PLANAR = 0.8
 ROTATES_IN_PLACE = "camera mostly rotates in place: depth is unreliable"
+# Too few matches: a median verified pair of fewer inliers than this (a relative pose from 50 points is
+# already uncertain by degrees when they are noisy), or frames matched to fewer than this many others
+FEW_INLIERS = 50
+FEW_MATCHED_FRAMES = 2.0
 
 
 def baseline_over_depth(world_to_cam: np.ndarray, depths: np.ndarray) -> float:
@@ -131,9 +137,36 @@ def degeneracy(solution_check: dict, parallax: float) -> str | None:
     return None
 
 
+def weak_geometry(report: dict) -> list[str]:
+    """Why the scene's geometry is weakly constrained, as far as the SfM facts in `report` tell (what a
+    failed solution check is most likely owed to): low parallax (the smallest `baseline_over_depth` of the
+    chunks below `LOW_PARALLAX`), a dominant plane or a camera turning in place (at least `MOSTLY_PLANAR`
+    of the verified pairs planar or panoramic: a homography explains them), too few matches (the median
+    verified pair below `FEW_INLIERS` inliers, or frames matched to fewer than `FEW_MATCHED_FRAMES`
+    others on average). [] when none of these shows."""
+    causes = []
+    parallax = [c["baseline_over_depth"] for c in report["chunks"] if np.isfinite(c.get("baseline_over_depth", np.nan))]
+    if parallax and min(parallax) < LOW_PARALLAX:
+        causes.append(f"low parallax (baseline/depth {min(parallax):.3f} < {LOW_PARALLAX})")
+    check = report["sfm"].get("solution_check", {})
+    verified, planar = check.get("verified_pairs") or 0, check.get("planar_or_panoramic_pairs") or 0
+    if verified and planar >= MOSTLY_PLANAR * verified:
+        causes.append(
+            f"a dominant plane or a camera turning in place ({planar}/{verified} verified pairs planar or panoramic)"
+        )
+    graph = (report["sfm"].get("mapper") or {}).get("match_graph") or {}
+    inliers, degree = graph.get("median_inliers"), graph.get("mean_degree")
+    if (inliers is not None and inliers < FEW_INLIERS) or (degree is not None and degree < FEW_MATCHED_FRAMES):
+        causes.append(
+            f"too few matches (median {inliers or 0:.0f} inliers per verified pair, each frame matched to "
+            f"{degree or 0:.1f} others)"
+        )
+    return causes
+
+
 def scene_warnings(report: dict) -> list[str]:
-    """What the user must know before trusting the scene: a failed solution check, chunks whose camera
-    mostly rotated in place, other low-parallax chunks."""
+    """What the user must know before trusting the scene: a failed solution check, with the likely causes
+    (`weak_geometry`); else chunks whose camera mostly rotated in place, other low-parallax chunks."""
     out = []
     check = report["sfm"].get("solution_check", {})
     if check.get("state") == "failed":
@@ -142,7 +175,14 @@ def scene_warnings(report: dict) -> list[str]:
             "no two mapping runs agree"
             + (f" (closest {d:.2g}% of the path apart)" if d is not None and np.isfinite(d) else "")
         )
-        out.append(f"SfM solution check failed: {reason}; the poses may be wrong")
+        causes = check.get("weak_geometry")
+        why = (
+            f"; likely owed to {', '.join(causes)}"
+            if causes
+            else ("; no sign of low parallax, a dominant plane or too few matches" if causes is not None else "")
+        )
+        out.append(f"SfM solution check failed: {reason}{why}; the poses may be wrong")
+        return out  # the causes name what the chunk warnings below would
     chunks = report["chunks"]
     flagged = [c for c in chunks if c.get("degeneracy")]
     if flagged:
@@ -184,8 +224,18 @@ def summary_line(report: dict) -> str:
             if check.get("state") == "passed"
             else ""
         )
+        + _resumed(report)
         + f"{report['timings_s']['total']:.1f} s -> {report['output']}"
     )
     for w in report.get("warnings", []):
         line += f" | WARNING: {w}"
     return line
+
+
+def _resumed(report: dict) -> str:
+    """`SfM resumed (kept ...), ` when this run's SfM continued an interrupted one, else ''."""
+    kept = report["sfm"].get("resumed") or {}
+    if report.get("reused", {}).get("sfm") or not any(kept.values()):
+        return ""
+    what = {"images": "images' features", "pairs": "matched pairs", "map_runs": "mapping runs"}
+    return "SfM resumed (kept " + ", ".join(f"{kept[k]} {w}" for k, w in what.items() if kept.get(k)) + "), "

@@ -1,0 +1,184 @@
+"""The solution check: mapping runs from successive seeds judged in turn until one registers enough
+frames and, with the check, two agree (`map_with_retries`); how far two mappings disagree; the verified
+pairs by two-view geometry."""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+
+from seeu_data.ingest.sfm import SfmConfig, emit, model_cameras
+
+# COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
+_PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
+
+
+_PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
+# A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
+# along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair
+# (|t_z| >= init_max_forward_motion = 0.95, or a median triangulation angle below init_min_tri_angle =
+# 16 degrees, relaxed twice to 4) and, when no pair passes, finds no model at all. Incremental mapping
+# is then run once more with these initial-pair limits (IncrementalMapperOptions fields;
+# `map_forward_motion`): no forward-motion limit, the angle from 8 degrees (relaxed to 4, then 2).
+# (The focal length is not the cause: pycolmap 4.2 estimates it per pair from the fundamental matrix
+# when no focal is known, so the database camera's prior plays no part in choosing the initial pair.)
+
+
+def map_with_retries(
+    map_once, num_frames: int, cfg: SfmConfig, check: bool = False, start=None
+) -> tuple[dict, list[dict], list[dict], dict]:
+    """Run `map_once(seed)` (incremental mapping: {index: pycolmap.Reconstruction}) for seeds
+    cfg.random_seed, +1, ... at most `cfg.sfm_attempts` times, until a run registers enough frames
+    and, with `check`, agrees with an earlier such run.
+
+    Registers enough: its usable models register at least `cfg.retry_below` of the `num_frames` frames.
+    Usable: at least `min_model_size` registered frames and a camera that passes COLMAP's own
+    plausibility test (focal length within 0.1-10x the image size, |extra params| <= 1; a poor initial
+    pair can drive a shared radial camera to k = 1.7 and stall registration). A different seed changes
+    COLMAP's RANSAC samples and so which initial pair succeeds.
+
+    The solution check (`check`): a wrong model can look clean (every frame registered, sub-pixel
+    reprojection) when one plane dominates the scene; a second run from another seed then usually lands
+    elsewhere. Two runs agree when their largest models' camera centres, Sim(3)-aligned, differ by at
+    most `cfg.max_disagreement_pct` of the path length (`model_disagreement_pct`). The first run of the
+    first agreeing pair is kept; when no two runs agree, the run registering most is kept and the check
+    fails. Returns (usable models of the kept run, every run's {seed, registered, models, seconds
+    (wall, of `map_once`)[, disagreement_pct]}, the kept run's rejected models as {index, registered, reason}, the check's
+    {"ran", "passed", "disagreement_pct" (smallest seen), "kept_seed"[, "reason" (a failed check: no two runs
+    registered enough frames to compare, or those that did disagree)]}).
+
+    `start(seed)` (optional) begins mapping `seed` in the background; `map_once(seed)` then collects
+    it. It is called at once for the runs certainly needed: with the check, the first two (the second
+    either checks the first or replaces it). The runs are still judged one by one in seed order, so the
+    outcome is the sequential one.
+    """
+    runs: list[tuple[int, dict, list]] = []  # (registered, usable, rejected)
+    attempts: list[dict] = []
+    good: list[int] = []  # indices of runs registering enough
+    agreed: int | None = None
+    smallest = None
+    if start is not None:
+        for i in range(min(2 if check else 1, cfg.sfm_attempts)):
+            start(cfg.random_seed + i)
+    for i in range(cfg.sfm_attempts):
+        seed = cfg.random_seed + i
+        if i:  # a second run for the check (the runs so far registered enough), else a retry
+            what = "map-check" if check and len(good) == i else f"map-retry-{i}"
+            emit("stage", what, num_frames, "registered")
+        usable, rejected = {}, []
+        t0 = time.perf_counter()
+        mapped = map_once(seed)
+        seconds = time.perf_counter() - t0
+        for k, rec in mapped.items():
+            n = rec.num_reg_images()
+            if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
+                continue
+            bogus = [c for c in model_cameras(rec) if c.has_bogus_params(*_PLAUSIBLE_CAMERA)]
+            if bogus:
+                rejected.append(
+                    {
+                        "index": int(k),
+                        "registered": n,
+                        "reason": "implausible camera parameters " + ", ".join(f"{p:.3g}" for p in bogus[0].params),
+                    }
+                )
+                continue
+            usable[k] = rec
+        registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
+        runs.append((registered, usable, rejected))
+        attempts.append({"seed": seed, "registered": registered, "models": len(usable), "seconds": seconds})
+        if registered < cfg.retry_below * num_frames:
+            continue
+        if not check:
+            break
+        for j in good:
+            d = model_disagreement_pct(runs[j][1], usable)
+            smallest = d if smallest is None else min(smallest, d)
+            attempts[-1].setdefault("disagreement_pct", {})[str(attempts[j]["seed"])] = d
+            if d <= cfg.max_disagreement_pct:
+                agreed = j
+                break
+        good.append(i)
+        if agreed is not None:
+            break
+    if agreed is not None:
+        keep = agreed
+    else:  # the run registering most, the first on ties
+        keep = max(range(len(runs)), key=lambda i: (runs[i][0], -i))
+    result = {
+        "ran": check,
+        "passed": (agreed is not None) if check else None,
+        "disagreement_pct": smallest,
+        "kept_seed": attempts[keep]["seed"],
+    }
+    if check and agreed is None:
+        result["reason"] = _check_failure(len(good), len(runs), cfg.retry_below, smallest)
+    return runs[keep][1], attempts, runs[keep][2], result
+
+
+def _check_failure(enough: int, runs: int, retry_below: float, smallest: float | None) -> str:
+    """Why the solution check failed: too few of the `runs` mapping runs registered at least `retry_below`
+    of the frames (`enough` did) to compare two, or those that did disagree (closest `smallest` % apart)."""
+    if enough < 2:
+        who = "no mapping run" if enough == 0 else f"only one of {runs} mapping runs"
+        return f"{who} registered enough frames (at least {100 * retry_below:.0f}%) to compare"
+    closest = (
+        f" (closest {smallest:.2g}% of the path apart)" if smallest is not None and smallest < float("inf") else ""
+    )
+    return f"the {enough} mapping runs that registered enough frames disagree{closest}"
+
+
+def _centres_by_name(recs: dict):
+    """Camera-to-world poses `{name: (4, 4)}` of the largest model in `recs` ({} when there is none)."""
+    import numpy as np
+
+    if not recs:
+        return {}
+    rec = max(recs.values(), key=lambda r: r.num_reg_images())
+    out = {}
+    for i in rec.reg_image_ids():
+        img = rec.image(i)
+        w2c = np.eye(4)
+        w2c[:3] = np.asarray(img.cam_from_world().matrix())
+        out[img.name] = np.linalg.inv(w2c)
+    return out
+
+
+def model_disagreement_pct(recs_a: dict, recs_b: dict) -> float:
+    """How far two mappings of the same frames disagree: centre RMSE of the largest model of `recs_b`,
+    Sim(3)-aligned onto the largest of `recs_a` over their common frames (frame-name order), in % of
+    the path length of `recs_a`'s centres (`pose_eval.pose_accuracy`). inf when fewer than half of
+    either model's frames (or fewer than 3) are common."""
+    import numpy as np
+
+    from seeu_data.ingest.pose_eval import pose_accuracy
+
+    a, b = _centres_by_name(recs_a), _centres_by_name(recs_b)
+    common = sorted(set(a) & set(b))
+    if len(common) < 3 or len(common) < 0.5 * max(len(a), len(b)):
+        return float("inf")
+    acc = pose_accuracy(np.stack([b[n] for n in common]), np.stack([a[n] for n in common]))
+    return float(acc.centre_rmse_pct_path)
+
+
+def geometry_counts(db_path: str | Path) -> dict:
+    """Verified image pairs in a COLMAP database by two-view geometry: {"verified", "planar_or_panoramic"}.
+
+    Planar / panoramic pairs (a homography explains the matches: one dominant plane, or a rotation
+    without translation) constrain the relative pose weakly; their fraction is what decides whether
+    the solution check maps twice (`SfmConfig.check_planar_fraction`)."""
+    import pycolmap
+
+    cfg = pycolmap.TwoViewGeometryConfiguration
+    verified = {
+        int(c)
+        for c in (cfg.CALIBRATED, cfg.UNCALIBRATED, cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC, cfg.MULTIPLE)
+    }
+    planar = {int(c) for c in (cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC)}
+    db = pycolmap.Database.open(db_path)
+    try:
+        _, geometries = db.read_two_view_geometries()
+    finally:
+        db.close()
+    configs = [int(g.config) for g in geometries]
+    return {"verified": sum(c in verified for c in configs), "planar_or_panoramic": sum(c in planar for c in configs)}
