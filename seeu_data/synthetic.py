@@ -332,11 +332,14 @@ class Mover:
 
 
 # `seeu synth --movers`: box is about a tenth of a 16:9 frame at 70 deg, swinging at up to 3 m/s;
-# large covers about 40 %; slow moves at most 0.3 m/s; several: three of other sizes, speeds and paths.
+# large crosses the room 3.5 m along the walk, up to about 60 % of the frame as the camera nears it, out
+# of the way when it passes; slow moves at most 0.3 m/s; several: three of other sizes, speeds and paths.
 MOVER_PRESETS: dict[str, tuple[Mover, ...]] = {
     "none": (),
     "box": (Mover((0.6, 0.6, 0.6), distance=2.0, amplitude=0.7, period=45),),
-    "large": (Mover((1.6, 1.5, 0.4), distance=2.4, amplitude=0.5, period=90, y0=0.0),),
+    "large": (
+        Mover((1.6, 1.5, 0.3), distance=3.5, amplitude=1.6, period=90, path="crossing", y0=0.0, phase=np.pi / 2),
+    ),
     "slow": (Mover((0.6, 0.6, 0.6), distance=2.5, amplitude=0.3, period=180),),
     "several": (
         Mover((0.3, 0.3, 0.3), distance=3.0, amplitude=1.0, period=30, y0=-0.3),
@@ -552,8 +555,9 @@ class ClipConfig:
     movers: str = setting(
         "none",
         "independently moving boxes, with their exact per-frame masks in <stem>.masks.npz: box: one box of about "
-        "a tenth of the frame swinging side to side 2 m ahead of the camera; large: one covering about 40% of "
-        "it; slow: one moving at most 0.3 m/s; several: three of other sizes, speeds and paths",
+        "a tenth of the frame swinging side to side 2 m ahead of the camera; large: one crossing the room, up to "
+        "more than half of the frame; slow: one moving at most 0.3 m/s; several: three of other sizes, speeds "
+        "and paths",
         choices=tuple(MOVER_PRESETS),
     )
 

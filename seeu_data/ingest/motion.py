@@ -1,0 +1,377 @@
+"""Moving content in a video's frames, found from dense optical flow (no learned weights).
+
+SfM assumes a static scene: a person, a car or a box moving through the frames gives SIFT matches
+that its two-view checks accept (motion along the epipolar lines passes them), and tracks that pull
+the cameras. Here, for each frame i and its neighbours j (`OFFSETS` frames before and after):
+
+1. flow: OpenCV's DIS optical flow i -> j and j -> i on grey frames shrunk to at most `WORK_SIDE`
+   pixels; a pixel's flow counts where the two agree within `FB_MAX_PX` (not occluded, not out of frame).
+2. the flow the static scene allows: cameras relative to frame i, x_j ~ M_j x + rho e_j, where x is
+   the pixel (homogeneous), rho its inverse depth and (M_j, e_j) the camera of frame j: from the SfM
+   model (`model_cameras`: M = R_ji, e = t_ji on normalised image coordinates), or before any
+   model exists from the flow alone (`flow_cameras`: a fundamental matrix per neighbour, robust, the
+   neighbours tied into one projective frame by the depths they share).
+3. the residual (`static_residual`): the one rho that best explains every neighbour's flow at the
+   pixel, and the largest distance in pixels between where that rho puts the pixel in a neighbour and
+   where the flow does. A static pixel's neighbours agree on one depth (its flow lies on its
+   epipolar lines, at the positions one depth gives); a moving one's do not.
+4. masks (`clean_masks`): the residual, median-filtered, carried along the flow to the next and
+   previous frames (fading by `CARRY` per frame, so a mover stays found through the frames where its
+   motion happens to look static), thresholded with hysteresis (`SEED_PX`, `GROW_PX`), closed,
+   specks below `MIN_AREA` of the frame dropped.
+
+Motion within the plane of the camera's path and the point (a box at eye level crossing in front of
+a camera walking straight) is what no two-frame test can see; the far neighbours, the camera's own
+turns and the carrying along the flow are what finds it there.
+
+    frames = load_frames(image_dir, names)                      # [(h, w) uint8], longer side <= WORK_SIDE
+    masks = detect(frames, cameras=None)                        # [(h, w) bool] from the flow alone
+    masks = detect(frames, cameras=lambda i, js: model_cameras(...))
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from seeu_data.errors import SeeUError
+
+WORK_SIDE = 320  # flows on frames shrunk to this longer side (px)
+OFFSETS = (1, 4)  # neighbours this many frames before and after
+FB_MAX_PX = 1.0  # forward-backward disagreement above which a pixel's flow is not trusted
+PHOTO_MAX = 8.0  # grey-level difference (blurred frames) above which a pixel's flow is not trusted
+MIN_PARALLAX = 1e-3  # neighbours whose camera barely moves (|e| below this) give no depth
+SEED_PX = 3.0  # residual (working px) that starts a moving region
+GROW_PX = 1.5  # residual over which a moving region grows from its seeds
+CARRY = 0.7  # evidence carried to the next / previous frame along the flow, per frame
+MIN_AREA = 0.002  # smallest moving region kept, as a fraction of the frame
+SAMPLE_STEP = 4  # flow samples for the robust fits: one pixel in SAMPLE_STEP x SAMPLE_STEP
+MIN_SAMPLES = 30  # fewer trusted samples: no cameras from the flow
+FIT_PX = 0.5  # inlier distance of the robust fits (working px)
+GOOD_FIT_PX = 0.8  # median residual of the pixels cameras were fitted on, above which the fit failed
+PLANAR_SHARE = 0.99  # a homography explaining this share of the essential matrix's inliers: no depth
+
+Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
+
+
+def load_frames(image_dir: str | Path, names: Sequence[str], side: int = WORK_SIDE) -> list[np.ndarray]:
+    """The frames as grey `(h, w)` uint8, shrunk (area interpolation) so the longer side is at most `side`."""
+    out = []
+    for name in names:
+        path = Path(image_dir) / name
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise SeeUError("cannot read frame for motion detection", path)
+        scale = side / max(img.shape)
+        if scale < 1:
+            size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
+            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        out.append(img)
+    return out
+
+
+class Flows:
+    """Where frame i's pixels land in the frames around it, from DIS optical flow between neighbouring
+    frames only, chained: carried to i + 1 by the flow i -> i + 1, on to i + 2 by the flow i + 1 -> i + 2
+    sampled where they landed, and so on (DIS fails on large displacements over weak texture, not on the
+    small steps). A step is trusted where the flow back returns within FB_MAX_PX (not occluded, not out
+    of frame) and the blurred frames agree within PHOTO_MAX grey levels; a chain where all its steps are.
+    `forget(i)` drops what frames before i needed."""
+
+    def __init__(self, frames: Sequence[np.ndarray]) -> None:
+        self.frames = frames
+        self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        self.flows: dict[tuple[int, int], np.ndarray] = {}
+        self.steps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.smooth: dict[int, np.ndarray] = {}
+        h, w = frames[0].shape
+        self.grid = pixel_grid(h, w).astype(np.float32)
+
+    def _flow(self, i: int, j: int) -> np.ndarray:
+        if (i, j) not in self.flows:
+            self.flows[(i, j)] = self.dis.calc(self.frames[i], self.frames[j], None)
+        return self.flows[(i, j)]
+
+    def _smoothed(self, i: int) -> np.ndarray:
+        if i not in self.smooth:
+            self.smooth[i] = cv2.GaussianBlur(self.frames[i].astype(np.float32), (0, 0), 1.0)
+        return self.smooth[i]
+
+    def step(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flow from frame i to its neighbour j `(h, w, 2)` float32, and where it is trusted `(h, w)` float32 0/1."""
+        if (i, j) not in self.steps:
+            flow = self._flow(i, j)
+            land = self.grid + flow
+            mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
+            back = cv2.remap(
+                self._flow(j, i), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+            )
+            seen = cv2.remap(
+                self._smoothed(j), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+            )
+            with np.errstate(invalid="ignore"):
+                ok = (np.linalg.norm(flow + back, axis=-1) < FB_MAX_PX) & (np.abs(seen - self._smoothed(i)) < PHOTO_MAX)
+            self.steps[(i, j)] = (flow, ok.astype(np.float32))
+        return self.steps[(i, j)]
+
+    def observe(self, i: int, js: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per frame j of js: where frame i's pixels land there `(h, w, 2)` float32, and where that is trusted
+        `(h, w)` bool."""
+        found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for d in (1, -1):
+            ahead = [(j - i) * d for j in js if (j - i) * d > 0]
+            land, ok, k = self.grid, np.ones(self.grid.shape[:2], bool), i
+            for _ in range(max(ahead, default=0)):
+                flow, trust = self.step(k, k + d)
+                mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
+                moved = cv2.remap(flow, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+                kept = cv2.remap(trust, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+                land = land + moved
+                ok = ok & (kept > 0.99) & np.isfinite(moved).all(-1)
+                k += d
+                found[k] = (land, ok)
+        return [found[j] for j in js]
+
+    def forget(self, before: int) -> None:
+        for cache in (self.flows, self.steps):
+            for pair in [p for p in cache if min(p) < before]:
+                del cache[pair]
+        for i in [i for i in self.smooth if i < before]:
+            del self.smooth[i]
+
+
+def pixel_grid(h: int, w: int) -> np.ndarray:
+    """Pixel centres `(h, w, 2)` (x, y) = (j + 0.5, i + 0.5)."""
+    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
+    return np.stack([xs + 0.5, ys + 0.5], -1)
+
+
+def _depth_terms(x: np.ndarray, land: np.ndarray, M: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares terms of rho in (M x + rho e) ~ land: numerator and denominator, `(h, w)` each."""
+    h0 = x[..., 0:1] * M[:, 0] + x[..., 1:2] * M[:, 1] + M[:, 2]  # (h, w, 3) = M (x, y, 1)
+    u = e[:2] - land * e[2]
+    v = land * h0[..., 2:3] - h0[..., :2]
+    return (u * v).sum(-1), (u * u).sum(-1)
+
+
+def static_residual(
+    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], cameras: Cameras, scale: float = 1.0
+) -> np.ndarray:
+    """How far the flow of each pixel is from any static point's: `(h, w)` in pixels (0 where no
+    neighbour's flow is trusted).
+
+    x: `(h, w, 2)` the pixels of frame i; lands / oks: per neighbour, where they land `(h, w, 2)` and
+    whether that is trusted `(h, w)`, in the coordinates of x; cameras: per neighbour (M, e) with
+    land ~ M x + rho e; scale: pixels per unit of those coordinates. rho is fitted to all trusted
+    neighbours at once, the residual is the largest reprojection distance among them."""
+    num = np.zeros(x.shape[:2])
+    den = np.zeros(x.shape[:2])
+    for land, ok, (M, e) in zip(lands, oks, cameras):
+        n, d = _depth_terms(x, land, M, e)
+        num += np.where(ok, n, 0.0)
+        den += np.where(ok, d, 0.0)
+    rho = num / np.maximum(den, 1e-12)
+    res = np.zeros(x.shape[:2])
+    for land, ok, (M, e) in zip(lands, oks, cameras):
+        dist = np.linalg.norm(_project(x, M, e, rho) - land, axis=-1)
+        res = np.where(ok & np.isfinite(dist), np.maximum(res, dist), res)
+    return res * scale
+
+
+def _samples(ok: np.ndarray) -> np.ndarray:
+    sel = np.zeros_like(ok)
+    sel[::SAMPLE_STEP, ::SAMPLE_STEP] = True
+    return sel & ok
+
+
+def _project(x: np.ndarray, M: np.ndarray, e: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Where pixels `(..., 2)` of inverse depth `rho` `(...)` land with the camera (M, e): `(..., 2)`."""
+    h = x[..., 0:1] * M[:, 0] + x[..., 1:2] * M[:, 1] + M[:, 2] + rho[..., None] * e
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return h[..., :2] / h[..., 2:3]
+
+
+def flow_cameras(x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float) -> Cameras | None:
+    """Cameras of the neighbours relative to frame i from the flow alone, or None when the flow cannot
+    give them (too few trusted samples). x, lands: normalised image coordinates under a guessed camera
+    (`scale` pixels per unit: its focal length; the guess matters little, see `prior_focal`).
+
+    The neighbour farthest away in time gives the reference: its essential matrix (MAGSAC on a grid of
+    trusted flow samples) its pose (R, t) and an inverse depth rho for every pixel; each other neighbour's
+    pose is then found from those points and where they land there (PnP, RANSAC, refined). When a
+    homography explains the reference's flow as well as the essential matrix does (the camera turned
+    without moving, or sees one plane), every neighbour gets its homography (M = H, e = 0): no depth."""
+    ref = max(range(len(lands)), key=lambda k: np.abs(lands[k] - x)[oks[k]].mean() if oks[k].any() else 0.0)
+    sel = _samples(oks[ref])
+    if sel.sum() < MIN_SAMPLES:
+        return None
+    p, q = x[sel], lands[ref][sel].astype(np.float64)
+    E, e_in = cv2.findEssentialMat(p, q, np.eye(3), cv2.USAC_MAGSAC, 0.999, FIT_PX / scale)
+    H, h_in = cv2.findHomography(p, q, cv2.USAC_MAGSAC, FIT_PX / scale)
+    if E is None or E.shape != (3, 3) or (H is not None and h_in.sum() >= PLANAR_SHARE * e_in.sum()):
+        return None if H is None else _homographies(x, lands, oks, scale)
+    _, R, t, _ = cv2.recoverPose(E, p, q, np.eye(3), mask=e_in.copy())
+    t = t.ravel()
+    n0, d0 = _depth_terms(x, lands[ref], R, t)
+    rho = n0 / np.maximum(d0, 1e-12)
+    usable = sel & (rho > 0) & (d0 > np.percentile(d0[sel], 25))  # in front, with parallax for a depth
+    points = np.concatenate([x[usable], np.ones((int(usable.sum()), 1))], 1) / rho[usable][:, None]
+    out: Cameras = []
+    for k, (land, ok) in enumerate(zip(lands, oks)):
+        if k == ref:
+            out.append((R, t))
+            continue
+        pose = _pnp(points[ok[usable]], land[usable & ok].astype(np.float64), scale)
+        if pose is None:
+            return None
+        out.append(pose)
+    return out
+
+
+def _homographies(
+    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float
+) -> Cameras | None:
+    out: Cameras = []
+    for land, ok in zip(lands, oks):
+        sel = _samples(ok)
+        H = (
+            None
+            if sel.sum() < MIN_SAMPLES
+            else cv2.findHomography(x[sel], land[sel], cv2.USAC_MAGSAC, FIT_PX / scale)[0]
+        )
+        if H is None:
+            return None
+        out.append((H, np.zeros(3)))
+    return out
+
+
+def _pnp(points: np.ndarray, seen: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pose (R, t) of a camera seeing 3D `points` `(N, 3)` at normalised `seen` `(N, 2)`: RANSAC (EPnP, within
+    2 FIT_PX), then Levenberg-Marquardt on the inliers; None when it fails."""
+    if len(points) < MIN_SAMPLES:
+        return None
+    found, rvec, tvec, inliers = cv2.solvePnPRansac(
+        points,
+        seen,
+        np.eye(3),
+        None,
+        reprojectionError=2 * FIT_PX / scale,
+        iterationsCount=200,
+        flags=cv2.SOLVEPNP_EPNP,
+    )
+    if not found or inliers is None or len(inliers) < MIN_SAMPLES:
+        return None
+    keep = inliers.ravel()
+    rvec, tvec = cv2.solvePnPRefineLM(points[keep], seen[keep], np.eye(3), None, rvec, tvec)
+    return cv2.Rodrigues(rvec)[0], tvec.ravel()
+
+
+# residual(i, js, grid, lands, oks, avoid) -> (h, w) pixels or None: see `detect`
+Residual = Callable[[int, list[int], np.ndarray, list[np.ndarray], list[np.ndarray], np.ndarray], "np.ndarray | None"]
+
+
+def neighbours(i: int, n: int, offsets: Sequence[int] = OFFSETS) -> list[int]:
+    """Frame i's neighbours among n frames: i -/+ each offset, those inside 0..n-1."""
+    return [i + o for o in sorted({-o for o in offsets} | set(offsets)) if 0 <= i + o < n]
+
+
+def flow_residual(
+    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float, avoid: np.ndarray
+) -> np.ndarray | None:
+    """`static_residual` under the cameras the flow gives (`flow_cameras`), fitted on trusted pixels not in
+    `avoid` `(h, w)` bool (moving content found in the frames before). A fit whose trusted pixels do not
+    mostly agree with it (median residual over GOOD_FIT_PX: moving content pulled it) is made once more
+    without the pixels it left above GROW_PX; None when that fails too."""
+    keep = [ok & ~avoid for ok in oks]
+    for _ in range(2):
+        cams = flow_cameras(x, lands, keep, scale)
+        if cams is None:
+            return None
+        r = static_residual(x, lands, oks, cams, scale)
+        fitted = np.any(keep, 0)
+        if fitted.any() and np.median(r[fitted]) <= GOOD_FIT_PX:
+            return r
+        keep = [k & (r < GROW_PX) for k in keep]
+    return None
+
+
+def detect(frames: Sequence[np.ndarray], residual: Residual, offsets: Sequence[int] = OFFSETS) -> list[np.ndarray]:
+    """Masks of moving content `(h, w)` bool, one per frame of `frames` (grey `(h, w)`, in time order).
+
+    `residual(i, js, grid, lands, oks, avoid)`: frame i's static residual `(h, w)` in pixels against its
+    neighbours js (`neighbours`), given the pixel grid `(h, w, 2)`, per neighbour where the pixels land
+    and whether that is trusted (`Flows.observe`), and the pixels where the frames before found moving
+    content (`(h, w)` bool: not to fit cameras on); None when frame i cannot be judged (no camera)."""
+    n = len(frames)
+    flows = Flows(frames)
+    h, w = frames[0].shape
+    grid = pixel_grid(h, w)
+    evidence: list[np.ndarray] = []
+    to_prev: list[np.ndarray | None] = []  # frame i's pixels in frame i - 1 (trusted ones), for the carrying
+    to_next: list[np.ndarray | None] = []
+    carried = np.zeros((h, w), np.float32)
+    for i in range(n):
+        js = neighbours(i, n, offsets)
+        obs = flows.observe(i, js)
+        look = dict(zip(js, obs))
+        to_prev.append(_carry_map(look.get(i - 1)))
+        to_next.append(_carry_map(look.get(i + 1)))
+        prior = CARRY * _warp(carried, to_prev[i])
+        r = residual(i, js, grid, [o[0] for o in obs], [o[1] for o in obs], prior > GROW_PX) if js else None
+        evidence.append(np.zeros((h, w), np.float32) if r is None else cv2.medianBlur(r.astype(np.float32), 5))
+        carried = np.maximum(evidence[i], prior)
+        flows.forget(i - max(offsets))
+    return clean_masks(evidence, to_prev, to_next)
+
+
+def _carry_map(obs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+    """remap coordinates `(h, w, 2)` float32 of the landing points, NaN where not trusted."""
+    if obs is None:
+        return None
+    land, ok = obs
+    out = land - 0.5
+    out[~ok] = np.nan
+    return out
+
+
+def clean_masks(
+    evidence: list[np.ndarray], to_prev: list[np.ndarray | None], to_next: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    """Per-frame residual maps -> masks: carried along the flow both ways in time (max with CARRY times
+    the neighbour's), hysteresis (regions over GROW_PX holding a pixel over SEED_PX), closed, specks
+    under MIN_AREA dropped."""
+    n = len(evidence)
+    fwd = list(evidence)
+    for i in range(1, n):
+        fwd[i] = np.maximum(evidence[i], CARRY * _warp(fwd[i - 1], to_prev[i]))
+    both = list(fwd)
+    back = evidence[-1]
+    for i in range(n - 2, -1, -1):
+        back = np.maximum(evidence[i], CARRY * _warp(back, to_next[i]))
+        both[i] = np.maximum(fwd[i], back)
+    h, w = evidence[0].shape
+    min_px = MIN_AREA * h * w
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    masks = []
+    for e in both:
+        count, labels, stats, _ = cv2.connectedComponentsWithStats((e > GROW_PX).astype(np.uint8), connectivity=8)
+        seeded = np.zeros(count, bool)
+        seeded[np.unique(labels[e > SEED_PX])] = True
+        seeded[0] = False
+        m = cv2.morphologyEx(seeded[labels].astype(np.uint8), cv2.MORPH_CLOSE, kernel)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        keep = stats[:, cv2.CC_STAT_AREA] >= min_px
+        keep[0] = False
+        masks.append(keep[labels])
+    return masks
+
+
+def _warp(values: np.ndarray, coords: np.ndarray | None) -> np.ndarray:
+    """`values` `(h, w)` sampled at `coords` (`_carry_map`); 0 where there is none."""
+    if coords is None:
+        return np.zeros_like(values)
+    out = cv2.remap(values, coords[..., 0], coords[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return np.nan_to_num(out, nan=0.0)
