@@ -52,7 +52,15 @@ SAMPLE_STEP = 4  # flow samples for the robust fits: one pixel in SAMPLE_STEP x 
 MIN_SAMPLES = 30  # fewer trusted samples: no cameras from the flow
 FIT_PX = 0.5  # inlier distance of the robust fits (working px)
 GOOD_FIT_PX = 0.8  # median residual of the pixels cameras were fitted on, above which the fit failed
-PLANAR_SHARE = 0.99  # a homography explaining this share of the essential matrix's inliers: no depth
+# A homography explaining this share of the essential matrix's inliers: the camera turned in place or sees
+# one plane, and the homography is the static scene's flow; from AMBIGUOUS_SHARE on, a dominant plane
+# leaves the pose unsure (the points off it decide it) and the first pass does not judge the frame.
+HOMOGRAPHY_SHARE = 0.99
+AMBIGUOUS_SHARE = 0.5
+# The first pass's guessed focal length over the frame's longer side: COLMAP's own prior
+# (ImageReaderOptions.default_focal_length_factor). Far from the truth (0.7 for a 70 degree lens) it
+# still finds the box of the synthetic clip as well as the true one does: only consistency is judged.
+PRIOR_FOCAL = 1.2
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
 
@@ -83,7 +91,7 @@ class Flows:
 
     def __init__(self, frames: Sequence[np.ndarray]) -> None:
         self.frames = frames
-        self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)
+        self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
         self.flows: dict[tuple[int, int], np.ndarray] = {}
         self.steps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self.smooth: dict[int, np.ndarray] = {}
@@ -202,8 +210,9 @@ def flow_cameras(x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.nd
     The neighbour farthest away in time gives the reference: its essential matrix (MAGSAC on a grid of
     trusted flow samples) its pose (R, t) and an inverse depth rho for every pixel; each other neighbour's
     pose is then found from those points and where they land there (PnP, RANSAC, refined). When a
-    homography explains the reference's flow as well as the essential matrix does (the camera turned
-    without moving, or sees one plane), every neighbour gets its homography (M = H, e = 0): no depth."""
+    homography explains the reference's flow as well as the essential matrix does (HOMOGRAPHY_SHARE: the
+    camera turned without moving, or sees one plane), every neighbour gets its homography (M = H, e = 0):
+    no depth; when it explains much of it (AMBIGUOUS_SHARE), None."""
     ref = max(range(len(lands)), key=lambda k: np.abs(lands[k] - x)[oks[k]].mean() if oks[k].any() else 0.0)
     sel = _samples(oks[ref])
     if sel.sum() < MIN_SAMPLES:
@@ -211,8 +220,11 @@ def flow_cameras(x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.nd
     p, q = x[sel], lands[ref][sel].astype(np.float64)
     E, e_in = cv2.findEssentialMat(p, q, np.eye(3), cv2.USAC_MAGSAC, 0.999, FIT_PX / scale)
     H, h_in = cv2.findHomography(p, q, cv2.USAC_MAGSAC, FIT_PX / scale)
-    if E is None or E.shape != (3, 3) or (H is not None and h_in.sum() >= PLANAR_SHARE * e_in.sum()):
-        return None if H is None else _homographies(x, lands, oks, scale)
+    planar = 0.0 if H is None or E is None else h_in.sum() / max(e_in.sum(), 1)
+    if planar >= HOMOGRAPHY_SHARE:
+        return _homographies(x, lands, oks, scale)
+    if E is None or E.shape != (3, 3) or planar >= AMBIGUOUS_SHARE:
+        return None
     _, R, t, _ = cv2.recoverPose(E, p, q, np.eye(3), mask=e_in.copy())
     t = t.ravel()
     n0, d0 = _depth_terms(x, lands[ref], R, t)
@@ -298,13 +310,19 @@ def flow_residual(
     return None
 
 
-def detect(frames: Sequence[np.ndarray], residual: Residual, offsets: Sequence[int] = OFFSETS) -> list[np.ndarray]:
+def detect(
+    frames: Sequence[np.ndarray],
+    residual: Residual,
+    offsets: Sequence[int] = OFFSETS,
+    on_frame: Callable[[], None] | None = None,
+) -> list[np.ndarray]:
     """Masks of moving content `(h, w)` bool, one per frame of `frames` (grey `(h, w)`, in time order).
 
     `residual(i, js, grid, lands, oks, avoid)`: frame i's static residual `(h, w)` in pixels against its
     neighbours js (`neighbours`), given the pixel grid `(h, w, 2)`, per neighbour where the pixels land
     and whether that is trusted (`Flows.observe`), and the pixels where the frames before found moving
-    content (`(h, w)` bool: not to fit cameras on); None when frame i cannot be judged (no camera)."""
+    content (`(h, w)` bool: not to fit cameras on); None when frame i cannot be judged (no camera).
+    `on_frame()` is called after each frame."""
     n = len(frames)
     flows = Flows(frames)
     h, w = frames[0].shape
@@ -324,6 +342,8 @@ def detect(frames: Sequence[np.ndarray], residual: Residual, offsets: Sequence[i
         evidence.append(np.zeros((h, w), np.float32) if r is None else cv2.medianBlur(r.astype(np.float32), 5))
         carried = np.maximum(evidence[i], prior)
         flows.forget(i - max(offsets))
+        if on_frame is not None:
+            on_frame()
     return clean_masks(evidence, to_prev, to_next)
 
 
@@ -375,3 +395,132 @@ def _warp(values: np.ndarray, coords: np.ndarray | None) -> np.ndarray:
         return np.zeros_like(values)
     out = cv2.remap(values, coords[..., 0], coords[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
     return np.nan_to_num(out, nan=0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# In the SfM child (seeu_data.ingest.sfm): the first pass before mapping, the SfM cameras after
+# ---------------------------------------------------------------------------------------------
+
+
+def first_pass(
+    image_dir: str | Path, names: Sequence[str], on_frame: Callable[[], None] | None = None
+) -> dict[str, np.ndarray]:
+    """Moving content of a video's frames `names` (in time order) from the flow alone, before any SfM
+    model: {name: (h, w) bool at the working size} for frames where some was found. The frames' camera
+    is guessed: principal point at the centre, focal length PRIOR_FOCAL times the longer side."""
+    frames = load_frames(image_dir, names)
+    h, w = frames[0].shape
+    centre, focal = np.array([w / 2, h / 2]), PRIOR_FOCAL * max(w, h)
+
+    def residual(i, js, grid, lands, oks, avoid):
+        return flow_residual((grid - centre) / focal, [(la - centre) / focal for la in lands], oks, focal, avoid)
+
+    return {n: m for n, m in zip(names, detect(frames, residual, on_frame=on_frame)) if m.any()}
+
+
+def model_pass(
+    image_dir: str | Path, names: Sequence[str], rec, on_frame: Callable[[], None] | None = None
+) -> dict[str, np.ndarray]:
+    """Moving content of the frames `names` (in time order, all registered in the pycolmap
+    Reconstruction `rec`) against the flow its cameras allow: {name: (h, w) bool at the working size}
+    for frames where some was found. Coordinates are the cameras' normalised image coordinates
+    (their distortion undone: `Camera.cam_from_img`)."""
+    from seeu_data.cameras import homogeneous_from_3x4, invert_rigid
+
+    frames = load_frames(image_dir, names)
+    h, w = frames[0].shape
+    by_name = {rec.image(i).name: rec.image(i) for i in rec.reg_image_ids()}
+    images = [by_name[n] for n in names]
+    poses = [homogeneous_from_3x4(np.asarray(img.cam_from_world().matrix(), np.float64)) for img in images]
+
+    def normalised(camera, pts: np.ndarray) -> np.ndarray:
+        full = pts.reshape(-1, 2) * (camera.width / w, camera.height / h)  # working px -> the camera's px
+        return np.asarray(camera.cam_from_img(full.astype(np.float64)), np.float64).reshape(pts.shape)
+
+    def residual(i, js, grid, lands, oks, avoid):
+        cams: Cameras = []
+        for j in js:
+            rel = poses[j] @ invert_rigid(poses[i])  # frame i's camera -> frame j's
+            cams.append((rel[:3, :3], rel[:3, 3]))
+        cam_i = rec.cameras[images[i].camera_id]
+        x = normalised(cam_i, grid)
+        seen = [normalised(rec.cameras[images[j].camera_id], la) for j, la in zip(js, lands)]
+        return static_residual(x, seen, oks, cams, cam_i.mean_focal_length() * w / cam_i.width)
+
+    return {n: m for n, m in zip(names, detect(frames, residual, on_frame=on_frame)) if m.any()}
+
+
+def moving_keypoints(xy: np.ndarray, mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Which keypoints `(N, 2)` (pixels of a `width` x `height` frame, COLMAP's: the top-left corner at 0)
+    fall in `mask` `(h, w)` bool (working size): `(N,)` bool."""
+    h, w = mask.shape
+    cols = np.clip((np.asarray(xy)[:, 0] * w / width).astype(np.int64), 0, w - 1)
+    rows = np.clip((np.asarray(xy)[:, 1] * h / height).astype(np.int64), 0, h - 1)
+    return mask[rows, cols]
+
+
+def drop_matches(db_path: str | Path, masks: dict[str, np.ndarray]) -> int:
+    """Remove from the database's verified matches (the two-view geometries' inliers, which mapping and
+    registration use) every match with a keypoint in its frame's moving mask; returns how many."""
+    import pycolmap
+
+    db = pycolmap.Database.open(Path(db_path))
+    try:
+        moving: dict[int, np.ndarray] = {}
+        for img in db.read_all_images():
+            if img.name in masks:
+                cam = db.read_camera(img.camera_id)
+                xy = np.asarray(db.read_keypoints(img.image_id), np.float64)[:, :2]
+                moving[img.image_id] = moving_keypoints(xy, masks[img.name], cam.width, cam.height)
+        dropped = 0
+        pair_ids, geometries = db.read_two_view_geometries()
+        for pid, geometry in zip(pair_ids, geometries):
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            if a not in moving and b not in moving:
+                continue
+            matches = np.asarray(geometry.inlier_matches, np.int64).reshape(-1, 2)
+            bad = np.zeros(len(matches), bool)
+            if a in moving:
+                bad |= moving[a][matches[:, 0]]
+            if b in moving:
+                bad |= moving[b][matches[:, 1]]
+            if bad.any():
+                geometry.inlier_matches = matches[~bad].astype(np.uint32)
+                db.update_two_view_geometry(a, b, geometry)
+                dropped += int(bad.sum())
+    finally:
+        db.close()
+    return dropped
+
+
+def drop_observations(rec, masks: dict[str, np.ndarray]) -> int:
+    """Remove from the Reconstruction `rec` (in place) every observation whose keypoint lies in its frame's
+    moving mask (a point left with fewer than two observations goes); returns how many."""
+    dropped = 0
+    for iid in rec.reg_image_ids():
+        img = rec.image(iid)
+        if img.name not in masks:
+            continue
+        cam = rec.cameras[img.camera_id]
+        idxs = np.asarray(img.get_observation_point2D_idxs(), np.int64)
+        if not len(idxs):
+            continue
+        xy = np.array([img.point2D(int(k)).xy for k in idxs], np.float64)
+        for k in idxs[moving_keypoints(xy, masks[img.name], cam.width, cam.height)]:
+            rec.delete_observation(iid, int(k))
+            dropped += 1
+    return dropped
+
+
+def full_size(mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A working-size mask `(h, w)` bool at the frame's size `(height, width)` bool (bilinear, halfway)."""
+    up = cv2.resize(mask.astype(np.uint8) * 255, (width, height), interpolation=cv2.INTER_LINEAR)
+    return up >= 128
+
+
+def encode_png(mask: np.ndarray) -> bytes:
+    """`(H, W)` bool -> PNG bytes, 8-bit single channel, 255 where masked."""
+    ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
+    if not ok:  # pragma: no cover - OpenCV always encodes uint8
+        raise SeeUError("PNG encoding of a mask failed")
+    return buf.tobytes()

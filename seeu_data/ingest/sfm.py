@@ -60,7 +60,7 @@ import signal
 import subprocess
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from seeu_data.errors import SeeUError
@@ -73,6 +73,7 @@ CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV
 MAPPERS = ("incremental", "global", "auto")
 MATCHERS = ("auto", "exhaustive", "sequential")
 FINAL_BA_LOSSES = ("none", "soft_l1", "cauchy", "huber")  # pycolmap.LossFunctionType, upper-cased
+DYNAMIC_MODES = ("off", "mask")  # --dynamic: moving content masked, or only looked for (seeu_data.ingest.motion)
 # The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
 # (Ceres' default; COLMAP sets 0, iterating to the gradient tolerance): 12 iterations instead of 56 on
 # a 40-frame clip, the cost within 2e-6 and the focal length within 3e-6 of the 56-iteration result.
@@ -180,6 +181,15 @@ class SfmConfig:
         choices=FINAL_BA_LOSSES,
     )
     final_ba_loss_scale: float = setting(0.5, "scale of --final-ba-loss in pixels", metavar="PX")
+    # Moving content of a video (seeu_data.ingest.motion): masked, or only checked for.
+    dynamic: str = setting(
+        "mask",
+        "moving content of a video (people, cars): mask: found from the optical flow between neighbouring "
+        "frames (before mapping, then against the SfM cameras), its keypoints left out of mapping and of the "
+        "final bundle adjustment, its per-frame masks written with the posed frames; off: not masked, only "
+        "looked for (moving content found fails the solution check)",
+        choices=DYNAMIC_MODES,
+    )
 
     def check(self) -> None:
         if self.camera_model not in CAMERA_MODELS:
@@ -206,6 +216,8 @@ class SfmConfig:
             raise SeeUError(f"--final-ba-loss must be one of {', '.join(FINAL_BA_LOSSES)}, got {self.final_ba_loss!r}")
         if not (self.final_ba_loss_scale > 0 and math.isfinite(self.final_ba_loss_scale)):
             raise SeeUError(f"--final-ba-loss-scale must be a finite number > 0, got {self.final_ba_loss_scale}")
+        if self.dynamic not in DYNAMIC_MODES:
+            raise SeeUError(f"--dynamic must be one of {', '.join(DYNAMIC_MODES)}, got {self.dynamic!r}")
         if self.features != "sift":
             _check_features_available(self.features)
 
@@ -1129,6 +1141,131 @@ def _export(job: _Job, recs: dict, kept: list[int]) -> list[dict]:
     return models
 
 
+# ---------------------------------------------------------------------------------------------
+# Moving content (--dynamic; seeu_data.ingest.motion): the SfM child's four hooks
+# ---------------------------------------------------------------------------------------------
+
+
+@dataclass
+class _Moving:
+    """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
+    result.json's "motion" {"mode", "judged" (a video: frames in time order), "first_pass", "keyframes",
+    "frames", "leave_out" (off), "masked_pct" {name: % of the frame}}."""
+
+    masks: dict
+    facts: dict
+
+
+def _motion_first(job: _Job) -> _Moving:
+    """--dynamic mask: moving content of a video from the flow alone, its matches dropped before mapping."""
+    moving = _Moving({}, {"mode": job.cfg.dynamic, "judged": job.video})
+    if job.cfg.dynamic != "mask" or not job.video:
+        return moving
+    from seeu_data.ingest.motion import drop_matches, first_pass
+
+    _emit("stage", "motion", len(job.names))
+    t0 = job.clock.mark()
+    moving.masks = first_pass(job.image_dir, job.names, on_frame=lambda: _emit("step"))
+    dropped = drop_matches(job.db_path, moving.masks)
+    moving.facts["first_pass"] = {"frames_with_motion": len(moving.masks), "matches_dropped": dropped}
+    job.clock.add("motion_s", t0)
+    return moving
+
+
+def _motion_keyframes(job: _Job, recs: dict, kf: Keyframes, moving: _Moving) -> None:
+    """A video's mapped frames against the flow their SfM cameras allow; mask: their observations in moving
+    regions dropped before the final bundle adjustment; off: the leave-out test (`_leave_out`)."""
+    if not job.video:
+        return
+    import pycolmap
+
+    from seeu_data.ingest.motion import drop_observations, model_pass
+
+    _emit("stage", "motion-check", len(kf.names))
+    t0 = job.clock.mark()
+    masks: dict = {}
+    for rec in recs.values():
+        names = [n for n in kf.names if n in {rec.image(i).name for i in rec.reg_image_ids()}]
+        masks.update(model_pass(job.image_dir, names, rec, on_frame=lambda: _emit("step")))
+    moving.masks = masks
+    facts = {"frames_with_motion": len(masks)}
+    if job.cfg.dynamic == "mask":
+        facts["observations_dropped"] = sum(drop_observations(rec, masks) for rec in recs.values())
+    elif masks:
+        moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
+    moving.facts["keyframes"] = facts
+    job.clock.add("motion_s", t0)
+
+
+def _leave_out(job: _Job, recs: dict, masks: dict) -> dict:
+    """How much the moving regions carry the models `recs` (copies): each adjusted as the final bundle
+    adjustment does, with and without their observations in `masks`; {"observations" (left out),
+    "centre_change_pct" (`model_disagreement_pct` of the two)}."""
+    import pycolmap
+
+    from seeu_data.ingest.motion import drop_observations
+
+    cfg = job.cfg if job.cfg.final_ba_loss != "none" else replace(job.cfg, final_ba_loss="soft_l1")
+    with_all = {k: final_bundle_adjustment(pycolmap.Reconstruction(r), cfg)[0] for k, r in recs.items()}
+    dropped = sum(drop_observations(r, masks) for r in recs.values())
+    without = {k: final_bundle_adjustment(r, cfg)[0] for k, r in recs.items()}
+    return {"observations": dropped, "centre_change_pct": model_disagreement_pct(with_all, without)}
+
+
+def _motion_frames(job: _Job, recs: dict, kf: Keyframes, moving: _Moving) -> None:
+    """--dynamic mask, keyframes: every registered frame against the SfM cameras (the final masks), its
+    observations in moving regions dropped (registered after the final adjustment: no adjustment follows)."""
+    if job.cfg.dynamic != "mask" or not job.video or kf.stride <= 1:
+        return
+    from seeu_data.ingest.motion import drop_observations, model_pass
+
+    _emit("stage", "motion-frames", len(job.names))
+    t0 = job.clock.mark()
+    masks: dict = {}
+    for rec in recs.values():
+        names = [n for n in job.names if n in {rec.image(i).name for i in rec.reg_image_ids()}]
+        masks.update(model_pass(job.image_dir, names, rec, on_frame=lambda: _emit("step")))
+    moving.masks = masks
+    dropped = sum(drop_observations(rec, masks) for rec in recs.values())
+    moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped}
+    job.clock.add("motion_s", t0)
+
+
+def _motion_export(job: _Job, recs: dict, models: list[dict], moving: _Moving) -> None:
+    """--dynamic mask: each exported model's frames' masks as masks/<k>/<name>.png (the frame's size,
+    undistorted as the frames are) and their masked share in "masked_pct"."""
+    if job.cfg.dynamic != "mask" or not moving.masks:
+        return
+    import cv2
+    import numpy as np
+
+    from seeu_data.ingest.motion import encode_png, full_size
+    from seeu_data.undistort import same_size_pinhole, undistort_maps
+
+    t0 = job.clock.mark()
+    pct: dict[str, float] = {}
+    for model in models:
+        rec = recs[model["index"]]
+        out = job.out / "masks" / str(model["index"])
+        maps: dict[int, tuple] = {}  # camera id -> the undistortion's remap maps
+        for iid in rec.reg_image_ids():
+            img = rec.image(iid)
+            if img.name not in moving.masks:
+                continue
+            camera = rec.cameras[img.camera_id]
+            mask = full_size(moving.masks[img.name], camera.width, camera.height)
+            if model["undistorted"]:
+                if img.camera_id not in maps:
+                    maps[img.camera_id] = undistort_maps(camera, same_size_pinhole(camera))
+                map_x, map_y = maps[img.camera_id]
+                mask = cv2.remap(mask.astype(np.uint8), map_x, map_y, cv2.INTER_NEAREST) > 0
+            (out / img.name).parent.mkdir(parents=True, exist_ok=True)
+            (out / img.name).write_bytes(encode_png(mask))
+            pct[img.name] = 100.0 * float(mask.mean())
+    moving.facts["masked_pct"] = pct
+    job.clock.add("motion_s", t0)
+
+
 def _child(job_path: str) -> int:
     """The SfM stage on job.json's frames: extract, match, keyframes, map, final BA, register, export."""
     raw = json.loads(Path(job_path).read_text())
@@ -1142,6 +1279,7 @@ def _child(job_path: str) -> int:
     try:
         num_kp = _extract(job)
         matches = _match(job)
+        moving = _motion_first(job)
         kf = _keyframes(job.names, matches.motion_px, job.cfg)
         mapped = _map(job, matches, kf)
     except _Failed as exc:
@@ -1149,10 +1287,13 @@ def _child(job_path: str) -> int:
         (out / "result.json").write_text(json.dumps(failed))
         return 0
     recs = mapped.recs
+    _motion_keyframes(job, recs, kf, moving)
     final_ba = _final_ba(job, recs)
     _register(job, recs, kf, mapped.check["kept_seed"])
+    _motion_frames(job, recs, kf, moving)
     kept, discarded = _keep_models(recs, mapped.rejected)
     models = _export(job, recs, kept)
+    _motion_export(job, recs, models, moving)
     result: dict = {
         "models": models,
         "discarded_models": discarded,
@@ -1164,6 +1305,7 @@ def _child(job_path: str) -> int:
         "solution_check": mapped.check,
         "keyframes": kf.info,
         "final_ba": final_ba,
+        "motion": moving.facts,
         "timings": job.clock.wall,
         "cpu_timings": job.clock.cpu,
     }
