@@ -202,6 +202,11 @@ def write_results(out: Path, res, extra: dict) -> dict:
             "timing": "ms per sample, encoder and renderer separately, after warm-up",
         },
     }
+    if "masked_fraction" in metrics:
+        summary["protocol"]["kept"] = (
+            "*_kept: without the masked pixels (PSNR over kept pixels; SSIM, LPIPS against the target with "
+            "its masked pixels filled from the prediction, SSIM over windows centred on kept pixels)"
+        )
     summary = _nan_to_none(summary)
     atomic_write_text(out / "summary.json", json.dumps(summary, indent=2) + "\n")
     return summary

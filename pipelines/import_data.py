@@ -79,10 +79,11 @@ def import_dataset(cfg: ImportConfig):
     """Import `cfg.source` into `cfg.out`; returns the `seeu_data.importers.ImportReport` (also in the
     manifest's `report`). Raises SeeUError when the input as a whole is unusable or no scene remains."""
     from seeu_data.importers import ImportReport, write_import
+    from seeu_data.importers.common import with_user_masks
     from seeu_data.store.manifest import provenance
 
     cfg.check()
-    job = cfg.source.plan()
+    job = with_user_masks(cfg.source.plan(), cfg.source)
     report = ImportReport(format=cfg.format)
     write_import(
         job.items,

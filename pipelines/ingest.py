@@ -33,6 +33,7 @@ from seeu_data.ingest.chunks import ChunkConfig
 from seeu_data.ingest.frame_select import SelectConfig
 from seeu_data.ingest.sfm import SfmConfig
 from seeu_data.limits import MAX_IMAGE_SIDE, MAX_WORKERS, check_range
+from seeu_data.masks import MASK_CONVENTIONS
 from seeu_data.settings import parse_dims, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
@@ -108,6 +109,17 @@ class IngestConfig:
         "refuse an image folder holding an entry with an image name that cannot be read as an image (a FIFO, "
         "a directory, no read permission, other bytes); default: skip it and name it in the summary",
     )
+    masks: str | None = setting(
+        None,
+        "folder of your own per-frame masks of moving content (DIR/<scene>/ when present, else DIR/), matched to "
+        "the frames by file name, else by frame number; of the decoded frames' size",
+        metavar="DIR",
+    )
+    mask_convention: str = setting(
+        "exclude",
+        "what nonzero --masks pixels are: excluded (moving content; 0 = kept) or kept (0 = excluded)",
+        choices=MASK_CONVENTIONS,
+    )
     jpeg_quality: int = 95
     select: SelectConfig = field(default_factory=SelectConfig)
     sfm: SfmConfig = field(default_factory=SfmConfig)
@@ -148,7 +160,7 @@ class IngestConfig:
 
     def params(self) -> dict:
         """The processing parameters (recorded in each manifest's params)."""
-        skip = ("inputs", "out", "name", "strict", "run")
+        skip = ("inputs", "out", "name", "strict", "run") + (("masks", "mask_convention") if self.masks is None else ())
         return {k: v for k, v in asdict(self).items() if k not in skip}
 
     def stage_sfm(self) -> SfmConfig:
@@ -537,6 +549,8 @@ def _write(
                 source_name=[f["source_name"] for f in fr],
                 meta={**c.meta, "source": str(source.path), **points},
             )
+            if cfg.masks is not None:
+                scene.masks = chunk_masks(cfg, source.name, c, fr)
             writer.add(scene if cfg.size is None else resize_scene(scene, cfg.size, cfg.jpeg_quality))
         cache.timings["write"] = time.perf_counter() - t0
         keys = ("frames_selected", "registered", "registration_rate", "frames_in_chunks", "mean_reprojection_error_px")
@@ -549,6 +563,36 @@ def _write(
         write_report(out_dir / "report.json", report, cfg.run.fsync)
         title = f"{source.name}: {chunked.registered}/{len(selected.frames)} registered, {len(chunked.chunks)} chunk(s)"
         plot_trajectory(out_dir / "trajectory.png", chunked.chunks, title, cfg.run.fsync)
+
+
+def chunk_masks(cfg: IngestConfig, scene: str, chunk, frames: list[dict]) -> list[bytes | None]:
+    """The chunk's frames' masks from `--masks` (`masks.masks_from_folder`), brought to the posed
+    frames as their images were: downscaled like the decoded frames (`--max-size`) and undistorted
+    with the chunk's camera when SfM undistorted the frames."""
+    import numpy as np
+    import pycolmap
+
+    from seeu_data.masks import masks_from_folder, resize_mask, undistort_mask
+
+    folder = Path(cfg.masks or "") / scene
+    folder = folder if folder.is_dir() else Path(cfg.masks or "")
+    if not folder.is_dir():
+        raise SeeUError("--masks: not a folder", folder)
+    cam = chunk.meta["camera_as_mapped"]
+    camera = pycolmap.Camera(model=cam["model"], width=cam["width"], height=cam["height"], params=cam["params"])
+    sizes = list(zip(np.asarray(chunk.width).tolist(), np.asarray(chunk.height).tolist()))
+
+    def fit(k: int, mask):
+        w, h = sizes[k]
+        if mask.shape != (h, w) and abs(mask.shape[1] * h - w * mask.shape[0]) <= max(mask.shape):
+            mask = resize_mask(mask, (h, w))  # the frames were downscaled (--max-size): same aspect
+        if chunk.meta["undistorted"] and (w, h) == (camera.width, camera.height):
+            mask = undistort_mask(mask, camera)
+        return mask
+
+    names = [f["source_name"] for f in frames]
+    numbers = [int(f["source_frame"]) for f in frames]
+    return masks_from_folder(folder, names, numbers, sizes, cfg.mask_convention, fit=fit)
 
 
 def _scene_worker(payload: tuple) -> SceneResult:

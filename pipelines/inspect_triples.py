@@ -107,7 +107,7 @@ def triple_statistics(root: Path, verify: bool = False) -> dict:
 
 
 def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
-    """Write a PNG of `n_rows` evenly spaced examples; return their sample ids."""
+    """Write a PNG of `n_rows` evenly spaced examples (masked pixels tinted magenta); return their sample ids."""
     import io
 
     from matplotlib.figure import Figure
@@ -115,6 +115,7 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
     from seeu_data.build.triples import TripleShards
     from seeu_data.errors import SeeUError
     from seeu_data.image_ops import decode_rgb
+    from seeu_data.masks import tint_masked
     from seeu_data.store.arrow_io import atomic_write_bytes
     from seeu_data.store.triple_row import TripleRow
 
@@ -147,7 +148,7 @@ def contact_sheet(root: Path, out: Path, n_rows: int = 6) -> list[str]:
                 ax.axis("off")
                 continue
             try:
-                ax.imshow(decode_rgb(row.images[c]))
+                ax.imshow(tint_masked(decode_rgb(row.images[c]), row.masks[c] if row.masks else None))
             except ValueError:
                 ax.text(0.5, 0.5, "undecodable", ha="center", va="center", transform=ax.transAxes)
             if c < v:

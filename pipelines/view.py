@@ -139,13 +139,15 @@ def evenly(n: int, limit: int) -> np.ndarray:
     return np.unique(np.round(np.linspace(0, n - 1, limit)).astype(int))
 
 
-def thumbnail(encoded, side: int) -> np.ndarray:
-    """Encoded image bytes -> (h, w, 3) uint8 RGB with its longest side at most `side`."""
+def thumbnail(encoded, side: int, mask=None) -> np.ndarray:
+    """Encoded image bytes -> (h, w, 3) uint8 RGB with its longest side at most `side`; the pixels of
+    `mask` (the frame's stored mask PNG, or None) tinted (`masks.tint_masked`)."""
     import cv2
 
     from seeu_data.image_ops import decode_rgb
+    from seeu_data.masks import tint_masked
 
-    img = decode_rgb(bytes(encoded))
+    img = tint_masked(decode_rgb(bytes(encoded)), mask)
     h, w = img.shape[:2]
     s = min(1.0, side / max(h, w))
     if s < 1.0:
@@ -313,7 +315,7 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
             wh,
             state["scale"] * 2.0,
             FRAME_RGB,
-            thumbnail(scene.images[k], FRAME_SIDE),
+            thumbnail(scene.images[k], FRAME_SIDE, scene.masks[k] if scene.masks else None),
         )
         info.content = f"**{scene.scene_id}**: frame {k} of {len(scene)} (source frame {int(scene.source_frame[k])})"
 
@@ -339,7 +341,7 @@ def show_posed(server: viser.ViserServer, source: SceneSource, notes: Notes, on_
                 wh,
                 scale,
                 CONTEXT_RGB,
-                thumbnail(scene.images[i], THUMB_SIDE),
+                thumbnail(scene.images[i], THUMB_SIDE, scene.masks[i] if scene.masks else None),
             )
         if len(centres) > 1:
             server.scene.add_line_segments(
@@ -427,7 +429,7 @@ def show_triple(server: viser.ViserServer, path: Path, sample: str, on_row=None)
                 (int(row.width[k]), int(row.height[k])),
                 scale,
                 CONTEXT_RGB if ctx else TARGET_RGB,
-                thumbnail(row.images[k], THUMB_SIDE),
+                thumbnail(row.images[k], THUMB_SIDE, row.masks[k] if row.masks else None),
             )
             label = f"frame {int(row.frame_index[k])}" + ("" if ctx else f" (offset {int(row.target_offset[k - v])})")
             server.scene.add_label(f"/triple/label_{k}", label, position=tuple(c2w[k, :3, 3]))

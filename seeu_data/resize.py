@@ -13,10 +13,12 @@ def resize_scene(
     scene: PosedScene, out_hw: tuple[int, int], jpeg_quality: int = 95, interpolation: str = "area"
 ) -> PosedScene:
     """The scene with every frame resized to cover `out_hw` (H, W) and centre-cropped (the peers'
-    crop; `seeu_data.image_ops`), intrinsics updated, frames re-encoded as JPEG."""
+    crop; `seeu_data.image_ops`), intrinsics updated, frames re-encoded as JPEG; masks follow
+    (`masks.resize_mask`)."""
     from dataclasses import replace
 
     from seeu_data.image_ops import decode_rgb, encode_jpeg, resize_cover_crop, resized_intrinsics
+    from seeu_data.masks import decode_mask, encode_mask, resize_mask
 
     images, intr = [], []
     for i, data in enumerate(scene.images):
@@ -29,6 +31,12 @@ def resize_scene(
             )
         images.append(encode_jpeg(resize_cover_crop(img, out_hw, interpolation), jpeg_quality))
         intr.append(resized_intrinsics(scene.intrinsics_norm[i], in_hw, out_hw))
+    masks = None
+    if scene.masks is not None:
+        masks = [
+            None if m is None else encode_mask(resize_mask(decode_mask(m, f"scene {scene.scene_id} frame {i}"), out_hw))
+            for i, m in enumerate(scene.masks)
+        ]
     n = len(scene)
     meta = {
         **scene.meta,
@@ -46,4 +54,5 @@ def resize_scene(
         height=np.full(n, out_hw[0]),
         intrinsics_norm=np.stack(intr),
         meta=meta,
+        masks=masks,
     )

@@ -2,6 +2,12 @@
 timed separately after warm-up, peak memory, and the peers' aggregation (mean over the targets of a
 scene, then over scenes).
 
+Where the target views have masks (the loader's `mask`: excluded pixels, moving or transient
+content), every target is also measured without its masked pixels (`seeu_model.metrics`: PSNR over
+the kept pixels, SSIM and LPIPS against the target with its masked pixels filled from the prediction,
+SSIM averaged over windows centred on kept pixels): `psnr_kept`, `ssim_kept`, `lpips_kept` and the
+`masked_fraction` of the target. The plain metrics stay over all pixels, as the peers compute them.
+
 The loop gets batches (the loader's layout, docs/ARCHITECTURE.md) from the pipeline and two callables:
 ``encode_fn(model, context) -> Gaussians`` and ``render_fn(gaussians, target) -> RenderOutput``.
 """
@@ -20,9 +26,10 @@ from dataclasses import asdict, dataclass, field
 import torch
 from torch import nn
 
-from seeu_model.metrics import psnr, ssim
+from seeu_model.metrics import fill_masked, psnr, ssim
 
 METRICS = ("psnr", "ssim", "lpips")
+KEPT_METRICS = ("psnr_kept", "ssim_kept", "lpips_kept", "masked_fraction")  # only where the data has masks
 
 
 @dataclass
@@ -37,6 +44,12 @@ class TargetRecord:
     ssim: float
     lpips: float = math.nan
     depth_rmse: float = math.nan  # only with ground-truth depth
+    # without the masked pixels (module docstring); NaN where the batch has no mask (the target's own
+    # may be all kept: masked_fraction 0, the kept metrics then equal the plain ones)
+    psnr_kept: float = math.nan
+    ssim_kept: float = math.nan
+    lpips_kept: float = math.nan
+    masked_fraction: float = math.nan
 
 
 @dataclass
@@ -133,6 +146,14 @@ def evaluate_model(
             s = ssim(pred, gt)
             lp = lpips_fn(pred, gt) if lpips_fn is not None else None
             d = depth_fn(batch, render) if depth_fn is not None else None
+            mask = batch["target"].get("mask")  # (B, T, H, W) bool or None
+            if mask is not None:
+                frac = mask.flatten(2).float().mean(-1)  # (B, T)
+                kept = {
+                    "psnr_kept": psnr(pred, gt, mask=mask),
+                    "ssim_kept": ssim(pred, gt, mask=mask),
+                    "lpips_kept": lpips_fn(pred, fill_masked(pred, gt, mask)) if lpips_fn is not None else None,
+                }
             pad = batch.get("is_padding")
             for k in range(b):
                 if pad is not None and bool(pad[k]):
@@ -140,18 +161,22 @@ def evaluate_model(
                 if max_samples and seen >= max_samples:
                     break
                 for j in range(pred.shape[1]):
-                    out.records.append(
-                        TargetRecord(
-                            batch["scene_id"][k],
-                            batch["sample_id"][k],
-                            j,
-                            int(batch["target"]["frame_index"][k, j]),
-                            float(p[k, j]),
-                            float(s[k, j]),
-                            float(lp[k, j]) if lp is not None else math.nan,
-                            float(d[k, j]) if d is not None else math.nan,
-                        )
+                    record = TargetRecord(
+                        batch["scene_id"][k],
+                        batch["sample_id"][k],
+                        j,
+                        int(batch["target"]["frame_index"][k, j]),
+                        float(p[k, j]),
+                        float(s[k, j]),
+                        float(lp[k, j]) if lp is not None else math.nan,
+                        float(d[k, j]) if d is not None else math.nan,
                     )
+                    if mask is not None:
+                        record.masked_fraction = float(frac[k, j])
+                        for name, values in kept.items():
+                            if values is not None and record.masked_fraction < 1.0:
+                                setattr(record, name, float(values[k, j]))
+                    out.records.append(record)
                 if geometry_fn is not None:
                     gm = geometry_fn(batch, gaussians, k)
                     if gm is not None:
@@ -192,16 +217,30 @@ def evaluate_model(
     return out
 
 
+def _reported(records: list[TargetRecord]) -> tuple[str, ...]:
+    """The metrics to aggregate: the kept-pixel ones too when any target was measured with a mask."""
+    masked = any(not math.isnan(r.masked_fraction) for r in records)
+    return (*METRICS, "depth_rmse", *(KEPT_METRICS if masked else ()))
+
+
+def _value(r: TargetRecord, m: str) -> float:
+    """Metric `m` of a target; a target measured without a mask (its batch had none) counts for the
+    kept-pixel metrics with its plain values (masked_fraction 0)."""
+    if m in KEPT_METRICS and math.isnan(r.masked_fraction):
+        return 0.0 if m == "masked_fraction" else getattr(r, m.removesuffix("_kept"))
+    return getattr(r, m)
+
+
 def per_scene(records: list[TargetRecord]) -> OrderedDict[str, dict]:
-    """scene_id -> {num_targets, psnr, ssim, lpips, depth_rmse}: means over the scene's targets."""
+    """scene_id -> {num_targets, psnr, ssim, lpips, depth_rmse (, KEPT_METRICS)}: means over the scene's targets."""
     groups: OrderedDict[str, list[TargetRecord]] = OrderedDict()
     for r in records:
         groups.setdefault(r.scene_id, []).append(r)
     out: OrderedDict[str, dict] = OrderedDict()
     for scene, rs in groups.items():
         row: dict[str, float] = {"num_targets": len(rs)}
-        for m in (*METRICS, "depth_rmse"):
-            vals = [getattr(r, m) for r in rs if not math.isnan(getattr(r, m))]
+        for m in _reported(records):
+            vals = [v for v in (_value(r, m) for r in rs) if not math.isnan(v)]
             row[m] = sum(vals) / len(vals) if vals else math.nan
         out[scene] = row
     return out
@@ -216,10 +255,10 @@ def summarize(records: list[TargetRecord]) -> dict:
         "num_samples": len({r.sample_id for r in records}),
         "num_targets": len(records),
     }
-    for m in (*METRICS, "depth_rmse"):
+    for m in _reported(records):
         vals = [row[m] for row in scenes.values() if not math.isnan(row[m])]
         out[m] = sum(vals) / len(vals) if vals else math.nan
-        flat = [getattr(r, m) for r in records if not math.isnan(getattr(r, m))]
+        flat = [v for v in (_value(r, m) for r in records) if not math.isnan(v)]
         out[f"{m}_all_targets"] = sum(flat) / len(flat) if flat else math.nan
     return out
 

@@ -10,6 +10,12 @@
 * LPIPS: see `seeu_model.lpips_loss`.
 
 All functions take images ``(..., 3, H, W)`` in [0, 1] and return one value per image ``(...)``.
+
+Masks (``(..., H, W)`` bool, True = excluded pixel: moving or transient content) leave pixels out:
+PSNR averages the squared error over the kept pixels; SSIM and LPIPS, whose windows and features see
+a neighbourhood, compare the prediction with the target whose masked pixels are replaced by the
+prediction (`fill_masked`), so nothing under the mask counts; SSIM then averages its map over the
+windows centred on kept pixels, LPIPS (`seeu_model.lpips_loss`) over the whole image as usual.
 """
 
 from __future__ import annotations
@@ -25,12 +31,26 @@ SSIM_K1 = 0.01
 SSIM_K2 = 0.03
 
 
-def psnr(pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-10) -> torch.Tensor:
-    """Per-image PSNR in dB. pred, target: ``(..., C, H, W)`` -> ``(...)``. Inputs are clipped to [0, 1]."""
+def psnr(
+    pred: torch.Tensor, target: torch.Tensor, eps: float = 1e-10, mask: torch.Tensor | None = None
+) -> torch.Tensor:
+    """Per-image PSNR in dB. pred, target: ``(..., C, H, W)`` -> ``(...)``. Inputs are clipped to [0, 1].
+    mask: ``(..., H, W)`` bool, True = excluded pixel: the MSE is the mean over the kept pixels only
+    (an image with none kept gets MSE 0, i.e. the `eps` bound)."""
     if pred.shape != target.shape:
         raise ValueError(f"psnr: shape mismatch {tuple(pred.shape)} vs {tuple(target.shape)}")
-    mse = (pred.clamp(0, 1) - target.clamp(0, 1)).pow(2).flatten(-3).mean(-1)
+    err = (pred.clamp(0, 1) - target.clamp(0, 1)).pow(2)
+    if mask is None:
+        mse = err.flatten(-3).mean(-1)
+    else:
+        keep = (~mask).unsqueeze(-3).to(err.dtype)
+        mse = (err * keep).flatten(-3).sum(-1) / (keep.flatten(-3).sum(-1) * err.shape[-3]).clamp_min(1.0)
     return -10.0 * torch.log10(mse.clamp_min(eps))
+
+
+def fill_masked(pred: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """`target` ``(..., C, H, W)`` with its masked pixels (mask ``(..., H, W)`` True) taken from `pred`."""
+    return torch.where(mask.unsqueeze(-3), pred, target)
 
 
 def gaussian_window_1d(
@@ -60,11 +80,16 @@ def ssim(
     sigma: float = SSIM_SIGMA,
     use_sample_covariance: bool = True,
     clip: bool = True,
+    mask: torch.Tensor | None = None,
 ) -> torch.Tensor:
     """Per-image SSIM matching scikit-image's Gaussian-window SSIM (mean over channels and valid pixels).
 
     pred, target: ``(..., C, H, W)`` -> ``(...)``. Computed in float64 for parity with scikit-image.
+    mask: ``(..., H, W)`` bool, True = excluded pixel: SSIM of `pred` and `fill_masked(pred, target,
+    mask)`, averaged over the windows centred on kept pixels (NaN for an image with none).
     """
+    if mask is not None:
+        target = fill_masked(pred, target, mask)
     if pred.shape != target.shape:
         raise ValueError(f"ssim: shape mismatch {tuple(pred.shape)} vs {tuple(target.shape)}")
     if min(pred.shape[-2:]) < win_size:
@@ -87,7 +112,11 @@ def ssim(
     c1 = (SSIM_K1 * data_range) ** 2
     c2 = (SSIM_K2 * data_range) ** 2
     s = ((2 * ux * uy + c1) * (2 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
-    return s.flatten(1).mean(-1).to(pred.dtype).reshape(lead)
+    if mask is None:
+        return s.flatten(1).mean(-1).to(pred.dtype).reshape(lead)
+    r = win_size // 2  # the valid region's window centres
+    keep = (~mask.reshape(-1, 1, h, w))[..., r : h - r, r : w - r].expand_as(s).to(s.dtype)
+    return ((s * keep).flatten(1).sum(-1) / keep.flatten(1).sum(-1)).to(pred.dtype).reshape(lead)
 
 
 def mse_to_psnr(mse: float) -> float:

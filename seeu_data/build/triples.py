@@ -8,7 +8,7 @@ A triples directory::
 
 Each row is self-contained: V context views then T target views, every per-view column a list of
 V + T entries (frame_index, source_frame, image, width, height, intrinsics_norm, cam_to_world,
-near, far), plus `gap` and per-target `target_offset`.
+near, far, mask: null for a view without one), plus `gap` and per-target `target_offset`.
 
 `write_shard(spec, path)` writes the shard of a `ShardSpec` (samples, where their posed rows are,
 image options), a pure function of it: the local process pool and the Ray engine both call it,
@@ -178,7 +178,10 @@ def _posed_rows(spec: ShardSpec, scene_id: str, files: dict[str, pa.Table]) -> p
     first = rows.column("scene_id")[0].as_py()
     if first != scene_id:
         raise SeeUError(f"rows of scene {scene_id!r} hold scene {first!r} (manifest out of date?)", src.path)
-    return rows.select(_POSED_COLUMNS)
+    rows = rows.select(_POSED_COLUMNS + [c for c in ("mask",) if c in rows.schema.names])
+    if "mask" not in rows.schema.names:  # posed frames of schema 1.0: no masks
+        rows = rows.append_column("mask", pa.nulls(rows.num_rows, pa.binary()))
+    return rows
 
 
 def _value_views(column: pa.ChunkedArray) -> list[memoryview]:
@@ -205,9 +208,11 @@ def _resize_views(
     view_frame: np.ndarray,
     opts: ImageOptions,
     sources: dict[str, SceneRows],
-) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray]:
-    """Decode, resize + centre-crop and re-encode every view (cached per scene frame within the shard)."""
+) -> tuple[list[bytes], np.ndarray, np.ndarray, np.ndarray, list[bytes | None]]:
+    """Decode, resize + centre-crop and re-encode every view and its mask (`masks.resize_mask`; cached
+    per scene frame within the shard)."""
     from seeu_data.image_ops import decode_rgb, encode_jpeg, encode_png, resize_cover_crop, resized_intrinsics
+    from seeu_data.masks import decode_mask, encode_mask, resize_mask
 
     assert opts.resize is not None
     out_h, out_w = opts.resize
@@ -215,8 +220,10 @@ def _resize_views(
     heights = taken.column("height").to_numpy()
     widths = taken.column("width").to_numpy()
     intr = taken.column("intrinsics_norm").combine_chunks().flatten().to_numpy().reshape(-1, 4)
+    masks_in = taken.column("mask").to_pylist()
     cache: dict[tuple[str, int], bytes] = {}
-    out = []
+    mask_cache: dict[tuple[str, int], bytes | None] = {}
+    out, masks = [], []
     for i, (sid, f) in enumerate(zip(view_scene, view_frame)):
         key = (sid, int(f))
         if key not in cache:
@@ -234,7 +241,13 @@ def _resize_views(
                 )
             img = resize_cover_crop(img, (out_h, out_w), opts.interpolation)
             cache[key] = encode_png(img) if fmts[i] == "png" else encode_jpeg(img, opts.jpeg_quality)
+            mask = masks_in[i]
+            where = f"scene {sid!r} frame {int(f)}"
+            mask_cache[key] = (
+                None if mask is None else encode_mask(resize_mask(decode_mask(mask, where), (out_h, out_w)))
+            )
         out.append(cache[key])
+        masks.append(mask_cache[key])
     new_intr = (
         np.stack(
             [resized_intrinsics(intr[i], (int(heights[i]), int(widths[i])), (out_h, out_w)) for i in range(len(out))]
@@ -243,7 +256,7 @@ def _resize_views(
         else np.zeros((0, 4))
     )
     n = len(out)
-    return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr
+    return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr, masks
 
 
 def build_shard_table(spec: ShardSpec) -> pa.Table:
@@ -277,10 +290,12 @@ def build_shard_table(spec: ShardSpec) -> pa.Table:
     if opts.resize is None:
         width, height = taken.column("width"), taken.column("height")
         intr = taken.column("intrinsics_norm")
+        masks = taken.column("mask")
     else:
-        images, w, h, intr_np = _resize_views(taken, images, view_scene, view_frame, opts, spec.sources)
+        images, w, h, intr_np, mask_list = _resize_views(taken, images, view_scene, view_frame, opts, spec.sources)
         width, height = pa.array(w), pa.array(h)
         intr = pa.FixedSizeListArray.from_arrays(pa.array(intr_np.reshape(-1)), 4)
+        masks = pa.array(mask_list, pa.binary())
     per_view = {
         "frame_index": pa.array(view_frame.astype(np.int32)),
         "source_frame": taken.column("source_frame"),
@@ -290,6 +305,7 @@ def build_shard_table(spec: ShardSpec) -> pa.Table:
         "cam_to_world": taken.column("cam_to_world"),
         "near": taken.column("near"),
         "far": taken.column("far"),
+        "mask": masks,
     }
     if spec.near_far is not None:  # `seeu build --near/--far`: the user's bounds instead of the data's
         for key, value in zip(("near", "far"), spec.near_far):

@@ -6,7 +6,10 @@ and the pinhole intrinsics in pixels `fl_x, fl_y, cx, cy, w, h` (per frame, whic
 dataparser accepts), with `camera_model` "OPENCV" and zero distortion. No `applied_transform` is
 written: the world frame is the posed dataset's. A `seeu` block (scene id, near/far, meta) and per-
 frame `seeu_*` keys (source frame, name, timestamp) make `seeu import nerfstudio` lossless; nerfstudio
-ignores unknown keys. Each transforms.json is written atomically after its images.
+ignores unknown keys. Frames with a mask get `mask_path` (`masks/frame_00000.png`) in nerfstudio's
+convention, 0 = pixel ignored, 255 = kept (the stored mask inverted), which its dataparser applies to
+the loss and `seeu import nerfstudio` reads back. Each transforms.json is written atomically after its
+images and masks.
 When the posed scene carries SfM points (`meta["points3d"]`, written by `seeu ingest`), they are
 copied to `sparse_pc.ply` (x y z + red green blue, in the transforms' world frame) and named in
 `ply_file_path`, the key nerfstudio's dataparser reads the splatfacto initial point cloud from.
@@ -23,6 +26,7 @@ import numpy as np
 
 from seeu_data.cameras import intrinsics_pixels, opengl_from_opencv
 from seeu_data.errors import SeeUError
+from seeu_data.masks import decode_mask, encode_mask
 from seeu_data.settings import parse_scene_ids, setting
 from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text
 from seeu_data.store.image_header import extension_for
@@ -38,6 +42,11 @@ class NerfstudioExportConfig:
     scenes: list[str] | None = setting(
         None, "export only these scene ids: a,b,c or @file.txt", parse=parse_scene_ids, metavar="SCENES"
     )
+
+
+def nerfstudio_mask_name(i: int) -> str:
+    """The relative `mask_path` of frame `i` of an exported scene."""
+    return f"masks/frame_{i:05d}.png"
 
 
 def transforms_for_scene(scene: PosedScene) -> tuple[dict, list[str]]:
@@ -65,6 +74,8 @@ def transforms_for_scene(scene: PosedScene) -> tuple[dict, list[str]]:
                 "seeu_timestamp_us": int(scene.timestamp_us[i]),
             }
         )
+        if scene.masks is not None and scene.masks[i] is not None:
+            frames[-1]["mask_path"] = nerfstudio_mask_name(i)
     doc = {
         "camera_model": "OPENCV",
         "k1": 0.0,
@@ -119,6 +130,9 @@ def export_nerfstudio(dataset: PosedDataset, cfg: NerfstudioExportConfig, progre
         doc, names = transforms_for_scene(scene)
         for name, data in zip(names, scene.images):
             atomic_write_bytes(folder / name, data)
+        for i, mask in enumerate(scene.masks or []):
+            if mask is not None:  # nerfstudio's convention: nonzero = kept
+                atomic_write_bytes(folder / nerfstudio_mask_name(i), encode_mask(~decode_mask(mask)))
         points = _points_file(dataset.root, scene.meta.get("points3d"))
         if points is not None:
             atomic_write_bytes(folder / SPARSE_PLY, points.read_bytes())

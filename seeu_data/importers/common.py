@@ -3,8 +3,9 @@
 from __future__ import annotations
 
 import sys
-from collections.abc import Callable, Iterable, Sequence
-from dataclasses import asdict, dataclass, field, fields
+from collections.abc import Callable, Iterable, Iterator, Sequence
+from dataclasses import asdict, dataclass, field, fields, replace
+from functools import partial
 from itertools import takewhile
 from pathlib import Path
 
@@ -13,13 +14,14 @@ import numpy as np
 from seeu_data.errors import SeeUError
 from seeu_data.importers.prefetch import prefetch
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.masks import MASK_CONVENTIONS, masks_from_folder
 from seeu_data.settings import parse_pixels, setting
 from seeu_data.store.arrow_io import BytesLike
 from seeu_data.store.dataset_check import check_image
 from seeu_data.store.image_header import decode_check
 from seeu_data.store.manifest import FileEntry, read_manifest
 from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
-from seeu_data.store.resume import Journal, file_intact, stamp_of, sweep
+from seeu_data.store.resume import Journal, file_intact, files_fingerprint, stamp_of, sweep
 
 RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
 _UNIT_END = object()
@@ -27,7 +29,8 @@ _UNIT_END = object()
 
 @dataclass(kw_only=True)
 class ReadSettings:
-    """How every importer reads images: the base of each format's config (`--verify-decode`, `--max-pixels`)."""
+    """How every importer reads images: the base of each format's config (`--verify-decode`, `--max-pixels`,
+    a user's own mask folder: `--masks`, `--mask-convention`, applied by `with_user_masks`)."""
 
     verify_decode: bool = setting(False, "fully decode every image (slow); default: header + trailer check")
     max_pixels: int = setting(
@@ -36,6 +39,17 @@ class ReadSettings:
         "60000x60000 would make later stages allocate gigabytes",
         parse=parse_pixels,
         metavar="N",
+    )
+    masks: Path | None = setting(
+        None,
+        "folder of your own per-frame masks (DIR/<scene id>/ when present, else DIR/), matched to frames by file "
+        "name, else by the last number in the name; each of its frame's size",
+        metavar="DIR",
+    )
+    mask_convention: str = setting(
+        "exclude",
+        "what nonzero mask pixels are: excluded (moving content; 0 = kept) or kept (0 = excluded, as nerfstudio)",
+        choices=MASK_CONVENTIONS,
     )
 
 
@@ -51,7 +65,8 @@ def recorded_params(cfg: ReadSettings, format: str, **resolved) -> dict:
             return sorted(v)
         return list(v) if isinstance(v, tuple) else v
 
-    params = {f.name: plain(getattr(cfg, f.name)) for f in fields(cfg) if f.name != "max_pixels"}
+    unrecorded = {"max_pixels"} | ({"masks", "mask_convention"} if cfg.masks is None else set())
+    params = {f.name: plain(getattr(cfg, f.name)) for f in fields(cfg) if f.name not in unrecorded}
     return {"format": format, **params, **resolved}
 
 
@@ -194,6 +209,68 @@ class _ImportWriter(PosedDatasetWriter):
         self.files.append(FileEntry(**record["file"]))
         self.scenes.extend(record["scenes"])
         self._seen.update(s["scene_id"] for s in record["scenes"])
+
+
+def user_masks(scene: PosedScene, cfg: ReadSettings) -> PosedScene | SkippedScene:
+    """`scene` with the masks of `cfg.masks` (`masks.masks_from_folder`: DIR/<scene id>/ when it is a
+    folder, else DIR/); a SkippedScene with the one-line reason when none matches or a size differs, or
+    when the importer undistorted the frames (their masks would need the same warp)."""
+    assert cfg.masks is not None
+    folder = Path(cfg.masks) / scene.scene_id
+    folder = folder if folder.is_dir() else Path(cfg.masks)
+    if scene.meta.get("undistorted"):
+        return SkippedScene(
+            scene.scene_id,
+            "--masks with frames the importer undistorted (undistort the masks too, and import undistorted frames)",
+        )
+    try:
+        sizes = list(zip(np.asarray(scene.width).tolist(), np.asarray(scene.height).tolist()))
+        masks = masks_from_folder(
+            folder,
+            scene.source_name or [""] * len(scene),
+            np.asarray(scene.source_frame).tolist(),
+            sizes,
+            cfg.mask_convention,
+            cfg.max_pixels,
+        )
+    except SeeUError as exc:
+        return SkippedScene(scene.scene_id, f"--masks: {exc}")
+    scene.masks = masks
+    scene.meta = {
+        **scene.meta,
+        "masks": {
+            "source": str(folder),
+            "convention": cfg.mask_convention,
+            "frames": sum(m is not None for m in masks),
+        },
+    }
+    return scene
+
+
+def _masked_read(
+    read: Callable[[], Iterable[PosedScene | SkippedScene]], cfg: ReadSettings
+) -> Iterator[PosedScene | SkippedScene]:
+    for item in read():
+        yield user_masks(item, cfg) if isinstance(item, PosedScene) else item
+
+
+def with_user_masks(job: ImportJob, cfg: ReadSettings) -> ImportJob:
+    """`job` whose scenes get the masks of `cfg.masks` (`user_masks`); the mask files join the resume
+    fingerprint. `job` as it is when `cfg.masks` is None."""
+    if cfg.masks is None:
+        return job
+    folder = Path(cfg.masks)
+    if not folder.is_dir():
+        raise SeeUError("--masks: not a folder", folder)
+
+    if isinstance(job.items, ImportPlan):
+        plan = job.items
+    else:
+        items = job.items
+        plan = ImportPlan([ImportUnit(None, "", lambda: items)])
+    units = [ImportUnit(u.key, u.fingerprint, partial(_masked_read, u.read, cfg)) for u in plan.units]
+    masks_seen = files_fingerprint(sorted(p for p in folder.rglob("*") if p.is_file()))
+    return replace(job, items=ImportPlan(units, plan.seen, plan.fingerprint + masks_seen))
 
 
 def _prepare(item: PosedScene | SkippedScene) -> PosedScene | SkippedScene:

@@ -5,8 +5,10 @@ files with only `camera_angle_x` get f = w / (2 tan(angle / 2)) and a centred pr
 `camera_model` (OPENCV, the default, OPENCV_FISHEYE, PINHOLE or SIMPLE_PINHOLE), the distortion
 `k1`, `k2`, `k3`, `p1`, `p2` (OPENCV) or `k1..k4` (OPENCV_FISHEYE), `frames[].file_path` (relative to
 the JSON's folder and inside it, see `seeu_data.store.paths`; a missing extension tries .png/.jpg),
-`frames[].transform_matrix` (4x4 or 3x4 OpenGL camera-to-world: +x right, +y up, +z backward) and
-`applied_transform` (3x4).
+`frames[].transform_matrix` (4x4 or 3x4 OpenGL camera-to-world: +x right, +y up, +z backward),
+`frames[].mask_path` (optional, relative to the JSON's folder like `file_path`: nerfstudio's mask,
+0 = pixel ignored, nonzero = kept, as its dataparser reads it; stored as this toolkit's excluded-pixel
+mask, undistorted with its frame) and `applied_transform` (3x4).
 
 World frame written: `ns-process-data` stores `applied_transform @ c2w` (it swaps the COLMAP world's
 y and z axes and negates the new z). By default this importer undoes it, so the poses are in the
@@ -41,6 +43,7 @@ from seeu_data.cameras import homogeneous_from_3x4, intrinsics_norm_from_pixels,
 from seeu_data.errors import SeeUError
 from seeu_data.importers.common import ImportJob, ReadSettings, SkippedScene, probe_images, recorded_params
 from seeu_data.limits import MAX_PIXELS
+from seeu_data.masks import encode_mask, read_mask_file, undistort_mask
 from seeu_data.settings import setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.paths import contained_path
@@ -143,6 +146,27 @@ def load_transforms(path: Path) -> dict:
     return doc
 
 
+def frame_masks(
+    cfg: NerfstudioImportConfig, frames: list[dict], path: Path, width: np.ndarray, height: np.ndarray
+) -> list[np.ndarray | None] | None:
+    """Each frame's `mask_path` mask as (H, W) bool, True = excluded (nerfstudio: 0 = ignore), None for a
+    frame without one; None when no frame has one. SeeUError naming the mask when it cannot be read,
+    leads outside the JSON's folder (unless `allow_outside_paths`) or is not its frame's size."""
+    if not any("mask_path" in f for f in frames):
+        return None
+    out: list[np.ndarray | None] = []
+    for k, f in enumerate(frames):
+        if f.get("mask_path") is None:
+            out.append(None)
+            continue
+        mpath = contained_path(path.parent, f["mask_path"], "frame mask_path", path, cfg.allow_outside_paths)
+        mask = read_mask_file(mpath, "keep", cfg.max_pixels)
+        if mask.shape != (int(height[k]), int(width[k])):
+            raise SeeUError(f"mask is {mask.shape[1]}x{mask.shape[0]}, its frame {width[k]}x{height[k]}", mpath)
+        out.append(mask)
+    return out
+
+
 def frame_paths(cfg: NerfstudioImportConfig, doc: dict) -> tuple[list[Path | None], dict[str, str]]:
     """Each frame's image path (doc order), None for a `file_path` leading outside the JSON's folder
     (unless `allow_outside_paths`), and those file_paths -> the one-line reason."""
@@ -235,6 +259,12 @@ def colmap_camera(K: np.ndarray, model: str, dist: dict) -> tuple[str, list[floa
     return "OPENCV", base + [d("k1"), d("k2"), d("p1"), d("p2")]
 
 
+def _pycolmap_camera(model: str, params: list[float], width: int, height: int):
+    import pycolmap
+
+    return pycolmap.Camera(model=model, width=width, height=height, params=params)
+
+
 def undistort_frames(
     paths: list[Path], cameras: list[tuple[str, list[float], int, int]], max_pixels: int = MAX_PIXELS
 ) -> tuple[list[bytes], list[np.ndarray], list[tuple[int, int]]]:
@@ -245,8 +275,6 @@ def undistort_frames(
     frame's own format), pixel K (3, 3) and (w, h) per frame.
     """
     import tempfile
-
-    import pycolmap
 
     data: list[bytes] = [b""] * len(paths)
     Ks: list[np.ndarray] = [np.eye(3)] * len(paths)
@@ -260,7 +288,7 @@ def undistort_frames(
         for k, p in enumerate(paths):
             (links / link(k)).symlink_to(Path(p).resolve())
         for (name, params, w, h), ks in groups.items():
-            camera = pycolmap.Camera(model=name, width=w, height=h, params=list(params))
+            camera = _pycolmap_camera(name, list(params), w, h)
             try:
                 pin = undistort_files(camera, links, [link(k) for k in ks], out, max_pixels=max_pixels)
             except ValueError as exc:
@@ -330,6 +358,7 @@ def scene_from_doc(
         paths = [p for _, p in pairs]
         images = [p.read_bytes() for p in paths]
         fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
+        masks = frame_masks(cfg, frames, path, width, height)
         Ks, sizes, c2w_gl, distorted = [], [], [], {}
         for k, f in enumerate(frames):
             K, w, h, model, dist = _camera(doc, f, path, (int(width[k]), int(height[k])))
@@ -355,6 +384,9 @@ def scene_from_doc(
             )
             for j, k in enumerate(keys):
                 images[k], Ks[k], sizes[k] = data[j], und_K[j], und_sizes[j]
+                mask = None if masks is None else masks[k]
+                if mask is not None:
+                    masks[k] = undistort_mask(mask, _pycolmap_camera(*distorted[k]))  # type: ignore[index]
             fmt, width, height = probe_images(images, [str(p) for p in paths], cfg.verify_decode, cfg.max_pixels)
         intr = [intrinsics_norm_from_pixels(K, w, h) for K, (w, h) in zip(Ks, sizes)]
         names = [f["file_path"] for f in frames]
@@ -411,4 +443,5 @@ def scene_from_doc(
         timestamp_us=timestamps,
         source_name=[str(f.get("seeu_source_name", n)) for f, n in zip(frames, names)],
         meta=meta,
+        masks=None if masks is None else [None if m is None else encode_mask(m) for m in masks],
     )

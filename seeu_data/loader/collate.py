@@ -3,7 +3,8 @@
 ```
 {"context": {"image": (B, Vc, 3, H, W) uint8 RGB (default; or float32 in [0, 1] with image_dtype="float32"),
              "cam_to_world": (B, Vc, 4, 4) float32, "intrinsics": (B, Vc, 3, 3) float32 normalised,
-             "near": (B, Vc) float32, "far": (B, Vc) float32, "frame_index": (B, Vc) int64},
+             "near": (B, Vc) float32, "far": (B, Vc) float32, "frame_index": (B, Vc) int64,
+             "mask": (B, Vc, H, W) bool, True = excluded pixel -- only in batches where a view has a mask},
  "target": {same keys, Vt views},
  "scene_id": list[str] (B), "sample_id": list[str] (B), "is_padding": (B,) bool}
 ```
@@ -70,9 +71,15 @@ def collate_views(
             )
     if images is None:
         images = np.stack([s.images for s in samples])
+    masks = None
+    if any(s.masks is not None for s in samples):
+        masks = np.zeros(images.shape[:2] + images.shape[3:], dtype=bool)  # (B, V, H, W)
+        for k, s in enumerate(samples):
+            if s.masks is not None:
+                masks[k] = s.masks
 
     def part(sl: slice) -> dict:
-        return {
+        views = {
             "image": images_to_tensor(images[:, sl], image_dtype),
             "cam_to_world": np.stack([s.cam_to_world[sl] for s in samples]).astype(np.float32),
             "intrinsics": cameras.intrinsics_norm_matrix(np.stack([s.intrinsics_norm[sl] for s in samples])).astype(
@@ -82,6 +89,9 @@ def collate_views(
             "far": np.stack([s.far[sl] for s in samples]),
             "frame_index": np.stack([s.frame_index[sl] for s in samples]),
         }
+        if masks is not None:
+            views["mask"] = masks[:, sl]
+        return views
 
     batch = {
         "context": part(slice(0, vc)),

@@ -10,7 +10,9 @@
                "intrinsics": (B, V, 3, 3) float32   normalised (row 0 / W, row 1 / H)
                "image":      (B, V, 3, H, W) float32 in [0, 1]
                "near", "far": (B, V) float32
-               "index":      (B, V) int64           the frames' indices in their scene},
+               "index":      (B, V) int64           the frames' indices in their scene,
+               "mask":       (B, V, H, W) bool      True = excluded pixel; an extra key, only in
+                                                    batches where a view has a mask},
    "target":  {... the same with T},
    "scene":   [B scene ids],
    "is_padding": (B,) bool}
@@ -35,7 +37,7 @@ BATCH_FORMATS = ("seeu", "pixelsplat")
 
 def pixelsplat_views(views: Views) -> dict[str, Any]:
     """One side (context or target) of a loader batch in the peers' keys and order; images float32 in [0, 1]."""
-    return {
+    out = {
         "extrinsics": views["cam_to_world"],
         "intrinsics": views["intrinsics"],
         "image": image_to_float(views["image"]),
@@ -43,6 +45,9 @@ def pixelsplat_views(views: Views) -> dict[str, Any]:
         "far": views["far"],
         "index": views["frame_index"],
     }
+    if "mask" in views:
+        out["mask"] = views["mask"]
+    return out
 
 
 def to_pixelsplat(batch: Batch) -> dict[str, Any]:

@@ -2,8 +2,8 @@
 
 A shard holds record batches of `seeu.triples` rows (`schemas/triples.v1.json`). The reader keeps
 a row -> (batch, row in batch) table and, per record batch it has touched, the per-view columns as
-flat numpy arrays. A row comes back as a `triple_row.TripleRow`, its encoded images memoryviews
-straight into the memory map (no copy).
+flat numpy arrays. A row comes back as a `triple_row.TripleRow`, its encoded images (and masks, where
+the shard has them) memoryviews straight into the memory map (no copy).
 """
 
 from __future__ import annotations
@@ -61,10 +61,21 @@ class _BatchColumns:
         self.intrinsics = col("intrinsics_norm").values.flatten().to_numpy().reshape(-1, 4)
         self.cam_to_world = col("cam_to_world").values.flatten().to_numpy().reshape(-1, 4, 4)
         self.image_offsets, self.image_data = _binary_parts(col("image").values)
+        self.has_mask = None  # (views,) bool, or None: no view of the batch has a mask
+        if "mask" in batch.schema.names and col("mask").values.null_count < len(col("mask").values):
+            if not np.array_equal(np.asarray(col("mask").offsets), self.view_offsets):
+                raise SeeUError("column mask has a different number of views than frame_index", where)
+            masks = col("mask").values
+            self.has_mask = masks.is_valid().to_numpy(zero_copy_only=False)
+            self.mask_offsets, self.mask_data = _binary_parts(masks)
 
     def sample(self, j: int) -> TripleRow:
         lo, hi = int(self.view_offsets[j]), int(self.view_offsets[j + 1])
         io, data = self.image_offsets, self.image_data
+        masks = None
+        if self.has_mask is not None and self.has_mask[lo:hi].any():
+            mo, md = self.mask_offsets, self.mask_data
+            masks = [md[mo[k] : mo[k + 1]].data if self.has_mask[k] else None for k in range(lo, hi)]
         return TripleRow(
             sample_id=self.sample_id[j],
             scene_id=self.scene_id[j],
@@ -82,6 +93,7 @@ class _BatchColumns:
             far=self.far[lo:hi],
             gap=int(self.gap[j]),
             target_offset=self.target_offset[self.target_offsets[j] : self.target_offsets[j + 1]],
+            masks=masks,
         )
 
 

@@ -14,7 +14,10 @@ Geometry comes from `seeu_data.cameras` (`cover_crop_geometry`, `crop_intrinsics
 Pixels are moved by `seeu_data.image_ops.resize_cover_crop` (shared with `seeu build`), which
 resizes only the block-aligned source span that holds the crop (384 of 640 columns here).
 Images are decoded to BGR and written as planar RGB (V, 3, H, W) uint8 with one `cv2.mixChannels`.
-A flip mirrors every view of a sample (the whole scene is mirrored in world x).
+A flip mirrors every view of a sample (the whole scene is mirrored in world x). Masks (where a
+view has one) follow the image: header checked (`dataset_check.check_mask`), decoded, resized and
+cropped (`masks.resize_mask`: conservative, an output pixel any excluded source pixel reaches is
+excluded), mirrored.
 """
 
 from __future__ import annotations
@@ -28,7 +31,8 @@ from seeu_data import cameras
 from seeu_data.errors import SeeUError
 from seeu_data.image_ops import INTERPOLATIONS, resize_cover_crop
 from seeu_data.limits import MAX_PIXELS
-from seeu_data.store.dataset_check import check_image
+from seeu_data.masks import decode_mask, resize_mask
+from seeu_data.store.dataset_check import check_image, check_mask
 from seeu_data.store.triple_row import TripleRow
 
 
@@ -38,7 +42,8 @@ class ViewsSample:
 
     images: (V, 3, H, W) uint8 RGB (planar); cam_to_world: (V, 4, 4) float64; intrinsics_norm: (V, 4)
     float64 (fx/W, fy/H, cx/W, cy/H of the output image; `collate_views` makes the 3x3 matrices of a whole
-    batch at once); near, far: (V,) float32; frame_index: (V,) int64.
+    batch at once); near, far: (V,) float32; frame_index: (V,) int64; masks: (V, H, W) bool, True =
+    excluded pixel (all False for a view without a mask), or None when no view has one.
     """
 
     sample_id: str
@@ -51,6 +56,7 @@ class ViewsSample:
     far: np.ndarray
     frame_index: np.ndarray
     gap: int
+    masks: np.ndarray | None = None
 
 
 def decode_bgr(buf, where: str) -> np.ndarray:
@@ -111,6 +117,14 @@ def transform_sample(
             scaled, offset = cameras.cover_crop_geometry(size, out_hw)
             idx = [v for v in range(num_views) if sizes[v] == size]
             intrinsics[idx] = cameras.crop_intrinsics_norm(raw.intrinsics_norm[idx], scaled, offset, out_hw)
+    masks = None
+    if raw.masks is not None:
+        masks = np.zeros((num_views, oh, ow), dtype=bool)
+        for v, data in enumerate(raw.masks):
+            if data is not None:
+                check_mask(data, raw.width[v], raw.height[v], f"{name} view {v}", max_pixels)
+                m = resize_mask(decode_mask(data, f"{name} view {v}"), out_hw)
+                masks[v] = m[:, ::-1] if flip else m
     cam_to_world = np.asarray(raw.cam_to_world, dtype=np.float64)
     if flip:
         cam_to_world, intrinsics = cameras.flip_horizontal(cam_to_world, intrinsics)
@@ -125,4 +139,5 @@ def transform_sample(
         far=np.asarray(raw.far, np.float32),
         frame_index=np.asarray(raw.frame_index, np.int64),
         gap=raw.gap,
+        masks=masks,
     )

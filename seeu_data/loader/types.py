@@ -6,7 +6,7 @@ B samples, V context views, T target views, H x W the loader's output size. Came
 
 from __future__ import annotations
 
-from typing import TypedDict
+from typing import NotRequired, TypedDict
 
 import torch
 
@@ -20,6 +20,7 @@ class Views(TypedDict):
     near: torch.Tensor  # (B, N) float32
     far: torch.Tensor  # (B, N) float32
     frame_index: torch.Tensor  # (B, N) int64, the frames' indices in their scene
+    mask: NotRequired[torch.Tensor]  # (B, N, H, W) bool, True = excluded pixel; only when a view has a mask
 
 
 class Batch(TypedDict):

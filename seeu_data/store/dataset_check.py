@@ -22,7 +22,9 @@ What is checked:
   0, 1, ..., n - 1 (unique and in order: `seeu build` samples by that position);
 * images: the size in the JPEG/PNG header (`image_header.image_info`, no decode) equals the
   recorded width/height and is at most `max_pixels` (`MAX_PIXELS`, 64 MP, raised with `--max-pixels`),
-  so a tiny file whose header declares 60000x60000 is refused before anything allocates for it.
+  so a tiny file whose header declares 60000x60000 is refused before anything allocates for it;
+* masks (the optional `mask` column, posed and triples): each non-null one a PNG, 8-bit greyscale,
+  of its frame's width/height (`check_mask`, header only).
 
 Every problem is a `SeeUError` naming the file: one line at the CLI, exit 2.
 """
@@ -112,6 +114,35 @@ def check_table_images(table: pa.Table, max_pixels: int, where: Path) -> None:
             raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
 
 
+def check_mask(data, width: int, height: int, where: str | Path | None, max_pixels: int = MAX_PIXELS) -> None:
+    """Header check of one frame's mask (no decode): a PNG, 8-bit single channel (IHDR bit depth 8,
+    colour type 0), at most `max_pixels`, of the frame's `width` x `height`."""
+    info = image_info(data, None if where is None else str(where))
+    if info.format != "png":
+        raise SeeUError(f"mask is a {info.format.upper()}, not a PNG", where)
+    ihdr = memoryview(data).cast("B")[24:26]  # bit depth, colour type
+    if tuple(ihdr) != (8, 0):
+        raise SeeUError(f"mask PNG has bit depth {ihdr[0]}, colour type {ihdr[1]}: 8-bit greyscale expected", where)
+    check_pixels(info.width, info.height, max_pixels, "mask header declares", where)
+    if (info.width, info.height) != (int(width), int(height)):
+        raise SeeUError(f"mask is {info.width}x{info.height}, its frame {int(width)}x{int(height)}", where)
+
+
+def check_table_masks(table: pa.Table, max_pixels: int, where: Path) -> None:
+    """`check_mask` on every non-null mask of a table (posed: `mask`; triples: per view)."""
+    masks = _binary_values(table.column("mask"))
+    width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
+    height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
+    if len(masks) != len(width):
+        raise SeeUError(f"{len(masks)} masks for {len(width)} images", where)
+    for i, data in enumerate(masks):
+        if data.is_valid:
+            try:
+                check_mask(data.as_buffer(), width[i], height[i], None, max_pixels)
+            except SeeUError as exc:
+                raise SeeUError(f"{_image_label(table, i)}: {exc}", where) from None
+
+
 def _image_label(table: pa.Table, i: int) -> str:
     """What to call image `i` of a table: its posed scene and frame, or its row and view in a shard."""
     if pa.types.is_list(table.schema.field("image").type):
@@ -179,9 +210,12 @@ def check_file_schema(schema: pa.Schema, expect: str, where: str | Path) -> None
 
 
 def check_columns(schema: pa.Schema, expected: pa.Schema, where: str | Path) -> None:
-    """Column names and types against the schema file's."""
+    """Column names and types against the schema file's; an optional (nullable) column may be missing
+    (a file of an earlier minor version: `schema` module docstring)."""
     got = {f.name: f.type for f in schema}
     for f in expected:
+        if f.name not in got and f.nullable:
+            continue
         if f.name not in got:
             raise SeeUError(f"column {f.name!r} is missing", where)
         if got[f.name] != f.type:
@@ -197,6 +231,8 @@ def check_table(table: pa.Table, expected: pa.Schema, where: Path, max_pixels: i
     if table.num_rows:
         check_table_cameras(table, where)
         check_table_images(table, max_pixels, where)
+        if "mask" in table.schema.names:
+            check_table_masks(table, max_pixels, where)
 
 
 def check_frame_order(frame_index: np.ndarray, scene_id: str, where: str | Path) -> None:

@@ -34,7 +34,10 @@ class PosedScene:
     images: N encoded images (bytes, or read-only bytes-like views such as numpy uint8 arrays into a
     memory-mapped input file); width/height: (N,) int; intrinsics_norm: (N, 4);
     cam_to_world: (N, 4, 4) OpenCV camera-to-world; source_frame/timestamp_us: (N,) int64;
-    source_name: N strings; meta: scene-level metadata kept in the manifest (url, near/far method ...).
+    source_name: N strings; meta: scene-level metadata kept in the manifest (url, near/far method ...);
+    masks: None (the scene has none) or N entries, each a frame's mask as PNG bytes (8-bit single
+    channel, the frame's size, nonzero = excluded pixel: `seeu_data.masks.encode_mask`) or None (no
+    mask for that frame).
     """
 
     scene_id: str
@@ -50,14 +53,15 @@ class PosedScene:
     timestamp_us: np.ndarray
     source_name: list[str] = field(default_factory=list)
     meta: dict = field(default_factory=dict)
+    masks: Sequence[BytesLike | None] | None = None
 
     def __len__(self) -> int:
         return len(self.images)
 
     def check(self) -> None:
-        """Raise SeeUError when the scene is inconsistent or its cameras are not finite rigid poses
-        (`dataset_check.check_cameras`)."""
-        from seeu_data.store.dataset_check import check_cameras
+        """Raise SeeUError when the scene is inconsistent, its cameras are not finite rigid poses
+        (`dataset_check.check_cameras`) or a mask is not a greyscale PNG of its frame's size (`check_mask`)."""
+        from seeu_data.store.dataset_check import check_cameras, check_mask
 
         n = len(self.images)
         where = f"scene {self.scene_id}"
@@ -77,6 +81,12 @@ class PosedScene:
         check_cameras(self.cam_to_world, self.intrinsics_norm, np.array([self.near]), np.array([self.far]), where)
         if self.image_format not in ("jpeg", "png"):
             raise SeeUError(f"{where}: image_format must be 'jpeg' or 'png', got {self.image_format!r}")
+        if self.masks is not None:
+            if len(self.masks) != n:
+                raise SeeUError(f"{where}: masks has {len(self.masks)} entries for {n} frames")
+            for i, mask in enumerate(self.masks):
+                if mask is not None:
+                    check_mask(mask, self.width[i], self.height[i], f"{where} frame {i}")
 
     def to_record_batch(self) -> pa.RecordBatch:
         """The scene's rows (its images copied into one column)."""
@@ -101,6 +111,10 @@ class PosedScene:
             ),
             "near": pa.array(np.full(n, self.near, dtype=np.float32)),
             "far": pa.array(np.full(n, self.far, dtype=np.float32)),
+            "mask": pa.array(
+                [None if m is None else memoryview(m).cast("B").tobytes() for m in self.masks or [None] * n],  # type: ignore[arg-type]
+                pa.binary(),
+            ),
         }
         return pa.RecordBatch.from_arrays([cols[f.name] for f in schema], schema=schema)
 
@@ -114,6 +128,7 @@ class PosedScene:
 
         scene_ids = batch.column("scene_id")
         fmt = batch.column("image_format")
+        has_masks = "mask" in batch.schema.names and batch.column("mask").null_count < batch.num_rows
         return cls(
             scene_id=str(scene_ids[0]),
             images=batch.column("image").to_pylist(),
@@ -128,6 +143,7 @@ class PosedScene:
             timestamp_us=batch.column("timestamp_us").to_numpy(),
             source_name=batch.column("source_name").to_pylist(),
             meta=dict(meta or {}),
+            masks=batch.column("mask").to_pylist() if has_masks else None,
         )
 
 

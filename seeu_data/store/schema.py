@@ -6,6 +6,12 @@ or an installed wheel alike.
 
 A schema file lists columns with a small type language:
 `string | binary | int32 | int64 | float32 | float64 | list<T> | fixed_size_list<T>[n]`.
+
+Versions are "major.minor". A file's name holds the major (`posed_frames.v1.json`); readers refuse
+another major (`check_version`) and read every minor of theirs. Adding a column marked
+`"optional": true` is a minor bump: such a column is nullable (null = no value) and files of an
+earlier minor lack it, which readers treat as all null (`dataset_check.check_columns` lets it be
+missing). Anything else (removing, renaming or retyping a column, a required new column) is a new major.
 """
 
 from __future__ import annotations
@@ -66,9 +72,10 @@ def load_schema_doc(name: str, major: int = 1) -> dict:
 
 
 def arrow_schema(name: str, major: int = 1) -> pa.Schema:
-    """pyarrow schema of table `name`, with the schema name and version in its metadata."""
+    """pyarrow schema of table `name`, with the schema name and version in its metadata; optional
+    columns are the nullable fields."""
     doc = load_schema_doc(name, major)
-    fields = [pa.field(c["name"], parse_type(c["type"]), nullable=False) for c in doc["columns"]]
+    fields = [pa.field(c["name"], parse_type(c["type"]), nullable=bool(c.get("optional"))) for c in doc["columns"]]
     return pa.schema(fields, metadata={"seeu.schema": doc["name"], "seeu.schema_version": doc["version"]})
 
 

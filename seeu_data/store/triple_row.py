@@ -39,7 +39,8 @@ class TripleRow:
     image_format: 'jpeg' | 'png'; width, height: (L,) int32 pixels; intrinsics_norm: (L, 4) float64
     (fx/W, fy/H, cx/W, cy/H); cam_to_world: (L, 4, 4) float64 (OpenCV axes); near, far: (L,)
     float32; gap: max minus min context frame_index; target_offset: (T,) int64 frames outside the
-    context range (0 inside, negative before, positive after).
+    context range (0 inside, negative before, positive after); masks: None (no view has a mask) or L
+    entries, each a view's mask as PNG bytes-like (nonzero = excluded pixel; `seeu_data.masks`) or None.
     """
 
     sample_id: str
@@ -58,6 +59,7 @@ class TripleRow:
     far: np.ndarray
     gap: int
     target_offset: np.ndarray
+    masks: list[memoryview | None] | None = None
 
     @property
     def context(self) -> list[int]:
@@ -89,6 +91,7 @@ class TripleRow:
             far=np.asarray(d["far"], np.float32),
             gap=int(d["gap"]),
             target_offset=np.asarray(d["target_offset"], np.int64),
+            masks=[None if m is None else memoryview(m) for m in d["mask"]] if any(d.get("mask") or []) else None,
         )
 
     def to_pydict(self) -> dict:
@@ -110,4 +113,5 @@ class TripleRow:
             "far": np.asarray(self.far).tolist(),
             "gap": int(self.gap),
             "target_offset": np.asarray(self.target_offset).tolist(),
+            "mask": [None if m is None else bytes(m) for m in self.masks or [None] * len(self.images)],
         }

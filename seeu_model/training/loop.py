@@ -239,7 +239,9 @@ class Trainer:
         valid = ~batch["is_padding"] if "is_padding" in batch else None
         with autocast_context(self.cfg.precision, self.device):
             pred = self.render_fn(self.ddp, batch)
-            loss, parts = photometric_loss(pred, gt, valid, self.lpips_fn, self.cfg.loss.lpips_weight)
+            loss, parts = photometric_loss(
+                pred, gt, valid, self.lpips_fn, self.cfg.loss.lpips_weight, mask=batch["target"].get("mask")
+            )
         self.optimizer.zero_grad(set_to_none=True)
         loss.backward()
         params = [p for g in self.optimizer.param_groups for p in g["params"]]
