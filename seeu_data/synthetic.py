@@ -781,6 +781,49 @@ def ingest_accuracy(posed_dir: str | Path, video_path: str | Path, registered: i
     }
 
 
+def mask_accuracy(posed_dir: str | Path, video_path: str | Path, min_truth: float = 0.01) -> dict:
+    """How well the masks written with the posed frames in `posed_dir` (an ingest of the clip with movers
+    at `video_path`) find its movers: every posed frame's mask (none: nothing masked) against the clip's
+    exact one (`load_ground_truth`'s "mask"; none for a clip without movers: every masked pixel is then
+    a false positive), at the posed frames' size.
+
+    Returns {"frames", "iou" (pooled: all frames' intersection over all frames' union; nan without
+    movers), "frame_iou_mean" (over the frames whose truth covers at least `min_truth` of the frame),
+    "recall" (of the movers' pixels), "false_positive_pct" (masked pixels outside the truth, % of all
+    pixels, mean over frames), "false_positive_max_pct" (the worst frame)}."""
+    from seeu_data.masks import decode_mask, resize_mask
+    from seeu_data.store.posed import PosedDataset
+
+    gt = load_ground_truth(video_path)
+    index = {int(f): i for i, f in enumerate(gt["frame"])}
+    inter = union = truth_px = 0
+    frame_iou, fp = [], []
+    ds = PosedDataset(posed_dir)
+    for sid in ds.scene_ids:
+        scene = ds.load_scene(sid)
+        for k, src in enumerate(scene.source_frame):
+            h, w = int(scene.height[k]), int(scene.width[k])
+            found = scene.masks[k] if scene.masks is not None else None
+            got = decode_mask(found) if found is not None else np.zeros((h, w), bool)
+            truth = gt["mask"][index[int(src)]] if "mask" in gt else np.zeros((h, w), bool)
+            if truth.shape != (h, w):
+                truth = resize_mask(truth, (h, w))
+            inter += int((got & truth).sum())
+            union += int((got | truth).sum())
+            truth_px += int(truth.sum())
+            fp.append(100.0 * float((got & ~truth).mean()))
+            if truth.mean() >= min_truth:
+                frame_iou.append(float((got & truth).sum() / (got | truth).sum()))
+    return {
+        "frames": len(fp),
+        "iou": inter / union if truth_px else float("nan"),
+        "frame_iou_mean": float(np.mean(frame_iou)) if frame_iou else float("nan"),
+        "recall": inter / truth_px if truth_px else float("nan"),
+        "false_positive_pct": float(np.mean(fp)) if fp else float("nan"),
+        "false_positive_max_pct": float(np.max(fp)) if fp else float("nan"),
+    }
+
+
 def accuracy_line(acc: dict) -> str:
     """The ground-truth figures of `ingest_accuracy` as one line (the demo's output, the benchmarks)."""
     best = acc["largest"]

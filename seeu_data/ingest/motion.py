@@ -61,6 +61,7 @@ AMBIGUOUS_SHARE = 0.5
 # (ImageReaderOptions.default_focal_length_factor). Far from the truth (0.7 for a 70 degree lens) it
 # still finds the box of the synthetic clip as well as the true one does: only consistency is judged.
 PRIOR_FOCAL = 1.2
+MIN_MOVING_FRAMES = 3  # --dynamic off: moving regions in this many mapped frames fail the solution check
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
 
@@ -518,9 +519,34 @@ def full_size(mask: np.ndarray, width: int, height: int) -> np.ndarray:
     return up >= 128
 
 
-def encode_png(mask: np.ndarray) -> bytes:
-    """`(H, W)` bool -> PNG bytes, 8-bit single channel, 255 where masked."""
-    ok, buf = cv2.imencode(".png", mask.astype(np.uint8) * 255)
-    if not ok:  # pragma: no cover - OpenCV always encodes uint8
-        raise SeeUError("PNG encoding of a mask failed")
-    return buf.tobytes()
+def moving_content(facts: dict) -> str | None:
+    """With --dynamic off: why the moving content found in the mapped frames makes the poses
+    untrustworthy (from result.json's "motion" `facts`), or None when too little was found
+    (regions in fewer than MIN_MOVING_FRAMES frames: what the static synthetic clips stay under)."""
+    seen = facts.get("keyframes") or {}
+    found = seen.get("frames_with_motion", 0)
+    if found < MIN_MOVING_FRAMES:
+        return None
+    out = f"moving content in {found} of {seen.get('judged')} mapped frames is not masked (--dynamic off)"
+    left = facts.get("leave_out")
+    if left:
+        out += (
+            f"; leaving its {left['observations']} observations out moves the cameras "
+            f"{left['centre_change_pct']:.2g}% of the path"
+        )
+    return out + "; re-run with --dynamic mask"
+
+
+def report_section(facts: dict | None, frames: Sequence[dict]) -> dict | None:
+    """report.json's "motion": the SfM stage's facts (`facts`, None for a stage without them), with
+    "masked_pct" as [source frame, % of the frame masked] for each of the selected `frames` (records with
+    "name", "source_frame") that has a mask, "frames_masked" and "mean_masked_pct" over all of them."""
+    if not facts:
+        return None
+    pct = facts.get("masked_pct", {})
+    per = [[f["source_frame"], round(float(pct[f["name"]]), 3)] for f in frames if f["name"] in pct]
+    out = {k: v for k, v in facts.items() if k != "masked_pct"}
+    out["masked_pct"] = per
+    out["frames_masked"] = len(per)
+    out["mean_masked_pct"] = sum(p for _, p in per) / max(len(frames), 1)
+    return out

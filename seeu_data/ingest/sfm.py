@@ -1172,28 +1172,35 @@ def _motion_first(job: _Job) -> _Moving:
     return moving
 
 
-def _motion_keyframes(job: _Job, recs: dict, kf: Keyframes, moving: _Moving) -> None:
+def _motion_keyframes(job: _Job, recs: dict, kf: Keyframes, moving: _Moving, check: dict) -> None:
     """A video's mapped frames against the flow their SfM cameras allow; mask: their observations in moving
-    regions dropped before the final bundle adjustment; off: the leave-out test (`_leave_out`)."""
+    regions dropped before the final bundle adjustment; off: the leave-out test (`_leave_out`), and moving
+    content found (`motion.moving_content`) fails the solution `check` (in place; "moving_content" says why)."""
     if not job.video:
         return
     import pycolmap
 
-    from seeu_data.ingest.motion import drop_observations, model_pass
+    from seeu_data.ingest.motion import drop_observations, model_pass, moving_content
 
     _emit("stage", "motion-check", len(kf.names))
     t0 = job.clock.mark()
     masks: dict = {}
+    judged = 0
     for rec in recs.values():
         names = [n for n in kf.names if n in {rec.image(i).name for i in rec.reg_image_ids()}]
         masks.update(model_pass(job.image_dir, names, rec, on_frame=lambda: _emit("step")))
+        judged += len(names)
     moving.masks = masks
-    facts = {"frames_with_motion": len(masks)}
+    moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
     if job.cfg.dynamic == "mask":
-        facts["observations_dropped"] = sum(drop_observations(rec, masks) for rec in recs.values())
+        moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
     elif masks:
         moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
-    moving.facts["keyframes"] = facts
+        found = moving_content(moving.facts)
+        if found:
+            check["moving_content"] = found
+            if check.get("ran"):
+                check["passed"], check["reason"] = False, found
     job.clock.add("motion_s", t0)
 
 
@@ -1236,18 +1243,14 @@ def _motion_export(job: _Job, recs: dict, models: list[dict], moving: _Moving) -
     undistorted as the frames are) and their masked share in "masked_pct"."""
     if job.cfg.dynamic != "mask" or not moving.masks:
         return
-    import cv2
-    import numpy as np
-
-    from seeu_data.ingest.motion import encode_png, full_size
-    from seeu_data.undistort import same_size_pinhole, undistort_maps
+    from seeu_data.ingest.motion import full_size
+    from seeu_data.masks import encode_mask, undistort_mask
 
     t0 = job.clock.mark()
     pct: dict[str, float] = {}
     for model in models:
         rec = recs[model["index"]]
         out = job.out / "masks" / str(model["index"])
-        maps: dict[int, tuple] = {}  # camera id -> the undistortion's remap maps
         for iid in rec.reg_image_ids():
             img = rec.image(iid)
             if img.name not in moving.masks:
@@ -1255,12 +1258,9 @@ def _motion_export(job: _Job, recs: dict, models: list[dict], moving: _Moving) -
             camera = rec.cameras[img.camera_id]
             mask = full_size(moving.masks[img.name], camera.width, camera.height)
             if model["undistorted"]:
-                if img.camera_id not in maps:
-                    maps[img.camera_id] = undistort_maps(camera, same_size_pinhole(camera))
-                map_x, map_y = maps[img.camera_id]
-                mask = cv2.remap(mask.astype(np.uint8), map_x, map_y, cv2.INTER_NEAREST) > 0
+                mask = undistort_mask(mask, camera)
             (out / img.name).parent.mkdir(parents=True, exist_ok=True)
-            (out / img.name).write_bytes(encode_png(mask))
+            (out / img.name).write_bytes(encode_mask(mask))
             pct[img.name] = 100.0 * float(mask.mean())
     moving.facts["masked_pct"] = pct
     job.clock.add("motion_s", t0)
@@ -1287,7 +1287,7 @@ def _child(job_path: str) -> int:
         (out / "result.json").write_text(json.dumps(failed))
         return 0
     recs = mapped.recs
-    _motion_keyframes(job, recs, kf, moving)
+    _motion_keyframes(job, recs, kf, moving, mapped.check)
     final_ba = _final_ba(job, recs)
     _register(job, recs, kf, mapped.check["kept_seed"])
     _motion_frames(job, recs, kf, moving)
