@@ -40,6 +40,7 @@ import numpy as np
 from seeu_data.errors import SeeUError
 
 WORK_SIDE = 320  # flows on frames shrunk to this longer side (px)
+GRID_STEP = 2  # the static test judges one pixel per GRID_STEP x GRID_STEP block (masks at that size)
 OFFSETS = (1, 4)  # neighbours this many frames before and after
 FB_MAX_PX = 1.0  # forward-backward disagreement above which a pixel's flow is not trusted
 PHOTO_MAX = 8.0  # grey-level difference (blurred frames) above which a pixel's flow is not trusted
@@ -48,9 +49,10 @@ SEED_PX = 3.0  # residual (working px) that starts a moving region
 GROW_PX = 1.5  # residual over which a moving region grows from its seeds
 CARRY = 0.7  # evidence carried to the next / previous frame along the flow, per frame
 MIN_AREA = 0.002  # smallest moving region kept, as a fraction of the frame
-SAMPLE_STEP = 4  # flow samples for the robust fits: one pixel in SAMPLE_STEP x SAMPLE_STEP
+SAMPLE_STEP = 3  # flow samples for the robust fits: one judged pixel in SAMPLE_STEP x SAMPLE_STEP
 MIN_SAMPLES = 30  # fewer trusted samples: no cameras from the flow
 FIT_PX = 0.5  # inlier distance of the robust fits (working px)
+FIT_ITERATIONS = 500  # of each robust fit
 GOOD_FIT_PX = 0.8  # median residual of the pixels cameras were fitted on, above which the fit failed
 # A homography explaining this share of the essential matrix's inliers: the camera turned in place or sees
 # one plane, and the homography is the static scene's flow; from AMBIGUOUS_SHARE on, a dominant plane
@@ -90,14 +92,15 @@ class Flows:
     of frame) and the blurred frames agree within PHOTO_MAX grey levels; a chain where all its steps are.
     `forget(i)` drops what frames before i needed."""
 
-    def __init__(self, frames: Sequence[np.ndarray]) -> None:
+    def __init__(self, frames: Sequence[np.ndarray], step: int = GRID_STEP) -> None:
         self.frames = frames
         self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
         self.flows: dict[tuple[int, int], np.ndarray] = {}
         self.steps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
         self.smooth: dict[int, np.ndarray] = {}
         h, w = frames[0].shape
-        self.grid = pixel_grid(h, w).astype(np.float32)
+        self.full = pixel_grid(h, w).astype(np.float32)
+        self.grid = pixel_grid(h, w, step).astype(np.float32)  # the pixels followed: one per step x step block
 
     def _flow(self, i: int, j: int) -> np.ndarray:
         if (i, j) not in self.flows:
@@ -113,7 +116,7 @@ class Flows:
         """Flow from frame i to its neighbour j `(h, w, 2)` float32, and where it is trusted `(h, w)` float32 0/1."""
         if (i, j) not in self.steps:
             flow = self._flow(i, j)
-            land = self.grid + flow
+            land = self.full + flow
             mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
             back = cv2.remap(
                 self._flow(j, i), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
@@ -127,8 +130,8 @@ class Flows:
         return self.steps[(i, j)]
 
     def observe(self, i: int, js: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per frame j of js: where frame i's pixels land there `(h, w, 2)` float32, and where that is trusted
-        `(h, w)` bool."""
+        """Per frame j of js: where frame i's followed pixels (`grid`, `(h', w', 2)`) land there `(h', w', 2)`
+        float32, and where that is trusted `(h', w')` bool."""
         found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         for d in (1, -1):
             ahead = [(j - i) * d for j in js if (j - i) * d > 0]
@@ -152,10 +155,11 @@ class Flows:
             del self.smooth[i]
 
 
-def pixel_grid(h: int, w: int) -> np.ndarray:
-    """Pixel centres `(h, w, 2)` (x, y) = (j + 0.5, i + 0.5)."""
-    ys, xs = np.mgrid[0:h, 0:w].astype(np.float64)
-    return np.stack([xs + 0.5, ys + 0.5], -1)
+def pixel_grid(h: int, w: int, step: int = 1) -> np.ndarray:
+    """Centres `(h // step, w // step, 2)` (x, y) of the step x step blocks of an h x w image (step 1:
+    the pixel centres (j + 0.5, i + 0.5))."""
+    ys, xs = np.mgrid[0 : h // step, 0 : w // step].astype(np.float64)
+    return np.stack([(xs + 0.5) * step, (ys + 0.5) * step], -1)
 
 
 def _depth_terms(x: np.ndarray, land: np.ndarray, M: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -169,21 +173,21 @@ def _depth_terms(x: np.ndarray, land: np.ndarray, M: np.ndarray, e: np.ndarray) 
 def static_residual(
     x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], cameras: Cameras, scale: float = 1.0
 ) -> np.ndarray:
-    """How far the flow of each pixel is from any static point's: `(h, w)` in pixels (0 where no
+    """How far the flow of each pixel is from any static point's: `(...)` in pixels (0 where no
     neighbour's flow is trusted).
 
-    x: `(h, w, 2)` the pixels of frame i; lands / oks: per neighbour, where they land `(h, w, 2)` and
-    whether that is trusted `(h, w)`, in the coordinates of x; cameras: per neighbour (M, e) with
+    x: `(..., 2)` the pixels of frame i; lands / oks: per neighbour, where they land `(..., 2)` and
+    whether that is trusted `(...)`, in the coordinates of x; cameras: per neighbour (M, e) with
     land ~ M x + rho e; scale: pixels per unit of those coordinates. rho is fitted to all trusted
     neighbours at once, the residual is the largest reprojection distance among them."""
-    num = np.zeros(x.shape[:2])
-    den = np.zeros(x.shape[:2])
+    num = np.zeros(x.shape[:-1])
+    den = np.zeros(x.shape[:-1])
     for land, ok, (M, e) in zip(lands, oks, cameras):
         n, d = _depth_terms(x, land, M, e)
         num += np.where(ok, n, 0.0)
         den += np.where(ok, d, 0.0)
     rho = num / np.maximum(den, 1e-12)
-    res = np.zeros(x.shape[:2])
+    res = np.zeros(x.shape[:-1])
     for land, ok, (M, e) in zip(lands, oks, cameras):
         dist = np.linalg.norm(_project(x, M, e, rho) - land, axis=-1)
         res = np.where(ok & np.isfinite(dist), np.maximum(res, dist), res)
@@ -214,30 +218,33 @@ def flow_cameras(x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.nd
     homography explains the reference's flow as well as the essential matrix does (HOMOGRAPHY_SHARE: the
     camera turned without moving, or sees one plane), every neighbour gets its homography (M = H, e = 0):
     no depth; when it explains much of it (AMBIGUOUS_SHARE), None."""
-    ref = max(range(len(lands)), key=lambda k: np.abs(lands[k] - x)[oks[k]].mean() if oks[k].any() else 0.0)
-    sel = _samples(oks[ref])
+    samples = [_samples(ok) for ok in oks]
+    ref = max(range(len(lands)), key=lambda k: float(np.abs(lands[k][samples[k]] - x[samples[k]]).sum()))
+    sel = samples[ref]
     if sel.sum() < MIN_SAMPLES:
         return None
     p, q = x[sel], lands[ref][sel].astype(np.float64)
-    E, e_in = cv2.findEssentialMat(p, q, np.eye(3), cv2.USAC_MAGSAC, 0.999, FIT_PX / scale)
-    H, h_in = cv2.findHomography(p, q, cv2.USAC_MAGSAC, FIT_PX / scale)
+    E, e_in = cv2.findEssentialMat(p, q, np.eye(3), cv2.USAC_MAGSAC, 0.999, FIT_PX / scale, maxIters=FIT_ITERATIONS)
+    H, h_in = cv2.findHomography(p, q, cv2.RANSAC, FIT_PX / scale, maxIters=FIT_ITERATIONS)
     planar = 0.0 if H is None or E is None else h_in.sum() / max(e_in.sum(), 1)
     if planar >= HOMOGRAPHY_SHARE:
         return _homographies(x, lands, oks, scale)
     if E is None or E.shape != (3, 3) or planar >= AMBIGUOUS_SHARE:
         return None
-    _, R, t, _ = cv2.recoverPose(E, p, q, np.eye(3), mask=e_in.copy())
+    inl = np.flatnonzero(e_in.ravel())[:: max(1, int(e_in.sum()) // 500)]  # enough to tell the 4 poses apart
+    _, R, t, _ = cv2.recoverPose(E, p[inl], q[inl], np.eye(3))
     t = t.ravel()
-    n0, d0 = _depth_terms(x, lands[ref], R, t)
+    n0, d0 = _depth_terms(p, q, R, t)
     rho = n0 / np.maximum(d0, 1e-12)
-    usable = sel & (rho > 0) & (d0 > np.percentile(d0[sel], 25))  # in front, with parallax for a depth
-    points = np.concatenate([x[usable], np.ones((int(usable.sum()), 1))], 1) / rho[usable][:, None]
+    usable = (rho > 0) & (d0 > np.percentile(d0, 25))  # in front, with parallax for a depth
+    points = np.concatenate([p[usable], np.ones((int(usable.sum()), 1))], 1) / rho[usable][:, None]
+    at = tuple(a[usable] for a in np.nonzero(sel))  # the usable samples' grid indices
     out: Cameras = []
     for k, (land, ok) in enumerate(zip(lands, oks)):
         if k == ref:
             out.append((R, t))
             continue
-        pose = _pnp(points[ok[usable]], land[usable & ok].astype(np.float64), scale)
+        pose = _pnp(points[ok[at]], land[at][ok[at]].astype(np.float64), scale)
         if pose is None:
             return None
         out.append(pose)
@@ -253,7 +260,7 @@ def _homographies(
         H = (
             None
             if sel.sum() < MIN_SAMPLES
-            else cv2.findHomography(x[sel], land[sel], cv2.USAC_MAGSAC, FIT_PX / scale)[0]
+            else cv2.findHomography(x[sel], land[sel], cv2.RANSAC, FIT_PX / scale, maxIters=FIT_ITERATIONS)[0]
         )
         if H is None:
             return None
@@ -272,12 +279,12 @@ def _pnp(points: np.ndarray, seen: np.ndarray, scale: float) -> tuple[np.ndarray
         np.eye(3),
         None,
         reprojectionError=2 * FIT_PX / scale,
-        iterationsCount=200,
+        iterationsCount=FIT_ITERATIONS // 2,
         flags=cv2.SOLVEPNP_EPNP,
     )
     if not found or inliers is None or len(inliers) < MIN_SAMPLES:
         return None
-    keep = inliers.ravel()
+    keep = inliers.ravel()[:: max(1, len(inliers) // 500)]
     rvec, tvec = cv2.solvePnPRefineLM(points[keep], seen[keep], np.eye(3), None, rvec, tvec)
     return cv2.Rodrigues(rvec)[0], tvec.ravel()
 
@@ -317,17 +324,18 @@ def detect(
     offsets: Sequence[int] = OFFSETS,
     on_frame: Callable[[], None] | None = None,
 ) -> list[np.ndarray]:
-    """Masks of moving content `(h, w)` bool, one per frame of `frames` (grey `(h, w)`, in time order).
+    """Masks of moving content `(h // GRID_STEP, w // GRID_STEP)` bool, one per frame of `frames` (grey `(h, w)`,
+    in time order).
 
-    `residual(i, js, grid, lands, oks, avoid)`: frame i's static residual `(h, w)` in pixels against its
-    neighbours js (`neighbours`), given the pixel grid `(h, w, 2)`, per neighbour where the pixels land
-    and whether that is trusted (`Flows.observe`), and the pixels where the frames before found moving
-    content (`(h, w)` bool: not to fit cameras on); None when frame i cannot be judged (no camera).
+    `residual(i, js, grid, lands, oks, avoid)`: frame i's static residual `(h', w')` in pixels against its
+    neighbours js (`neighbours`), given the judged pixels `grid` `(h', w', 2)` (`Flows.grid`), per neighbour
+    where they land and whether that is trusted (`Flows.observe`), and where the frames before found moving
+    content (`(h', w')` bool: not to fit cameras on); None when frame i cannot be judged (no camera).
     `on_frame()` is called after each frame."""
     n = len(frames)
     flows = Flows(frames)
-    h, w = frames[0].shape
-    grid = pixel_grid(h, w)
+    grid = flows.grid.astype(np.float64)
+    h, w = grid.shape[:2]
     evidence: list[np.ndarray] = []
     to_prev: list[np.ndarray | None] = []  # frame i's pixels in frame i - 1 (trusted ones), for the carrying
     to_next: list[np.ndarray | None] = []
@@ -349,11 +357,11 @@ def detect(
 
 
 def _carry_map(obs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
-    """remap coordinates `(h, w, 2)` float32 of the landing points, NaN where not trusted."""
+    """remap coordinates `(h', w', 2)` float32 of the landing points on the judged grid, NaN where not trusted."""
     if obs is None:
         return None
     land, ok = obs
-    out = land - 0.5
+    out = land / GRID_STEP - 0.5
     out[~ok] = np.nan
     return out
 
