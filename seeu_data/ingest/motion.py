@@ -4,29 +4,35 @@ SfM assumes a static scene: a person, a car or a box moving through the frames g
 that its two-view checks accept (motion along the epipolar lines passes them), and tracks that pull
 the cameras. Here, for each frame i and its neighbours j (`OFFSETS` frames before and after):
 
-1. flow: OpenCV's DIS optical flow i -> j and j -> i on grey frames shrunk to at most `WORK_SIDE`
-   pixels; a pixel's flow counts where the two agree within `FB_MAX_PX` (not occluded, not out of frame).
+1. flow (`Flows`): OpenCV's DIS optical flow between neighbouring frames, on grey frames shrunk to at
+   most `WORK_SIDE` pixels, chained to reach the farther neighbours; a pixel's flow counts where the flow
+   back agrees (`FB_MAX_PX`: not occluded, not out of frame) and the frames look alike (`PHOTO_MAX`).
 2. the flow the static scene allows: cameras relative to frame i, x_j ~ M_j x + rho e_j, where x is
-   the pixel (homogeneous), rho its inverse depth and (M_j, e_j) the camera of frame j: from the SfM
-   model (`model_cameras`: M = R_ji, e = t_ji on normalised image coordinates), or before any
-   model exists from the flow alone (`flow_cameras`: a fundamental matrix per neighbour, robust, the
-   neighbours tied into one projective frame by the depths they share).
+   the pixel in normalised image coordinates, rho its inverse depth and (M_j, e_j) = (R_ji, t_ji) the
+   pose of frame j's camera in frame i's: from the SfM model (`model_pass`), or before any model exists
+   from the flow alone under a guessed focal length (`flow_cameras`, `first_pass`).
 3. the residual (`static_residual`): the one rho that best explains every neighbour's flow at the
    pixel, and the largest distance in pixels between where that rho puts the pixel in a neighbour and
-   where the flow does. A static pixel's neighbours agree on one depth (its flow lies on its
-   epipolar lines, at the positions one depth gives); a moving one's do not.
-4. masks (`clean_masks`): the residual, median-filtered, carried along the flow to the next and
+   where the flow does: epipolar distance and depth consistency in one number. A static pixel's
+   neighbours agree on one depth; a moving one's do not, even when each move alone stays on its
+   epipolar line.
+4. masks (`detect`, `clean_masks`): the residual, median-filtered, carried along the flow to the next and
    previous frames (fading by `CARRY` per frame, so a mover stays found through the frames where its
    motion happens to look static), thresholded with hysteresis (`SEED_PX`, `GROW_PX`), closed,
    specks below `MIN_AREA` of the frame dropped.
 
 Motion within the plane of the camera's path and the point (a box at eye level crossing in front of
-a camera walking straight) is what no two-frame test can see; the far neighbours, the camera's own
-turns and the carrying along the flow are what finds it there.
+a camera walking straight, at constant speed) looks exactly like a static point at another depth;
+the far neighbours, the camera's own turns and the carrying along the flow are what find it there.
 
-    frames = load_frames(image_dir, names)                      # [(h, w) uint8], longer side <= WORK_SIDE
-    masks = detect(frames, cameras=None)                        # [(h, w) bool] from the flow alone
-    masks = detect(frames, cameras=lambda i, js: model_cameras(...))
+The SfM child (`seeu_data.ingest.sfm`, --dynamic) runs `first_pass` before mapping (`drop_matches`),
+`model_pass` on the mapped frames (`drop_observations` before the final bundle adjustment) and on
+every frame after registration; `moving_content` says why unmasked moving content fails the solution
+check; `report_section` is report.json's "motion".
+
+    masks = first_pass(image_dir, names)          # {name: (h, w) bool} where moving content was found
+    dropped = drop_matches(db_path, masks)        # the database's verified matches on it, removed
+    masks = model_pass(image_dir, names, rec)     # the same against a pycolmap Reconstruction's cameras
 """
 
 from __future__ import annotations
@@ -44,7 +50,6 @@ GRID_STEP = 2  # the static test judges one pixel per GRID_STEP x GRID_STEP bloc
 OFFSETS = (1, 4)  # neighbours this many frames before and after
 FB_MAX_PX = 1.0  # forward-backward disagreement above which a pixel's flow is not trusted
 PHOTO_MAX = 8.0  # grey-level difference (blurred frames) above which a pixel's flow is not trusted
-MIN_PARALLAX = 1e-3  # neighbours whose camera barely moves (|e| below this) give no depth
 SEED_PX = 2.5  # residual (working px) that starts a moving region
 GROW_PX = 1.25  # residual over which a moving region grows from its seeds
 CARRY = 0.7  # evidence carried to the next / previous frame along the flow, per frame
@@ -442,6 +447,8 @@ def model_pass(
     images = [by_name[n] for n in names]
     poses = [homogeneous_from_3x4(np.asarray(img.cam_from_world().matrix(), np.float64)) for img in images]
 
+    grids: dict[int, np.ndarray] = {}  # camera id -> the judged pixels in its normalised coordinates
+
     def normalised(camera, pts: np.ndarray) -> np.ndarray:
         full = pts.reshape(-1, 2) * (camera.width / w, camera.height / h)  # working px -> the camera's px
         return np.asarray(camera.cam_from_img(full.astype(np.float64)), np.float64).reshape(pts.shape)
@@ -452,7 +459,9 @@ def model_pass(
             rel = poses[j] @ invert_rigid(poses[i])  # frame i's camera -> frame j's
             cams.append((rel[:3, :3], rel[:3, 3]))
         cam_i = rec.cameras[images[i].camera_id]
-        x = normalised(cam_i, grid)
+        if images[i].camera_id not in grids:
+            grids[images[i].camera_id] = normalised(cam_i, grid)
+        x = grids[images[i].camera_id]
         seen = [normalised(rec.cameras[images[j].camera_id], la) for j, la in zip(js, lands)]
         return static_residual(x, seen, oks, cams, cam_i.mean_focal_length() * w / cam_i.width)
 
