@@ -93,6 +93,7 @@ def main() -> int:
     ap.add_argument("--size", default="360x640", help="H x W of the rendered clips")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--movers", default="box,large,slow,several", help="mover presets, besides the clip without")
+    ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
     ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
     ap.add_argument("--out", type=Path, default=Path("out/bench_dynamic"))
     args = ap.parse_args()
@@ -104,6 +105,7 @@ def main() -> int:
 
     height, width = parse_dims(args.size, "--size", minimum=16)
     clips = ["none", *[m for m in args.movers.split(",") if m]]
+    modes = [m for m in args.modes.split(",") if m in MODES]
     results: dict = {}
     load_before = os.getloadavg()
     for name in clips:
@@ -111,14 +113,14 @@ def main() -> int:
         t0 = time.perf_counter()
         write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed, movers=name))
         print(f"rendered {name}: {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s", flush=True)
-        for mode in MODES:
+        for mode in modes:
             r = run_clip(video, args.out / "posed" / mode, mode)
             results.setdefault(name, {})[mode] = r
             print(line(name, mode, r, results["none"][mode] if name != "none" else None), flush=True)
     print(f"\nload average before {load_before}, after {os.getloadavg()}; {os.cpu_count()} CPUs")
     print("table:")
     for name in clips:
-        for mode in MODES:
+        for mode in modes:
             print(line(name, mode, results[name][mode], results["none"][mode] if name != "none" else None))
     doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results}
     doc["load_before"], doc["load_after"] = load_before, os.getloadavg()
