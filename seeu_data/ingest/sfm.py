@@ -17,7 +17,10 @@ a last global bundle adjustment of each mapped model with a robust loss (`final_
 (COLMAP's incremental-mapper step) -> undistortion of every model
 whose camera has distortion of at least `max_negligible_distortion_px` at the image border (to a
 pinhole camera of the same W x H, `seeu_data.undistort`; below that the frames are used as they are
-with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
+with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`. A video's moving content
+(`dynamic`, `seeu_data.ingest.motion`) is looked for after matching (mask: its matches dropped before
+mapping), on the mapped frames before the final bundle adjustment (mask: its observations dropped; off:
+the solution check fails on it) and on every frame after registration (mask: the masks written).
 
 Output directory layout::
 
@@ -26,6 +29,8 @@ Output directory layout::
     undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
     points3d_<k>.npy        (P, 6) the 3D points of model k: world x y z, colour R G B (0-255)
+    masks/<k>/<frame>       --dynamic mask: the frame's mask of moving content (PNG, the frame's size,
+                            undistorted as the frame is; none where nothing moves)
 
 `result.json`: {"models": [{"index", "cameras": [{"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}] (one per frame size; used after undistortion), "camera" (the one of most frames), "undistorted": bool,
@@ -37,6 +42,8 @@ Output directory layout::
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
 "final_ba": [{"index", "loss", "scale_px", "termination", "iterations", "residuals", "used" (false: Ceres'
 solution unusable, the model kept as mapped), "reprojection_before_px", "reprojection_after_px"}] (null with `final_ba_loss` none),
+"motion": moving content (`dynamic`, seeu_data.ingest.motion; see `_Moving`; with `off`, found in the mapped
+frames, it fails "solution_check": "passed" false, "reason" and "moving_content" why),
 "timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
 "final_ba_s", "undistort_s" (when undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings":
 the same in CPU seconds (all threads)} or {"error": "...", "timings", "cpu_timings"}.
@@ -1149,8 +1156,9 @@ def _export(job: _Job, recs: dict, kept: list[int]) -> list[dict]:
 @dataclass
 class _Moving:
     """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
-    result.json's "motion" {"mode", "judged" (a video: frames in time order), "first_pass", "keyframes",
-    "frames", "leave_out" (off), "masked_pct" {name: % of the frame}}."""
+    result.json's "motion" {"mode", "judged" (a video: frames in time order), "first_pass", "keyframes"
+    (the mapped frames), "frames" (all, after registration), "leave_out" (off), "masked_pct" {name: % of the
+    frame}}."""
 
     masks: dict
     facts: dict
@@ -1180,16 +1188,11 @@ def _motion_keyframes(job: _Job, recs: dict, kf: Keyframes, moving: _Moving, che
         return
     import pycolmap
 
-    from seeu_data.ingest.motion import drop_observations, model_pass, moving_content
+    from seeu_data.ingest.motion import drop_observations, moving_content
 
     _emit("stage", "motion-check", len(kf.names))
     t0 = job.clock.mark()
-    masks: dict = {}
-    judged = 0
-    for rec in recs.values():
-        names = [n for n in kf.names if n in {rec.image(i).name for i in rec.reg_image_ids()}]
-        masks.update(model_pass(job.image_dir, names, rec, on_frame=lambda: _emit("step")))
-        judged += len(names)
+    masks, judged = _model_masks(job, recs, kf.names)
     moving.masks = masks
     moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
     if job.cfg.dynamic == "mask":
@@ -1202,6 +1205,21 @@ def _motion_keyframes(job: _Job, recs: dict, kf: Keyframes, moving: _Moving, che
             if check.get("ran"):
                 check["passed"], check["reason"] = False, found
     job.clock.add("motion_s", t0)
+
+
+def _model_masks(job: _Job, recs: dict, names: list[str]) -> tuple[dict, int]:
+    """`motion.model_pass` over each model's frames among `names` (in time order): the masks found, and
+    how many frames were judged."""
+    from seeu_data.ingest.motion import model_pass
+
+    masks: dict = {}
+    judged = 0
+    for rec in recs.values():
+        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        mine = [n for n in names if n in registered]
+        masks.update(model_pass(job.image_dir, mine, rec, on_frame=lambda: _emit("step")))
+        judged += len(mine)
+    return masks, judged
 
 
 def _leave_out(job: _Job, recs: dict, masks: dict) -> dict:
@@ -1224,14 +1242,11 @@ def _motion_frames(job: _Job, recs: dict, kf: Keyframes, moving: _Moving) -> Non
     observations in moving regions dropped (registered after the final adjustment: no adjustment follows)."""
     if job.cfg.dynamic != "mask" or not job.video or kf.stride <= 1:
         return
-    from seeu_data.ingest.motion import drop_observations, model_pass
+    from seeu_data.ingest.motion import drop_observations
 
     _emit("stage", "motion-frames", len(job.names))
     t0 = job.clock.mark()
-    masks: dict = {}
-    for rec in recs.values():
-        names = [n for n in job.names if n in {rec.image(i).name for i in rec.reg_image_ids()}]
-        masks.update(model_pass(job.image_dir, names, rec, on_frame=lambda: _emit("step")))
+    masks, _ = _model_masks(job, recs, job.names)
     moving.masks = masks
     dropped = sum(drop_observations(rec, masks) for rec in recs.values())
     moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped}
