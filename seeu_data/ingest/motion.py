@@ -525,8 +525,9 @@ def drop_observations(rec, masks: dict[str, np.ndarray]) -> int:
             continue
         xy = np.array([img.point2D(int(k)).xy for k in idxs], np.float64)
         for k in idxs[moving_keypoints(xy, masks[img.name], cam.width, cam.height)]:
-            rec.delete_observation(iid, int(k))
-            dropped += 1
+            if rec.image(iid).point2D(int(k)).has_point3D():  # not gone with a point deleted before
+                rec.delete_observation(iid, int(k))
+                dropped += 1
     return dropped
 
 
