@@ -2,7 +2,8 @@
 
 SfM assumes a static scene: a person, a car or a box moving through the frames gives SIFT matches
 that its two-view checks accept (motion along the epipolar lines passes them), and tracks that pull
-the cameras. Here, for each frame i and its neighbours j (`OFFSETS` frames before and after):
+the cameras. Here, for each frame i and its neighbours j (1 and up to `MAX_OFFSET` frames before and
+after, as far as the image motion allows: `neighbour_offsets`):
 
 1. flow (`Flows`): OpenCV's DIS optical flow between neighbouring frames, on grey frames shrunk to at
    most `WORK_SIDE` pixels, chained to reach the farther neighbours; a pixel's flow counts where the flow
@@ -47,7 +48,8 @@ from seeu_data.errors import SeeUError
 
 WORK_SIDE = 320  # flows on frames shrunk to this longer side (px)
 GRID_STEP = 2  # the static test judges one pixel per GRID_STEP x GRID_STEP block (masks at that size)
-OFFSETS = (1, 4)  # neighbours this many frames before and after
+MAX_OFFSET = 4  # the farther neighbours at most this many frames before and after ...
+FAR_MOTION_PX = 20.0  # ... and at most about this far (median image motion, working px)
 FB_MAX_PX = 1.0  # forward-backward disagreement above which a pixel's flow is not trusted
 PHOTO_MAX = 8.0  # grey-level difference (blurred frames) above which a pixel's flow is not trusted
 SEED_PX = 2.5  # residual (working px) that starts a moving region
@@ -298,7 +300,20 @@ def _pnp(points: np.ndarray, seen: np.ndarray, scale: float) -> tuple[np.ndarray
 Residual = Callable[[int, list[int], np.ndarray, list[np.ndarray], list[np.ndarray], np.ndarray], "np.ndarray | None"]
 
 
-def neighbours(i: int, n: int, offsets: Sequence[int] = OFFSETS) -> list[int]:
+def neighbour_offsets(flows: Flows, n: int) -> tuple[int, ...]:
+    """The neighbours' distances in frames: 1, and the farthest k <= MAX_OFFSET whose median image motion
+    (k times that of consecutive frames: the median flow of up to 5 pairs spread over the n frames) stays
+    within FAR_MOTION_PX, when k >= 2. A fast camera compared over 4 frames would leave the chained flow
+    and the fits far behind."""
+    pairs = sorted({int(k) for k in np.linspace(0, n - 2, min(5, n - 1))})
+    if not pairs:
+        return (1,)
+    step = float(np.median([np.median(np.linalg.norm(flows.step(k, k + 1)[0], axis=-1)) for k in pairs]))
+    far = int(min(MAX_OFFSET, FAR_MOTION_PX // max(step, 1e-6)))
+    return (1, far) if far >= 2 else (1,)
+
+
+def neighbours(i: int, n: int, offsets: Sequence[int]) -> list[int]:
     """Frame i's neighbours among n frames: i -/+ each offset, those inside 0..n-1."""
     return [i + o for o in sorted({-o for o in offsets} | set(offsets)) if 0 <= i + o < n]
 
@@ -324,16 +339,13 @@ def flow_residual(
 
 
 def detect(
-    frames: Sequence[np.ndarray],
-    residual: Residual,
-    offsets: Sequence[int] = OFFSETS,
-    on_frame: Callable[[], None] | None = None,
+    frames: Sequence[np.ndarray], residual: Residual, on_frame: Callable[[], None] | None = None
 ) -> list[np.ndarray]:
     """Masks of moving content `(h // GRID_STEP, w // GRID_STEP)` bool, one per frame of `frames` (grey `(h, w)`,
     in time order).
 
     `residual(i, js, grid, lands, oks, avoid)`: frame i's static residual `(h', w')` in pixels against its
-    neighbours js (`neighbours`), given the judged pixels `grid` `(h', w', 2)` (`Flows.grid`), per neighbour
+    neighbours js (`neighbours` at `neighbour_offsets`), given the judged pixels `grid` `(h', w', 2)` (`Flows.grid`), per neighbour
     where they land and whether that is trusted (`Flows.observe`), and where the frames before found moving
     content (`(h', w')` bool: not to fit cameras on); None when frame i cannot be judged (no camera).
     `on_frame()` is called after each frame."""
@@ -345,6 +357,7 @@ def detect(
     to_prev: list[np.ndarray | None] = []  # frame i's pixels in frame i - 1 (trusted ones), for the carrying
     to_next: list[np.ndarray | None] = []
     carried = np.zeros((h, w), np.float32)
+    offsets = neighbour_offsets(flows, n)
     for i in range(n):
         js = neighbours(i, n, offsets)
         obs = flows.observe(i, js)
