@@ -92,12 +92,12 @@ class Scene:
         return out
 
 
-def _make_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-    """Procedural corner-rich texture `(h, w, 3)` float32 in [0, 255]."""
+def _make_texture(rng: np.random.Generator, h: int, w: int, detail: float = 1.0) -> np.ndarray:
+    """Procedural corner-rich texture `(h, w, 3)` float32 in [0, 255]; `detail` times the shapes."""
     base = rng.uniform(60, 200, size=3)
     coarse = rng.normal(0, 28, size=(max(2, h // 24), max(2, w // 24), 3)).astype(np.float32)
     img = np.clip(base + cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC), 0, 255).astype(np.uint8)
-    n_shapes = int(h * w / 900) + 4
+    n_shapes = int(detail * h * w / 900) + 4
     for _ in range(n_shapes):
         color = tuple(int(c) for c in rng.integers(0, 256, size=3))
         kind = rng.integers(0, 4)
@@ -122,7 +122,9 @@ def _make_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return cv2.GaussianBlur(img, (0, 0), 0.8).astype(np.float32)
 
 
-def _add_rect(rects: list, rng, axis: int, coord: float, lo, hi, facing: int, light: np.ndarray) -> None:
+def _add_rect(
+    rects: list, rng, axis: int, coord: float, lo, hi, facing: int, light: np.ndarray, detail: float = 1.0
+) -> None:
     normal = np.zeros(3)
     normal[axis] = facing
     shade = 0.55 + 0.45 * max(0.0, float(normal @ light))
@@ -130,17 +132,20 @@ def _add_rect(rects: list, rng, axis: int, coord: float, lo, hi, facing: int, li
     # texture rows follow the second other axis, columns the first
     w = max(8, int(round((hi[0] - lo[0]) * TEXELS_PER_METRE)))
     h = max(8, int(round((hi[1] - lo[1]) * TEXELS_PER_METRE)))
-    rects.append((axis, coord, np.asarray(lo, float), np.asarray(hi, float), facing, shade, _make_texture(rng, h, w)))
+    texture = _make_texture(rng, h, w, detail)
+    rects.append((axis, coord, np.asarray(lo, float), np.asarray(hi, float), facing, shade, texture))
     del others
 
 
-def _add_box(rects: list, rng, bmin: np.ndarray, bmax: np.ndarray, light: np.ndarray, inward: bool = False) -> None:
+def _add_box(
+    rects: list, rng, bmin: np.ndarray, bmax: np.ndarray, light: np.ndarray, inward: bool = False, detail: float = 1.0
+) -> None:
     for axis in range(3):
         others = [i for i in range(3) if i != axis]
         lo, hi = bmin[others], bmax[others]
         # the face at bmin faces -axis from outside (+axis when seen from inside), and vice versa
-        _add_rect(rects, rng, axis, bmin[axis], lo, hi, +1 if inward else -1, light)
-        _add_rect(rects, rng, axis, bmax[axis], lo, hi, -1 if inward else +1, light)
+        _add_rect(rects, rng, axis, bmin[axis], lo, hi, +1 if inward else -1, light, detail)
+        _add_rect(rects, rng, axis, bmax[axis], lo, hi, -1 if inward else +1, light, detail)
 
 
 def make_scene(seed: int = 0, config: SceneConfig | None = None) -> Scene:
@@ -300,6 +305,9 @@ def path_length(cam_to_world: np.ndarray) -> float:
 # ---------------------------------------------------------------------------------------------
 
 MOVER_PATHS = ("sideways", "circle", "crossing")
+# A mover's faces carry this many times the shapes of the room's: seen up close, as rich in corners
+# (SIFT features) as the walls seen from afar, like a poster on a cart or a patterned shirt.
+MOVER_DETAIL = 8.0
 
 
 @dataclass(frozen=True)
@@ -358,7 +366,7 @@ def mover_boxes(movers: tuple[Mover, ...] | list[Mover], seed: int = 0) -> Scene
     rects: list = []
     for m in movers:
         half = np.asarray(m.size, float) / 2
-        _add_box(rects, rng, -half, half, light)
+        _add_box(rects, rng, -half, half, light, detail=MOVER_DETAIL)
     return _scene_of(rects, rng, [], light, seed)
 
 
