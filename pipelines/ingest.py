@@ -445,6 +445,7 @@ def _scene_report(
     out_dir: Path,
 ) -> dict:
     """report.json's content (seeu_data/ingest/report.py documents its fields), without the timings."""
+    from seeu_data.ingest.motion import report_section
     from seeu_data.ingest.report import mean_reprojection_error, scene_warnings, weak_geometry
 
     frames, chunks = selected.frames, chunked.chunks
@@ -487,6 +488,7 @@ def _scene_report(
             "final_ba": sfm_result.get("final_ba"),
             "resumed": sfm_result.get("resumed", {}),
         },
+        "motion": report_section(sfm_result.get("motion"), frames),
         "chunks": [
             {
                 "scene_id": c.scene_id,
@@ -527,7 +529,7 @@ def _write(
     import numpy as np
 
     from seeu_data.ingest.points import POINTS_DIR, chunk_observations, write_chunk_points
-    from seeu_data.ingest.report import plot_trajectory, write_report
+    from seeu_data.ingest.report import motion_sheet, plot_trajectory, write_report
     from seeu_data.resize import resize_scene
     from seeu_data.store.manifest import provenance
     from seeu_data.store.overlap_table import OVERLAP_FILES
@@ -540,6 +542,8 @@ def _write(
     sweep(out_dir, POSED_FILES, keep=())  # an earlier run's files: this run writes its own
     sweep(out_dir, OVERLAP_FILES, keep=())
     sweep(out_dir / POINTS_DIR, "*.ply", keep=())
+    (out_dir / "motion.png").unlink(missing_ok=True)  # an earlier run's contact sheet of masked frames
+    masked: list = []  # (source frame, image, mask) of every frame with a mask, for motion.png
     with PosedDatasetWriter(out_dir, params=params, provenance=prov, fsync=cfg.run.fsync) as writer:
         for c in chunked.chunks:
             imgs = []
@@ -569,8 +573,12 @@ def _write(
                     cache.stage_dir("sfm"), c.model_index, [selected.frames[p]["name"] for p in c.frame_positions]
                 ),
             )
+            scene.masks = moving_masks(cache.stage_dir("sfm"), c, fr)  # --dynamic mask (seeu_data.ingest.motion)
             if cfg.masks is not None:
-                scene.masks = chunk_masks(cfg, source.name, c, fr)
+                scene.masks = union_masks(scene.masks, chunk_masks(cfg, source.name, c, fr))
+            for f, image, mask in zip(fr, imgs, scene.masks or ()):
+                if mask is not None:
+                    masked.append((f["source_frame"], image, mask))
             writer.add(scene if cfg.size is None else resize_scene(scene, cfg.size, cfg.jpeg_quality))
         cache.timings["write"] = time.perf_counter() - t0
         keys = ("frames_selected", "registered", "registration_rate", "frames_in_chunks", "mean_reprojection_error_px")
@@ -582,7 +590,28 @@ def _write(
         report["reused"] = dict(cache.reused)
         write_report(out_dir / "report.json", report, cfg.run.fsync)
         title = f"{source.name}: {chunked.registered}/{len(selected.frames)} registered, {len(chunked.chunks)} chunk(s)"
-        plot_trajectory(out_dir / "trajectory.png", chunked.chunks, title, cfg.run.fsync)
+        motion = report.get("motion") or {}
+        plot_trajectory(out_dir / "trajectory.png", chunked.chunks, title, cfg.run.fsync, motion.get("masked_pct"))
+        if masked:
+            motion_sheet(out_dir / "motion.png", masked, cfg.run.fsync)
+
+
+def moving_masks(sfm_dir: Path, chunk, frames: list[dict]) -> list[bytes | None] | None:
+    """The chunk's frames' masks of moving content found in SfM (`--dynamic mask`: the SfM stage's
+    masks/<model>/<frame>.png, already undistorted as the frames are), None for a frame without; None when
+    no frame has one."""
+    folder = sfm_dir / "masks" / str(chunk.model_index)
+    masks = [(folder / f["name"]).read_bytes() if (folder / f["name"]).is_file() else None for f in frames]
+    return masks if any(m is not None for m in masks) else None
+
+
+def union_masks(a: list[bytes | None] | None, b: list[bytes | None]) -> list[bytes | None]:
+    """Per frame, the pixels excluded by either list of masks (PNG bytes or None; `a` None: no masks)."""
+    from seeu_data.masks import decode_mask, encode_mask
+
+    if a is None:
+        return b
+    return [x if y is None else y if x is None else encode_mask(decode_mask(x) | decode_mask(y)) for x, y in zip(a, b)]
 
 
 def chunk_masks(cfg: IngestConfig, scene: str, chunk, frames: list[dict]) -> list[bytes | None]:

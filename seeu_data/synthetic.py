@@ -17,15 +17,17 @@ Lambertian with a fixed light, constant per face (view-independent, as SfM assum
     write_clip("clip.mp4", n_frames=90, size=(360, 640), seed=0)   # + clip.json ground truth
     write_clip("wall.mp4", n_frames=30, size=(180, 320), scene="planar")  # one dominant plane
     write_clip("pan.mp4", n_frames=24, size=(180, 320), scene="pan")  # tripod pan in the corridor
+    write_clip("box.mp4", n_frames=90, movers="box")   # + box.masks.npz: where the moving box is seen
     posed = synthetic_posed_scene(24, 90, 160, seed=0)                    # PosedScene, no SfM
     pts = surface_points(scene, poses[:3], np.tile(intr, (3, 1)), 640, 360)  # (180, 3) exact surface points
 """
 
 from __future__ import annotations
 
+import io
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 import cv2
@@ -37,6 +39,7 @@ from seeu_data.limits import MAX_VIDEO_FRAMES, MAX_VIDEO_SIDE, check_range
 from seeu_data.settings import parse_video_dims, setting
 from seeu_data.store.json_file import read_json
 from seeu_data.store.out_lock import locks_output
+from seeu_data.store.paths import contained_path
 
 GT_FORMAT = "seeu.synthetic_ground_truth/1"
 SCENES = ("corridor", "planar", "pan")
@@ -89,12 +92,12 @@ class Scene:
         return out
 
 
-def _make_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
-    """Procedural corner-rich texture `(h, w, 3)` float32 in [0, 255]."""
+def _make_texture(rng: np.random.Generator, h: int, w: int, detail: float = 1.0) -> np.ndarray:
+    """Procedural corner-rich texture `(h, w, 3)` float32 in [0, 255]; `detail` times the shapes."""
     base = rng.uniform(60, 200, size=3)
     coarse = rng.normal(0, 28, size=(max(2, h // 24), max(2, w // 24), 3)).astype(np.float32)
     img = np.clip(base + cv2.resize(coarse, (w, h), interpolation=cv2.INTER_CUBIC), 0, 255).astype(np.uint8)
-    n_shapes = int(h * w / 900) + 4
+    n_shapes = int(detail * h * w / 900) + 4
     for _ in range(n_shapes):
         color = tuple(int(c) for c in rng.integers(0, 256, size=3))
         kind = rng.integers(0, 4)
@@ -119,7 +122,9 @@ def _make_texture(rng: np.random.Generator, h: int, w: int) -> np.ndarray:
     return cv2.GaussianBlur(img, (0, 0), 0.8).astype(np.float32)
 
 
-def _add_rect(rects: list, rng, axis: int, coord: float, lo, hi, facing: int, light: np.ndarray) -> None:
+def _add_rect(
+    rects: list, rng, axis: int, coord: float, lo, hi, facing: int, light: np.ndarray, detail: float = 1.0
+) -> None:
     normal = np.zeros(3)
     normal[axis] = facing
     shade = 0.55 + 0.45 * max(0.0, float(normal @ light))
@@ -127,17 +132,20 @@ def _add_rect(rects: list, rng, axis: int, coord: float, lo, hi, facing: int, li
     # texture rows follow the second other axis, columns the first
     w = max(8, int(round((hi[0] - lo[0]) * TEXELS_PER_METRE)))
     h = max(8, int(round((hi[1] - lo[1]) * TEXELS_PER_METRE)))
-    rects.append((axis, coord, np.asarray(lo, float), np.asarray(hi, float), facing, shade, _make_texture(rng, h, w)))
+    texture = _make_texture(rng, h, w, detail)
+    rects.append((axis, coord, np.asarray(lo, float), np.asarray(hi, float), facing, shade, texture))
     del others
 
 
-def _add_box(rects: list, rng, bmin: np.ndarray, bmax: np.ndarray, light: np.ndarray, inward: bool = False) -> None:
+def _add_box(
+    rects: list, rng, bmin: np.ndarray, bmax: np.ndarray, light: np.ndarray, inward: bool = False, detail: float = 1.0
+) -> None:
     for axis in range(3):
         others = [i for i in range(3) if i != axis]
         lo, hi = bmin[others], bmax[others]
         # the face at bmin faces -axis from outside (+axis when seen from inside), and vice versa
-        _add_rect(rects, rng, axis, bmin[axis], lo, hi, +1 if inward else -1, light)
-        _add_rect(rects, rng, axis, bmax[axis], lo, hi, -1 if inward else +1, light)
+        _add_rect(rects, rng, axis, bmin[axis], lo, hi, +1 if inward else -1, light, detail)
+        _add_rect(rects, rng, axis, bmax[axis], lo, hi, -1 if inward else +1, light, detail)
 
 
 def make_scene(seed: int = 0, config: SceneConfig | None = None) -> Scene:
@@ -355,6 +363,96 @@ def path_length(cam_to_world: np.ndarray) -> float:
 
 
 # ---------------------------------------------------------------------------------------------
+# Moving objects
+# ---------------------------------------------------------------------------------------------
+
+MOVER_PATHS = ("sideways", "circle", "crossing")
+# A mover's faces carry this many times the shapes of the room's: seen up close, as rich in corners
+# (SIFT features) as the walls seen from afar, like a poster on a cart or a patterned shirt.
+MOVER_DETAIL = 8.0
+
+
+@dataclass(frozen=True)
+class Mover:
+    """A textured box (`size` x, y, z in metres) moving independently of the static scene. At frame
+    i, with a = 2 pi i / `period` + `phase` (`period` in frames: a slow mover has a long one) and z_i
+    the camera centre's z (its progress along the walk), its centre is
+
+        sideways: (x0 + amplitude sin a, y0, z_i + distance)                     ahead of the camera
+        circle:   (x0 + amplitude sin a, y0, z_i + distance + amplitude cos a)   ahead, nearing and receding
+        crossing: (x0 + amplitude sin a, y0, distance)                           across the room at z = distance
+    """
+
+    size: tuple[float, float, float]
+    distance: float
+    amplitude: float
+    period: float
+    path: str = "sideways"
+    x0: float = 0.0
+    y0: float = 0.1
+    phase: float = 0.0
+
+    def centre(self, frame: int, camera_z: float) -> np.ndarray:
+        """World centre `(3,)` at `frame`, the camera's centre then at z = `camera_z`."""
+        a = 2 * np.pi * frame / self.period + self.phase
+        z = self.distance if self.path == "crossing" else camera_z + self.distance
+        if self.path == "circle":
+            z += self.amplitude * np.cos(a)
+        return np.array([self.x0 + self.amplitude * np.sin(a), self.y0, z])
+
+
+# `seeu synth --movers`: box is about a tenth of a 16:9 frame at 70 deg, swinging at up to 3 m/s;
+# large crosses the room 3.5 m along the walk, up to about 60 % of the frame as the camera nears it, out
+# of the way when it passes; slow moves at most 0.3 m/s; several: three of other sizes, speeds and paths.
+MOVER_PRESETS: dict[str, tuple[Mover, ...]] = {
+    "none": (),
+    "box": (Mover((0.6, 0.6, 0.6), distance=2.0, amplitude=0.7, period=45),),
+    "large": (
+        Mover((1.6, 1.5, 0.3), distance=3.5, amplitude=1.6, period=90, path="crossing", y0=0.0, phase=np.pi / 2),
+    ),
+    "slow": (Mover((0.6, 0.6, 0.6), distance=2.5, amplitude=0.3, period=180),),
+    "several": (
+        Mover((0.3, 0.3, 0.3), distance=3.0, amplitude=1.0, period=30, y0=-0.3),
+        Mover((0.5, 0.5, 0.5), distance=2.5, amplitude=0.5, period=60, path="circle", y0=0.35, phase=1.0),
+        Mover((0.8, 0.9, 0.5), distance=5.0, amplitude=0.9, period=120, path="crossing", y0=0.95, phase=2.0),
+    ),
+}
+
+
+def mover_boxes(movers: tuple[Mover, ...] | list[Mover], seed: int = 0) -> Scene:
+    """The movers' boxes centred on the origin, 6 rectangles each in mover order, textured from their own
+    generator (the static scene of `seed` stays the same with or without them)."""
+    light = np.asarray(SceneConfig().light_dir, float)
+    light /= np.linalg.norm(light)
+    rng = np.random.default_rng([seed, 7919])
+    rects: list = []
+    for m in movers:
+        half = np.asarray(m.size, float) / 2
+        _add_box(rects, rng, -half, half, light, detail=MOVER_DETAIL)
+    return _scene_of(rects, rng, [], light, seed)
+
+
+def place_movers(scene: Scene, boxes: Scene, centres: np.ndarray) -> Scene:
+    """`scene` with the movers' `boxes` (`mover_boxes`) moved to `centres` `(M, 3)`, their rectangles
+    appended after the scene's own (so a rendered face index >= len(scene) is a mover)."""
+    axis = boxes.axis
+    c = np.asarray(centres, float)[np.arange(len(boxes)) // 6]  # (R, 3) each rectangle's mover centre
+    others = np.array([[i for i in range(3) if i != a] for a in axis], np.int64).reshape(-1, 2)
+    shift = np.take_along_axis(c, others, 1)
+    return Scene(
+        axis=np.concatenate([scene.axis, axis]),
+        coord=np.concatenate([scene.coord, boxes.coord + c[np.arange(len(boxes)), axis]]),
+        lo=np.concatenate([scene.lo, boxes.lo + shift]),
+        hi=np.concatenate([scene.hi, boxes.hi + shift]),
+        facing=np.concatenate([scene.facing, boxes.facing]),
+        shade=np.concatenate([scene.shade, boxes.shade]),
+        textures=scene.textures + boxes.textures,
+        boxes=scene.boxes,
+        seed=scene.seed,
+    )
+
+
+# ---------------------------------------------------------------------------------------------
 # Rendering
 # ---------------------------------------------------------------------------------------------
 
@@ -409,6 +507,19 @@ def render_view(
     (j + 0.5, i + 0.5). Returns rgb `(H, W, 3)` uint8 and depth `(H, W)` float32 camera z-depth
     (inf where nothing is hit, which cannot happen inside the closed room).
     """
+    rgb, depth, _ = render_view_faces(scene, cam_to_world, intrinsics_norm, width, height, background)
+    return rgb, depth
+
+
+def render_view_faces(
+    scene: Scene,
+    cam_to_world: np.ndarray,
+    intrinsics_norm: np.ndarray,
+    width: int,
+    height: int,
+    background: float = 0.0,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """`render_view`, and which rectangle each pixel's ray hits first: `(H, W)` int32, -1 for none."""
     c2w = np.asarray(cam_to_world, np.float64)
     K = intrinsics_pixels(np.asarray(intrinsics_norm, np.float64), width, height)
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
@@ -457,7 +568,7 @@ def render_view(
         u = (origin[b0] + t * flat_dirs[b0, idx] - scene.lo[k, 0]) * TEXELS_PER_METRE
         v = (origin[b1] + t * flat_dirs[b1, idx] - scene.lo[k, 1]) * TEXELS_PER_METRE
         flat_rgb[idx] = _bilinear(scene.textures[k], u, v) * scene.shade[k]
-    return np.clip(rgb + 0.5, 0, 255).astype(np.uint8), depth
+    return np.clip(rgb + 0.5, 0, 255).astype(np.uint8), depth, face
 
 
 def surface_points(
@@ -511,6 +622,14 @@ class ClipConfig:
         "on a tripod (little parallax)",
         choices=SCENES,
     )  # planar: make_planar_scene + planar_camera_path; pan: the corridor + pan_camera_path
+    movers: str = setting(
+        "none",
+        "independently moving boxes, with their exact per-frame masks in <stem>.masks.npz: box: one box of about "
+        "a tenth of the frame swinging side to side 2 m ahead of the camera; large: one crossing the room, up to "
+        "more than half of the frame; slow: one moving at most 0.3 m/s; several: three of other sizes, speeds "
+        "and paths",
+        choices=tuple(MOVER_PRESETS),
+    )
 
     @property
     def height(self) -> int:
@@ -531,11 +650,13 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     """Render the clip to `video_path` (mp4v) and its ground truth to `<stem>.json`; both atomically.
 
     Returns the ground-truth document: {"format", "config", "width", "height", "fps",
-    "path_length", "frames": [{"frame", "timestamp_us", "cam_to_world" (4x4), "intrinsics_norm" (4)}]}.
+    "path_length", "frames": [{"frame", "timestamp_us", "cam_to_world" (4x4), "intrinsics_norm" (4)}]}; with
+    movers (`config.movers`) also "masks" (the file name of `masks_path`, written before the JSON) and "movers"
+    [{the `Mover`'s fields, "centres" (N x 3, world)}].
     """
     from tqdm import tqdm
 
-    from seeu_data.store.arrow_io import atomic_write_text, tmp_path_for
+    from seeu_data.store.arrow_io import atomic_write_bytes, atomic_write_text, tmp_path_for
 
     cfg = config or ClipConfig()
     if overrides:
@@ -559,6 +680,12 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     else:
         scene, poses = make_scene(cfg.seed), camera_path(cfg.n_frames, cfg.path_length_m)
     intr = default_intrinsics_norm(cfg.width, cfg.height, cfg.hfov_deg)
+    movers = MOVER_PRESETS[cfg.movers]
+    boxes = mover_boxes(movers, cfg.seed) if movers else None
+    centres = np.array([[m.centre(i, poses[i][2, 3]) for m in movers] for i in range(cfg.n_frames)]).reshape(
+        cfg.n_frames, len(movers), 3
+    )
+    masks = np.zeros((cfg.n_frames, cfg.height, cfg.width), bool) if movers else None
     tmp = tmp_path_for(video_path).with_suffix(".tmp.mp4")
     writer = cv2.VideoWriter(str(tmp), cv2.VideoWriter.fourcc(*"mp4v"), cfg.fps, (cfg.width, cfg.height))
     if not writer.isOpened():
@@ -566,7 +693,10 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
     frames = []
     try:
         for i in tqdm(range(cfg.n_frames), desc="render", unit="frame", disable=not progress):
-            rgb, _ = render_view(scene, poses[i], intr, cfg.width, cfg.height)
+            view = scene if boxes is None else place_movers(scene, boxes, centres[i])
+            rgb, _, face = render_view_faces(view, poses[i], intr, cfg.width, cfg.height)
+            if masks is not None:
+                masks[i] = face >= len(scene)
             writer.write(cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
             frames.append(
                 {
@@ -592,13 +722,25 @@ def write_clip(video_path: str | Path, config: ClipConfig | None = None, progres
         "path_length": path_length(poses),
         "frames": frames,
     }
+    if masks is not None:  # before the JSON, which names them: a clip is complete once its JSON is there
+        buf = io.BytesIO()
+        np.savez_compressed(buf, masks=masks)
+        atomic_write_bytes(masks_path(video_path), buf.getvalue())
+        doc["masks"] = masks_path(video_path).name
+        doc["movers"] = [{**asdict(m), "centres": centres[:, j].tolist()} for j, m in enumerate(movers)]
     atomic_write_text(ground_truth_path(video_path), json.dumps(doc, indent=1) + "\n")
     return doc
 
 
+def masks_path(video_path: str | Path) -> Path:
+    """Where the movers' masks of a clip live: `clip.mp4` -> `clip.masks.npz` (`masks`: (N, H, W) bool)."""
+    return Path(video_path).with_suffix(".masks.npz")
+
+
 def load_ground_truth(path: str | Path) -> dict:
     """Read a clip's ground-truth JSON (the video path or the JSON path) with numpy arrays added:
-    `cam_to_world` `(N, 4, 4)`, `intrinsics_norm` `(N, 4)`, `frame` `(N,)`."""
+    `cam_to_world` `(N, 4, 4)`, `intrinsics_norm` `(N, 4)`, `frame` `(N,)`, and for a clip with movers
+    `mask` `(N, H, W)` bool (True where a mover is seen)."""
     path = Path(path)
     if path.suffix != ".json":
         path = ground_truth_path(path)
@@ -615,6 +757,9 @@ def load_ground_truth(path: str | Path) -> dict:
     doc["cam_to_world"] = np.array([f["cam_to_world"] for f in doc["frames"]], np.float64)
     doc["intrinsics_norm"] = np.array([f["intrinsics_norm"] for f in doc["frames"]], np.float64)
     doc["frame"] = np.array([f["frame"] for f in doc["frames"]], np.int64)
+    if doc.get("masks"):
+        with np.load(contained_path(path.parent, doc["masks"], "masks file", path)) as z:
+            doc["mask"] = z["masks"]
     return doc
 
 
@@ -716,6 +861,49 @@ def ingest_accuracy(posed_dir: str | Path, video_path: str | Path, registered: i
         "registered_pct": 100.0 * registered / max(selected, 1),
         "chunks": chunks,
         "largest": max(chunks, key=lambda c: c["num_frames"]) if chunks else None,
+    }
+
+
+def mask_accuracy(posed_dir: str | Path, video_path: str | Path, min_truth: float = 0.01) -> dict:
+    """How well the masks written with the posed frames in `posed_dir` (an ingest of the clip with movers
+    at `video_path`) find its movers: every posed frame's mask (none: nothing masked) against the clip's
+    exact one (`load_ground_truth`'s "mask"; none for a clip without movers: every masked pixel is then
+    a false positive), at the posed frames' size.
+
+    Returns {"frames", "iou" (pooled: all frames' intersection over all frames' union; nan without
+    movers), "frame_iou_mean" (over the frames whose truth covers at least `min_truth` of the frame),
+    "recall" (of the movers' pixels), "false_positive_pct" (masked pixels outside the truth, % of all
+    pixels, mean over frames), "false_positive_max_pct" (the worst frame)}."""
+    from seeu_data.masks import decode_mask, resize_mask
+    from seeu_data.store.posed import PosedDataset
+
+    gt = load_ground_truth(video_path)
+    index = {int(f): i for i, f in enumerate(gt["frame"])}
+    inter = union = truth_px = 0
+    frame_iou, fp = [], []
+    ds = PosedDataset(posed_dir)
+    for sid in ds.scene_ids:
+        scene = ds.load_scene(sid)
+        for k, src in enumerate(scene.source_frame):
+            h, w = int(scene.height[k]), int(scene.width[k])
+            found = scene.masks[k] if scene.masks is not None else None
+            got = decode_mask(found) if found is not None else np.zeros((h, w), bool)
+            truth = gt["mask"][index[int(src)]] if "mask" in gt else np.zeros((h, w), bool)
+            if truth.shape != (h, w):
+                truth = resize_mask(truth, (h, w))
+            inter += int((got & truth).sum())
+            union += int((got | truth).sum())
+            truth_px += int(truth.sum())
+            fp.append(100.0 * float((got & ~truth).mean()))
+            if truth.mean() >= min_truth:
+                frame_iou.append(float((got & truth).sum() / (got | truth).sum()))
+    return {
+        "frames": len(fp),
+        "iou": inter / union if truth_px else float("nan"),
+        "frame_iou_mean": float(np.mean(frame_iou)) if frame_iou else float("nan"),
+        "recall": inter / truth_px if truth_px else float("nan"),
+        "false_positive_pct": float(np.mean(fp)) if fp else float("nan"),
+        "false_positive_max_pct": float(np.max(fp)) if fp else float("nan"),
     }
 
 

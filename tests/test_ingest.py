@@ -28,6 +28,7 @@ from seeu_data.synthetic import (
     ingest_accuracy,
     load_ground_truth,
     make_scene,
+    mask_accuracy,
     render_view,
     write_clip,
 )
@@ -127,6 +128,8 @@ def test_end_to_end_registration_and_accuracy(ingested, clip, capsys):
     assert scene.meta["sfm_solution_check"] == "passed" and report["warnings"] == []
     assert report["chunks"][0]["baseline_over_depth"] == pytest.approx(scene.meta["baseline_over_depth"])
     assert scene.meta["baseline_over_depth"] > 0.1 and scene.meta["degeneracy"] is None
+    # nothing moves in the walk: --dynamic mask (the default) masks at most a stated share of its pixels
+    assert report["motion"]["mode"] == "mask" and mask_accuracy(out, clip)["false_positive_pct"] < 0.5
 
 
 def test_check_cameras_on_ingested_scene(ingested, tmp_path, capsys):

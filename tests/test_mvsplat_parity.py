@@ -242,7 +242,7 @@ def test_predict_with_a_converted_checkpoint(fixture, tmp_path):
     got = load_ply(tmp_path / "p" / "gaussians.ply")
     scene = PosedDataset(posed).load_scene("syn0")
     ctx = context_from_views(
-        [decode_rgb(bytes(scene.images[i])) for i in (1, 4)],
+        [decode_rgb(bytes(scene.images[i]), None) for i in (1, 4)],
         scene.cam_to_world[[1, 4]],
         scene.intrinsics_norm[[1, 4]],
         scene.near,

@@ -164,3 +164,49 @@ def test_synthetic_posed_scene_round_trip(tmp_path):
     assert np.allclose(got.cam_to_world, camera_path(5)) and got.near < got.far
     img = cv2.imdecode(np.frombuffer(got.images[0], np.uint8), cv2.IMREAD_COLOR)
     assert img.shape == (48, 80, 3)
+
+
+def test_movers_change_exactly_their_masked_pixels_and_lie_inside_their_projected_box(scene):
+    """A mover's mask: the pixels it changes against the static render (nearer depth there, nothing changed
+    elsewhere), all inside the convex hull of its box's projected corners (closed form)."""
+    from seeu_data.synthetic import MOVER_PRESETS, mover_boxes, place_movers, render_view_faces
+
+    poses = camera_path(12)
+    intr = default_intrinsics_norm(W, H)
+    movers = MOVER_PRESETS["several"]
+    boxes = mover_boxes(movers, seed=3)
+    seen = 0
+    for i in (0, 5, 11):
+        centres = np.array([m.centre(i, poses[i][2, 3]) for m in movers])
+        rgb0, depth0 = render_view(scene, poses[i], intr, W, H)
+        rgb, depth, face = render_view_faces(place_movers(scene, boxes, centres), poses[i], intr, W, H)
+        mask = face >= len(scene)
+        assert np.array_equal(rgb[~mask], rgb0[~mask]) and np.array_equal(depth[~mask], depth0[~mask])
+        assert (depth[mask] < depth0[mask]).all()
+        hulls = np.zeros((H, W), np.uint8)
+        jj, ii = np.meshgrid(np.arange(W) + 0.5, np.arange(H) + 0.5)
+        for m, c in zip(movers, centres):
+            corners = c + np.array(np.meshgrid(*[[-s / 2, s / 2] for s in m.size])).reshape(3, -1).T
+            uv, z = cam.project_points(corners, poses[i], intr, W, H)
+            if (z < 0).all():  # the crossing mover, passed by the camera
+                continue
+            assert (z > 0).all()
+            hull = cv2.convexHull(uv.astype(np.float32))
+            inside = [cv2.pointPolygonTest(hull, (float(x), float(y)), True) for x, y in zip(jj.ravel(), ii.ravel())]
+            hulls |= (np.array(inside).reshape(H, W) >= -1e-3).astype(np.uint8)
+        assert not (mask & (hulls == 0)).any()
+        seen += int(mask.sum())
+    assert seen > 0.02 * 3 * W * H
+
+
+def test_synth_movers_write_masks_named_by_the_ground_truth(tmp_path):
+    from seeu_data.synthetic import write_clip
+
+    assert cli_main(["synth", "--out", str(tmp_path), "--frames", "4", "--size", "48x80", "--movers", "box"]) == 0
+    gt = load_ground_truth(tmp_path / "clip.mp4")
+    assert gt["masks"] == "clip.masks.npz" and gt["mask"].shape == (4, 48, 80) and gt["mask"].dtype == bool
+    assert 0.02 < gt["mask"].mean() < 0.3
+    (mover,) = gt["movers"]
+    assert np.allclose(np.array(mover["centres"])[:, 2] - gt["cam_to_world"][:, 2, 3], mover["distance"])
+    plain = write_clip(tmp_path / "plain" / "clip.mp4", n_frames=2, size=(32, 48))
+    assert "masks" not in plain and not (tmp_path / "plain" / "clip.masks.npz").exists()

@@ -3,13 +3,15 @@ about 1 to 16 m) seen along a walk-through that translates and turns, ray-cast i
 
 Writes OUT/clip.mp4 (mp4v) and OUT/clip.json, the exact ground truth per frame: frame number,
 timestamp_us, cam_to_world (OpenCV 4x4), intrinsics_norm (fx/W, fy/H, cx/W, cy/H); plus W, H,
-fps, path_length and the generator config. `seeu ingest OUT/clip.mp4` finds clip.json and adds
+fps, path_length and the generator config; with --movers (independently moving boxes) also
+OUT/clip.masks.npz, their exact per-frame masks. `seeu ingest OUT/clip.mp4` finds clip.json and adds
 pose accuracy against it to its report.
 
 Example:
   seeu synth --out data/synth --frames 90 --size 360x640 --seed 0
   seeu synth --out data/wall --frames 30 --size 180x320 --scene planar
   seeu synth --out data/pan --frames 20 --size 180x320 --scene pan
+  seeu synth --out data/box --movers box
 """
 
 from __future__ import annotations

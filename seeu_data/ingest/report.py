@@ -14,7 +14,12 @@ too few matches; the likely causes a failed check names)}}, input_identity {path
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth (widest
 baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or
 why the chunk's depth is unreliable: the camera mostly rotated in place)}],
-warnings [str] (a failed solution check, a camera rotating in place, low parallax; also in the summary line),
+motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), first_pass, keyframes, frames
+(each pass's frames_with_motion and matches / observations dropped), leave_out (off: observations,
+centre_change_pct), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
+mean_masked_pct} (seeu_data.ingest.motion),
+warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;
+also in the summary line),
 dropped_frames [{source_frame, reason}], timings_s {stage: seconds}, reused {stage: bool},
 output. (A synthetic clip's ground truth is compared by `seeu_data.synthetic.ingest_accuracy`, not here.)
 """
@@ -43,8 +48,12 @@ def write_report(path: str | Path, report: dict, fsync: bool = False) -> None:
     atomic_write_text(path, json.dumps(report, indent=1, default=float) + "\n", fsync)
 
 
-def plot_trajectory(path: str | Path, chunks: list, title: str, fsync: bool = False) -> None:
-    """Top view (x-z) and side view (z-y) of every chunk's camera centres, with viewing directions.
+def plot_trajectory(
+    path: str | Path, chunks: list, title: str, fsync: bool = False, masked: list | None = None
+) -> None:
+    """Top view (x-z) and side view (z-y) of every chunk's camera centres, with viewing directions; with
+    `masked` ([source frame, % of the frame] of the frames with a mask of moving content: report.json's
+    motion.masked_pct) a third panel, the share masked per frame.
 
     `chunks`: objects with `scene_id` and `cam_to_world (N, 4, 4)`; each chunk in its own frame.
     """
@@ -55,7 +64,7 @@ def plot_trajectory(path: str | Path, chunks: list, title: str, fsync: bool = Fa
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(10, 4.5))
+    fig, axes = plt.subplots(1, 3 if masked else 2, figsize=(15 if masked else 10, 4.5))
     for chunk in chunks:
         c = chunk.cam_to_world[:, :3, 3]
         fwd = chunk.cam_to_world[:, :3, 2]
@@ -78,16 +87,49 @@ def plot_trajectory(path: str | Path, chunks: list, title: str, fsync: bool = Fa
     axes[0].set(xlabel="x", ylabel="z", title="top view (x-z); arrows: viewing direction")
     axes[1].set(xlabel="z", ylabel="y", title="side view (z-y, +y down)")
     axes[1].invert_yaxis()
-    for ax in axes:
+    for ax in axes[:2]:
         ax.set_aspect("equal", adjustable="datalim")
         ax.grid(alpha=0.3)
     axes[0].legend(fontsize=7, loc="best")
+    if masked:
+        frames, pct = zip(*masked)
+        axes[2].bar(frames, pct, width=1.0, color="tab:red")
+        axes[2].set(xlabel="source frame", ylabel="% of the frame", title="moving content masked")
+        axes[2].grid(alpha=0.3)
     fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
     atomic_write_bytes(path, buf.getvalue(), fsync)
+
+
+def motion_sheet(path: str | Path, frames: list, fsync: bool = False, count: int = 8) -> None:
+    """A contact sheet of up to `count` frames with a mask of moving content, evenly spaced, in two rows,
+    their masked pixels tinted (`masks.tint_masked`) and their source frame written on them.
+
+    `frames`: (source frame, encoded image, its mask PNG) of every frame with a mask, in order."""
+    import cv2
+
+    from seeu_data.image_ops import decode_rgb
+    from seeu_data.masks import tint_masked
+
+    picks = [frames[round(k)] for k in np.linspace(0, len(frames) - 1, min(count, len(frames)))]
+    tiles = []
+    for source_frame, image, mask in picks:
+        rgb = tint_masked(decode_rgb(image, f"frame {source_frame}"), mask)
+        scale = 320 / max(rgb.shape[:2])
+        tile = cv2.resize(rgb, (round(rgb.shape[1] * scale), round(rgb.shape[0] * scale)), interpolation=cv2.INTER_AREA)
+        cv2.putText(tile, str(source_frame), (6, 18), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (255, 255, 255), 1, cv2.LINE_AA)
+        tiles.append(tile)
+    h, w = tiles[0].shape[:2]
+    tiles = [cv2.resize(t, (w, h)) for t in tiles]  # frames of other sizes (photos) fit the first's tile
+    cols = -(-len(tiles) // 2) if len(tiles) > 1 else 1
+    tiles += [np.zeros_like(tiles[0])] * (2 * cols - len(tiles) if len(tiles) > 1 else 0)
+    rows = [np.hstack(tiles[r * cols : (r + 1) * cols]) for r in range(len(tiles) // cols)]
+    ok, buf = cv2.imencode(".png", cv2.cvtColor(np.vstack(rows), cv2.COLOR_RGB2BGR))
+    if ok:
+        atomic_write_bytes(path, buf.tobytes(), fsync)
 
 
 # Low parallax: the widest baseline b of a chunk over the median scene depth d. Two views b apart see a
@@ -175,7 +217,7 @@ def scene_warnings(report: dict) -> list[str]:
             "no two mapping runs agree"
             + (f" (closest {d:.2g}% of the path apart)" if d is not None and np.isfinite(d) else "")
         )
-        causes = check.get("weak_geometry")
+        causes = None if check.get("moving_content") else check.get("weak_geometry")  # moving content: the reason
         why = (
             f"; likely owed to {', '.join(causes)}"
             if causes
@@ -183,6 +225,8 @@ def scene_warnings(report: dict) -> list[str]:
         )
         out.append(f"SfM solution check failed: {reason}{why}; the poses may be wrong")
         return out  # the causes name what the chunk warnings below would
+    elif check.get("moving_content"):  # --dynamic off, the check not run (seeu_data.ingest.motion)
+        out.append(f"{check['moving_content']}; the poses may be wrong")
     chunks = report["chunks"]
     flagged = [c for c in chunks if c.get("degeneracy")]
     if flagged:

@@ -22,7 +22,10 @@ a last global bundle adjustment of each mapped model with a robust loss (`final_
 (COLMAP's incremental-mapper step) -> undistortion of every model
 whose camera has distortion of at least `max_negligible_distortion_px` at the image border (to a
 pinhole camera of the same W x H, `seeu_data.undistort`; below that the frames are used as they are
-with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`.
+with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`. A video's moving content
+(`dynamic`, `seeu_data.ingest.motion`) is looked for after matching (mask: its matches dropped before
+mapping), on the mapped frames before the final bundle adjustment (mask: its observations dropped; off:
+the solution check fails on it) and on every frame after registration (mask: the masks written).
 
 Output directory layout::
 
@@ -34,6 +37,8 @@ Output directory layout::
     points3d_<k>.npy        (P, 6) the 3D points of model k: world x y z, colour R G B (0-255)
     observations_<k>.npz    names (I,) the registered images; obs (M, 2) int64: image position in
                             names, 3D point id of every observation (the tracks, for the view overlap)
+    masks/<k>/<frame>       --dynamic mask: the frame's mask of moving content (PNG, the frame's size,
+                            undistorted as the frame is; none where nothing moves)
 
 `result.json`: {"models": [{"index", "cameras": [{"model", "width", "height", "params",
 "fx", "fy", "cx", "cy"}] (one per frame size; used after undistortion), "camera" (the one of most frames), "undistorted": bool,
@@ -45,6 +50,8 @@ Output directory layout::
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
 "final_ba": [{"index", "loss", "scale_px", "termination", "iterations", "residuals", "used" (false: Ceres'
 solution unusable, the model kept as mapped), "reprojection_before_px", "reprojection_after_px"}] (null with `final_ba_loss` none),
+"motion": moving content (`dynamic`, seeu_data.ingest.sfm_motion.Moving; with `off`, found in the mapped
+frames, it fails "solution_check": "passed" false, "reason" and "moving_content" why),
 "timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
 "final_ba_s", "undistort_s" (when undistorted), "export_s" (the rest of the export)} in wall seconds, "cpu_timings":
 the same in CPU seconds (all threads), "resumed": {"images", "pairs", "map_runs"} (what was kept of an
@@ -83,6 +90,7 @@ CAMERA_MODELS = ("PINHOLE", "SIMPLE_PINHOLE", "SIMPLE_RADIAL", "RADIAL", "OPENCV
 MAPPERS = ("incremental", "global", "auto")
 MATCHERS = ("auto", "exhaustive", "sequential")
 FINAL_BA_LOSSES = ("none", "soft_l1", "cauchy", "huber")  # pycolmap.LossFunctionType, upper-cased
+DYNAMIC_MODES = ("off", "mask")  # --dynamic: moving content masked, or only looked for (seeu_data.ingest.motion)
 # --features: (pycolmap FeatureExtractorType, FeatureMatcherType) names; only SIFT needs no ONNX runtime
 FEATURES = {"sift": ("SIFT", "SIFT_BRUTEFORCE"), "aliked": ("ALIKED_N16ROT", "ALIKED_LIGHTGLUE")}
 _PROGRESS = "@@seeu"
@@ -186,6 +194,15 @@ class SfmConfig:
         choices=FINAL_BA_LOSSES,
     )
     final_ba_loss_scale: float = setting(0.5, "scale of --final-ba-loss in pixels", metavar="PX")
+    # Moving content of a video (seeu_data.ingest.motion): masked, or only checked for.
+    dynamic: str = setting(
+        "mask",
+        "moving content of a video (people, cars): mask: found from the optical flow between neighbouring "
+        "frames (before mapping, then against the SfM cameras), its keypoints left out of mapping and of the "
+        "final bundle adjustment, its per-frame masks written with the posed frames; off: not masked, only "
+        "looked for (moving content found fails the solution check)",
+        choices=DYNAMIC_MODES,
+    )
 
     def cores(self) -> int:
         """The cores SfM may use: `threads`, or with -1 this process's CPU affinity."""
@@ -219,6 +236,8 @@ class SfmConfig:
             raise SeeUError(f"--final-ba-loss must be one of {', '.join(FINAL_BA_LOSSES)}, got {self.final_ba_loss!r}")
         if not (self.final_ba_loss_scale > 0 and math.isfinite(self.final_ba_loss_scale)):
             raise SeeUError(f"--final-ba-loss-scale must be a finite number > 0, got {self.final_ba_loss_scale}")
+        if self.dynamic not in DYNAMIC_MODES:
+            raise SeeUError(f"--dynamic must be one of {', '.join(DYNAMIC_MODES)}, got {self.dynamic!r}")
         if self.features != "sift":
             _check_features_available(self.features)
 

@@ -2,7 +2,8 @@
 `seeu_data.ingest.sfm.run_sfm`): its steps in turn, result.json last.
 
     database, extract, match with the keyframes chosen on the way (features.py, pairs.py, keyframes.py)
-    -> map, final BA, register the rest, keep models (mapping.py, solution_check.py) -> export (sfm_export.py)
+    -> map, final BA, register the rest, keep models (mapping.py, solution_check.py) -> export (sfm_export.py),
+    with moving content looked for on the way (sfm_motion.py, `--dynamic`)
 
 A child started on a directory where an interrupted one of the same job worked (`run_sfm` keeps it)
 continues from what that one finished: the database (its journal entry), each image's features, each
@@ -20,6 +21,7 @@ from seeu_data.ingest.features import extract, match, open_database
 from seeu_data.ingest.mapping import final_ba, keep_models, map_frames, register_rest
 from seeu_data.ingest.sfm import Clock, Failed, Job, SfmConfig
 from seeu_data.ingest.sfm_export import export_models
+from seeu_data.ingest.sfm_motion import motion_export, motion_first, motion_frames, motion_keyframes
 
 
 def main(job_path: str) -> int:
@@ -40,16 +42,20 @@ def main(job_path: str) -> int:
         num_kp = extract(job)
         matches = match(job)
         kf = matches.keyframes
+        moving = motion_first(job)
         mapped = map_frames(job, matches, kf)
     except Failed as exc:
         failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu, "resumed": job.resumed}
         (out / "result.json").write_text(json.dumps(failed))
         return 0
     recs = mapped.recs
+    motion_keyframes(job, recs, kf, moving, mapped.check)
     final_ba_facts = final_ba(job, recs)
     register_rest(job, recs, kf, mapped.check["kept_seed"])
+    motion_frames(job, recs, kf, moving)
     kept, discarded = keep_models(recs, mapped.rejected)
     models = export_models(job, recs, kept)
+    motion_export(job, recs, models, moving)
     result: dict = {
         "models": models,
         "discarded_models": discarded,
@@ -61,6 +67,7 @@ def main(job_path: str) -> int:
         "solution_check": mapped.check,
         "keyframes": kf.info,
         "final_ba": final_ba_facts,
+        "motion": moving.facts,
         "timings": job.clock.wall,
         "cpu_timings": job.clock.cpu,
         "resumed": job.resumed,

@@ -1,0 +1,132 @@
+"""Benchmark `seeu ingest --dynamic` on synthetic clips with moving objects against their exact masks.
+
+1. Renders the corridor walk (default 90 frames, 640x360, seed 0) without movers and with each mover
+   preset of `seeu synth --movers` (box: one box of about a tenth of the frame swinging side to side
+   ahead of the camera; large: one crossing the room, up to more than half of the frame; slow: at most
+   0.3 m/s; several: three of other sizes, speeds and paths), each with its exact per-frame masks.
+2. Ingests every clip with `--dynamic mask` and with `--dynamic off` (in-process, --force, the other
+   settings at their defaults), in turn.
+3. Prints per clip and mode: wall and CPU seconds (and the ratio to the clip without movers in the same
+   mode: the goal is at most 1.5 with masking), camera centres against the ground truth (RMSE after a
+   similarity alignment, % of the path: the goal is within 0.5 % with masking), the solution check's
+   state and the warnings (with masking off, a clip with movers must end in a warning, not a pass),
+   and with masking the masks against the truth (`seeu_data.synthetic.mask_accuracy`: pooled IoU, the
+   goal >= 0.7 on the box; recall; false positives, % of all pixels, mean and worst frame: on the clip
+   without movers every masked pixel is one). Writes <out>/result.json.
+
+Example (quiet 2-core machine, the figures in RESULTS.md):
+  .venv/bin/python benchmarks/dynamic.py --out out/bench_dynamic
+  .venv/bin/python benchmarks/dynamic.py --quick --out out/bench_dynamic_quick   # 30 frames 320x180, box only
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+MODES = ("mask", "off")
+
+
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and its waited-for children (the SfM child)."""
+    import resource
+
+    own, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(resource.RUSAGE_CHILDREN)
+    return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
+
+
+def run_clip(video: Path, out: Path, mode: str) -> dict:
+    """One ingest of `video` with --dynamic `mode` into `out`: times, accuracy, check, warnings, masks."""
+    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
+    from seeu_data.ingest.sfm import SfmConfig
+    from seeu_data.ingest.video import discover_sources
+    from seeu_data.synthetic import ingest_accuracy, mask_accuracy
+
+    cfg = IngestConfig(out=out, inputs=(video,), sfm=SfmConfig(dynamic=mode), run=IngestRunConfig(force=True))
+    (source,) = discover_sources([video])
+    c0, t0 = _cpu_s(), time.perf_counter()
+    report = ingest_scene(source, cfg)
+    wall, cpu = time.perf_counter() - t0, _cpu_s() - c0
+    acc = ingest_accuracy(report["output"], video, report["registered"], report["frames_selected"])
+    best = acc["largest"] or {}
+    motion = report.get("motion") or {}
+    return {
+        "wall_s": wall,
+        "cpu_s": cpu,
+        "sfm_timings_s": report["sfm"]["timings_s"],
+        "registered_pct": acc["registered_pct"],
+        "centre_rmse_pct_path": best.get("centre_rmse_pct_path"),
+        "check": report["sfm"]["solution_check"].get("state"),
+        "warnings": report["warnings"],
+        "mean_masked_pct": motion.get("mean_masked_pct"),
+        "masks": mask_accuracy(report["output"], video) if mode == "mask" else None,
+    }
+
+
+def line(name: str, mode: str, r: dict, base: dict | None) -> str:
+    """One row of the table."""
+    ratio = f"{r['wall_s'] / base['wall_s']:.2f}x" if base else "-"
+    centre = r["centre_rmse_pct_path"]
+    out = (
+        f"{name:8s} {mode:4s} {r['wall_s']:7.1f} s ({ratio:>6s}) CPU {r['cpu_s']:7.1f} s  "
+        f"centres {'-' if centre is None else f'{centre:.3f}'} % path  check {r['check']}"
+        f"{'  WARNING' if r['warnings'] else ''}"
+    )
+    m = r["masks"]
+    if m:
+        out += (
+            f"  masks: IoU {m['iou']:.3f} recall {m['recall']:.3f} false positives {m['false_positive_pct']:.3f} % "
+            f"(worst frame {m['false_positive_max_pct']:.2f} %)"
+        )
+    return out
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--frames", type=int, default=90)
+    ap.add_argument("--size", default="360x640", help="H x W of the rendered clips")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--movers", default="box,large,slow,several", help="mover presets, besides the clip without")
+    ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
+    ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
+    ap.add_argument("--out", type=Path, default=Path("out/bench_dynamic"))
+    args = ap.parse_args()
+    if args.quick:
+        args.frames, args.size, args.movers = 30, "180x320", "box"
+
+    from seeu_data.settings import parse_dims
+    from seeu_data.synthetic import ClipConfig, write_clip
+
+    height, width = parse_dims(args.size, "--size", minimum=16)
+    clips = ["none", *[m for m in args.movers.split(",") if m]]
+    modes = [m for m in args.modes.split(",") if m in MODES]
+    results: dict = {}
+    load_before = os.getloadavg()
+    for name in clips:
+        video = args.out / "clips" / f"{name}.mp4"
+        t0 = time.perf_counter()
+        write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed, movers=name))
+        print(f"rendered {name}: {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s", flush=True)
+        for mode in modes:
+            r = run_clip(video, args.out / "posed" / mode, mode)
+            results.setdefault(name, {})[mode] = r
+            print(line(name, mode, r, results["none"][mode] if name != "none" else None), flush=True)
+    print(f"\nload average before {load_before}, after {os.getloadavg()}; {os.cpu_count()} CPUs")
+    print("table:")
+    for name in clips:
+        for mode in modes:
+            print(line(name, mode, results[name][mode], results["none"][mode] if name != "none" else None))
+    doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results}
+    doc["load_before"], doc["load_after"] = load_before, os.getloadavg()
+    (args.out / "result.json").write_text(json.dumps(doc, indent=1, default=float))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

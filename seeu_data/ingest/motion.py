@@ -1,0 +1,583 @@
+"""Moving content in a video's frames, found from dense optical flow (no learned weights).
+
+SfM assumes a static scene: a person, a car or a box moving through the frames gives SIFT matches
+that its two-view checks accept (motion along the epipolar lines passes them), and tracks that pull
+the cameras. Here, for each frame i and its neighbours j (1 and up to `MAX_OFFSET` frames before and
+after, as far as the image motion allows: `neighbour_offsets`):
+
+1. flow (`Flows`): OpenCV's DIS optical flow between neighbouring frames, on grey frames shrunk to at
+   most `WORK_SIDE` pixels, chained to reach the farther neighbours; a pixel's flow counts where the flow
+   back agrees (`FB_MAX_PX`: not occluded, not out of frame) and the frames look alike (`PHOTO_MAX`).
+2. the flow the static scene allows: cameras relative to frame i, x_j ~ M_j x + rho e_j, where x is
+   the pixel in normalised image coordinates, rho its inverse depth and (M_j, e_j) = (R_ji, t_ji) the
+   pose of frame j's camera in frame i's: from the SfM model (`model_pass`), or before any model exists
+   from the flow alone under a guessed focal length (`flow_cameras`, `first_pass`).
+3. the residual (`static_residual`): the one rho that best explains every neighbour's flow at the
+   pixel, and the largest distance in pixels between where that rho puts the pixel in a neighbour and
+   where the flow does: epipolar distance and depth consistency in one number. A static pixel's
+   neighbours agree on one depth; a moving one's do not, even when each move alone stays on its
+   epipolar line.
+4. masks (`detect`, `clean_masks`): the residual, median-filtered, carried along the flow to the next and
+   previous frames (fading by `CARRY` per frame, so a mover stays found through the frames where its
+   motion happens to look static), thresholded with hysteresis (`SEED_PX`, `GROW_PX`), closed,
+   specks below `MIN_AREA` of the frame dropped.
+
+Motion within the plane of the camera's path and the point (a box at eye level crossing in front of
+a camera walking straight, at constant speed) looks exactly like a static point at another depth;
+the far neighbours, the camera's own turns and the carrying along the flow are what find it there.
+
+The SfM child (`seeu_data.ingest.sfm`, --dynamic) runs `first_pass` before mapping (`drop_matches`),
+`model_pass` on the mapped frames (`drop_observations` before the final bundle adjustment) and on
+every frame after registration; `moving_content` says why unmasked moving content fails the solution
+check; `report_section` is report.json's "motion".
+
+    masks = first_pass(image_dir, names)          # {name: (h, w) bool} where moving content was found
+    dropped = drop_matches(db_path, masks)        # the database's verified matches on it, removed
+    masks = model_pass(image_dir, names, rec)     # the same against a pycolmap Reconstruction's cameras
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from seeu_data.errors import SeeUError
+
+WORK_SIDE = 320  # flows on frames shrunk to this longer side (px)
+GRID_STEP = 2  # the static test judges one pixel per GRID_STEP x GRID_STEP block (masks at that size)
+MAX_OFFSET = 4  # the farther neighbours at most this many frames before and after ...
+FAR_MOTION_PX = 20.0  # ... and at most about this far (median image motion, working px)
+FB_MAX_PX = 1.0  # forward-backward disagreement above which a pixel's flow is not trusted
+PHOTO_MAX = 8.0  # grey-level difference (blurred frames) above which a pixel's flow is not trusted
+SEED_PX = 2.5  # residual (working px) that starts a moving region
+GROW_PX = 1.25  # residual over which a moving region grows from its seeds
+CARRY = 0.7  # evidence carried to the next / previous frame along the flow, per frame
+MIN_AREA = 0.002  # smallest moving region kept, as a fraction of the frame
+SAMPLE_STEP = 3  # flow samples for the robust fits: one judged pixel in SAMPLE_STEP x SAMPLE_STEP
+MIN_SAMPLES = 30  # fewer trusted samples: no cameras from the flow
+FIT_PX = 0.5  # inlier distance of the robust fits (working px)
+FIT_ITERATIONS = 500  # of each robust fit
+GOOD_FIT_PX = 0.8  # median residual of the pixels cameras were fitted on, above which the fit failed
+# A homography explaining this share of the essential matrix's inliers: the camera turned in place or sees
+# one plane, and the homography is the static scene's flow; from AMBIGUOUS_SHARE on, a dominant plane
+# leaves the pose unsure (the points off it decide it) and the first pass does not judge the frame.
+HOMOGRAPHY_SHARE = 0.99
+AMBIGUOUS_SHARE = 0.5
+# The first pass's guessed focal length over the frame's longer side: COLMAP's own prior
+# (ImageReaderOptions.default_focal_length_factor). Far from the truth (0.7 for a 70 degree lens) it
+# still finds the box of the synthetic clip as well as the true one does: only consistency is judged.
+PRIOR_FOCAL = 1.2
+MIN_MOVING_FRAMES = 3  # --dynamic off: moving regions in this many mapped frames fail the solution check
+
+Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
+
+
+def load_frames(image_dir: str | Path, names: Sequence[str], side: int = WORK_SIDE) -> list[np.ndarray]:
+    """The frames as grey `(h, w)` uint8, shrunk (area interpolation) so the longer side is at most `side`."""
+    out = []
+    for name in names:
+        path = Path(image_dir) / name
+        img = cv2.imread(str(path), cv2.IMREAD_GRAYSCALE)
+        if img is None:
+            raise SeeUError("cannot read frame for motion detection", path)
+        scale = side / max(img.shape)
+        if scale < 1:
+            size = (max(1, round(img.shape[1] * scale)), max(1, round(img.shape[0] * scale)))
+            img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+        out.append(img)
+    return out
+
+
+class Flows:
+    """Where frame i's pixels land in the frames around it, from DIS optical flow between neighbouring
+    frames only, chained: carried to i + 1 by the flow i -> i + 1, on to i + 2 by the flow i + 1 -> i + 2
+    sampled where they landed, and so on (DIS fails on large displacements over weak texture, not on the
+    small steps). A step is trusted where the flow back returns within FB_MAX_PX (not occluded, not out
+    of frame) and the blurred frames agree within PHOTO_MAX grey levels; a chain where all its steps are.
+    `forget(i)` drops what frames before i needed."""
+
+    def __init__(self, frames: Sequence[np.ndarray], step: int = GRID_STEP) -> None:
+        self.frames = frames
+        self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
+        self.flows: dict[tuple[int, int], np.ndarray] = {}
+        self.steps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
+        self.smooth: dict[int, np.ndarray] = {}
+        h, w = frames[0].shape
+        self.full = pixel_grid(h, w).astype(np.float32)
+        self.grid = pixel_grid(h, w, step).astype(np.float32)  # the pixels followed: one per step x step block
+
+    def _flow(self, i: int, j: int) -> np.ndarray:
+        if (i, j) not in self.flows:
+            self.flows[(i, j)] = self.dis.calc(self.frames[i], self.frames[j], None)
+        return self.flows[(i, j)]
+
+    def _smoothed(self, i: int) -> np.ndarray:
+        if i not in self.smooth:
+            self.smooth[i] = cv2.GaussianBlur(self.frames[i].astype(np.float32), (0, 0), 1.0)
+        return self.smooth[i]
+
+    def step(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """Flow from frame i to its neighbour j `(h, w, 2)` float32, and where it is trusted `(h, w)` float32 0/1."""
+        if (i, j) not in self.steps:
+            flow = self._flow(i, j)
+            land = self.full + flow
+            mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
+            back = cv2.remap(
+                self._flow(j, i), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+            )
+            seen = cv2.remap(
+                self._smoothed(j), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+            )
+            with np.errstate(invalid="ignore"):
+                ok = (np.linalg.norm(flow + back, axis=-1) < FB_MAX_PX) & (np.abs(seen - self._smoothed(i)) < PHOTO_MAX)
+            self.steps[(i, j)] = (flow, ok.astype(np.float32))
+        return self.steps[(i, j)]
+
+    def observe(self, i: int, js: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
+        """Per frame j of js: where frame i's followed pixels (`grid`, `(h', w', 2)`) land there `(h', w', 2)`
+        float32, and where that is trusted `(h', w')` bool."""
+        found: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+        for d in (1, -1):
+            ahead = [(j - i) * d for j in js if (j - i) * d > 0]
+            land, ok, k = self.grid, np.ones(self.grid.shape[:2], bool), i
+            for _ in range(max(ahead, default=0)):
+                flow, trust = self.step(k, k + d)
+                mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
+                moved = cv2.remap(flow, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+                kept = cv2.remap(trust, mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
+                land = land + moved
+                ok = ok & (kept > 0.99) & np.isfinite(moved).all(-1)
+                k += d
+                found[k] = (land, ok)
+        return [found[j] for j in js]
+
+    def forget(self, before: int) -> None:
+        for cache in (self.flows, self.steps):
+            for pair in [p for p in cache if min(p) < before]:
+                del cache[pair]
+        for i in [i for i in self.smooth if i < before]:
+            del self.smooth[i]
+
+
+def pixel_grid(h: int, w: int, step: int = 1) -> np.ndarray:
+    """Centres `(h // step, w // step, 2)` (x, y) of the step x step blocks of an h x w image (step 1:
+    the pixel centres (j + 0.5, i + 0.5))."""
+    ys, xs = np.mgrid[0 : h // step, 0 : w // step].astype(np.float64)
+    return np.stack([(xs + 0.5) * step, (ys + 0.5) * step], -1)
+
+
+def _depth_terms(x: np.ndarray, land: np.ndarray, M: np.ndarray, e: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Least-squares terms of rho in (M x + rho e) ~ land: numerator and denominator, `(h, w)` each."""
+    h0 = x[..., 0:1] * M[:, 0] + x[..., 1:2] * M[:, 1] + M[:, 2]  # (h, w, 3) = M (x, y, 1)
+    u = e[:2] - land * e[2]
+    v = land * h0[..., 2:3] - h0[..., :2]
+    return (u * v).sum(-1), (u * u).sum(-1)
+
+
+def static_residual(
+    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], cameras: Cameras, scale: float = 1.0
+) -> np.ndarray:
+    """How far the flow of each pixel is from any static point's: `(...)` in pixels (0 where no
+    neighbour's flow is trusted).
+
+    x: `(..., 2)` the pixels of frame i; lands / oks: per neighbour, where they land `(..., 2)` and
+    whether that is trusted `(...)`, in the coordinates of x; cameras: per neighbour (M, e) with
+    land ~ M x + rho e; scale: pixels per unit of those coordinates. rho is fitted to all trusted
+    neighbours at once, the residual is the largest reprojection distance among them."""
+    num = np.zeros(x.shape[:-1])
+    den = np.zeros(x.shape[:-1])
+    for land, ok, (M, e) in zip(lands, oks, cameras):
+        n, d = _depth_terms(x, land, M, e)
+        num += np.where(ok, n, 0.0)
+        den += np.where(ok, d, 0.0)
+    rho = num / np.maximum(den, 1e-12)
+    res = np.zeros(x.shape[:-1])
+    for land, ok, (M, e) in zip(lands, oks, cameras):
+        dist = np.linalg.norm(_project(x, M, e, rho) - land, axis=-1)
+        res = np.where(ok & np.isfinite(dist), np.maximum(res, dist), res)
+    return res * scale
+
+
+def _samples(ok: np.ndarray) -> np.ndarray:
+    sel = np.zeros_like(ok)
+    sel[::SAMPLE_STEP, ::SAMPLE_STEP] = True
+    return sel & ok
+
+
+def _project(x: np.ndarray, M: np.ndarray, e: np.ndarray, rho: np.ndarray) -> np.ndarray:
+    """Where pixels `(..., 2)` of inverse depth `rho` `(...)` land with the camera (M, e): `(..., 2)`."""
+    h = x[..., 0:1] * M[:, 0] + x[..., 1:2] * M[:, 1] + M[:, 2] + rho[..., None] * e
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return h[..., :2] / h[..., 2:3]
+
+
+def flow_cameras(x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float) -> Cameras | None:
+    """Cameras of the neighbours relative to frame i from the flow alone, or None when the flow cannot
+    give them (too few trusted samples). x, lands: normalised image coordinates under a guessed camera
+    (`scale` pixels per unit: its focal length; the guess matters little, see `prior_focal`).
+
+    The neighbour farthest away in time gives the reference: its essential matrix (MAGSAC on a grid of
+    trusted flow samples) its pose (R, t) and an inverse depth rho for every pixel; each other neighbour's
+    pose is then found from those points and where they land there (PnP, RANSAC, refined). When a
+    homography explains the reference's flow as well as the essential matrix does (HOMOGRAPHY_SHARE: the
+    camera turned without moving, or sees one plane), every neighbour gets its homography (M = H, e = 0):
+    no depth; when it explains much of it (AMBIGUOUS_SHARE), None."""
+    samples = [_samples(ok) for ok in oks]
+    ref = max(range(len(lands)), key=lambda k: float(np.abs(lands[k][samples[k]] - x[samples[k]]).sum()))
+    sel = samples[ref]
+    if sel.sum() < MIN_SAMPLES:
+        return None
+    p, q = x[sel], lands[ref][sel].astype(np.float64)
+    E, e_in = cv2.findEssentialMat(p, q, np.eye(3), cv2.USAC_MAGSAC, 0.999, FIT_PX / scale, maxIters=FIT_ITERATIONS)
+    H, h_in = cv2.findHomography(p, q, cv2.RANSAC, FIT_PX / scale, maxIters=FIT_ITERATIONS)
+    planar = 0.0 if H is None or E is None else h_in.sum() / max(e_in.sum(), 1)
+    if planar >= HOMOGRAPHY_SHARE:
+        return _homographies(x, lands, oks, scale)
+    if E is None or E.shape != (3, 3) or planar >= AMBIGUOUS_SHARE:
+        return None
+    inl = np.flatnonzero(e_in.ravel())[:: max(1, int(e_in.sum()) // 500)]  # enough to tell the 4 poses apart
+    _, R, t, _ = cv2.recoverPose(E, p[inl], q[inl], np.eye(3))
+    t = t.ravel()
+    n0, d0 = _depth_terms(p, q, R, t)
+    rho = n0 / np.maximum(d0, 1e-12)
+    usable = (rho > 0) & (d0 > np.percentile(d0, 25))  # in front, with parallax for a depth
+    points = np.concatenate([p[usable], np.ones((int(usable.sum()), 1))], 1) / rho[usable][:, None]
+    at = tuple(a[usable] for a in np.nonzero(sel))  # the usable samples' grid indices
+    out: Cameras = []
+    for k, (land, ok) in enumerate(zip(lands, oks)):
+        if k == ref:
+            out.append((R, t))
+            continue
+        pose = _pnp(points[ok[at]], land[at][ok[at]].astype(np.float64), scale)
+        if pose is None:
+            return None
+        out.append(pose)
+    return out
+
+
+def _homographies(
+    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float
+) -> Cameras | None:
+    out: Cameras = []
+    for land, ok in zip(lands, oks):
+        sel = _samples(ok)
+        H = (
+            None
+            if sel.sum() < MIN_SAMPLES
+            else cv2.findHomography(x[sel], land[sel], cv2.RANSAC, FIT_PX / scale, maxIters=FIT_ITERATIONS)[0]
+        )
+        if H is None:
+            return None
+        out.append((H, np.zeros(3)))
+    return out
+
+
+def _pnp(points: np.ndarray, seen: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
+    """Pose (R, t) of a camera seeing 3D `points` `(N, 3)` at normalised `seen` `(N, 2)`: RANSAC (EPnP, within
+    2 FIT_PX), then Levenberg-Marquardt on the inliers; None when it fails."""
+    if len(points) < MIN_SAMPLES:
+        return None
+    found, rvec, tvec, inliers = cv2.solvePnPRansac(
+        points,
+        seen,
+        np.eye(3),
+        None,
+        reprojectionError=2 * FIT_PX / scale,
+        iterationsCount=FIT_ITERATIONS // 2,
+        flags=cv2.SOLVEPNP_EPNP,
+    )
+    if not found or inliers is None or len(inliers) < MIN_SAMPLES:
+        return None
+    keep = inliers.ravel()[:: max(1, len(inliers) // 500)]
+    rvec, tvec = cv2.solvePnPRefineLM(points[keep], seen[keep], np.eye(3), None, rvec, tvec)
+    return cv2.Rodrigues(rvec)[0], tvec.ravel()
+
+
+# residual(i, js, grid, lands, oks, avoid) -> (h, w) pixels or None: see `detect`
+Residual = Callable[[int, list[int], np.ndarray, list[np.ndarray], list[np.ndarray], np.ndarray], "np.ndarray | None"]
+
+
+def neighbour_offsets(flows: Flows, n: int) -> tuple[int, ...]:
+    """The neighbours' distances in frames: 1, and the farthest k <= MAX_OFFSET whose median image motion
+    (k times that of consecutive frames: the median flow of up to 5 pairs spread over the n frames) stays
+    within FAR_MOTION_PX, when k >= 2. A fast camera compared over 4 frames would leave the chained flow
+    and the fits far behind."""
+    pairs = sorted({int(k) for k in np.linspace(0, n - 2, min(5, n - 1))})
+    if not pairs:
+        return (1,)
+    step = float(np.median([np.median(np.linalg.norm(flows.step(k, k + 1)[0], axis=-1)) for k in pairs]))
+    far = int(min(MAX_OFFSET, FAR_MOTION_PX // max(step, 1e-6)))
+    return (1, far) if far >= 2 else (1,)
+
+
+def neighbours(i: int, n: int, offsets: Sequence[int]) -> list[int]:
+    """Frame i's neighbours among n frames: i -/+ each offset, those inside 0..n-1."""
+    return [i + o for o in sorted({-o for o in offsets} | set(offsets)) if 0 <= i + o < n]
+
+
+def flow_residual(
+    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float, avoid: np.ndarray
+) -> np.ndarray | None:
+    """`static_residual` under the cameras the flow gives (`flow_cameras`), fitted on trusted pixels not in
+    `avoid` `(h, w)` bool (moving content found in the frames before). A fit whose trusted pixels do not
+    mostly agree with it (median residual over GOOD_FIT_PX: moving content pulled it) is made once more
+    without the pixels it left above GROW_PX; None when that fails too."""
+    keep = [ok & ~avoid for ok in oks]
+    for _ in range(2):
+        cams = flow_cameras(x, lands, keep, scale)
+        if cams is None:
+            return None
+        r = static_residual(x, lands, oks, cams, scale)
+        fitted = np.any(keep, 0)
+        if fitted.any() and np.median(r[fitted]) <= GOOD_FIT_PX:
+            return r
+        keep = [k & (r < GROW_PX) for k in keep]
+    return None
+
+
+def detect(
+    frames: Sequence[np.ndarray], residual: Residual, on_frame: Callable[[], None] | None = None
+) -> list[np.ndarray]:
+    """Masks of moving content `(h // GRID_STEP, w // GRID_STEP)` bool, one per frame of `frames` (grey `(h, w)`,
+    in time order).
+
+    `residual(i, js, grid, lands, oks, avoid)`: frame i's static residual `(h', w')` in pixels against its
+    neighbours js (`neighbours` at `neighbour_offsets`), given the judged pixels `grid` `(h', w', 2)` (`Flows.grid`), per neighbour
+    where they land and whether that is trusted (`Flows.observe`), and where the frames before found moving
+    content (`(h', w')` bool: not to fit cameras on); None when frame i cannot be judged (no camera).
+    `on_frame()` is called after each frame."""
+    n = len(frames)
+    flows = Flows(frames)
+    grid = flows.grid.astype(np.float64)
+    h, w = grid.shape[:2]
+    evidence: list[np.ndarray] = []
+    to_prev: list[np.ndarray | None] = []  # frame i's pixels in frame i - 1 (trusted ones), for the carrying
+    to_next: list[np.ndarray | None] = []
+    carried = np.zeros((h, w), np.float32)
+    offsets = neighbour_offsets(flows, n)
+    for i in range(n):
+        js = neighbours(i, n, offsets)
+        obs = flows.observe(i, js)
+        look = dict(zip(js, obs))
+        to_prev.append(_carry_map(look.get(i - 1)))
+        to_next.append(_carry_map(look.get(i + 1)))
+        prior = CARRY * _warp(carried, to_prev[i])
+        r = residual(i, js, grid, [o[0] for o in obs], [o[1] for o in obs], prior > GROW_PX) if js else None
+        evidence.append(np.zeros((h, w), np.float32) if r is None else cv2.medianBlur(r.astype(np.float32), 5))
+        carried = np.maximum(evidence[i], prior)
+        flows.forget(i - max(offsets))
+        if on_frame is not None:
+            on_frame()
+    return clean_masks(evidence, to_prev, to_next)
+
+
+def _carry_map(obs: tuple[np.ndarray, np.ndarray] | None) -> np.ndarray | None:
+    """remap coordinates `(h', w', 2)` float32 of the landing points on the judged grid, NaN where not trusted."""
+    if obs is None:
+        return None
+    land, ok = obs
+    out = land / GRID_STEP - 0.5
+    out[~ok] = np.nan
+    return out
+
+
+def clean_masks(
+    evidence: list[np.ndarray], to_prev: list[np.ndarray | None], to_next: list[np.ndarray | None]
+) -> list[np.ndarray]:
+    """Per-frame residual maps -> masks: carried along the flow both ways in time (max with CARRY times
+    the neighbour's), hysteresis (regions over GROW_PX holding a pixel over SEED_PX), closed, specks
+    under MIN_AREA dropped."""
+    n = len(evidence)
+    fwd = list(evidence)
+    for i in range(1, n):
+        fwd[i] = np.maximum(evidence[i], CARRY * _warp(fwd[i - 1], to_prev[i]))
+    both = list(fwd)
+    back = evidence[-1]
+    for i in range(n - 2, -1, -1):
+        back = np.maximum(evidence[i], CARRY * _warp(back, to_next[i]))
+        both[i] = np.maximum(fwd[i], back)
+    h, w = evidence[0].shape
+    min_px = MIN_AREA * h * w
+    kernel = cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (5, 5))
+    masks = []
+    for e in both:
+        count, labels, stats, _ = cv2.connectedComponentsWithStats((e > GROW_PX).astype(np.uint8), connectivity=8)
+        seeded = np.zeros(count, bool)
+        seeded[np.unique(labels[e > SEED_PX])] = True
+        seeded[0] = False
+        m = cv2.morphologyEx(seeded[labels].astype(np.uint8), cv2.MORPH_CLOSE, kernel)
+        count, labels, stats, _ = cv2.connectedComponentsWithStats(m, connectivity=8)
+        keep = stats[:, cv2.CC_STAT_AREA] >= min_px
+        keep[0] = False
+        masks.append(keep[labels])
+    return masks
+
+
+def _warp(values: np.ndarray, coords: np.ndarray | None) -> np.ndarray:
+    """`values` `(h, w)` sampled at `coords` (`_carry_map`); 0 where there is none."""
+    if coords is None:
+        return np.zeros_like(values)
+    out = cv2.remap(values, coords[..., 0], coords[..., 1], cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
+    return np.nan_to_num(out, nan=0.0)
+
+
+# ---------------------------------------------------------------------------------------------
+# In the SfM child (seeu_data.ingest.sfm): the first pass before mapping, the SfM cameras after
+# ---------------------------------------------------------------------------------------------
+
+
+def first_pass(
+    image_dir: str | Path, names: Sequence[str], on_frame: Callable[[], None] | None = None
+) -> dict[str, np.ndarray]:
+    """Moving content of a video's frames `names` (in time order) from the flow alone, before any SfM
+    model: {name: (h, w) bool at the working size} for frames where some was found. The frames' camera
+    is guessed: principal point at the centre, focal length PRIOR_FOCAL times the longer side."""
+    frames = load_frames(image_dir, names)
+    h, w = frames[0].shape
+    centre, focal = np.array([w / 2, h / 2]), PRIOR_FOCAL * max(w, h)
+
+    def residual(i, js, grid, lands, oks, avoid):
+        return flow_residual((grid - centre) / focal, [(la - centre) / focal for la in lands], oks, focal, avoid)
+
+    return {n: m for n, m in zip(names, detect(frames, residual, on_frame=on_frame)) if m.any()}
+
+
+def model_pass(
+    image_dir: str | Path, names: Sequence[str], rec, on_frame: Callable[[], None] | None = None
+) -> dict[str, np.ndarray]:
+    """Moving content of the frames `names` (in time order, all registered in the pycolmap
+    Reconstruction `rec`) against the flow its cameras allow: {name: (h, w) bool at the working size}
+    for frames where some was found. Coordinates are the cameras' normalised image coordinates
+    (their distortion undone: `Camera.cam_from_img`)."""
+    from seeu_data.cameras import homogeneous_from_3x4, invert_rigid
+
+    frames = load_frames(image_dir, names)
+    h, w = frames[0].shape
+    by_name = {rec.image(i).name: rec.image(i) for i in rec.reg_image_ids()}
+    images = [by_name[n] for n in names]
+    poses = [homogeneous_from_3x4(np.asarray(img.cam_from_world().matrix(), np.float64)) for img in images]
+
+    grids: dict[int, np.ndarray] = {}  # camera id -> the judged pixels in its normalised coordinates
+
+    def normalised(camera, pts: np.ndarray) -> np.ndarray:
+        full = pts.reshape(-1, 2) * (camera.width / w, camera.height / h)  # working px -> the camera's px
+        return np.asarray(camera.cam_from_img(full.astype(np.float64)), np.float64).reshape(pts.shape)
+
+    def residual(i, js, grid, lands, oks, avoid):
+        cams: Cameras = []
+        for j in js:
+            rel = poses[j] @ invert_rigid(poses[i])  # frame i's camera -> frame j's
+            cams.append((rel[:3, :3], rel[:3, 3]))
+        cam_i = rec.cameras[images[i].camera_id]
+        if images[i].camera_id not in grids:
+            grids[images[i].camera_id] = normalised(cam_i, grid)
+        x = grids[images[i].camera_id]
+        seen = [normalised(rec.cameras[images[j].camera_id], la) for j, la in zip(js, lands)]
+        return static_residual(x, seen, oks, cams, cam_i.mean_focal_length() * w / cam_i.width)
+
+    return {n: m for n, m in zip(names, detect(frames, residual, on_frame=on_frame)) if m.any()}
+
+
+def moving_keypoints(xy: np.ndarray, mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Which keypoints `(N, 2)` (pixels of a `width` x `height` frame, COLMAP's: the top-left corner at 0)
+    fall in `mask` `(h, w)` bool (working size): `(N,)` bool."""
+    h, w = mask.shape
+    cols = np.clip((np.asarray(xy)[:, 0] * w / width).astype(np.int64), 0, w - 1)
+    rows = np.clip((np.asarray(xy)[:, 1] * h / height).astype(np.int64), 0, h - 1)
+    return mask[rows, cols]
+
+
+def drop_matches(db_path: str | Path, masks: dict[str, np.ndarray]) -> int:
+    """Remove from the database's verified matches (the two-view geometries' inliers, which mapping and
+    registration use) every match with a keypoint in its frame's moving mask; returns how many."""
+    import pycolmap
+
+    db = pycolmap.Database.open(Path(db_path))
+    try:
+        moving: dict[int, np.ndarray] = {}
+        for img in db.read_all_images():
+            if img.name in masks:
+                cam = db.read_camera(img.camera_id)
+                xy = np.asarray(db.read_keypoints(img.image_id), np.float64)[:, :2]
+                moving[img.image_id] = moving_keypoints(xy, masks[img.name], cam.width, cam.height)
+        dropped = 0
+        pair_ids, geometries = db.read_two_view_geometries()
+        for pid, geometry in zip(pair_ids, geometries):
+            a, b = pycolmap.pair_id_to_image_pair(pid)
+            if a not in moving and b not in moving:
+                continue
+            matches = np.asarray(geometry.inlier_matches, np.int64).reshape(-1, 2)
+            bad = np.zeros(len(matches), bool)
+            if a in moving:
+                bad |= moving[a][matches[:, 0]]
+            if b in moving:
+                bad |= moving[b][matches[:, 1]]
+            if bad.any():
+                geometry.inlier_matches = matches[~bad].astype(np.uint32)
+                db.update_two_view_geometry(a, b, geometry)
+                dropped += int(bad.sum())
+    finally:
+        db.close()
+    return dropped
+
+
+def drop_observations(rec, masks: dict[str, np.ndarray]) -> int:
+    """Remove from the Reconstruction `rec` (in place) every observation whose keypoint lies in its frame's
+    moving mask (a point left with fewer than two observations goes); returns how many."""
+    dropped = 0
+    for iid in rec.reg_image_ids():
+        img = rec.image(iid)
+        if img.name not in masks:
+            continue
+        cam = rec.cameras[img.camera_id]
+        idxs = np.asarray(img.get_observation_point2D_idxs(), np.int64)
+        if not len(idxs):
+            continue
+        xy = np.array([img.point2D(int(k)).xy for k in idxs], np.float64)
+        for k in idxs[moving_keypoints(xy, masks[img.name], cam.width, cam.height)]:
+            if rec.image(iid).point2D(int(k)).has_point3D():  # not gone with a point deleted before
+                rec.delete_observation(iid, int(k))
+                dropped += 1
+    return dropped
+
+
+def full_size(mask: np.ndarray, width: int, height: int) -> np.ndarray:
+    """A working-size mask `(h, w)` bool at the frame's size `(height, width)` bool (bilinear, halfway)."""
+    up = cv2.resize(mask.astype(np.uint8) * 255, (width, height), interpolation=cv2.INTER_LINEAR)
+    return up >= 128
+
+
+def moving_content(facts: dict) -> str | None:
+    """With --dynamic off: why the moving content found in the mapped frames makes the poses
+    untrustworthy (from result.json's "motion" `facts`), or None when too little was found
+    (regions in fewer than MIN_MOVING_FRAMES frames: what the static synthetic clips stay under)."""
+    seen = facts.get("keyframes") or {}
+    found = seen.get("frames_with_motion", 0)
+    if found < MIN_MOVING_FRAMES:
+        return None
+    out = f"moving content in {found} of {seen.get('judged')} mapped frames is not masked (--dynamic off)"
+    left = facts.get("leave_out")
+    if left:
+        out += (
+            f"; leaving its {left['observations']} observations out moves the cameras "
+            f"{left['centre_change_pct']:.2g}% of the path"
+        )
+    return out + "; re-run with --dynamic mask"
+
+
+def report_section(facts: dict | None, frames: Sequence[dict]) -> dict | None:
+    """report.json's "motion": the SfM stage's facts (`facts`, None for a stage without them), with
+    "masked_pct" as [source frame, % of the frame masked] for each of the selected `frames` (records with
+    "name", "source_frame") that has a mask, "frames_masked" and "mean_masked_pct" over all of them."""
+    if not facts:
+        return None
+    pct = facts.get("masked_pct", {})
+    per = [[f["source_frame"], round(float(pct[f["name"]]), 3)] for f in frames if f["name"] in pct]
+    out = {k: v for k, v in facts.items() if k != "masked_pct"}
+    out["masked_pct"] = per
+    out["frames_masked"] = len(per)
+    out["mean_masked_pct"] = sum(p for _, p in per) / max(len(frames), 1)
+    return out

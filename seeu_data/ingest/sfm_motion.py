@@ -1,0 +1,160 @@
+"""Moving content in the SfM child (`--dynamic`, `seeu_data.ingest.motion`): its four hooks, in the
+order `sfm_child.main` calls them.
+
+    after matching:            motion_first     (mask: a video's moving content from the flow alone,
+                                                 its matches dropped before mapping)
+    after mapping:             motion_keyframes (the mapped frames against their SfM cameras; mask:
+                                                 their observations dropped before the final BA;
+                                                 off: moving content found fails the solution check)
+    after registration:        motion_frames    (mask: every registered frame, the final masks)
+    after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+from seeu_data.ingest.keyframes import Keyframes
+from seeu_data.ingest.mapping import final_bundle_adjustment
+from seeu_data.ingest.sfm import Job, emit
+from seeu_data.ingest.solution_check import model_disagreement_pct
+
+
+@dataclass
+class Moving:
+    """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
+    result.json's "motion" {"mode", "judged" (a video: frames in time order), "first_pass", "keyframes"
+    (the mapped frames), "frames" (all, after registration), "leave_out" (off), "masked_pct" {name: % of the
+    frame}}."""
+
+    masks: dict
+    facts: dict
+
+
+class _Counter:
+    """Progress of one motion stage, frame by frame (the parent's `done N` line)."""
+
+    def __init__(self) -> None:
+        self.done = 0
+
+    def __call__(self) -> None:
+        self.done += 1
+        emit("done", self.done)
+
+
+def motion_first(job: Job) -> Moving:
+    """--dynamic mask: moving content of a video from the flow alone, its matches dropped before mapping."""
+    moving = Moving({}, {"mode": job.cfg.dynamic, "judged": job.video})
+    if job.cfg.dynamic != "mask" or not job.video:
+        return moving
+    from seeu_data.ingest.motion import drop_matches, first_pass
+
+    emit("stage", "motion", len(job.names), "frames")
+    t0 = job.clock.mark()
+    moving.masks = first_pass(job.image_dir, job.names, on_frame=_Counter())
+    dropped = drop_matches(job.db_path, moving.masks)
+    moving.facts["first_pass"] = {"frames_with_motion": len(moving.masks), "matches_dropped": dropped}
+    job.clock.add("motion_s", t0)
+    return moving
+
+
+def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
+    """A video's mapped frames against the flow their SfM cameras allow; mask: their observations in moving
+    regions dropped before the final bundle adjustment; off: the leave-out test (`_leave_out`), and moving
+    content found (`motion.moving_content`) fails the solution `check` (in place; "moving_content" says why)."""
+    if not job.video:
+        return
+    import pycolmap
+
+    from seeu_data.ingest.motion import drop_observations, moving_content
+
+    emit("stage", "motion-check", len(kf.names), "frames")
+    t0 = job.clock.mark()
+    masks, judged = _model_masks(job, recs, kf.names)
+    moving.masks = masks
+    moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
+    if job.cfg.dynamic == "mask":
+        moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
+    elif masks:
+        moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
+        found = moving_content(moving.facts)
+        if found:
+            check["moving_content"] = found
+            if check.get("ran"):
+                check["passed"], check["reason"] = False, found
+    job.clock.add("motion_s", t0)
+
+
+def _model_masks(job: Job, recs: dict, names: list[str]) -> tuple[dict, int]:
+    """`motion.model_pass` over each model's frames among `names` (in time order): the masks found, and
+    how many frames were judged."""
+    from seeu_data.ingest.motion import model_pass
+
+    masks: dict = {}
+    judged = 0
+    count = _Counter()
+    for rec in recs.values():
+        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        mine = [n for n in names if n in registered]
+        masks.update(model_pass(job.image_dir, mine, rec, on_frame=count))
+        judged += len(mine)
+    return masks, judged
+
+
+def _leave_out(job: Job, recs: dict, masks: dict) -> dict:
+    """How much the moving regions carry the models `recs` (copies): each adjusted as the final bundle
+    adjustment does, with and without their observations in `masks`; {"observations" (left out),
+    "centre_change_pct" (`model_disagreement_pct` of the two)}."""
+    import pycolmap
+
+    from seeu_data.ingest.motion import drop_observations
+
+    cfg = job.cfg if job.cfg.final_ba_loss != "none" else replace(job.cfg, final_ba_loss="soft_l1")
+    with_all = {k: final_bundle_adjustment(pycolmap.Reconstruction(r), cfg)[0] for k, r in recs.items()}
+    dropped = sum(drop_observations(r, masks) for r in recs.values())
+    without = {k: final_bundle_adjustment(r, cfg)[0] for k, r in recs.items()}
+    return {"observations": dropped, "centre_change_pct": model_disagreement_pct(with_all, without)}
+
+
+def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving) -> None:
+    """--dynamic mask, keyframes: every registered frame against the SfM cameras (the final masks), its
+    observations in moving regions dropped (registered after the final adjustment: no adjustment follows)."""
+    if job.cfg.dynamic != "mask" or not job.video or kf.stride <= 1:
+        return
+    from seeu_data.ingest.motion import drop_observations
+
+    emit("stage", "motion-frames", len(job.names), "frames")
+    t0 = job.clock.mark()
+    masks, _ = _model_masks(job, recs, job.names)
+    moving.masks = masks
+    dropped = sum(drop_observations(rec, masks) for rec in recs.values())
+    moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped}
+    job.clock.add("motion_s", t0)
+
+
+def motion_export(job: Job, recs: dict, models: list[dict], moving: Moving) -> None:
+    """--dynamic mask: each exported model's frames' masks as masks/<k>/<name>.png (the frame's size,
+    undistorted as the frames are) and their masked share in "masked_pct"."""
+    if job.cfg.dynamic != "mask" or not moving.masks:
+        return
+    from seeu_data.ingest.motion import full_size
+    from seeu_data.masks import encode_mask, undistort_mask
+
+    t0 = job.clock.mark()
+    pct: dict[str, float] = {}
+    for model in models:
+        rec = recs[model["index"]]
+        out = job.out / "masks" / str(model["index"])
+        for iid in rec.reg_image_ids():
+            img = rec.image(iid)
+            if img.name not in moving.masks:
+                continue
+            camera = rec.cameras[img.camera_id]
+            mask = full_size(moving.masks[img.name], camera.width, camera.height)
+            if model["undistorted"]:
+                mask = undistort_mask(mask, camera)
+            (out / img.name).parent.mkdir(parents=True, exist_ok=True)
+            (out / img.name).write_bytes(encode_mask(mask))
+            pct[img.name] = 100.0 * float(mask.mean())
+    moving.facts["masked_pct"] = pct
+    job.clock.add("motion_s", t0)

@@ -1,0 +1,79 @@
+"""`seeu ingest --dynamic` end to end on a synthetic walk with a swinging box (`seeu synth --movers box`):
+masks written with the posed frames against the renderer's exact ones, the report's share per frame,
+the sheets; with masking off, a warning instead of a pass."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from pipelines.cli import main as cli_main
+from pipelines.validate import validate_dataset
+from seeu_data.ingest.report import summary_line
+from seeu_data.masks import decode_mask
+from seeu_data.store.posed import PosedDataset
+from seeu_data.synthetic import ingest_accuracy, load_ground_truth, mask_accuracy, write_clip
+
+W, H, N = 320, 180, 30
+
+pytestmark = pytest.mark.usefixtures("no_heartbeat")  # conftest: one-line error checks
+
+
+@pytest.fixture(scope="module")
+def box_clip(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("box")
+    write_clip(root / "box.mp4", n_frames=N, size=(H, W), seed=0, movers="box")
+    return root / "box.mp4"
+
+
+@pytest.fixture(scope="module")
+def runs(box_clip, tmp_path_factory) -> dict:
+    """The clip ingested with --dynamic mask (the default) and with --dynamic off."""
+    out = {}
+    for mode in ("mask", "off"):
+        root = tmp_path_factory.mktemp(mode)
+        assert cli_main(["ingest", str(box_clip), "--out", str(root), "--dynamic", mode]) == 0
+        out[mode] = {"dir": root / "box", "report": json.loads((root / "box" / "report.json").read_text())}
+    return out
+
+
+def test_masks_follow_the_moving_box_and_the_cameras_stay_on_the_path(runs, box_clip):
+    run = runs["mask"]
+    validate_dataset(run["dir"])  # the mask column passes the one validator
+    scores = mask_accuracy(run["dir"], box_clip)
+    assert scores["iou"] > 0.6, scores
+    assert scores["false_positive_pct"] < 1.0, scores
+    report = run["report"]
+    acc = ingest_accuracy(run["dir"], box_clip, report["registered"], report["frames_selected"])
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5, acc
+    # the report's share per frame is the stored masks' share
+    motion = report["motion"]
+    assert motion["mode"] == "mask" and motion["frames_masked"] >= N // 2
+    stored = {}
+    for sid in PosedDataset(run["dir"]).scene_ids:
+        scene = PosedDataset(run["dir"]).load_scene(sid)
+        for src, m in zip(scene.source_frame, scene.masks or [None] * len(scene)):
+            if m is not None:
+                stored[int(src)] = 100.0 * decode_mask(m).mean()
+    assert len(stored) == motion["frames_masked"]
+    for src, pct in motion["masked_pct"]:
+        assert pct == pytest.approx(stored[src], abs=1e-3)
+    truth = load_ground_truth(box_clip)["mask"]
+    assert abs(np.mean([p for _, p in motion["masked_pct"]]) - 100 * truth.mean()) < 5.0
+    assert (run["dir"] / "motion.png").is_file() and (run["dir"] / "trajectory.png").is_file()
+    assert not report["warnings"], report["warnings"]
+
+
+def test_masking_off_warns_instead_of_passing(runs):
+    report = runs["off"]["report"]
+    check = report["sfm"]["solution_check"]
+    assert check["state"] != "passed" and "moving content" in check["moving_content"]
+    assert any("moving content" in w and "--dynamic mask" in w for w in report["warnings"]), report["warnings"]
+    line = summary_line(report)
+    assert "solution check passed" not in line and "WARNING" in line and "moving content" in line
+    assert report["motion"]["leave_out"]["observations"] > 0
+    assert report["motion"]["frames_masked"] == 0  # nothing masked
+    assert not (runs["off"]["dir"] / "motion.png").exists()

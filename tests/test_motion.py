@@ -1,0 +1,155 @@
+"""Moving content from optical flow (seeu_data/ingest/motion.py) against independent truths: exact
+projections of known points (seeu_data.cameras), the synthetic renderer's exact masks of its movers."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from seeu_data import cameras as cam
+from seeu_data.ingest import motion
+from seeu_data.synthetic import (
+    MOVER_PRESETS,
+    camera_path,
+    default_intrinsics_norm,
+    make_scene,
+    mover_boxes,
+    place_movers,
+    render_view_faces,
+)
+
+W, H = 320, 180
+
+
+def _look(eye, target) -> np.ndarray:
+    """OpenCV camera-to-world `(4, 4)` at `eye` looking at `target` (+y down)."""
+    z = np.asarray(target, float) - eye
+    z /= np.linalg.norm(z)
+    x = np.cross([0.0, 1.0, 0.0], z)
+    x /= np.linalg.norm(x)
+    m = np.eye(4)
+    m[:3, :3] = np.stack([x, np.cross(z, x), z], 1)
+    m[:3, 3] = eye
+    return m
+
+
+def _scene_points(rng, n: int = 400) -> np.ndarray:
+    """World points `(n, 3)` 2-8 m in front of the origin looking along +z."""
+    return np.stack([rng.uniform(-3, 3, n), rng.uniform(-2, 2, n), rng.uniform(2, 8, n)], 1)
+
+
+def _normalised(points: np.ndarray, c2w: np.ndarray) -> np.ndarray:
+    """Normalised image coordinates `(n, 2)` of world points in the camera `c2w` (via cameras.project_points)."""
+    intr = np.array([1.0, 1.0, 0.0, 0.0])  # fx = fy = 1 px on a 1 x 1 image, principal point at 0
+    uv, _ = cam.project_points(points, c2w, intr, 1, 1)
+    return uv
+
+
+def test_static_residual_vanishes_on_static_points_and_flags_motion_along_the_epipolar_lines():
+    """Neighbours along a curved walk see static points exactly where one depth puts them (residual ~0);
+    a point that moves within its epipolar plane at frame i's neighbour i+1 (a two-view test cannot see
+    it) is caught by the other neighbours."""
+    rng = np.random.default_rng(0)
+    pts = _scene_points(rng)
+    poses = [_look(np.array([0.3 * np.sin(t), 0.02 * t, 0.4 * t]), [0.5 * np.sin(t), 0.0, 10.0]) for t in range(-2, 3)]
+    i, js = 2, [0, 1, 3, 4]
+    x = _normalised(pts, poses[i])
+    w2c = [cam.invert_rigid(p) for p in poses]
+    cams = [((w2c[j] @ poses[i])[:3, :3], (w2c[j] @ poses[i])[:3, 3]) for j in js]
+    lands = [_normalised(pts, poses[j]) for j in js]
+    oks = [np.ones(len(pts), bool)] * len(js)
+    static = motion.static_residual(x, lands, oks, cams, scale=500.0)
+    assert static.max() < 1e-6
+
+    # the first 50 points move at frame 3 along the line from frame 2's camera centre through frame 3's:
+    # the point stays in frame 2's epipolar plane with frame 3, so that pair alone is consistent
+    moved = pts.copy()
+    baseline = poses[3][:3, 3] - poses[2][:3, 3]
+    moved[:50] += 0.6 * baseline / np.linalg.norm(baseline)
+    lands[2] = _normalised(moved, poses[3])
+    alone = motion.static_residual(x, [lands[2]], [oks[2]], [cams[2]], scale=500.0)
+    assert alone[:50].max() < 1e-6  # one pair: on its epipolar line
+    res = motion.static_residual(x, lands, oks, cams, scale=500.0)
+    assert res[:50].min() > 1.0 and res[50:].max() < 1e-6
+
+
+@pytest.mark.parametrize("guess", [1.0, 1.6])
+def test_flow_cameras_give_the_static_scene_from_the_flow_alone(guess):
+    """A dense flow field of a static scene (smooth depth) plus a moving patch: the cameras fitted to the
+    flow alone explain the static pixels (exactly with the true focal length, within a fraction of a pixel
+    with one guessed 1.6 times too long) and leave the patch pixels off."""
+    f_true, w, h = 230.0, 160, 90
+    f_guess = guess * f_true
+    grid = motion.pixel_grid(h, w, 2)
+    centre = np.array([w / 2, h / 2])
+    depth = 3.0 + 2.0 * np.sin(grid[..., 0] / 40.0) + grid[..., 1] / 30.0
+    rays = np.concatenate([(grid - centre) / f_true, np.ones(grid.shape[:2] + (1,))], -1) * depth[..., None]
+    patch = (np.abs(grid[..., 0] - 60) < 15) & (np.abs(grid[..., 1] - 40) < 12)
+    poses = {j: _look(np.array([0.05 * j, 0.01 * j * j, 0.25 * j]), [0.3 * j, 0.0, 10.0]) for j in (-4, -1, 1, 4)}
+    first = cam.invert_rigid(_look(np.zeros(3), [0.0, 0.0, 10.0]))
+    lands, oks = [], []
+    for j, pose in poses.items():
+        world = rays.reshape(-1, 3) @ cam.invert_rigid(first)[:3, :3].T + cam.invert_rigid(first)[:3, 3]
+        world = world.reshape(rays.shape)
+        world[patch] += np.array([0.08 * j, 0.0, 0.0])  # the patch moves sideways
+        uv = _normalised(world.reshape(-1, 3), pose).reshape(grid.shape) * f_true + centre
+        lands.append((uv - centre) / f_guess)
+        oks.append(np.ones(grid.shape[:2], bool))
+    x = (grid - centre) / f_guess
+    cams = motion.flow_cameras(x, lands, oks, f_guess)
+    assert cams is not None
+    res = motion.static_residual(x, lands, oks, cams, f_guess)
+    assert np.median(res[~patch]) < (0.1 if guess == 1.0 else motion.GOOD_FIT_PX)
+    assert np.percentile(res[~patch], 99) < (0.3 if guess == 1.0 else 2 * motion.GOOD_FIT_PX)
+    assert np.median(res[patch]) > motion.SEED_PX
+
+
+def _render(movers: str, n: int = 16):
+    """Grey frames `(H, W)` of the first `n` frames of the synthetic 90-frame walk with `movers`, and their
+    exact mover masks."""
+    import cv2
+
+    scene = make_scene(0)
+    poses = camera_path(90)[:n]
+    intr = default_intrinsics_norm(W, H)
+    boxes = mover_boxes(MOVER_PRESETS[movers]) if MOVER_PRESETS[movers] else None
+    frames, truth = [], []
+    for i, pose in enumerate(poses):
+        centres = np.array([m.centre(i, pose[2, 3]) for m in MOVER_PRESETS[movers]])
+        view = scene if boxes is None else place_movers(scene, boxes, centres)
+        rgb, _, face = render_view_faces(view, pose, intr, W, H)
+        frames.append(cv2.cvtColor(rgb, cv2.COLOR_RGB2GRAY))
+        truth.append(face >= len(scene))
+    return frames, np.stack(truth)
+
+
+def _first_pass_masks(frames):
+    h, w = frames[0].shape
+    centre, focal = np.array([w / 2, h / 2]), motion.PRIOR_FOCAL * max(w, h)
+
+    def residual(i, js, grid, lands, oks, avoid):
+        return motion.flow_residual((grid - centre) / focal, [(la - centre) / focal for la in lands], oks, focal, avoid)
+
+    return np.stack(motion.detect(frames, residual))
+
+
+@pytest.mark.parametrize("movers", ["box", "none"])
+def test_first_pass_finds_the_rendered_box_and_nothing_on_the_static_walk(movers):
+    """The flow alone, no cameras: the swinging box of `seeu synth --movers box` against its exact masks
+    (IoU over the clip), and the same walk without it (the share of pixels masked)."""
+    frames, truth = _render(movers)
+    masks = _first_pass_masks(frames)
+    assert masks.shape == (len(frames), H // motion.GRID_STEP, W // motion.GRID_STEP)
+    full = np.stack([motion.full_size(m, W, H) for m in masks])
+    if movers == "none":
+        assert full.mean() < 0.005
+    else:
+        iou = (full & truth).sum() / (full | truth).sum()
+        assert iou > 0.6, iou
+
+
+def test_keypoints_in_a_mask_are_found_at_the_frame_size():
+    mask = np.zeros((45, 80), bool)
+    mask[10:20, 40:60] = True
+    xy = np.array([[100.5, 25.0], [79.9, 25.0], [119.9, 39.9], [120.1, 30.0], [0.0, 0.0], [159.9, 89.9]])
+    assert motion.moving_keypoints(xy, mask, 160, 90).tolist() == [True, False, True, False, False, False]
