@@ -593,7 +593,7 @@ def build(cfg: BuildConfig, argv_command: str = "seeu build") -> dict:
         if Path(p).resolve() == out.resolve():
             raise SeeUError("the output directory is also an input", out)
     stamp = build_stamp(cfg)
-    done = None if cfg.verify else unchanged_build(out, stamp)
+    done = None if cfg.verify or cfg.force else unchanged_build(out, stamp)
     if done is not None:  # nothing to do: the report says every shard was kept
         report = dict(done["report"], shards_resumed=len(done["files"]), stale_files_removed=[])
         return dict(done, report=report)

@@ -26,6 +26,7 @@ from seeu_data.errors import SeeUError
 from seeu_data.ingest.video import discover_sources, iter_frames
 from seeu_data.loader import make_loader
 from seeu_data.loader.shard_reader import ShardChanged
+from seeu_data.store.dataset_check import check_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 
@@ -168,7 +169,7 @@ def test_sigterm_at_any_moment_of_seeu_build_is_one_line(workspace, tmp_path):
     """SIGTERM while `seeu build` starts (its modules, the libraries' lazy imports: a half-imported
     pandas was an internal error, or the Terminated was swallowed and the build went on to exit 0):
     exit 143 with the one line, or the default death before `seeu` runs at all; never 0, 1 or a
-    traceback, and no manifest."""
+    traceback, and no manifest unless the signal came after it (then the dataset is complete)."""
     outcomes = set()
     for delay in (0.4, 0.8, 1.2, 1.6, 2.0, 2.5, 3.0, 4.0):
         out = tmp_path / f"o{delay}"
@@ -187,7 +188,8 @@ def test_sigterm_at_any_moment_of_seeu_build_is_one_line(workspace, tmp_path):
             )
         else:
             assert lines == [], err
-        assert not (out / "manifest.json").exists(), delay
+        if (out / "manifest.json").exists():  # the signal came after the manifest: the output is complete
+            check_dataset(out)
     assert 143 in outcomes
 
 
@@ -270,7 +272,8 @@ def test_a_killed_loader_worker_is_one_line(workspace, tmp_path):
         for _ in batches:
             time.sleep(0.1)
     line = worker_death(caught.value)
-    assert line is not None and f"loader worker (pid {pids[0]}) died (killed by" in line, str(caught.value)
+    # PyTorch names the signal when its SIGCHLD handler saw it, else says the worker "exited unexpectedly"
+    assert line is not None and line.startswith(f"loader worker (pid {pids[0]}) died"), str(caught.value)
 
 
 # ------------------------------------------------------------------------------------------ ranks
