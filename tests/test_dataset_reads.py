@@ -70,7 +70,7 @@ def build_reads():
 
 
 def index_reads():
-    gen = IndexConfig(SamplingConfig(gap_min=2, gap_max=4), min_overlap=0.0)
+    gen = IndexConfig(SamplingConfig(gap_min=2, gap_max=4))
     write_index(IndexFileConfig(inputs=(posed,), out=out / "index.json", generation=gen))
 
 

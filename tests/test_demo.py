@@ -156,6 +156,8 @@ def test_validate_reads_everything_the_demo_wrote(demo, tmp_path, capsys):
 
     import torch
 
+    from seeu_model.training.checkpoint import payload_digest
+
     out: Path = demo["out"]
     assert cli_main(["validate", str(out)]) == 0
     printed = capsys.readouterr().out
@@ -183,6 +185,7 @@ def test_validate_reads_everything_the_demo_wrote(demo, tmp_path, capsys):
     newest = sorted(run.glob("ckpt-*.pt"))[-1]
     ckpt = torch.load(newest, weights_only=True)
     next(iter(ckpt["model"].values())).view(-1)[0] = float("nan")
+    ckpt["digest"] = payload_digest({k: v for k, v in ckpt.items() if k != "digest"})  # NaN written, not a bit flipped
     torch.save(ckpt, newest)
     assert cli_main(["validate", str(run)]) == 2
     assert "holds NaN or inf values" in capsys.readouterr().err

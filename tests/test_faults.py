@@ -257,12 +257,15 @@ def test_a_killed_build_worker_is_one_line(workspace, tmp_path):
     assert not (out / "manifest.json").exists()
 
 
-def test_a_killed_loader_worker_is_one_line(workspace, tmp_path):
+def test_a_killed_loader_worker_is_one_line(tmp_path):
     """A DataLoader worker killed while the loader runs: PyTorch's error becomes the one line the CLI
     prints (`interrupts.worker_death`), naming the worker's pid and the signal."""
     from seeu_data.interrupts import worker_death
+    from tests.training_fixtures import synthetic_triples
 
-    loader = make_loader(workspace["triples"], 1, image_hw=(32, 32), num_workers=2, shuffle=False)
+    # enough batches that the killed worker still owes some after the first (the workspace's 4 can all be prefetched)
+    triples = synthetic_triples(tmp_path, n_frames=12, hw=(32, 32), samples_per_scene=40, gap=(3, 5))
+    loader = make_loader(triples, 1, image_hw=(32, 32), num_workers=2, shuffle=False)
     batches = iter(loader)
     next(batches)
     pids = [p for p in _children(os.getpid()) if b"python" in Path(f"/proc/{p}/cmdline").read_bytes()]

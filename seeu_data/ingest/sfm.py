@@ -121,7 +121,7 @@ class SfmConfig:
     min_model_size: int = 10
     max_features: int = setting(
         4096,
-        "most SIFT features per frame (COLMAP's default is 8192; the mapping uses a few thousand, and matching "
+        "most SIFT features per frame (COLMAP uses 8192; the mapping uses a few thousand, and matching "
         "costs the square of the count; a 640x360 frame has about 2,000)",
     )
     feature_size: int = setting(

@@ -275,6 +275,7 @@ class PosedDataset:
         self.manifest = read_manifest(self.root, expect_schema=SCHEMA, verify=verify)
         self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
         self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
+        self._camera_readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
         self._batch_index: dict[str, dict[int, int]] = {}
         self._overlaps = OverlapReader(self.root, self.manifest)
 
@@ -323,7 +324,11 @@ class PosedDataset:
     def load_cameras(self, scene_id: str) -> tuple[np.ndarray, np.ndarray, float, float]:
         """A scene's cameras without its images: cam_to_world (N, 4, 4), intrinsics_norm (N, 4), near, far."""
         info = self.scene_info(scene_id)
-        rows = self._reader(info["file"]).read_all().slice(info["row_start"], info["num_frames"])
+        name = info["file"]
+        if name not in self._camera_readers:  # mapped without read-ahead: the camera columns' pages, not the images'
+            self._camera_readers[name] = open_ipc_file(self.root / name, random_access=True)
+        table = self._camera_readers[name].read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
+        rows = table.slice(info["row_start"], info["num_frames"])
         c2w = rows.column("cam_to_world").combine_chunks().values.to_numpy().reshape(-1, 4, 4)
         intr = rows.column("intrinsics_norm").combine_chunks().values.to_numpy().reshape(-1, 4)
         return c2w, intr, float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
