@@ -122,8 +122,8 @@ def _ingest_argv(folder: Path, out: Path) -> list[str]:
 
 
 def _sfm_child(parent: int, timeout: float = 120.0, marker: bytes = b"seeu_data.ingest.sfm") -> int:
-    """The pid of `parent`'s SfM child process (`python -m seeu_data.ingest.sfm`; with `marker` b"--map":
-    the SfM child's mapping process), once it exists."""
+    """The pid of `parent`'s SfM child process (`python -m seeu_data.ingest.sfm_child`; with `marker`
+    b"seeu_data.ingest.mapping": the SfM child's mapping process), once it exists."""
     deadline = time.monotonic() + timeout
     while time.monotonic() < deadline:
         for d in Path("/proc").iterdir():
@@ -164,7 +164,7 @@ def _interrupt(folder: Path, out: Path, sig: signal.Signals, at_mapping: bool = 
     )
     try:
         child = _sfm_child(proc.pid)
-        mapping = _sfm_child(child, marker=b"--map") if at_mapping else None
+        mapping = _sfm_child(child, marker=b"seeu_data.ingest.mapping") if at_mapping else None
         proc.send_signal(sig)
         _, err = proc.communicate(timeout=60)
         assert mapping is None or not _alive(mapping), "the mapping process outlived seeu ingest"

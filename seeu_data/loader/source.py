@@ -25,6 +25,7 @@ from __future__ import annotations
 import fcntl
 import hashlib
 import os
+import time
 import warnings
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -184,8 +185,10 @@ class ShardSource:
         objects = self.cache_dir / "objects"
         dest = objects / f"{info.sha256}.arrow"
         with _file_lock(objects / f".{info.sha256}.lock"):
-            if dest.exists() and dest.stat().st_size == info.bytes:
-                os.utime(dest)  # LRU stamp
+            st = dest.stat() if dest.exists() else None
+            if st is not None and st.st_size == info.bytes:
+                # LRU stamp in the access time: the mtime stays, as a worker reading the file checks it (ShardReader)
+                os.utime(dest, ns=(time.time_ns(), st.st_mtime_ns))
                 return dest
             self._make_room(objects, info.bytes, keep=dest)
             tmp = objects / f".{info.sha256}.{os.getpid()}.tmp"
@@ -225,7 +228,7 @@ class ShardSource:
                     st = p.stat()
                 except FileNotFoundError:
                     continue
-                files.append((st.st_mtime_ns, st.st_size, p))
+                files.append((st.st_atime_ns, st.st_size, p))
             used = sum(f[1] for f in files)
             for _, size, p in sorted(files):
                 if used + need <= self.cache_limit_bytes:
