@@ -34,8 +34,13 @@ from seeu_data.synthetic import (
 )
 
 W, H, N = 320, 180, 36
-# The smallest synthetic walk that COLMAP's default initial-pair limits cannot map (forward motion)
-FORWARD_SIZE, FORWARD_FRAMES = (450, 800), 12
+# A synthetic walk (scene seed 0) that COLMAP's default initial-pair limits cannot map (forward motion):
+# no mapping run finds a model at 10 frames of 360x640 or of 450x800, nor at 12 of 360x640. Which
+# walks fail is a matter of small margins (the first round maps 12 frames of 450x800, scene seeds 1 and
+# 2 at 12 frames of 360x640, and 16 frames of 450x800 from its second mapping seed), so a change to
+# extraction, pair choice or motion masking may need another walk here: the test then fails at its
+# first assertion.
+FORWARD_SIZE, FORWARD_FRAMES = (360, 640), 10
 
 
 pytestmark = pytest.mark.usefixtures("no_heartbeat")  # conftest: one-line error checks
@@ -509,16 +514,16 @@ def test_mapping_is_retried_with_the_next_seed_and_implausible_cameras_are_rejec
 
 
 def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
-    """The synthetic walk at 450x800 (so at 720x1280, a phone's video): every frame pair moves mostly
-    along the optical axis with small triangulation angles, so COLMAP's initial-pair limits find no
-    model in any run; the second round (`sfm.map_forward_motion`) poses every frame, accurately. A
-    static camera (planar/panoramic pairs) gets no second round: test_static_camera_no_model."""
+    """A short synthetic walk (FORWARD_*): its frame pairs move mostly along the optical axis with small
+    triangulation angles, so COLMAP's initial-pair limits find no model in any run; the second round
+    (`mapping.map_forward_motion`) poses every frame, accurately. A static camera (planar/panoramic
+    pairs) gets no second round: test_static_camera_no_model."""
     from seeu_data.ingest.mapping import moves_forward_possibly
 
     clip = tmp_path / "fwd.mp4"
     write_clip(clip, n_frames=FORWARD_FRAMES, size=FORWARD_SIZE, seed=0)
     out = tmp_path / "out"
-    assert cli_main(["ingest", str(clip), "--out", str(out), "--max-features", "4096"]) == 0
+    assert cli_main(["ingest", str(clip), "--out", str(out)]) == 0
     report = json.loads((out / "fwd" / "report.json").read_text())
     attempts = report["sfm"]["mapping_attempts"]
     assert [(a["seed"], a["registered"], a.get("init")) for a in attempts[:3]] == [

@@ -10,8 +10,8 @@ after, as far as the image motion allows: `neighbour_offsets`):
    back agrees (`FB_MAX_PX`: not occluded, not out of frame) and the frames look alike (`PHOTO_MAX`).
 2. the flow the static scene allows: cameras relative to frame i, x_j ~ M_j x + rho e_j, where x is
    the pixel in normalised image coordinates, rho its inverse depth and (M_j, e_j) = (R_ji, t_ji) the
-   pose of frame j's camera in frame i's: from the SfM model (`model_pass`), or before any model exists
-   from the flow alone under a guessed focal length (`flow_cameras`, `first_pass`).
+   pose of frame j's camera in frame i's: from the SfM model (`model_pass`), or without a model from the
+   flow alone under a guessed focal length (`flow_cameras`, `flow_residual`).
 3. the residual (`static_residual`): the one rho that best explains every neighbour's flow at the
    pixel, and the largest distance in pixels between where that rho puts the pixel in a neighbour and
    where the flow does: epipolar distance and depth consistency in one number. A static pixel's
@@ -26,14 +26,13 @@ Motion within the plane of the camera's path and the point (a box at eye level c
 a camera walking straight, at constant speed) looks exactly like a static point at another depth;
 the far neighbours, the camera's own turns and the carrying along the flow are what find it there.
 
-The SfM child (`seeu_data.ingest.sfm`, --dynamic) runs `first_pass` before mapping (`drop_matches`),
-`model_pass` on the mapped frames (`drop_observations` before the final bundle adjustment) and on
-every frame after registration; `moving_content` says why unmasked moving content fails the solution
-check; `report_section` is report.json's "motion".
+The SfM child (`seeu_data.ingest.sfm_motion`, --dynamic) maps with every match, then runs `model_pass` on
+the mapped frames (`drop_observations` before the final bundle adjustment) and on every frame after
+registration; `moving_content` says why unmasked moving content fails the solution check;
+`report_section` is report.json's "motion".
 
-    masks = first_pass(image_dir, names)          # {name: (h, w) bool} where moving content was found
-    dropped = drop_matches(db_path, masks)        # the database's verified matches on it, removed
-    masks = model_pass(image_dir, names, rec)     # the same against a pycolmap Reconstruction's cameras
+    masks = model_pass(image_dir, names, rec)     # {name: (h, w) bool} where moving content was found
+    dropped = drop_observations(rec, masks)       # its observations, removed from the model
 """
 
 from __future__ import annotations
@@ -63,10 +62,10 @@ FIT_ITERATIONS = 500  # of each robust fit
 GOOD_FIT_PX = 0.8  # median residual of the pixels cameras were fitted on, above which the fit failed
 # A homography explaining this share of the essential matrix's inliers: the camera turned in place or sees
 # one plane, and the homography is the static scene's flow; from AMBIGUOUS_SHARE on, a dominant plane
-# leaves the pose unsure (the points off it decide it) and the first pass does not judge the frame.
+# leaves the pose unsure (the points off it decide it) and the flow alone does not judge the frame.
 HOMOGRAPHY_SHARE = 0.99
 AMBIGUOUS_SHARE = 0.5
-# The first pass's guessed focal length over the frame's longer side: COLMAP's own prior
+# The guessed focal length of the cameras from the flow alone, over the frame's longer side: COLMAP's own prior
 # (ImageReaderOptions.default_focal_length_factor). Far from the truth (0.7 for a 70 degree lens) it
 # still finds the box of the synthetic clip as well as the true one does: only consistency is judged.
 PRIOR_FOCAL = 1.2
@@ -425,24 +424,8 @@ def _warp(values: np.ndarray, coords: np.ndarray | None) -> np.ndarray:
 
 
 # ---------------------------------------------------------------------------------------------
-# In the SfM child (seeu_data.ingest.sfm): the first pass before mapping, the SfM cameras after
+# In the SfM child (seeu_data.ingest.sfm_motion): against the SfM cameras
 # ---------------------------------------------------------------------------------------------
-
-
-def first_pass(
-    image_dir: str | Path, names: Sequence[str], on_frame: Callable[[], None] | None = None
-) -> dict[str, np.ndarray]:
-    """Moving content of a video's frames `names` (in time order) from the flow alone, before any SfM
-    model: {name: (h, w) bool at the working size} for frames where some was found. The frames' camera
-    is guessed: principal point at the centre, focal length PRIOR_FOCAL times the longer side."""
-    frames = load_frames(image_dir, names)
-    h, w = frames[0].shape
-    centre, focal = np.array([w / 2, h / 2]), PRIOR_FOCAL * max(w, h)
-
-    def residual(i, js, grid, lands, oks, avoid):
-        return flow_residual((grid - centre) / focal, [(la - centre) / focal for la in lands], oks, focal, avoid)
-
-    return {n: m for n, m in zip(names, detect(frames, residual, on_frame=on_frame)) if m.any()}
 
 
 def model_pass(
@@ -488,40 +471,6 @@ def moving_keypoints(xy: np.ndarray, mask: np.ndarray, width: int, height: int) 
     cols = np.clip((np.asarray(xy)[:, 0] * w / width).astype(np.int64), 0, w - 1)
     rows = np.clip((np.asarray(xy)[:, 1] * h / height).astype(np.int64), 0, h - 1)
     return mask[rows, cols]
-
-
-def drop_matches(db_path: str | Path, masks: dict[str, np.ndarray]) -> int:
-    """Remove from the database's verified matches (the two-view geometries' inliers, which mapping and
-    registration use) every match with a keypoint in its frame's moving mask; returns how many."""
-    import pycolmap
-
-    db = pycolmap.Database.open(Path(db_path))
-    try:
-        moving: dict[int, np.ndarray] = {}
-        for img in db.read_all_images():
-            if img.name in masks:
-                cam = db.read_camera(img.camera_id)
-                xy = np.asarray(db.read_keypoints(img.image_id), np.float64)[:, :2]
-                moving[img.image_id] = moving_keypoints(xy, masks[img.name], cam.width, cam.height)
-        dropped = 0
-        pair_ids, geometries = db.read_two_view_geometries()
-        for pid, geometry in zip(pair_ids, geometries):
-            a, b = pycolmap.pair_id_to_image_pair(pid)
-            if a not in moving and b not in moving:
-                continue
-            matches = np.asarray(geometry.inlier_matches, np.int64).reshape(-1, 2)
-            bad = np.zeros(len(matches), bool)
-            if a in moving:
-                bad |= moving[a][matches[:, 0]]
-            if b in moving:
-                bad |= moving[b][matches[:, 1]]
-            if bad.any():
-                geometry.inlier_matches = matches[~bad].astype(np.uint32)
-                db.update_two_view_geometry(a, b, geometry)
-                dropped += int(bad.sum())
-    finally:
-        db.close()
-    return dropped
 
 
 def drop_observations(rec, masks: dict[str, np.ndarray]) -> int:

@@ -14,8 +14,8 @@ too few matches; the likely causes a failed check names)}}, input_identity {path
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth (widest
 baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or
 why the chunk's depth is unreliable: the camera mostly rotated in place)}],
-motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), first_pass, keyframes, frames
-(each pass's frames_with_motion and matches / observations dropped), leave_out (off: observations,
+motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), keyframes, frames
+(each pass's frames_with_motion and observations dropped), leave_out (off: observations,
 centre_change_pct), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
 mean_masked_pct} (seeu_data.ingest.motion),
 warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;

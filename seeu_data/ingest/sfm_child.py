@@ -21,7 +21,7 @@ from seeu_data.ingest.features import extract, match, open_database
 from seeu_data.ingest.mapping import final_ba, keep_models, map_frames, register_rest
 from seeu_data.ingest.sfm import Clock, Failed, Job, SfmConfig
 from seeu_data.ingest.sfm_export import export_models
-from seeu_data.ingest.sfm_motion import motion_export, motion_first, motion_frames, motion_keyframes
+from seeu_data.ingest.sfm_motion import motion_export, motion_frames, motion_keyframes, motion_start
 
 
 def main(job_path: str) -> int:
@@ -42,7 +42,7 @@ def main(job_path: str) -> int:
         num_kp = extract(job)
         matches = match(job)
         kf = matches.keyframes
-        moving = motion_first(job)
+        moving = motion_start(job)
         mapped = map_frames(job, matches, kf)
     except Failed as exc:
         failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu, "resumed": job.resumed}
