@@ -110,6 +110,25 @@ def context_from_views(images: list, cam_to_world, intrinsics_norm, near: float,
     }
 
 
+def check_view_sizes(path: str | Path, max_pixels: int = MAX_PIXELS) -> None:
+    """The image-size gate (`image_header.check_pixels` on each header) for the images a cameras JSON
+    names, before the model is loaded: a header bomb is refused without the model's memory. Anything
+    else wrong with the file is left to `load_user_views`, which says it."""
+    from seeu_data.store.image_header import check_pixels, header_size
+
+    path = Path(path)
+    try:
+        frames = json.loads(path.read_text())["frames"]
+    except (OSError, ValueError, KeyError, TypeError, RecursionError):
+        return
+    for i, f in enumerate(frames if isinstance(frames, list) else []):
+        img_path = path.parent / f["image"] if isinstance(f, dict) and isinstance(f.get("image"), str) else None
+        if img_path is not None and img_path.is_file():
+            where = f"{img_path.resolve()} (frame {i})"
+            w, h = header_size(img_path.read_bytes(), where)
+            check_pixels(w, h, max_pixels, "image header declares", where)
+
+
 def load_user_views(path: str | Path, image_hw: tuple[int, int], max_pixels: int = MAX_PIXELS) -> dict:
     """Context dict (B=1) from a cameras JSON and its images (each at most `max_pixels`, checked
     before it is decoded), resized/cropped to `image_hw`."""
@@ -336,6 +355,9 @@ def export_gaussians(out: Path, g, batch: dict, image_hw) -> dict:
 
 def render(cfg: RenderConfig) -> dict:
     """Python API of `seeu render`; returns the report (also OUT/render.json)."""
+    cfg.check()
+    if cfg.cameras is not None:
+        check_view_sizes(cfg.cameras, cfg.max_pixels)
     import numpy as np
     import torch
 
@@ -343,7 +365,6 @@ def render(cfg: RenderConfig) -> dict:
     from seeu_model.training.factory import encode_context
     from seeu_model.training.loop import batch_to
 
-    cfg.check()
     loaded = load_model(cfg.checkpoint, cfg.image_size, cfg.device, cfg.rasterizer)
     ck, model, hw, backend, dev = loaded.ck, loaded.model, loaded.image_hw, loaded.backend, loaded.device
     data, cameras, frames, extrapolate, fps = cfg.data, cfg.cameras, cfg.frames, cfg.extrapolate, cfg.fps

@@ -1094,7 +1094,7 @@ def test_header_bomb_refused_in_little_memory(ws, tmp_path):
         peak_kb, rc = (int(v) for v in done.stdout.split()[-2:])
         errors = [ln for ln in done.stderr.splitlines() if ": error: " in ln]
         assert rc == 2 and len(errors) == 1 and "over the 64 MP limit" in errors[0], done.stderr[-600:]
-        assert peak_kb < 1 << 20, f"peak RSS {peak_kb / 1024:.0f} MB"
+        assert peak_kb < 1 << 20, f"{argv[0]}: peak RSS {peak_kb / 1024:.0f} MB"
 
 
 # ---- locks: image-folder entries that cannot be read as images ----

@@ -531,9 +531,10 @@ def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
         (1, 0, None),
         (2, 0, None),
     ]
-    assert [a["seed"] for a in attempts[3:]] == [0, 1] and {a["init"] for a in attempts[3:]} == {"forward motion"}
+    forward = attempts[3:]  # the check's two runs, a third when they disagree
+    assert [a["seed"] for a in forward[:2]] == [0, 1] and {a["init"] for a in forward} == {"forward motion"}
     assert report["sfm"]["solution_check"]["state"] == "passed"
-    assert "after 5 mapping runs, forward motion allowed for the initial pair)" in summary_line(report)
+    assert f"after {len(attempts)} mapping runs, forward motion allowed for the initial pair)" in summary_line(report)
     acc = ingest_accuracy(out / "fwd", clip, report["registered"], report["frames_selected"])
     assert acc["registered_pct"] >= 95 and acc["largest"]["centre_rmse_pct_path"] <= 1.0, acc
     pairs = report["sfm"]["solution_check"]
