@@ -490,9 +490,13 @@ def run_local(
             single_threaded_cv2(),
             ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=quiet_worker) as pool,
         ):
+            started: list = []  # the pool's workers (forked as the first tasks are submitted)
             try:
-                futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]
-                started = sorted(mp.active_children(), key=lambda p: p.pid or 0)  # the pool's workers, forked by now
+                futures = []
+                for s in specs:  # drawn lazily: a worker can die while the rest of the plan is submitted
+                    futures.append(pool.submit(materialise, s, out_dir, fsync))
+                    if len(started) < workers:
+                        started = sorted(mp.active_children(), key=lambda p: p.pid or 0)
                 for fut in as_completed(futures):
                     collect(fut.result())
             except BrokenProcessPool:  # a worker was killed (the out-of-memory killer, kill -9)

@@ -244,7 +244,7 @@ def test_a_killed_build_worker_is_one_line(workspace, tmp_path):
     the worker and the signal, never "internal error"; no manifest."""
     out = tmp_path / "o"
     proc = _seeu(
-        *_build_argv(workspace["posed"], out, "--workers", "2", "--samples-per-scene", "4000", "--resize", "64x64")
+        *_build_argv(workspace["posed"], out, "--workers", "2", "--samples-per-scene", "40000", "--resize", "64x64")
     )
     _wait_for(lambda: _children(proc.pid)[1:], proc)
     time.sleep(0.5)
