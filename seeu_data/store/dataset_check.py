@@ -97,16 +97,23 @@ def check_recorded_sizes(width: np.ndarray, height: np.ndarray, max_pixels: int,
     check_pixels(int(w[i]), int(h[i]), max_pixels, "recorded image size", where)
 
 
-def check_table_images(table: pa.Table | pa.RecordBatch, max_pixels: int, where: Path) -> None:
-    """`check_image` (header only) on every image of a table (posed or triples) against its recorded
-    size, read from the image column's buffers in place: its offsets and each image's first bytes."""
+def _sizes_and_values(table: pa.Table | pa.RecordBatch, name: str, per: str, where: Path) -> tuple:
+    """(width (M,) int64, height (M,) int64, the binary column `name`'s chunks as flat values, in place):
+    one value per recorded size, else SeeUError ("N <name>s for M <per>")."""
     width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
     height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
-    col = table.column("image")
+    col = table.column(name)
     chunks = [_binary_values(c) for c in (col.chunks if isinstance(col, pa.ChunkedArray) else [col])]
     count = sum(len(c) for c in chunks)
     if count != len(width):
-        raise SeeUError(f"{count} images for {len(width)} recorded sizes", where)
+        raise SeeUError(f"{count} {name}s for {len(width)} {per}", where)
+    return width, height, chunks
+
+
+def check_table_images(table: pa.Table | pa.RecordBatch, max_pixels: int, where: Path) -> None:
+    """`check_image` (header only) on every image of a table (posed or triples) against its recorded
+    size, read from the image column's buffers in place: its offsets and each image's first bytes."""
+    width, height, chunks = _sizes_and_values(table, "image", "recorded sizes", where)
     check_recorded_sizes(width, height, max_pixels, where)
     i = 0
     for images in chunks:
@@ -144,13 +151,7 @@ def check_mask(data, width: int, height: int, where: str | Path | None, max_pixe
 
 def check_table_masks(table: pa.Table | pa.RecordBatch, max_pixels: int, where: Path) -> None:
     """`check_mask` on every non-null mask of a table (posed: `mask`; triples: per view), chunk by chunk."""
-    width = _flat_values(table.column("width"), 1).reshape(-1).astype(np.int64)
-    height = _flat_values(table.column("height"), 1).reshape(-1).astype(np.int64)
-    col = table.column("mask")
-    chunks = [_binary_values(c) for c in (col.chunks if isinstance(col, pa.ChunkedArray) else [col])]
-    count = sum(len(c) for c in chunks)
-    if count != len(width):
-        raise SeeUError(f"{count} masks for {len(width)} images", where)
+    width, height, chunks = _sizes_and_values(table, "mask", "images", where)
     i = 0
     for masks in chunks:
         for data in masks:
