@@ -43,7 +43,7 @@ def _fibonacci_directions(n: int) -> torch.Tensor:
 
 def wigner_matrices(rotations: torch.Tensor, max_degree: int) -> list[torch.Tensor]:
     """Rotations (..., 3, 3) -> [D_1, ..., D_L], D_l (..., 2l+1, 2l+1) in e3nn's basis, float64."""
-    dirs = _fibonacci_directions(64)  # (N, 3)
+    dirs = _fibonacci_directions(64).to(rotations.device)  # (N, 3)
     r = rotations.to(torch.float64)
     rotated = torch.einsum("...ij,nj->...ni", r, dirs)  # (..., N, 3)
     out = []
