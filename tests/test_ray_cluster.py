@@ -113,8 +113,15 @@ def cluster():
     c.close()
 
 
-def alive_nodes() -> int:
-    return sum(1 for n in ray.nodes() if n["Alive"])
+def alive_nodes(expect: int = 1, wait_s: float = 30.0) -> int:
+    """The nodes alive, polled until `expect` or `wait_s` (the head notices a killed raylet within its
+    health check's 2 s, which a short job can finish inside)."""
+    deadline = time.monotonic() + wait_s
+    while True:
+        alive = sum(1 for n in ray.nodes() if n["Alive"])
+        if alive <= expect or time.monotonic() > deadline:
+            return alive
+        time.sleep(0.25)
 
 
 def drive_import(ds: str, out: str, address: str | None) -> None:
