@@ -228,6 +228,17 @@ def test_solution_check_maps_again_until_two_runs_agree_and_flags_when_none_do()
     seeds.clear()
     _, _, _, check = map_with_retries(map_once, 30, cfg, check=False)
     assert seeds == [0] and check["ran"] is False and check["passed"] is None and "reason" not in check
+    # a small photo set: 9 of 11 frames is a model (COLMAP's min(min_model_size, int(80 %)) = 8), 7 of 11 is not
+    small = {seed: truth[:11] for seed in range(3)}
+    small[0] = truth[:9]
+    runs.update(small)
+    seeds.clear()
+    models, attempts, _, _ = map_with_retries(map_once, 11, SfmConfig(sfm_attempts=1), check=False)
+    assert seeds == [0] and attempts[0]["registered"] == 9 and models[0].num_reg_images() == 9
+    runs[0] = truth[:7]
+    seeds.clear()
+    models, attempts, _, _ = map_with_retries(map_once, 11, SfmConfig(sfm_attempts=1), check=False)
+    assert models == {} and attempts[0]["registered"] == 0
     # too few frames registered to compare: said so, not "the runs disagree"
     for short, who in (
         ({0: truth[:12], 1: truth[:12], 2: truth[:12]}, "no mapping run"),

@@ -24,6 +24,12 @@ _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 # when no focal is known, so the database camera's prior plays no part in choosing the initial pair.)
 
 
+def smallest_model(cfg: SfmConfig, num_frames: int) -> int:
+    """The fewest registered frames of a usable model: COLMAP's own rule, `min_model_size` or 80 % of the
+    frames mapped if fewer (9 of 11 photos is a model, as bare pycolmap keeps it)."""
+    return min(cfg.min_model_size, int(0.8 * num_frames))
+
+
 def map_with_retries(
     map_once, num_frames: int, cfg: SfmConfig, check: bool = False, start=None
 ) -> tuple[dict, list[dict], list[dict], dict]:
@@ -32,7 +38,7 @@ def map_with_retries(
     and, with `check`, agrees with an earlier such run.
 
     Registers enough: its usable models register at least `cfg.retry_below` of the `num_frames` frames.
-    Usable: at least `min_model_size` registered frames and a camera that passes COLMAP's own
+    Usable: at least `smallest_model(cfg, num_frames)` registered frames and a camera that passes COLMAP's own
     plausibility test (focal length within 0.1-10x the image size, |extra params| <= 1; a poor initial
     pair can drive a shared radial camera to k = 1.7 and stall registration). A different seed changes
     COLMAP's RANSAC samples and so which initial pair succeeds.
@@ -71,7 +77,7 @@ def map_with_retries(
         seconds = time.perf_counter() - t0
         for k, rec in mapped.items():
             n = rec.num_reg_images()
-            if n < cfg.min_model_size:  # COLMAP returns leftovers (a pair that failed to grow)
+            if n < smallest_model(cfg, num_frames):  # COLMAP returns leftovers (a pair that failed to grow)
                 continue
             bogus = [c for c in model_cameras(rec) if c.has_bogus_params(*_PLAUSIBLE_CAMERA)]
             if bogus:
