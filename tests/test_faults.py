@@ -330,7 +330,7 @@ def test_a_frozen_or_dead_rank_ends_the_run_in_one_line(workspace, tmp_path, fau
     assert proc.returncode != 0 and len(ours) == 1, (proc.returncode, err[-1500:])
     if fault == "frozen":
         assert ours[0].startswith("seeu train: error: rank 1 stopped responding: no heartbeat for 6 s"), ours
-        assert took < 60, took
+        assert took < 30, took  # the stopped rank is killed by the watchdog, not 30 s later by torchrun
     else:
         assert ours[0].startswith(("seeu train: error: rank 1 died", "seeu train: interrupted (SIGTERM)")), ours
 

@@ -11,8 +11,10 @@ counter in the rendezvous store (MASTER_ADDR:MASTER_PORT, the TCPStore torchrun 
 every `interval` seconds and reads the others'. A rank whose counter has not moved for `timeout_s`
 (`seeu train --rank-timeout`) has stopped: the watchdog of every other rank ends its process (exit 2,
 `os._exit`: the main thread waits inside a collective and cannot unwind), the lowest such rank
-printing the one line `rank N stopped responding: no heartbeat for T s ...`; torchrun then ends the
-frozen one. A store that stops answering (its host frozen or gone) ends the run the same way. Long
+printing the one line `rank N stopped responding: no heartbeat for T s ...`. A silent rank on the same
+machine that is stopped (SIGSTOP, Ctrl-Z: state T in /proc) is killed by the first watchdog to see it
+(`kill_if_stopped_here`: each rank records where it runs and its pid in the store); else torchrun ends it
+(SIGTERM, and SIGKILL 30 s later, which a stopped process made everyone wait for). A store that stops answering (its host frozen or gone) ends the run the same way. Long
 work of one rank (rank 0's validation) does not stop its thread: only a stopped process does.
 
 A rank that died makes the others' next collective fail at once; `Watchdog.dead_peer` names it (the
@@ -150,6 +152,7 @@ class Watchdog:
         self._thread = threading.Thread(target=self._run, name="seeu-rank-watchdog", daemon=True)
 
     def start(self) -> Watchdog:
+        self.store.set(f"seeu/where/{self.info.rank}", f"{_machine()} {os.getpid()}")
         self._beat()
         self._thread.start()
         return self
@@ -180,8 +183,29 @@ class Watchdog:
             silent = self.silent(self.timeout_s)
             if silent:
                 alive = [r for r in range(self.info.world_size) if r not in silent]
+                for r in silent:
+                    self.kill_if_stopped_here(r)
                 self.on_silent(silent[0], self.timeout_s, self.info.rank == min(alive))
                 return
+
+    def kill_if_stopped_here(self, rank: int) -> bool:
+        """SIGKILL `rank`'s process if it runs on this machine (same kernel boot and pid namespace) and is
+        stopped; whether it was."""
+        import signal
+
+        try:
+            if not self.store.check([f"seeu/where/{rank}"]):
+                return False
+            where, pid = self.store.get(f"seeu/where/{rank}").decode().rsplit(" ", 1)
+            if where != _machine():
+                return False
+            stat = open(f"/proc/{int(pid)}/stat").read()
+            if stat[stat.rindex(")") + 2] not in "Tt":
+                return False
+            os.kill(int(pid), signal.SIGKILL)
+            return True
+        except (OSError, ValueError, RuntimeError):
+            return False
 
     def dead_peer(self, wait_s: float | None = None) -> int | None:
         """After a collective failed: the rank that stopped beating (dead), waiting up to `wait_s`
@@ -192,6 +216,15 @@ class Watchdog:
             if silent or time.monotonic() >= deadline:
                 return silent[0] if silent else None
             time.sleep(self.interval_s / 2)
+
+
+def _machine() -> str:
+    """This kernel boot and pid namespace: processes that share it can signal each other by pid."""
+    try:
+        boot = open("/proc/sys/kernel/random/boot_id").read().strip()
+        return f"{boot}/{os.stat('/proc/self/ns/pid').st_ino}"
+    except OSError:
+        return f"{os.uname().nodename}?"  # no /proc: never matched as "here" by another machine's rank
 
 
 def silent_rank_line(rank: int, seconds: float) -> str:
