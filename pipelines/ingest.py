@@ -411,8 +411,9 @@ def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dic
     registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
     if not chunks:
         raise SeeUError(
-            f"SfM registered {registered}/{len(frames)} frames but no contiguous run reaches "
-            f"--min-chunk-frames {cfg.chunks.min_chunk_frames}",
+            f"SfM registered {registered}/{len(frames)} frames but no "
+            + ("contiguous run" if (sfm_result.get("matcher") or {}).get("quadratic", True) else "model")
+            + f" reaches --min-chunk-frames {cfg.chunks.min_chunk_frames}",
             source.path,
         )
     cache.timings["chunks"] = time.perf_counter() - t0

@@ -140,3 +140,9 @@ def test_unordered_photos_are_chunked_per_model_with_per_frame_cameras(tmp_path)
     ordered = {"models": [model], "matcher": {"used": "sequential", "quadratic": True}}
     chunks, _ = plan_chunks("s", names, ordered, tmp_path, ChunkConfig(min_chunk_frames=4))
     assert chunks == []  # in name order the runs are 1 and 3 frames long
+    # the default --min-chunk-frames 10: a photo set keeps a model of 80 % of its photos (9 of 12), as SfM does
+    (c,), _ = plan_chunks("s", names, unordered, tmp_path, ChunkConfig())
+    assert c.frame_positions == reg
+    model["images"] = model["images"][:8]  # 8 of 12: a leftover
+    chunks, dropped = plan_chunks("s", names, unordered, tmp_path, ChunkConfig())
+    assert chunks == [] and dropped[0]["reason"] == "in an SfM model of 8 frames (< 9, 80% of the photos)"

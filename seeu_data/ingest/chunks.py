@@ -6,7 +6,8 @@ of order (an image folder matched exhaustively, or each image with its next neig
 result.json's "matcher" with "quadratic" false) are photos whose name order means nothing: there a
 chunk is every frame a model registered, in name order. A frame registered
 in several overlapping models belongs to the largest one only. Runs shorter than
-`min_chunk_frames` are dropped (and reported).
+`min_chunk_frames` are dropped (and reported); for photos, models shorter than `shortest_chunk`: at most
+80 % of the set, COLMAP's own rule for keeping a model (9 of 11 photos is a scene).
 
 Scale and frame of each chunk (recorded in the chunk's meta): poses are expressed relative to the
 chunk's first camera (identity) and scaled by the convention `config.scale` (`seeu_data.ingest.scale`:
@@ -47,7 +48,9 @@ FRAME_METHOD = "world frame = first camera of the chunk"
 
 @dataclass(frozen=True)
 class ChunkConfig:
-    min_chunk_frames: int = setting(10, "shortest posed chunk kept")
+    min_chunk_frames: int = setting(
+        10, "shortest posed chunk kept (an image folder: at most 80% of its images, as SfM keeps a model)"
+    )
     near_percentile: float = NEAR_PERCENTILE
     far_percentile: float = FAR_PERCENTILE
     near_margin: float = NEAR_MARGIN
@@ -87,6 +90,12 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
             runs.append((start, i))
             start = None
     return runs
+
+
+def shortest_chunk(config: ChunkConfig, ordered: bool, num_frames: int) -> int:
+    """The fewest frames of a kept chunk: `min_chunk_frames`; of photos matched out of order, at most
+    80 % of them (the models SfM keeps: `solution_check.smallest_model`)."""
+    return config.min_chunk_frames if ordered else max(2, min(config.min_chunk_frames, int(0.8 * num_frames)))
 
 
 def plan_chunks(
@@ -131,15 +140,13 @@ def plan_chunks(
         elif flags.any():
             raw.append(([int(p) for p in np.nonzero(flags)[0]], model, w2c))
     kept = []
+    least = shortest_chunk(config, ordered, len(frame_names))
     for positions, model, w2c in sorted(raw, key=lambda r: (r[0][0], -len(r[0]))):
-        if len(positions) < config.min_chunk_frames:
+        if len(positions) < least:
             what = "a registered run" if ordered else "an SfM model"
+            bound = f"--min-chunk-frames {least}" if least == config.min_chunk_frames else f"{least}, 80% of the photos"
             dropped += [
-                {
-                    "position": p,
-                    "reason": f"in {what} of {len(positions)} frames (< --min-chunk-frames {config.min_chunk_frames})",
-                }
-                for p in positions
+                {"position": p, "reason": f"in {what} of {len(positions)} frames (< {bound})"} for p in positions
             ]
             continue
         kept.append((positions, model, w2c))
