@@ -153,3 +153,24 @@ def test_keypoints_in_a_mask_are_found_at_the_frame_size():
     mask[10:20, 40:60] = True
     xy = np.array([[100.5, 25.0], [79.9, 25.0], [119.9, 39.9], [120.1, 30.0], [0.0, 0.0], [159.9, 89.9]])
     assert motion.moving_keypoints(xy, mask, 160, 90).tolist() == [True, False, True, False, False, False]
+
+
+def test_frames_mostly_unexplained_by_the_cameras_fail_the_check_whatever_the_mode():
+    """`cameras_disagree`: more than half of a frame found moving in MIN_MOVING_FRAMES mapped frames means
+    wrong cameras (or a frame mostly of moving content); a mover of a fifth of every frame does not."""
+    names = [f"{i:06d}.jpg" for i in range(20)]
+    box = np.zeros((90, 160), bool)
+    box[20:60, 40:100] = True  # 17 % of the frame
+    masks = {n: box for n in names}
+    assert motion.cameras_disagree(masks, names) is None
+    most = ~np.zeros_like(box)
+    most[:, :70] = False  # 56 % of the frame
+    for i in (5, 9):
+        masks[names[i]] = most
+    assert motion.cameras_disagree(masks, names) is None  # in 2 frames: fewer than MIN_MOVING_FRAMES
+    masks[names[12]] = most
+    why = motion.cameras_disagree(masks, names)
+    assert why is not None and why.startswith(
+        "the cameras disagree with the optical flow over most of 3 of 20 mapped frames (000005.jpg to 000012.jpg)"
+    )
+    assert motion.cameras_disagree({n: m for n, m in masks.items() if n != names[12]}, names[:12]) is None

@@ -4,7 +4,8 @@ order `sfm_child.main` calls them.
     before mapping:            motion_start     (nothing found yet: mapping uses every verified match)
     after mapping:             motion_keyframes (the mapped frames against their SfM cameras; mask:
                                                  their observations dropped before the final BA;
-                                                 off: moving content found fails the solution check)
+                                                 off: moving content found fails the solution check;
+                                                 either: frames mostly unexplained by the cameras fail it)
     after registration:        motion_frames    (mask: every registered frame, the final masks)
     after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
 """
@@ -55,27 +56,30 @@ def motion_start(job: Job) -> Moving:
 def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
     """A video's mapped frames against the flow their SfM cameras allow; mask: their observations in moving
     regions dropped before the final bundle adjustment; off: the leave-out test (`_leave_out`), and moving
-    content found (`motion.moving_content`) fails the solution `check` (in place; "moving_content" says why)."""
+    content found (`motion.moving_content`) fails the solution `check`; either mode: frames mostly unexplained
+    by the cameras (`motion.cameras_disagree`) fail it (in place; "moving_content" says why)."""
     if not job.video:
         return
     import pycolmap
 
-    from seeu_data.ingest.motion import drop_observations, moving_content
+    from seeu_data.ingest.motion import cameras_disagree, drop_observations, moving_content
 
     emit("stage", "motion-check", len(kf.names), "frames")
     t0 = job.clock.mark()
     masks, judged = _model_masks(job, recs, kf.names)
     moving.masks = masks
     moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
+    found = None
     if job.cfg.dynamic == "mask":
         moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
     elif masks:
         moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
         found = moving_content(moving.facts)
-        if found:
-            check["moving_content"] = found
-            if check.get("ran"):
-                check["passed"], check["reason"] = False, found
+    found = cameras_disagree(masks, kf.names) or found
+    if found:
+        check["moving_content"] = found
+        if check.get("ran"):
+            check["passed"], check["reason"] = False, found
     job.clock.add("motion_s", t0)
 
 
