@@ -13,9 +13,10 @@ every `interval` seconds and reads the others'. A rank whose counter has not mov
 `os._exit`: the main thread waits inside a collective and cannot unwind), the lowest such rank
 printing the one line `rank N stopped responding: no heartbeat for T s ...`. A silent rank on the same
 machine that is stopped (SIGSTOP, Ctrl-Z: state T in /proc) is killed by the first watchdog to see it
-(`kill_if_stopped_here`: each rank records where it runs and its pid in the store); else torchrun ends it
-(SIGTERM, and SIGKILL 30 s later, which a stopped process made everyone wait for). A store that stops answering (its host frozen or gone) ends the run the same way. Long
-work of one rank (rank 0's validation) does not stop its thread: only a stopped process does.
+(`kill_if_stopped_here`: each rank records where it runs and its pid in the store); else torchrun ends
+it (SIGTERM, then SIGKILL 30 s later: a stopped process made everyone wait those 30 s). A store that
+stops answering (its host frozen or gone) ends the run the same way. Long work of one rank (rank 0's
+validation) does not stop its thread: only a stopped process does.
 
 A rank that died makes the others' next collective fail at once; `Watchdog.dead_peer` names it (the
 rank whose counter stopped), so the survivors exit 2 with `rank N died` instead of an internal error.
@@ -24,12 +25,14 @@ rank whose counter stopped), so the survivors exit 2 with `rank N died` instead 
 from __future__ import annotations
 
 import os
+import signal
 import sys
 import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import timedelta
+from pathlib import Path
 
 import torch
 import torch.distributed as dist
@@ -191,15 +194,13 @@ class Watchdog:
     def kill_if_stopped_here(self, rank: int) -> bool:
         """SIGKILL `rank`'s process if it runs on this machine (same kernel boot and pid namespace) and is
         stopped; whether it was."""
-        import signal
-
         try:
             if not self.store.check([f"seeu/where/{rank}"]):
                 return False
             where, pid = self.store.get(f"seeu/where/{rank}").decode().rsplit(" ", 1)
             if where != _machine():
                 return False
-            stat = open(f"/proc/{int(pid)}/stat").read()
+            stat = Path(f"/proc/{int(pid)}/stat").read_text()
             if stat[stat.rindex(")") + 2] not in "Tt":
                 return False
             os.kill(int(pid), signal.SIGKILL)
@@ -221,7 +222,7 @@ class Watchdog:
 def _machine() -> str:
     """This kernel boot and pid namespace: processes that share it can signal each other by pid."""
     try:
-        boot = open("/proc/sys/kernel/random/boot_id").read().strip()
+        boot = Path("/proc/sys/kernel/random/boot_id").read_text().strip()
         return f"{boot}/{os.stat('/proc/self/ns/pid').st_ino}"
     except OSError:
         return f"{os.uname().nodename}?"  # no /proc: never matched as "here" by another machine's rank
