@@ -174,3 +174,15 @@ def test_frames_mostly_unexplained_by_the_cameras_fail_the_check_whatever_the_mo
         "the cameras disagree with the optical flow over most of 3 of 20 mapped frames (000005.jpg to 000012.jpg)"
     )
     assert motion.cameras_disagree({n: m for n, m in masks.items() if n != names[12]}, names[:12]) is None
+
+
+def test_masking_off_fails_the_check_only_for_moving_content_that_holds_observations():
+    """`moving_content` (--dynamic off): regions in MIN_MOVING_FRAMES frames fail the check unless they
+    hold less than MIN_MOVING_SHARE of the model's observations (the static walk's specks: 2 of ~40,000)."""
+    facts = {"keyframes": {"judged": 90, "frames_with_motion": 4}}
+    left = {"observations": 2, "total": 40_000, "centre_change_pct": 3.9e-5}
+    assert motion.moving_content({**facts, "leave_out": left}) is None
+    left["observations"] = 493
+    why = motion.moving_content({**facts, "leave_out": left})
+    assert why is not None and why.startswith("moving content in 4 of 90 mapped frames is not masked")
+    assert motion.moving_content({"keyframes": {"judged": 90, "frames_with_motion": 2}, "leave_out": left}) is None

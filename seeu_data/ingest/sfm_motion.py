@@ -101,17 +101,18 @@ def _model_masks(job: Job, recs: dict, names: list[str]) -> tuple[dict, int]:
 
 def _leave_out(job: Job, recs: dict, masks: dict) -> dict:
     """How much the moving regions carry the models `recs` (copies): each adjusted as the final bundle
-    adjustment does, with and without their observations in `masks`; {"observations" (left out),
-    "centre_change_pct" (`model_disagreement_pct` of the two)}."""
+    adjustment does, with and without their observations in `masks`; {"observations" (left out), "total"
+    (the models' observations), "centre_change_pct" (`model_disagreement_pct` of the two)}."""
     import pycolmap
 
     from seeu_data.ingest.motion import drop_observations
 
     cfg = job.cfg if job.cfg.final_ba_loss != "none" else replace(job.cfg, final_ba_loss="soft_l1")
+    total = sum(r.compute_num_observations() for r in recs.values())
     with_all = {k: final_bundle_adjustment(pycolmap.Reconstruction(r), cfg)[0] for k, r in recs.items()}
     dropped = sum(drop_observations(r, masks) for r in recs.values())
     without = {k: final_bundle_adjustment(r, cfg)[0] for k, r in recs.items()}
-    return {"observations": dropped, "centre_change_pct": model_disagreement_pct(with_all, without)}
+    return {"observations": dropped, "total": total, "centre_change_pct": model_disagreement_pct(with_all, without)}
 
 
 def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving) -> None:
