@@ -178,9 +178,9 @@ def test_frames_mostly_unexplained_by_the_cameras_fail_the_check_whatever_the_mo
 
 def test_masking_off_fails_the_check_only_for_moving_content_that_holds_observations():
     """`moving_content` (--dynamic off): regions in MIN_MOVING_FRAMES frames fail the check unless they
-    hold less than MIN_MOVING_SHARE of the model's observations (the static walk's specks: 2 of ~40,000)."""
+    hold less than MIN_MOVING_SHARE of the model's observations (the static walk's specks: 2 of 122,598)."""
     facts = {"keyframes": {"judged": 90, "frames_with_motion": 4}}
-    left = {"observations": 2, "total": 40_000, "centre_change_pct": 3.9e-5}
+    left = {"observations": 2, "total": 122_598, "centre_change_pct": 3.9e-5}
     assert motion.moving_content({**facts, "leave_out": left}) is None
     left["observations"] = 493
     why = motion.moving_content({**facts, "leave_out": left})
