@@ -539,3 +539,30 @@ def test_heartbeat_line(tmp_path):
             time.sleep(0.01)
     assert "seeu ingest: walk: sfm extract 12/36, " in stream.getvalue()
     assert all(line.startswith("seeu ingest: walk: ") for line in stream.getvalue().splitlines())
+
+
+def test_progress_lines_stay_whole_while_colmap_logs_to_the_same_pipe(tmp_path):
+    """The SfM child's progress lines (`emit`) and COLMAP's log share one pipe. Under PYTHONUNBUFFERED
+    (set on CI machines) print() wrote each piece on its own and a log line landed inside ours
+    ("done 30I2026..."), an internal error in the parent. Two threads in a real child: every progress
+    line arrives whole."""
+    import os
+    import subprocess
+    import sys
+
+    from seeu_data.ingest.sfm import _PROGRESS
+
+    code = (
+        "import os, threading\n"
+        "from seeu_data.ingest.sfm import emit\n"
+        "def log():\n"
+        "    for _ in range(3000): os.write(2, b'I20261126 12:00:00.000 mapper.cc:1] Registering image\\n')\n"
+        "t = threading.Thread(target=log); t.start()\n"
+        "for i in range(3000): emit('done', i)\n"
+        "t.join()\n"
+    )
+    env = {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    out = subprocess.run([sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, env=env)
+    assert out.returncode == 0, out.stdout[-2000:]
+    ours = [ln for ln in out.stdout.decode().splitlines() if _PROGRESS in ln]
+    assert ours == [f"{_PROGRESS} done {i}" for i in range(3000)]

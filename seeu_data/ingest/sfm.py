@@ -321,14 +321,17 @@ def run_sfm(
                             prog.set(base + int(m.group(1)))
                         continue
                     parts = line.split()
-                    if parts[1] == "stage":
-                        total = int(parts[3]) if len(parts) > 3 and parts[3] != "None" else None
-                        prog.stage(f"sfm {parts[2]}", total, parts[4] if len(parts) > 4 else "")
-                    elif parts[1] == "done":
-                        base = int(parts[2])
-                        prog.set(base)
-                    elif parts[1] == "total":
-                        prog.set_total(int(parts[2]))
+                    try:
+                        if parts[1] == "stage":
+                            total = int(parts[3]) if len(parts) > 3 and parts[3] != "None" else None
+                            prog.stage(f"sfm {parts[2]}", total, parts[4] if len(parts) > 4 else "")
+                        elif parts[1] == "done":
+                            base = int(parts[2])
+                            prog.set(base)
+                        elif parts[1] == "total":
+                            prog.set_total(int(parts[2]))
+                    except (IndexError, ValueError):  # a line another writer broke into: progress only
+                        log.write(raw)
                 rc = proc.wait()
             except BaseException:  # Ctrl-C, SIGTERM (interrupts.Terminated), an error: the child goes too
                 end_process(proc)
@@ -374,7 +377,10 @@ def _last_log_line(path: Path) -> str:
 
 
 def emit(*parts) -> None:
-    print(_PROGRESS, *parts, flush=True)
+    """One progress line to the parent, in one write: under PYTHONUNBUFFERED, print() writes each piece
+    on its own, and COLMAP's threads logging to the same pipe got in between ("done 30I2026...")."""
+    sys.stdout.flush()
+    os.write(sys.stdout.fileno(), (" ".join(map(str, (_PROGRESS, *parts))) + "\n").encode())
 
 
 class Clock:
