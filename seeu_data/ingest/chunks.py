@@ -92,10 +92,16 @@ def _runs(flags: np.ndarray) -> list[tuple[int, int]]:
     return runs
 
 
+def colmap_smallest(min_size: int, num_frames: int) -> int:
+    """COLMAP's rule for the smallest model it keeps: `min_size` frames, or 80 % of the `num_frames` frames
+    mapped if fewer (9 of 11 photos is a model, as bare pycolmap keeps it)."""
+    return min(min_size, int(0.8 * num_frames))
+
+
 def shortest_chunk(config: ChunkConfig, ordered: bool, num_frames: int) -> int:
-    """The fewest frames of a kept chunk: `min_chunk_frames`; of photos matched out of order, at most
-    80 % of them (the models SfM keeps: `solution_check.smallest_model`)."""
-    return config.min_chunk_frames if ordered else max(2, min(config.min_chunk_frames, int(0.8 * num_frames)))
+    """The fewest frames of a kept chunk: `min_chunk_frames`; of photos matched out of order, the models
+    SfM keeps (`colmap_smallest`), at least 2."""
+    return config.min_chunk_frames if ordered else max(2, colmap_smallest(config.min_chunk_frames, num_frames))
 
 
 def plan_chunks(

@@ -10,8 +10,7 @@ after, as far as the image motion allows: `neighbour_offsets`):
    back agrees (`FB_MAX_PX`: not occluded, not out of frame) and the frames look alike (`PHOTO_MAX`).
 2. the flow the static scene allows: cameras relative to frame i, x_j ~ M_j x + rho e_j, where x is
    the pixel in normalised image coordinates, rho its inverse depth and (M_j, e_j) = (R_ji, t_ji) the
-   pose of frame j's camera in frame i's: from the SfM model (`model_pass`), or without a model from the
-   flow alone under a guessed focal length (`flow_cameras`, `flow_residual`).
+   pose of frame j's camera in frame i's, from the SfM model (`model_pass`).
 3. the residual (`static_residual`): the one rho that best explains every neighbour's flow at the
    pixel, and the largest distance in pixels between where that rho puts the pixel in a neighbour and
    where the flow does: epipolar distance and depth consistency in one number. A static pixel's
@@ -55,20 +54,6 @@ SEED_PX = 2.5  # residual (working px) that starts a moving region
 GROW_PX = 1.25  # residual over which a moving region grows from its seeds
 CARRY = 0.7  # evidence carried to the next / previous frame along the flow, per frame
 MIN_AREA = 0.002  # smallest moving region kept, as a fraction of the frame
-SAMPLE_STEP = 3  # flow samples for the robust fits: one judged pixel in SAMPLE_STEP x SAMPLE_STEP
-MIN_SAMPLES = 30  # fewer trusted samples: no cameras from the flow
-FIT_PX = 0.5  # inlier distance of the robust fits (working px)
-FIT_ITERATIONS = 500  # of each robust fit
-GOOD_FIT_PX = 0.8  # median residual of the pixels cameras were fitted on, above which the fit failed
-# A homography explaining this share of the essential matrix's inliers: the camera turned in place or sees
-# one plane, and the homography is the static scene's flow; from AMBIGUOUS_SHARE on, a dominant plane
-# leaves the pose unsure (the points off it decide it) and the flow alone does not judge the frame.
-HOMOGRAPHY_SHARE = 0.99
-AMBIGUOUS_SHARE = 0.5
-# The guessed focal length of the cameras from the flow alone, over the frame's longer side: COLMAP's own prior
-# (ImageReaderOptions.default_focal_length_factor). Far from the truth (0.7 for a 70 degree lens) it
-# still finds the box of the synthetic clip as well as the true one does: only consistency is judged.
-PRIOR_FOCAL = 1.2
 MIN_MOVING_FRAMES = 3  # --dynamic off: moving regions in this many mapped frames fail the solution check ...
 # ... when they hold at least this share of the model's observations. The 90-frame static walk's specks held 2 of
 # 122,598 (0.0016 %); the swinging box 493, the large mover 7,126, the slow box 24,278 of 106,006 (about 0.4 %,
@@ -210,99 +195,11 @@ def static_residual(
     return res * scale
 
 
-def _samples(ok: np.ndarray) -> np.ndarray:
-    sel = np.zeros_like(ok)
-    sel[::SAMPLE_STEP, ::SAMPLE_STEP] = True
-    return sel & ok
-
-
 def _project(x: np.ndarray, M: np.ndarray, e: np.ndarray, rho: np.ndarray) -> np.ndarray:
     """Where pixels `(..., 2)` of inverse depth `rho` `(...)` land with the camera (M, e): `(..., 2)`."""
     h = x[..., 0:1] * M[:, 0] + x[..., 1:2] * M[:, 1] + M[:, 2] + rho[..., None] * e
     with np.errstate(divide="ignore", invalid="ignore"):
         return h[..., :2] / h[..., 2:3]
-
-
-def flow_cameras(x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float) -> Cameras | None:
-    """Cameras of the neighbours relative to frame i from the flow alone, or None when the flow cannot
-    give them (too few trusted samples). x, lands: normalised image coordinates under a guessed camera
-    (`scale` pixels per unit: its focal length; the guess matters little, see `prior_focal`).
-
-    The neighbour farthest away in time gives the reference: its essential matrix (MAGSAC on a grid of
-    trusted flow samples) its pose (R, t) and an inverse depth rho for every pixel; each other neighbour's
-    pose is then found from those points and where they land there (PnP, RANSAC, refined). When a
-    homography explains the reference's flow as well as the essential matrix does (HOMOGRAPHY_SHARE: the
-    camera turned without moving, or sees one plane), every neighbour gets its homography (M = H, e = 0):
-    no depth; when it explains much of it (AMBIGUOUS_SHARE), None."""
-    samples = [_samples(ok) for ok in oks]
-    ref = max(range(len(lands)), key=lambda k: float(np.abs(lands[k][samples[k]] - x[samples[k]]).sum()))
-    sel = samples[ref]
-    if sel.sum() < MIN_SAMPLES:
-        return None
-    p, q = x[sel], lands[ref][sel].astype(np.float64)
-    E, e_in = cv2.findEssentialMat(p, q, np.eye(3), cv2.USAC_MAGSAC, 0.999, FIT_PX / scale, maxIters=FIT_ITERATIONS)
-    H, h_in = cv2.findHomography(p, q, cv2.RANSAC, FIT_PX / scale, maxIters=FIT_ITERATIONS)
-    planar = 0.0 if H is None or E is None else h_in.sum() / max(e_in.sum(), 1)
-    if planar >= HOMOGRAPHY_SHARE:
-        return _homographies(x, lands, oks, scale)
-    if E is None or E.shape != (3, 3) or planar >= AMBIGUOUS_SHARE:
-        return None
-    inl = np.flatnonzero(e_in.ravel())[:: max(1, int(e_in.sum()) // 500)]  # enough to tell the 4 poses apart
-    _, R, t, _ = cv2.recoverPose(E, p[inl], q[inl], np.eye(3))
-    t = t.ravel()
-    n0, d0 = _depth_terms(p, q, R, t)
-    rho = n0 / np.maximum(d0, 1e-12)
-    usable = (rho > 0) & (d0 > np.percentile(d0, 25))  # in front, with parallax for a depth
-    points = np.concatenate([p[usable], np.ones((int(usable.sum()), 1))], 1) / rho[usable][:, None]
-    at = tuple(a[usable] for a in np.nonzero(sel))  # the usable samples' grid indices
-    out: Cameras = []
-    for k, (land, ok) in enumerate(zip(lands, oks)):
-        if k == ref:
-            out.append((R, t))
-            continue
-        pose = _pnp(points[ok[at]], land[at][ok[at]].astype(np.float64), scale)
-        if pose is None:
-            return None
-        out.append(pose)
-    return out
-
-
-def _homographies(
-    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float
-) -> Cameras | None:
-    out: Cameras = []
-    for land, ok in zip(lands, oks):
-        sel = _samples(ok)
-        H = (
-            None
-            if sel.sum() < MIN_SAMPLES
-            else cv2.findHomography(x[sel], land[sel], cv2.RANSAC, FIT_PX / scale, maxIters=FIT_ITERATIONS)[0]
-        )
-        if H is None:
-            return None
-        out.append((H, np.zeros(3)))
-    return out
-
-
-def _pnp(points: np.ndarray, seen: np.ndarray, scale: float) -> tuple[np.ndarray, np.ndarray] | None:
-    """Pose (R, t) of a camera seeing 3D `points` `(N, 3)` at normalised `seen` `(N, 2)`: RANSAC (EPnP, within
-    2 FIT_PX), then Levenberg-Marquardt on the inliers; None when it fails."""
-    if len(points) < MIN_SAMPLES:
-        return None
-    found, rvec, tvec, inliers = cv2.solvePnPRansac(
-        points,
-        seen,
-        np.eye(3),
-        None,
-        reprojectionError=2 * FIT_PX / scale,
-        iterationsCount=FIT_ITERATIONS // 2,
-        flags=cv2.SOLVEPNP_EPNP,
-    )
-    if not found or inliers is None or len(inliers) < MIN_SAMPLES:
-        return None
-    keep = inliers.ravel()[:: max(1, len(inliers) // 500)]
-    rvec, tvec = cv2.solvePnPRefineLM(points[keep], seen[keep], np.eye(3), None, rvec, tvec)
-    return cv2.Rodrigues(rvec)[0], tvec.ravel()
 
 
 # residual(i, js, grid, lands, oks, avoid) -> (h, w) pixels or None: see `detect`
@@ -325,26 +222,6 @@ def neighbour_offsets(flows: Flows, n: int) -> tuple[int, ...]:
 def neighbours(i: int, n: int, offsets: Sequence[int]) -> list[int]:
     """Frame i's neighbours among n frames: i -/+ each offset, those inside 0..n-1."""
     return [i + o for o in sorted({-o for o in offsets} | set(offsets)) if 0 <= i + o < n]
-
-
-def flow_residual(
-    x: np.ndarray, lands: Sequence[np.ndarray], oks: Sequence[np.ndarray], scale: float, avoid: np.ndarray
-) -> np.ndarray | None:
-    """`static_residual` under the cameras the flow gives (`flow_cameras`), fitted on trusted pixels not in
-    `avoid` `(h, w)` bool (moving content found in the frames before). A fit whose trusted pixels do not
-    mostly agree with it (median residual over GOOD_FIT_PX: moving content pulled it) is made once more
-    without the pixels it left above GROW_PX; None when that fails too."""
-    keep = [ok & ~avoid for ok in oks]
-    for _ in range(2):
-        cams = flow_cameras(x, lands, keep, scale)
-        if cams is None:
-            return None
-        r = static_residual(x, lands, oks, cams, scale)
-        fitted = np.any(keep, 0)
-        if fitted.any() and np.median(r[fitted]) <= GOOD_FIT_PX:
-            return r
-        keep = [k & (r < GROW_PX) for k in keep]
-    return None
 
 
 def detect(

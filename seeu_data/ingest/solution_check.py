@@ -7,12 +7,10 @@ from __future__ import annotations
 import time
 from pathlib import Path
 
+from seeu_data.ingest.chunks import colmap_smallest
 from seeu_data.ingest.sfm import SfmConfig, emit, model_cameras
 
 # COLMAP's own defaults for a plausible camera: focal length / image size within [0.1, 10], |extra params| <= 1
-_PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
-
-
 _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 # A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
 # along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair
@@ -25,9 +23,8 @@ _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 
 
 def smallest_model(cfg: SfmConfig, num_frames: int) -> int:
-    """The fewest registered frames of a usable model: COLMAP's own rule, `min_model_size` or 80 % of the
-    frames mapped if fewer (9 of 11 photos is a model, as bare pycolmap keeps it)."""
-    return min(cfg.min_model_size, int(0.8 * num_frames))
+    """The fewest registered frames of a usable model (`colmap_smallest` of `min_model_size`)."""
+    return colmap_smallest(cfg.min_model_size, num_frames)
 
 
 def map_with_retries(
