@@ -24,7 +24,8 @@ the ground truth (registered %, camera-centre RMSE after a similarity alignment 
 frame-to-frame rotation error; the largest model/chunk). Printed per row: medians, the ratio A / B of the
 wall medians (and of CPU), whether A's poses were identical in every run, and, for a kind run at several
 frame counts, the growth exponent of the wall medians (log-log slope over every count given). Wall times
-mean little on a loaded machine (load average printed before and after): CPU seconds mean more.
+mean little on a loaded machine (load average printed before and after): CPU seconds mean more. A run
+still going after `--cap` seconds (default 900) is stopped, and its time is shown as more than the cap.
 
 Examples (quiet machine, the figures in RESULTS.md; `--write` puts the table there):
   .venv/bin/python benchmarks/ingest.py --kinds walk,orbit,pan,photos,walk720 --frames 90 --pairs 2 --write
@@ -40,6 +41,7 @@ import json
 import os
 import resource
 import shutil
+import signal
 import statistics
 import subprocess
 import sys
@@ -82,6 +84,14 @@ def _cpu_self() -> float:
     return r.ru_utime + r.ru_stime
 
 
+def frames_dir_of(target: Path, out: Path) -> Path:
+    """Where `seeu ingest --out OUT/posed` keeps `target`'s decoded frames (bare pycolmap maps the same files)."""
+    from seeu_data.ingest.video import discover_sources
+
+    (source,) = discover_sources([target])
+    return out / "posed" / ".work" / source.name / "decode" / "frames"
+
+
 def run_seeu(target: Path, out: Path) -> dict:
     """A default `seeu ingest` of `target` from scratch: stages (wall; CPU of the SfM child's), accuracy, poses."""
     import hashlib
@@ -93,12 +103,11 @@ def run_seeu(target: Path, out: Path) -> dict:
 
     (source,) = discover_sources([target])
     cfg = IngestConfig(out=out / "posed", inputs=(target,), run=IngestRunConfig(force=True, heartbeat_s=0))
-    frames_dir = str(out / "posed" / ".work" / source.name / "decode" / "frames")
     try:
         report = ingest_scene(source, cfg)
     except SeeUError as exc:  # e.g. no model: a result of the benchmark too
         failed = {"stages": {}, "stages_cpu": {}, "registered_pct": 0.0, "largest": None, "poses_sha256": None}
-        return {**failed, "error": str(exc), "frames_dir": frames_dir}
+        return {**failed, "error": str(exc)}
     t, sfm, cpu = report["timings_s"], report["sfm"]["timings_s"], report["sfm"]["cpu_timings_s"]
     in_sfm = ("extract_s", "match_s", "map_s", "final_ba_s", "register_s")
     stages = {
@@ -125,7 +134,6 @@ def run_seeu(target: Path, out: Path) -> dict:
         "solution_check": report["sfm"]["solution_check"].get("state"),
         "keyframes": report["sfm"].get("keyframes"),
         "matcher": report["sfm"].get("matcher"),
-        "frames_dir": frames_dir,
     }
 
 
@@ -198,11 +206,14 @@ def _tree_rss_mb(pid: int) -> float:
     return total
 
 
-def measure(argv: list[str]) -> dict:
-    """Run `argv` (one side) in a process of its own: its JSON line, wall and CPU seconds, peak memory."""
+def measure(argv: list[str], cap_s: float) -> dict:
+    """Run `argv` (one side) in a process of its own: its JSON line, wall and CPU seconds, peak memory. A run
+    still going after `cap_s` seconds is stopped (its process group killed) and recorded as {"capped": cap_s}."""
     kids0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    proc = subprocess.Popen([sys.executable, __file__, *argv], stdout=subprocess.PIPE, text=True, cwd=ROOT)
+    proc = subprocess.Popen(
+        [sys.executable, __file__, *argv], stdout=subprocess.PIPE, text=True, cwd=ROOT, start_new_session=True
+    )
     peak = [0.0]
 
     def sample() -> None:
@@ -212,7 +223,13 @@ def measure(argv: list[str]) -> dict:
 
     sampler = threading.Thread(target=sample, daemon=True)
     sampler.start()
-    out, _ = proc.communicate()
+    try:
+        out, _ = proc.communicate(timeout=cap_s)
+    except subprocess.TimeoutExpired:
+        os.killpg(proc.pid, signal.SIGKILL)
+        proc.communicate()
+        sampler.join()
+        return {"capped": cap_s, "wall_s": cap_s, "cpu_s": float("nan"), "peak_mb": peak[0], "stages": {}}
     wall = time.perf_counter() - t0
     sampler.join()
     kids = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -224,6 +241,8 @@ def measure(argv: list[str]) -> dict:
 
 
 def _acc(side: dict) -> str:
+    if side.get("capped"):
+        return f"stopped after {side['capped']:.0f} s"
     if side.get("error"):
         return f"failed: {side['error'].split(': ', 1)[-1][:70]}"
     best = side.get("largest")
@@ -234,8 +253,16 @@ def _acc(side: dict) -> str:
 
 def _stages(runs: list[dict], key: str = "stages") -> str:
     med = statistics.median
-    done = [r for r in runs if r[key]]
-    return ", ".join(f"{k} {med(r[key][k] for r in done):.1f}" for k in done[0][key]) if done else "failed"
+    done = [r for r in runs if r.get(key)]
+    if not done:
+        return "stopped" if any(r.get("capped") for r in runs) else "failed"
+    return ", ".join(f"{k} {med(r[key][k] for r in done):.1f}" for k in done[0][key])
+
+
+def _identical(runs: list[dict]) -> str:
+    """Whether the finished runs wrote identical poses ("-" when none finished)."""
+    done = {x["poses_sha256"] for x in runs if not x.get("capped")}
+    return str(len(done) == 1) if done else "-"
 
 
 def table(rows: list[dict]) -> str:
@@ -249,11 +276,15 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         a, b = r["seeu"], r["bare"]
         wa, wb = med(x["wall_s"] for x in a), med(x["wall_s"] for x in b)
+        # a capped side's median is a bound: more than the cap (and the ratio a bound the other way)
+        more_a, more_b = any(x.get("capped") for x in a), any(x.get("capped") for x in b)
+        ratio = f"{'>' if more_a else '<' if more_b else ''}{wa / wb:.2f}×" if not (more_a and more_b) else "?"
         lines.append(
-            f"| {r['kind']} | {r['frames']} | {r['size'][1]}x{r['size'][0]} | {wa:.1f} | {wb:.1f} | **{wa / wb:.2f}×** "
+            f"| {r['kind']} | {r['frames']} | {r['size'][1]}x{r['size'][0]} | {'>' * more_a}{wa:.1f} "
+            f"| {'>' * more_b}{wb:.1f} | **{ratio}** "
             f"| {med(x['cpu_s'] for x in a):.0f} / {med(x['cpu_s'] for x in b):.0f} "
             f"| {max(x['peak_mb'] for x in a):.0f} / {max(x['peak_mb'] for x in b):.0f} "
-            f"| {_acc(a[-1])} | {_acc(b[-1])} | {len({x['poses_sha256'] for x in a}) == 1} |"
+            f"| {_acc(a[-1])} | {_acc(b[-1])} | {_identical(a)} |"
         )
     lines.append("")
     lines.append("Stages, medians (wall s; seeu's SfM child also in CPU s):")
@@ -285,6 +316,12 @@ def main() -> int:
     ap.add_argument("--size", default=None, help="HxW for every kind (default 360x640; walk720 720x1280)")
     ap.add_argument("--pairs", type=int, default=2, help="A B pairs run in turn; medians reported")
     ap.add_argument("--out", type=Path, default=Path("out/bench_ingest"))
+    ap.add_argument(
+        "--cap",
+        type=float,
+        default=900.0,
+        help="stop a run still going after this many seconds (its time recorded as more than that)",
+    )
     ap.add_argument("--quick", action="store_true", help="walk and photos, 30 frames 270x480, one pair")
     ap.add_argument("--write", action="store_true", help="put the table in benchmarks/RESULTS.md")
     ap.add_argument("--one", choices=("seeu", "bare"), help=argparse.SUPPRESS)
@@ -320,10 +357,12 @@ def main() -> int:
             work = args.out / "runs" / f"{kind}-{n}"
             row: dict = {"kind": kind, "frames": n, "size": size, "seeu": [], "bare": []}
             for p in range(pairs):
-                a = measure(["--one", "seeu", "--target", str(target), "--out", str(work)])
+                a = measure(["--one", "seeu", "--target", str(target), "--out", str(work)], args.cap)
                 row["seeu"].append(a)
+                frames_dir = frames_dir_of(target, work)
                 b = measure(
-                    ["--one", "bare", "--target", str(target), "--frames-dir", a["frames_dir"], "--out", str(work)]
+                    ["--one", "bare", "--target", str(target), "--frames-dir", str(frames_dir), "--out", str(work)],
+                    args.cap,
                 )
                 row["bare"].append(b)
                 print(

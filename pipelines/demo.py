@@ -180,16 +180,14 @@ def stage_ingest(ctx: dict, stages: Stages, synth: dict) -> dict:
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest
     from seeu_data.ingest.chunks import ChunkConfig
     from seeu_data.ingest.scale import ScaleConfig
-    from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.synthetic import accuracy_line, ingest_accuracy
 
     # The default camera model (SIMPLE_RADIAL), as a user's first ingest has: with SIMPLE_PINHOLE the
     # training clip (36 frames at 180x320) maps 5.8 % of the path and 16 % in focal length off, its two
-    # mapping runs agreeing. One SfM thread keeps the demo's CPU use low and costs little on 2 cores;
-    # ingest's poses do not depend on the thread count.
+    # mapping runs agreeing. SfM on every core (the solution check's two mapping runs at once); ingest's
+    # poses do not depend on the thread count.
     cfg = IngestConfig(
         out=ctx["out"] / "posed",
-        sfm=SfmConfig(threads=1),
         chunks=ChunkConfig(scale=ScaleConfig("median-depth")),  # the demo model's tight near/far
         run=IngestRunConfig(force=ctx["cfg"].force, progress=ctx["progress"], heartbeat_s=0),
     )

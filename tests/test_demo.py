@@ -20,7 +20,7 @@ from pipelines.cli import main as cli_main
 STEPS = 90
 # The full demo (72-frame clips, 300 steps) gains +4.03 dB on its held-out scene. This CI version (36-frame
 # clips, 90 steps, 4 held-out samples per set) gains +2.37 dB (19.95 -> 22.32 dB; interp +1.94, extrap +2.80;
-# one-thread SfM, so the same on every run on one machine): it asserts a clear gain with a margin for other
+# SfM's poses do not depend on the thread count, so the same on every run on one machine): it asserts a clear gain with a margin for other
 # CPUs' rounding.
 MIN_GAIN_DB = 1.2
 ARGV = [

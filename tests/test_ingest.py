@@ -55,10 +55,10 @@ def clip(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def ingested(clip, tmp_path_factory):
-    """One ingest shared by the tests: first run, then the same command again (resume). One COLMAP
-    thread (results do not depend on it; the --force re-run below must give bit-identical poses)."""
+    """One ingest shared by the tests: first run, then the same command again (resume). Every core (results
+    do not depend on the thread count; the --force re-run below must give bit-identical poses)."""
     out = tmp_path_factory.mktemp("posed")
-    argv = ["ingest", str(clip), "--out", str(out), "--threads", "1"]
+    argv = ["ingest", str(clip), "--out", str(out)]
     assert cli_main(argv) == 0
     report1 = json.loads((out / "walk" / "report.json").read_text())
     stages1 = _stage_files(out)
@@ -166,7 +166,7 @@ def test_resume_reuses_stages_and_force_redoes(ingested, capsys):
     stages3 = _stage_files(out)  # --force wrote every one again
     assert stages3.keys() == stages1.keys() and all(stages3[k] != stages1[k] for k in stages1)
     assert r3["registered"] == r1["registered"]
-    # --threads 1: COLMAP redone from scratch gives bit-identical poses
+    # COLMAP redone from scratch gives bit-identical poses
     assert np.array_equal(PosedDataset(out / "walk").load_scene("walk_c0").cam_to_world, poses_before)
     # A changed parameter redoes only the stages downstream of it (decode is reused).
     assert cli_main(ingested["argv"] + ["--target-frames", "30"]) == 0

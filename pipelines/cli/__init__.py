@@ -52,7 +52,9 @@ def available_commands() -> dict[str, tuple[str, str]]:
     return {k: v for k, v in COMMANDS.items() if importlib.util.find_spec(v[0]) is not None}
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(only: str | None = None) -> argparse.ArgumentParser:
+    """The `seeu` parser; with `only`, the other commands are listed (name and help) but their modules are
+    not imported, which keeps a command's start short."""
     parser = argparse.ArgumentParser(
         prog="seeu",
         description="SeeU toolkit: posed data from videos and datasets, triple shards, and the SeeU G-3DGS model.",
@@ -61,6 +63,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--debug", action="store_true", help="show full tracebacks on errors")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in available_commands().items():
+        if only is not None and name != only:
+            sub.add_parser(name, help=help_text)
+            continue
         mod = importlib.import_module(module)
         p = sub.add_parser(
             name,
@@ -78,7 +83,8 @@ def main(argv: list[str] | None = None) -> int:
     # moment: before the commands' modules and their libraries are imported
     with sigterm_raises():
         try:
-            parser = build_parser()
+            words = sys.argv[1:] if argv is None else argv
+            parser = build_parser(only=next((w for w in words if not w.startswith("-")), ""))
             args = parser.parse_args(argv)
         except Terminated:
             return _interrupted("seeu", "SIGTERM", 143)
