@@ -105,7 +105,7 @@ def test_installed_wheel_runs_outside_the_checkout(wheel_venv: Path, tmp_path: P
     assert preset.split()[0] == json.loads((ROOT / "configs" / "re10k_paper.json").read_text())["name"]
 
     # synth -> ingest -> validate: the schemas come from the wheel.
-    _run([seeu, "synth", "--out", "synth", "--frames", "30", "--size", "180x320", "--seed", "0"], cwd=tmp_path)
-    _run([seeu, "ingest", "synth/clip.mp4", "--out", "posed", "--threads", "1"], cwd=tmp_path)
+    _run([seeu, "synth", "--out", "synth", "--frames", "20", "--size", "136x240", "--seed", "0"], cwd=tmp_path)
+    _run([seeu, "ingest", "synth/clip.mp4", "--out", "posed"], cwd=tmp_path)
     out = _run([seeu, "validate", "posed/clip"], cwd=tmp_path)
     assert "error" not in (out.stdout + out.stderr).lower()
