@@ -275,7 +275,7 @@ class PosedDataset:
         self.manifest = read_manifest(self.root, expect_schema=SCHEMA, verify=verify)
         self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
         self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
-        self._camera_readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
+        self._camera_tables: dict[str, pa.Table] = {}  # per file: its camera columns (mapped, not copied)
         self._batch_index: dict[str, dict[int, int]] = {}
         self._overlaps = OverlapReader(self.root, self.manifest)
 
@@ -325,10 +325,11 @@ class PosedDataset:
         """A scene's cameras without its images: cam_to_world (N, 4, 4), intrinsics_norm (N, 4), near, far."""
         info = self.scene_info(scene_id)
         name = info["file"]
-        if name not in self._camera_readers:  # mapped without read-ahead: the camera columns' pages, not the images'
-            self._camera_readers[name] = open_ipc_file(self.root / name, random_access=True)
-        table = self._camera_readers[name].read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
-        rows = table.slice(info["row_start"], info["num_frames"])
+        if name not in self._camera_tables:  # mapped without read-ahead: the camera columns' pages, not the images';
+            # once per file (assembling the table of every batch for each scene made a build quadratic in scenes)
+            reader = open_ipc_file(self.root / name, random_access=True)
+            self._camera_tables[name] = reader.read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
+        rows = self._camera_tables[name].slice(info["row_start"], info["num_frames"])
         c2w = rows.column("cam_to_world").combine_chunks().values.to_numpy().reshape(-1, 4, 4)
         intr = rows.column("intrinsics_norm").combine_chunks().values.to_numpy().reshape(-1, 4)
         return c2w, intr, float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
