@@ -50,4 +50,4 @@ def test_extrapolation_and_the_report():
     # RE10K: 0.5 CPU s a scene of a linear step over 67,477 scenes, 9.37 h; the quadratic index grows further
     assert "| import | 0.500 | 0.500 | 1024 / 512 | 9.37 | 9.37 |" in text
     assert "| build_interp | 0.500 | 0.500 | 1024 / 512 | 9.37 | 1.17 |" in text  # 8 build processes
-    assert "DL3DV import + build interp: 2.00 core-s a scene" in text
+    assert "DL3DV import + build interp + build extrap: 3.00 core-s a scene" in text
