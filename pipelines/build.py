@@ -31,7 +31,6 @@ Stages:
 from __future__ import annotations
 
 import hashlib
-import os
 import sys
 from collections.abc import Iterable, Iterator
 from dataclasses import asdict, dataclass, field
@@ -54,7 +53,7 @@ from seeu_data.build.sampling import (
 from seeu_data.build.shard_task import ShardResult, materialise
 from seeu_data.build.triples import PLAN_KEY, SCHEMA, ImageOptions, SceneRows, ShardSpec
 from seeu_data.errors import SeeUError
-from seeu_data.interrupts import end_pool, ended_workers, quiet_worker, raise_if_terminated
+from seeu_data.interrupts import raise_if_terminated
 from seeu_data.limits import (
     MAX_IMAGE_SIDE,
     MAX_PIXELS,
@@ -65,6 +64,7 @@ from seeu_data.limits import (
     check_range,
 )
 from seeu_data.overlap import OverlapTable, context_overlap
+from seeu_data.process_pool import default_workers
 from seeu_data.settings import parse_bytes, setting
 from seeu_data.store.arrow_io import open_ipc_file
 from seeu_data.store.dataset_check import check_dataset
@@ -476,38 +476,14 @@ def run_local(
         for spec in specs:
             collect(materialise(spec, out_dir, fsync))
     else:
-        import multiprocessing as mp
-        from concurrent.futures import ProcessPoolExecutor, as_completed
-        from concurrent.futures.process import BrokenProcessPool
+        from concurrent.futures import as_completed
 
-        # fork: workers inherit the imported modules (spawn/forkserver re-import numpy, cv2 and torch
-        # via seeu_data.cameras: seconds per worker). Workers touch no torch; cv2 runs single-threaded.
-        ctx = mp.get_context("fork" if "fork" in mp.get_all_start_methods() else "spawn")
-        from seeu_data.image_ops import single_threaded_cv2
+        from seeu_data.process_pool import ForkedPool
 
-        # Forked with OpenCV single-threaded: setting it inside a forked child can deadlock.
-        with (
-            single_threaded_cv2(),
-            ProcessPoolExecutor(max_workers=workers, mp_context=ctx, initializer=quiet_worker) as pool,
-        ):
-            started: list = []  # the pool's workers (forked as the first tasks are submitted)
-            try:
-                futures = []
-                for s in specs:  # drawn lazily: a worker can die while the rest of the plan is submitted
-                    futures.append(pool.submit(materialise, s, out_dir, fsync))
-                    if len(started) < workers:
-                        started = sorted(mp.active_children(), key=lambda p: p.pid or 0)
-                for fut in as_completed(futures):
-                    collect(fut.result())
-            except BrokenProcessPool:  # a worker was killed (the out-of-memory killer, kill -9)
-                end_pool(pool)
-                raise SeeUError(
-                    f"build {ended_workers(started)}; re-run the same command to resume (finished shards are kept)",
-                    out_dir,
-                ) from None
-            except BaseException:  # Ctrl-C, SIGTERM, an error: no worker outlives the build
-                end_pool(pool)
-                raise
+        with ForkedPool(workers, "build", out_dir, kept="finished shards are kept") as pool:
+            futures = [pool.submit(materialise, s, out_dir, fsync) for s in specs]  # specs drawn lazily
+            for fut in as_completed(futures):
+                collect(fut.result())
     return results
 
 
@@ -683,11 +659,3 @@ def no_samples_reason(cfg: BuildConfig, report: dict) -> str:
             f"(e.g. {pairs['overlap_scenes_without_a_pair_examples'][0]!r}; widen --min-overlap / --max-overlap)"
         )
     return "no scene yields a sample: " + "; ".join(parts)
-
-
-def default_workers(resize: bool = False) -> int:
-    """Local engine processes for this machine: one per core, at most 8, except when copying images
-    (no resize) on up to 4 cores, where one process was faster (measured on 2 cores: two processes
-    took 1.0-1.2x the time of one)."""
-    cores = os.cpu_count() or 1
-    return 1 if not resize and cores <= 4 else max(1, min(8, cores))

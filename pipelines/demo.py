@@ -240,7 +240,7 @@ def stage_build(ctx: dict, stages: Stages, ingest: dict) -> dict:
     }
 
     def fn() -> dict:
-        from pipelines.build import default_workers
+        from seeu_data.process_pool import default_workers
 
         out = {}
         for name, (posed, mode, ratio, n, seed) in sets.items():

@@ -29,6 +29,8 @@ from seeu_data.importers.dtu import DtuImportConfig
 from seeu_data.importers.nerfstudio import NerfstudioImportConfig
 from seeu_data.importers.pixelsplat import PixelSplatImportConfig
 from seeu_data.importers.re10k_text import Re10kTextImportConfig
+from seeu_data.limits import MAX_WORKERS, check_range
+from seeu_data.process_pool import default_workers
 from seeu_data.settings import setting
 from seeu_data.store.out_lock import locks_output
 
@@ -58,7 +60,7 @@ FORMATS: dict[type, str] = {cls: name for name, (cls, _) in IMPORTERS.items()}
 class ImportConfig:
     """One `seeu import` run: `source` (a format's config), `out` (the posed-frames directory),
     `strict` (fail on the first bad scene instead of skipping it), `verify` (hash the files a re-run
-    keeps), `engine` / `ray_address` (where the inputs are read: `importers.ray_import`), `progress`
+    keeps), `engine` / `ray_address` / `workers` (where the inputs are read: `importers.read_ahead`), `progress`
     (a bar), `fsync`, `force` (write every posed file anew instead of keeping those a previous run
     completed)."""
 
@@ -76,6 +78,11 @@ class ImportConfig:
         choices=("local", "ray"),
     )
     ray_address: str | None = setting(None, "Ray cluster address (default: start a local instance)")
+    workers: int | None = setting(
+        None,
+        "local engine: processes that read the inputs, check the scenes and measure their view overlap "
+        "(default: one per core, at most 8; one on up to 4 cores)",
+    )
     progress: bool = False
     fsync: bool = False
     force: bool = False
@@ -87,6 +94,8 @@ class ImportConfig:
     def check(self) -> None:
         if self.engine not in ("local", "ray"):
             raise SeeUError(f"unknown engine {self.engine!r} (local or ray)")
+        if self.workers is not None:
+            check_range(self.workers, "--workers", 1, MAX_WORKERS)
         if type(self.source) not in FORMATS:
             raise SeeUError(f"unknown import source {type(self.source).__name__}; one of {', '.join(FORMATS.values())}")
 
@@ -116,5 +125,6 @@ def import_dataset(cfg: ImportConfig):
         verify=cfg.verify,
         engine=cfg.engine,
         ray_address=cfg.ray_address,
+        workers=cfg.workers if cfg.workers is not None else default_workers(),
     )
     return report

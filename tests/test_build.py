@@ -497,7 +497,7 @@ def test_rewritten_posed_data_is_mapped_again(tmp_path):
 
 @pytest.mark.parametrize("cores, copy, resize", [(1, 1, 1), (2, 1, 2), (4, 1, 4), (6, 6, 6), (32, 8, 8)])
 def test_default_workers(monkeypatch, cores, copy, resize):
-    from pipelines.build import default_workers
+    from seeu_data.process_pool import default_workers
 
     monkeypatch.setattr(os, "cpu_count", lambda: cores)
     assert (default_workers(), default_workers(resize=True)) == (copy, resize)

@@ -505,3 +505,42 @@ def test_import_of_2000_scenes_in_200_chunks_visits_the_index_o_scenes_times(tmp
         ("lost", "index.json lists it in 000000.torch, which does not hold it")
     ]
     assert _CountingIndex.visits <= 3 * len(index), _CountingIndex.visits
+
+
+def test_import_in_worker_processes_writes_the_same_bytes_and_a_dead_worker_is_one_line(tmp_path, capsys, monkeypatch):
+    """`seeu import --workers 2` reads the chunks (scenes checked, overlap measured) in two worker
+    processes: the posed and overlap files are the bytes of a one-process import. A worker killed
+    (out of memory, kill -9) is one line and exit 2, and the re-run resumes to the same bytes."""
+    import signal
+
+    from seeu_data.importers import common
+
+    rng = np.random.default_rng(11)
+    write_chunks(tmp_path / "ds", "train", [[make_example(f"c{c}s{i}", 6, rng) for i in range(2)] for c in range(5)])
+
+    def run(out: str, workers: int) -> int:
+        return cli_main(
+            ["import", "pixelsplat", str(tmp_path / "ds"), "--out", str(tmp_path / out), "--workers", str(workers)]
+        )
+
+    def files(out: str) -> dict[str, bytes]:
+        return {p.name: p.read_bytes() for p in sorted((tmp_path / out).glob("*.arrow"))}
+
+    assert run("one", 1) == 0 and run("two", 2) == 0
+    assert len(files("one")) >= 2 and files("two") == files("one")
+
+    prepare = common._prepare
+
+    def dies_on_c3(item):  # in the forked worker that reads chunk 3
+        if item.scene_id.startswith("c3"):
+            os.kill(os.getpid(), signal.SIGKILL)
+        return prepare(item)
+
+    monkeypatch.setattr(common, "_prepare", dies_on_c3)
+    capsys.readouterr()
+    assert run("killed", 2) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "died (killed by SIGKILL" in err[0] and "re-run the same command to resume" in err[0], err
+    assert not (tmp_path / "killed" / "manifest.json").exists()
+    monkeypatch.setattr(common, "_prepare", prepare)
+    assert run("killed", 2) == 0 and files("killed") == files("one")

@@ -21,7 +21,7 @@ from seeu_data.store.dataset_check import check_image
 from seeu_data.store.image_header import decode_check
 from seeu_data.store.manifest import FileEntry, read_manifest
 from seeu_data.store.overlap_table import OVERLAP_FILES
-from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene
+from seeu_data.store.posed import POSED_FILES, PosedDatasetWriter, PosedScene, scene_overlap
 from seeu_data.store.resume import Journal, file_intact, file_stat, files_fingerprint, stamp_of, sweep
 
 RESUME_JOURNAL = ".import-progress.jsonl"  # files finished by a running (or interrupted) import
@@ -276,10 +276,12 @@ def with_user_masks(job: ImportJob, cfg: ReadSettings) -> ImportJob:
 
 
 def _prepare(item: PosedScene | SkippedScene) -> PosedScene | SkippedScene:
-    """On the reading thread: check a scene (a SkippedScene when it fails)."""
+    """On the reading side (thread, worker process or Ray task): check a scene (a SkippedScene when it
+    fails) and measure its view overlap, which the writer stores with it."""
     if isinstance(item, PosedScene):
         try:
             item.check()
+            item.overlap = scene_overlap(item)
         except SeeUError as exc:
             return SkippedScene(item.scene_id, str(exc))
     return item
@@ -368,6 +370,7 @@ def write_import(
     verify: bool = False,
     engine: str = "local",
     ray_address: str | None = None,
+    workers: int = 1,
 ) -> ImportReport:
     """Stream importer output into a posed-frames directory; the manifest (with the report) goes last.
 
@@ -388,6 +391,8 @@ def write_import(
 
     `engine="ray"`: the units with a key are read on a Ray cluster at `ray_address` (None: a local
     instance), as `ray_import.read_units` says; everything else, the writing included, stays here.
+    `workers` > 1 (local engine): they are read in that many worker processes
+    (`read_ahead.read_in_processes`), the same bytes written.
     """
     from tqdm import tqdm
 
@@ -430,17 +435,22 @@ def write_import(
                 skip_units.add(i)
             pos += 1
 
+    todo = [i for i in range(len(units)) if i not in skip_units]
+    keyed = [partial(read_checked, units[i].read) for i in todo if units[i].key is not None]
+    in_processes = engine == "local" and workers > 1 and len(keyed) > 1
+
     def stream():
-        todo = [i for i in range(len(units)) if i not in skip_units]
         remote: Iterator[list] = iter(())
         if engine == "ray":
             from seeu_data.importers.ray_import import read_units
 
-            remote = read_units(
-                [partial(read_checked, units[i].read) for i in todo if units[i].key is not None], ray_address
-            )
+            remote = read_units(keyed, ray_address)
+        elif in_processes:
+            from seeu_data.importers.read_ahead import read_in_processes
+
+            remote = read_in_processes(keyed, workers, out_dir)
         for i in todo:
-            if engine == "ray" and units[i].key is not None:
+            if (engine == "ray" or in_processes) and units[i].key is not None:
                 items = next(remote)
                 plan.seen.update(item.scene_id for item in items)  # what the unit's own read adds there
             else:
@@ -486,7 +496,8 @@ def write_import(
         cur_units, cur_skipped = [], []
 
     try:
-        for i, item in prefetch(stream()):
+        # worker processes read ahead themselves (and are forked from this thread, not a reading thread)
+        for i, item in stream() if in_processes else prefetch(stream()):
             unit = units[i]
             if item is _UNIT_END:
                 if unit.key is not None:

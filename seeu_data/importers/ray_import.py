@@ -15,14 +15,11 @@ system); the output is written by the driver only.
 
 from __future__ import annotations
 
-from collections import deque
 from collections.abc import Callable, Iterator, Sequence
 
+from seeu_data.importers.read_ahead import in_order, run_unit
+
 TASK_RETRIES = 3  # a task lost with its node is run again this many times
-
-
-def _run(read: Callable[[], list]) -> list:
-    return read()
 
 
 def read_units(reads: Sequence[Callable[[], list]], address: str | None, window: int | None = None) -> Iterator[list]:
@@ -34,22 +31,7 @@ def read_units(reads: Sequence[Callable[[], list]], address: str | None, window:
     from seeu_data.ray_cluster import ensure_ray
 
     ensure_ray(address)
-    task = ray.remote(_run).options(name="seeu-import-unit", max_retries=TASK_RETRIES, num_cpus=1)
+    task = ray.remote(run_unit).options(name="seeu-import-unit", max_retries=TASK_RETRIES, num_cpus=1)
     ahead = window or max(1, int(ray.cluster_resources().get("CPU", 1)))
-    todo, pending = iter(reads), deque[ray.ObjectRef]()
-
-    def submit() -> None:
-        read = next(todo, None)
-        if read is not None:
-            pending.append(task.remote(read))
-
-    for _ in range(ahead):
-        submit()
-    try:
-        while pending:
-            result = ray.get(pending.popleft())
-            submit()
-            yield result
-    finally:
-        for ref in pending:  # interrupted: no task goes on reading for nobody
-            ray.cancel(ref)
+    # interrupted: no task goes on reading for nobody
+    yield from in_order(reads, lambda read: task.remote(read), ray.get, ahead, cancel=ray.cancel)

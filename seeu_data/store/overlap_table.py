@@ -23,7 +23,7 @@ import pyarrow as pa
 
 from seeu_data.errors import SeeUError
 from seeu_data.overlap import DEPTHS, FLOOR, GRID, MAX_PARTNERS, METHODS, OverlapTable
-from seeu_data.store.arrow_io import open_ipc_file, write_table
+from seeu_data.store.arrow_io import ReleasableIpcFile, write_table
 from seeu_data.store.schema import arrow_schema, schema_version
 
 SCHEMA = "seeu.overlap"
@@ -60,28 +60,36 @@ def to_arrow(rows: list[tuple[str, OverlapTable]]) -> pa.Table:
     return pa.Table.from_arrays([cols[f.name] for f in schema], schema=schema)
 
 
-def from_arrow(table: pa.Table) -> dict[str, OverlapTable]:
-    """Scene id -> OverlapTable of every row."""
-    out = {}
-    cols = {name: table.column(name).to_pylist() for name in ("scene_id", "num_frames", "method")}
-    lists = {
-        name: (
-            table.column(name).combine_chunks().offsets.to_numpy(),
-            table.column(name).combine_chunks().values.to_numpy(),
-        )
-        for name in ("frame_a", "frame_b", "overlap_ab", "overlap_ba")
-    }
-    for i, sid in enumerate(cols["scene_id"]):
-        part = {name: values[offsets[i] : offsets[i + 1]] for name, (offsets, values) in lists.items()}
-        out[sid] = OverlapTable(
-            int(cols["num_frames"][i]),
+class _Rows:
+    """An overlap file's table read a row at a time (the list columns' offsets and values as arrays:
+    views of the file's map, nothing decoded ahead)."""
+
+    LISTS = ("frame_a", "frame_b", "overlap_ab", "overlap_ba")
+
+    def __init__(self, table: pa.Table):
+        self.scene_ids = table.column("scene_id").to_pylist()
+        self.num_frames = table.column("num_frames").to_pylist()
+        self.method = table.column("method").to_pylist()
+        combined = {name: table.column(name).combine_chunks() for name in self.LISTS}
+        self.lists = {name: (col.offsets.to_numpy(), col.values.to_numpy()) for name, col in combined.items()}
+
+    def table(self, i: int) -> OverlapTable:
+        """Row `i` (copies)."""
+        part = {name: np.array(values[offsets[i] : offsets[i + 1]]) for name, (offsets, values) in self.lists.items()}
+        return OverlapTable(
+            int(self.num_frames[i]),
             part["frame_a"].astype(np.int32),
             part["frame_b"].astype(np.int32),
             part["overlap_ab"].astype(np.float32),
             part["overlap_ba"].astype(np.float32),
-            str(cols["method"][i]),
+            str(self.method[i]),
         )
-    return out
+
+
+def from_arrow(table: pa.Table) -> dict[str, OverlapTable]:
+    """Scene id -> OverlapTable of every row."""
+    rows = _Rows(table)
+    return {sid: rows.table(i) for i, sid in enumerate(rows.scene_ids)}
 
 
 def write_overlap_file(root: Path, posed_file: str, rows: list[tuple[str, OverlapTable]], fsync: bool = False) -> dict:
@@ -124,14 +132,15 @@ def check_overlap_table(table: pa.Table, frames: dict[str, int], where: str | Pa
 
 
 class OverlapReader:
-    """The stored tables of one posed dataset, read a file at a time (the last file read is kept)."""
+    """The stored tables of one posed dataset, read a file at a time and a row at a time (the pages a row
+    touched are given back before the next: `arrow_io.ReleasableIpcFile`)."""
 
     def __init__(self, root: str | Path, manifest: dict):
         self.root = Path(root)
         block = manifest.get(MANIFEST_KEY) or {}
         by_posed = {f["posed"]: f["path"] for f in block.get("files", [])}
         self._file_of = {s["scene_id"]: by_posed.get(s["file"]) for s in manifest.get("scenes", [])}
-        self._cached: tuple[str | None, dict[str, OverlapTable]] = (None, {})
+        self._open: tuple[str, ReleasableIpcFile, _Rows, dict[str, int]] | None = None
 
     @property
     def stored(self) -> bool:
@@ -143,6 +152,12 @@ class OverlapReader:
         path = self._file_of.get(scene_id)
         if path is None:
             return None
-        if self._cached[0] != path:
-            self._cached = (path, from_arrow(open_ipc_file(self.root / path).read_all()))
-        return self._cached[1].get(scene_id)
+        if self._open is None or self._open[0] != path:
+            self._open = None
+            file = ReleasableIpcFile(self.root / path)
+            rows = _Rows(file.reader.read_all())
+            self._open = (path, file, rows, {sid: i for i, sid in enumerate(rows.scene_ids)})
+        _, file, rows, index = self._open
+        file.release()
+        i = index.get(scene_id)
+        return None if i is None else rows.table(i)

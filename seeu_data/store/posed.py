@@ -22,7 +22,7 @@ import pyarrow as pa
 
 from seeu_data.errors import SeeUError
 from seeu_data.overlap import OverlapTable, overlap_from_cameras, overlap_from_observations
-from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, binary_array, open_ipc_file
+from seeu_data.store.arrow_io import AtomicIpcWriter, BytesLike, ReleasableIpcFile, binary_array
 from seeu_data.store.manifest import FileEntry, read_manifest, write_manifest
 from seeu_data.store.overlap_table import OverlapReader, manifest_block, write_overlap_file
 from seeu_data.store.schema import arrow_schema, schema_version
@@ -58,6 +58,7 @@ class PosedScene:
     source_name: list[str] = field(default_factory=list)
     meta: dict = field(default_factory=dict)
     masks: Sequence[BytesLike | None] | None = None
+    overlap: OverlapTable | None = None  # its view overlap, once measured (an import's readers measure it)
 
     def __len__(self) -> int:
         return len(self.images)
@@ -267,16 +268,46 @@ class PosedDatasetWriter:
         )
 
 
+class _PosedFile:
+    """The posed file a `PosedDataset` reads now: its map, and record batch by first row."""
+
+    RELEASE_EVERY = 256  # record batches read between two releases of the map's pages while indexing
+
+    def __init__(self, root: Path, name: str):
+        self.name = name
+        self.file = ReleasableIpcFile(root / name)
+        self.batch_at_row: dict[int, int] = {}
+        row = 0
+        for i in range(self.file.reader.num_record_batches):
+            self.batch_at_row[row] = i
+            row += self.file.reader.get_batch(i).num_rows  # the batch's metadata only
+            if i % self.RELEASE_EVERY == self.RELEASE_EVERY - 1:
+                self.file.release()
+        self.file.release()
+
+    def rows(self, row_start: int, num_rows: int) -> pa.RecordBatch | pa.Table:
+        """Rows `[row_start, row_start + num_rows)`: their record batch, or a slice of the table when a
+        scene was written as several batches. The pages read for the previous call are given back first."""
+        self.file.release()
+        reader = self.file.reader
+        i = self.batch_at_row.get(row_start)
+        if i is not None and reader.get_batch(i).num_rows == num_rows:
+            return reader.get_batch(i)
+        return reader.read_all().slice(row_start, num_rows)
+
+
 class PosedDataset:
-    """Read a posed-frames directory: manifest checked, files memory-mapped, scenes by id."""
+    """Read a posed-frames directory: manifest checked, scenes by id.
+
+    One file is open at a time, and the pages each read touched are given back before the next
+    (`arrow_io.ReleasableIpcFile`): a pass over the scenes in manifest order (build, index) keeps a
+    resident size of about one scene, whatever the size of the data set."""
 
     def __init__(self, root: str | Path, verify: bool = False):
         self.root = Path(root)
         self.manifest = read_manifest(self.root, expect_schema=SCHEMA, verify=verify)
         self._scenes = {s["scene_id"]: s for s in self.manifest.get("scenes", [])}
-        self._readers: dict[str, pa.ipc.RecordBatchFileReader] = {}
-        self._camera_tables: dict[str, pa.Table] = {}  # per file: its camera columns (mapped, not copied)
-        self._batch_index: dict[str, dict[int, int]] = {}
+        self._file: _PosedFile | None = None
         self._overlaps = OverlapReader(self.root, self.manifest)
 
     @property
@@ -291,26 +322,15 @@ class PosedDataset:
     def __len__(self) -> int:
         return len(self._scenes)
 
-    def _reader(self, name: str) -> pa.ipc.RecordBatchFileReader:
-        if name not in self._readers:
-            reader = open_ipc_file(self.root / name)
-            self._readers[name] = reader
-            starts, row = {}, 0
-            for i in range(reader.num_record_batches):
-                starts[row] = i
-                row += reader.get_batch(i).num_rows
-            self._batch_index[name] = starts
-        return self._readers[name]
+    def _rows(self, info: dict) -> pa.RecordBatch | pa.Table:
+        if self._file is None or self._file.name != info["file"]:
+            self._file = None  # the previous file's map goes (with the last buffer of it still held)
+            self._file = _PosedFile(self.root, info["file"])
+        return self._file.rows(info["row_start"], info["num_frames"])
 
     def load_scene(self, scene_id: str) -> PosedScene:
         info = self.scene_info(scene_id)
-        reader = self._reader(info["file"])
-        bi = self._batch_index[info["file"]].get(info["row_start"])
-        if bi is not None and reader.get_batch(bi).num_rows == info["num_frames"]:
-            batch = reader.get_batch(bi)
-        else:  # scenes written as several batches: slice the table
-            batch = reader.read_all().slice(info["row_start"], info["num_frames"])
-        scene = PosedScene.from_record_batch(batch, info.get("meta"))
+        scene = PosedScene.from_record_batch(self._rows(info), info.get("meta"))
         if scene.scene_id != scene_id:
             raise SeeUError(
                 f"manifest points scene {scene_id!r} at rows holding {scene.scene_id!r}", self.root / info["file"]
@@ -322,17 +342,17 @@ class PosedDataset:
             yield self.load_scene(sid)
 
     def load_cameras(self, scene_id: str) -> tuple[np.ndarray, np.ndarray, float, float]:
-        """A scene's cameras without its images: cam_to_world (N, 4, 4), intrinsics_norm (N, 4), near, far."""
-        info = self.scene_info(scene_id)
-        name = info["file"]
-        if name not in self._camera_tables:  # mapped without read-ahead: the camera columns' pages, not the images';
-            # once per file (assembling the table of every batch for each scene made a build quadratic in scenes)
-            reader = open_ipc_file(self.root / name, random_access=True)
-            self._camera_tables[name] = reader.read_all().select(["cam_to_world", "intrinsics_norm", "near", "far"])
-        rows = self._camera_tables[name].slice(info["row_start"], info["num_frames"])
-        c2w = rows.column("cam_to_world").combine_chunks().values.to_numpy().reshape(-1, 4, 4)
-        intr = rows.column("intrinsics_norm").combine_chunks().values.to_numpy().reshape(-1, 4)
-        return c2w, intr, float(rows.column("near")[0].as_py()), float(rows.column("far")[0].as_py())
+        """A scene's cameras without its images: cam_to_world (N, 4, 4), intrinsics_norm (N, 4), near, far
+        (copies: nothing of the map is held)."""
+        rows = self._rows(self.scene_info(scene_id)).select(["cam_to_world", "intrinsics_norm", "near", "far"])
+
+        def flat(name: str, k: int) -> np.ndarray:
+            col = rows.column(name)
+            col = col.combine_chunks() if isinstance(col, pa.ChunkedArray) else col
+            return np.array(col.values.to_numpy(zero_copy_only=False)).reshape(-1, k)
+
+        near, far = rows.column("near")[0].as_py(), rows.column("far")[0].as_py()
+        return flat("cam_to_world", 16).reshape(-1, 4, 4), flat("intrinsics_norm", 4), float(near), float(far)
 
     def stored_overlap(self, scene_id: str) -> OverlapTable | None:
         """The scene's stored overlap table (`store.overlap_table`), None when the dataset has none."""
@@ -359,7 +379,9 @@ class TrackedScene(PosedScene):
 
 def scene_overlap(scene: PosedScene) -> OverlapTable:
     """The view overlap of a scene (`seeu_data.overlap`): from its SfM observations when it is a
-    `TrackedScene` with some, else from its cameras and near/far."""
+    `TrackedScene` with some, else from its cameras and near/far (`scene.overlap` when measured already)."""
+    if scene.overlap is not None:
+        return scene.overlap
     if isinstance(scene, TrackedScene) and scene.observations is not None and len(scene.observations[0]):
         return overlap_from_observations(len(scene), *scene.observations)
     # near/far as stored (float32), so the table measured again from the written scene is the same
