@@ -66,7 +66,7 @@ from seeu_data.limits import (
 from seeu_data.overlap import OverlapTable, context_overlap
 from seeu_data.process_pool import default_workers
 from seeu_data.settings import parse_bytes, setting
-from seeu_data.store.arrow_io import open_ipc_file
+from seeu_data.store.arrow_io import ReleasableIpcFile
 from seeu_data.store.dataset_check import check_dataset
 from seeu_data.store.json_file import read_json
 from seeu_data.store.manifest import MANIFEST_NAME, FileEntry, provenance, read_manifest, write_manifest
@@ -368,15 +368,20 @@ class _ViewBytes:
         return float(self._sizes[sample.scene_id][list(sample.views)].sum())
 
     def _read_file(self, path: str) -> None:
-        table = open_ipc_file(path, random_access=True).read_all().select(["image", "width", "height"])
-        nbytes = pc.binary_length(table.column("image")).to_numpy().astype(np.float64)
+        # image sizes from the offsets, width, height: copied out batch by batch, the pages given back as it goes
+        columns = [
+            [
+                np.array(x, np.float64)
+                for x in (pc.binary_length(b.column("image")), b.column("width"), b.column("height"))
+            ]
+            for b in ReleasableIpcFile(path, random_access=True).batches()
+        ]
+        nbytes, width, height = (np.concatenate([c[k] for c in columns]) for k in range(3))
         if self.resize is not None:
-            pix = table.column("width").to_numpy().astype(np.float64) * table.column("height").to_numpy()
-            nbytes = nbytes * (self.resize[0] * self.resize[1]) / np.maximum(pix, 1)
+            nbytes = nbytes * (self.resize[0] * self.resize[1]) / np.maximum(width * height, 1)
         for sid in self._in_file[path]:
             src = self.scenes[sid]
             self._sizes[sid] = nbytes[src.row_start : src.row_start + src.num_frames] + _VIEW_OVERHEAD_BYTES
-        del table
 
 
 def shard_specs(cfg: BuildConfig, plan: Plan, scenes: dict[str, SceneRows]) -> Iterator[ShardSpec]:

@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import hashlib
 import json
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -29,7 +29,7 @@ import pyarrow as pa
 from seeu_data.build.sampling import Sample, make_sample
 from seeu_data.errors import SeeUError
 from seeu_data.settings import parse_dims, setting
-from seeu_data.store.arrow_io import binary_array, open_ipc_file, write_table
+from seeu_data.store.arrow_io import ReleasableIpcFile, binary_array, open_ipc_file, write_table
 from seeu_data.store.manifest import read_manifest
 from seeu_data.store.schema import arrow_schema
 from seeu_data.store.triple_row import TripleRow
@@ -161,13 +161,14 @@ class ShardSpec:
 # ---------------------------------------------------------------------------------------------
 
 
-def _posed_rows(spec: ShardSpec, scene_id: str, files: dict[str, pa.Table]) -> pa.Table:
+def _posed_rows(spec: ShardSpec, scene_id: str, files: dict[str, tuple[ReleasableIpcFile, pa.Table]]) -> pa.Table:
     """The posed rows of one scene (`_POSED_COLUMNS`), zero-copy over its memory-mapped file (opened
-    once per shard: `files`, path -> table)."""
+    once per shard: `files`, path -> the file and its table)."""
     src = spec.sources[scene_id]
     if src.path not in files:
-        files[src.path] = open_ipc_file(src.path).read_all()
-    full = files[src.path]
+        file = ReleasableIpcFile(src.path)
+        files[src.path] = (file, file.table())
+    full = files[src.path][1]
     if src.row_start + src.num_frames > full.num_rows:
         raise SeeUError(
             f"scene {scene_id!r} rows {src.row_start}..{src.row_start + src.num_frames} "
@@ -255,18 +256,41 @@ def _resize_views(
     return out, np.full(n, out_w, np.int32), np.full(n, out_h, np.int32), new_intr, masks
 
 
+def _take_releasing(table: pa.Table, rows: np.ndarray, release: Callable[[], None], block: int = 1 << 14) -> pa.Table:
+    """`table.take(rows)` (rows `(K,) int64`), `block` rows of the table at a time with `release()` after
+    each: a take over a whole shard's posed rows at once made every page of them resident."""
+    order = np.argsort(rows, kind="stable")
+    ascending = rows[order]
+    pieces = []
+    for lo in range(0, table.num_rows, block):
+        a, b = np.searchsorted(ascending, [lo, lo + block])
+        if b > a:
+            pieces.append(table.slice(lo, block).take(pa.array(ascending[a:b] - lo)))
+            release()
+    return pa.concat_tables(pieces).take(pa.array(np.argsort(order)))
+
+
 def build_shard_table(spec: ShardSpec) -> pa.Table:
     """The table of one shard from its spec (one row per sample, in order; schema `shard_schema`), its
     images (views into the memory-mapped posed files, or re-encoded bytes when resizing) copied into one column."""
     samples = spec.samples
     opts = spec.image
-    files: dict[str, pa.Table] = {}
+    files: dict[str, tuple[ReleasableIpcFile, pa.Table]] = {}
+
+    def release() -> None:  # the posed pages read so far given back: a shard's sources are not all resident
+        for file, _ in files.values():
+            file.release()
+
     base: dict[str, int] = {}
     parts: list[pa.Table] = []
+    rows = 0
     for s in samples:
         if s.scene_id not in base:
-            base[s.scene_id] = sum(p.num_rows for p in parts)
+            base[s.scene_id] = rows
             parts.append(_posed_rows(spec, s.scene_id, files))
+            rows += parts[-1].num_rows
+            if len(parts) % 256 == 0:
+                release()
         n = spec.sources[s.scene_id].num_frames
         if any(not 0 <= v < n for v in s.views):
             raise SeeUError(f"sample {s.sample_id}: frame index out of range 0..{n - 1}", spec.sources[s.scene_id].path)
@@ -277,8 +301,9 @@ def build_shard_table(spec: ShardSpec) -> pa.Table:
     view_scene = [s.scene_id for s in samples for _ in s.views]
     view_frame = np.array([v for s in samples for v in s.views], dtype=np.int64)
     flat = np.array([base[s.scene_id] + v for s in samples for v in s.views], dtype=np.int64)
-    taken = posed.drop_columns(["image"]).take(pa.array(flat))
+    taken = _take_releasing(posed.drop_columns(["image"]), flat, release)
     posed_images = _value_views(posed.column("image"))
+    release()
     images: list = [posed_images[i] for i in flat.tolist()]
     counts = np.array([len(s.views) for s in samples], dtype=np.int32)
     offsets = pa.array(np.concatenate([[0], np.cumsum(counts)]).astype(np.int32))
@@ -289,6 +314,7 @@ def build_shard_table(spec: ShardSpec) -> pa.Table:
         masks = taken.column("mask")
     else:
         images, w, h, intr_np, mask_list = _resize_views(taken, images, view_scene, view_frame, opts, spec.sources)
+        release()
         width, height = pa.array(w), pa.array(h)
         intr = pa.FixedSizeListArray.from_arrays(pa.array(intr_np.reshape(-1)), 4)
         masks = pa.array(mask_list, pa.binary())
@@ -324,7 +350,7 @@ def build_shard_table(spec: ShardSpec) -> pa.Table:
     }
     for name, values in per_view.items():
         cols[name] = _list_column(offsets, values, schema.field(name).type)
-    cols["image"] = _list_column(offsets, binary_array(images), schema.field("image").type)
+    cols["image"] = _list_column(offsets, binary_array(images, release), schema.field("image").type)
     arrays = []
     for f in schema:
         col = cols[f.name]

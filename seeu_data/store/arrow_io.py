@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import hashlib
 import os
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import BinaryIO
@@ -30,6 +30,10 @@ from seeu_data.errors import SeeUError
 # An encoded value (image) as `binary_array` takes it: bytes, or a view (a memoryview, a numpy uint8
 # view into a memory-mapped input).
 BytesLike = bytes | bytearray | memoryview | np.ndarray
+
+# `binary_array`: bytes or values copied between two calls of `release` (small images: the kernel maps the
+# 64 kB around each one read)
+_RELEASE_BYTES, _RELEASE_VALUES = 64 << 20, 1024
 
 # No compression: encoded images don't compress and compression makes random reads 10-100x slower.
 _WRITE_OPTIONS = pa.ipc.IpcWriteOptions(compression=None)
@@ -86,10 +90,11 @@ def atomic_write_text(path: str | Path, text: str, fsync: bool = False) -> None:
     atomic_write_bytes(path, text.encode("utf-8"), fsync)
 
 
-def binary_array(values: Sequence[BytesLike]) -> pa.BinaryArray:
+def binary_array(values: Sequence[BytesLike], release: Callable[[], None] | None = None) -> pa.BinaryArray:
     """A binary array of bytes-like `values` (bytes, memoryviews, numpy uint8 views), copied once into one
     buffer from pyarrow's memory pool (memory it reuses: a new bytes object of a shard's size costs
-    7x the copy in page faults); SeeUError past a binary column's 2 GB."""
+    7x the copy in page faults); SeeUError past a binary column's 2 GB. `release` is called after every
+    `_RELEASE_BYTES` or `_RELEASE_VALUES` copied (values that are views of `ReleasableIpcFile`s: their pages given back)."""
     views = [memoryview(v).cast("B") for v in values]  # type: ignore[arg-type]  # numpy's stubs lack the buffer protocol
     offsets = np.zeros(len(views) + 1, dtype=np.int64)
     np.cumsum([v.nbytes for v in views], out=offsets[1:])
@@ -99,8 +104,12 @@ def binary_array(values: Sequence[BytesLike]) -> pa.BinaryArray:
         )
     data = pa.allocate_buffer(int(offsets[-1]))
     out = np.frombuffer(data, dtype=np.uint8)
-    for view, start, end in zip(views, offsets[:-1].tolist(), offsets[1:].tolist()):
+    released = 0
+    for i, (view, start, end) in enumerate(zip(views, offsets[:-1].tolist(), offsets[1:].tolist())):
         out[start:end] = view
+        if release is not None and (end - released >= _RELEASE_BYTES or i % _RELEASE_VALUES == _RELEASE_VALUES - 1):
+            release()
+            released = end
     return pa.BinaryArray.from_buffers(pa.binary(), len(views), [None, pa.py_buffer(offsets.astype(np.int32)), data])
 
 
@@ -232,10 +241,11 @@ class ReleasableIpcFile:
     the kernel also maps the cached pages around it (fault-around, 64 kB), whatever the advice. So a
     reader that goes over a data set a scene at a time calls `release()` (MADV_DONTNEED) between
     scenes: its resident size stays about one scene. A buffer still held after a release reads its
-    pages again from the page cache, unchanged (the map is shared and read-only).
+    pages again from the page cache, unchanged (the map is shared and read-only). `random_access`: no
+    read-ahead, for checks that read a few bytes here and there (`open_ipc_file`).
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, random_access: bool = False):
         import mmap
 
         self._mmap = mmap
@@ -243,6 +253,8 @@ class ReleasableIpcFile:
         def source(p: str) -> pa.BufferReader:
             with open(p, "rb") as fh:
                 self._map = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)  # ValueError on an empty file
+            if random_access and hasattr(mmap, "MADV_RANDOM"):
+                self._map.madvise(mmap.MADV_RANDOM)  # as `open_ipc_file(random_access=True)`
             return pa.BufferReader(pa.py_buffer(self._map))
 
         self.reader = _open_ipc(path, source)
@@ -250,6 +262,19 @@ class ReleasableIpcFile:
     def release(self) -> None:
         """Give back the resident pages of the map (nothing else changes)."""
         self._map.madvise(self._mmap.MADV_DONTNEED)
+
+    def batches(self, release_every: int = 256) -> Iterator[pa.RecordBatch]:
+        """The record batches in order, their buffers in place; the pages touched meanwhile (reading
+        their metadata, and what the caller reads of them) are given back every `release_every` batches."""
+        for i in range(self.reader.num_record_batches):
+            yield self.reader.get_batch(i)
+            if i % release_every == release_every - 1:
+                self.release()
+        self.release()
+
+    def table(self) -> pa.Table:
+        """The whole file as a table, its buffers in place (`batches`: nothing left resident)."""
+        return pa.Table.from_batches(list(self.batches()), schema=self.reader.schema)
 
 
 def _open_ipc(path: str | Path, source) -> pa.ipc.RecordBatchFileReader:

@@ -29,8 +29,8 @@ What is checked:
 * masks (the optional `mask` column, posed and triples): each non-null one a PNG, 8-bit greyscale,
   of its frame's width/height (`check_mask`, header only).
 
-What is read: each file is mapped without read-ahead (`open_ipc_file(random_access=True)`) and read
-where the checks look, and released before the next: the columns of cameras and ids, the image
+What is read: each file is mapped without read-ahead (`ReleasableIpcFile(random_access=True)`) and
+read where the checks look, a part at a time, its pages given back after each part: the columns of cameras and ids, the image
 column's offsets, and the header bytes of each image (read from the column's buffers in place, no copy;
 the trailers are not read: the sha256 vouches for a stored file's bytes, and the loader checks each
 image whole before it decodes it). So a check of a posed data set reads a few pages per image, not its
@@ -49,7 +49,7 @@ import pyarrow as pa
 from seeu_data.cameras import rotation_orthonormality_error
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS
-from seeu_data.store.arrow_io import open_ipc_file
+from seeu_data.store.arrow_io import ReleasableIpcFile, open_ipc_file
 from seeu_data.store.image_header import ImageInfo, check_pixels, image_info
 from seeu_data.store.manifest import read_manifest, verify_file
 from seeu_data.store.overlap_table import MANIFEST_KEY as OVERLAP_KEY
@@ -58,6 +58,8 @@ from seeu_data.store.overlap_table import check_overlap_table
 from seeu_data.store.schema import arrow_schema, check_version
 
 _ORTHONORMAL_TOL = 1e-4
+_ROWS_PER_PART = 4096  # rows checked between two releases of a file's pages (a few MB resident)
+_SCENES_PER_PART = 256  # scenes' rows checked between two releases
 
 
 # ------------------------------------------------------------------------------------------------
@@ -311,11 +313,18 @@ def check_dataset(
         where = root / entry["path"]
         try:
             verify_file(root, entry, check_sha=check_sha, count_rows=False)
-            table = open_ipc_file(where, random_access=True).read_all()
+            file = ReleasableIpcFile(where, random_access=True)
+            table = file.table()
             if table.num_rows != entry["rows"]:
                 raise SeeUError(f"{table.num_rows} rows, the manifest says {entry['rows']}", where)
-            check_table(table, expected, where, max_pixels)
-            check_scene_rows(table, scenes_in.get(entry["path"], []), where)
+            # a part at a time, its pages given back after it: one file of small scenes is not all resident
+            for start in range(0, max(table.num_rows, 1), _ROWS_PER_PART):
+                check_table(table.slice(start, _ROWS_PER_PART), expected, where, max_pixels)
+                file.release()
+            scenes = scenes_in.get(entry["path"], [])
+            for start in range(0, len(scenes), _SCENES_PER_PART):
+                check_scene_rows(table, scenes[start : start + _SCENES_PER_PART], where)
+                file.release()
         except (pa.ArrowException, UnicodeDecodeError, ValueError, IndexError, TypeError, OverflowError) as exc:
             raise _unreadable(exc, where) from None  # corrupt bytes (seen with --no-sha)
         del table  # one file's columns mapped at a time

@@ -271,29 +271,22 @@ class PosedDatasetWriter:
 class _PosedFile:
     """The posed file a `PosedDataset` reads now: its map, and record batch by first row."""
 
-    RELEASE_EVERY = 256  # record batches read between two releases of the map's pages while indexing
-
     def __init__(self, root: Path, name: str):
         self.name = name
         self.file = ReleasableIpcFile(root / name)
-        self.batch_at_row: dict[int, int] = {}
-        row = 0
-        for i in range(self.file.reader.num_record_batches):
-            self.batch_at_row[row] = i
-            row += self.file.reader.get_batch(i).num_rows  # the batch's metadata only
-            if i % self.RELEASE_EVERY == self.RELEASE_EVERY - 1:
-                self.file.release()
-        self.file.release()
+        self.table = self.file.table()
+        self.batches = self.table.to_batches()
+        starts = np.cumsum([0] + [b.num_rows for b in self.batches])
+        self.batch_at_row = {int(row): i for i, row in enumerate(starts[:-1])}
 
     def rows(self, row_start: int, num_rows: int) -> pa.RecordBatch | pa.Table:
         """Rows `[row_start, row_start + num_rows)`: their record batch, or a slice of the table when a
         scene was written as several batches. The pages read for the previous call are given back first."""
         self.file.release()
-        reader = self.file.reader
         i = self.batch_at_row.get(row_start)
-        if i is not None and reader.get_batch(i).num_rows == num_rows:
-            return reader.get_batch(i)
-        return reader.read_all().slice(row_start, num_rows)
+        if i is not None and self.batches[i].num_rows == num_rows:
+            return self.batches[i]
+        return self.table.slice(row_start, num_rows)
 
 
 class PosedDataset:
