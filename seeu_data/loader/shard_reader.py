@@ -19,6 +19,7 @@ skips unreadable samples, not a dataset that changes under the run).
 
 from __future__ import annotations
 
+import contextlib
 import os
 from pathlib import Path
 
@@ -170,6 +171,16 @@ class ShardReader:
             raise SeeUError(f"unreadable record batch (corrupt?): {exc}".splitlines()[0], name) from None
         self.check_unchanged()
         self._batches: dict[int, _BatchColumns] = {}
+        self._decode_all()
+
+    def _decode_all(self) -> None:
+        """Every batch's columns decoded at the opening, as one burst. Decoded as their rows were first
+        read, they were allocated between the batches' image tensors and kept, pinning the heap holes
+        those leave when freed: an epoch over 20,000 tiny scenes grew to 1.7 GB resident (now 0.5 GB,
+        flat). A batch that fails here fails again, with its one line, when a row of it is read."""
+        for b in range(len(self.batch_starts) - 1):
+            with contextlib.suppress(SeeUError):
+                self._columns(b)
 
     def _stat(self) -> tuple[int, int]:
         st = os.fstat(self._file.fileno())
