@@ -168,7 +168,9 @@ def write_dl3dv(root: Path, scenes: int, frames: int, resolution: str) -> int:
 
 
 def run_step(step: str, kind: str, data: Path, work: Path, resolution: str) -> None:
-    """Runs in the child: one step on `data` (inputs) / `work` (outputs), measured around the call."""
+    """Runs in the child: one step on `data` (inputs) / `work` (outputs), measured around the call. The
+    child imports what the step's command imports (torch only for the loader), so its resident size is
+    the command's."""
     from pipelines.build import BuildConfig, build
     from pipelines.import_data import ImportConfig, import_dataset
     from pipelines.index import IndexFileConfig, write_index
@@ -176,8 +178,10 @@ def run_step(step: str, kind: str, data: Path, work: Path, resolution: str) -> N
     from seeu_data.build.sampling import SamplingConfig
     from seeu_data.importers.dl3dv import Dl3dvImportConfig
     from seeu_data.importers.pixelsplat import PixelSplatImportConfig
-    from seeu_data.loader import GapCurriculum, make_loader
     from seeu_data.store.dataset_check import check_dataset
+
+    if step == "loader_epoch":
+        from seeu_data.loader import GapCurriculum, make_loader
 
     posed = work / "posed"
     if kind == "dl3dv":

@@ -497,7 +497,8 @@ def write_import(
 
     try:
         # worker processes read ahead themselves (and are forked from this thread, not a reading thread)
-        for i, item in stream() if in_processes else prefetch(stream()):
+        items = stream() if in_processes else prefetch(stream())
+        for i, item in items:
             unit = units[i]
             if item is _UNIT_END:
                 if unit.key is not None:
@@ -544,6 +545,7 @@ def write_import(
                 ],
             }
     except BaseException as exc:
+        items.close()  # the readers end now (a worker pool with the error, not when it is collected)
         writer.__exit__(type(exc), exc, None)
         raise
     finally:
