@@ -497,8 +497,8 @@ def write_import(
 
     try:
         # worker processes read ahead themselves (and are forked from this thread, not a reading thread)
-        items = stream() if in_processes else prefetch(stream())
-        for i, item in items:
+        scenes = stream() if in_processes else prefetch(stream())
+        for i, item in scenes:
             unit = units[i]
             if item is _UNIT_END:
                 if unit.key is not None:
@@ -545,7 +545,7 @@ def write_import(
                 ],
             }
     except BaseException as exc:
-        items.close()  # the readers end now (a worker pool with the error, not when it is collected)
+        scenes.close()  # the readers end now (a worker pool with the error, not when it is collected)
         writer.__exit__(type(exc), exc, None)
         raise
     finally:
