@@ -29,6 +29,7 @@ import json
 import math
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
@@ -802,7 +803,9 @@ def synthetic_posed_scene(
         images.append(buf.tobytes())
         finite = depth[np.isfinite(depth)]
         dmin, dmax = min(dmin, float(finite.min())), max(dmax, float(finite.max()))
-    extra = {"observations": exact_observations(scene, poses, np.tile(intr, (n_frames, 1)))} if tracks else {}
+    extra: dict[str, Any] = (
+        {"observations": exact_observations(scene, poses, np.tile(intr, (n_frames, 1)))} if tracks else {}
+    )
     return (TrackedScene if tracks else PosedScene)(
         **extra,
         scene_id=scene_id or f"synthetic_s{seed}",

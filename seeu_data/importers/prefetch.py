@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import queue
 import threading
-from collections.abc import Iterable, Iterator
+from collections.abc import Generator, Iterable
 from typing import TypeVar
 
 T = TypeVar("T")
@@ -17,7 +17,7 @@ T = TypeVar("T")
 _DONE = object()
 
 
-def prefetch(items: Iterable[T], max_items: int = 2) -> Iterator[T]:
+def prefetch(items: Iterable[T], max_items: int = 2) -> Generator[T, None, None]:
     """Iterate `items` in a background thread, at most `max_items` ahead (bounded memory).
 
     Exceptions raised by the producer are re-raised in the consumer; closing the returned

@@ -25,7 +25,7 @@ def in_order(
 ) -> Iterator[list]:
     """`result(submit(read))` of every read, yielded in order, at most `ahead` submitted beyond the one
     yielded; on the way out (an error, the consumer gone) `cancel` each handle still pending."""
-    todo, pending = iter(reads), deque()
+    todo, pending = iter(reads), deque[Any]()
 
     def more() -> None:
         read = next(todo, None)
@@ -40,8 +40,9 @@ def in_order(
             more()
             yield done
     finally:
-        for handle in pending if cancel is not None else ():
-            cancel(handle)
+        if cancel is not None:
+            for handle in pending:
+                cancel(handle)
 
 
 def run_unit(read: Callable[[], list]) -> list:
