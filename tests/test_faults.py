@@ -202,7 +202,20 @@ def test_ctrl_c_during_a_two_worker_build_is_one_line(workspace, tmp_path):
     line; no worker outlives it, no manifest."""
     out = tmp_path / "o"
     proc = _seeu(
-        *_build_argv(workspace["posed"], out, "--workers", "2", "--samples-per-scene", "4000", "--resize", "64x64"),
+        # many small shards, so both workers are still at work when the signal comes (4,000 samples in one
+        # shard took 1.5 s in all: the signal could reach a build already exiting)
+        *_build_argv(
+            workspace["posed"],
+            out,
+            "--workers",
+            "2",
+            "--samples-per-scene",
+            "60000",
+            "--resize",
+            "64x64",
+            "--shard-size",
+            "4MB",
+        ),
         start_new_session=True,  # its own process group, as a shell gives a command
     )
     workers: list[int] = []
