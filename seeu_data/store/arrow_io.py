@@ -203,35 +203,8 @@ def open_ipc_file(
     window around it (which would read most of a file of 50 kB images).
     """
     if random_access:
-        return _open_ipc(path, lambda p: _random_access_map(Path(p)))
-    return open_ipc_mapped(path)[0] if memory_map else _open_ipc(path, lambda p: pa.OSFile(p, "rb"))
-
-
-def open_ipc_mapped(path: str | Path) -> tuple[pa.ipc.RecordBatchFileReader, int]:
-    """A memory-mapped IPC file reader and the address of the map's first byte: a buffer the reader
-    returns starts at file position `buffer.address - address` (`loader/shard_reader.py` reads image
-    bytes there with `os.pread` instead of through the map)."""
-    maps: list[pa.MemoryMappedFile] = []
-
-    def source(p: str) -> pa.MemoryMappedFile:
-        maps.append(pa.memory_map(p, "r"))
-        return maps[0]
-
-    reader = _open_ipc(path, source)
-    maps[0].seek(0)
-    return reader, maps[0].read_buffer(1).address
-
-
-def _random_access_map(path: Path) -> pa.BufferReader:
-    """A read-only memory map of `path` without read-ahead, as an Arrow reader (its buffers are slices
-    of the map: nothing is copied; the map goes when the last of them does)."""
-    import mmap
-
-    with open(path, "rb") as fh:
-        mapped = mmap.mmap(fh.fileno(), 0, access=mmap.ACCESS_READ)  # ValueError on an empty file
-    if hasattr(mmap, "MADV_RANDOM"):
-        mapped.madvise(mmap.MADV_RANDOM)
-    return pa.BufferReader(pa.py_buffer(mapped))
+        return ReleasableIpcFile(path, random_access=True).reader
+    return _open_ipc(path, lambda p: pa.memory_map(p, "r") if memory_map else pa.OSFile(p, "rb"))
 
 
 class ReleasableIpcFile:
@@ -258,6 +231,9 @@ class ReleasableIpcFile:
             return pa.BufferReader(pa.py_buffer(self._map))
 
         self.reader = _open_ipc(path, source)
+        self.address = pa.py_buffer(self._map).address
+        """The address of the map's first byte: a buffer of the reader starts at file position
+        `buffer.address - address` (`loader/shard_reader.py` reads image bytes there with `os.pread`)."""
 
     def release(self) -> None:
         """Give back the resident pages of the map (nothing else changes)."""

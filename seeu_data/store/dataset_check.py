@@ -49,7 +49,7 @@ import pyarrow as pa
 from seeu_data.cameras import rotation_orthonormality_error
 from seeu_data.errors import SeeUError
 from seeu_data.limits import MAX_PIXELS
-from seeu_data.store.arrow_io import ReleasableIpcFile, open_ipc_file
+from seeu_data.store.arrow_io import ReleasableIpcFile
 from seeu_data.store.image_header import ImageInfo, check_pixels, image_info
 from seeu_data.store.manifest import read_manifest, verify_file
 from seeu_data.store.overlap_table import MANIFEST_KEY as OVERLAP_KEY
@@ -368,7 +368,7 @@ def check_overlap_files(root: Path, manifest: dict, posed_files: set[str], check
         covered[entry["posed"]] = entry["path"]
         try:
             verify_file(root, entry, check_sha=check_sha)
-            table = open_ipc_file(where, random_access=True).read_all()
+            table = ReleasableIpcFile(where, random_access=True).table()
             check_file_schema(table.schema, OVERLAP_SCHEMA, where)
             check_columns(table.schema, arrow_schema(OVERLAP_SCHEMA), where)
             table.validate(full=True)
