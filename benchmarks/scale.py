@@ -75,8 +75,10 @@ RERUNS = {"import_again": "import", "build_again": "build_interp"}
 
 
 def build_cores(cores: int) -> int:
-    """Processes `seeu build` and `seeu import` use by default on `cores` cores (`process_pool.default_workers`)."""
-    return 1 if cores <= 4 else min(8, cores)
+    """Processes `seeu build` and `seeu import` use by default on `cores` cores."""
+    from seeu_data.process_pool import default_workers
+
+    return default_workers(cores=cores)
 
 
 IMPORT_WORKERS = 2  # the import here reads in 2 worker processes, so its CPU splits into the writer's and the readers'

@@ -62,9 +62,9 @@ class ForkedPool:
             ) from None
 
 
-def default_workers(resize: bool = False) -> int:
-    """Local engine processes for this machine: one per core, at most 8, except when copying images
-    (an import, a build without resize) on up to 4 cores, where one process was faster (measured on 2
-    cores: a build with two processes took 1.0-1.2x the time of one)."""
-    cores = os.cpu_count() or 1
+def default_workers(resize: bool = False, cores: int | None = None) -> int:
+    """Local engine processes for this machine (or one of `cores` cores): one per core, at most 8, except
+    when copying images (an import, a build without resize) on up to 4 cores, where one process was faster
+    (measured on 2 cores: a build with two processes took 1.0-1.2x the time of one)."""
+    cores = cores or os.cpu_count() or 1
     return 1 if not resize and cores <= 4 else max(1, min(8, cores))

@@ -158,3 +158,39 @@ def test_masking_off_fails_the_check_only_for_moving_content_that_holds_observat
     why = motion.moving_content({**facts, "leave_out": left})
     assert why is not None and why.startswith("moving content in 4 of 90 mapped frames is not masked")
     assert motion.moving_content({"keyframes": {"judged": 90, "frames_with_motion": 2}, "leave_out": left}) is None
+
+
+def _model(poses, names):
+    """A pycolmap Reconstruction of the frames `names` with the camera-to-world `poses` (the renderer's
+    pinhole camera at W x H, no points)."""
+    import pycolmap
+
+    fx, fy, cx, cy = default_intrinsics_norm(W, H) * np.array([W, H, W, H])
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId.PINHOLE, 1.0, W, H))
+    rec.cameras[1].params = [fx, fy, cx, cy]
+    for i, (name, pose) in enumerate(zip(names, poses), 1):
+        w2c = cam.invert_rigid(pose)
+        image = pycolmap.Image(name=name, camera_id=1, image_id=i, points2D=pycolmap.Point2DList())
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(w2c[:3, :3]), w2c[:3, 3]))
+    return rec
+
+
+@pytest.mark.parametrize("wrong", [(), (0,), (6,), (11,), (3, 8)])
+def test_a_frame_whose_camera_alone_is_wrong_is_found_astray(tmp_path, wrong):
+    """`astray_frames` on 12 frames of the static walk under their exact cameras, some of them moved
+    (0.4 m and 10 degrees: a frame SfM registered through a mover): exactly those are found, at
+    either end of the clip or inside it; with none moved, none."""
+    import cv2
+
+    frames, _, poses = _render("none", 12)
+    names = [f"{i:06d}.png" for i in range(12)]
+    for name, frame in zip(names, frames):
+        cv2.imwrite(str(tmp_path / name), frame)
+    poses = poses.copy()
+    turn = np.eye(4)
+    turn[:3, :3] = cv2.Rodrigues(np.array([0.0, np.radians(10.0), 0.0]))[0]
+    turn[:3, 3] = (0.4, 0.0, 0.0)
+    for k in wrong:
+        poses[k] = poses[k] @ turn
+    assert motion.astray_frames(tmp_path, names, _model(poses, names)) == [names[k] for k in wrong]

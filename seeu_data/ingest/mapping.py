@@ -13,6 +13,7 @@ import signal
 import subprocess
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
@@ -353,18 +354,23 @@ def final_ba(job: Job, recs: dict) -> list[dict] | None:
     return facts
 
 
-def register_rest(job: Job, recs: dict, kf: Keyframes, seed: int) -> None:
-    """The frames between keyframes registered into `recs` (in place); sets kf.info["registered_after"]."""
+def register_rest(
+    job: Job, recs: dict, kf: Keyframes, seed: int, leave_out: Sequence[str] = (), again: Sequence[str] = ()
+) -> None:
+    """The frames between keyframes, and keyframes the mapper could not register, registered into `recs`
+    (in place), but those of `leave_out`; with `again` (mapped frames taken out: `sfm_motion.astray_plan`)
+    also when every frame is a keyframe. Sets kf.info["registered_after"]."""
     from seeu_data.ingest.keyframes import register_frames
 
-    if kf.stride <= 1:
+    if kf.stride <= 1 and not again:
         return
     mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
     emit("stage", "register", len(job.names) - len(mapped), "frames")
     t0 = job.clock.mark()
     tried = iter(range(1, len(job.names) + 1))
+    names = [n for n in job.names if n not in leave_out]
     kf.info["registered_after"] = register_frames(
-        job.db_path, recs, job.names, kf.names, seed, job.cfg.map_threads, on_frame=lambda: emit("done", next(tried))
+        job.db_path, recs, names, kf.names, seed, job.cfg.map_threads, on_frame=lambda: emit("done", next(tried))
     )
     job.clock.add("register_s", t0)
 

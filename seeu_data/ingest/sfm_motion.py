@@ -2,17 +2,20 @@
 order `sfm_child.main` calls them.
 
     before mapping:            motion_start     (nothing found yet: mapping uses every verified match)
-    after mapping:             motion_keyframes (the mapped frames against their SfM cameras; mask:
-                                                 their observations dropped before the final BA;
-                                                 off: moving content found fails the solution check;
-                                                 either: frames mostly unexplained by the cameras fail it)
-    after registration:        motion_frames    (mask: every registered frame, the final masks)
+    after mapping:             motion_keyframes (frames whose camera alone is astray taken out; the
+                                                 mapped frames against their SfM cameras; mask: their
+                                                 observations dropped before the final BA; off: moving
+                                                 content found fails the solution check; either: frames
+                                                 mostly unexplained by the cameras fail it)
+    registration:              astray_plan      (mask: the astray frames registered again; off: left out)
+    after registration:        motion_frames    (mask: every registered frame, the final masks; frames
+                                                 astray again taken out for good)
     after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.mapping import final_bundle_adjustment
@@ -25,10 +28,11 @@ class Moving:
     """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
     result.json's "motion" {"mode", "judged" (a video: frames in time order), "keyframes"
     (the mapped frames), "frames" (all, after registration), "leave_out" (off), "masked_pct" {name: % of the
-    frame}}."""
+    frame}, "astray" [mapped frames taken out: `_leave_astray`]}; `astray`: those frames."""
 
     masks: dict
     facts: dict
+    astray: list[str] = field(default_factory=list)
 
 
 class _Counter:
@@ -66,9 +70,12 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
 
     emit("stage", "motion-check", len(kf.names), "frames")
     t0 = job.clock.mark()
+    moving.astray = _leave_astray(job, recs, kf.names)
     masks, judged = _model_masks(job, recs, kf.names)
     moving.masks = masks
     moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
+    if moving.astray:
+        moving.facts["astray"] = moving.astray
     found = None
     if job.cfg.dynamic == "mask":
         moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
@@ -81,6 +88,27 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
         if check.get("ran"):
             check["passed"], check["reason"] = False, found
     job.clock.add("motion_s", t0)
+
+
+def astray_plan(job: Job, moving: Moving) -> tuple[list[str], list[str]]:
+    """The astray frames (`_leave_astray`) that registration leaves out, and those it tries again: with
+    mask, all are tried again once the moving content's observations are gone (a frame registered through
+    a mover then goes through the static points); with off, none."""
+    return ([], moving.astray) if job.cfg.dynamic == "mask" else (moving.astray, [])
+
+
+def _leave_astray(job: Job, recs: dict, names: list[str]) -> list[str]:
+    """The mapped frames whose camera alone disagrees with the flow (`motion.astray_frames`), taken out of
+    their models (in place: their observations go, and points left with fewer than two); their names."""
+    from seeu_data.ingest.motion import astray_frames
+
+    out: list[str] = []
+    for rec in recs.values():
+        registered = {rec.image(i).name: i for i in rec.reg_image_ids()}
+        for name in astray_frames(job.image_dir, [n for n in names if n in registered], rec):
+            rec.deregister_frame(rec.image(registered[name]).frame_id)
+            out.append(name)
+    return out
 
 
 def _model_masks(job: Job, recs: dict, names: list[str]) -> tuple[dict, int]:
@@ -116,18 +144,20 @@ def _leave_out(job: Job, recs: dict, masks: dict) -> dict:
 
 
 def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving) -> None:
-    """--dynamic mask, keyframes: every registered frame against the SfM cameras (the final masks), its
-    observations in moving regions dropped (registered after the final adjustment: no adjustment follows)."""
-    if job.cfg.dynamic != "mask" or not job.video or kf.stride <= 1:
+    """--dynamic mask, keyframes or frames registered again (`astray_plan`): every registered frame against
+    the SfM cameras (the final masks), its observations in moving regions dropped (registered after the
+    final adjustment: no adjustment follows); frames astray now are taken out for good."""
+    if job.cfg.dynamic != "mask" or not job.video or (kf.stride <= 1 and not moving.astray):
         return
     from seeu_data.ingest.motion import drop_observations
 
     emit("stage", "motion-frames", len(job.names), "frames")
     t0 = job.clock.mark()
+    astray = _leave_astray(job, recs, job.names)  # registered astray, or again so
     masks, _ = _model_masks(job, recs, job.names)
     moving.masks = masks
     dropped = sum(drop_observations(rec, masks) for rec in recs.values())
-    moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped}
+    moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped, "astray": astray}
     job.clock.add("motion_s", t0)
 
 
