@@ -176,11 +176,15 @@ def _model(poses, names):
     return rec
 
 
-@pytest.mark.parametrize("wrong", [(), (0,), (6,), (11,), (3, 8)])
-def test_a_frame_whose_camera_alone_is_wrong_is_found_astray(tmp_path, wrong):
+@pytest.mark.parametrize(
+    "wrong, found",
+    [((), ()), ((0,), (0,)), ((6,), (6,)), ((11,), (11,)), ((3, 8), (3, 8)), ((5, 6), (5, 6)), ((3, 4, 5, 6, 7), ())],
+)
+def test_frames_whose_cameras_alone_are_wrong_are_found_astray(tmp_path, wrong, found):
     """`astray_frames` on 12 frames of the static walk under their exact cameras, some of them moved
-    (0.4 m and 10 degrees: a frame SfM registered through a mover): exactly those are found, at
-    either end of the clip or inside it; with none moved, none."""
+    (0.4 m and 10 degrees: a frame SfM registered through a mover): those are found, one or two in a row,
+    at either end of the clip or inside it; with none moved, none; five in a row are more than a frame
+    astray (MAX_ASTRAY_RUN) and keep their cameras."""
     import cv2
 
     frames, _, poses = _render("none", 12)
@@ -193,4 +197,21 @@ def test_a_frame_whose_camera_alone_is_wrong_is_found_astray(tmp_path, wrong):
     turn[:3, 3] = (0.4, 0.0, 0.0)
     for k in wrong:
         poses[k] = poses[k] @ turn
-    assert motion.astray_frames(tmp_path, names, _model(poses, names)) == [names[k] for k in wrong]
+    assert motion.astray_frames(tmp_path, names, _model(poses, names)) == [names[k] for k in found]
+
+
+def test_astray_runs_are_short_stretches_cut_off_by_disagreeing_pairs():
+    """`astray_runs` on 12 frames, from which consecutive pairs disagree."""
+
+    def astray(*pairs):
+        return motion.astray_runs([k in pairs for k in range(11)])
+
+    assert astray() == []
+    assert astray(5, 6) == [6]  # frame 6 disagrees with both neighbours
+    assert astray(0) == [0] and astray(10) == [11]  # a single frame at either end
+    assert astray(4, 6) == [5, 6] and astray(4, 5, 6) == [5, 6]  # two in a row, agreeing or not
+    assert astray(1, 2) == [2]  # frames 0-1 agree: a stretch at the clip's start, not a frame astray
+    assert astray(2, 7) == []  # three stretches that agree within
+    assert astray(2, 3, 7, 8) == [3, 8]
+    assert astray(3, 4, 5, 6, 7) == []  # four frames in a row disagreeing: more than MAX_ASTRAY_RUN
+    assert astray(*range(11)) == []  # no sound stretch to judge against

@@ -54,6 +54,7 @@ SEED_PX = 2.5  # residual (working px) that starts a moving region
 GROW_PX = 1.25  # residual over which a moving region grows from its seeds
 CARRY = 0.7  # evidence carried to the next / previous frame along the flow, per frame
 MIN_AREA = 0.002  # smallest moving region kept, as a fraction of the frame
+MAX_ASTRAY_RUN = 3  # at most this many frames in a row are taken out as astray (`astray_runs`)
 MIN_MOVING_FRAMES = 3  # --dynamic off: moving regions in this many mapped frames fail the solution check ...
 # ... when they hold at least this share of the model's observations. The 90-frame static walk's specks held 2 of
 # 122,598 (0.0016 %); the swinging box 493, the large mover 7,126, the slow box 24,278 of 106,006 (about 0.4 %,
@@ -365,34 +366,46 @@ def model_pass(
 
 
 def astray_frames(image_dir: str | Path, names: Sequence[str], rec) -> list[str]:
-    """The frames among `names` (in time order, all registered in `rec`) whose SfM camera alone is wrong:
-    it disagrees with the flow to each of its neighbours (the residual of the pair, `static_residual`, over
-    GROW_PX in most pixels judged), while each neighbour agrees with the flow to its own other neighbour. A frame that SfM placed
-    astray (registered through a mover held still in the frame, say) would otherwise leave its neighbours'
-    flow unexplained and stand for a mover over all of them. A stretch of frames where a mover fills most
-    of the view disagrees pair after pair and keeps its frames."""
+    """The frames among `names` (in time order, all registered in `rec`) whose SfM cameras alone are wrong
+    (`astray_runs` of which neighbouring frames disagree: the pair's residual, `static_residual`, over
+    GROW_PX in most pixels judged). A frame that SfM placed astray (registered through a mover held still
+    in the frame, say) would otherwise leave its neighbours' flow unexplained and stand for a mover over all
+    of them."""
     if len(names) < 3:
         return []
     frames = load_frames(image_dir, names)
     cameras = _ModelCameras(rec, names, *frames[0].shape)
     flows = Flows(frames)
     grid = flows.grid.astype(np.float64)
-    bad = []  # bad[k]: frames k and k + 1 disagree
+    bad = []
     for k in range(len(names) - 1):
         land, ok = flows.observe(k, [k + 1])[0]
         r = cameras.residual(k, [k + 1], grid, [land], [ok])
         bad.append(bool(ok.sum() >= 0.05 * ok.size and np.median(r[ok]) > GROW_PX))
         flows.forget(k)
-    pairs = [None, *bad, None]  # pairs[k], pairs[k + 1]: frame k's pairs (None: no neighbour there)
-    astray = []
-    for k in range(len(names)):
-        mine = [p for p in (pairs[k], pairs[k + 1]) if p is not None]
-        others = [
-            p for p in (pairs[k - 1] if k >= 1 else None, pairs[k + 2] if k + 2 < len(pairs) else None) if p is not None
-        ]
-        if all(mine) and not any(others):
-            astray.append(names[k])
-    return astray
+    return [names[k] for k in astray_runs(bad)]
+
+
+def astray_runs(bad: Sequence[bool], run: int = MAX_ASTRAY_RUN) -> list[int]:
+    """Which frames are astray, from `bad[k]`: frames k and k + 1 disagree. The disagreeing pairs cut the
+    frames into stretches that agree within; a stretch is sound when it holds more than `run` frames, or
+    two or more at an end of the clip. Between two sound stretches (or one and an end of the clip), at most
+    `run` frames in all are astray. More disagreement in a row (a mover filling most of the view) keeps its
+    frames, as does a clip with no sound stretch."""
+    n = len(bad) + 1
+    starts = [0] + [k + 1 for k, b in enumerate(bad) if b]
+    stretches = list(zip(starts, [*starts[1:], n]))
+    sound = [e - s > run or (e - s >= 2 and (s == 0 or e == n)) for s, e in stretches]
+    out: list[int] = []
+    i = 0
+    while i < len(stretches) and any(sound):
+        j = i
+        while j < len(stretches) and not sound[j]:
+            j += 1
+        if j > i and stretches[j - 1][1] - stretches[i][0] <= run:
+            out.extend(range(stretches[i][0], stretches[j - 1][1]))
+        i = j + 1
+    return out
 
 
 def moving_keypoints(xy: np.ndarray, mask: np.ndarray, width: int, height: int) -> np.ndarray:
