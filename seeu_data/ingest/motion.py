@@ -26,9 +26,10 @@ a camera walking straight, at constant speed) looks exactly like a static point 
 the far neighbours, the camera's own turns and the carrying along the flow are what find it there.
 
 The SfM child (`seeu_data.ingest.sfm_motion`, --dynamic) maps with every match, takes out frames whose
-camera alone disagrees with the flow (`astray_frames`), then runs `model_pass` on the mapped frames (`drop_observations` before the final bundle adjustment) and on every frame after
-registration; `moving_content` says why unmasked moving content fails the solution check;
-`report_section` is report.json's "motion".
+camera alone disagrees with the flow (`astray_frames`), then runs `model_pass` on the mapped frames
+(`drop_observations` before the final bundle adjustment) and on every frame after registration;
+`moving_content` says why unmasked moving content fails the solution check; `report_section` is
+report.json's "motion".
 
     masks = model_pass(image_dir, names, rec)     # {name: (h, w) bool} where moving content was found
     dropped = drop_observations(rec, masks)       # its observations, removed from the model
