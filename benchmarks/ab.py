@@ -6,6 +6,8 @@ The inputs are made once, by this checkout's benchmark scripts, with their defau
 * build:  `seeu build` (`pipelines.build.build`, local engine, workers 1) of benchmarks/build.py's posed
           data (12 scenes x 120 photo-like 360x640 JPEGs, interp, 100 samples per scene, ~400 MB of shards);
 * import: `seeu import pixelsplat` (`write_import`) of benchmarks/import.py's chunks (4 x ~100 MB);
+* dl3dv:  `seeu import dl3dv --workers N` (`--workers`) of benchmarks/scale.py's DL3DV 480p stand-ins
+          (`--scenes` scenes x 300 PNG frames, 73 MB a scene); its CPU column is the writer's process alone;
 * loader: one epoch of `make_loader` (batch 4, 256x256 uint8, `--workers` DataLoader workers) over
           benchmarks/loader.py's 240 triples.
 
@@ -14,7 +16,7 @@ in benchmarks/build.py and import.py). Each run prints its time, its CPU time an
 the machine's other work adds noise to both sides alike, so read the ratio B/A of the medians.
 `--fsync` times build and import with `fsync=True`.
 
-Usage: .venv/bin/python benchmarks/ab.py --old /tmp/old build|import|loader [--repeats 5] [--fsync] [--workers 2]
+Usage: .venv/bin/python benchmarks/ab.py --old /tmp/old build|import|dl3dv|loader [--repeats 5] [--fsync] [--workers 2]
 """
 
 from __future__ import annotations
@@ -49,6 +51,12 @@ pa.array([0])
 RUN = lambda: write_import(ps.import_plan(ps.PixelSplatImportConfig(root=Path(DATA), stage="test")), Path(OUT),
                            ImportReport("pixelsplat"), params={}, provenance={}, fsync=FSYNC)
 """,
+    "dl3dv": """
+from pipelines.import_data import ImportConfig, import_dataset
+from seeu_data.importers.dl3dv import Dl3dvImportConfig
+cfg = ImportConfig(source=Dl3dvImportConfig(root=Path(DATA), resolution="480p"), out=Path(OUT), workers=WORKERS, fsync=FSYNC)
+RUN = lambda: import_dataset(cfg)
+""",
     "loader": """
 import cv2, torch
 from seeu_data.loader import make_loader
@@ -74,9 +82,13 @@ print(json.dumps({{"s": time.perf_counter() - t, "cpu": time.process_time() - c}
 """
 
 
-def make_inputs(command: str, tmp: Path) -> tuple[Path, int]:
+def make_inputs(command: str, tmp: Path, scenes: int) -> tuple[Path, int]:
     """The command's input in `tmp` (made by this checkout's benchmark scripts) and its size in MB."""
     sys.path.insert(0, str(ROOT))
+    if command == "dl3dv":
+        from benchmarks.scale import write_dl3dv
+
+        return tmp / "dl3dv", int(write_dl3dv(tmp / "dl3dv", scenes, 300, "480p") / 1e6)
     if command == "build":
         from benchmarks.build import photo_like_scene
         from seeu_data.store.posed import PosedDatasetWriter
@@ -100,7 +112,7 @@ def run(tree: Path, command: str, data: Path, out: Path, fsync: bool, workers: i
     os.sync()  # untimed: no run pays for the previous run's write-back
     code = TIMED.format(setup=CHILD[command])
     argv = [sys.executable, "-c", code, str(data), str(out), str(int(fsync)), str(workers), str(prefault)]
-    env = {**os.environ, "PYTHONPATH": str(tree)}
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(filter(None, (str(tree), os.environ.get("PYTHONPATH"))))}
     res = subprocess.run(argv, cwd=tree, env=env, capture_output=True, text=True)
     if res.returncode:
         raise SystemExit(f"{tree}: {res.stderr[-2000:]}")
@@ -114,11 +126,12 @@ def main() -> int:
     ap.add_argument("--old", type=Path, required=True, help="the checkout timed as A")
     ap.add_argument("--repeats", type=int, default=5)
     ap.add_argument("--fsync", action="store_true")
-    ap.add_argument("--workers", type=int, default=2, help="loader: DataLoader workers")
+    ap.add_argument("--workers", type=int, default=2, help="loader: DataLoader workers; dl3dv: import workers")
+    ap.add_argument("--scenes", type=int, default=8, help="dl3dv: scenes")
     args = ap.parse_args()
     trees = {"A": args.old.resolve(), "B": ROOT}
     with tempfile.TemporaryDirectory(prefix="seeu-ab-") as tmp:
-        data, mb = make_inputs(args.command, Path(tmp))
+        data, mb = make_inputs(args.command, Path(tmp), args.scenes)
         runs: dict[str, list[dict]] = {"A": [], "B": []}
         for r in range(-1, args.repeats):  # run -1 warms the page cache and the imports; not counted
             for side in ("A", "B"):
@@ -132,7 +145,8 @@ def main() -> int:
     what = (
         args.command
         + (" --fsync" if args.fsync else "")
-        + (f" workers {args.workers}" if args.command == "loader" else "")
+        + (f" workers {args.workers}" if args.command in ("loader", "dl3dv") else "")
+        + (f" {args.scenes} scenes" if args.command == "dl3dv" else "")
     )
     print(
         f"{what}: A {med['A']:.3f} s (CPU {cpu['A']:.3f}), B {med['B']:.3f} s (CPU {cpu['B']:.3f}); "

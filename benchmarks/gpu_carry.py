@@ -6,7 +6,7 @@
 * the packages the check's training path imports beyond what such a machine is known to hold (torch with
   CUDA, torchvision, numpy, pyarrow, timm, OpenCV, lightning, tqdm, ninja): jsonschema (the manifest
   reader) and its needs, tensorboard (the training log) with protobuf and absl-py, lpips, kornia (the rasterizer's
-  quaternions) with kornia-rs, plyfile.
+  quaternions) with kornia-rs, plyfile, threadpoolctl (the overlap's BLAS threads).
 
 gpu_check.py appends `.gpu_carry/site` to the END of `sys.path`: a package the GPU machine has is
 used as it is, a carried one only fills a gap. A package still missing there makes the steps that need
@@ -52,6 +52,7 @@ CARRY: dict[str, str | None] = {
     "kornia": None,
     "kornia-rs": None,
     "plyfile": None,
+    "threadpoolctl": None,
 }
 PRUNE = ("gsplat/cuda/csrc/third_party/glm/doc", "gsplat/cuda/csrc/third_party/glm/test")  # not built (17 MiB)
 PLATFORMS = ("manylinux_2_28_x86_64", "manylinux_2_17_x86_64", "manylinux2014_x86_64")

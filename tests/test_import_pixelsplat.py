@@ -19,6 +19,7 @@ from seeu_data.errors import SeeUError
 from seeu_data.exporters.pixelsplat import PixelSplatExportConfig, export_pixelsplat
 from seeu_data.importers import ImportReport, write_import
 from seeu_data.importers import pixelsplat as ps
+from seeu_data.importers.read_ahead import SPILL_DIR
 from seeu_data.store.posed import PosedDataset, PosedDatasetWriter, PosedScene
 from tests.helpers import look_at_cam_to_world, make_posed_scene
 
@@ -528,6 +529,7 @@ def test_import_in_worker_processes_writes_the_same_bytes_and_a_dead_worker_is_o
 
     assert run("one", 1) == 0 and run("two", 2) == 0
     assert len(files("one")) >= 2 and files("two") == files("one")
+    assert not (tmp_path / "two" / SPILL_DIR).exists()
 
     prepare = common._prepare
 
@@ -541,6 +543,26 @@ def test_import_in_worker_processes_writes_the_same_bytes_and_a_dead_worker_is_o
     assert run("killed", 2) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "died (killed by SIGKILL" in err[0] and "re-run the same command to resume" in err[0], err
-    assert not (tmp_path / "killed" / "manifest.json").exists()
+    assert not (tmp_path / "killed" / "manifest.json").exists() and not (tmp_path / "killed" / SPILL_DIR).exists()
     monkeypatch.setattr(common, "_prepare", prepare)
     assert run("killed", 2) == 0 and files("killed") == files("one")
+
+
+def test_a_worker_hands_images_over_in_a_file_not_the_pipe(tmp_path):
+    """`read_ahead.spill` / `unspill`: what crosses the pool's pipe is the scenes without their images; the writer gets the same image bytes back (views of the mapped file, which is gone from
+    the folder at once), and skips pass through."""
+    import pickle
+
+    from seeu_data.importers.common import SkippedScene
+    from seeu_data.importers.read_ahead import spill, unspill
+
+    items: list = [make_posed_scene(f"s{i}", 5, 180, 240, seed=i) for i in range(3)]
+    items.insert(1, SkippedScene("bad", "no frames"))
+    items[2].images[3] = b""  # an empty value keeps its place
+    want = [[bytes(im) for im in s.images] for s in items if isinstance(s, PosedScene)]
+    sent = spill(items, tmp_path)
+    assert len(pickle.dumps(sent)) < 0.02 * sum(map(len, (im for scene in want for im in scene)))
+    back = unspill(*pickle.loads(pickle.dumps(sent)))
+    assert list(tmp_path.iterdir()) == []
+    assert [[bytes(im) for im in s.images] for s in back if isinstance(s, PosedScene)] == want
+    assert [s.scene_id for s in back] == ["s0", "bad", "s1", "s2"]

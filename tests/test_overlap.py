@@ -193,3 +193,29 @@ def test_ingest_stores_the_overlap_of_its_tracks(overlap_scenes, tmp_path):
         others = np.arange(24) != a
         best = np.flatnonzero(others)[np.argmax(est[a, others])]
         assert best in np.argsort(-np.where(others, truth[a], -1))[:2]
+
+
+def test_the_camera_overlap_runs_on_one_blas_thread(monkeypatch):
+    """Its 3-column products only wait with more BLAS threads (2.5x the CPU with 2, 3.5x the import's time
+    on a 16-core node): inside, BLAS has one thread; outside, the process's count is back."""
+    from threadpoolctl import threadpool_info
+
+    from seeu_data import overlap as ov
+
+    def blas_threads() -> list[int]:
+        return [i["num_threads"] for i in threadpool_info() if i["user_api"] == "blas"]
+
+    seen = []
+    inner = ov._camera_overlap_matrix
+
+    def spy(*args):
+        seen.append(blas_threads())
+        return inner(*args)
+
+    monkeypatch.setattr(ov, "_camera_overlap_matrix", spy)
+    before = blas_threads()
+    c2w = np.tile(np.eye(4), (6, 1, 1))
+    c2w[:, 0, 3] = np.arange(6) * 0.1
+    m = ov.camera_overlap_matrix(c2w, np.tile([0.8, 1.4, 0.5, 0.5], (6, 1)), 0.5, 20.0)
+    assert m.shape == (6, 6) and seen and all(n == [1] * len(n) for n in seen) and seen[0]
+    assert blas_threads() == before
