@@ -2,16 +2,19 @@
 under the reader.
 
 A shard holds record batches of `seeu.triples` rows (`schemas/triples.v1.json`). The reader keeps
-a row -> (batch, row in batch) table and, per record batch it has touched, the per-view columns as
-flat numpy arrays (copies). A row comes back as a `triple_row.TripleRow`, its encoded images (and
-masks, where the shard has them) read with `os.pread` at their offsets in the file.
+a row -> (batch, row in batch) table and, per record batch, its columns as views into the memory
+map (made when the shard is opened). A row comes back as a `triple_row.TripleRow`: its small values
+copied out of the map, its encoded images (and masks, where the shard has them) read with
+`os.pread` at their offsets in the file. The map's pages are given back every `RELEASE_EVERY` rows.
+What a reader holds is about 115 bytes a row at build's default 64 rows a batch (the views of each
+batch); its small columns decoded into copies at the opening took 1.35 kB a row.
 
 A shard truncated or rewritten in place while a run reads it (a rebuild into the same directory, a
 sync tool, a full disk) must not kill the reader with SIGBUS, the signal a memory map raises when a
 page beyond the file's new end is touched, nor feed it changed rows. So: the file is memory-mapped
-only to learn its layout (the footer, each record batch's small columns, copied out at once, and the
-place of its image bytes); image bytes, nearly all of a shard, are never read through the map. The
-file's size and modification time are taken when the reader opens it and compared on every read
+only for its layout and small columns (the footer, each record batch's small columns, copied out
+when a row is read, and the place of its image bytes); image bytes, nearly all of a shard, are
+never read through the map. The file's size and modification time are taken when the reader opens it and compared on every read
 (`fstat`, before the map is touched and after the image bytes are read): a difference, or a short
 read, is `ShardChanged`, one line naming the shard; the loader never skips it (`on_error="skip"`
 skips unreadable samples, not a dataset that changes under the run).
@@ -32,6 +35,10 @@ from seeu_data.store.arrow_io import ReleasableIpcFile
 from seeu_data.store.dataset_check import check_file_schema, check_recorded_sizes, check_table_cameras
 from seeu_data.store.triple_row import PER_VIEW_COLUMNS, TripleRow
 
+# Rows read between two releases of the map's pages (`ReleasableIpcFile.release`): a row's values are
+# read through the map when the row is read; the pages that brings in are given back.
+RELEASE_EVERY = 256
+
 _REQUIRED = ("sample_id", "scene_id", "mode", "num_context", "image_format", "gap", "target_offset") + PER_VIEW_COLUMNS
 
 
@@ -41,11 +48,11 @@ class ShardChanged(SeeUError):
 
 
 def _binary_parts(arr: pa.Array, map_address: int) -> tuple[np.ndarray, int]:
-    """(offsets (n + 1,) int64, the file position of the values) of a binary array of a
+    """(offsets (n + 1,) (a view), the file position of the values) of a binary array of a
     memory-mapped file whose first byte is at `map_address`; reads the offsets only."""
     bufs = arr.buffers()
     dtype = np.int64 if pa.types.is_large_binary(arr.type) else np.int32
-    offsets = np.frombuffer(bufs[1], dtype=dtype)[arr.offset : arr.offset + len(arr) + 1].astype(np.int64)
+    offsets = np.frombuffer(bufs[1], dtype=dtype)[arr.offset : arr.offset + len(arr) + 1]
     return offsets, (bufs[2].address - map_address if bufs[2] is not None else 0)
 
 
@@ -59,46 +66,39 @@ def _pread(fd: int, offsets: np.ndarray, start: int, k: int, what: str) -> memor
 
 
 class _BatchColumns:
-    """The columns of one record batch as numpy (per-view columns flattened over all views)."""
+    """The columns of one record batch as views into the shard's map (per-view columns flattened over all
+    views): no copy, so nothing a row. `sample` copies one row's values out."""
 
     def __init__(self, batch: pa.RecordBatch, where: str, map_address: int):
         col = batch.column
-        self.sample_id = col("sample_id").to_pylist()
-        self.scene_id = col("scene_id").to_pylist()
-        self.mode = col("mode").to_pylist()
-        self.image_format = col("image_format").to_pylist()
-        self.num_context = np.array(col("num_context").to_numpy())  # copies: nothing later reads the map
-        self.gap = np.array(col("gap").to_numpy(), np.int64)
-        self.target_offsets = np.asarray(col("target_offset").offsets).astype(np.int64)
-        self.target_offset = col("target_offset").values.to_numpy(zero_copy_only=False).astype(np.int64)
-        self.view_offsets = np.asarray(col("frame_index").offsets).astype(np.int64)
+        self.sample_id, self.scene_id, self.mode, self.image_format = (
+            col(name) for name in ("sample_id", "scene_id", "mode", "image_format")
+        )
+        self.num_context = col("num_context").to_numpy()
+        self.gap = col("gap").to_numpy()
+        self.target_offsets = np.asarray(col("target_offset").offsets)
+        self.target_offset = col("target_offset").values.to_numpy()
+        self.view_offsets = np.asarray(col("frame_index").offsets)
         for name in PER_VIEW_COLUMNS[1:]:
             if not np.array_equal(np.asarray(col(name).offsets), self.view_offsets):
                 raise SeeUError(f"column {name} has a different number of views than frame_index", where)
-
-        def flat(name: str) -> np.ndarray:  # a copy: nothing later reads the map
-            return np.array(col(name).values.to_numpy(zero_copy_only=False))
-
-        self.frame_index = flat("frame_index").astype(np.int64)
-        self.source_frame = flat("source_frame").astype(np.int64)
-        self.width = flat("width")
-        self.height = flat("height")
-        self.near = flat("near").astype(np.float32)
-        self.far = flat("far").astype(np.float32)
-        self.intrinsics = np.array(col("intrinsics_norm").values.flatten().to_numpy()).reshape(-1, 4)
-        self.cam_to_world = np.array(col("cam_to_world").values.flatten().to_numpy()).reshape(-1, 4, 4)
+        self.frame_index, self.source_frame, self.width, self.height, self.near, self.far = (
+            col(name).values.to_numpy() for name in ("frame_index", "source_frame", "width", "height", "near", "far")
+        )
+        self.intrinsics = col("intrinsics_norm").values.flatten().to_numpy().reshape(-1, 4)
+        self.cam_to_world = col("cam_to_world").values.flatten().to_numpy().reshape(-1, 4, 4)
         self.image_offsets, self.image_start = _binary_parts(col("image").values, map_address)
         self.has_mask = None  # (views,) bool, or None: no view of the batch has a mask
         if "mask" in batch.schema.names and col("mask").values.null_count < len(col("mask").values):
             if not np.array_equal(np.asarray(col("mask").offsets), self.view_offsets):
                 raise SeeUError("column mask has a different number of views than frame_index", where)
             masks = col("mask").values
-            self.has_mask = np.array(masks.is_valid().to_numpy(zero_copy_only=False))
+            self.has_mask = masks.is_valid().to_numpy(zero_copy_only=False)
             self.mask_offsets, self.mask_start = _binary_parts(masks, map_address)
 
     def sample(self, j: int, fd: int) -> TripleRow:
-        """Row `j` of the batch, its images read from the open file `fd` (a short read: ShardChanged
-        by the caller, which knows the shard's name)."""
+        """Row `j` of the batch (its values copied: the map's pages may be given back), its images read
+        from the open file `fd` (a short read: ShardChanged by the caller, which knows the shard's name)."""
         lo, hi = int(self.view_offsets[j]), int(self.view_offsets[j + 1])
         images = [_pread(fd, self.image_offsets, self.image_start, k, f"image {k - lo}") for k in range(lo, hi)]
         masks = None
@@ -106,22 +106,22 @@ class _BatchColumns:
             mo, ms = self.mask_offsets, self.mask_start
             masks = [_pread(fd, mo, ms, k, f"mask {k - lo}") if self.has_mask[k] else None for k in range(lo, hi)]
         return TripleRow(
-            sample_id=self.sample_id[j],
-            scene_id=self.scene_id[j],
-            mode=self.mode[j],
+            sample_id=self.sample_id[j].as_py(),
+            scene_id=self.scene_id[j].as_py(),
+            mode=self.mode[j].as_py(),
             num_context=int(self.num_context[j]),
-            frame_index=self.frame_index[lo:hi],
-            source_frame=self.source_frame[lo:hi],
+            frame_index=self.frame_index[lo:hi].astype(np.int64),
+            source_frame=self.source_frame[lo:hi].astype(np.int64),
             images=images,
-            image_format=self.image_format[j],
-            width=self.width[lo:hi],
-            height=self.height[lo:hi],
-            intrinsics_norm=self.intrinsics[lo:hi],
-            cam_to_world=self.cam_to_world[lo:hi],
-            near=self.near[lo:hi],
-            far=self.far[lo:hi],
+            image_format=self.image_format[j].as_py(),
+            width=self.width[lo:hi].copy(),
+            height=self.height[lo:hi].copy(),
+            intrinsics_norm=self.intrinsics[lo:hi].copy(),
+            cam_to_world=self.cam_to_world[lo:hi].copy(),
+            near=self.near[lo:hi].astype(np.float32),
+            far=self.far[lo:hi].astype(np.float32),
             gap=int(self.gap[j]),
-            target_offset=self.target_offset[self.target_offsets[j] : self.target_offsets[j + 1]],
+            target_offset=self.target_offset[self.target_offsets[j] : self.target_offsets[j + 1]].astype(np.int64),
             masks=masks,
         )
 
@@ -173,14 +173,14 @@ class ShardReader:
         self.check_unchanged()
         self._batches: dict[int, _BatchColumns] = {}
         self._decode_all()
+        self._reads = 0
         self._ipc.release()
 
     def _decode_all(self) -> None:
-        """Every batch's columns decoded at the opening, as one burst. Decoded as their rows were first
-        read, they were allocated between the batches' image tensors and kept, pinning the heap holes
-        those leave when freed: an epoch over 20,000 tiny scenes grew to 1.7 GB resident (now 0.5 GB,
-        flat). A batch that fails here fails again, with its one line, when a row of it is read. The
-        map's pages are given back afterwards (`ReleasableIpcFile.release`): nothing reads them again."""
+        """Every batch's columns (`_BatchColumns`: views) made at the opening, as one burst: made as their
+        rows were first read and kept, they were allocated between the batches' image tensors, pinning the
+        heap holes those leave when freed (an epoch over 20,000 tiny scenes grew to 1.7 GB resident). A
+        batch that fails here fails again, with its one line, when a row of it is read."""
         for b in range(len(self.batch_starts) - 1):
             with contextlib.suppress(SeeUError):
                 self._columns(b)
@@ -226,9 +226,12 @@ class ShardReader:
                 f"row {row}: image bytes cannot be read ({exc}): truncated under the run?", self.name
             ) from None
         self.check_unchanged()  # a write while the bytes were read
+        self._reads += 1
+        if self._reads % RELEASE_EVERY == 0:
+            self._ipc.release()
         return out
 
     def gaps(self) -> np.ndarray:
-        """`(rows,) int64` context gap of every row (from the decoded columns)."""
+        """`(rows,) int64` context gap of every row."""
         out = [self._columns(b).gap for b in range(len(self.batch_starts) - 1)]
-        return np.concatenate(out) if out else np.zeros(0, np.int64)
+        return np.concatenate(out).astype(np.int64) if out else np.zeros(0, np.int64)
