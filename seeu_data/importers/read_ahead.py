@@ -2,15 +2,15 @@
 as Ray tasks (`--engine ray`, `importers.ray_import`).
 
 Each unit's read runs there: its scenes read, checked and their view overlap measured
-(`common.read_checked`), most of an import's CPU time (a DL3DV scene: 300 frames, 2.3 s, nearly all
+(`common.read_checked`), most of an import's CPU time (a DL3DV scene: 300 frames, 1 s, most
 of it the overlap). The writer takes the results in unit order, so the output is byte-identical to a
 read in one process, and resumes through the same journal. At most `ahead` units are read or held
 beyond the one the writer takes, so memory stays bounded.
 
 A worker process hands a unit's images over in a file (`spill`), not through the pool's pipe: the
-writer maps the file and copies each image once, into the output. Sent through the pipe, a DL3DV
-scene's 73 MB of frames cost the writer's process 0.24 s of its 0.45 s a scene (measured on 2 cores),
-and that one process bounds an import on a many-core node (benchmarks/scale.py).
+writer maps the file and copies each image once, into the output. The writer's one process bounds an
+import on many cores; a DL3DV scene's 73 MB of frames cost it 0.24 s through the pipe, 0.12 s this
+way (32 scenes, 8 workers on 16 cores: 6.9 -> 4.7 s, `benchmarks/ab.py dl3dv`).
 """
 
 from __future__ import annotations
