@@ -14,10 +14,11 @@ sync tool, a full disk) must not kill the reader with SIGBUS, the signal a memor
 page beyond the file's new end is touched, nor feed it changed rows. So: the file is memory-mapped
 only for its layout and small columns (the footer, each record batch's small columns, copied out
 when a row is read, and the place of its image bytes); image bytes, nearly all of a shard, are
-never read through the map. The file's size and modification time are taken when the reader opens it and compared on every read
-(`fstat`, before the map is touched and after the image bytes are read): a difference, or a short
-read, is `ShardChanged`, one line naming the shard; the loader never skips it (`on_error="skip"`
-skips unreadable samples, not a dataset that changes under the run).
+never read through the map. The file's size and modification time are taken when the reader opens
+it and compared on every read (`fstat`, before the map is touched and after the image bytes are
+read): a difference, or a short read, is `ShardChanged`, one line naming the shard; the loader
+never skips it (`on_error="skip"` skips unreadable samples, not a dataset that changes under the
+run).
 """
 
 from __future__ import annotations
