@@ -231,6 +231,7 @@ def test_a_loader_epoch_stays_flat_in_memory(tmp_path, monkeypatch):
     1 MB a batch, to 1.7 GB). It makes every batch's column views when it opens the shard; here the same
     epoch both ways. And what a reader holds grows little with its rows: about 115 bytes a row at the
     default 64 rows a batch (its small columns decoded into copies took 1.35 kB a row)."""
+    import tracemalloc
     from dataclasses import replace
 
     from pipelines.cli import main as cli_main
@@ -257,8 +258,8 @@ def test_a_loader_epoch_stays_flat_in_memory(tmp_path, monkeypatch):
         return anon() - before
 
     flat = growth_mb()
-    # the old reader: columns decoded as their rows are first read, each holding its record batch (its
-    # views into the batch's buffers), and the curriculum's gaps read from the file
+    # the old reader: a batch's columns made as its rows are first read, each holding its record batch, and
+    # the curriculum's gaps read from the file
     monkeypatch.setattr(ShardReader, "_decode_all", lambda self: None)
     columns = ShardReader._columns
     held: list = []
@@ -277,16 +278,13 @@ def test_a_loader_epoch_stays_flat_in_memory(tmp_path, monkeypatch):
     grown = growth_mb()
     assert flat < 60 and grown > 100, (flat, grown)
 
-    import tracemalloc
-
+    # what readers hold, at build's default rows a batch
     monkeypatch.undo()
-    assert (
-        cli_main(build[:3] + [str(tmp_path / "wide")] + build[4:] + ["--samples-per-scene", "30", "--no-progress"]) == 0
-    )
-    shards = sorted((tmp_path / "wide").glob("*.arrow"))
+    wide = ["build", str(tmp_path / "posed"), "--out", str(tmp_path / "wide"), "--gap-min", "2", "--gap-max", "6"]
+    assert cli_main(wide + ["--samples-per-scene", "30", "--no-progress"]) == 0
     tracemalloc.start()
-    readers = [ShardReader(path, path.name) for path in shards]
-    held, _ = tracemalloc.get_traced_memory()
+    readers = [ShardReader(path, path.name) for path in sorted((tmp_path / "wide").glob("*.arrow"))]
+    traced, _ = tracemalloc.get_traced_memory()
     tracemalloc.stop()
     rows = sum(r.num_rows for r in readers)
-    assert rows == 3600 and held / rows < 300, held / rows  # 115 B; copies: 1,350 B
+    assert rows == 3600 and traced / rows < 300, traced / rows  # 115 B; copies: 1,350 B

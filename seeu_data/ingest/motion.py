@@ -397,9 +397,11 @@ def astray_runs(bad: Sequence[bool], run: int = MAX_ASTRAY_RUN) -> list[int]:
     starts = [0] + [k + 1 for k, b in enumerate(bad) if b]
     stretches = list(zip(starts, [*starts[1:], n]))
     sound = [e - s > run or (e - s >= 2 and (s == 0 or e == n)) for s, e in stretches]
+    if not any(sound):
+        return []
     out: list[int] = []
     i = 0
-    while i < len(stretches) and any(sound):
+    while i < len(stretches):
         j = i
         while j < len(stretches) and not sound[j]:
             j += 1
