@@ -327,6 +327,24 @@ class TripleStream(IterableDataset):
             yield batch
 
 
+def _naming_dead_workers(batches: Iterator) -> Iterator:
+    """`batches` (a DataLoader iterator). A worker killed while it hands a batch over can surface first as
+    a ConnectionError or EOFError (the batch's tensors cannot be fetched from the dead process), before
+    PyTorch's SIGCHLD handler names it: PyTorch is then asked which worker died, so the error is its
+    "DataLoader worker (pid N) is killed by signal" (`interrupts.worker_death`'s one line)."""
+    from torch.utils.data._utils.signal_handling import _error_if_any_worker_fails
+
+    while True:
+        try:
+            batch = next(batches)
+        except StopIteration:
+            return
+        except (ConnectionError, EOFError):
+            _error_if_any_worker_fails()  # raises the named death when a worker is gone
+            raise
+        yield batch
+
+
 def _error_parts(exc: SeeUError) -> tuple[str, str | None]:
     """(message, path) of a SeeUError, so it can be rebuilt in another process."""
     text = str(exc)
@@ -446,7 +464,7 @@ class StreamingLoader:
                 batches = iter(loader)  # forks the workers
         else:
             batches = iter(loader)
-        for batch in batches:
+        for batch in _naming_dead_workers(batches):
             if "_error" in batch:
                 raise SeeUError(*batch["_error"])
             # The small fields cross from the workers as numpy (pickled by value): as tensors, each is a
