@@ -332,15 +332,13 @@ def _naming_dead_workers(batches: Iterator) -> Iterator:
     a ConnectionError or EOFError (the batch's tensors cannot be fetched from the dead process), before
     PyTorch's SIGCHLD handler names it: PyTorch is then asked which worker died, so the error is its
     "DataLoader worker (pid N) is killed by signal" (`interrupts.worker_death`'s one line)."""
-    from torch.utils.data._utils.signal_handling import _error_if_any_worker_fails
-
     while True:
         try:
             batch = next(batches)
         except StopIteration:
             return
         except (ConnectionError, EOFError):
-            _error_if_any_worker_fails()  # raises the named death when a worker is gone
+            torch._C._error_if_any_worker_fails()  # PyTorch's own check: raises the named death when a worker is gone
             raise
         yield batch
 
