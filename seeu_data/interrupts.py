@@ -11,8 +11,9 @@ parent goes on (a child started in its own session, as the SfM child is, is ende
 process group: its mapping processes too). `seeu` (pipelines/cli) installs it first thing, before
 any command's imports, so a SIGTERM at any moment ends the command with its one line.
 
-A library may swallow the exception (one raised inside a lazy import that catches everything): the
-SIGTERM is still recorded (`terminated()`), long work stops at its next progress point
+A library may swallow the exception (one raised inside a lazy import that catches everything, or in a
+place Python cannot raise from: a fork's callback, a `__del__`, whose "Exception ignored in" report is
+kept off stderr for `Terminated`): the SIGTERM is still recorded (`terminated()`), long work stops at its next progress point
 (`raise_if_terminated`, called by `progress.StageProgress` and the build's shard loop), and `seeu`
 exits 143 with the one line whatever the command did after it.
 
@@ -34,6 +35,7 @@ import os
 import re
 import signal
 import subprocess
+import sys
 import threading
 import time
 from collections.abc import Iterator
@@ -60,6 +62,16 @@ def _raise_terminated(signum, frame) -> None:
     raise Terminated(signum)
 
 
+def _quiet_unraisable(previous):
+    """`sys.unraisablehook` that says nothing of a `Terminated` (recorded in `_received`), `previous` for the rest."""
+
+    def hook(unraisable) -> None:
+        if not isinstance(unraisable.exc_value, Terminated):
+            previous(unraisable)
+
+    return hook
+
+
 def terminated() -> bool:
     """Whether a SIGTERM arrived (even if a library swallowed the `Terminated` it raised)."""
     return bool(_received)
@@ -75,6 +87,7 @@ def quiet_worker() -> None:
     """Pool initializer: SIGINT ignored (the parent ends the pool), SIGTERM raises `Terminated`."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _raise_terminated)
+    sys.unraisablehook = _quiet_unraisable(sys.unraisablehook)
 
 
 @contextlib.contextmanager
@@ -86,10 +99,13 @@ def sigterm_raises() -> Iterator[None]:
     if signal.getsignal(signal.SIGTERM) is not _raise_terminated:
         _received.clear()  # a new command (tests run several in one process)
     previous = signal.signal(signal.SIGTERM, _raise_terminated)
+    previous_hook = sys.unraisablehook
+    sys.unraisablehook = _quiet_unraisable(previous_hook)
     try:
         yield
     finally:
         signal.signal(signal.SIGTERM, previous)
+        sys.unraisablehook = previous_hook
 
 
 def died(who: str, exitcode: int | None) -> str:
