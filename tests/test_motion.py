@@ -200,6 +200,29 @@ def test_frames_whose_cameras_alone_are_wrong_are_found_astray(tmp_path, wrong, 
     assert motion.astray_frames(tmp_path, names, _model(poses, names)) == [names[k] for k in found]
 
 
+def test_frames_a_mover_carried_are_the_unexplained_ones_widened_to_what_stays_sound():
+    """`carried_frames` (--dynamic mask): the frames mostly unexplained, REPAIR_MARGIN (2) more on each side,
+    and stretches between them or at an end shorter than MIN_SOUND_RUN (8) frames; nothing when no sound
+    stretch of 8 frames would be left or too few frames are unexplained to say."""
+    names = [f"{i:06d}.jpg" for i in range(40)]
+    most = np.ones((9, 16), bool)
+    most[:, :6] = False  # 62 % of the frame
+    some = ~most  # 38 %: explained enough
+
+    def carried(*frames: int, also: tuple[int, ...] = ()) -> list[int]:
+        masks = {names[i]: most for i in frames} | {names[i]: some for i in also}
+        return [names.index(n) for n in motion.carried_frames(masks, names)]
+
+    assert carried() == [] and carried(10, 11) == []  # fewer than MIN_MOVING_FRAMES (3)
+    assert carried(10, 11, 12) == list(range(8, 15))  # frames 0-7 stay: 8 in a row
+    assert carried(10, 12, 14, also=(11, 13)) == list(range(8, 17))  # what lies between goes with them
+    assert carried(4, 5, 6, 7) == list(range(0, 10))  # frames 0-1 alone at the clip's start
+    assert carried(9, 10, 11) == list(range(0, 14))  # frames 0-6: 7, fewer than 8
+    assert carried(10, 11, 12, 20, 21, 22) == list(range(8, 25))  # two movers 3 sound frames apart: one
+    assert carried(10, 11, 12, 30, 31, 32) == [*range(8, 15), *range(28, 40)]  # 13 apart: two; the end's 5 too
+    assert carried(*range(3, 37)) == []  # nothing sound left to place them against
+
+
 def test_astray_runs_are_short_stretches_cut_off_by_disagreeing_pairs():
     """`astray_runs` on 12 frames, from which consecutive pairs disagree."""
 

@@ -52,7 +52,7 @@ def main(job_path: str) -> int:
     motion_keyframes(job, recs, kf, moving, mapped.check)
     final_ba_facts = final_ba(job, recs)
     register_rest(job, recs, kf, mapped.check["kept_seed"], *astray_plan(job, moving))
-    motion_frames(job, recs, kf, moving)
+    motion_frames(job, recs, kf, moving, mapped.check)
     kept, discarded = keep_models(recs, mapped.rejected)
     models = export_models(job, recs, kept)
     motion_export(job, recs, models, moving)

@@ -3,13 +3,16 @@ order `sfm_child.main` calls them.
 
     before mapping:            motion_start     (nothing found yet: mapping uses every verified match)
     after mapping:             motion_keyframes (frames whose camera alone is astray taken out; the
-                                                 mapped frames against their SfM cameras; mask: their
+                                                 mapped frames against their SfM cameras; mask: frames a
+                                                 large mover carried taken out too, the others' moving
                                                  observations dropped before the final BA; off: moving
                                                  content found fails the solution check; either: frames
                                                  mostly unexplained by the cameras fail it)
-    registration:              astray_plan      (mask: the astray frames registered again; off: left out)
+    registration:              astray_plan      (mask: the frames taken out registered again against the
+                                                 static points; off: left out)
     after registration:        motion_frames    (mask: every registered frame, the final masks; frames
-                                                 astray again taken out for good)
+                                                 astray again taken out for good; carried frames still
+                                                 mostly unexplained fail the solution check)
     after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
 """
 
@@ -28,7 +31,8 @@ class Moving:
     """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
     result.json's "motion" {"mode", "judged" (a video: frames in time order), "keyframes"
     (the mapped frames), "frames" (all, after registration), "leave_out" (off), "masked_pct" {name: % of the
-    frame}, "astray" [mapped frames taken out: `_leave_astray`]}; `astray`: those frames."""
+    frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover carried:
+    `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask."""
 
     masks: dict
     facts: dict
@@ -58,25 +62,33 @@ def motion_start(job: Job) -> Moving:
 
 
 def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
-    """A video's mapped frames against the flow their SfM cameras allow; mask: their observations in moving
-    regions dropped before the final bundle adjustment; off: the leave-out test (`_leave_out`), and moving
+    """A video's mapped frames against the flow their SfM cameras allow; mask: frames a large mover carried
+    (`motion.carried_frames`) taken out, to be registered again against the static points (`astray_plan`),
+    the others' observations in moving regions dropped before the final bundle adjustment; off: the
+    leave-out test (`_leave_out`), and moving
     content found (`motion.moving_content`) fails the solution `check`; either mode: frames mostly unexplained
     by the cameras (`motion.cameras_disagree`) fail it (in place; "moving_content" says why)."""
     if not job.video:
         return
     import pycolmap
 
-    from seeu_data.ingest.motion import cameras_disagree, drop_observations, moving_content
+    from seeu_data.ingest.motion import cameras_disagree, carried_frames, drop_observations, moving_content
 
     emit("stage", "motion-check", len(kf.names), "frames")
     t0 = job.clock.mark()
     moving.astray = _leave_astray(job, recs, kf.names)
     masks, judged = _model_masks(job, recs, kf.names)
-    moving.masks = masks
     moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
     if moving.astray:
-        moving.facts["astray"] = moving.astray
+        moving.facts["astray"] = list(moving.astray)
     found = None
+    if job.cfg.dynamic == "mask" and cameras_disagree(masks, kf.names):
+        carried = carried_frames(masks, kf.names)
+        _take_out(recs, carried)
+        masks = {n: m for n, m in masks.items() if n not in carried}
+        moving.astray += carried
+        moving.facts["carried"] = carried
+    moving.masks = masks
     if job.cfg.dynamic == "mask":
         moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
     elif masks:
@@ -84,10 +96,15 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
         found = moving_content(moving.facts)
     found = cameras_disagree(masks, kf.names) or found
     if found:
-        check["moving_content"] = found
-        if check.get("ran"):
-            check["passed"], check["reason"] = False, found
+        _fail(check, found)
     job.clock.add("motion_s", t0)
+
+
+def _fail(check: dict, why: str) -> None:
+    """The solution `check` (result.json's) failed, in place, for `why` (moving content)."""
+    check["moving_content"] = why
+    if check.get("ran"):
+        check["passed"], check["reason"] = False, why
 
 
 def astray_plan(job: Job, moving: Moving) -> tuple[list[str], list[str]]:
@@ -104,11 +121,19 @@ def _leave_astray(job: Job, recs: dict, names: list[str]) -> list[str]:
 
     out: list[str] = []
     for rec in recs.values():
-        registered = {rec.image(i).name: i for i in rec.reg_image_ids()}
-        for name in astray_frames(job.image_dir, [n for n in names if n in registered], rec):
-            rec.deregister_frame(rec.image(registered[name]).frame_id)
-            out.append(name)
+        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        out += astray_frames(job.image_dir, [n for n in names if n in registered], rec)
+    _take_out(recs, out)
     return out
+
+
+def _take_out(recs: dict, names: list[str]) -> None:
+    """Deregister the frames `names` from the models `recs` (in place: their observations go, and points left
+    with fewer than two)."""
+    for rec in recs.values():
+        for i in list(rec.reg_image_ids()):
+            if rec.image(i).name in names:
+                rec.deregister_frame(rec.image(i).frame_id)
 
 
 def _model_masks(job: Job, recs: dict, names: list[str]) -> tuple[dict, int]:
@@ -143,13 +168,14 @@ def _leave_out(job: Job, recs: dict, masks: dict) -> dict:
     return {"observations": dropped, "total": total, "centre_change_pct": model_disagreement_pct(with_all, without)}
 
 
-def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving) -> None:
+def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
     """--dynamic mask, keyframes or frames registered again (`astray_plan`): every registered frame against
     the SfM cameras (the final masks), its observations in moving regions dropped (registered after the
-    final adjustment: no adjustment follows); frames astray now are taken out for good."""
+    final adjustment: no adjustment follows); frames astray now are taken out for good. Frames a mover
+    carried (`motion_keyframes`) still mostly unexplained now fail the solution `check` (in place)."""
     if job.cfg.dynamic != "mask" or not job.video or (kf.stride <= 1 and not moving.astray):
         return
-    from seeu_data.ingest.motion import drop_observations
+    from seeu_data.ingest.motion import cameras_disagree, drop_observations
 
     emit("stage", "motion-frames", len(job.names), "frames")
     t0 = job.clock.mark()
@@ -158,6 +184,9 @@ def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving) -> None:
     moving.masks = masks
     dropped = sum(drop_observations(rec, masks) for rec in recs.values())
     moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped, "astray": astray}
+    why = cameras_disagree(masks, job.names) if moving.facts.get("carried") else None
+    if why:
+        _fail(check, why)
     job.clock.add("motion_s", t0)
 
 
