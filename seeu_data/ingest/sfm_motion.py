@@ -18,6 +18,7 @@ order `sfm_child.main` calls them.
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
 
 from seeu_data.ingest.keyframes import Keyframes
@@ -62,12 +63,12 @@ def motion_start(job: Job) -> Moving:
 
 
 def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
-    """A video's mapped frames against the flow their SfM cameras allow; mask: frames a large mover carried
+    """A video's mapped frames against the flow their SfM cameras allow. mask: frames a large mover carried
     (`motion.carried_frames`) taken out, to be registered again against the static points (`astray_plan`),
-    the others' observations in moving regions dropped before the final bundle adjustment; off: the
-    leave-out test (`_leave_out`), and moving
-    content found (`motion.moving_content`) fails the solution `check`; either mode: frames mostly unexplained
-    by the cameras (`motion.cameras_disagree`) fail it (in place; "moving_content" says why)."""
+    the others' observations in moving regions dropped before the final bundle adjustment. off: the leave-out
+    test (`_leave_out`), and moving content found (`motion.moving_content`) fails the solution `check`.
+    Either mode: frames left mostly unexplained by the cameras (`motion.cameras_disagree`) fail it (in place;
+    "moving_content" says why)."""
     if not job.video:
         return
     import pycolmap
@@ -84,7 +85,7 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     found = None
     if job.cfg.dynamic == "mask" and cameras_disagree(masks, kf.names):
         carried = carried_frames(masks, kf.names)
-        _take_out(recs, carried)
+        _take_out(recs.values(), carried)
         masks = {n: m for n, m in masks.items() if n not in carried}
         moving.astray += carried
         moving.facts["carried"] = carried
@@ -122,15 +123,16 @@ def _leave_astray(job: Job, recs: dict, names: list[str]) -> list[str]:
     out: list[str] = []
     for rec in recs.values():
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
-        out += astray_frames(job.image_dir, [n for n in names if n in registered], rec)
-    _take_out(recs, out)
+        found = astray_frames(job.image_dir, [n for n in names if n in registered], rec)
+        _take_out([rec], found)
+        out += found
     return out
 
 
-def _take_out(recs: dict, names: list[str]) -> None:
+def _take_out(recs: Iterable, names: list[str]) -> None:
     """Deregister the frames `names` from the models `recs` (in place: their observations go, and points left
     with fewer than two)."""
-    for rec in recs.values():
+    for rec in recs:
         for i in list(rec.reg_image_ids()):
             if rec.image(i).name in names:
                 rec.deregister_frame(rec.image(i).frame_id)
