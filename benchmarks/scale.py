@@ -19,9 +19,9 @@ interp, build extrap, build again (nothing to do), index, one loader epoch over 
 (batch 8, 0 workers, the peers' gap curriculum 25 -> 45, past its warm-up: every sample read). Per
 step: CPU seconds (process and its reaped workers; the process's own kept apart), CPU ms per scene,
 wall seconds, peak RSS (VmHWM of the process reset before the step, or a worker's if larger) and peak
-anonymous memory (RssAnon sampled every 20 ms). A step that took under 60 s is run 3 times in all (its
-output removed before each; not the re-runs) and its run of median CPU kept: one run varies by 15-20 %
-on a shared 2-core machine, which moves a growth exponent by as much as its 1.05 line allows.
+anonymous memory (RssAnon sampled every 20 ms). A short step (`REPEAT_UNDER_S`) is run `REPEATS` times in
+all (its output removed before each; not the re-runs) and its run of median CPU kept: one run varies by
+15-20 % on a shared 2-core machine, which moves a growth exponent by as much as its 1.05 line allows.
 
 Then: the growth exponent b of each step's CPU time over the tiny sizes (least squares of
 log CPU on log N: 1 is linear), the re-runs as a share of the first run, and the extrapolation: a step's
@@ -272,9 +272,9 @@ def measure(step: str, kind: str, data: Path, work: Path, resolution: str) -> di
     """`step`'s figures; a short one (`REPEAT_UNDER_S`) is run `REPEATS` times, from scratch each time, and
     the run of median CPU kept (its "runs" is how many; "cpu_runs_s" their CPU seconds)."""
     runs = [measure_once(step, kind, data, work, resolution)]
+    output = work / OUTPUTS[step] if step in OUTPUTS else None
     if runs[0]["wall_s"] < REPEAT_UNDER_S and step not in RERUNS:
         for _ in range(REPEATS - 1):
-            output = work / OUTPUTS[step] if step in OUTPUTS else None
             if output is not None and output.is_dir():
                 shutil.rmtree(output)
             elif output is not None:

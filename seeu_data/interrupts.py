@@ -11,11 +11,11 @@ parent goes on (a child started in its own session, as the SfM child is, is ende
 process group: its mapping processes too). `seeu` (pipelines/cli) installs it first thing, before
 any command's imports, so a SIGTERM at any moment ends the command with its one line.
 
-A library may swallow the exception (one raised inside a lazy import that catches everything, or in a
-place Python cannot raise from: a fork's callback, a `__del__`, whose "Exception ignored in" report is
-kept off stderr for `Terminated`): the SIGTERM is still recorded (`terminated()`), long work stops at its next progress point
-(`raise_if_terminated`, called by `progress.StageProgress` and the build's shard loop), and `seeu`
-exits 143 with the one line whatever the command did after it.
+A library may swallow the exception (one raised inside a lazy import that catches everything), or
+Python may (one raised in a fork's callback or a `__del__`: its "Exception ignored in" report is kept
+off stderr for `Terminated`). The SIGTERM is still recorded (`terminated()`), long work stops at its
+next progress point (`raise_if_terminated`, called by `progress.StageProgress` and the build's shard
+loop), and `seeu` exits 143 with the one line whatever the command did after it.
 
 Pool workers run `quiet_worker` first: Ctrl-C is the parent's to handle (it reaches the whole process
 group; the parent then ends its pools), and SIGTERM raises `Terminated`, a `SystemExit`, so a worker

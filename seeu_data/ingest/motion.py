@@ -493,10 +493,11 @@ def cameras_disagree(masks: dict[str, np.ndarray], judged: Sequence[str]) -> str
 
 def carried_frames(masks: dict[str, np.ndarray], judged: Sequence[str]) -> list[str]:
     """The frames of `judged` (mapped, in time order) whose cameras a mover carried, to be placed again against
-    the rest once its observations there are gone, when `cameras_disagree`: the frames mostly unexplained
+    the rest once its observations there are gone: the frames mostly unexplained
     (`masks` over MOSTLY_MOVING), REPAIR_MARGIN frames on each side of each, and every stretch left between
-    them or at an end of the clip shorter than MIN_SOUND_RUN frames. None when no stretch of MIN_SOUND_RUN
-    frames is left (nothing sound to place them against).
+    them or at an end of the clip shorter than MIN_SOUND_RUN frames. Empty when fewer than MIN_MOVING_FRAMES
+    are mostly unexplained (`cameras_disagree` says nothing), or when no stretch of MIN_SOUND_RUN frames is
+    left (nothing sound to place them against).
 
     A mover filling much of the view pulls SfM's cameras along with it: its own flow then fits them, the
     static scene's does not, and the frames look mostly moving where the mover was. Frames without it

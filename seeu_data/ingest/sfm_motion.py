@@ -83,8 +83,8 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     if moving.astray:
         moving.facts["astray"] = list(moving.astray)
     found = None
-    if job.cfg.dynamic == "mask" and cameras_disagree(masks, kf.names):
-        carried = carried_frames(masks, kf.names)
+    carried = carried_frames(masks, kf.names) if job.cfg.dynamic == "mask" else []
+    if carried:
         _take_out(recs.values(), carried)
         masks = {n: m for n, m in masks.items() if n not in carried}
         moving.astray += carried
