@@ -223,6 +223,25 @@ def test_frames_a_mover_carried_are_the_unexplained_ones_widened_to_what_stays_s
     assert carried(*range(3, 37)) == []  # nothing sound left to place them against
 
 
+def test_frames_placed_on_trial_are_those_with_any_moving_content_while_at_most_half_the_clip():
+    """`trial_frames` (--dynamic mask, nothing carried): every frame with moving content counts, however little,
+    widened by the margin asked; nothing for fewer than MIN_MOVING_FRAMES (3) such frames, or when the frames
+    to place again would be more than half of the clip."""
+    names = [f"{i:06d}.jpg" for i in range(40)]
+    speck = np.zeros((9, 16), bool)
+    speck[4, 4] = True  # 0.7 % of the frame
+
+    def trial(*frames: int, margin: int = 2) -> list[int]:
+        return [names.index(n) for n in motion.trial_frames({names[i]: speck for i in frames}, names, margin)]
+
+    assert trial(0, 1) == []  # fewer than 3
+    assert trial(0, 2, 4) == list(range(0, 7))  # frames 7-39 stay
+    assert trial(0, 2, 4, margin=4) == list(range(0, 9))
+    assert trial(20, 21, 22, margin=4) == list(range(16, 27))  # in the middle: both sides stay
+    assert trial(0, 2, 4, margin=16) == []  # 21 frames: more than half of 40
+    assert trial(*range(0, 40, 2)) == []  # moving content through the clip
+
+
 def test_astray_runs_are_short_stretches_cut_off_by_disagreeing_pairs():
     """`astray_runs` on 12 frames, from which consecutive pairs disagree."""
 

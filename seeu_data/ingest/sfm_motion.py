@@ -84,6 +84,8 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
         moving.facts["astray"] = list(moving.astray)
     found = None
     carried = carried_frames(masks, kf.names) if job.cfg.dynamic == "mask" else []
+    if job.cfg.dynamic == "mask" and not carried:
+        carried = _placed_on_trial(job, recs, kf, masks, check["kept_seed"], moving.facts)
     if carried:
         _take_out(recs.values(), carried)
         masks = {n: m for n, m in masks.items() if n not in carried}
@@ -99,6 +101,55 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     if found:
         _fail(check, found)
     job.clock.add("motion_s", t0)
+
+
+def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, facts: dict) -> list[str]:
+    """--dynamic mask, nothing carried: the mapped frames with moving content (`masks`) placed again against the
+    rest on trial (`motion.trial_frames`: taken out of copies of `recs`, the rest adjusted, they registered again),
+    widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves more than a quarter of
+    them unregistered or mostly unexplained by the flow (`motion.cameras_disagree`). The frames of the first trial
+    that places them well are carried when it moved the cameras more than TRIAL_SHIFT_PCT of the path (their own
+    points carried them); else none. Each trial in `facts["trials"]` (in place)."""
+    import pycolmap
+
+    from seeu_data.ingest.keyframes import register_frames
+    from seeu_data.ingest.motion import REPAIR_MARGIN, TRIAL_SHIFT_PCT, cameras_disagree, trial_frames
+
+    margin = REPAIR_MARGIN
+    while names := trial_frames(masks, kf.names, margin):
+        emit("stage", "motion-trial", len(names), "frames")
+        trial = {k: pycolmap.Reconstruction(r) for k, r in recs.items()}
+        _take_out(trial.values(), names)
+        trial = _adjusted(job, trial)
+        register_frames(job.db_path, trial, kf.names, kf.names, seed, job.cfg.map_threads)
+        lo, hi = kf.names.index(names[0]), kf.names.index(names[-1])
+        judged = kf.names[max(0, lo - REPAIR_MARGIN) : hi + REPAIR_MARGIN + 1]  # with neighbours on both sides
+        found, _ = _model_masks(job, trial, judged)
+        placed = {n for rec in trial.values() for n in (rec.image(i).name for i in rec.reg_image_ids()) if n in names}
+        shift = model_disagreement_pct(recs, trial)
+        unexplained = cameras_disagree({n: m for n, m in found.items() if n in names}, names)
+        facts.setdefault("trials", []).append(
+            {
+                "frames": [names[0], names[-1]],
+                "count": len(names),
+                "placed": len(placed),
+                "shift_pct": shift,
+                "unexplained": unexplained is not None,
+            }
+        )
+        if 4 * len(placed) >= 3 * len(names) and unexplained is None:
+            return names if shift > TRIAL_SHIFT_PCT else []
+        margin *= 2
+    return []
+
+
+def _adjusted(job: Job, recs: dict) -> dict:
+    """Copies of the models `recs`, each adjusted as the final bundle adjustment does (with soft-L1 when
+    --final-ba-loss is none)."""
+    import pycolmap
+
+    cfg = job.cfg if job.cfg.final_ba_loss != "none" else replace(job.cfg, final_ba_loss="soft_l1")
+    return {k: final_bundle_adjustment(pycolmap.Reconstruction(r), cfg)[0] for k, r in recs.items()}
 
 
 def _fail(check: dict, why: str) -> None:
@@ -158,15 +209,12 @@ def _leave_out(job: Job, recs: dict, masks: dict) -> dict:
     """How much the moving regions carry the models `recs` (copies): each adjusted as the final bundle
     adjustment does, with and without their observations in `masks`; {"observations" (left out), "total"
     (the models' observations), "centre_change_pct" (`model_disagreement_pct` of the two)}."""
-    import pycolmap
-
     from seeu_data.ingest.motion import drop_observations
 
-    cfg = job.cfg if job.cfg.final_ba_loss != "none" else replace(job.cfg, final_ba_loss="soft_l1")
     total = sum(r.compute_num_observations() for r in recs.values())
-    with_all = {k: final_bundle_adjustment(pycolmap.Reconstruction(r), cfg)[0] for k, r in recs.items()}
+    with_all = _adjusted(job, recs)
     dropped = sum(drop_observations(r, masks) for r in recs.values())
-    without = {k: final_bundle_adjustment(r, cfg)[0] for k, r in recs.items()}
+    without = _adjusted(job, recs)
     return {"observations": dropped, "total": total, "centre_change_pct": model_disagreement_pct(with_all, without)}
 
 
