@@ -66,8 +66,9 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     """A video's mapped frames against the flow their SfM cameras allow. mask: frames a large mover carried
     (`motion.carried_frames`) taken out, to be registered again against the static points (`astray_plan`),
     the others' observations in moving regions dropped before the final bundle adjustment. off: the leave-out
-    test (`_leave_out`), and moving content found (`motion.moving_content`) fails the solution `check`.
-    Either mode: frames left mostly unexplained by the cameras (`motion.cameras_disagree`) fail it (in place;
+    test (`_leave_out`), and moving content found (`motion.moving_content`) or frames a mover carried fail the
+    solution `check`. Either mode: a trial (`_placed_on_trial`) looks for frames a mover carried unseen, and
+    frames left mostly unexplained by the cameras (`motion.cameras_disagree`) fail the check (in place;
     "moving_content" says why)."""
     if not job.video:
         return
@@ -83,10 +84,12 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     if moving.astray:
         moving.facts["astray"] = list(moving.astray)
     found = None
-    carried = carried_frames(masks, kf.names) if job.cfg.dynamic == "mask" else []
-    if job.cfg.dynamic == "mask" and not carried:
+    carried = carried_frames(masks, kf.names)
+    if not carried:
         carried = _placed_on_trial(job, recs, kf, masks, check["kept_seed"], moving.facts)
-    if carried:
+        if carried and job.cfg.dynamic == "off":
+            found = _carried_unseen(moving.facts["trials"][-1])
+    if carried and job.cfg.dynamic == "mask":
         _take_out(recs.values(), carried)
         masks = {n: m for n, m in masks.items() if n not in carried}
         moving.astray += carried
@@ -96,7 +99,7 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
         moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
     elif masks:
         moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
-        found = moving_content(moving.facts)
+        found = found or moving_content(moving.facts)
     found = cameras_disagree(masks, kf.names) or found
     if found:
         _fail(check, found)
@@ -104,12 +107,13 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
 
 
 def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, facts: dict) -> list[str]:
-    """--dynamic mask, nothing carried: the mapped frames with moving content (`masks`) placed again against the
-    rest on trial (`motion.trial_frames`: taken out of copies of `recs`, the rest adjusted, they registered again),
-    widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves more than a quarter of
-    them unregistered or mostly unexplained by the flow (`motion.cameras_disagree`). The frames of the first trial
-    that places them well are carried when it moved the cameras more than TRIAL_SHIFT_PCT of the path (their own
-    points carried them); else none. Each trial in `facts["trials"]` (in place)."""
+    """Nothing carried (`motion.carried_frames`): the mapped frames with moving content (`masks`) placed again
+    against the rest on trial (`motion.trial_frames`: taken out of copies of `recs`, the rest adjusted, they
+    registered again), widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves
+    more than a quarter of them unregistered or mostly unexplained by the flow (`motion.cameras_disagree`). The
+    frames of the first trial that places them well are carried when it moved the cameras more than
+    TRIAL_SHIFT_PCT of the path (their own points carried them: with mask they are repaired, with off the
+    solution check fails); else none. Each trial in `facts["trials"]` (in place)."""
     import pycolmap
 
     from seeu_data.ingest.keyframes import register_frames
@@ -141,6 +145,16 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
             return names if shift > TRIAL_SHIFT_PCT else []
         margin *= 2
     return []
+
+
+def _carried_unseen(trial: dict) -> str:
+    """--dynamic off: why the solution check fails when a trial (`_placed_on_trial`, its facts) found frames a mover
+    carried."""
+    first, last = trial["frames"]
+    return (
+        f"placed again against the rest, mapped frames {first} to {last} move {trial['shift_pct']:.2g}% of the path: "
+        "a moving object carried their cameras (--dynamic off); re-run with --dynamic mask"
+    )
 
 
 def _adjusted(job: Job, recs: dict) -> dict:
