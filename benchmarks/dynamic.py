@@ -3,7 +3,8 @@
 1. Renders the corridor walk (default 90 frames, 640x360, seed 0) without movers and with each mover
    preset of `seeu synth --movers` (box: one box of about a tenth of the frame swinging side to side
    ahead of the camera; large: one crossing the room, up to more than half of the frame; slow: at most
-   0.3 m/s; several: three of other sizes, speeds and paths), each with its exact per-frame masks.
+   0.3 m/s; several: three of other sizes, speeds and paths; far: one crossing far ahead), each with its
+   exact per-frame masks.
 2. Ingests every clip with `--dynamic mask` and with `--dynamic off` (in-process, --force, the other
    settings at their defaults), in turn.
 3. Prints per clip and mode: wall and CPU seconds (and the ratio to the clip without movers in the same
@@ -92,7 +93,7 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=90)
     ap.add_argument("--size", default="360x640", help="H x W of the rendered clips")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--movers", default="box,large,slow,several", help="mover presets, besides the clip without")
+    ap.add_argument("--movers", default="box,large,slow,several,far", help="mover presets, besides the clip without")
     ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
     ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
     ap.add_argument("--out", type=Path, default=Path("out/bench_dynamic"))

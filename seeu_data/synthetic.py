@@ -404,7 +404,8 @@ class Mover:
 
 # `seeu synth --movers`: box is about a tenth of a 16:9 frame at 70 deg, swinging at up to 3 m/s;
 # large crosses the room 3.5 m along the walk, up to about 60 % of the frame as the camera nears it, out
-# of the way when it passes; slow moves at most 0.3 m/s; several: three of other sizes, speeds and paths.
+# of the way when it passes; slow moves at most 0.3 m/s; several: three of other sizes, speeds and paths; far: a
+# smaller one crossing 7.5 m along the walk, in view over most of the clip.
 MOVER_PRESETS: dict[str, tuple[Mover, ...]] = {
     "none": (),
     "box": (Mover((0.6, 0.6, 0.6), distance=2.0, amplitude=0.7, period=45),),
@@ -417,6 +418,7 @@ MOVER_PRESETS: dict[str, tuple[Mover, ...]] = {
         Mover((0.5, 0.5, 0.5), distance=2.5, amplitude=0.5, period=60, path="circle", y0=0.35, phase=1.0),
         Mover((0.8, 0.9, 0.5), distance=5.0, amplitude=0.9, period=120, path="crossing", y0=0.95, phase=2.0),
     ),
+    "far": (Mover((1.4, 1.4, 0.3), distance=7.5, amplitude=1.6, period=90, path="crossing", y0=0.0, phase=np.pi / 2),),
 }
 
 
@@ -628,7 +630,7 @@ class ClipConfig:
         "independently moving boxes, with their exact per-frame masks in <stem>.masks.npz: box: one box of about "
         "a tenth of the frame swinging side to side 2 m ahead of the camera; large: one crossing the room, up to "
         "more than half of the frame; slow: one moving at most 0.3 m/s; several: three of other sizes, speeds "
-        "and paths",
+        "and paths; far: one crossing the room far ahead, in view over most of the clip",
         choices=tuple(MOVER_PRESETS),
     )
 

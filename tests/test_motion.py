@@ -200,6 +200,32 @@ def test_frames_whose_cameras_alone_are_wrong_are_found_astray(tmp_path, wrong, 
     assert motion.astray_frames(tmp_path, names, _model(poses, names)) == [names[k] for k in found]
 
 
+def test_cameras_that_explain_the_flow_worse_than_a_rigid_motion_does_are_found(tmp_path):
+    """`rigid_gaps` on every second frame of the static walk: under the exact cameras no rigid motion explains
+    more of the flow than they do; under cameras whose path bends sideways (each step 45 degrees off: their
+    epipolar lines wrong) every pair is over RIGID_GAP and `cameras_unlike_rigid` fails them; a pair whose
+    best rigid motion lies in its moving content (`masks`) is left out."""
+    import cv2
+
+    frames, _, poses = _render("none", 16)
+    names = [f"{i:06d}.png" for i in range(0, 16, 2)]
+    for name, frame in zip(names, frames[::2]):
+        cv2.imwrite(str(tmp_path / name), frame)
+    exact = motion.rigid_gaps(tmp_path, names, _model(poses[::2], names), {})
+    assert len(exact) == 7 and max(exact) < 0.02, exact
+    assert motion.cameras_unlike_rigid([], 7) is None
+    bent = poses[::2].copy()
+    step = np.linalg.norm(bent[1, :3, 3] - bent[0, :3, 3])
+    for k in range(len(bent)):
+        bent[k, :3, 3] += bent[k, :3, 0] * step * k  # sideways as far as forward
+    gaps = motion.rigid_gaps(tmp_path, names, _model(bent, names), {})
+    assert min(gaps) > motion.RIGID_GAP, gaps
+    why = motion.cameras_unlike_rigid([(names[k], names[k + 1], g) for k, g in enumerate(gaps)], len(gaps))
+    assert why is not None and f"in 7 of 7 pairs of mapped frames ({names[0]} to {names[-1]}" in why
+    everywhere = np.ones((H // motion.GRID_STEP, W // motion.GRID_STEP), bool)
+    assert motion.rigid_gaps(tmp_path, names, _model(bent, names), dict.fromkeys(names, everywhere)) == [0.0] * 7
+
+
 def test_frames_a_mover_carried_are_the_unexplained_ones_widened_to_what_stays_sound():
     """`carried_frames` (--dynamic mask): the frames mostly unexplained, REPAIR_MARGIN (2) more on each side,
     and stretches between them or at an end shorter than MIN_SOUND_RUN (8) frames; nothing when no sound

@@ -28,8 +28,9 @@ the far neighbours, the camera's own turns and the carrying along the flow are w
 The SfM child (`seeu_data.ingest.sfm_motion`, --dynamic) maps with every match, takes out frames whose
 camera alone disagrees with the flow (`astray_frames`), then runs `model_pass` on the mapped frames
 (`drop_observations` before the final bundle adjustment) and on every frame after registration;
-`moving_content` says why unmasked moving content fails the solution check; `report_section` is
-report.json's "motion".
+`moving_content` says why unmasked moving content fails the solution check; `trial_frames` are placed again
+on trial where a mover may have carried the cameras unseen; `rigid_gaps` compares the final cameras of each pair
+of mapped frames with the best rigid motion of its flow; `report_section` is report.json's "motion".
 
     masks = model_pass(image_dir, names, rec)     # {name: (h, w) bool} where moving content was found
     dropped = drop_observations(rec, masks)       # its observations, removed from the model
@@ -81,6 +82,18 @@ MIN_SOUND_RUN = 8
 # walk's few false specks, 0.08 % (320x180) and 0.010 % (640x360). The other presets find moving content in most
 # of the clip: no trial.
 TRIAL_SHIFT_PCT = 0.5
+# Wrong cameras that no frame shows as mostly moving: where the best rigid motion of a pair of mapped frames (an
+# essential matrix fitted to their flow) explains more than RIGID_GAP more of the pair's trusted pixels (within
+# RIGID_PX of their epipolar lines, working px) than the SfM cameras do, in MIN_MOVING_FRAMES pairs, the solution
+# check fails. Measured on 320x180 walks, pairs of mapped frames 2 apart: a mover crossing 7.5 m ahead left the
+# cameras 16 % of the path off with the two mapping runs agreeing and its masks under half of every frame: 10 of
+# 44 pairs over 0.1 (up to 0.19); with right cameras (the presets, repaired where needed) at most 0.094, and
+# 0.29 in one pair where the large mover's repaired frames meet the rest.
+# A pair is judged only where the flow is trusted (`Flows.step`) in at least RIGID_TRUSTED of the pixels followed:
+# a 10-frame walk 0.8 m a frame apart kept 15-82 of 3,600 in some pairs, and a fit to those meant nothing.
+RIGID_GAP = 0.1
+RIGID_PX = 1.0
+RIGID_TRUSTED = 0.25
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
 
@@ -377,6 +390,71 @@ def model_pass(
     cameras = _ModelCameras(rec, names, *frames[0].shape)
     found = detect(frames, lambda i, js, grid, lands, oks, avoid: cameras.residual(i, js, grid, lands, oks), on_frame)
     return {n: m for n, m in zip(names, found) if m.any()}
+
+
+def rigid_gaps(image_dir: str | Path, names: Sequence[str], rec, masks: dict[str, np.ndarray]) -> list[float]:
+    """Per consecutive pair of the frames `names` (in time order, all registered in the pycolmap Reconstruction
+    `rec`): the share of the pair's trusted flow (`Flows.step`, one pixel per 2 x GRID_STEP block) that the best
+    rigid motion explains (an essential matrix fitted by RANSAC, seeded) less the share that the SfM cameras
+    explain, a pixel explained within RIGID_PX of its epipolar line (Sampson distance, working px); 0 where most
+    of what the best rigid motion explains is the first frame's moving content (`masks`, as `model_pass`'s: the
+    motion found is a mover's, filling much of the view); NaN where the flow is trusted in fewer than
+    RIGID_TRUSTED of the pixels (not judged)."""
+    from seeu_data.cameras import invert_rigid
+
+    frames = load_frames(image_dir, names)
+    h, w = frames[0].shape
+    flows = Flows(frames, step=2 * GRID_STEP)
+    at = flows.grid.astype(int)  # (h', w', 2) the pixels judged
+    cameras = _ModelCameras(rec, names, h, w)
+    cv2.setRNGSeed(0)
+    gaps = []
+    for i, name in enumerate(names[:-1]):
+        flow, trust = flows.step(i, i + 1)
+        ok = trust[at[..., 1], at[..., 0]] > 0
+        if ok.mean() < RIGID_TRUSTED:
+            gaps.append(float("nan"))
+            continue
+        x1 = flows.grid[ok].astype(np.float64)
+        x2 = x1 + flow[at[..., 1], at[..., 0]][ok]
+        moving = masks[name][at[..., 1] // GRID_STEP, at[..., 0] // GRID_STEP][ok] if name in masks else None
+        cam1, cam2 = (rec.cameras[cameras.images[k].camera_id] for k in (i, i + 1))
+        n1, n2 = cameras._normalised(cam1, x1), cameras._normalised(cam2, x2)
+        tol = RIGID_PX / (cam1.mean_focal_length() * w / cam1.width)  # in normalised units
+        rel = cameras.poses[i + 1] @ invert_rigid(cameras.poses[i])
+        t = rel[:3, 3]
+        sfm = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ rel[:3, :3]
+        best = cv2.findEssentialMat(n1, n2, np.eye(3), cv2.RANSAC, 0.999, tol)[0]
+        found = np.zeros((0, 3)) if best is None else np.asarray(best)  # up to 3 solutions, stacked
+        fitted = [_explained(found[k : k + 3], n1, n2, tol) for k in range(0, len(found), 3)]
+        inliers = max(fitted, key=np.mean, default=np.zeros(len(x1), bool))
+        mover = moving is not None and inliers.any() and moving[inliers].mean() > 0.5
+        gaps.append(0.0 if mover else float(inliers.mean() - _explained(sfm, n1, n2, tol).mean()))
+        flows.forget(i + 1)
+    return gaps
+
+
+def _explained(E: np.ndarray, x1: np.ndarray, x2: np.ndarray, tol: float) -> np.ndarray:
+    """Which point pairs `x1` -> `x2` `(n, 2)` (normalised coordinates) lie within `tol` of their epipolar lines
+    under the essential matrix `E` (Sampson distance): `(n,)` bool."""
+    a = np.c_[x1, np.ones(len(x1))] @ E.T  # E x1
+    b = np.c_[x2, np.ones(len(x2))] @ E  # E^T x2
+    num = np.einsum("ij,ij->i", np.c_[x2, np.ones(len(x2))], a) ** 2
+    den = a[:, 0] ** 2 + a[:, 1] ** 2 + b[:, 0] ** 2 + b[:, 1] ** 2
+    return num < tol**2 * np.maximum(den, 1e-18)
+
+
+def cameras_unlike_rigid(over: Sequence[tuple[str, str, float]], pairs: int) -> str | None:
+    """Why the SfM cameras cannot be trusted when, in at least MIN_MOVING_FRAMES of the `pairs` pairs of mapped
+    frames judged, a rigid motion explains more than RIGID_GAP more of the flow than they do (`over`: those
+    pairs' frames and gaps, `rigid_gaps`, in time order); None otherwise."""
+    if len(over) < MIN_MOVING_FRAMES:
+        return None
+    return (
+        f"the cameras explain the optical flow worse than a rigid motion does in {len(over)} of {pairs} pairs of "
+        f"mapped frames ({over[0][0]} to {over[-1][1]}, by up to {100 * max(g for *_, g in over):.0f}% of the "
+        "pixels): a moving object carried SfM, or the poses are wrong there"
+    )
 
 
 def astray_frames(image_dir: str | Path, names: Sequence[str], rec) -> list[str]:

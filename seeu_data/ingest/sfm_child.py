@@ -21,7 +21,14 @@ from seeu_data.ingest.features import extract, match, open_database
 from seeu_data.ingest.mapping import final_ba, keep_models, map_frames, register_rest
 from seeu_data.ingest.sfm import Clock, Failed, Job, SfmConfig
 from seeu_data.ingest.sfm_export import export_models
-from seeu_data.ingest.sfm_motion import astray_plan, motion_export, motion_frames, motion_keyframes, motion_start
+from seeu_data.ingest.sfm_motion import (
+    astray_plan,
+    motion_export,
+    motion_frames,
+    motion_keyframes,
+    motion_rigid,
+    motion_start,
+)
 
 
 def main(job_path: str) -> int:
@@ -53,6 +60,7 @@ def main(job_path: str) -> int:
     final_ba_facts = final_ba(job, recs)
     register_rest(job, recs, kf, mapped.check["kept_seed"], *astray_plan(job, moving))
     motion_frames(job, recs, kf, moving, mapped.check)
+    motion_rigid(job, recs, kf, moving, mapped.check)
     kept, discarded = keep_models(recs, mapped.rejected)
     models = export_models(job, recs, kept)
     motion_export(job, recs, models, moving)

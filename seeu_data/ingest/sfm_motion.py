@@ -13,6 +13,9 @@ order `sfm_child.main` calls them.
     after registration:        motion_frames    (mask: every registered frame, the final masks; frames
                                                  astray again taken out for good; carried frames still
                                                  mostly unexplained fail the solution check)
+    then:                      motion_rigid     (either: the mapped frames' final cameras against the best
+                                                 rigid motion of each pair; carried frames that do not fit
+                                                 taken out, other pairs that do not fail the solution check)
     after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
 """
 
@@ -103,6 +106,41 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     found = cameras_disagree(masks, kf.names) or found
     if found:
         _fail(check, found)
+    job.clock.add("motion_s", t0)
+
+
+def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
+    """A video's mapped frames, their final cameras against the best rigid motion of each consecutive pair
+    (`motion.rigid_gaps`, with the masks found): carried frames (`motion_keyframes`) of pairs over the line are
+    taken out for good (registered again, they did not fit); the other pairs over it fail the solution `check`
+    (`motion.cameras_unlike_rigid`; in place), unless it failed already. result.json's "motion" "rigid_gap"
+    {"max", "pairs_judged", "pairs_over", "taken_out"}."""
+    if not job.video or check.get("moving_content"):
+        return
+    from seeu_data.ingest.motion import RIGID_GAP, cameras_unlike_rigid, rigid_gaps
+
+    t0 = job.clock.mark()
+    gaps: list[float] = []
+    over: list[tuple[str, str, float]] = []  # the pairs over the line
+    for rec in recs.values():
+        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        mine = [n for n in kf.names if n in registered]
+        found = rigid_gaps(job.image_dir, mine, rec, moving.masks) if len(mine) > 1 else []
+        gaps += found
+        over += [(mine[k], mine[k + 1], g) for k, g in enumerate(found) if g > RIGID_GAP]
+    carried = set(moving.facts.get("carried", ()))
+    taken = sorted({n for a, b, _ in over for n in (a, b)} & carried)
+    _take_out(recs.values(), taken)
+    judged = [g for g in gaps if g == g]  # not NaN
+    moving.facts["rigid_gap"] = {
+        "max": max(judged, default=0.0),
+        "pairs_judged": len(judged),
+        "pairs_over": len(over),
+        "taken_out": taken,
+    }
+    why = cameras_unlike_rigid([p for p in over if not {p[0], p[1]} & carried], len(judged))
+    if why:
+        _fail(check, why)
     job.clock.add("motion_s", t0)
 
 
