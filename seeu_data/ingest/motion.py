@@ -83,15 +83,16 @@ MIN_SOUND_RUN = 8
 # of the clip: no trial.
 TRIAL_SHIFT_PCT = 0.5
 # Wrong cameras that no frame shows as mostly moving: where the best rigid motion of a pair of mapped frames (an
-# essential matrix fitted to their flow) explains more than RIGID_GAP more of the pair's trusted pixels (within
-# RIGID_PX of their epipolar lines, working px) than the SfM cameras do, in MIN_MOVING_FRAMES pairs, the solution
-# check fails. Measured on 320x180 walks, pairs of mapped frames 2 apart: a mover crossing 7.5 m ahead left the
-# cameras 16 % of the path off with the two mapping runs agreeing and its masks under half of every frame: 10 of
-# 44 pairs over 0.1 (up to 0.19); with right cameras (the presets, repaired where needed) at most 0.094, and
-# 0.29 in one pair where the large mover's repaired frames meet the rest.
+# essential matrix fitted to their flow, `rigid_gaps`) explains more than RIGID_GAP more of the pair's trusted
+# pixels (within RIGID_PX of their epipolar lines, working px) than the SfM cameras do, in MIN_MOVING_FRAMES pairs,
+# the solution check fails. Measured (pairs as far apart as the static test's farthest neighbours): the mover
+# crossing far ahead (`seeu synth --movers far`, 320x180) left the cameras 16 % of the path off with the two
+# mapping runs agreeing and its masks under half of every frame: 16 of 44 pairs over 0.15 (up to 0.41); with
+# right cameras the swinging box at 640x360 reached 0.099, the static walk 0.001. (Over consecutive mapped frames
+# instead, the box reached 0.12 in 3 pairs and the far mover only 0.19.)
 # A pair is judged only where the flow is trusted (`Flows.step`) in at least RIGID_TRUSTED of the pixels followed:
 # a 10-frame walk 0.8 m a frame apart kept 15-82 of 3,600 in some pairs, and a fit to those meant nothing.
-RIGID_GAP = 0.1
+RIGID_GAP = 0.15
 RIGID_PX = 1.0
 RIGID_TRUSTED = 0.25
 
@@ -392,45 +393,48 @@ def model_pass(
     return {n: m for n, m in zip(names, found) if m.any()}
 
 
-def rigid_gaps(image_dir: str | Path, names: Sequence[str], rec, masks: dict[str, np.ndarray]) -> list[float]:
-    """Per consecutive pair of the frames `names` (in time order, all registered in the pycolmap Reconstruction
-    `rec`): the share of the pair's trusted flow (`Flows.step`, one pixel per 2 x GRID_STEP block) that the best
-    rigid motion explains (an essential matrix fitted by RANSAC, seeded) less the share that the SfM cameras
-    explain, a pixel explained within RIGID_PX of its epipolar line (Sampson distance, working px); 0 where most
-    of what the best rigid motion explains is the first frame's moving content (`masks`, as `model_pass`'s: the
-    motion found is a mover's, filling much of the view); NaN where the flow is trusted in fewer than
-    RIGID_TRUSTED of the pixels (not judged)."""
+def rigid_gaps(
+    image_dir: str | Path, names: Sequence[str], rec, masks: dict[str, np.ndarray]
+) -> list[tuple[int, int, float]]:
+    """Per pair (i, j) of the frames `names` (in time order, all registered in the pycolmap Reconstruction `rec`),
+    j the farthest neighbour after i (`neighbour_offsets`: up to MAX_OFFSET frames, about FAR_MOTION_PX of image
+    motion: a wider baseline than consecutive frames, for a better defined rigid motion): the share of the
+    pair's trusted flow (`Flows.observe`, one pixel per 2 x GRID_STEP block) that the best rigid motion explains
+    (an essential matrix fitted by RANSAC, seeded) less the share that the SfM cameras explain, a pixel explained
+    within RIGID_PX of its epipolar line (Sampson distance, working px). 0 where most of what the best rigid
+    motion explains is frame i's moving content (`masks`, as `model_pass`'s: the motion found is a mover's,
+    filling much of the view); NaN where the flow is trusted in fewer than RIGID_TRUSTED of the pixels (not
+    judged). Returns [(i, j, gap)]."""
     from seeu_data.cameras import invert_rigid
 
     frames = load_frames(image_dir, names)
     h, w = frames[0].shape
     flows = Flows(frames, step=2 * GRID_STEP)
-    at = flows.grid.astype(int)  # (h', w', 2) the pixels judged
+    at = flows.grid.astype(int) // GRID_STEP  # the pixels judged, on the masks' grid
     cameras = _ModelCameras(rec, names, h, w)
+    k = max(neighbour_offsets(flows, len(names)))
     cv2.setRNGSeed(0)
     gaps = []
-    for i, name in enumerate(names[:-1]):
-        flow, trust = flows.step(i, i + 1)
-        ok = trust[at[..., 1], at[..., 0]] > 0
+    for i, name in enumerate(names[:-k]):
+        land, ok = flows.observe(i, [i + k])[0]
+        flows.forget(i + 1)
         if ok.mean() < RIGID_TRUSTED:
-            gaps.append(float("nan"))
+            gaps.append((i, i + k, float("nan")))
             continue
-        x1 = flows.grid[ok].astype(np.float64)
-        x2 = x1 + flow[at[..., 1], at[..., 0]][ok]
-        moving = masks[name][at[..., 1] // GRID_STEP, at[..., 0] // GRID_STEP][ok] if name in masks else None
-        cam1, cam2 = (rec.cameras[cameras.images[k].camera_id] for k in (i, i + 1))
+        x1, x2 = flows.grid[ok].astype(np.float64), land[ok].astype(np.float64)
+        moving = masks[name][at[..., 1], at[..., 0]][ok] if name in masks else None
+        cam1, cam2 = (rec.cameras[cameras.images[f].camera_id] for f in (i, i + k))
         n1, n2 = cameras._normalised(cam1, x1), cameras._normalised(cam2, x2)
         tol = RIGID_PX / (cam1.mean_focal_length() * w / cam1.width)  # in normalised units
-        rel = cameras.poses[i + 1] @ invert_rigid(cameras.poses[i])
+        rel = cameras.poses[i + k] @ invert_rigid(cameras.poses[i])
         t = rel[:3, 3]
         sfm = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ rel[:3, :3]
         best = cv2.findEssentialMat(n1, n2, np.eye(3), cv2.RANSAC, 0.999, tol)[0]
         found = np.zeros((0, 3)) if best is None else np.asarray(best)  # up to 3 solutions, stacked
-        fitted = [_explained(found[k : k + 3], n1, n2, tol) for k in range(0, len(found), 3)]
+        fitted = [_explained(found[r : r + 3], n1, n2, tol) for r in range(0, len(found), 3)]
         inliers = max(fitted, key=np.mean, default=np.zeros(len(x1), bool))
         mover = moving is not None and inliers.any() and moving[inliers].mean() > 0.5
-        gaps.append(0.0 if mover else float(inliers.mean() - _explained(sfm, n1, n2, tol).mean()))
-        flows.forget(i + 1)
+        gaps.append((i, i + k, 0.0 if mover else float(inliers.mean() - _explained(sfm, n1, n2, tol).mean())))
     return gaps
 
 

@@ -16,7 +16,10 @@ baseline over median point depth, on the SfM model as mapped: the same under eve
 why the chunk's depth is unreliable: the camera mostly rotated in place)}],
 motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), keyframes, frames
 (each pass's frames_with_motion and observations dropped; frames.astray: taken out for good), astray (mapped
-frames whose camera alone disagreed with the flow, taken out; with mask registered again), leave_out (off: observations,
+frames whose camera alone disagreed with the flow, taken out; with mask registered again), trials [{frames (first,
+last), count, placed, shift_pct, unexplained}] (frames with moving content placed again on trial), carried (mapped
+frames a mover carried: with mask taken out and registered again), rigid_gap {max, pairs_judged, pairs_over,
+taken_out} (the final cameras against each pair's best rigid motion), leave_out (off: observations,
 centre_change_pct), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
 mean_masked_pct} (seeu_data.ingest.motion),
 warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;

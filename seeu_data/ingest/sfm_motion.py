@@ -110,7 +110,7 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
 
 
 def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
-    """A video's mapped frames, their final cameras against the best rigid motion of each consecutive pair
+    """A video's mapped frames, their final cameras against the best rigid motion of each pair of neighbours
     (`motion.rigid_gaps`, with the masks found): carried frames (`motion_keyframes`) of pairs over the line are
     taken out for good (registered again, they did not fit); the other pairs over it fail the solution `check`
     (`motion.cameras_unlike_rigid`; in place), unless it failed already. result.json's "motion" "rigid_gap"
@@ -126,8 +126,8 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
         mine = [n for n in kf.names if n in registered]
         found = rigid_gaps(job.image_dir, mine, rec, moving.masks) if len(mine) > 1 else []
-        gaps += found
-        over += [(mine[k], mine[k + 1], g) for k, g in enumerate(found) if g > RIGID_GAP]
+        gaps += [g for *_, g in found]
+        over += [(mine[i], mine[j], g) for i, j, g in found if g > RIGID_GAP]
     carried = set(moving.facts.get("carried", ()))
     taken = sorted({n for a, b, _ in over for n in (a, b)} & carried)
     _take_out(recs.values(), taken)
