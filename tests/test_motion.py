@@ -271,6 +271,32 @@ def test_frames_placed_on_trial_are_those_with_any_moving_content_while_at_most_
     assert trial(*range(0, 40, 2)) == []  # moving content through the clip
 
 
+def test_trials_that_move_the_frames_and_place_none_well_fail_the_check():
+    """`sfm_motion.carried_unseen`: after the trials, the solution check fails with off where frames were found
+    carried, and in either mode where every trial moved the frames more than TRIAL_SHIFT_PCT and the flow confirmed
+    none (the large mover at 320x180 with scene seed 1: frames 0-36, then 0-40, moved 6.8 % of the path, most of
+    each mostly unexplained, and the check had passed 8 % of the path off); a small shift says nothing."""
+    from seeu_data.ingest.sfm_motion import carried_unseen
+
+    def trial(shift, unexplained=True):
+        return {
+            "frames": ["000000.jpg", "000036.jpg"],
+            "count": 19,
+            "placed": 11,
+            "shift_pct": shift,
+            "unexplained": unexplained,
+        }
+
+    assert carried_unseen([], False, "mask") is None
+    assert carried_unseen([trial(6.1, False)], True, "mask") is None  # repaired
+    assert "(--dynamic off)" in carried_unseen([trial(6.1, False)], True, "off")
+    for mode in ("mask", "off"):
+        why = carried_unseen([trial(6.8), trial(6.77)], False, mode)
+        assert why.startswith("placed again against the rest, mapped frames 000000.jpg to 000036.jpg move 6.8%")
+        assert "confirms neither placement" in why
+        assert carried_unseen([trial(6.8), trial(0.08, False)], False, mode) is None  # the wider one confirmed
+
+
 def test_astray_runs_are_short_stretches_cut_off_by_disagreeing_pairs():
     """`astray_runs` on 12 frames, from which consecutive pairs disagree."""
 

@@ -78,9 +78,9 @@ REPAIR_MARGIN = 2
 MIN_SOUND_RUN = 8
 # Nothing carried: frames with moving content placed again against the rest on trial (`trial_frames`) are
 # carried (mask: repaired; off: the solution check fails) when that moves the cameras more than this (% of the
-# path: the accuracy ingest aims at). Measured: the large mover at 320x180 (cameras 7 % of the path off), frames 0-22 moved 6.1 %; the static
-# walk's few false specks, 0.08 % (320x180) and 0.010 % (640x360). The other presets find moving content in most
-# of the clip: no trial.
+# path: the accuracy ingest aims at). Measured: the large mover at 320x180 (cameras 7 % of the path off), frames
+# 0-22 moved 6.1 %; the static walk's few false specks, 0.08 % (320x180) and 0.010 % (640x360). The other
+# presets find moving content in most of the clip: no trial.
 TRIAL_SHIFT_PCT = 0.5
 # Wrong cameras that no frame shows as mostly moving: where the best rigid motion of a pair of mapped frames (an
 # essential matrix fitted to their flow, `rigid_gaps`) explains more than RIGID_GAP more of the pair's trusted
@@ -597,9 +597,10 @@ def carried_frames(masks: dict[str, np.ndarray], judged: Sequence[str]) -> list[
 
 def trial_frames(masks: dict[str, np.ndarray], judged: Sequence[str], margin: int) -> list[str]:
     """Nothing carried (`carried_frames`): the frames of `judged` (mapped, in time order) to place again against
-    the rest on trial, because a mover may have carried them where the flow test cannot see it: the frames with moving content (`masks`), widened (`_widened`, `margin` frames). Empty when fewer
-    than MIN_MOVING_FRAMES have any, or the frames to place again would be more than half of `judged`
-    (moving content through most of the clip: nothing to place them against).
+    the rest on trial, because a mover may have carried them where the flow test cannot see it: the frames with
+    moving content (`masks`), widened (`_widened`, `margin` frames). Empty when fewer than MIN_MOVING_FRAMES have
+    any, or the frames to place again would be more than half of `judged` (moving content through most of the
+    clip: nothing to place them against).
 
     A mover moving along the epipolar lines of a forward walk stays in the flow test's blind spot, and the
     scale drift it gives SfM's cameras is absorbed by each pixel's free depth: only a few of its pixels are

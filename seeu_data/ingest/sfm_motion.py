@@ -3,7 +3,8 @@ order `sfm_child.main` calls them.
 
     before mapping:            motion_start     (nothing found yet: mapping uses every verified match)
     after mapping:             motion_keyframes (frames whose camera alone is astray taken out; the
-                                                 mapped frames against their SfM cameras; mask: frames a
+                                                 mapped frames against their SfM cameras; frames with
+                                                 moving content placed again on trial; mask: frames a
                                                  large mover carried taken out too, the others' moving
                                                  observations dropped before the final BA; off: moving
                                                  content found fails the solution check; either: frames
@@ -90,8 +91,7 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     carried = carried_frames(masks, kf.names)
     if not carried:
         carried = _placed_on_trial(job, recs, kf, masks, check["kept_seed"], moving.facts)
-        if carried and job.cfg.dynamic == "off":
-            found = _carried_unseen(moving.facts["trials"][-1])
+        found = carried_unseen(moving.facts.get("trials", []), bool(carried), job.cfg.dynamic)
     if carried and job.cfg.dynamic == "mask":
         _take_out(recs.values(), carried)
         masks = {n: m for n, m in masks.items() if n not in carried}
@@ -113,7 +113,7 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
     """A video's mapped frames, their final cameras against the best rigid motion of each pair of neighbours
     (`motion.rigid_gaps`, with the masks found): carried frames (`motion_keyframes`) of pairs over the line are
     taken out for good (registered again, they did not fit); the other pairs over it fail the solution `check`
-    (`motion.cameras_unlike_rigid`; in place), unless it failed already. result.json's "motion" "rigid_gap"
+    (`motion.cameras_unlike_rigid`; in place), unless it failed already (moving content: not judged). result.json's "motion" "rigid_gap"
     {"max", "pairs_judged", "pairs_over", "taken_out"}."""
     if not job.video or check.get("moving_content"):
         return
@@ -139,7 +139,7 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
         "taken_out": taken,
     }
     why = cameras_unlike_rigid([p for p in over if not {p[0], p[1]} & carried], len(judged))
-    if why:
+    if why and check.get("passed") is not False:  # a check failed already keeps its reason
         _fail(check, why)
     job.clock.add("motion_s", t0)
 
@@ -185,14 +185,25 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
     return []
 
 
-def _carried_unseen(trial: dict) -> str:
-    """--dynamic off: why the solution check fails when a trial (`_placed_on_trial`, its facts) found frames a mover
-    carried."""
-    first, last = trial["frames"]
-    return (
-        f"placed again against the rest, mapped frames {first} to {last} move {trial['shift_pct']:.2g}% of the path: "
-        "a moving object carried their cameras (--dynamic off); re-run with --dynamic mask"
-    )
+def carried_unseen(trials: list[dict], carried: bool, mode: str) -> str | None:
+    """Why the solution check fails after the `trials` (`_placed_on_trial`'s facts): with --dynamic off, frames
+    they found `carried`; in either mode, none found while every trial moved the frames placed again more than
+    TRIAL_SHIFT_PCT of the path, the flow confirming no placement; None otherwise."""
+    from seeu_data.ingest.motion import TRIAL_SHIFT_PCT
+
+    if not trials or (carried and mode == "mask"):
+        return None
+    first, last = trials[-1]["frames"]
+    shift = trials[-1]["shift_pct"]
+    moved = f"placed again against the rest, mapped frames {first} to {last} move {shift:.2g}% of the path"
+    if carried:
+        return f"{moved}: a moving object carried their cameras (--dynamic off); re-run with --dynamic mask"
+    if all(t["shift_pct"] > TRIAL_SHIFT_PCT for t in trials):
+        return (
+            f"{moved}, and the optical flow confirms neither placement: a moving object carried SfM, or the poses "
+            "are wrong there"
+        )
+    return None
 
 
 def _adjusted(job: Job, recs: dict) -> dict:
