@@ -82,7 +82,7 @@ def test_keyframe_motion_is_checked():
 @pytest.mark.slow
 def test_video_is_mapped_on_keyframes_and_every_frame_registered_identically(tmp_path):
     """The synthetic walk in 48 frames at 320x180 (about 9 px of image motion per frame): stride 2
-    (min_keyframes lowered to 8 for so short a clip), 25 keyframes mapped, the other 23 frames
+    (min_keyframes lowered to 8 for so short a clip, --keyframe-motion 20), 25 keyframes mapped, the other 23 frames
     registered after; every frame posed within 0.5 % of the path of the ground truth (mapping all 48
     gave 0.069 %, keyframes 0.077 %), and a second run gives bit-identical poses."""
     n, w, h = 48, 320, 180
@@ -94,7 +94,7 @@ def test_video_is_mapped_on_keyframes_and_every_frame_registered_identically(tmp
         rgb, _ = render_view(scene, poses[i], intr, w, h)
         cv2.imwrite(str(frames / f"{i:06d}.jpg"), cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR))
     names = [f"{i:06d}.jpg" for i in range(n)]
-    cfg = SfmConfig(min_keyframes=8, min_model_size=5, sfm_check=False, sfm_attempts=1)
+    cfg = SfmConfig(min_keyframes=8, keyframe_motion=20.0, min_model_size=5, sfm_check=False, sfm_attempts=1)
     results = [run_sfm(frames, names, tmp_path / f"sfm{r}", cfg, frames) for r in range(2)]
     kf = results[0]["keyframes"]
     assert kf["stride"] == 2 and kf["count"] == 25 and 5.0 < kf["motion_px"] < 15.0

@@ -17,7 +17,7 @@ matches frames 1, 2, 4, ..., 2**(overlap-1) apart: keyframes `stride` apart are 
 other at 1, 2, 4, ... keyframes apart, the same graph the mapper sees on a sparser video.
 
     motion = consecutive_motion_px(db, names)   # median image motion between consecutive frames, or None
-    stride = keyframe_stride(len(names), motion, target_px=20.0, min_keyframes=30, max_stride=512)
+    stride = keyframe_stride(len(names), motion, target_px=40.0, min_keyframes=30, max_stride=512)
     keys = keyframe_names(names, stride)
     added = register_frames(db_path, models, names, keys, seed=0, num_threads=1)
 """
