@@ -97,6 +97,19 @@ def main(argv: list[str] | None = None) -> int:
     return code
 
 
+def entry() -> None:
+    """The `seeu` console script and `python -m pipelines.cli`: `main`'s status as the process's exit status.
+    Ended by SIGTERM (143), the process exits at once once its one line is out, without the interpreter's
+    shutdown: the command has unwound (its children ended, its outputs resumable), and the shutdown's joins of
+    a library's threads once hung a SIGTERM'd `seeu build` for 120 s in CI after its line was printed."""
+    code = main()
+    if code == 143:
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(code)
+    sys.exit(code)
+
+
 def _interrupted(who: str, signal_name: str, code: int) -> int:
     print(f"{who}: interrupted ({signal_name}); re-run the same command to resume", file=sys.stderr)
     return code
