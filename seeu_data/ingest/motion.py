@@ -405,6 +405,7 @@ def rigid_gaps(
     motion explains is frame i's moving content (`masks`, as `model_pass`'s: the motion found is a mover's,
     filling much of the view); NaN where the flow is trusted in fewer than RIGID_TRUSTED of the pixels (not
     judged). Returns [(i, j, gap)]."""
+    from seeu_data.camera_check import sampson_error, skew
     from seeu_data.cameras import invert_rigid
 
     frames = load_frames(image_dir, names)
@@ -427,25 +428,15 @@ def rigid_gaps(
         n1, n2 = cameras._normalised(cam1, x1), cameras._normalised(cam2, x2)
         tol = RIGID_PX / (cam1.mean_focal_length() * w / cam1.width)  # in normalised units
         rel = cameras.poses[i + k] @ invert_rigid(cameras.poses[i])
-        t = rel[:3, 3]
-        sfm = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]]) @ rel[:3, :3]
+        sfm = skew(rel[:3, 3]) @ rel[:3, :3]  # the cameras' essential matrix
         best = cv2.findEssentialMat(n1, n2, np.eye(3), cv2.RANSAC, 0.999, tol)[0]
         found = np.zeros((0, 3)) if best is None else np.asarray(best)  # up to 3 solutions, stacked
-        fitted = [_explained(found[r : r + 3], n1, n2, tol) for r in range(0, len(found), 3)]
+        fitted = [sampson_error(found[r : r + 3], n1, n2) < tol for r in range(0, len(found), 3)]
         inliers = max(fitted, key=np.mean, default=np.zeros(len(x1), bool))
         mover = moving is not None and inliers.any() and moving[inliers].mean() > 0.5
-        gaps.append((i, i + k, 0.0 if mover else float(inliers.mean() - _explained(sfm, n1, n2, tol).mean())))
+        explained = float((sampson_error(sfm, n1, n2) < tol).mean())
+        gaps.append((i, i + k, 0.0 if mover else float(inliers.mean()) - explained))
     return gaps
-
-
-def _explained(E: np.ndarray, x1: np.ndarray, x2: np.ndarray, tol: float) -> np.ndarray:
-    """Which point pairs `x1` -> `x2` `(n, 2)` (normalised coordinates) lie within `tol` of their epipolar lines
-    under the essential matrix `E` (Sampson distance): `(n,)` bool."""
-    a = np.c_[x1, np.ones(len(x1))] @ E.T  # E x1
-    b = np.c_[x2, np.ones(len(x2))] @ E  # E^T x2
-    num = np.einsum("ij,ij->i", np.c_[x2, np.ones(len(x2))], a) ** 2
-    den = a[:, 0] ** 2 + a[:, 1] ** 2 + b[:, 0] ** 2 + b[:, 1] ** 2
-    return num < tol**2 * np.maximum(den, 1e-18)
 
 
 def cameras_unlike_rigid(over: Sequence[tuple[str, str, float]], pairs: int) -> str | None:
