@@ -199,10 +199,12 @@ def _end_with_parent() -> None:
 class _PairMatching:
     """Matches image pairs (frame numbers into `job.names`) with COLMAP, in batches, each committed to the
     database as it finishes; pairs the database already holds (an earlier, interrupted run's) are kept.
-    With `threads` > 1 (and at least `PARALLEL_MIN_PAIRS` pairs) each batch is split among as many worker processes, each matching on one thread
-    into a copy of the database, and the copies' pairs are written to the database in one transaction:
-    each pair's result is the same whichever process computes it, so the database is too (its tables
-    are keyed by pair). Reports the pairs done against the planned total (`emit`)."""
+    With `threads` > 1 (from the first round of at least `PARALLEL_MIN_PAIRS` pairs on, every round) each batch
+    is split into as many runs of consecutive pairs (which share most of their images: COLMAP reads each image's
+    features once per call) for as many worker processes, each matching on one thread into a copy of the
+    database, and the copies' pairs are written to the database in one transaction: each pair's result is the
+    same whichever process computes it, so the database is too (its tables are keyed by pair). Reports the pairs
+    done against the planned total (`emit`)."""
 
     def __init__(self, job: Job) -> None:
         self.job = job
@@ -235,16 +237,16 @@ class _PairMatching:
         return self.inlier_counts.get((min(a, b), max(a, b)), 0)
 
     def run(self, pairs: list[tuple[int, int]]) -> None:
-        """Match `pairs` not matched yet, in batches (a tenth of them each, at least 32: each batch starts
-        COLMAP's matcher, which reads the descriptors of its images again)."""
+        """Match `pairs` not matched yet, in batches (a tenth of them each, at least 32 per worker: each batch
+        starts COLMAP's matcher, which reads the descriptors of its images again)."""
         todo = [p for p in dict.fromkeys(pairs) if (min(p), max(p)) not in self.inlier_counts]
         self.done += len(pairs) - len(todo)
         emit("done", self.done)
-        batch = max(32, len(todo) // 10)
+        batch = max(32 * self.workers, len(todo) // 10)
         names = self.job.names
         for k in range(0, len(todo), batch):
             part = [(names[a], names[b]) for a, b in todo[k : k + batch]]
-            if self.workers == 1 or len(todo) < PARALLEL_MIN_PAIRS:
+            if self.workers == 1 or (self.pool is None and len(todo) < PARALLEL_MIN_PAIRS):
                 _match_pairs(str(self.job.db_path), part, self.job.cfg.features, self.job.cfg.random_seed)
             else:
                 self._in_parallel(part)
@@ -265,7 +267,8 @@ class _PairMatching:
                 copy_database(self.job.db_path, copy)
             ctx = multiprocessing.get_context("spawn")
             self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_end_with_parent)
-        parts = [part[w :: self.workers] for w in range(self.workers)]
+        k = -(-len(part) // self.workers)
+        parts = [part[w * k : (w + 1) * k] for w in range(self.workers)]
         cfg = self.job.cfg
         list(
             self.pool.map(
