@@ -10,6 +10,7 @@ from seeu_data.ingest.pairs import (
     exhaustive_pairs,
     keyframe_distances,
     keyframe_pairs,
+    keyframe_rounds,
     neighbour_pairs,
     other_frame_pairs,
     shortlist_pairs,
@@ -26,12 +27,15 @@ def test_pair_lists_have_their_closed_form_counts():
 
 
 def test_keyframe_pairs_stop_where_the_view_stopped_overlapping():
-    keys = [0, 4, 8, 12, 16]
-    assert keyframe_pairs(keys, 1, lambda a, b: 0) == [(0, 4), (4, 8), (8, 12), (12, 16)]
-    # 4 keyframes apart only from keyframes whose pair 2 apart overlapped well: from 0, not from 4
-    strong = {(0, 8): OVERLAP_INLIERS, (4, 12): OVERLAP_INLIERS - 1}
-    assert keyframe_pairs(keys, 2, lambda a, b: 100) == [(0, 8), (4, 12), (8, 16)]
-    assert keyframe_pairs(keys, 4, lambda a, b: strong.get((a, b), 0)) == [(0, 16)]
+    keys = list(range(0, 44, 4))  # 11 keyframes
+    assert keyframe_pairs(keys, 1, lambda a, b: 0) == [(k, k + 4) for k in keys[:-1]]
+    # up to NEAR_KEYFRAMES apart: every pair, whatever the pairs nearer found
+    assert keyframe_pairs(keys, 4, lambda a, b: 0) == [(k, k + 16) for k in keys[:-4]]
+    # 8 keyframes apart only from keyframes whose pair 4 apart overlapped well: from 0, not from 4
+    strong = {(0, 16): OVERLAP_INLIERS, (4, 20): OVERLAP_INLIERS - 1, (8, 24): 100}
+    assert keyframe_pairs(keys, 8, lambda a, b: strong.get((a, b), 0)) == [(0, 32), (8, 40)]
+    assert keyframe_rounds([1, 2, 4, 8, 16]) == [[1, 2, 4], [8], [16]]
+    assert keyframe_rounds([2, 4, 8]) == [[2, 4], [8]] and keyframe_rounds([]) == []
 
 
 def test_other_frames_are_paired_with_the_keyframes_around_them_but_not_twice_with_a_neighbour():

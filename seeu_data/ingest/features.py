@@ -237,12 +237,14 @@ class _PairMatching:
         return self.inlier_counts.get((min(a, b), max(a, b)), 0)
 
     def run(self, pairs: list[tuple[int, int]]) -> None:
-        """Match `pairs` not matched yet, in batches (a tenth of them each, at least 32 per worker: each batch
-        starts COLMAP's matcher, which reads the descriptors of its images again)."""
-        todo = [p for p in dict.fromkeys(pairs) if (min(p), max(p)) not in self.inlier_counts]
+        """Match `pairs` not matched yet, in order of their first frame (consecutive pairs share images), in
+        batches of equal size (at most ten, at least 32 pairs per worker: each batch starts COLMAP's matcher,
+        which reads the features of its images again)."""
+        todo = sorted({(min(p), max(p)) for p in pairs} - self.inlier_counts.keys())
         self.done += len(pairs) - len(todo)
         emit("done", self.done)
-        batch = max(32 * self.workers, len(todo) // 10)
+        parts = max(1, min(10, len(todo) // (32 * self.workers)))
+        batch = max(1, -(-len(todo) // parts))
         names = self.job.names
         for k in range(0, len(todo), batch):
             part = [(names[a], names[b]) for a, b in todo[k : k + batch]]
@@ -311,6 +313,7 @@ def match(job: Job) -> Matches:
         exhaustive_pairs,
         keyframe_distances,
         keyframe_pairs,
+        keyframe_rounds,
         neighbour_pairs,
         other_frame_pairs,
         shortlist_pairs,
@@ -345,9 +348,9 @@ def match(job: Job) -> Matches:
             keys = [pm.index[k] for k in kf.names]
             rest = other_frame_pairs(n, keys)
             distances = [d for d in keyframe_distances(len(keys), cfg.overlap) if d > 1 or kf.stride > 1]
-            for j, d in enumerate(distances):
-                emit("total", pm.done + sum(len(keys) - e for e in distances[j:]) + len(rest))
-                pm.run(keyframe_pairs(keys, d, pm.inliers))
+            for j, ds in enumerate(rounds := keyframe_rounds(distances)):
+                emit("total", pm.done + sum(len(keys) - e for r in rounds[j:] for e in r) + len(rest))
+                pm.run([p for d in ds for p in keyframe_pairs(keys, d, pm.inliers)])
             emit("total", pm.done + len(rest))
             pm.run(rest)
     finally:

@@ -8,18 +8,19 @@ chosen from what the ones before found:
 
 1. every frame with the next (`neighbour_pairs`): the image motion between neighbours gives the keyframe
    stride (`seeu_data.ingest.keyframes`);
-2. the keyframes (every stride-th frame) with the keyframes 1, 2, 4, ... keyframes ahead, up to
-   2**(overlap-1) (`keyframe_pairs`); the pair d apart only when the pair d/2 apart from the same keyframe
-   had at least `OVERLAP_INLIERS` verified inliers: past the distance where the view stops overlapping,
-   no pair is tried (COLMAP's sequential matcher tries all of them, and with a stride every frame, not
-   only keyframes, which the mapper never reads but the frames between keyframes need only for
-   registration);
+2. the keyframes (every stride-th frame) with the keyframes 1, 2 and 4 ahead (`NEAR_KEYFRAMES`), in one
+   round; then with those 8, 16, ... keyframes ahead, up to 2**(overlap-1), a round each (`keyframe_pairs`):
+   the pair d apart only when the pair d/2 apart from the same keyframe had at least `OVERLAP_INLIERS`
+   verified inliers, so past the distance where the view stops overlapping no pair is tried (COLMAP's
+   sequential matcher tries all of them, and with a stride every frame, not only keyframes, which the
+   mapper never reads but the frames between keyframes need only for registration);
 3. every other frame with the keyframes before and after it (`other_frame_pairs`): what its registration
    into the keyframes' model reads (with its neighbours of round 1).
 
     pairs = neighbour_pairs(90)                                # [(0, 1), (1, 2), ...]
     keys = [0, 2, 4, ..., 88, 89]
-    ahead = keyframe_pairs(keys, 2, inliers)                   # pairs 2 keyframes apart worth trying
+    near = keyframe_pairs(keys, 2, inliers)                    # all pairs 2 keyframes apart
+    ahead = keyframe_pairs(keys, 8, inliers)                   # pairs 8 apart whose pair 4 apart overlapped
     rest = other_frame_pairs(90, keys)                         # (0, 1) is a neighbour: not repeated
 """
 
@@ -34,6 +35,11 @@ from seeu_data.ingest.match_graph import MIN_INLIERS
 # A keyframe pair d keyframes apart is tried only when the pair d/2 apart from the same keyframe had at
 # least this many verified inliers (twice what the mapper needs of a pair to use it).
 OVERLAP_INLIERS = 2 * MIN_INLIERS
+# Keyframes at most this many apart are matched whatever their overlap, in one round: every round reads each
+# keyframe's features again (COLMAP's matcher, per call), and 4 keyframes are at most about 4 x
+# --keyframe-motion of image motion apart (160 px by default), which a frame the stride was chosen for still
+# shares. On the 90-frame orbit of benchmarks/footage.py: the same pairs, two rounds fewer.
+NEAR_KEYFRAMES = 4
 # The shortlist: each image's this many largest-scale features; a pair is kept when both images find at
 # least SHORTLIST_SHARED of theirs in the other (nearest neighbour passing the ratio test), and each image
 # keeps its SHORTLIST_KEEP best pairs whatever their count
@@ -60,11 +66,11 @@ def window_pairs(n: int, window: int) -> list[tuple[int, int]]:
 
 def keyframe_pairs(keys: list[int], distance: int, inliers: Callable[[int, int], int]) -> list[tuple[int, int]]:
     """Pairs of keyframes `distance` keyframes apart (`keys`: frame numbers, increasing; `distance` a power
-    of two): all of them for distance 1, else those whose keyframe pair `distance / 2` apart from the same
-    first keyframe had at least `OVERLAP_INLIERS` inliers (`inliers(a, b)`: verified inliers of frames a, b)."""
+    of two): all of them up to `NEAR_KEYFRAMES`, else those whose keyframe pair `distance / 2` apart from the
+    same first keyframe had at least `OVERLAP_INLIERS` inliers (`inliers(a, b)`: verified inliers of frames a, b)."""
     out = []
     for j in range(len(keys) - distance):
-        if distance == 1 or inliers(keys[j], keys[j + distance // 2]) >= OVERLAP_INLIERS:
+        if distance <= NEAR_KEYFRAMES or inliers(keys[j], keys[j + distance // 2]) >= OVERLAP_INLIERS:
             out.append((keys[j], keys[j + distance]))
     return out
 
@@ -72,6 +78,12 @@ def keyframe_pairs(keys: list[int], distance: int, inliers: Callable[[int, int],
 def keyframe_distances(num_keys: int, overlap: int) -> list[int]:
     """The keyframe distances of round 2: 1, 2, 4, ..., at most 2**(overlap-1), fewer than `num_keys`."""
     return [2**k for k in range(overlap) if 2**k < num_keys]
+
+
+def keyframe_rounds(distances: list[int]) -> list[list[int]]:
+    """`distances` (increasing) in matching rounds: those up to `NEAR_KEYFRAMES` together, then one each."""
+    near = [d for d in distances if d <= NEAR_KEYFRAMES]
+    return ([near] if near else []) + [[d] for d in distances if d > NEAR_KEYFRAMES]
 
 
 def other_frame_pairs(n: int, keys: list[int]) -> list[tuple[int, int]]:
