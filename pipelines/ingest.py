@@ -390,6 +390,26 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
     return result
 
 
+def no_chunks_message(sfm_result: dict, num_frames: int, min_chunk_frames: int) -> str:
+    """The one-line error when no chunk can be written from `sfm_result` (the SfM child's result.json) of
+    `num_frames` frames: how many were registered, and what SfM found that explains it (frames a moving object
+    carried, taken out; a failed solution check's reason)."""
+    registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
+    run = "contiguous run" if (sfm_result.get("matcher") or {}).get("quadratic", True) else "model"
+    why = []
+    carried = (sfm_result.get("motion") or {}).get("carried") or []
+    if carried:
+        why.append(
+            f"a moving object carried {len(carried)} mapped frames, taken out: the static scene in them did not "
+            "place them again"
+        )
+    check = sfm_result.get("solution_check") or {}
+    if check.get("passed") is False and check.get("reason"):
+        why.append(f"solution check failed: {check['reason']}")
+    because = f" ({'; '.join(why)})" if why else ""
+    return f"SfM registered {registered}/{num_frames} frames but no {run} reaches --min-chunk-frames {min_chunk_frames}{because}"
+
+
 def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dict) -> Chunked:
     """Contiguous registered runs as scaled chunks; SeeUError when none reaches --min-chunk-frames."""
     import numpy as np
@@ -408,14 +428,9 @@ def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dic
         cfg.chunks,
         distance_frame_names(frames, cfg.chunks.scale.distance_frames, source.path),
     )
-    registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
     if not chunks:
-        raise SeeUError(
-            f"SfM registered {registered}/{len(frames)} frames but no "
-            + ("contiguous run" if (sfm_result.get("matcher") or {}).get("quadratic", True) else "model")
-            + f" reaches --min-chunk-frames {cfg.chunks.min_chunk_frames}",
-            source.path,
-        )
+        raise SeeUError(no_chunks_message(sfm_result, len(frames), cfg.chunks.min_chunk_frames), source.path)
+    registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
     cache.timings["chunks"] = time.perf_counter() - t0
     dropped = selected.dropped + [
         {"source_frame": frames[d["position"]]["source_frame"], "reason": d["reason"]} for d in dropped_chunk

@@ -99,3 +99,26 @@ def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     assert mask_accuracy(run, clip)["iou"] > 0.7
     rigid = report["motion"]["rigid_gap"]  # the last check ran; carried frames that did not fit are out
     assert rigid["pairs_judged"] > 30 and set(rigid["taken_out"]) <= set(report["motion"]["carried"])
+
+
+def test_no_chunk_error_says_what_moving_content_did():
+    """Ingest stops with one line when no run of frames is long enough; where a mover carried frames (taken out)
+    or failed the check, the line says so (a big box circling ahead of the camera did both)."""
+    from pipelines.ingest import no_chunks_message
+
+    images = [{"name": f"{i:06d}.jpg"} for i in range(12)]
+    plain = {"models": [{"images": images}], "matcher": {"quadratic": True}}
+    assert (
+        no_chunks_message(plain, 90, 10)
+        == "SfM registered 12/90 frames but no contiguous run reaches --min-chunk-frames 10"
+    )
+    moved = {
+        **plain,
+        "motion": {"carried": [f"{i:06d}.jpg" for i in range(0, 80, 2)]},
+        "solution_check": {"passed": False, "reason": "the cameras disagree with the optical flow"},
+    }
+    line = no_chunks_message(moved, 90, 10)
+    assert "\n" not in line and line.startswith("SfM registered 12/90 frames but no contiguous run")
+    assert "a moving object carried 40 mapped frames" in line
+    assert line.endswith("solution check failed: the cameras disagree with the optical flow)")
+    assert "model reaches" in no_chunks_message({**plain, "matcher": {"quadratic": False}}, 90, 10)
