@@ -17,8 +17,9 @@ from pathlib import Path
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import FEATURES, Failed, Job, SfmConfig, emit
 
-# Fewer pairs than this (in one round) are matched in this process: starting the matching processes
-# (Python and pycolmap, a copy of the database each) costs about a second of CPU
+# A round of fewer pairs than this, before any is larger, is matched in this process: starting the matching
+# processes (Python and pycolmap, a copy of the database each) costs about a second of CPU; once they run,
+# every round uses them
 PARALLEL_MIN_PAIRS = 64
 # --vocab-tree: each keyframe is matched with this many keyframes most like it (COLMAP's loop detection
 # default: 50 images every 10th frame)
