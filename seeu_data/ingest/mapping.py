@@ -69,7 +69,7 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
         raise Failed("SfM could not match any pair of frames (blank, textureless or unrelated frames?)")
     emit("stage", "map", len(kf.names), "registered")
     t0 = clock.mark()
-    pairs = geometry_counts(job.db_path)
+    pairs = geometry_counts(job.db_path, set(kf.names))  # the mapped frames' pairs
     runs = _MapRuns(job, mapper, kf.names if kf.stride > 1 else [])
     try:
         recs, attempts, rejected, check = map_with_retries(
@@ -80,8 +80,13 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
     job.resumed["map_runs"] = runs.kept
     for attempt in attempts:  # the run's own wall time (map_with_retries saw only the wait for it)
         attempt["seconds"] = runs.seconds[attempt["seed"]]
-    if not recs and mapper == "incremental" and moves_forward_possibly(pairs):
-        recs, attempts, rejected, check = map_forward_motion(job, kf, attempts)
+    uncompared = check["ran"] and check["disagreement_pct"] is None  # fewer than two runs registered enough
+    if (not recs or uncompared) and mapper == "incremental" and moves_forward_possibly(pairs):
+        again = map_forward_motion(job, kf, attempts)
+        if not recs or again[3]["passed"]:
+            recs, attempts, rejected, check = again
+        else:
+            attempts = again[1]
     if mapper == "incremental":  # the runs leave the points' colours out: the kept one's frames read once here
         for rec in recs.values():
             rec.extract_colors_for_all_images(job.image_dir, 1)
@@ -110,8 +115,11 @@ def moves_forward_possibly(pairs: dict) -> bool:
 def map_forward_motion(job: Job, kf: Keyframes, attempts: list[dict]) -> tuple[dict, list[dict], list[dict], dict]:
     """Incremental mapping again, as in `map_frames` (`map_with_retries` from the same seeds, the solution
     check), with the initial pair allowed to move along the optical axis (`FORWARD_MOTION_INIT`); for
-    when the first round found no model. Returns `map_with_retries`' results, its runs appended to
-    `attempts`, each marked "init": "forward motion"."""
+    when the first round found no model, or fewer than two of its runs registered enough frames for the
+    solution check to compare them (a forward walk's runs whose initial pair COLMAP refused: the 50-frame walk
+    of benchmarks/footage.py mapped from seed 0 only). Its model is kept when the first round had none or
+    this round's check passed. Returns `map_with_retries`' results, its runs appended to `attempts`, each
+    marked "init": "forward motion"."""
     cfg = job.cfg
     emit("stage", "map-forward-motion", len(kf.names), "registered")
     runs = _MapRuns(job, "incremental", kf.names if kf.stride > 1 else [], init=FORWARD_MOTION_INIT)

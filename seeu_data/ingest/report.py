@@ -9,7 +9,7 @@ of the second round, `sfm.map_forward_motion`)}], keyframes {stride, count, moti
 target_px, registered_after}, resumed {images, pairs, map_runs: what the SfM run kept of an interrupted
 one of the same job: frames with features, matched pairs, finished mapping runs},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
-planar_or_panoramic_pairs, verified_pairs, reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
+planar_or_panoramic_pairs, verified_pairs (among the mapped frames), reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
 too few matches; the likely causes a failed check names)}}, input_identity {path, fingerprint},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth (widest
 baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or

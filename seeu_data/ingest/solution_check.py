@@ -164,12 +164,15 @@ def model_disagreement_pct(recs_a: dict, recs_b: dict) -> float:
     return float(acc.centre_rmse_pct_path)
 
 
-def geometry_counts(db_path: str | Path) -> dict:
-    """Verified image pairs in a COLMAP database by two-view geometry: {"verified", "planar_or_panoramic"}.
+def geometry_counts(db_path: str | Path, names: set[str] | None = None) -> dict:
+    """Verified image pairs in a COLMAP database by two-view geometry, among the images `names` (default:
+    all): {"verified", "planar_or_panoramic"}.
 
     Planar / panoramic pairs (a homography explains the matches: one dominant plane, or a rotation
-    without translation) constrain the relative pose weakly; their fraction is what decides whether
-    the solution check maps twice (`SfmConfig.check_planar_fraction`)."""
+    without translation) constrain the relative pose weakly. Counted among the mapped frames (a video's
+    keyframes): the frames between them, a pixel or so apart at a high frame rate, give pairs a homography
+    explains even on a forward walk (the 400-frame walk of benchmarks/footage.py: 78 % of all its pairs,
+    15 % of its keyframes')."""
     import pycolmap
 
     cfg = pycolmap.TwoViewGeometryConfiguration
@@ -180,8 +183,13 @@ def geometry_counts(db_path: str | Path) -> dict:
     planar = {int(c) for c in (cfg.PLANAR, cfg.PANORAMIC, cfg.PLANAR_OR_PANORAMIC)}
     db = pycolmap.Database.open(db_path)
     try:
-        _, geometries = db.read_two_view_geometries()
+        name = {im.image_id: im.name for im in db.read_all_images()}
+        pair_ids, geometries = db.read_two_view_geometries()
     finally:
         db.close()
-    configs = [int(g.config) for g in geometries]
+    configs = [
+        int(g.config)
+        for pid, g in zip(pair_ids, geometries)
+        if names is None or {name[int(i)] for i in pycolmap.pair_id_to_image_pair(pid)} <= names
+    ]
     return {"verified": sum(c in verified for c in configs), "planar_or_panoramic": sum(c in planar for c in configs)}
