@@ -85,6 +85,7 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
         again = map_forward_motion(job, kf, attempts)
         if not recs or again[3]["passed"]:
             recs, attempts, rejected, check = again
+            check["init"] = "forward motion"  # the model kept is this round's
         else:
             attempts = again[1]
     if mapper == "incremental":  # the runs leave the points' colours out: the kept one's frames read once here
