@@ -546,12 +546,12 @@ def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
 
 
 def test_forward_walk_at_a_high_frame_rate_maps_its_keyframes_with_forward_motion_allowed(tmp_path):
-    """The forward walk of the test above, sampled 8 times as densely (73 frames on the same path) and mapped on
-    every 8th frame (`min_keyframes` 10, `keyframe_motion` 200 px): the keyframes are the 10 views COLMAP's initial-pair limits cannot
-    map. The frames between them, a few pixels apart, give pairs a homography explains; were they counted, the
-    planar/panoramic share would look like a camera turning in place and no second round would run (the
-    400-frame walk of benchmarks/footage.py then found no model). Counted among the keyframes, the round runs
-    and poses every frame."""
+    """The forward walk of the test above, sampled 8 times as densely (73 frames on the same path) and mapped
+    on every 8th frame (`min_keyframes` 10, `keyframe_motion` 200 px): the keyframes are the 10 views COLMAP's
+    initial-pair limits cannot map. The frames between them, a few pixels apart, give pairs a homography
+    explains; counted with them, the planar/panoramic share looked like a camera turning in place, no second
+    round ran and SfM found no model (the 400-frame walk of benchmarks/footage.py too). Counted among the
+    keyframes, the round runs and poses every frame."""
     from pipelines.ingest import IngestConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.solution_check import geometry_counts
@@ -562,12 +562,11 @@ def test_forward_walk_at_a_high_frame_rate_maps_its_keyframes_with_forward_motio
     sfm = SfmConfig(min_keyframes=FORWARD_FRAMES, keyframe_motion=200.0)  # 12 px a frame: a stride of 8
     cfg = IngestConfig(out=tmp_path / "out", inputs=(clip,), sfm=sfm)
     report = ingest_scene(source, cfg)
-    assert report["sfm"]["keyframes"]["stride"] == 8 and report["sfm"]["keyframes"]["count"] == FORWARD_FRAMES, report[
-        "sfm"
-    ]["keyframes"]
+    keyframes, check = report["sfm"]["keyframes"], report["sfm"]["solution_check"]
+    assert keyframes["stride"] == 8 and keyframes["count"] == FORWARD_FRAMES, keyframes
     attempts = report["sfm"]["mapping_attempts"]
     assert {a.get("init") for a in attempts[3:]} == {"forward motion"}, attempts
-    assert report["sfm"]["solution_check"]["state"] == "passed"
+    assert check["state"] == "passed" and check["init"] == "forward motion"
     acc = ingest_accuracy(tmp_path / "out" / "fwd73", clip, report["registered"], report["frames_selected"])
     assert acc["registered_pct"] >= 95 and acc["largest"]["centre_rmse_pct_path"] <= 1.0, acc
     db = tmp_path / "out" / ".work" / "fwd73" / "sfm" / "database.db"
