@@ -390,11 +390,16 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
     return result
 
 
+def registered_frames(sfm_result: dict) -> int:
+    """How many frames the SfM child's result.json `sfm_result` registered, over all its models."""
+    return len({im["name"] for m in sfm_result["models"] for im in m["images"]})
+
+
 def no_chunks_message(sfm_result: dict, num_frames: int, min_chunk_frames: int) -> str:
     """The one-line error when no chunk can be written from `sfm_result` (the SfM child's result.json) of
     `num_frames` frames: how many were registered, and what SfM found that explains it (frames a moving object
     carried, taken out; a failed solution check's reason)."""
-    registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
+    registered = registered_frames(sfm_result)
     run = "contiguous run" if (sfm_result.get("matcher") or {}).get("quadratic", True) else "model"
     why = []
     carried = (sfm_result.get("motion") or {}).get("carried") or []
@@ -430,7 +435,7 @@ def _chunk(source, cfg: IngestConfig, cache, selected: Selected, sfm_result: dic
     )
     if not chunks:
         raise SeeUError(no_chunks_message(sfm_result, len(frames), cfg.chunks.min_chunk_frames), source.path)
-    registered = len({im["name"] for m in sfm_result["models"] for im in m["images"]})
+    registered = registered_frames(sfm_result)
     cache.timings["chunks"] = time.perf_counter() - t0
     dropped = selected.dropped + [
         {"source_frame": frames[d["position"]]["source_frame"], "reason": d["reason"]} for d in dropped_chunk

@@ -88,8 +88,9 @@ TRIAL_SHIFT_PCT = 0.5
 # the solution check fails. Measured (pairs as far apart as the static test's farthest neighbours): the mover
 # crossing far ahead (`seeu synth --movers far`, 320x180) left the cameras 16 % of the path off with the two
 # mapping runs agreeing and its masks under half of every frame: 16 of 44 pairs over 0.15 (up to 0.41); with
-# right cameras the swinging box at 640x360 reached 0.099, the static walk 0.001. (Over consecutive mapped frames
-# instead, the box reached 0.12 in 3 pairs and the far mover only 0.19.)
+# right cameras the swinging box at 640x360 reached 0.099 mapped on every frame (0.015 on every second), the slow
+# box 0.077, the static walk 0.001. (Over consecutive mapped frames instead, the box reached 0.12 in 3 pairs and
+# the far mover only 0.19.)
 # A pair is judged only where the flow is trusted (`Flows.step`) in at least RIGID_TRUSTED of the pixels followed:
 # a 10-frame walk 0.8 m a frame apart kept 15-82 of 3,600 in some pairs, and a fit to those meant nothing.
 RIGID_GAP = 0.15
