@@ -14,10 +14,14 @@
    and with masking the masks against the truth (`seeu_data.synthetic.mask_accuracy`: pooled IoU, the
    goal >= 0.7 on the box; recall; false positives, % of all pixels, mean and worst frame: on the clip
    without movers every masked pixel is one). Writes <out>/result.json.
+4. With --footage KINDS: static clips of `benchmarks/footage.py` (another renderer: a street walk, an orbit, a
+   tripod pan; sky, smooth walls, other textures) ingested with --dynamic mask, where every masked pixel is a
+   false positive: the frames with any, the mean share of the pixels and the worst frame.
 
 Example (quiet 2-core machine, the figures in RESULTS.md):
   .venv/bin/python benchmarks/dynamic.py --out out/bench_dynamic
   .venv/bin/python benchmarks/dynamic.py --quick --out out/bench_dynamic_quick   # 30 frames 320x180, box only
+  .venv/bin/python benchmarks/dynamic.py --movers "" --modes mask --footage walk,orbit,pan   # false positives only
 """
 
 from __future__ import annotations
@@ -70,6 +74,22 @@ def run_clip(video: Path, out: Path, mode: str) -> dict:
     }
 
 
+def static_line(kind: str, video: Path, out: Path) -> str:
+    """One default ingest (--dynamic mask) of the static footage `video`: its masked pixels, all false positives."""
+    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
+    from seeu_data.ingest.video import discover_sources
+
+    (source,) = discover_sources([video])
+    t0 = time.perf_counter()
+    report = ingest_scene(source, IngestConfig(out=out, inputs=(video,), run=IngestRunConfig(force=True)))
+    motion = report.get("motion") or {}
+    worst = max((pct for _, pct in motion.get("masked_pct", [])), default=0.0)
+    return (
+        f"{kind:8s} static {time.perf_counter() - t0:7.1f} s  frames with masked pixels {motion.get('frames_masked', 0)}"
+        f" of {report['registered']}  false positives {motion.get('mean_masked_pct') or 0.0:.3f} % (worst frame {worst:.2f} %)"
+    )
+
+
 def line(name: str, mode: str, r: dict, base: dict | None) -> str:
     """One row of the table."""
     ratio = f"{r['wall_s'] / base['wall_s']:.2f}x" if base else "-"
@@ -96,6 +116,7 @@ def main() -> int:
     ap.add_argument("--movers", default="box,large,slow,several,far", help="mover presets, besides the clip without")
     ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
     ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
+    ap.add_argument("--footage", default="", help="static kinds of benchmarks/footage.py (walk, orbit, pan) to ingest")
     ap.add_argument("--out", type=Path, default=Path("out/bench_dynamic"))
     args = ap.parse_args()
     if args.quick:
@@ -118,11 +139,19 @@ def main() -> int:
             r = run_clip(video, args.out / "posed" / mode, mode)
             results.setdefault(name, {})[mode] = r
             print(line(name, mode, r, results["none"][mode] if name != "none" else None), flush=True)
+    static = []
+    for kind in [k for k in args.footage.split(",") if k]:
+        from benchmarks.footage import render_kind
+
+        video = render_kind(kind, args.frames, (height, width), args.out / "footage" / kind)
+        static.append(static_line(kind, video, args.out / "posed" / "footage"))
+        print(static[-1], flush=True)
     print(f"\nload average before {load_before}, after {os.getloadavg()}; {os.cpu_count()} CPUs")
     print("table:")
     for name in clips:
         for mode in modes:
             print(line(name, mode, results[name][mode], results["none"][mode] if name != "none" else None))
+    print("\n".join(static))
     doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results}
     doc["load_before"], doc["load_after"] = load_before, os.getloadavg()
     (args.out / "result.json").write_text(json.dumps(doc, indent=1, default=float))

@@ -120,6 +120,32 @@ def test_masks_find_the_rendered_box_and_nothing_on_the_static_walk(movers):
         assert iou > 0.7, iou
 
 
+def test_texture_is_a_corner_not_an_edge_or_a_flat_patch():
+    """`textured` (the structure tensor's smaller eigenvalue): none on a flat frame or along a straight step
+    (one gradient direction: flow along the edge is unconstrained), plenty on a checkerboard."""
+    flat = np.full((H, W), 128, np.uint8)
+    step = flat.copy()
+    step[:, W // 2 :] = 200
+    board = ((np.indices((H, W)) // 8).sum(0) % 2 * 150 + 50).astype(np.uint8)
+    assert motion.textured(flat).shape == (H // motion.GRID_STEP, W // motion.GRID_STEP)
+    assert not motion.textured(flat).any() and not motion.textured(step).any()
+    assert motion.textured(board).mean() > 0.2
+
+
+def test_a_moving_region_needs_seeds_where_the_frame_has_texture():
+    """`clean_masks` keeps a region of residual over SEED_PX only where some of it is textured (a mover), not
+    over a flat patch such as the sky, where the flow and so the residual are noise."""
+    h, w = H // motion.GRID_STEP, W // motion.GRID_STEP
+    blob = np.zeros((h, w), np.float32)
+    blob[20:50, 40:90] = motion.SEED_PX + 1.0
+    none = [None]
+    flat, corner = np.zeros((h, w), bool), np.zeros((h, w), bool)
+    corner[30, 60] = True
+    assert not motion.clean_masks([blob], none, none, [flat])[0].any()
+    kept = motion.clean_masks([blob], none, none, [corner])[0]
+    assert kept[20:50, 40:90].all() and kept.sum() == blob.astype(bool).sum()
+
+
 def test_keypoints_in_a_mask_are_found_at_the_frame_size():
     mask = np.zeros((45, 80), bool)
     mask[10:20, 40:60] = True
