@@ -152,7 +152,7 @@ def main() -> int:
         for mode in modes:
             print(line(name, mode, results[name][mode], results["none"][mode] if name != "none" else None))
     print("\n".join(static))
-    doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results}
+    doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results, "footage": static}
     doc["load_before"], doc["load_after"] = load_before, os.getloadavg()
     (args.out / "result.json").write_text(json.dumps(doc, indent=1, default=float))
     return 0
