@@ -16,7 +16,8 @@
    without movers every masked pixel is one). Writes <out>/result.json.
 4. With --footage KINDS: static clips of `benchmarks/footage.py` (another renderer: a street walk, an orbit, a
    tripod pan; sky, smooth walls, other textures) ingested with --dynamic mask, where every masked pixel is a
-   false positive: the frames with any, the mean share of the pixels and the worst frame.
+   false positive (`mask_accuracy` against a truth without movers): the mean share of the pixels, the worst
+   frame, the frames with any.
 
 Example (quiet 2-core machine, the figures in RESULTS.md):
   .venv/bin/python benchmarks/dynamic.py --out out/bench_dynamic
@@ -70,24 +71,9 @@ def run_clip(video: Path, out: Path, mode: str) -> dict:
         "check": report["sfm"]["solution_check"].get("state"),
         "warnings": report["warnings"],
         "mean_masked_pct": motion.get("mean_masked_pct"),
+        "frames_masked": motion.get("frames_masked", 0),
         "masks": mask_accuracy(report["output"], video) if mode == "mask" else None,
     }
-
-
-def static_line(kind: str, video: Path, out: Path) -> str:
-    """One default ingest (--dynamic mask) of the static footage `video`: its masked pixels, all false positives."""
-    from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
-    from seeu_data.ingest.video import discover_sources
-
-    (source,) = discover_sources([video])
-    t0 = time.perf_counter()
-    report = ingest_scene(source, IngestConfig(out=out, inputs=(video,), run=IngestRunConfig(force=True)))
-    motion = report.get("motion") or {}
-    worst = max((pct for _, pct in motion.get("masked_pct", [])), default=0.0)
-    return (
-        f"{kind:8s} static {time.perf_counter() - t0:7.1f} s  frames with masked pixels {motion.get('frames_masked', 0)}"
-        f" of {report['registered']}  false positives {motion.get('mean_masked_pct') or 0.0:.3f} % (worst frame {worst:.2f} %)"
-    )
 
 
 def line(name: str, mode: str, r: dict, base: dict | None) -> str:
@@ -103,7 +89,7 @@ def line(name: str, mode: str, r: dict, base: dict | None) -> str:
     if m:
         out += (
             f"  masks: IoU {m['iou']:.3f} recall {m['recall']:.3f} false positives {m['false_positive_pct']:.3f} % "
-            f"(worst frame {m['false_positive_max_pct']:.2f} %)"
+            f"(worst frame {m['false_positive_max_pct']:.2f} %), {r['frames_masked']} frames with any"
         )
     return out
 
@@ -139,20 +125,21 @@ def main() -> int:
             r = run_clip(video, args.out / "posed" / mode, mode)
             results.setdefault(name, {})[mode] = r
             print(line(name, mode, r, results["none"][mode] if name != "none" else None), flush=True)
-    static = []
-    for kind in [k for k in args.footage.split(",") if k]:
+    footage = [k for k in args.footage.split(",") if k]
+    for kind in footage:
         from benchmarks.footage import render_kind
 
         video = render_kind(kind, args.frames, (height, width), args.out / "footage" / kind)
-        static.append(static_line(kind, video, args.out / "posed" / "footage"))
-        print(static[-1], flush=True)
+        results[kind] = {"mask": run_clip(video, args.out / "posed" / "footage", "mask")}
+        print(line(kind, "mask", results[kind]["mask"], None), flush=True)
     print(f"\nload average before {load_before}, after {os.getloadavg()}; {os.cpu_count()} CPUs")
     print("table:")
     for name in clips:
         for mode in modes:
             print(line(name, mode, results[name][mode], results["none"][mode] if name != "none" else None))
-    print("\n".join(static))
-    doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results, "footage": static}
+    for kind in footage:
+        print(line(kind, "mask", results[kind]["mask"], None))
+    doc = {"frames": args.frames, "size": [height, width], "seed": args.seed, "results": results}
     doc["load_before"], doc["load_after"] = load_before, os.getloadavg()
     (args.out / "result.json").write_text(json.dumps(doc, indent=1, default=float))
     return 0

@@ -82,12 +82,10 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
         attempt["seconds"] = runs.seconds[attempt["seed"]]
     uncompared = check["ran"] and check["disagreement_pct"] is None  # fewer than two runs registered enough
     if (not recs or uncompared) and mapper == "incremental" and moves_forward_possibly(pairs):
-        again = map_forward_motion(job, kf, attempts)
-        if not recs or again[3]["passed"]:
-            recs, attempts, rejected, check = again
+        recs2, attempts, rejected2, check2 = map_forward_motion(job, kf, attempts)  # attempts: both rounds'
+        if not recs or check2["passed"]:
+            recs, rejected, check = recs2, rejected2, check2
             check["init"] = "forward motion"  # the model kept is this round's
-        else:
-            attempts = again[1]
     if mapper == "incremental":  # the runs leave the points' colours out: the kept one's frames read once here
         for rec in recs.values():
             rec.extract_colors_for_all_images(job.image_dir, 1)
