@@ -255,6 +255,37 @@ def test_cameras_that_explain_the_flow_worse_than_a_rigid_motion_does_are_found(
     assert [g for *_, g in masked] == [0.0] * len(gaps)
 
 
+def test_passes_sharing_a_flow_memo_find_what_each_finds_alone_and_compute_each_flow_once(tmp_path):
+    """The SfM child's passes over the same frames (`astray_frames`, `model_pass` on every frame and on every
+    second one, `rigid_gaps`) read their frames and flows through one `FlowMemo`: each finds exactly what it
+    finds reading the folder itself, and each flow between neighbouring frames is computed once."""
+    import cv2
+
+    frames, _, poses = _render("box", 12)
+    names = [f"{i:06d}.png" for i in range(12)]
+    for name, frame in zip(names, frames):
+        cv2.imwrite(str(tmp_path / name), frame)
+    rec = _model(poses, names)
+
+    def passes(source):
+        return (
+            motion.astray_frames(source, names, rec),
+            motion.model_pass(source, names, rec),
+            motion.model_pass(source, names[::2], rec),
+            motion.rigid_gaps(source, names, rec, {}),
+        )
+
+    memo = motion.FlowMemo(tmp_path)
+    (astray, every, second, gaps), shared = passes(tmp_path), passes(memo)
+    assert shared[0] == astray
+    for alone, memoised in ((every, shared[1]), (second, shared[2])):
+        assert alone and alone.keys() == memoised.keys()
+        assert all(np.array_equal(alone[n], memoised[n]) for n in alone)
+    np.testing.assert_array_equal(np.array(shared[3]), np.array(gaps))
+    pairs = [*zip(names, names[1:]), *zip(names[::2], names[2::2])]
+    assert {k[1:] for k in memo.kept if k[0] == "flow"} == {*pairs, *((b, a) for a, b in pairs)}
+
+
 def test_frames_a_mover_carried_are_the_unexplained_ones_widened_to_what_stays_sound():
     """`carried_frames` (--dynamic mask): the frames mostly unexplained, REPAIR_MARGIN (2) more on each side,
     and stretches between them or at an end shorter than MIN_SOUND_RUN (8) frames; nothing when no sound

@@ -102,8 +102,45 @@ TRIAL_SHIFT_PCT = 0.5
 RIGID_GAP = 0.15
 RIGID_PX = 1.0
 RIGID_TRUSTED = 0.25
+# The passes of the SfM child over the same frames (astray, model, trial, rigid) share their frames and flows
+# (`FlowMemo`), at most this many bytes of them (about 1.6 MB a frame at WORK_SIDE: a 90-frame clip's all fit; a
+# longer clip's later frames are computed again in each pass). The orbit of benchmarks/footage.py: 678 DIS flows
+# -> 268, the motion stage 7.2 -> 5.6 s.
+MEMO_BYTES = 384 * 2**20
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
+
+
+class FlowMemo:
+    """The grey frames (`load_frames`) and neighbouring-frame flows (`Flows`) of one SfM child's motion passes,
+    by frame name: a pass over frames another pass read reads them from here (at most MEMO_BYTES kept; the
+    rest are computed again). The values are what each pass would compute itself."""
+
+    def __init__(self, image_dir: str | Path) -> None:
+        self.image_dir = image_dir
+        self.kept: dict[tuple, object] = {}
+        self.bytes = 0
+
+    def recall(self, key: tuple, make: Callable[[], object]) -> object:
+        """The value kept under `key`, else `make()` (kept while under MEMO_BYTES)."""
+        if key in self.kept:
+            return self.kept[key]
+        value = make()
+        if self.bytes < MEMO_BYTES:
+            self.kept[key] = value
+            self.bytes += sum(a.nbytes for a in (value if isinstance(value, tuple) else (value,)))
+        return value
+
+    def frames(self, names: Sequence[str]) -> list[np.ndarray]:
+        """`load_frames` of `names`."""
+        return [self.recall(("frame", n), lambda n=n: load_frames(self.image_dir, [n])[0]) for n in names]
+
+
+def _flows(source: str | Path | FlowMemo, names: Sequence[str], step: int = GRID_STEP) -> Flows:
+    """`Flows` of the frames `names`, read from a folder (`load_frames`) or through a `FlowMemo`."""
+    if isinstance(source, FlowMemo):
+        return Flows(source.frames(names), step, source, names)
+    return Flows(load_frames(source, names), step)
 
 
 def load_frames(image_dir: str | Path, names: Sequence[str], side: int = WORK_SIDE) -> list[np.ndarray]:
@@ -128,10 +165,18 @@ class Flows:
     sampled where they landed, and so on (DIS fails on large displacements over weak texture, not on the
     small steps). A step is trusted where the flow back returns within FB_MAX_PX (not occluded, not out
     of frame) and the blurred frames agree within PHOTO_MAX grey levels; a chain where all its steps are.
-    `forget(i)` drops what frames before i needed."""
+    `forget(i)` drops what frames before i needed. With a `FlowMemo` and the frames' `names`, the flows and
+    steps of frames another pass read come from it."""
 
-    def __init__(self, frames: Sequence[np.ndarray], step: int = GRID_STEP) -> None:
+    def __init__(
+        self,
+        frames: Sequence[np.ndarray],
+        step: int = GRID_STEP,
+        memo: FlowMemo | None = None,
+        names: Sequence[str] = (),
+    ) -> None:
         self.frames = frames
+        self.memo, self.names = memo, names
         self.dis = cv2.DISOpticalFlow_create(cv2.DISOPTICAL_FLOW_PRESET_MEDIUM)  # type: ignore[attr-defined]
         self.flows: dict[tuple[int, int], np.ndarray] = {}
         self.steps: dict[tuple[int, int], tuple[np.ndarray, np.ndarray]] = {}
@@ -140,32 +185,44 @@ class Flows:
         self.full = pixel_grid(h, w).astype(np.float32)
         self.grid = pixel_grid(h, w, step).astype(np.float32)  # the pixels followed: one per step x step block
 
+    def _recall(self, kind: str, frames: tuple[int, ...], make: Callable[[], object]):
+        """`make()`, or the memo's value for these frames (by name)."""
+        if self.memo is None:
+            return make()
+        return self.memo.recall((kind, *(self.names[i] for i in frames)), make)
+
     def _flow(self, i: int, j: int) -> np.ndarray:
         if (i, j) not in self.flows:
-            self.flows[(i, j)] = self.dis.calc(self.frames[i], self.frames[j], None)
+            self.flows[(i, j)] = self._recall(
+                "flow", (i, j), lambda: self.dis.calc(self.frames[i], self.frames[j], None)
+            )
         return self.flows[(i, j)]
 
     def _smoothed(self, i: int) -> np.ndarray:
         if i not in self.smooth:
-            self.smooth[i] = cv2.GaussianBlur(self.frames[i].astype(np.float32), (0, 0), 1.0)
+            self.smooth[i] = self._recall(
+                "smooth", (i,), lambda: cv2.GaussianBlur(self.frames[i].astype(np.float32), (0, 0), 1.0)
+            )
         return self.smooth[i]
 
     def step(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """Flow from frame i to its neighbour j `(h, w, 2)` float32, and where it is trusted `(h, w)` float32 0/1."""
         if (i, j) not in self.steps:
-            flow = self._flow(i, j)
-            land = self.full + flow
-            mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
-            back = cv2.remap(
-                self._flow(j, i), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-            )
-            seen = cv2.remap(
-                self._smoothed(j), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
-            )
-            with np.errstate(invalid="ignore"):
-                ok = (np.linalg.norm(flow + back, axis=-1) < FB_MAX_PX) & (np.abs(seen - self._smoothed(i)) < PHOTO_MAX)
-            self.steps[(i, j)] = (flow, ok.astype(np.float32))
+            self.steps[(i, j)] = self._recall("step", (i, j), lambda: self._trusted(i, j))
         return self.steps[(i, j)]
+
+    def _trusted(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
+        """`step` computed."""
+        flow = self._flow(i, j)
+        land = self.full + flow
+        mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
+        back = cv2.remap(self._flow(j, i), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan)
+        seen = cv2.remap(
+            self._smoothed(j), mx, my, cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=np.nan
+        )
+        with np.errstate(invalid="ignore"):
+            ok = (np.linalg.norm(flow + back, axis=-1) < FB_MAX_PX) & (np.abs(seen - self._smoothed(i)) < PHOTO_MAX)
+        return flow, ok.astype(np.float32)
 
     def observe(self, i: int, js: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per frame j of js: where frame i's followed pixels (`grid`, `(h', w', 2)`) land there `(h', w', 2)`
@@ -262,7 +319,10 @@ def neighbours(i: int, n: int, offsets: Sequence[int]) -> list[int]:
 
 
 def detect(
-    frames: Sequence[np.ndarray], residual: Residual, on_frame: Callable[[], None] | None = None
+    frames: Sequence[np.ndarray],
+    residual: Residual,
+    on_frame: Callable[[], None] | None = None,
+    flows: Flows | None = None,
 ) -> list[np.ndarray]:
     """Masks of moving content `(h // GRID_STEP, w // GRID_STEP)` bool, one per frame of `frames` (grey `(h, w)`,
     in time order).
@@ -271,9 +331,9 @@ def detect(
     neighbours js (`neighbours` at `neighbour_offsets`), given the judged pixels `grid` `(h', w', 2)` (`Flows.grid`), per neighbour
     where they land and whether that is trusted (`Flows.observe`), and where the frames before found moving
     content (`(h', w')` bool: not to fit cameras on); None when frame i cannot be judged (no camera).
-    `on_frame()` is called after each frame."""
+    `on_frame()` is called after each frame; `flows`: the frames' `Flows`, when the caller has them."""
     n = len(frames)
-    flows = Flows(frames)
+    flows = flows or Flows(frames)
     grid = flows.grid.astype(np.float64)
     h, w = grid.shape[:2]
     evidence: list[np.ndarray] = []
@@ -400,19 +460,23 @@ class _ModelCameras:
 
 
 def model_pass(
-    image_dir: str | Path, names: Sequence[str], rec, on_frame: Callable[[], None] | None = None
+    source: str | Path | FlowMemo, names: Sequence[str], rec, on_frame: Callable[[], None] | None = None
 ) -> dict[str, np.ndarray]:
     """Moving content of the frames `names` (in time order, all registered in the pycolmap
-    Reconstruction `rec`) against the flow its cameras allow: {name: (h, w) bool at the working size}
-    for frames where some was found."""
-    frames = load_frames(image_dir, names)
-    cameras = _ModelCameras(rec, names, *frames[0].shape)
-    found = detect(frames, lambda i, js, grid, lands, oks, avoid: cameras.residual(i, js, grid, lands, oks), on_frame)
+    Reconstruction `rec`; in the folder or `FlowMemo` `source`) against the flow its cameras allow:
+    {name: (h, w) bool at the working size} for frames where some was found."""
+    flows = _flows(source, names)
+    cameras = _ModelCameras(rec, names, *flows.frames[0].shape)
+
+    def residual(i, js, grid, lands, oks, avoid):
+        return cameras.residual(i, js, grid, lands, oks)
+
+    found = detect(flows.frames, residual, on_frame, flows)
     return {n: m for n, m in zip(names, found) if m.any()}
 
 
 def rigid_gaps(
-    image_dir: str | Path, names: Sequence[str], rec, masks: dict[str, np.ndarray]
+    source: str | Path | FlowMemo, names: Sequence[str], rec, masks: dict[str, np.ndarray]
 ) -> list[tuple[int, int, float]]:
     """Per pair (i, j) of the frames `names` (in time order, all registered in the pycolmap Reconstruction `rec`),
     j the farthest neighbour after i (`neighbour_offsets`: up to MAX_OFFSET frames, about FAR_MOTION_PX of image
@@ -426,9 +490,8 @@ def rigid_gaps(
     from seeu_data.camera_check import sampson_error, skew
     from seeu_data.cameras import invert_rigid
 
-    frames = load_frames(image_dir, names)
-    h, w = frames[0].shape
-    flows = Flows(frames, step=2 * GRID_STEP)
+    flows = _flows(source, names, step=2 * GRID_STEP)
+    h, w = flows.frames[0].shape
     at = flows.grid.astype(int) // GRID_STEP  # the pixels judged, on the masks' grid
     cameras = _ModelCameras(rec, names, h, w)
     k = max(neighbour_offsets(flows, len(names)))
@@ -470,7 +533,7 @@ def cameras_unlike_rigid(over: Sequence[tuple[str, str, float]], pairs: int) -> 
     )
 
 
-def astray_frames(image_dir: str | Path, names: Sequence[str], rec) -> list[str]:
+def astray_frames(source: str | Path | FlowMemo, names: Sequence[str], rec) -> list[str]:
     """The frames among `names` (in time order, all registered in `rec`) whose SfM cameras alone are wrong
     (`astray_runs` of which neighbouring frames disagree: the pair's residual, `static_residual`, over
     GROW_PX in most pixels judged). A frame that SfM placed astray (registered through a mover held still
@@ -478,9 +541,8 @@ def astray_frames(image_dir: str | Path, names: Sequence[str], rec) -> list[str]
     of them."""
     if len(names) < 3:
         return []
-    frames = load_frames(image_dir, names)
-    cameras = _ModelCameras(rec, names, *frames[0].shape)
-    flows = Flows(frames)
+    flows = _flows(source, names)
+    cameras = _ModelCameras(rec, names, *flows.frames[0].shape)
     grid = flows.grid.astype(np.float64)
     bad = []
     for k in range(len(names) - 1):

@@ -24,11 +24,15 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
+from typing import TYPE_CHECKING
 
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.mapping import final_bundle_adjustment
 from seeu_data.ingest.sfm import Job, emit
 from seeu_data.ingest.solution_check import model_disagreement_pct
+
+if TYPE_CHECKING:
+    from seeu_data.ingest.motion import FlowMemo
 
 
 @dataclass
@@ -37,10 +41,12 @@ class Moving:
     result.json's "motion" {"mode", "judged" (a video: frames in time order), "keyframes"
     (the mapped frames), "frames" (all, after registration), "leave_out" (off), "masked_pct" {name: % of the
     frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover carried:
-    `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask."""
+    `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask; `memo`: the frames and
+    flows the passes share (`motion.FlowMemo`)."""
 
     masks: dict
     facts: dict
+    memo: FlowMemo
     astray: list[str] = field(default_factory=list)
 
 
@@ -63,7 +69,9 @@ def motion_start(job: Job) -> Moving:
     (tests/test_ingest_motion.py) the poses went 10 % of the path off (18 % with the renderer's exact
     masks, the focal length 91 % off), against 0.06 % when the moving content is left in for mapping and
     its observations leave before the final bundle adjustment (`motion_keyframes`)."""
-    return Moving({}, {"mode": job.cfg.dynamic, "judged": job.video})
+    from seeu_data.ingest.motion import FlowMemo
+
+    return Moving({}, {"mode": job.cfg.dynamic, "judged": job.video}, FlowMemo(job.image_dir))
 
 
 def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
@@ -82,15 +90,15 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
 
     emit("stage", "motion-check", len(kf.names), "frames")
     t0 = job.clock.mark()
-    moving.astray = _leave_astray(job, recs, kf.names)
-    masks, judged = _model_masks(job, recs, kf.names)
+    moving.astray = _leave_astray(moving.memo, recs, kf.names)
+    masks, judged = _model_masks(moving.memo, recs, kf.names)
     moving.facts["keyframes"] = {"judged": judged, "frames_with_motion": len(masks)}
     if moving.astray:
         moving.facts["astray"] = list(moving.astray)
     found = None
     carried = carried_frames(masks, kf.names)
     if not carried:
-        carried = _placed_on_trial(job, recs, kf, masks, check["kept_seed"], moving.facts)
+        carried = _placed_on_trial(job, recs, kf, masks, check["kept_seed"], moving)
         found = carried_unseen(moving.facts.get("trials", []), bool(carried), job.cfg.dynamic)
     if carried and job.cfg.dynamic == "mask":
         _take_out(recs.values(), carried)
@@ -125,7 +133,7 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
     for rec in recs.values():
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
         mine = [n for n in kf.names if n in registered]
-        found = rigid_gaps(job.image_dir, mine, rec, moving.masks) if len(mine) > 1 else []
+        found = rigid_gaps(moving.memo, mine, rec, moving.masks) if len(mine) > 1 else []
         gaps += [g for *_, g in found]
         over += [(mine[i], mine[j], g) for i, j, g in found if g > RIGID_GAP]
     carried = set(moving.facts.get("carried", ()))
@@ -144,14 +152,14 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
     job.clock.add("motion_s", t0)
 
 
-def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, facts: dict) -> list[str]:
+def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, moving: Moving) -> list[str]:
     """Nothing carried (`motion.carried_frames`): the mapped frames with moving content (`masks`) placed again
     against the rest on trial (`motion.trial_frames`: taken out of copies of `recs`, the rest adjusted, they
     registered again), widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves
     more than a quarter of them unregistered or mostly unexplained by the flow (`motion.cameras_disagree`). The
     frames of the first trial that places them well are carried when it moved the cameras more than
     TRIAL_SHIFT_PCT of the path (their own points carried them: with mask they are repaired, with off the
-    solution check fails); else none. Each trial in `facts["trials"]` (in place)."""
+    solution check fails); else none. Each trial in `moving.facts["trials"]` (in place)."""
     import pycolmap
 
     from seeu_data.ingest.keyframes import register_frames
@@ -166,11 +174,11 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
         register_frames(job.db_path, trial, kf.names, kf.names, seed, job.cfg.map_threads)
         lo, hi = kf.names.index(names[0]), kf.names.index(names[-1])
         judged = kf.names[max(0, lo - REPAIR_MARGIN) : hi + REPAIR_MARGIN + 1]  # with neighbours on both sides
-        found, _ = _model_masks(job, trial, judged)
+        found, _ = _model_masks(moving.memo, trial, judged)
         placed = {n for rec in trial.values() for n in (rec.image(i).name for i in rec.reg_image_ids()) if n in names}
         shift = model_disagreement_pct(recs, trial)
         unexplained = cameras_disagree({n: m for n, m in found.items() if n in names}, names)
-        facts.setdefault("trials", []).append(
+        moving.facts.setdefault("trials", []).append(
             {
                 "frames": [names[0], names[-1]],
                 "count": len(names),
@@ -229,7 +237,7 @@ def astray_plan(job: Job, moving: Moving) -> tuple[list[str], list[str]]:
     return ([], moving.astray) if job.cfg.dynamic == "mask" else (moving.astray, [])
 
 
-def _leave_astray(job: Job, recs: dict, names: list[str]) -> list[str]:
+def _leave_astray(memo: FlowMemo, recs: dict, names: list[str]) -> list[str]:
     """The mapped frames whose camera alone disagrees with the flow (`motion.astray_frames`), taken out of
     their models (in place: their observations go, and points left with fewer than two); their names."""
     from seeu_data.ingest.motion import astray_frames
@@ -237,7 +245,7 @@ def _leave_astray(job: Job, recs: dict, names: list[str]) -> list[str]:
     out: list[str] = []
     for rec in recs.values():
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
-        found = astray_frames(job.image_dir, [n for n in names if n in registered], rec)
+        found = astray_frames(memo, [n for n in names if n in registered], rec)
         _take_out([rec], found)
         out += found
     return out
@@ -252,7 +260,7 @@ def _take_out(recs: Iterable, names: list[str]) -> None:
                 rec.deregister_frame(rec.image(i).frame_id)
 
 
-def _model_masks(job: Job, recs: dict, names: list[str]) -> tuple[dict, int]:
+def _model_masks(memo: FlowMemo, recs: dict, names: list[str]) -> tuple[dict, int]:
     """`motion.model_pass` over each model's frames among `names` (in time order): the masks found, and
     how many frames were judged."""
     from seeu_data.ingest.motion import model_pass
@@ -263,7 +271,7 @@ def _model_masks(job: Job, recs: dict, names: list[str]) -> tuple[dict, int]:
     for rec in recs.values():
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
         mine = [n for n in names if n in registered]
-        masks.update(model_pass(job.image_dir, mine, rec, on_frame=count))
+        masks.update(model_pass(memo, mine, rec, on_frame=count))
         judged += len(mine)
     return masks, judged
 
@@ -292,8 +300,8 @@ def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: di
 
     emit("stage", "motion-frames", len(job.names), "frames")
     t0 = job.clock.mark()
-    astray = _leave_astray(job, recs, job.names)  # registered astray, or again so
-    masks, _ = _model_masks(job, recs, job.names)
+    astray = _leave_astray(moving.memo, recs, job.names)  # registered astray, or again so
+    masks, _ = _model_masks(moving.memo, recs, job.names)
     moving.masks = masks
     dropped = sum(drop_observations(rec, masks) for rec in recs.values())
     moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped, "astray": astray}
