@@ -155,7 +155,7 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
 def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, moving: Moving) -> list[str]:
     """Nothing carried (`motion.carried_frames`): the mapped frames with moving content (`masks`) placed again
     against the rest on trial (`motion.trial_frames`: taken out of copies of `recs`, the rest adjusted, they
-    registered again), widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves
+    registered again, their new points triangulated as they go), widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves
     more than a quarter of them unregistered or mostly unexplained by the flow (`motion.cameras_disagree`). The
     frames of the first trial that places them well are carried when it moved the cameras more than
     TRIAL_SHIFT_PCT of the path (their own points carried them: with mask they are repaired, with off the
@@ -171,7 +171,7 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
         trial = {k: pycolmap.Reconstruction(r) for k, r in recs.items()}
         _take_out(trial.values(), names)
         trial = _adjusted(job, trial)
-        register_frames(job.db_path, trial, kf.names, kf.names, seed, job.cfg.map_threads)
+        register_frames(job.db_path, trial, kf.names, kf.names, seed, job.cfg.map_threads, triangulate=True)
         lo, hi = kf.names.index(names[0]), kf.names.index(names[-1])
         judged = kf.names[max(0, lo - REPAIR_MARGIN) : hi + REPAIR_MARGIN + 1]  # with neighbours on both sides
         found, _ = _model_masks(moving.memo, trial, judged)
