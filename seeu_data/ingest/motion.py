@@ -39,7 +39,9 @@ of mapped frames with the best rigid motion of its flow; `report_section` is rep
 from __future__ import annotations
 
 from collections.abc import Callable, Sequence
+from functools import partial
 from pathlib import Path
+from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -109,6 +111,7 @@ RIGID_TRUSTED = 0.25
 MEMO_BYTES = 384 * 2**20
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
+_T = TypeVar("_T")
 
 
 class FlowMemo:
@@ -118,22 +121,25 @@ class FlowMemo:
 
     def __init__(self, image_dir: str | Path) -> None:
         self.image_dir = image_dir
-        self.kept: dict[tuple, object] = {}
+        self.kept: dict[tuple, Any] = {}  # an array, or a tuple of them
         self.bytes = 0
 
-    def recall(self, key: tuple, make: Callable[[], object]) -> object:
+    def recall(self, key: tuple, make: Callable[[], _T]) -> _T:
         """The value kept under `key`, else `make()` (kept while under MEMO_BYTES)."""
         if key in self.kept:
             return self.kept[key]
         value = make()
         if self.bytes < MEMO_BYTES:
             self.kept[key] = value
-            self.bytes += sum(a.nbytes for a in (value if isinstance(value, tuple) else (value,)))
+            self.bytes += sum(np.asarray(a).nbytes for a in (value if isinstance(value, tuple) else (value,)))
         return value
 
     def frames(self, names: Sequence[str]) -> list[np.ndarray]:
         """`load_frames` of `names`."""
-        return [self.recall(("frame", n), lambda n=n: load_frames(self.image_dir, [n])[0]) for n in names]
+        return [self.recall(("frame", n), partial(self._load, n)) for n in names]
+
+    def _load(self, name: str) -> np.ndarray:
+        return load_frames(self.image_dir, [name])[0]
 
 
 def _flows(source: str | Path | FlowMemo, names: Sequence[str], step: int = GRID_STEP) -> Flows:
