@@ -41,7 +41,6 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from functools import partial
 from pathlib import Path
-from typing import Any, TypeVar
 
 import cv2
 import numpy as np
@@ -105,13 +104,12 @@ RIGID_GAP = 0.15
 RIGID_PX = 1.0
 RIGID_TRUSTED = 0.25
 # The passes of the SfM child over the same frames (astray, model, trial, rigid) share their frames and flows
-# (`FlowMemo`), at most this many bytes of them (about 1.6 MB a frame at WORK_SIDE: a 90-frame clip's all fit; a
-# longer clip's later frames are computed again in each pass). The orbit of benchmarks/footage.py: 678 DIS flows
+# (`FlowMemo`), at most this many bytes of them (about 1.7 MB a frame at WORK_SIDE: a 90-frame clip's keyframes
+# and frames all fit; a longer clip's later frames are computed again in each pass). The orbit of benchmarks/footage.py: 678 DIS flows
 # -> 266, the motion stage 7.2 -> 5.2 s (poses and masks identical).
 MEMO_BYTES = 384 * 2**20
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))
-_T = TypeVar("_T")
 
 
 class FlowMemo:
@@ -121,17 +119,17 @@ class FlowMemo:
 
     def __init__(self, image_dir: str | Path) -> None:
         self.image_dir = image_dir
-        self.kept: dict[tuple, Any] = {}  # an array, or a tuple of them
+        self.kept: dict[tuple, np.ndarray] = {}
         self.bytes = 0
 
-    def recall(self, key: tuple, make: Callable[[], _T]) -> _T:
+    def recall(self, key: tuple, make: Callable[[], np.ndarray]) -> np.ndarray:
         """The value kept under `key`, else `make()` (kept while under MEMO_BYTES)."""
         if key in self.kept:
             return self.kept[key]
         value = make()
         if self.bytes < MEMO_BYTES:
             self.kept[key] = value
-            self.bytes += sum(np.asarray(a).nbytes for a in (value if isinstance(value, tuple) else (value,)))
+            self.bytes += value.nbytes
         return value
 
     def frames(self, names: Sequence[str]) -> list[np.ndarray]:
@@ -191,7 +189,7 @@ class Flows:
         self.full = pixel_grid(h, w).astype(np.float32)
         self.grid = pixel_grid(h, w, step).astype(np.float32)  # the pixels followed: one per step x step block
 
-    def _recall(self, kind: str, frames: tuple[int, ...], make: Callable[[], object]):
+    def _recall(self, kind: str, frames: tuple[int, ...], make: Callable[[], np.ndarray]) -> np.ndarray:
         """`make()`, or the memo's value for these frames (by name)."""
         if self.memo is None:
             return make()
@@ -214,11 +212,11 @@ class Flows:
     def step(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
         """Flow from frame i to its neighbour j `(h, w, 2)` float32, and where it is trusted `(h, w)` float32 0/1."""
         if (i, j) not in self.steps:
-            self.steps[(i, j)] = self._recall("step", (i, j), lambda: self._trusted(i, j))
+            self.steps[(i, j)] = (self._flow(i, j), self._recall("trusted", (i, j), lambda: self._trusted(i, j)))
         return self.steps[(i, j)]
 
-    def _trusted(self, i: int, j: int) -> tuple[np.ndarray, np.ndarray]:
-        """`step` computed."""
+    def _trusted(self, i: int, j: int) -> np.ndarray:
+        """Where the flow from frame i to j is trusted (`step`)."""
         flow = self._flow(i, j)
         land = self.full + flow
         mx, my = land[..., 0] - 0.5, land[..., 1] - 0.5
@@ -228,7 +226,7 @@ class Flows:
         )
         with np.errstate(invalid="ignore"):
             ok = (np.linalg.norm(flow + back, axis=-1) < FB_MAX_PX) & (np.abs(seen - self._smoothed(i)) < PHOTO_MAX)
-        return flow, ok.astype(np.float32)
+        return ok.astype(np.float32)
 
     def observe(self, i: int, js: Sequence[int]) -> list[tuple[np.ndarray, np.ndarray]]:
         """Per frame j of js: where frame i's followed pixels (`grid`, `(h', w', 2)`) land there `(h', w', 2)`
