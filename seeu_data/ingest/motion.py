@@ -86,7 +86,7 @@ MIN_SOUND_RUN = 8
 # Nothing carried: frames with moving content placed again against the rest on trial (`trial_frames`) are
 # carried (mask: repaired; off: the solution check fails) when that moves the cameras more than this (% of the
 # path: the accuracy ingest aims at). Measured: the large mover at 320x180 (cameras 7 % of the path off), frames
-# 0-22 moved 6.1 %; the static walk's few false specks, 0.08 % (320x180) and 0.010 % (640x360). The other
+# 0-22 moved 5.3 %; the static walk's few false specks, 0.085 % (320x180) and 0.010 % (640x360). The other
 # presets find moving content in most of the clip: no trial.
 TRIAL_SHIFT_PCT = 0.5
 # Wrong cameras that no frame shows as mostly moving: where the best rigid motion of a pair of mapped frames (an
