@@ -155,11 +155,12 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
 def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, moving: Moving) -> list[str]:
     """Nothing carried (`motion.carried_frames`): the mapped frames with moving content (`masks`) placed again
     against the rest on trial (`motion.trial_frames`: taken out of copies of `recs`, the rest adjusted, they
-    registered again, their new points triangulated as they go), widened by REPAIR_MARGIN frames, then twice, four times ... as many while the trial leaves
-    more than a quarter of them unregistered or mostly unexplained by the flow (`motion.cameras_disagree`). The
-    frames of the first trial that places them well are carried when it moved the cameras more than
-    TRIAL_SHIFT_PCT of the path (their own points carried them: with mask they are repaired, with off the
-    solution check fails); else none. Each trial in `moving.facts["trials"]` (in place)."""
+    registered again, their new points triangulated as they go), widened by REPAIR_MARGIN frames, then twice,
+    four times ... as many while the trial leaves more than a quarter of them unregistered or mostly unexplained
+    by the flow (`motion.cameras_disagree`). The frames of the first trial that places them well are carried
+    when it moved the cameras more than TRIAL_SHIFT_PCT of the path (their own points carried them: with mask
+    they are repaired, with off the solution check fails); else none. Each trial in `moving.facts["trials"]`
+    (in place)."""
     import pycolmap
 
     from seeu_data.ingest.keyframes import register_frames
