@@ -544,10 +544,11 @@ def test_a_run_of_frames_taken_out_registers_again_from_its_end_when_each_triang
 
 def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
     """A short synthetic walk (FORWARD_*): its frame pairs move mostly along the optical axis with small
-    triangulation angles, so COLMAP's initial-pair limits find no model in any run; the second round
-    (`mapping.map_forward_motion`) poses every frame, accurately. A static camera (planar/panoramic
-    pairs) gets no second round: test_static_camera_no_model."""
-    from seeu_data.ingest.mapping import moves_forward_possibly
+    triangulation angles, so COLMAP's initial-pair limits find no model in any run; each run's retry with
+    forward motion allowed (`mapping.forward_below`) poses every frame, accurately, and the two runs agree.
+    A static camera (planar/panoramic pairs) gets no retry: test_static_camera_no_model."""
+    from seeu_data.ingest.mapping import forward_below, moves_forward_possibly
+    from seeu_data.ingest.sfm import SfmConfig
 
     clip = tmp_path / "fwd.mp4"
     write_clip(clip, n_frames=FORWARD_FRAMES, size=FORWARD_SIZE, seed=0)
@@ -555,15 +556,12 @@ def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
     assert cli_main(["ingest", str(clip), "--out", str(out)]) == 0
     report = json.loads((out / "fwd" / "report.json").read_text())
     attempts = report["sfm"]["mapping_attempts"]
-    assert [(a["seed"], a["registered"], a.get("init")) for a in attempts[:3]] == [
-        (0, 0, None),
-        (1, 0, None),
-        (2, 0, None),
-    ]
-    forward = attempts[3:]  # the check's two runs, a third when they disagree
-    assert [a["seed"] for a in forward[:2]] == [0, 1] and {a["init"] for a in forward} == {"forward motion"}
+    # every run, the check's two and a third when they disagree, placed every frame once forward motion was allowed
+    assert [a["seed"] for a in attempts[:2]] == [0, 1], attempts
+    assert {(a["registered"], a.get("init")) for a in attempts} == {(FORWARD_FRAMES, "forward motion")}, attempts
     assert report["sfm"]["solution_check"]["state"] == "passed"
-    assert f"after {len(attempts)} mapping runs, forward motion allowed for the initial pair)" in summary_line(report)
+    assert report["sfm"]["solution_check"]["init"] == "forward motion"
+    assert "forward motion allowed for the initial pair)" in summary_line(report)
     acc = ingest_accuracy(out / "fwd", clip, report["registered"], report["frames_selected"])
     assert acc["registered_pct"] >= 95 and acc["largest"]["centre_rmse_pct_path"] <= 1.0, acc
     pairs = report["sfm"]["solution_check"]
@@ -572,14 +570,18 @@ def test_forward_walk_maps_with_forward_motion_allowed(tmp_path):
     )
     assert not moves_forward_possibly({"verified": 10, "planar_or_panoramic": 5})
     assert not moves_forward_possibly({"verified": 0, "planar_or_panoramic": 0})
+    cfg = SfmConfig()
+    assert forward_below(cfg, "incremental", {"verified": 10, "planar_or_panoramic": 2}, FORWARD_FRAMES) == 8
+    assert forward_below(cfg, "global", {"verified": 10, "planar_or_panoramic": 2}, FORWARD_FRAMES) == 0
+    assert forward_below(cfg, "incremental", {"verified": 10, "planar_or_panoramic": 5}, FORWARD_FRAMES) == 0
 
 
 def test_forward_walk_at_a_high_frame_rate_maps_its_keyframes_with_forward_motion_allowed(tmp_path):
     """The forward walk of the test above, sampled 8 times as densely (73 frames on the same path) and mapped
     on every 8th frame (`min_keyframes` 10, `keyframe_motion` 200 px): the keyframes are the 10 views COLMAP's
     initial-pair limits cannot map. The frames between them, a few pixels apart, give pairs a homography
-    explains; counted with them, the planar/panoramic share looked like a camera turning in place, no second
-    round ran and SfM found no model (the 400-frame walk of benchmarks/footage.py too). Counted among the
+    explains; counted with them, the planar/panoramic share looked like a camera turning in place, no
+    forward-motion retry ran and SfM found no model (the 400-frame walk of benchmarks/footage.py too). Counted among the
     keyframes, the round runs and poses every frame."""
     from pipelines.ingest import IngestConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
@@ -594,7 +596,7 @@ def test_forward_walk_at_a_high_frame_rate_maps_its_keyframes_with_forward_motio
     keyframes, check = report["sfm"]["keyframes"], report["sfm"]["solution_check"]
     assert keyframes["stride"] == 8 and keyframes["count"] == FORWARD_FRAMES, keyframes
     attempts = report["sfm"]["mapping_attempts"]
-    assert {a.get("init") for a in attempts[3:]} == {"forward motion"}, attempts
+    assert {a.get("init") for a in attempts} == {"forward motion"}, attempts
     assert check["state"] == "passed" and check["init"] == "forward motion"
     acc = ingest_accuracy(tmp_path / "out" / "fwd73", clip, report["registered"], report["frames_selected"])
     assert acc["registered_pct"] >= 95 and acc["largest"]["centre_rmse_pct_path"] <= 1.0, acc

@@ -1,5 +1,5 @@
 """Mapping: the runs of incremental or global mapping (each in its own process, `python -m
-seeu_data.ingest.mapping RUN.json`), judged by the solution check; the forward-motion round; the last
+seeu_data.ingest.mapping RUN.json`), judged by the solution check; the forward-motion retry; the last
 robust bundle adjustment; the frames between keyframes registered; the models kept (steps of the SfM
 child, `seeu_data.ingest.sfm_child`)."""
 
@@ -20,7 +20,7 @@ from pathlib import Path
 from seeu_data.ingest.features import Matches, copy_database
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import Failed, Job, SfmConfig, emit
-from seeu_data.ingest.solution_check import geometry_counts, map_with_retries
+from seeu_data.ingest.solution_check import geometry_counts, map_with_retries, smallest_model
 from seeu_data.interrupts import end_process
 
 # The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
@@ -37,9 +37,10 @@ DIVERGED_FACTOR = 10.0
 # A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
 # along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair
 # (|t_z| >= init_max_forward_motion = 0.95, or a median triangulation angle below init_min_tri_angle =
-# 16 degrees, relaxed twice to 4) and, when no pair passes, finds no model at all. Incremental mapping
-# is then run once more with these initial-pair limits (IncrementalMapperOptions fields;
-# `map_forward_motion`): no forward-motion limit, the angle from 8 degrees (relaxed to 4, then 2).
+# 16 degrees, relaxed twice to 4) and, when no pair passes, finds no model at all. A run that registers
+# too few frames then maps again at once, in its own process, with these initial-pair limits
+# (IncrementalMapperOptions fields; `forward_below`): no forward-motion limit, the angle from 8 degrees
+# (relaxed to 4, then 2).
 # (The focal length is not the cause: pycolmap 4.2 estimates it per pair from the fundamental matrix
 # when no focal is known, so the database camera's prior plays no part in choosing the initial pair.)
 FORWARD_MOTION_INIT = {"init_max_forward_motion": 1.0, "init_min_tri_angle": 8.0}
@@ -70,7 +71,7 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
     emit("stage", "map", len(kf.names), "registered")
     t0 = clock.mark()
     pairs = geometry_counts(job.db_path, set(kf.names))  # the mapped frames' pairs
-    runs = _MapRuns(job, mapper, kf.names if kf.stride > 1 else [])
+    runs = _MapRuns(job, mapper, kf, forward_below(job.cfg, mapper, pairs, len(kf.names)))
     try:
         recs, attempts, rejected, check = map_with_retries(
             runs.collect, len(kf.names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2, start=runs.start
@@ -80,12 +81,10 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
     job.resumed["map_runs"] = runs.kept
     for attempt in attempts:  # the run's own wall time (map_with_retries saw only the wait for it)
         attempt["seconds"] = runs.seconds[attempt["seed"]]
-    uncompared = check["ran"] and check["disagreement_pct"] is None  # fewer than two runs registered enough
-    if (not recs or uncompared) and mapper == "incremental" and moves_forward_possibly(pairs):
-        recs2, attempts, rejected2, check2 = map_forward_motion(job, kf, attempts)  # attempts: both rounds'
-        if not recs or check2["passed"]:
-            recs, rejected, check = recs2, rejected2, check2
-            check["init"] = "forward motion"  # the model kept is this round's
+        if runs.inits[attempt["seed"]]:
+            attempt["init"] = runs.inits[attempt["seed"]]
+    if runs.inits.get(check["kept_seed"]):
+        check["init"] = runs.inits[check["kept_seed"]]  # the model kept came from a forward-motion retry
     if mapper == "incremental":  # the runs leave the points' colours out: the kept one's frames read once here
         for rec in recs.values():
             rec.extract_colors_for_all_images(job.image_dir, 1)
@@ -105,34 +104,22 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
 
 
 def moves_forward_possibly(pairs: dict) -> bool:
-    """Whether an incremental mapping that found no model is worth the `map_forward_motion` round:
+    """Whether an incremental mapping run that registered too few frames is worth its forward-motion retry:
     most verified pairs (`geometry_counts`) have a general two-view geometry, so the camera translates
     (a static or rotating camera gives planar/panoramic pairs, which no init limit can help)."""
     return pairs["verified"] > 0 and pairs["planar_or_panoramic"] < 0.5 * pairs["verified"]
 
 
-def map_forward_motion(job: Job, kf: Keyframes, attempts: list[dict]) -> tuple[dict, list[dict], list[dict], dict]:
-    """Incremental mapping again, as in `map_frames` (`map_with_retries` from the same seeds, the solution
-    check), with the initial pair allowed to move along the optical axis (`FORWARD_MOTION_INIT`); for
-    when the first round found no model, or fewer than two of its runs registered enough frames for the
-    solution check to compare them (a forward walk's runs whose initial pair COLMAP refused: the 50-frame walk
-    of benchmarks/footage.py mapped from seed 0 only). Its model is kept when the first round had none or
-    this round's check passed. Returns `map_with_retries`' results, its runs appended to `attempts`, each
-    marked "init": "forward motion"."""
-    cfg = job.cfg
-    emit("stage", "map-forward-motion", len(kf.names), "registered")
-    runs = _MapRuns(job, "incremental", kf.names if kf.stride > 1 else [], init=FORWARD_MOTION_INIT)
-    try:
-        recs, more, rejected, check = map_with_retries(
-            runs.collect, len(kf.names), cfg, check=cfg.sfm_check and cfg.sfm_attempts >= 2, start=runs.start
-        )
-    finally:
-        runs.close()
-    job.resumed["map_runs"] = job.resumed.get("map_runs", 0) + runs.kept
-    for attempt in more:
-        attempt["seconds"] = runs.seconds[attempt["seed"]]
-        attempt["init"] = "forward motion"
-    return recs, attempts + more, rejected, check
+def forward_below(cfg: SfmConfig, mapper: str, pairs: dict, num_frames: int) -> int:
+    """Registered frames under which an incremental mapping run maps again, in the same process, with
+    the initial pair allowed to move along the optical axis (`FORWARD_MOTION_INIT`), keeping whichever
+    try registers more: `map_with_retries`' line for a run that registers enough (`retry_below` of the
+    frames), where the camera moves (`moves_forward_possibly`); 0 (never) otherwise. A forward walk's
+    runs whose initial pair COLMAP refused: the 50-frame walk of benchmarks/footage.py found a model from
+    seed 0 only; a retry in each failing run, beside the others, costs no round of its own."""
+    if mapper != "incremental" or not moves_forward_possibly(pairs):
+        return 0
+    return math.ceil(cfg.retry_below * num_frames)
 
 
 def map_processes(cfg: SfmConfig) -> int:
@@ -145,24 +132,24 @@ def map_processes(cfg: SfmConfig) -> int:
 
 class _MapRuns:
     """Mapping runs, each in its own process (`python -m seeu_data.ingest.mapping RUN.json`, see
-    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/<round>-<seed>/. Every run,
+    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/run-<seed>/. Every run,
     even a lone one, is read back from the model files it wrote, so the models do not depend on how many
     ran at once, nor on whether a run was made by an earlier, interrupted SfM child: a finished run
     (done.json) made with the same settings is kept, not run again (counted in `kept`). A run's COLMAP
     log goes to sfm.log; the run started when none is going reports its registered frames."""
 
-    def __init__(self, job: Job, mapper: str, image_names: list[str], init: dict | None = None) -> None:
-        self.job, self.mapper, self.image_names, self.init = job, mapper, image_names, init or {}
+    def __init__(self, job: Job, mapper: str, kf: Keyframes, forward_below: int = 0) -> None:
+        self.job, self.mapper, self.kf, self.forward_below = job, mapper, kf, forward_below
         self.limit = map_processes(job.cfg)
         self.root = job.out / "map_runs"
-        self.round = "forward-motion" if init else "first"
         self.root.mkdir(exist_ok=True)
         self.procs: dict[int, subprocess.Popen | None] = {}  # None: a finished run kept
         self.seconds: dict[int, float] = {}
+        self.inits: dict[int, str | None] = {}  # "forward motion": the run's models came from its retry
         self.kept = 0
 
     def _dir(self, seed: int) -> Path:
-        return self.root / f"{self.round}-{seed}"
+        return self.root / f"run-{seed}"
 
     def _running(self) -> int:
         return sum(p is not None and p.poll() is None for p in self.procs.values())
@@ -174,9 +161,10 @@ class _MapRuns:
             "image_dir": self.job.image_dir,
             "dir": str(run_dir),
             "mapper": self.mapper,
-            "image_names": self.image_names,
+            "image_names": self.kf.names if self.kf.stride > 1 else [],  # [] every frame in the database
+            "num_frames": len(self.kf.names),
             "seed": seed,
-            "init": self.init,
+            "forward_below": self.forward_below,
             "config": asdict(self.job.cfg),
         }
         try:
@@ -219,6 +207,7 @@ class _MapRuns:
         run_dir = self._dir(seed)
         done = json.loads((run_dir / "done.json").read_text())
         self.seconds[seed] = done["seconds"]
+        self.inits[seed] = done.get("init")
         return {k: pycolmap.Reconstruction(run_dir / "sparse" / str(k)) for k in done["models"]}
 
     def close(self) -> None:
@@ -234,9 +223,10 @@ class _MapRuns:
 
 def _map_run(run_path: str) -> int:
     """One mapping run (a `_MapRuns` child): incremental or global mapping of the database from one
-    seed; every model written to <dir>/sparse/<index>/, the database copy removed, then done.json
-    {"models": [index], "seconds"}. Incremental mapping reports the frames registered so far (in every
-    model it holds) after each one (`emit("done", n)`)."""
+    seed (incremental: again with `FORWARD_MOTION_INIT` when it registers fewer than run["forward_below"]
+    frames, the try registering more kept); every model written to <dir>/sparse/<index>/, the database
+    copy removed, then done.json {"models": [index], "seconds", "init" (null, or "forward motion": the
+    retry's models)}."""
     run = json.loads(Path(run_path).read_text())
     if sys.platform.startswith("linux"):  # end with the SfM child (killed when ingest is interrupted)
         import ctypes
@@ -250,6 +240,7 @@ def _map_run(run_path: str) -> int:
     sparse = Path(run["dir"]) / "sparse"
     sparse.mkdir()
     t0 = time.perf_counter()
+    init = None
     if run["mapper"] == "global":
         global_options = pycolmap.GlobalPipelineOptions()
         global_options.min_model_size = cfg.min_model_size
@@ -258,31 +249,11 @@ def _map_run(run_path: str) -> int:
         global_options.image_names = run["image_names"]
         recs = pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
     else:
-        options = pycolmap.IncrementalPipelineOptions()
-        options.min_model_size = cfg.min_model_size
-        options.num_threads = cfg.map_threads
-        options.random_seed = run["seed"]
-        options.image_names = run["image_names"]
-        options.image_path = run["image_dir"]
-        options.extract_colors = False  # read once, for the kept run only (`map_frames`)
-        options.ba_global_frames_ratio = options.ba_global_points_ratio = GLOBAL_BA_GROWTH
-        for name, value in run.get("init", {}).items():  # initial-pair limits (`map_forward_motion`)
-            setattr(options.mapper, name, value)
-        # pycolmap.incremental_mapping's own steps, with the reconstructions at hand for the progress
-        manager = pycolmap.ReconstructionManager()
-        db = pycolmap.Database.open(run["db_path"])
-        try:
-            pipeline = pycolmap.IncrementalPipeline(options, db, manager)
-            if run["progress"]:
-                for event in ("INITIAL_IMAGE_PAIR_REG_CALLBACK", "NEXT_IMAGE_REG_CALLBACK"):
-                    pipeline.add_callback(
-                        getattr(pycolmap.IncrementalPipelineCallback, event),
-                        lambda: emit("done", sum(manager.get(i).num_reg_images() for i in range(manager.size()))),
-                    )
-            pipeline.run()
-        finally:
-            db.close()
-        recs = {i: manager.get(i) for i in range(manager.size())}
+        recs = _incremental(run, cfg, {})
+        if _registered(recs, cfg, run) < run["forward_below"]:
+            again = _incremental(run, cfg, FORWARD_MOTION_INIT)
+            if _registered(again, cfg, run) > _registered(recs, cfg, run):
+                recs, init = again, "forward motion"
     seconds = time.perf_counter() - t0
     for k, rec in recs.items():
         if not (sparse / str(k) / "images.bin").exists():
@@ -290,9 +261,50 @@ def _map_run(run_path: str) -> int:
             rec.write(sparse / str(k))
     Path(run["db_path"]).unlink(missing_ok=True)
     (Path(run["dir"]) / "done.json").write_text(
-        json.dumps({"models": sorted(int(k) for k in recs), "seconds": seconds})
+        json.dumps({"models": sorted(int(k) for k in recs), "seconds": seconds, "init": init})
     )
     return 0
+
+
+def _incremental(run: dict, cfg: SfmConfig, init: dict) -> dict:
+    """pycolmap.incremental_mapping's own steps for a `_map_run`, with initial-pair limits `init`
+    (IncrementalMapperOptions fields) and the reconstructions at hand for the progress (the run started
+    when none was going reports the frames registered so far, in every model it holds, after each one):
+    {index: pycolmap.Reconstruction}."""
+    import pycolmap
+
+    options = pycolmap.IncrementalPipelineOptions()
+    options.min_model_size = cfg.min_model_size
+    options.num_threads = cfg.map_threads
+    options.random_seed = run["seed"]
+    options.image_names = run["image_names"]
+    options.image_path = run["image_dir"]
+    options.extract_colors = False  # read once, for the kept run only (`map_frames`)
+    options.ba_global_frames_ratio = options.ba_global_points_ratio = GLOBAL_BA_GROWTH
+    for name, value in init.items():
+        setattr(options.mapper, name, value)
+    manager = pycolmap.ReconstructionManager()
+    db = pycolmap.Database.open(run["db_path"])
+    try:
+        pipeline = pycolmap.IncrementalPipeline(options, db, manager)
+        if run["progress"]:
+            for event in ("INITIAL_IMAGE_PAIR_REG_CALLBACK", "NEXT_IMAGE_REG_CALLBACK"):
+                pipeline.add_callback(
+                    getattr(pycolmap.IncrementalPipelineCallback, event),
+                    lambda: emit("done", sum(manager.get(i).num_reg_images() for i in range(manager.size()))),
+                )
+        pipeline.run()
+    finally:
+        db.close()
+    return {i: manager.get(i) for i in range(manager.size())}
+
+
+def _registered(recs: dict, cfg: SfmConfig, run: dict) -> int:
+    """Frames registered in the models of `recs` large enough to be used (`smallest_model`)."""
+    smallest = smallest_model(cfg, run["num_frames"])
+    return len(
+        {rec.image(j).name for rec in recs.values() if rec.num_reg_images() >= smallest for j in rec.reg_image_ids()}
+    )
 
 
 def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:

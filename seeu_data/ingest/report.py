@@ -4,13 +4,13 @@ report.json keys: scene, input, frames_decoded (frames in the source), frames_ca
 frames_selected, registered, registration_rate (registered / selected), frames_in_chunks,
 mean_reprojection_error_px, sfm {num_keypoints, num_verified_pairs, timings_s, cpu_timings_s (the SfM child's
 stages: extract_s, match_s, map_s, undistort_s, export_s), models: [...], discarded_models: [...],
-mapping_attempts: [{seed, registered, models, seconds, disagreement_pct, init ("forward motion": a run
-of the second round, `sfm.map_forward_motion`)}], keyframes {stride, count, motion_px,
+mapping_attempts: [{seed, registered, models, seconds, disagreement_pct, init ("forward motion": the run's
+models came from its forward-motion retry, `mapping.forward_below`)}], keyframes {stride, count, motion_px,
 target_px, registered_after}, resumed {images, pairs, map_runs: what the SfM run kept of an interrupted
 one of the same job: frames with features, matched pairs, finished mapping runs},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
 planar_or_panoramic_pairs, verified_pairs (among the mapped frames), init ("forward motion": the model kept
-came from the second round, `sfm.map_forward_motion`), reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
+came from a forward-motion retry), reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
 too few matches; the likely causes a failed check names)}}, input_identity {path, fingerprint},
 chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model, baseline_over_depth (widest
 baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or
@@ -258,7 +258,7 @@ def summary_line(report: dict) -> str:
     attempts = len(report["sfm"].get("mapping_attempts", []))
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
-    forward = check.get("init") == "forward motion"  # the model kept came from the second round
+    forward = check.get("init") == "forward motion"  # the model kept came from a forward-motion retry
     skipped = skipped_line([(f["name"], f["reason"]) for f in report.get("skipped_files", [])])
     line = (
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"

@@ -14,9 +14,9 @@ a video (neighbours; then the keyframes, every s-th frame, s from the neighbours
 they still overlap; the other frames with the keyframes around them; loop detection only with a
 vocabulary-tree file), exhaustive for an image folder of up to `EXHAUSTIVE_MAX_IMAGES` images, else
 each with the next `UNORDERED_OVERLAP` in name order; verification RANSAC seeded per pair -> mapping (`mapper`: incremental, or global; possibly several models; re-run with the next seed while
-it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`; when
-incremental mapping finds no model, once more with the initial pair allowed to move forward, see
-`map_forward_motion`) ->
+it registers too few keyframes, and mapped twice for the solution check, see `map_with_retries`; an
+incremental run that registers too few maps once more with the initial pair allowed to move forward, see
+`forward_below`) ->
 a last global bundle adjustment of each mapped model with a robust loss (`final_ba_loss`, soft-L1 at
 0.5 px by default, `final_bundle_adjustment`) -> the other frames registered into the kept models
 (COLMAP's incremental-mapper step) -> undistortion of every model
@@ -30,7 +30,7 @@ the solution check fails on it) and on every frame after registration (mask: the
 Output directory layout::
 
     database.db  sfm.log  result.json  job.json  steps.jsonl (the child's finished steps)
-    map_runs/<round>-<seed>/  a mapping run (kept for a re-run of an interrupted child; removed at the end)
+    map_runs/run-<seed>/    a mapping run (kept for a re-run of an interrupted child; removed at the end)
     sparse/<k>/             COLMAP binary model k (as mapped, adjusted, the other frames registered)
     undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k
