@@ -108,6 +108,7 @@ def main() -> int:
     if args.quick:
         args.frames, args.size, args.movers = 30, "180x320", "box"
 
+    from benchmarks.footage import render_kind
     from seeu_data.settings import parse_dims
     from seeu_data.synthetic import ClipConfig, write_clip
 
@@ -127,8 +128,6 @@ def main() -> int:
             print(line(name, mode, r, results["none"][mode] if name != "none" else None), flush=True)
     footage = [k for k in args.footage.split(",") if k]
     for kind in footage:
-        from benchmarks.footage import render_kind
-
         video = render_kind(kind, args.frames, (height, width), args.out / "footage" / kind)
         results[kind] = {"mask": run_clip(video, args.out / "posed" / "footage", "mask")}
         print(line(kind, "mask", results[kind]["mask"], None), flush=True)
