@@ -23,6 +23,7 @@ Example (quiet 2-core machine, the figures in RESULTS.md):
   .venv/bin/python benchmarks/dynamic.py --out out/bench_dynamic
   .venv/bin/python benchmarks/dynamic.py --quick --out out/bench_dynamic_quick   # 30 frames 320x180, box only
   .venv/bin/python benchmarks/dynamic.py --movers "" --modes mask --footage walk,orbit,pan   # false positives only
+  .venv/bin/python benchmarks/dynamic.py --movers unseen --modes mask --size 180x320   # movers never tuned on
 """
 
 from __future__ import annotations
@@ -37,6 +38,17 @@ from pathlib import Path
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 MODES = ("mask", "off")
+# Movers the presets of `seeu synth --movers` (and the tuning of ingest) never saw, for `--movers unseen`: other
+# sizes, depths, speeds and paths (seeu_data.synthetic.Mover). Each is rendered under its name here.
+UNSEEN = {
+    "close_big": ((1.0, 1.0, 1.0), dict(distance=1.8, amplitude=0.5, period=60)),
+    "mid_cross": ((1.0, 1.2, 0.4), dict(distance=5.0, amplitude=1.5, period=70, path="crossing", y0=0.0)),
+    "small_fast": ((0.3, 0.3, 0.3), dict(distance=2.0, amplitude=1.0, period=20)),
+    "wall_far": ((2.2, 1.8, 0.3), dict(distance=9.0, amplitude=1.4, period=100, path="crossing", y0=0.0, phase=1.0)),
+    "circler": ((0.7, 0.7, 0.7), dict(distance=3.0, amplitude=1.2, period=45, path="circle")),
+    "person_x": ((0.5, 1.7, 0.3), dict(distance=4.0, amplitude=1.5, period=120, path="crossing", y0=0.1)),
+    "follow": ((0.5, 1.7, 0.3), dict(distance=3.0, amplitude=0.2, period=200, y0=0.1)),
+}
 
 
 def _cpu_s() -> float:
@@ -78,6 +90,8 @@ def run_clip(video: Path, out: Path, mode: str) -> dict:
 
 def line(name: str, mode: str, r: dict, base: dict | None) -> str:
     """One row of the table."""
+    if "error" in r:  # ingest ended in an error (one line, as a user sees it)
+        return f"{name:8s} {mode:4s} error: {r['error']}"
     ratio = f"{r['wall_s'] / base['wall_s']:.2f}x" if base else "-"
     centre = r["centre_rmse_pct_path"]
     out = (
@@ -99,7 +113,11 @@ def main() -> int:
     ap.add_argument("--frames", type=int, default=90)
     ap.add_argument("--size", default="360x640", help="H x W of the rendered clips")
     ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--movers", default="box,large,slow,several,far", help="mover presets, besides the clip without")
+    ap.add_argument(
+        "--movers",
+        default="box,large,slow,several,far",
+        help="mover presets, besides the clip without; 'unseen': the movers of UNSEEN instead",
+    )
     ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
     ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
     ap.add_argument("--footage", default="", help="static kinds of benchmarks/footage.py (walk, orbit, pan) to ingest")
@@ -109,10 +127,17 @@ def main() -> int:
         args.frames, args.size, args.movers = 30, "180x320", "box"
 
     from benchmarks.footage import render_kind
+    from seeu_data.errors import SeeUError
     from seeu_data.settings import parse_dims
     from seeu_data.synthetic import ClipConfig, write_clip
 
     height, width = parse_dims(args.size, "--size", minimum=16)
+    if args.movers == "unseen":
+        from seeu_data import synthetic
+
+        for name, (size, where) in UNSEEN.items():
+            synthetic.MOVER_PRESETS[name] = (synthetic.Mover(size, **where),)
+        args.movers = ",".join(UNSEEN)
     clips = ["none", *[m for m in args.movers.split(",") if m]]
     modes = [m for m in args.modes.split(",") if m in MODES]
     results: dict = {}
@@ -123,7 +148,10 @@ def main() -> int:
         write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed, movers=name))
         print(f"rendered {name}: {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s", flush=True)
         for mode in modes:
-            r = run_clip(video, args.out / "posed" / mode, mode)
+            try:
+                r = run_clip(video, args.out / "posed" / mode, mode)
+            except SeeUError as e:
+                r = {"error": str(e)}
             results.setdefault(name, {})[mode] = r
             print(line(name, mode, r, results["none"][mode] if name != "none" else None), flush=True)
     footage = [k for k in args.footage.split(",") if k]

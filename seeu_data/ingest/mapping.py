@@ -97,7 +97,7 @@ def map_frames(job: Job, matches: Matches, kf: Keyframes) -> Mapped:
     if not recs:
         raise Failed(
             "SfM found no model: no frame pair with enough parallax "
-            "(static camera, blank frames, or too few overlapping frames)"
+            "(static camera, blank frames, too few overlapping frames, or a large moving object filling the view)"
             + (f"; after {len(attempts)} mapping runs" if len(attempts) > 1 else "")
         )
     return Mapped(recs, attempts, rejected, check, mapper_info)
