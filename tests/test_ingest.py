@@ -581,8 +581,8 @@ def test_forward_walk_at_a_high_frame_rate_maps_its_keyframes_with_forward_motio
     on every 8th frame (`min_keyframes` 10, `keyframe_motion` 200 px): the keyframes are the 10 views COLMAP's
     initial-pair limits cannot map. The frames between them, a few pixels apart, give pairs a homography
     explains; counted with them, the planar/panoramic share looked like a camera turning in place, no
-    forward-motion retry ran and SfM found no model (the 400-frame walk of benchmarks/footage.py too). Counted among the
-    keyframes, the round runs and poses every frame."""
+    forward-motion retry ran and SfM found no model (the 400-frame walk of benchmarks/footage.py too). Counted
+    among the keyframes, every run retries and poses every frame."""
     from pipelines.ingest import IngestConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.solution_check import geometry_counts
