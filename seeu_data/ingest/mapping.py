@@ -20,7 +20,7 @@ from pathlib import Path
 from seeu_data.ingest.features import Matches, copy_database
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import Failed, Job, SfmConfig, emit
-from seeu_data.ingest.solution_check import geometry_counts, map_with_retries, smallest_model
+from seeu_data.ingest.solution_check import geometry_counts, map_with_retries, registered_frames, usable_models
 from seeu_data.interrupts import end_process
 
 # The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
@@ -250,9 +250,10 @@ def _map_run(run_path: str) -> int:
         recs = pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
     else:
         recs = _incremental(run, cfg, {})
-        if _registered(recs, cfg, run) < run["forward_below"]:
+        registered = registered_frames(usable_models(recs, cfg, run["num_frames"])[0])
+        if registered < run["forward_below"]:  # as `map_with_retries` counts them
             again = _incremental(run, cfg, FORWARD_MOTION_INIT)
-            if _registered(again, cfg, run) > _registered(recs, cfg, run):
+            if registered_frames(usable_models(again, cfg, run["num_frames"])[0]) > registered:
                 recs, init = again, "forward motion"
     seconds = time.perf_counter() - t0
     for k, rec in recs.items():
@@ -297,14 +298,6 @@ def _incremental(run: dict, cfg: SfmConfig, init: dict) -> dict:
     finally:
         db.close()
     return {i: manager.get(i) for i in range(manager.size())}
-
-
-def _registered(recs: dict, cfg: SfmConfig, run: dict) -> int:
-    """Frames registered in the models of `recs` large enough to be used (`smallest_model`)."""
-    smallest = smallest_model(cfg, run["num_frames"])
-    return len(
-        {rec.image(j).name for rec in recs.values() if rec.num_reg_images() >= smallest for j in rec.reg_image_ids()}
-    )
 
 
 def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:

@@ -105,8 +105,8 @@ RIGID_PX = 1.0
 RIGID_TRUSTED = 0.25
 # The passes of the SfM child over the same frames (astray, model, trial, rigid) share their frames and flows
 # (`FlowMemo`), at most this many bytes of them (about 1.7 MB a frame at WORK_SIDE: a 90-frame clip's keyframes
-# and frames all fit; a longer clip's later frames are computed again in each pass). The orbit of benchmarks/footage.py: 678 DIS flows
-# -> 266, the motion stage 7.2 -> 5.2 s (poses and masks identical).
+# and frames all fit; a longer clip's later frames are computed again in each pass). The orbit of
+# benchmarks/footage.py: 678 DIS flows -> 266, the motion stage 7.2 -> 5.2 s (poses and masks identical).
 MEMO_BYTES = 384 * 2**20
 
 Cameras = list[tuple[np.ndarray, np.ndarray]]  # per neighbour (M (3, 3), e (3,))

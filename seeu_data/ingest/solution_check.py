@@ -27,6 +27,29 @@ def smallest_model(cfg: SfmConfig, num_frames: int) -> int:
     return colmap_smallest(cfg.min_model_size, num_frames)
 
 
+def usable_models(mapped: dict, cfg: SfmConfig, num_frames: int) -> tuple[dict, list[dict]]:
+    """The models of one mapping run ({index: pycolmap.Reconstruction}) that can be used: at least
+    `smallest_model` registered frames (COLMAP returns leftovers: a pair that failed to grow) and a camera that
+    passes COLMAP's own plausibility test; and those rejected for their camera, as {index, registered, reason}."""
+    usable, rejected = {}, []
+    for k, rec in mapped.items():
+        n = rec.num_reg_images()
+        if n < smallest_model(cfg, num_frames):
+            continue
+        bogus = [c for c in model_cameras(rec) if c.has_bogus_params(*_PLAUSIBLE_CAMERA)]
+        if bogus:
+            params = ", ".join(f"{p:.3g}" for p in bogus[0].params)
+            rejected.append({"index": int(k), "registered": n, "reason": "implausible camera parameters " + params})
+            continue
+        usable[k] = rec
+    return usable, rejected
+
+
+def registered_frames(models: dict) -> int:
+    """How many frames the models ({index: pycolmap.Reconstruction}) register, each counted once."""
+    return len({rec.image(j).name for rec in models.values() for j in rec.reg_image_ids()})
+
+
 def map_with_retries(
     map_once, num_frames: int, cfg: SfmConfig, check: bool = False, start=None
 ) -> tuple[dict, list[dict], list[dict], dict]:
@@ -68,26 +91,11 @@ def map_with_retries(
         if i:  # a second run for the check (the runs so far registered enough), else a retry
             what = "map-check" if check and len(good) == i else f"map-retry-{i}"
             emit("stage", what, num_frames, "registered")
-        usable, rejected = {}, []
         t0 = time.perf_counter()
         mapped = map_once(seed)
         seconds = time.perf_counter() - t0
-        for k, rec in mapped.items():
-            n = rec.num_reg_images()
-            if n < smallest_model(cfg, num_frames):  # COLMAP returns leftovers (a pair that failed to grow)
-                continue
-            bogus = [c for c in model_cameras(rec) if c.has_bogus_params(*_PLAUSIBLE_CAMERA)]
-            if bogus:
-                rejected.append(
-                    {
-                        "index": int(k),
-                        "registered": n,
-                        "reason": "implausible camera parameters " + ", ".join(f"{p:.3g}" for p in bogus[0].params),
-                    }
-                )
-                continue
-            usable[k] = rec
-        registered = len({rec.image(j).name for rec in usable.values() for j in rec.reg_image_ids()})
+        usable, rejected = usable_models(mapped, cfg, num_frames)
+        registered = registered_frames(usable)
         runs.append((registered, usable, rejected))
         attempts.append({"seed": seed, "registered": registered, "models": len(usable), "seconds": seconds})
         if registered < cfg.retry_below * num_frames:
