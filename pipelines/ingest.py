@@ -373,9 +373,12 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
 
     sfm_cfg = cfg.stage_sfm()
     names = [f["name"] for f in selected.frames]
+    mask_dir = None if cfg.masks is None else sfm_masks(cfg, source.name, decoded.frames_dir, selected.frames, cache)
     # the thread count does not change the results (image ids and RANSAC seeds are fixed by the frames)
     params = {k: v for k, v in asdict(sfm_cfg).items() if k != "threads"}
     key = {"decode": stamp_of(decoded.key), "names": names, "sfm": params, "format": SFM_STAGE_FORMAT}
+    if mask_dir is not None:
+        key["masks"] = mask_dir.name  # their digest
     d = cache.stage_dir("sfm")
     video = source.kind == "video"
     # the stage resumes inside itself: run_sfm keeps what an interrupted run of the same job finished in d
@@ -383,11 +386,76 @@ def _sfm(source, cfg: IngestConfig, cache, decoded: Decoded, selected: Selected,
         "sfm",
         key,
         lambda: run_sfm(
-            decoded.frames_dir, names, d, sfm_cfg, source.path, prog, video=video, resume=not cfg.run.force
+            decoded.frames_dir,
+            names,
+            d,
+            sfm_cfg,
+            source.path,
+            prog,
+            video=video,
+            resume=not cfg.run.force,
+            mask_dir=mask_dir,
         ),
         outputs=lambda _: [d / "result.json"],
     )
     return result
+
+
+def sfm_masks(cfg: IngestConfig, scene: str, frames_dir: Path, frames: list[dict], cache) -> Path:
+    """`--masks` for SfM: each frame's mask (`masks.masks_from_folder`, at the decoded frame's size) as COLMAP
+    reads them (`ImageReaderOptions.mask_path`: <name>.png, 0 where no feature is extracted, 255 elsewhere),
+    written to the work folder's sfm_masks/<digest of the masks>/ (a changed mask, a new folder: the SfM stage
+    is redone; each file written whole). Frames without a mask file keep all their features."""
+    import hashlib
+
+    import cv2
+    import numpy as np
+
+    from seeu_data.masks import decode_mask, masks_from_folder
+    from seeu_data.store.arrow_io import atomic_write_bytes
+    from seeu_data.store.image_header import image_info
+
+    sizes = []
+    for f in frames:
+        info = image_info((frames_dir / f["name"]).read_bytes(), f["name"])
+        sizes.append((info.width, info.height))
+    masks = masks_from_folder(
+        _mask_folder(cfg, scene),
+        [f["source_name"] for f in frames],
+        [int(f["source_frame"]) for f in frames],
+        sizes,
+        cfg.mask_convention,
+        fit=lambda k, mask: _downscaled(mask, *sizes[k]),
+    )
+    digest = hashlib.sha256()
+    for f, png in zip(frames, masks):
+        digest.update(f["name"].encode() + b"\0" + (png or b""))
+    out = cache.stage_dir("sfm_masks") / digest.hexdigest()[:16]
+    out.mkdir(parents=True, exist_ok=True)
+    for f, png in zip(frames, masks):
+        if png is not None:
+            colmap = cv2.imencode(".png", np.where(decode_mask(png), 0, 255).astype(np.uint8))[1].tobytes()
+            atomic_write_bytes(out / (f["name"] + ".png"), colmap)
+    return out
+
+
+def _mask_folder(cfg: IngestConfig, scene: str) -> Path:
+    """The folder of `--masks` for `scene`: DIR/<scene>/ when present, else DIR/."""
+    folder = Path(cfg.masks or "") / scene
+    folder = folder if folder.is_dir() else Path(cfg.masks or "")
+    if not folder.is_dir():
+        raise SeeUError("--masks: not a folder", folder)
+    return folder
+
+
+def _downscaled(mask, w: int, h: int):
+    """A user's mask `(H, W)` bool brought to its frame's `w` x `h` when the frames were downscaled
+    (`--max-size`: the same aspect); as it was otherwise."""
+    from seeu_data.masks import resize_mask
+
+    if mask.shape != (h, w) and abs(mask.shape[1] * h - w * mask.shape[0]) <= max(mask.shape):
+        return resize_mask(mask, (h, w))
+    return mask
 
 
 def registered_frames(sfm_result: dict) -> int:
@@ -642,27 +710,22 @@ def chunk_masks(cfg: IngestConfig, scene: str, chunk, frames: list[dict]) -> lis
     import numpy as np
     import pycolmap
 
-    from seeu_data.masks import masks_from_folder, resize_mask, undistort_mask
+    from seeu_data.masks import masks_from_folder, undistort_mask
 
-    folder = Path(cfg.masks or "") / scene
-    folder = folder if folder.is_dir() else Path(cfg.masks or "")
-    if not folder.is_dir():
-        raise SeeUError("--masks: not a folder", folder)
     cam = chunk.meta["camera_as_mapped"]
     camera = pycolmap.Camera(model=cam["model"], width=cam["width"], height=cam["height"], params=cam["params"])
     sizes = list(zip(np.asarray(chunk.width).tolist(), np.asarray(chunk.height).tolist()))
 
     def fit(k: int, mask):
         w, h = sizes[k]
-        if mask.shape != (h, w) and abs(mask.shape[1] * h - w * mask.shape[0]) <= max(mask.shape):
-            mask = resize_mask(mask, (h, w))  # the frames were downscaled (--max-size): same aspect
+        mask = _downscaled(mask, w, h)
         if chunk.meta["undistorted"] and (w, h) == (camera.width, camera.height):
             mask = undistort_mask(mask, camera)
         return mask
 
     names = [f["source_name"] for f in frames]
     numbers = [int(f["source_frame"]) for f in frames]
-    return masks_from_folder(folder, names, numbers, sizes, cfg.mask_convention, fit=fit)
+    return masks_from_folder(_mask_folder(cfg, scene), names, numbers, sizes, cfg.mask_convention, fit=fit)
 
 
 def _scene_worker(payload: tuple) -> SceneResult:

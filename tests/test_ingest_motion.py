@@ -79,6 +79,45 @@ def test_masking_off_warns_instead_of_passing(runs):
     assert not (runs["off"]["dir"] / "motion.png").exists()
 
 
+def test_a_users_masks_keep_their_pixels_out_of_sfm(box_clip, tmp_path):
+    """`seeu ingest --masks DIR`: the renderer's exact masks of the box as the user's own (COLMAP's convention
+    inverted: nonzero = excluded): no SfM feature is extracted inside them, the cameras stay on the path, the
+    solution check passes with --dynamic off (the box fails it without the masks), and a changed mask redoes the
+    SfM stage."""
+    import cv2
+    import pycolmap
+
+    truth = load_ground_truth(box_clip)
+    masks = tmp_path / "masks"
+    masks.mkdir()
+    for frame, mask in zip(truth["frame"], truth["mask"]):
+        cv2.imwrite(str(masks / f"frame_{int(frame):06d}.png"), mask.astype(np.uint8) * 255)
+    out = tmp_path / "posed"
+    argv = ["ingest", str(box_clip), "--out", str(out), "--masks", str(masks), "--dynamic", "off"]
+    assert cli_main(argv) == 0
+    report = json.loads((out / "box" / "report.json").read_text())
+    by_frame = {f"{int(f):06d}": m for f, m in zip(truth["frame"], truth["mask"])}
+    db = pycolmap.Database.open(out / ".work" / "box" / "sfm" / "database.db")
+    try:
+        inside = total = 0
+        for image in db.read_all_images():
+            mask = by_frame[Path(image.name).stem[-6:]]
+            xy = np.asarray(db.read_keypoints(image.image_id))[:, :2].astype(int)  # the pixel each lies in
+            inside += int(mask[xy[:, 1], xy[:, 0]].sum())
+            total += len(xy)
+    finally:
+        db.close()
+    assert total > 1000 and inside == 0, (inside, total)
+    acc = ingest_accuracy(out / "box", box_clip, report["registered"], report["frames_selected"])
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5, acc
+    assert report["sfm"]["solution_check"]["state"] == "passed", report["warnings"]  # nothing moving left in SfM
+    assert cli_main(argv) == 0
+    assert json.loads((out / "box" / "report.json").read_text())["reused"]["sfm"]  # the same masks: kept
+    cv2.imwrite(str(masks / "frame_000000.png"), np.zeros(truth["mask"].shape[1:], np.uint8))  # nothing excluded
+    assert cli_main(argv) == 0
+    assert not json.loads((out / "box" / "report.json").read_text())["reused"]["sfm"]
+
+
 def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     """The mover crossing the room (`--movers large`) at 320x180 stays in the flow test's blind spot: both
     mapping runs agree on cameras 7 % of the path off (frames 0-23 carried in scale), and its moving content is

@@ -109,7 +109,7 @@ def _images_with_features(db_path: Path) -> set[str]:
 def extract(job: Job) -> int:
     """SIFT features (or `features`') of every frame without them yet, with COLMAP's extractor on
     `threads` threads, on the frames downscaled to `feature_size` (keypoints in full-frame pixels), at
-    most `max_features` each; COLMAP commits each image's as it finishes, so an interrupted extraction
+    most `max_features` each, none where a user's mask excludes (`Job.mask_dir`); COLMAP commits each image's as it finishes, so an interrupted extraction
     keeps what it finished. Returns the keypoint count; `job.resumed["images"]`: the frames whose
     features an earlier run had extracted. COLMAP reports "Processed file [k/N]" (the parent follows it)."""
     import pycolmap
@@ -124,6 +124,8 @@ def extract(job: Job) -> int:
     if todo:
         reader = pycolmap.ImageReaderOptions()
         reader.camera_model = cfg.camera_model
+        if job.mask_dir is not None:  # no features where the user's masks exclude (`run_sfm`)
+            reader.mask_path = job.mask_dir
         extraction = pycolmap.FeatureExtractionOptions()
         extraction.max_image_size = cfg.feature_size
         extraction.sift.max_num_features = cfg.max_features

@@ -23,9 +23,9 @@ a last global bundle adjustment of each mapped model with a robust loss (`final_
 whose camera has distortion of at least `max_negligible_distortion_px` at the image border (to a
 pinhole camera of the same W x H, `seeu_data.undistort`; below that the frames are used as they are
 with the camera's pinhole part) -> `result.json` + `points_depth_<k>.npy`. A video's moving content
-(`dynamic`, `seeu_data.ingest.motion`) is looked for after matching (mask: its matches dropped before
-mapping), on the mapped frames before the final bundle adjustment (mask: its observations dropped; off:
-the solution check fails on it) and on every frame after registration (mask: the masks written).
+(`dynamic`, `seeu_data.ingest.motion`) is looked for on the mapped frames before the final bundle
+adjustment (mask: its observations dropped; off: the solution check fails on it) and on every frame after
+registration (mask: the masks written); a user's masks (`mask_dir`) keep features out from the start.
 
 Output directory layout::
 
@@ -269,6 +269,7 @@ def run_sfm(
     progress=False,
     video: bool = True,
     resume: bool = True,
+    mask_dir: str | Path | None = None,
 ) -> dict:
     """Run SfM on `image_names` (files in `image_dir`) in a child process; return result.json's dict.
 
@@ -280,6 +281,8 @@ def run_sfm(
     `resume`: `out_dir` keeps what an interrupted run of the same job (frames, settings; not `threads`)
     finished there: the database with its features and verified pairs, the finished mapping runs; the
     child continues from there (`claim_dir`; anything else there is removed first).
+    `mask_dir`: masks of what SfM must leave out, as COLMAP reads them (<name>.png, 0: no features there;
+    `ImageReaderOptions.mask_path`), for the frames that have one.
     Raises SeeUError when the child aborts, crashes, or reports that no model could be built.
     """
     from seeu_data.progress import StageProgress
@@ -291,6 +294,7 @@ def run_sfm(
         "image_names": list(image_names),
         "out_dir": str(out_dir.resolve()),
         "video": bool(video),
+        "mask_dir": None if mask_dir is None else str(Path(mask_dir).resolve()),
         "config": asdict(config),
     }
     # what the work depends on: not the thread count (image ids and RANSAC seeds are fixed by the frames)
@@ -433,6 +437,7 @@ class Job:
     db_path: Path
     clock: Clock
     video: bool = True
+    mask_dir: str | None = None  # masks of what SfM leaves out (`run_sfm`)
     journal: Journal = field(init=False)
     resumed: dict = field(default_factory=dict)
 

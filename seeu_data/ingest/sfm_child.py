@@ -43,6 +43,7 @@ def main(job_path: str) -> int:
         out / "database.db",
         Clock(),
         raw.get("video", True),
+        raw.get("mask_dir"),
     )
     try:
         open_database(job)
