@@ -79,6 +79,44 @@ def test_masking_off_warns_instead_of_passing(runs):
     assert not (runs["off"]["dir"] / "motion.png").exists()
 
 
+def test_a_databases_copy_without_the_matches_on_moving_content(runs, box_clip, tmp_path):
+    """`sfm_motion.drop_matches` (the second try's database, `remap_job`) with the box's exact masks: of every
+    verified pair, the matches with a keypoint in either frame's mask go, the others stay, and the database itself
+    is left as it was."""
+    import pycolmap
+
+    from seeu_data.ingest.sfm_motion import drop_matches
+
+    truth = load_ground_truth(box_clip)
+    masks = {f"{int(f):06d}.jpg": m for f, m in zip(truth["frame"], truth["mask"])}  # by the frames' names
+    src = runs["mask"]["dir"].parent / ".work" / "box" / "sfm" / "database.db"
+
+    def verified(path):
+        db = pycolmap.Database.open(path)
+        try:
+            images = {im.image_id: im for im in db.read_all_images()}
+            points = {i: np.asarray(db.read_keypoints(i))[:, :2].astype(int) for i in images}
+            out = {}
+            for pair_id, geometry in zip(*db.read_two_view_geometries()):
+                a, b = pycolmap.pair_id_to_image_pair(pair_id)
+                pairs = np.asarray(geometry.inlier_matches).reshape(-1, 2)
+                on = np.zeros(len(pairs), bool)
+                for image_id, column in ((a, 0), (b, 1)):
+                    xy = points[image_id][pairs[:, column]]
+                    on |= masks[images[image_id].name][xy[:, 1], xy[:, 0]]
+                out[(a, b)] = (len(pairs), int(on.sum()))
+            return out
+        finally:
+            db.close()
+
+    before = verified(src)
+    dropped = drop_matches(src, tmp_path / "remap.db", masks)
+    after = verified(tmp_path / "remap.db")
+    assert dropped == sum(on for _, on in before.values()) > 100
+    assert after == {pair: (count - on, 0) for pair, (count, on) in before.items()}
+    assert verified(src) == before
+
+
 def test_a_users_masks_keep_their_pixels_out_of_sfm(box_clip, tmp_path):
     """`seeu ingest --masks DIR`: the renderer's exact masks of the box as the user's own (COLMAP's convention
     inverted: nonzero = excluded): no SfM feature is extracted inside them, the cameras stay on the path, the

@@ -132,7 +132,7 @@ def map_processes(cfg: SfmConfig) -> int:
 
 class _MapRuns:
     """Mapping runs, each in its own process (`python -m seeu_data.ingest.mapping RUN.json`, see
-    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/map_runs/run-<seed>/. Every run,
+    `_map_run`), at most `map_processes(cfg)` at a time, under <out>/<job.map_runs>/run-<seed>/. Every run,
     even a lone one, is read back from the model files it wrote, so the models do not depend on how many
     ran at once, nor on whether a run was made by an earlier, interrupted SfM child: a finished run
     (done.json) made with the same settings is kept, not run again (counted in `kept`). A run's COLMAP
@@ -141,7 +141,7 @@ class _MapRuns:
     def __init__(self, job: Job, mapper: str, kf: Keyframes, forward_below: int = 0) -> None:
         self.job, self.mapper, self.kf, self.forward_below = job, mapper, kf, forward_below
         self.limit = map_processes(job.cfg)
-        self.root = job.out / "map_runs"
+        self.root = job.out / job.map_runs
         self.root.mkdir(exist_ok=True)
         self.procs: dict[int, subprocess.Popen | None] = {}  # None: a finished run kept
         self.seconds: dict[int, float] = {}

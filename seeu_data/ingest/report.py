@@ -20,8 +20,9 @@ motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), 
 frames whose camera alone disagreed with the flow, taken out; with mask registered again), trials [{frames (first,
 last), count, placed, shift_pct, unexplained}] (frames with moving content placed again on trial), carried (mapped
 frames a mover carried: with mask taken out and registered again), rigid_gap {max, pairs_judged, pairs_over,
-taken_out} (the final cameras against each pair's best rigid motion), leave_out (off: observations,
-centre_change_pct), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
+taken_out} (the final cameras against each pair's best rigid motion), leave_out (observations,
+centre_change_pct: the cameras adjusted without them), remap {first_reason, frames_masked, matches_dropped, kept,
+reason} (a first try failed by moving content, mapped again without its matches), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
 mean_masked_pct} (seeu_data.ingest.motion),
 warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;
 also in the summary line),
@@ -259,11 +260,13 @@ def summary_line(report: dict) -> str:
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
     forward = check.get("init") == "forward motion"  # the model kept came from a forward-motion retry
+    remapped = ((report.get("motion") or {}).get("remap") or {}).get("kept")  # sfm_motion.remap_job
     skipped = skipped_line([(f["name"], f["reason"]) for f in report.get("skipped_files", [])])
     line = (
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
         + (f" after {attempts} mapping runs" if attempts > expected else "")
         + (", forward motion allowed for the initial pair" if forward else "")
+        + (", mapped again without a moving object's matches" if remapped else "")
         + "), "
         + (f"{skipped}, " if skipped else "")
         + f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "

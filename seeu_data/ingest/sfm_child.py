@@ -3,7 +3,8 @@
 
     database, extract, match with the keyframes chosen on the way (features.py, pairs.py, keyframes.py)
     -> map, final BA, register the rest, keep models (mapping.py, solution_check.py) -> export (sfm_export.py),
-    with moving content looked for on the way (sfm_motion.py, `--dynamic`)
+    with moving content looked for on the way (sfm_motion.py, `--dynamic`); where a mover carried SfM, mapped
+    again without its matches (`sfm_motion.remap_job`), that try kept when its solution check passes
 
 A child started on a directory where an interrupted one of the same job worked (`run_sfm` keeps it)
 continues from what that one finished: the database (its journal entry), each image's features, each
@@ -15,19 +16,23 @@ from __future__ import annotations
 import json
 import shutil
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 
-from seeu_data.ingest.features import extract, match, open_database
-from seeu_data.ingest.mapping import final_ba, keep_models, map_frames, register_rest
+from seeu_data.ingest.features import Matches, extract, match, open_database
+from seeu_data.ingest.keyframes import Keyframes
+from seeu_data.ingest.mapping import Mapped, final_ba, keep_models, map_frames, register_rest
 from seeu_data.ingest.sfm import Clock, Failed, Job, SfmConfig
 from seeu_data.ingest.sfm_export import export_models
 from seeu_data.ingest.sfm_motion import (
+    Moving,
     astray_plan,
     motion_export,
     motion_frames,
     motion_keyframes,
     motion_rigid,
     motion_start,
+    remap_job,
 )
 
 
@@ -50,18 +55,15 @@ def main(job_path: str) -> int:
         num_kp = extract(job)
         matches = match(job)
         kf = matches.keyframes
-        moving = motion_start(job)
-        mapped = map_frames(job, matches, kf)
+        posed = _pose(job, matches, kf, motion_start(job))
     except Failed as exc:
         failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu, "resumed": job.resumed}
         (out / "result.json").write_text(json.dumps(failed))
         return 0
-    recs = mapped.recs
-    motion_keyframes(job, recs, kf, moving, mapped.check)
-    final_ba_facts = final_ba(job, recs)
-    register_rest(job, recs, kf, mapped.check["kept_seed"], *astray_plan(job, moving))
-    motion_frames(job, recs, kf, moving, mapped.check)
-    motion_rigid(job, recs, kf, moving, mapped.check)
+    remap = remap_job(job, posed.moving, posed.mapped.check)
+    if remap is not None:
+        posed = _remapped(remap, matches, kf, posed)
+    mapped, moving, recs = posed.mapped, posed.moving, posed.mapped.recs
     kept, discarded = keep_models(recs, mapped.rejected)
     models = export_models(job, recs, kept)
     motion_export(job, recs, models, moving)
@@ -75,15 +77,57 @@ def main(job_path: str) -> int:
         "mapper": mapped.mapper_info,
         "solution_check": mapped.check,
         "keyframes": kf.info,
-        "final_ba": final_ba_facts,
+        "final_ba": posed.final_ba,
         "motion": moving.facts,
         "timings": job.clock.wall,
         "cpu_timings": job.clock.cpu,
         "resumed": job.resumed,
     }
     (out / "result.json").write_text(json.dumps(result))
-    shutil.rmtree(out / "map_runs", ignore_errors=True)  # kept only for a re-run of an interrupted child
+    for runs in ("map_runs", "remap_runs"):  # kept only for a re-run of an interrupted child
+        shutil.rmtree(out / runs, ignore_errors=True)
+    (out / "remap.db").unlink(missing_ok=True)
     return 0
+
+
+@dataclass
+class Posed:
+    """One try at the poses: the mapping kept (`Mapped`, its models adjusted and completed in place), the moving
+    content found on the way, the final bundle adjustment's facts."""
+
+    mapped: Mapped
+    moving: Moving
+    final_ba: list[dict] | None
+
+
+def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
+    """Map, look for moving content, adjust, register the rest, look again (the steps after matching)."""
+    mapped = map_frames(job, matches, kf)
+    recs = mapped.recs
+    motion_keyframes(job, recs, kf, moving, mapped.check)
+    facts = final_ba(job, recs)
+    register_rest(job, recs, kf, mapped.check["kept_seed"], *astray_plan(job, moving))
+    motion_frames(job, recs, kf, moving, mapped.check)
+    motion_rigid(job, recs, kf, moving, mapped.check)
+    return Posed(mapped, moving, facts)
+
+
+def _remapped(job: Job, matches: Matches, kf: Keyframes, first: Posed) -> Posed:
+    """The second try (`remap_job`: without the matches on moving content) when its solution check passes, else
+    the first as it was; "remap" in the kept one's motion facts says which ("kept") and why not ("reason")."""
+    facts = first.moving.facts["remap"]
+    try:
+        second = _pose(job, matches, kf, motion_start(job, first.moving.memo))
+    except Failed as exc:
+        facts.update(kept=False, reason=str(exc))
+        return first
+    check = second.mapped.check
+    if check.get("passed") is not True:
+        facts.update(kept=False, reason=check.get("reason"))
+        return first
+    facts["kept"] = True
+    second.moving.facts["remap"] = facts
+    return second
 
 
 if __name__ == "__main__":

@@ -6,9 +6,10 @@ order `sfm_child.main` calls them.
                                                  mapped frames against their SfM cameras; frames with
                                                  moving content placed again on trial; mask: frames a
                                                  large mover carried taken out too, the others' moving
-                                                 observations dropped before the final BA; off: moving
-                                                 content found fails the solution check; either: frames
-                                                 mostly unexplained by the cameras fail it)
+                                                 observations dropped before the final BA, and fail the
+                                                 solution check when leaving them out moves the cameras
+                                                 past its line; off: moving content found fails it;
+                                                 either: frames mostly unexplained by the cameras fail it)
     registration:              astray_plan      (mask: the frames taken out registered again against the
                                                  static points; off: left out)
     after registration:        motion_frames    (mask: every registered frame, the final masks; frames
@@ -17,6 +18,9 @@ order `sfm_child.main` calls them.
     then:                      motion_rigid     (either: the mapped frames' final cameras against the best
                                                  rigid motion of each pair; carried frames that do not fit
                                                  taken out, other pairs that do not fail the solution check)
+    a check failed so:         remap_job        (mask: the database without the matches on what the best
+                                                 rigid motion of the flow leaves unexplained; the steps from
+                                                 mapping again on it, that try kept when its check passes)
     after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
 """
 
@@ -24,6 +28,7 @@ from __future__ import annotations
 
 from collections.abc import Iterable
 from dataclasses import dataclass, field, replace
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from seeu_data.ingest.keyframes import Keyframes
@@ -39,8 +44,8 @@ if TYPE_CHECKING:
 class Moving:
     """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
     result.json's "motion" {"mode", "judged" (a video: frames in time order), "keyframes"
-    (the mapped frames), "frames" (all, after registration), "leave_out" (off), "masked_pct" {name: % of the
-    frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover carried:
+    (the mapped frames), "frames" (all, after registration), "leave_out", "remap" (`remap_job`), "masked_pct"
+    {name: % of the frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover carried:
     `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask; `memo`: the frames and
     flows the passes share (`motion.FlowMemo`)."""
 
@@ -61,32 +66,40 @@ class _Counter:
         emit("done", self.done)
 
 
-def motion_start(job: Job) -> Moving:
+def motion_start(job: Job, memo: FlowMemo | None = None) -> Moving:
     """Nothing found before mapping: mapping uses every verified match, moving content's included.
 
     Dropping the matches that a flow-only pass (cameras guessed from the flow) finds on moving content
     before mapping left the mapper too little to go on: on the 30-frame swinging-box walk
     (tests/test_ingest_motion.py) the poses went 10 % of the path off (18 % with the renderer's exact
     masks, the focal length 91 % off), against 0.06 % when the moving content is left in for mapping and
-    its observations leave before the final bundle adjustment (`motion_keyframes`)."""
+    its observations leave before the final bundle adjustment (`motion_keyframes`). `memo`: the frames and flows
+    of a first try (`remap_job`)."""
     from seeu_data.ingest.motion import FlowMemo
 
-    return Moving({}, {"mode": job.cfg.dynamic, "judged": job.video}, FlowMemo(job.image_dir))
+    return Moving({}, {"mode": job.cfg.dynamic, "judged": job.video}, memo or FlowMemo(job.image_dir))
 
 
 def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
     """A video's mapped frames against the flow their SfM cameras allow. mask: frames a large mover carried
     (`motion.carried_frames`) taken out, to be registered again against the static points (`astray_plan`),
-    the others' observations in moving regions dropped before the final bundle adjustment. off: the leave-out
-    test (`_leave_out`), and moving content found (`motion.moving_content`) or frames a mover carried fail the
-    solution `check`. Either mode: a trial (`_placed_on_trial`) looks for frames a mover carried unseen, and
+    the others' observations in moving regions dropped before the final bundle adjustment. Both modes: the
+    leave-out test (`_leave_out`); mask: the cameras moving past the solution check's line without them fail it
+    (`motion.masked_content_carried`); off: moving content found (`motion.moving_content`) or frames a mover
+    carried fail the solution `check`. Either mode: a trial (`_placed_on_trial`) looks for frames a mover carried unseen, and
     frames left mostly unexplained by the cameras (`motion.cameras_disagree`) fail the check (in place;
     "moving_content" says why)."""
     if not job.video:
         return
     import pycolmap
 
-    from seeu_data.ingest.motion import cameras_disagree, carried_frames, drop_observations, moving_content
+    from seeu_data.ingest.motion import (
+        cameras_disagree,
+        carried_frames,
+        drop_observations,
+        masked_content_carried,
+        moving_content,
+    )
 
     emit("stage", "motion-check", len(kf.names), "frames")
     t0 = job.clock.mark()
@@ -106,10 +119,12 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
         moving.astray += carried
         moving.facts["carried"] = carried
     moving.masks = masks
+    if masks:
+        moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
     if job.cfg.dynamic == "mask":
         moving.facts["keyframes"]["observations_dropped"] = sum(drop_observations(r, masks) for r in recs.values())
+        found = found or masked_content_carried(moving.facts, job.cfg.max_disagreement_pct)
     elif masks:
-        moving.facts["leave_out"] = _leave_out(job, {k: pycolmap.Reconstruction(r) for k, r in recs.items()}, masks)
         found = found or moving_content(moving.facts)
     found = cameras_disagree(masks, kf.names) or found
     if found:
@@ -150,6 +165,71 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
     if why and check.get("passed") is not False:  # a check failed already keeps its reason
         _fail(check, why)
     job.clock.add("motion_s", t0)
+
+
+def remap_job(job: Job, moving: Moving, check: dict) -> Job | None:
+    """--dynamic mask, a video whose solution `check` failed with moving content found (its reason
+    `moving_content`, or moving content in MIN_MOVING_FRAMES mapped frames): the job to map again, on a copy of
+    the database (remap.db) without the verified matches that touch what the best rigid motion of the flow leaves
+    unexplained (`motion.rigid_pass` over every frame: the mover, even where it carried the cameras), its mapping
+    runs in remap_runs/. None when not wanted, or when that finds moving content in fewer than MIN_MOVING_FRAMES
+    frames. moving.facts["remap"]: {"first_reason", "frames_masked"[, "matches_dropped"]}.
+
+    Kept only when its own solution check passes (`sfm_child`): every check runs again on what it maps."""
+    from seeu_data.ingest.motion import MIN_MOVING_FRAMES, rigid_pass
+
+    found = (moving.facts.get("keyframes") or {}).get("frames_with_motion", 0)
+    if job.cfg.dynamic != "mask" or not job.video or check.get("passed") is not False:
+        return None
+    if not check.get("moving_content") and found < MIN_MOVING_FRAMES:
+        return None
+    emit("stage", "motion-remap", len(job.names), "frames")
+    t0 = job.clock.mark()
+    masks = rigid_pass(moving.memo, job.names, on_frame=_Counter())
+    facts = moving.facts["remap"] = {"first_reason": check.get("reason"), "frames_masked": len(masks)}
+    if len(masks) >= MIN_MOVING_FRAMES:
+        facts["matches_dropped"] = drop_matches(job.db_path, job.out / "remap.db", masks)
+    job.clock.add("motion_s", t0)
+    return replace(job, db_path=job.out / "remap.db", map_runs="remap_runs") if "matches_dropped" in facts else None
+
+
+def drop_matches(src: Path, dst: Path, masks: dict) -> int:
+    """A copy of the SfM database `src` at `dst` without the verified matches (two-view geometries' inliers)
+    whose keypoint in either frame lies in that frame's moving `masks` {name: (h, w) bool, working size};
+    returns how many went. COLMAP's correspondence graph then leaves out pairs left with too few."""
+    import numpy as np
+    import pycolmap
+
+    from seeu_data.ingest.features import copy_database
+    from seeu_data.ingest.motion import moving_keypoints
+
+    dst.unlink(missing_ok=True)
+    copy_database(src, dst)
+    db = pycolmap.Database.open(dst)
+    dropped = 0
+    try:
+        moving: dict[int, np.ndarray] = {}
+        for image in db.read_all_images():
+            if image.name in masks:
+                camera = db.read_camera(image.camera_id)
+                xy = np.asarray(db.read_keypoints(image.image_id))[:, :2]
+                moving[image.image_id] = moving_keypoints(xy, masks[image.name], camera.width, camera.height)
+        for pair_id, geometry in zip(*db.read_two_view_geometries()):
+            a, b = pycolmap.pair_id_to_image_pair(pair_id)
+            pairs = np.asarray(geometry.inlier_matches)
+            if not len(pairs) or (a not in moving and b not in moving):
+                continue
+            out = np.zeros(len(pairs), bool)
+            for image_id, column in ((a, 0), (b, 1)):
+                if image_id in moving:
+                    out |= moving[image_id][pairs[:, column]]
+            if out.any():
+                geometry.inlier_matches = pairs[~out]
+                db.update_two_view_geometry(a, b, geometry)
+                dropped += int(out.sum())
+    finally:
+        db.close()
+    return dropped
 
 
 def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int, moving: Moving) -> list[str]:
