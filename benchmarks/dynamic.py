@@ -13,7 +13,10 @@
    state and the warnings (with masking off, a clip with movers must end in a warning, not a pass),
    and with masking the masks against the truth (`seeu_data.synthetic.mask_accuracy`: pooled IoU, the
    goal >= 0.7 on the box; recall; false positives, % of all pixels, mean and worst frame: on the clip
-   without movers every masked pixel is one). Writes <out>/result.json.
+   without movers every masked pixel is one), and whether a first try failed by moving content was mapped again
+   without the mover's matches ("mapped again: kept" when that try passed). Writes <out>/result.json.
+   With --exact-masks each clip with movers gets its exact masks as the user's own (`seeu ingest --masks`,
+   which keeps SfM's features out of them).
 4. With --footage KINDS: static clips of `benchmarks/footage.py` (another renderer: a street walk, an orbit, a
    tripod pan; sky, smooth walls, other textures) ingested with --dynamic mask, where every masked pixel is a
    false positive (`mask_accuracy` against a truth without movers): the mean share of the pixels, the worst
@@ -24,6 +27,7 @@ Example (quiet 2-core machine, the figures in RESULTS.md):
   .venv/bin/python benchmarks/dynamic.py --quick --out out/bench_dynamic_quick   # 30 frames 320x180, box only
   .venv/bin/python benchmarks/dynamic.py --movers "" --modes mask --footage walk,orbit,pan   # false positives only
   .venv/bin/python benchmarks/dynamic.py --movers unseen --modes mask --size 180x320   # movers never tuned on
+  .venv/bin/python benchmarks/dynamic.py --movers unseen --modes mask --size 180x320 --exact-masks   # as --masks
 """
 
 from __future__ import annotations
@@ -59,14 +63,38 @@ def _cpu_s() -> float:
     return own.ru_utime + own.ru_stime + kids.ru_utime + kids.ru_stime
 
 
-def run_clip(video: Path, out: Path, mode: str) -> dict:
-    """One ingest of `video` with --dynamic `mode` into `out`: times, accuracy, check, warnings, masks."""
+def exact_masks(video: Path, folder: Path) -> Path | None:
+    """The clip's exact mover masks as a user's mask folder (`seeu ingest --masks`: <frame>.png, nonzero =
+    excluded); None for a clip without movers."""
+    import cv2
+    import numpy as np
+
+    from seeu_data.synthetic import load_ground_truth
+
+    truth = load_ground_truth(video)
+    if "mask" not in truth:
+        return None
+    folder.mkdir(parents=True, exist_ok=True)
+    for frame, mask in zip(truth["frame"], truth["mask"]):
+        cv2.imwrite(str(folder / f"{int(frame):06d}.png"), mask.astype(np.uint8) * 255)
+    return folder
+
+
+def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None) -> dict:
+    """One ingest of `video` with --dynamic `mode` (and `--masks masks`) into `out`: times, accuracy, check,
+    warnings, masks, the second mapping without a mover's matches (report.json's motion.remap)."""
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
     from seeu_data.synthetic import ingest_accuracy, mask_accuracy
 
-    cfg = IngestConfig(out=out, inputs=(video,), sfm=SfmConfig(dynamic=mode), run=IngestRunConfig(force=True))
+    cfg = IngestConfig(
+        out=out,
+        inputs=(video,),
+        sfm=SfmConfig(dynamic=mode),
+        run=IngestRunConfig(force=True),
+        masks=None if masks is None else str(masks),
+    )
     (source,) = discover_sources([video])
     c0, t0 = _cpu_s(), time.perf_counter()
     report = ingest_scene(source, cfg)
@@ -85,6 +113,7 @@ def run_clip(video: Path, out: Path, mode: str) -> dict:
         "mean_masked_pct": motion.get("mean_masked_pct"),
         "frames_masked": motion.get("frames_masked", 0),
         "masks": mask_accuracy(report["output"], video) if mode == "mask" else None,
+        "remap": motion.get("remap"),
     }
 
 
@@ -99,6 +128,8 @@ def line(name: str, mode: str, r: dict, base: dict | None) -> str:
         f"centres {'-' if centre is None else f'{centre:.3f}'} % path  check {r['check']}"
         f"{'  WARNING' if r['warnings'] else ''}"
     )
+    if r.get("remap"):
+        out += "  mapped again: kept" if r["remap"].get("kept") else "  mapped again: not kept"
     m = r["masks"]
     if m:
         out += (
@@ -121,6 +152,11 @@ def main() -> int:
     ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
     ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
     ap.add_argument("--footage", default="", help="static kinds of benchmarks/footage.py (walk, orbit, pan) to ingest")
+    ap.add_argument(
+        "--exact-masks",
+        action="store_true",
+        help="give each clip with movers its exact masks as the user's own (seeu ingest --masks)",
+    )
     ap.add_argument("--out", type=Path, default=Path("out/bench_dynamic"))
     args = ap.parse_args()
     if args.quick:
@@ -147,9 +183,10 @@ def main() -> int:
         t0 = time.perf_counter()
         write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed, movers=name))
         print(f"rendered {name}: {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s", flush=True)
+        masks = exact_masks(video, args.out / "exact_masks" / name) if args.exact_masks else None
         for mode in modes:
             try:
-                r = run_clip(video, args.out / "posed" / mode, mode)
+                r = run_clip(video, args.out / "posed" / mode, mode, masks)
             except SeeUError as e:
                 r = {"error": str(e)}
             results.setdefault(name, {})[mode] = r

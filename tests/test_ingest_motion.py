@@ -178,6 +178,26 @@ def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     assert rigid["pairs_judged"] > 30 and set(rigid["taken_out"]) <= set(report["motion"]["carried"])
 
 
+def test_a_mover_that_carried_sfm_is_mapped_again_without_its_matches(tmp_path):
+    """The mover crossing far ahead (`--movers far`, 320x180) carries every mapping run (16 % of the path off, the
+    runs agreeing); the rigid check fails the first try, and ingest maps again on a database without the matches
+    on what the best rigid motion of the flow leaves unexplained (`sfm_motion.remap_job`): that try passes every
+    check and is kept, its cameras within 1 % of the path (0.55 % measured)."""
+    clip = tmp_path / "far.mp4"
+    write_clip(clip, n_frames=90, size=(H, W), seed=0, movers="far")
+    assert cli_main(["ingest", str(clip), "--out", str(tmp_path / "posed")]) == 0
+    run = tmp_path / "posed" / "far"
+    report = json.loads((run / "report.json").read_text())
+    remap = report["motion"]["remap"]
+    assert remap["kept"] and "rigid motion" in remap["first_reason"], remap
+    assert remap["frames_masked"] >= 3 and remap["matches_dropped"] > 0
+    assert report["sfm"]["solution_check"]["state"] == "passed"
+    acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
+    assert acc["largest"]["centre_rmse_pct_path"] < 1.0, acc
+    assert "mapped again without a moving object's matches" in summary_line(report)
+    assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "remap.db").exists()  # the work folder tidied
+
+
 def test_no_chunk_error_says_what_moving_content_did():
     """Ingest stops with one line when no run of frames is long enough; where a mover carried frames (taken out)
     or failed the check, the line says so (a big box circling ahead of the camera did both)."""
