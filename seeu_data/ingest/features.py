@@ -110,8 +110,9 @@ def extract(job: Job) -> int:
     """SIFT features (or `features`') of every frame without them yet, with COLMAP's extractor on
     `threads` threads, on the frames downscaled to `feature_size` (keypoints in full-frame pixels), at
     most `max_features` each, none where a user's mask excludes (`Job.mask_dir`); COLMAP commits each
-    image's as it finishes, so an interrupted extraction keeps what it finished. Returns the keypoint count; `job.resumed["images"]`: the frames whose
-    features an earlier run had extracted. COLMAP reports "Processed file [k/N]" (the parent follows it)."""
+    image's as it finishes, so an interrupted extraction keeps what it finished. Returns the keypoint count;
+    `job.resumed["images"]`: the frames whose features an earlier run had extracted. COLMAP reports "Processed
+    file [k/N]" (the parent follows it)."""
     import pycolmap
 
     cfg, clock = job.cfg, job.clock

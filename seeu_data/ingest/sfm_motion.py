@@ -45,8 +45,8 @@ class Moving:
     """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
     result.json's "motion" {"mode", "judged" (a video: frames in time order), "keyframes"
     (the mapped frames), "frames" (all, after registration), "leave_out", "remap" (`remap_job`), "masked_pct"
-    {name: % of the frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover carried:
-    `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask; `memo`: the frames and
+    {name: % of the frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover
+    carried: `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask; `memo`: the frames and
     flows the passes share (`motion.FlowMemo`)."""
 
     masks: dict
@@ -86,8 +86,8 @@ def motion_keyframes(job: Job, recs: dict, kf: Keyframes, moving: Moving, check:
     the others' observations in moving regions dropped before the final bundle adjustment. Both modes: the
     leave-out test (`_leave_out`); mask: the cameras moving past the solution check's line without them fail it
     (`motion.masked_content_carried`); off: moving content found (`motion.moving_content`) or frames a mover
-    carried fail the solution `check`. Either mode: a trial (`_placed_on_trial`) looks for frames a mover carried unseen, and
-    frames left mostly unexplained by the cameras (`motion.cameras_disagree`) fail the check (in place;
+    carried fail the solution `check`. Either mode: a trial (`_placed_on_trial`) looks for frames a mover carried
+    unseen, and frames left mostly unexplained by the cameras (`motion.cameras_disagree`) fail the check (in place;
     "moving_content" says why)."""
     if not job.video:
         return
@@ -178,9 +178,9 @@ def remap_job(job: Job, moving: Moving, check: dict) -> Job | None:
     Kept only when its own solution check passes (`sfm_child`): every check runs again on what it maps."""
     from seeu_data.ingest.motion import MIN_MOVING_FRAMES, rigid_pass
 
-    found = (moving.facts.get("keyframes") or {}).get("frames_with_motion", 0)
     if job.cfg.dynamic != "mask" or not job.video or check.get("passed") is not False:
         return None
+    found = (moving.facts.get("keyframes") or {}).get("frames_with_motion", 0)
     if not check.get("moving_content") and found < MIN_MOVING_FRAMES:
         return None
     emit("stage", "motion-remap", len(job.names), "frames")
