@@ -413,12 +413,9 @@ def sfm_masks(cfg: IngestConfig, scene: str, frames_dir: Path, frames: list[dict
 
     from seeu_data.masks import decode_mask, masks_from_folder
     from seeu_data.store.arrow_io import atomic_write_bytes
-    from seeu_data.store.image_header import image_info
+    from seeu_data.store.image_header import file_image_size
 
-    sizes = []
-    for f in frames:
-        info = image_info((frames_dir / f["name"]).read_bytes(), f["name"])
-        sizes.append((info.width, info.height))
+    sizes = [file_image_size(frames_dir / f["name"]) for f in frames]
     masks = masks_from_folder(
         _mask_folder(cfg, scene),
         [f["source_name"] for f in frames],

@@ -92,6 +92,26 @@ def _render(movers: str, n: int = 16):
     return frames, np.stack(truth), poses
 
 
+def _write_frames(folder, frames) -> list[str]:
+    """The grey frames as folder/000000.png, ... (what the motion passes read); their names."""
+    import cv2
+
+    names = [f"{i:06d}.png" for i in range(len(frames))]
+    for name, frame in zip(names, frames):
+        cv2.imwrite(str(folder / name), frame)
+    return names
+
+
+def _check_masks(masks, truth, movers: str, most_masked: float, least_iou: float) -> None:
+    """Masks `(n, H, W)` bool against the exact ones: on the walk without movers at most `most_masked` of the pixels
+    masked, with the box an IoU over the clip above `least_iou`."""
+    if movers == "none":
+        assert masks.mean() < most_masked
+    else:
+        iou = (masks & truth).sum() / (masks | truth).sum()
+        assert iou > least_iou, iou
+
+
 def _masks_with_true_cameras(frames, poses):
     """`motion.detect` with the residual under the clip's exact cameras (as `model_pass` forms it from SfM's)."""
     fx, fy, cx, cy = default_intrinsics_norm(W, H) * np.array([W, H, W, H])
@@ -112,12 +132,7 @@ def test_masks_find_the_rendered_box_and_nothing_on_the_static_walk(movers):
     frames, truth, poses = _render(movers)
     masks = _masks_with_true_cameras(frames, poses)
     assert masks.shape == (len(frames), H // motion.GRID_STEP, W // motion.GRID_STEP)
-    full = np.stack([motion.full_size(m, W, H) for m in masks])
-    if movers == "none":
-        assert full.mean() < 0.005
-    else:
-        iou = (full & truth).sum() / (full | truth).sum()
-        assert iou > 0.7, iou
+    _check_masks(np.stack([motion.full_size(m, W, H) for m in masks]), truth, movers, 0.005, 0.7)
 
 
 def test_texture_is_a_corner_not_an_edge_or_a_flat_patch():
@@ -214,9 +229,7 @@ def test_frames_whose_cameras_alone_are_wrong_are_found_astray(tmp_path, wrong, 
     import cv2
 
     frames, _, poses = _render("none", 12)
-    names = [f"{i:06d}.png" for i in range(12)]
-    for name, frame in zip(names, frames):
-        cv2.imwrite(str(tmp_path / name), frame)
+    names = _write_frames(tmp_path, frames)
     poses = poses.copy()
     turn = np.eye(4)
     turn[:3, :3] = cv2.Rodrigues(np.array([0.0, np.radians(10.0), 0.0]))[0]
@@ -260,19 +273,11 @@ def test_the_best_rigid_motion_leaves_the_box_unexplained_without_cameras(tmp_pa
     """`rigid_pass` (no cameras: each pair's fundamental matrix fitted to its flow) on 16 frames of the walk: the
     swinging box against its exact masks (IoU over the clip; 0.76 measured), and the walk without it (the share of
     pixels masked; 0.3 % measured)."""
-    import cv2
-
     frames, truth, _ = _render(movers)
-    names = [f"{i:06d}.png" for i in range(len(frames))]
-    for name, frame in zip(names, frames):
-        cv2.imwrite(str(tmp_path / name), frame)
+    names = _write_frames(tmp_path, frames)
     found = motion.rigid_pass(tmp_path, names)
     full = np.stack([motion.full_size(found[n], W, H) if n in found else np.zeros((H, W), bool) for n in names])
-    if movers == "none":
-        assert full.mean() < 0.01
-    else:
-        iou = (full & truth).sum() / (full | truth).sum()
-        assert iou > 0.6, iou
+    _check_masks(full, truth, movers, 0.01, 0.6)
 
 
 def test_moving_content_that_moves_the_cameras_when_left_out_fails_the_check_with_masking():
@@ -292,12 +297,9 @@ def test_passes_sharing_a_flow_memo_find_what_each_finds_alone_and_compute_each_
     """The SfM child's passes over the same frames (`astray_frames`, `model_pass` on every frame and on every
     second one, `rigid_gaps`) read their frames and flows through one `FlowMemo`: each finds exactly what it
     finds reading the folder itself, and each flow between neighbouring frames is computed once."""
-    import cv2
 
     frames, _, poses = _render("box", 12)
-    names = [f"{i:06d}.png" for i in range(12)]
-    for name, frame in zip(names, frames):
-        cv2.imwrite(str(tmp_path / name), frame)
+    names = _write_frames(tmp_path, frames)
     rec = _model(poses, names)
 
     def passes(source):
