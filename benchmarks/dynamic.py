@@ -13,8 +13,8 @@
    state and the warnings (with masking off, a clip with movers must end in a warning, not a pass),
    and with masking the masks against the truth (`seeu_data.synthetic.mask_accuracy`: pooled IoU, the
    goal >= 0.7 on the box; recall; false positives, % of all pixels, mean and worst frame: on the clip
-   without movers every masked pixel is one), and whether a first try failed by moving content was mapped again
-   without the mover's matches ("mapped again: kept" when that try passed). Writes <out>/result.json.
+   without movers every masked pixel is one), and whether the try mapped first without the matches on moving
+   content was kept (else every match was mapped in a second try). Writes <out>/result.json.
    With --exact-masks each clip with movers gets its exact masks as the user's own (`seeu ingest --masks`,
    which keeps SfM's features out of them).
 4. With --footage KINDS: static clips of `benchmarks/footage.py` (another renderer: a street walk, an orbit, a
@@ -82,7 +82,7 @@ def exact_masks(video: Path, folder: Path) -> Path | None:
 
 def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None) -> dict:
     """One ingest of `video` with --dynamic `mode` (and `--masks masks`) into `out`: times, accuracy, check,
-    warnings, masks, the second mapping without a mover's matches (report.json's motion.remap)."""
+    warnings, masks, the first try without the matches on moving content (report.json's motion.static_first)."""
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
@@ -113,7 +113,7 @@ def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None) -> di
         "mean_masked_pct": motion.get("mean_masked_pct"),
         "frames_masked": motion.get("frames_masked", 0),
         "masks": mask_accuracy(report["output"], video) if mode == "mask" else None,
-        "remap": motion.get("remap"),
+        "static_first": motion.get("static_first"),
     }
 
 
@@ -128,8 +128,9 @@ def line(name: str, mode: str, r: dict, base: dict | None) -> str:
         f"centres {'-' if centre is None else f'{centre:.3f}'} % path  check {r['check']}"
         f"{'  WARNING' if r['warnings'] else ''}"
     )
-    if r.get("remap"):
-        out += "  mapped again: kept" if r["remap"].get("kept") else "  mapped again: not kept"
+    static = (r.get("static_first") or {}).get("kept")
+    if static is not None:  # mapped first without the matches on moving content
+        out += "  without the mover's matches" if static else "  with every match (a second try)"
     m = r["masks"]
     if m:
         out += (

@@ -80,7 +80,7 @@ def test_masking_off_warns_instead_of_passing(runs):
 
 
 def test_a_databases_copy_without_the_matches_on_moving_content(runs, box_clip, tmp_path):
-    """`sfm_motion.drop_matches` (the second try's database, `remap_job`) with the box's exact masks: of every
+    """`sfm_motion.drop_matches` (the database mapped first, `static_job`) with the box's exact masks: of every
     verified pair, the matches with a keypoint in either frame's mask go, the others stay, and the database itself
     is left as it was."""
     import pycolmap
@@ -110,8 +110,8 @@ def test_a_databases_copy_without_the_matches_on_moving_content(runs, box_clip, 
             db.close()
 
     before = verified(src)
-    dropped = drop_matches(src, tmp_path / "remap.db", masks)
-    after = verified(tmp_path / "remap.db")
+    dropped = drop_matches(src, tmp_path / "static.db", masks)
+    after = verified(tmp_path / "static.db")
     assert dropped == sum(on for _, on in before.values()) > 100
     assert after == {pair: (count - on, 0) for pair, (count, on) in before.items()}
     assert verified(src) == before
@@ -161,12 +161,17 @@ def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     mapping runs agree on cameras 7 % of the path off (frames 0-23 carried in scale), and its moving content is
     found in a few frames at the start only. Placed again against the rest on trial (`motion.trial_frames`), those
     frames move by more than TRIAL_SHIFT_PCT with the flow confirming them: they are carried, and the cameras
-    come to within 0.5 % of the path (0.047 % measured, frames 23-89)."""
+    come to within 0.5 % of the path (0.047 % measured, frames 23-89). Mapped first without the matches on what
+    the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`), its check fails (where the
+    mover fills most of the view, the best rigid motion is its own): that try is not kept, every match is mapped."""
     clip = tmp_path / "large.mp4"
     write_clip(clip, n_frames=90, size=(H, W), seed=0, movers="large")
     assert cli_main(["ingest", str(clip), "--out", str(tmp_path / "posed")]) == 0
     run = tmp_path / "posed" / "large"
     report = json.loads((run / "report.json").read_text())
+    static = report["motion"]["static_first"]
+    assert static["matches_dropped"] > 0 and not static["kept"] and static["reason"], static
+    assert "mapped again with every match" in summary_line(report)
     trial = report["motion"]["trials"][-1]
     assert trial["shift_pct"] > 0.5 and not trial["unexplained"], report["motion"]["trials"]
     assert len(report["motion"]["carried"]) == trial["count"]
@@ -178,24 +183,24 @@ def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     assert rigid["pairs_judged"] > 30 and set(rigid["taken_out"]) <= set(report["motion"]["carried"])
 
 
-def test_a_mover_that_carried_sfm_is_mapped_again_without_its_matches(tmp_path):
-    """The mover crossing far ahead (`--movers far`, 320x180) carries every mapping run (16 % of the path off, the
-    runs agreeing); the rigid check fails the first try, and ingest maps again on a database without the matches
-    on what the best rigid motion of the flow leaves unexplained (`sfm_motion.remap_job`): that try passes every
-    check and is kept, its cameras within 1 % of the path (0.55 % measured)."""
+def test_a_mover_that_carries_sfm_is_mapped_without_its_matches(tmp_path):
+    """The mover crossing far ahead (`--movers far`, 320x180) carries every mapping run on every match (16 % of the
+    path off, the runs agreeing; the rigid check fails them). Ingest maps first on a database without the matches
+    on what the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`): that try passes every
+    check and is kept, its cameras within 1 % of the path (0.55 % measured), mapped once."""
     clip = tmp_path / "far.mp4"
     write_clip(clip, n_frames=90, size=(H, W), seed=0, movers="far")
     assert cli_main(["ingest", str(clip), "--out", str(tmp_path / "posed")]) == 0
     run = tmp_path / "posed" / "far"
     report = json.loads((run / "report.json").read_text())
-    remap = report["motion"]["remap"]
-    assert remap["kept"] and "rigid motion" in remap["first_reason"], remap
-    assert remap["frames_masked"] >= 3 and remap["matches_dropped"] > 0
+    static = report["motion"]["static_first"]
+    assert static["kept"] and static["frames_masked"] >= 3 and static["matches_dropped"] > 0, static
     assert report["sfm"]["solution_check"]["state"] == "passed"
+    assert len(report["sfm"]["mapping_attempts"]) == 2  # one run and the check's
     acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
     assert acc["largest"]["centre_rmse_pct_path"] < 1.0, acc
-    assert "mapped again without a moving object's matches" in summary_line(report)
-    assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "remap.db").exists()  # the work folder tidied
+    assert "mapped without a moving object's matches" in summary_line(report)
+    assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "static.db").exists()  # the work folder tidied
 
 
 def test_no_chunk_error_says_what_moving_content_did():

@@ -21,8 +21,8 @@ frames whose camera alone disagreed with the flow, taken out; with mask register
 last), count, placed, shift_pct, unexplained}] (frames with moving content placed again on trial), carried (mapped
 frames a mover carried: with mask taken out and registered again), rigid_gap {max, pairs_judged, pairs_over,
 taken_out} (the final cameras against each pair's best rigid motion), leave_out (observations,
-centre_change_pct: the cameras adjusted without them), remap {first_reason, frames_masked, matches_dropped, kept,
-reason} (a first try failed by moving content, mapped again without its matches), masked_pct [[source frame, %
+centre_change_pct: the cameras adjusted without them), static_first {frames_masked, matches_dropped, kept, reason}
+(with mask, mapped first without the matches on moving content; not kept: mapped again with every match), masked_pct [[source frame, %
 of the frame]] of the frames with a mask, frames_masked, mean_masked_pct} (seeu_data.ingest.motion),
 warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;
 also in the summary line),
@@ -260,13 +260,13 @@ def summary_line(report: dict) -> str:
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
     forward = check.get("init") == "forward motion"  # the model kept came from a forward-motion retry
-    remapped = ((report.get("motion") or {}).get("remap") or {}).get("kept")  # sfm_motion.remap_job
+    static = ((report.get("motion") or {}).get("static_first") or {}).get("kept")  # sfm_motion.static_job
     skipped = skipped_line([(f["name"], f["reason"]) for f in report.get("skipped_files", [])])
     line = (
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
         + (f" after {attempts} mapping runs" if attempts > expected else "")
         + (", forward motion allowed for the initial pair" if forward else "")
-        + (", mapped again without a moving object's matches" if remapped else "")
+        + {True: ", mapped without a moving object's matches", False: ", mapped again with every match"}.get(static, "")
         + "), "
         + (f"{skipped}, " if skipped else "")
         + f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "

@@ -3,8 +3,8 @@
 
     database, extract, match with the keyframes chosen on the way (features.py, pairs.py, keyframes.py)
     -> map, final BA, register the rest, keep models (mapping.py, solution_check.py) -> export (sfm_export.py),
-    with moving content looked for on the way (sfm_motion.py, `--dynamic`); where a mover carried SfM, mapped
-    again without its matches (`sfm_motion.remap_job`), that try kept when its solution check passes
+    with moving content looked for on the way (sfm_motion.py, `--dynamic`); with mask, mapped first without
+    the matches on moving content (`sfm_motion.static_job`), that try kept when its solution check passes
 
 A child started on a directory where an interrupted one of the same job worked (`run_sfm` keeps it)
 continues from what that one finished: the database (its journal entry), each image's features, each
@@ -32,7 +32,7 @@ from seeu_data.ingest.sfm_motion import (
     motion_keyframes,
     motion_rigid,
     motion_start,
-    remap_job,
+    static_job,
 )
 
 
@@ -55,14 +55,11 @@ def main(job_path: str) -> int:
         num_kp = extract(job)
         matches = match(job)
         kf = matches.keyframes
-        posed = _pose(job, matches, kf, motion_start(job))
+        posed = _posed(job, matches, kf)
     except Failed as exc:
         failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu, "resumed": job.resumed}
         (out / "result.json").write_text(json.dumps(failed))
         return 0
-    remap = remap_job(job, posed.moving, posed.mapped.check)
-    if remap is not None:
-        posed = _remapped(remap, matches, kf, posed)
     mapped, moving, recs = posed.mapped, posed.moving, posed.mapped.recs
     kept, discarded = keep_models(recs, mapped.rejected)
     models = export_models(job, recs, kept)
@@ -84,9 +81,9 @@ def main(job_path: str) -> int:
         "resumed": job.resumed,
     }
     (out / "result.json").write_text(json.dumps(result))
-    for runs in ("map_runs", "remap_runs"):  # kept only for a re-run of an interrupted child
+    for runs in ("map_runs", "static_runs"):  # kept only for a re-run of an interrupted child
         shutil.rmtree(out / runs, ignore_errors=True)
-    (out / "remap.db").unlink(missing_ok=True)
+    (out / "static.db").unlink(missing_ok=True)
     return 0
 
 
@@ -112,21 +109,26 @@ def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
     return Posed(mapped, moving, facts)
 
 
-def _remapped(job: Job, matches: Matches, kf: Keyframes, first: Posed) -> Posed:
-    """The second try (`remap_job`: without the matches on moving content) when its solution check passes, else
-    the first as it was; "remap" in the kept one's motion facts says which ("kept") and why not ("reason")."""
-    facts = first.moving.facts["remap"]
+def _posed(job: Job, matches: Matches, kf: Keyframes) -> Posed:
+    """The poses: with `static_job`'s database (without the matches on moving content) first, that try kept when
+    its solution check does not fail, else (or without one) on every verified match. "static_first" in the kept
+    try's motion facts says whether the first was kept ("kept") and why not ("reason")."""
+    moving = motion_start(job)
+    static = static_job(job, moving)
+    if static is None:
+        return _pose(job, matches, kf, moving)
+    facts = moving.facts["static_first"]
     try:
-        second = _pose(job, matches, kf, motion_start(job, first.moving.memo))
+        first = _pose(static, matches, kf, moving)
     except Failed as exc:
         facts.update(kept=False, reason=str(exc))
-        return first
-    check = second.mapped.check
-    if check.get("passed") is not True:
-        facts.update(kept=False, reason=check.get("reason"))
-        return first
-    facts["kept"] = True
-    second.moving.facts["remap"] = facts
+    else:
+        facts["kept"] = first.mapped.check.get("passed") is not False
+        if facts["kept"]:
+            return first
+        facts["reason"] = first.mapped.check.get("reason")
+    second = _pose(job, matches, kf, motion_start(job, moving.memo))
+    second.moving.facts["static_first"] = facts
     return second
 
 

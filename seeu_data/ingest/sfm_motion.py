@@ -1,7 +1,11 @@
 """Moving content in the SfM child (`--dynamic`, `seeu_data.ingest.motion`): its hooks, in the
 order `sfm_child.main` calls them.
 
-    before mapping:            motion_start     (nothing found yet: mapping uses every verified match)
+    before mapping:            static_job       (mask: the database without the matches on what the best
+                                                 rigid motion of the flow leaves unexplained, mapped first;
+                                                 that try kept when its solution check passes, else the
+                                                 steps from mapping run again on every verified match)
+                               motion_start     (the moving content found on the way, empty)
     after mapping:             motion_keyframes (frames whose camera alone is astray taken out; the
                                                  mapped frames against their SfM cameras; frames with
                                                  moving content placed again on trial; mask: frames a
@@ -18,9 +22,6 @@ order `sfm_child.main` calls them.
     then:                      motion_rigid     (either: the mapped frames' final cameras against the best
                                                  rigid motion of each pair; carried frames that do not fit
                                                  taken out, other pairs that do not fail the solution check)
-    a check failed so:         remap_job        (mask: the database without the matches on what the best
-                                                 rigid motion of the flow leaves unexplained; the steps from
-                                                 mapping again on it, that try kept when its check passes)
     after export:              motion_export    (mask: masks/<k>/<frame>.png, undistorted as the frames)
 """
 
@@ -44,7 +45,7 @@ if TYPE_CHECKING:
 class Moving:
     """Moving content found so far: masks {frame name: (h, w) bool, the motion passes' working size} and
     result.json's "motion" {"mode", "judged" (a video: frames in time order), "keyframes"
-    (the mapped frames), "frames" (all, after registration), "leave_out", "remap" (`remap_job`), "masked_pct"
+    (the mapped frames), "frames" (all, after registration), "leave_out", "static_first" (`static_job`), "masked_pct"
     {name: % of the frame}, "astray" [mapped frames taken out: `_leave_astray`], "carried" [mapped frames a mover
     carried: `motion.carried_frames`]}; `astray`: the frames of both, registered again with mask; `memo`: the frames and
     flows the passes share (`motion.FlowMemo`)."""
@@ -67,14 +68,7 @@ class _Counter:
 
 
 def motion_start(job: Job, memo: FlowMemo | None = None) -> Moving:
-    """Nothing found before mapping: mapping uses every verified match, moving content's included.
-
-    Dropping the matches that a flow-only pass (cameras guessed from the flow) finds on moving content
-    before mapping left the mapper too little to go on: on the 30-frame swinging-box walk
-    (tests/test_ingest_motion.py) the poses went 10 % of the path off (18 % with the renderer's exact
-    masks, the focal length 91 % off), against 0.06 % when the moving content is left in for mapping and
-    its observations leave before the final bundle adjustment (`motion_keyframes`). `memo`: the frames and flows
-    of a first try (`remap_job`)."""
+    """Nothing found yet, the frames and flows of `memo` (a try before: `static_job`) or none read."""
     from seeu_data.ingest.motion import FlowMemo
 
     return Moving({}, {"mode": job.cfg.dynamic, "judged": job.video}, memo or FlowMemo(job.image_dir))
@@ -167,30 +161,29 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
     job.clock.add("motion_s", t0)
 
 
-def remap_job(job: Job, moving: Moving, check: dict) -> Job | None:
-    """--dynamic mask, a video whose solution `check` failed with moving content found (its reason
-    `moving_content`, or moving content in MIN_MOVING_FRAMES mapped frames): the job to map again, on a copy of
-    the database (remap.db) without the verified matches that touch what the best rigid motion of the flow leaves
-    unexplained (`motion.rigid_pass` over every frame: the mover, even where it carried the cameras), its mapping
-    runs in remap_runs/. None when not wanted, or when that finds moving content in fewer than MIN_MOVING_FRAMES
-    frames. moving.facts["remap"]: {"first_reason", "frames_masked"[, "matches_dropped"]}.
+def static_job(job: Job, moving: Moving) -> Job | None:
+    """--dynamic mask, a video: the job to map first, on a copy of the database (static.db) without the verified
+    matches that touch what the best rigid motion of the flow leaves unexplained (`motion.rigid_pass` over every
+    frame, no cameras needed), its mapping runs in static_runs/; None when not wanted, or when that finds moving
+    content in fewer than MIN_MOVING_FRAMES frames (every match is then mapped). moving.facts["static_first"]:
+    {"frames_masked"[, "matches_dropped"]}.
 
-    Kept only when its own solution check passes (`sfm_child`): every check runs again on what it maps."""
+    A mover's matches make COLMAP follow it (cameras 15 % of the path off, the mapping runs agreeing) or try model
+    after model (300 s on a 90-frame 320x180 clip that maps in 3 s without it); without them it maps as the
+    static scene does. The caller (`sfm_child`) keeps that try when its own solution check passes, else maps
+    every match: where the mover fills much of the view, the best rigid motion of the flow is its own."""
     from seeu_data.ingest.motion import MIN_MOVING_FRAMES, rigid_pass
 
-    if job.cfg.dynamic != "mask" or not job.video or check.get("passed") is not False:
+    if job.cfg.dynamic != "mask" or not job.video:
         return None
-    found = (moving.facts.get("keyframes") or {}).get("frames_with_motion", 0)
-    if not check.get("moving_content") and found < MIN_MOVING_FRAMES:
-        return None
-    emit("stage", "motion-remap", len(job.names), "frames")
+    emit("stage", "motion-static", len(job.names), "frames")
     t0 = job.clock.mark()
     masks = rigid_pass(moving.memo, job.names, on_frame=_Counter())
-    facts = moving.facts["remap"] = {"first_reason": check.get("reason"), "frames_masked": len(masks)}
+    facts = moving.facts["static_first"] = {"frames_masked": len(masks)}
     if len(masks) >= MIN_MOVING_FRAMES:
-        facts["matches_dropped"] = drop_matches(job.db_path, job.out / "remap.db", masks)
+        facts["matches_dropped"] = drop_matches(job.db_path, job.out / "static.db", masks)
     job.clock.add("motion_s", t0)
-    return replace(job, db_path=job.out / "remap.db", map_runs="remap_runs") if "matches_dropped" in facts else None
+    return replace(job, db_path=job.out / "static.db", map_runs="static_runs") if "matches_dropped" in facts else None
 
 
 def drop_matches(src: Path, dst: Path, masks: dict) -> int:
