@@ -266,7 +266,8 @@ def summary_line(report: dict) -> str:
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
         + (f" after {attempts} mapping runs" if attempts > expected else "")
         + (", forward motion allowed for the initial pair" if forward else "")
-        + {True: ", mapped without a moving object's matches", False: ", mapped again with every match"}.get(static, "")
+        + (", mapped without a moving object's matches" if static else "")
+        + (", mapped again with every match" if static is False else "")
         + "), "
         + (f"{skipped}, " if skipped else "")
         + f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "
