@@ -28,6 +28,7 @@ Example (quiet 2-core machine, the figures in RESULTS.md):
   .venv/bin/python benchmarks/dynamic.py --movers "" --modes mask --footage walk,orbit,pan   # false positives only
   .venv/bin/python benchmarks/dynamic.py --movers unseen --modes mask --size 180x320   # movers never tuned on
   .venv/bin/python benchmarks/dynamic.py --movers unseen --modes mask --size 180x320 --exact-masks   # as --masks
+  .venv/bin/python benchmarks/dynamic.py --movers dominant --modes mask,off --size 180x320   # filling the view
 """
 
 from __future__ import annotations
@@ -53,6 +54,13 @@ UNSEEN = {
     "person_x": ((0.5, 1.7, 0.3), dict(distance=4.0, amplitude=1.5, period=120, path="crossing", y0=0.1)),
     "follow": ((0.5, 1.7, 0.3), dict(distance=3.0, amplitude=0.2, period=200, y0=0.1)),
 }
+# Movers filling much of the view for long stretches, for `--movers dominant` (found after the rest was built).
+DOMINANT = {
+    "wall_follow": ((1.8, 1.6, 0.3), dict(distance=2.2, amplitude=0.5, period=150, y0=0.0)),  # ahead, half the view
+    "train": ((6.0, 1.6, 0.3), dict(distance=4.0, amplitude=2.5, period=360, path="crossing", y0=0.0)),  # then all
+    "near_fast": ((0.7, 0.7, 0.7), dict(distance=1.5, amplitude=0.6, period=24)),  # close, swinging fast
+}
+SETS = {"unseen": UNSEEN, "dominant": DOMINANT}
 
 
 def _cpu_s() -> float:
@@ -148,7 +156,7 @@ def main() -> int:
     ap.add_argument(
         "--movers",
         default="box,large,slow,several,far",
-        help="mover presets, besides the clip without; 'unseen': the movers of UNSEEN instead",
+        help="mover presets, besides the clip without; 'unseen' or 'dominant': the movers of UNSEEN or DOMINANT",
     )
     ap.add_argument("--modes", default="mask,off", help="--dynamic modes to run, in turn")
     ap.add_argument("--quick", action="store_true", help="30 frames 180x320, the box only (a check that it runs)")
@@ -169,12 +177,12 @@ def main() -> int:
     from seeu_data.synthetic import ClipConfig, write_clip
 
     height, width = parse_dims(args.size, "--size", minimum=16)
-    if args.movers == "unseen":
+    if args.movers in SETS:
         from seeu_data import synthetic
 
-        for name, (size, where) in UNSEEN.items():
+        for name, (size, where) in SETS[args.movers].items():
             synthetic.MOVER_PRESETS[name] = (synthetic.Mover(size, **where),)
-        args.movers = ",".join(UNSEEN)
+        args.movers = ",".join(SETS[args.movers])
     clips = ["none", *[m for m in args.movers.split(",") if m]]
     modes = [m for m in args.modes.split(",") if m in MODES]
     results: dict = {}
