@@ -156,6 +156,16 @@ def test_a_users_masks_keep_their_pixels_out_of_sfm(box_clip, tmp_path):
     assert not json.loads((out / "box" / "report.json").read_text())["reused"]["sfm"]
 
 
+def _ingested(tmp_path: Path, movers: str) -> tuple[Path, Path, dict]:
+    """A 90-frame walk with the `movers` preset (320x180) ingested with the defaults: (the clip, the posed scene's
+    folder, its report)."""
+    clip = tmp_path / f"{movers}.mp4"
+    write_clip(clip, n_frames=90, size=(H, W), seed=0, movers=movers)
+    assert cli_main(["ingest", str(clip), "--out", str(tmp_path / "posed")]) == 0
+    run = tmp_path / "posed" / movers
+    return clip, run, json.loads((run / "report.json").read_text())
+
+
 def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     """The mover crossing the room (`--movers large`) at 320x180 stays in the flow test's blind spot: both
     mapping runs agree on cameras 7 % of the path off (frames 0-23 carried in scale), and its moving content is
@@ -164,11 +174,7 @@ def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
     come to within 0.5 % of the path (0.047 % measured, frames 23-89). Mapped first without the matches on what
     the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`), its check fails (where the
     mover fills most of the view, the best rigid motion is its own): that try is not kept, every match is mapped."""
-    clip = tmp_path / "large.mp4"
-    write_clip(clip, n_frames=90, size=(H, W), seed=0, movers="large")
-    assert cli_main(["ingest", str(clip), "--out", str(tmp_path / "posed")]) == 0
-    run = tmp_path / "posed" / "large"
-    report = json.loads((run / "report.json").read_text())
+    clip, run, report = _ingested(tmp_path, "large")
     static = report["motion"]["static_first"]
     assert static["matches_dropped"] > 0 and not static["kept"] and static["reason"], static
     assert "mapped again with every match" in summary_line(report)
@@ -188,11 +194,7 @@ def test_a_mover_that_carries_sfm_is_mapped_without_its_matches(tmp_path):
     path off, the runs agreeing; the rigid check fails them). Ingest maps first on a database without the matches
     on what the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`): that try passes every
     check and is kept, its cameras within 1 % of the path (0.55 % measured), mapped once."""
-    clip = tmp_path / "far.mp4"
-    write_clip(clip, n_frames=90, size=(H, W), seed=0, movers="far")
-    assert cli_main(["ingest", str(clip), "--out", str(tmp_path / "posed")]) == 0
-    run = tmp_path / "posed" / "far"
-    report = json.loads((run / "report.json").read_text())
+    clip, run, report = _ingested(tmp_path, "far")
     static = report["motion"]["static_first"]
     assert static["kept"] and static["frames_masked"] >= 3 and static["matches_dropped"] > 0, static
     assert report["sfm"]["solution_check"]["state"] == "passed"

@@ -4,7 +4,7 @@
     database, extract, match with the keyframes chosen on the way (features.py, pairs.py, keyframes.py)
     -> map, final BA, register the rest, keep models (mapping.py, solution_check.py) -> export (sfm_export.py),
     with moving content looked for on the way (sfm_motion.py, `--dynamic`); with mask, mapped first without
-    the matches on moving content (`sfm_motion.static_job`), that try kept when its solution check passes
+    the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails
 
 A child started on a directory where an interrupted one of the same job worked (`run_sfm` keeps it)
 continues from what that one finished: the database (its journal entry), each image's features, each

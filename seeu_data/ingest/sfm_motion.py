@@ -3,7 +3,7 @@ order `sfm_child.main` calls them.
 
     before mapping:            static_job       (mask: the database without the matches on what the best
                                                  rigid motion of the flow leaves unexplained, mapped first;
-                                                 that try kept when its solution check passes, else the
+                                                 that try kept unless its solution check fails, else the
                                                  steps from mapping run again on every verified match)
                                motion_start     (the moving content found on the way, empty)
     after mapping:             motion_keyframes (frames whose camera alone is astray taken out; the
@@ -170,7 +170,7 @@ def static_job(job: Job, moving: Moving) -> Job | None:
 
     A mover's matches make COLMAP follow it (cameras 15 % of the path off, the mapping runs agreeing) or try model
     after model (300 s on a 90-frame 320x180 clip that maps in 3 s without it); without them it maps as the
-    static scene does. The caller (`sfm_child`) keeps that try when its own solution check passes, else maps
+    static scene does. The caller (`sfm_child`) keeps that try unless its own solution check fails, else maps
     every match: where the mover fills much of the view, the best rigid motion of the flow is its own."""
     from seeu_data.ingest.motion import MIN_MOVING_FRAMES, rigid_pass
 
