@@ -63,6 +63,13 @@ DOMINANT = {
 SETS = {"unseen": UNSEEN, "dominant": DOMINANT}
 
 
+def presets(set_name: str) -> dict:
+    """The movers of SETS[set_name] as `seeu_data.synthetic.MOVER_PRESETS` entries {name: (Mover,)}."""
+    from seeu_data.synthetic import Mover
+
+    return {name: (Mover(size, **where),) for name, (size, where) in SETS[set_name].items()}
+
+
 def _cpu_s() -> float:
     """User + system CPU seconds of this process and its waited-for children (the SfM child)."""
     import resource
@@ -178,10 +185,9 @@ def main() -> int:
 
     height, width = parse_dims(args.size, "--size", minimum=16)
     if args.movers in SETS:
-        from seeu_data import synthetic
+        from seeu_data.synthetic import MOVER_PRESETS
 
-        for name, (size, where) in SETS[args.movers].items():
-            synthetic.MOVER_PRESETS[name] = (synthetic.Mover(size, **where),)
+        MOVER_PRESETS.update(presets(args.movers))
         args.movers = ",".join(SETS[args.movers])
     clips = ["none", *[m for m in args.movers.split(",") if m]]
     modes = [m for m in args.modes.split(",") if m in MODES]

@@ -81,8 +81,8 @@ def test_masking_off_warns_instead_of_passing(runs):
 
 def test_a_databases_copy_without_the_matches_on_moving_content(runs, box_clip, tmp_path):
     """`sfm_motion.drop_matches` (the database mapped first, `static_job`) with the box's exact masks: of every
-    verified pair, the matches with a keypoint in either frame's mask go, the others stay, and the database itself
-    is left as it was."""
+    verified pair, the matches with a keypoint in either frame's mask go, and in frames without any those matched
+    to one there (`motion.grown_moving`), a few of the rest (under 10 %); the database itself is left as it was."""
     import pycolmap
 
     from seeu_data.ingest.sfm_motion import drop_matches
@@ -112,8 +112,11 @@ def test_a_databases_copy_without_the_matches_on_moving_content(runs, box_clip, 
     before = verified(src)
     dropped = drop_matches(src, tmp_path / "static.db", masks)
     after = verified(tmp_path / "static.db")
-    assert dropped == sum(on for _, on in before.values()) > 100
-    assert after == {pair: (count - on, 0) for pair, (count, on) in before.items()}
+    on_mask = sum(on for _, on in before.values())
+    assert on_mask > 100 and dropped == sum(n for n, _ in before.values()) - sum(n for n, _ in after.values())
+    assert after.keys() == before.keys() and all(on == 0 for _, on in after.values())
+    assert all(after[pair][0] <= count - on for pair, (count, on) in before.items())
+    assert 0 <= dropped - on_mask < 0.1 * sum(count - on for count, on in before.values())
     assert verified(src) == before
 
 
@@ -203,6 +206,48 @@ def test_a_mover_that_carries_sfm_is_mapped_without_its_matches(tmp_path):
     assert acc["largest"]["centre_rmse_pct_path"] < 1.0, acc
     assert "mapped without a moving object's matches" in summary_line(report)
     assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "static.db").exists()  # the work folder tidied
+
+
+@pytest.fixture
+def benchmark_movers(monkeypatch):
+    """The movers of benchmarks/dynamic.py's sets (UNSEEN, DOMINANT) as `seeu synth --movers` presets, for a test."""
+    from benchmarks.dynamic import SETS, presets
+    from seeu_data.synthetic import MOVER_PRESETS
+
+    for name in SETS:
+        for mover, movers in presets(name).items():
+            monkeypatch.setitem(MOVER_PRESETS, mover, movers)
+
+
+def test_a_person_walking_ahead_is_posed_without_the_matches_its_masks_missed(tmp_path, benchmark_movers):
+    """`follow` (benchmarks/dynamic.py's UNSEEN: a 0.5 x 1.7 m "person" walking 3 m ahead of the camera, swaying;
+    320x180): walking straight ahead, it moves along the epipolar lines, and the rigid pass misses it whole in 41
+    of the 90 frames; its matches left in the database mapped first carried SfM (cameras 2.6 % of the path off;
+    the check failed, a warning). Grown along the verified matches into those frames (`motion.grown_moving`), the
+    matches dropped take more than half of the rest: that try is kept, its check passes, and its cameras are within
+    0.5 % of the path (0.21 % measured)."""
+    clip, run, report = _ingested(tmp_path, "follow")
+    assert report["motion"]["static_first"]["kept"], report["motion"]["static_first"]
+    assert report["sfm"]["solution_check"]["state"] == "passed"
+    acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5, acc
+
+
+def test_a_mover_filling_the_view_never_passes_with_wrong_cameras(tmp_path, benchmark_movers):
+    """`train` (benchmarks/dynamic.py's DOMINANT: 6 m long, crossing 4 m ahead: 45 % of frame 0, all of frames 28-48;
+    320x180): the rigid pass takes it for the static scene, and the cameras of frames 0-42 follow it (2.7 % of the
+    path off), which passed every check before. Either the check passes with every chunk within 0.5 % of the path,
+    or ingest warns. (Measured: a warning, by a small change: with 12 more matches dropped, the first try's trial
+    leaves frames 0-44 outside the model, and mapped on every match the cameras explain the flow worse than a rigid
+    motion in 3 of 40 pairs. Nothing here finds the train itself.)"""
+    clip, run, report = _ingested(tmp_path, "train")
+    acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
+    off = max(c["centre_rmse_pct_path"] for c in acc["chunks"])
+    line = summary_line(report)
+    if report["sfm"]["solution_check"]["state"] == "passed":
+        assert off < 0.5, (off, line)
+    else:
+        assert "WARNING: SfM solution check failed" in line, line
 
 
 def test_no_chunk_error_says_what_moving_content_did():

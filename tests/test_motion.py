@@ -161,6 +161,23 @@ def test_a_moving_region_needs_seeds_where_the_frame_has_texture():
     assert kept[20:50, 40:90].all() and kept.sum() == blob.astype(bool).sum()
 
 
+def test_moving_keypoints_grow_along_verified_matches_into_frames_without_any():
+    """`motion.grown_moving`: in a frame with no moving keypoint, one matched to a moving keypoint in another frame
+    becomes moving, MATCH_HOPS matches out along a chain of frames (the same moving point, missed there), no
+    farther; a frame with moving keypoints of its own keeps them as they are; the input is left as it was."""
+    assert motion.MATCH_HOPS == 2
+    moving = {i: np.zeros(6, bool) for i in range(1, 7)}
+    moving[1][0] = moving[6][4] = True
+    chain = [(1, 2, np.array([[0, 5], [1, 1]])), (2, 3, np.array([[5, 3]])), (4, 3, np.array([[2, 3]]))]
+    chain += [(4, 5, np.array([[2, 4], [0, 0]])), (1, 6, np.array([[0, 2]]))]
+    grown = motion.grown_moving(moving, chain)
+    found = {i: np.flatnonzero(m).tolist() for i, m in grown.items()}
+    assert found == {1: [0], 2: [5], 3: [3], 4: [], 5: [], 6: [4]}  # frame 6 had its own: not grown
+    assert np.flatnonzero(moving[2]).tolist() == []  # new arrays
+    backwards = motion.grown_moving({1: np.zeros(2, bool), 2: np.array([False, True])}, [(1, 2, np.array([[0, 1]]))])
+    assert backwards[1].tolist() == [True, False]  # either side of a pair
+
+
 def test_keypoints_in_a_mask_are_found_at_the_frame_size():
     mask = np.zeros((45, 80), bool)
     mask[10:20, 40:60] = True
@@ -387,6 +404,8 @@ def test_trials_that_move_the_frames_and_place_none_well_fail_the_check():
         assert why.startswith("placed again against the rest, mapped frames 000000.jpg to 000036.jpg move 6.8%")
         assert "confirms neither placement" in why
         assert carried_unseen([trial(6.8), trial(0.08, False)], False, mode) is None  # the wider one confirmed
+        why = carried_unseen([trial(6.8), trial(None)], False, mode)  # the wider one left outside the model
+        assert "000036.jpg mostly end outside the model, and the optical flow confirms neither" in why
 
 
 def test_astray_runs_are_short_stretches_cut_off_by_disagreeing_pairs():

@@ -18,13 +18,13 @@ why the chunk's depth is unreliable: the camera mostly rotated in place)}],
 motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), keyframes, frames
 (each pass's frames_with_motion and observations dropped; frames.astray: taken out for good), astray (mapped
 frames whose camera alone disagreed with the flow, taken out; with mask registered again), trials [{frames (first,
-last), count, placed, shift_pct, unexplained}] (frames with moving content placed again on trial), carried (mapped
-frames a mover carried: with mask taken out and registered again), rigid_gap {max, pairs_judged, pairs_over,
-taken_out} (the final cameras against each pair's best rigid motion), leave_out (observations,
-centre_change_pct: the cameras adjusted without them), static_first {frames_masked, matches_dropped, kept, reason}
-(with mask, mapped first without the matches on moving content; not kept: mapped again with every match),
-masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked, mean_masked_pct}
-(seeu_data.ingest.motion),
+last), count, placed, shift_pct (null: most ended outside the model), unexplained}] (frames with moving content
+placed again on trial), carried (mapped frames a mover carried: with mask taken out and registered again),
+rigid_gap {max, pairs_judged, pairs_over, taken_out} (the final cameras against each pair's best rigid motion),
+leave_out (observations, centre_change_pct: the cameras adjusted without them), static_first {frames_masked,
+matches_dropped, kept, reason} (with mask, mapped first without the matches on moving content; not kept: mapped
+again with every match), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
+mean_masked_pct} (seeu_data.ingest.motion),
 warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;
 also in the summary line),
 dropped_frames [{source_frame, reason}], timings_s {stage: seconds}, reused {stage: bool},

@@ -188,13 +188,15 @@ def static_job(job: Job, moving: Moving) -> Job | None:
 
 def drop_matches(src: Path, dst: Path, masks: dict) -> int:
     """A copy of the SfM database `src` at `dst` without the verified matches (two-view geometries' inliers)
-    whose keypoint in either frame lies in that frame's moving `masks` {name: (h, w) bool, working size};
-    returns how many went. COLMAP's correspondence graph then leaves out pairs left with too few."""
+    that touch moving content: a keypoint in its frame's moving `masks` {name: (h, w) bool, working size}, or, in
+    a frame where they found none, one matched to such a keypoint in another frame, up to MATCH_HOPS matches away
+    (`motion.grown_moving`: the same moving point, missed there); returns how many went. COLMAP's correspondence
+    graph then leaves out pairs left with too few."""
     import numpy as np
     import pycolmap
 
     from seeu_data.ingest.features import copy_database
-    from seeu_data.ingest.motion import moving_keypoints
+    from seeu_data.ingest.motion import grown_moving, moving_keypoints
 
     dst.unlink(missing_ok=True)
     copy_database(src, dst)
@@ -203,19 +205,21 @@ def drop_matches(src: Path, dst: Path, masks: dict) -> int:
     try:
         moving: dict[int, np.ndarray] = {}
         for image in db.read_all_images():
-            if image.name in masks:
-                camera = db.read_camera(image.camera_id)
-                xy = np.asarray(db.read_keypoints(image.image_id))[:, :2]
-                moving[image.image_id] = moving_keypoints(xy, masks[image.name], camera.width, camera.height)
-        for pair_id, geometry in zip(*db.read_two_view_geometries()):
-            a, b = pycolmap.pair_id_to_image_pair(pair_id)
-            pairs = np.asarray(geometry.inlier_matches)
-            if not len(pairs) or (a not in moving and b not in moving):
-                continue
-            out = np.zeros(len(pairs), bool)
-            for image_id, column in ((a, 0), (b, 1)):
-                if image_id in moving:
-                    out |= moving[image_id][pairs[:, column]]
+            xy = np.asarray(db.read_keypoints(image.image_id))[:, :2]
+            camera = db.read_camera(image.camera_id)
+            found = masks.get(image.name)
+            moving[image.image_id] = (
+                moving_keypoints(xy, found, camera.width, camera.height)
+                if found is not None
+                else np.zeros(len(xy), bool)
+            )
+        verified = [
+            (pycolmap.pair_id_to_image_pair(pair_id), geometry, np.asarray(geometry.inlier_matches).reshape(-1, 2))
+            for pair_id, geometry in zip(*db.read_two_view_geometries())
+        ]
+        moving = grown_moving(moving, [(a, b, pairs) for (a, b), _, pairs in verified])
+        for (a, b), geometry, pairs in verified:
+            out = moving[a][pairs[:, 0]] | moving[b][pairs[:, 1]]
             if out.any():
                 geometry.inlier_matches = pairs[~out]
                 db.update_two_view_geometry(a, b, geometry)
@@ -257,7 +261,7 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
                 "frames": [names[0], names[-1]],
                 "count": len(names),
                 "placed": len(placed),
-                "shift_pct": shift,
+                "shift_pct": shift if shift < float("inf") else None,  # None: most ended outside the model
                 "unexplained": unexplained is not None,
             }
         )
@@ -270,17 +274,20 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
 def carried_unseen(trials: list[dict], carried: bool, mode: str) -> str | None:
     """Why the solution check fails after the `trials` (`_placed_on_trial`'s facts): with --dynamic off, frames
     they found `carried`; in either mode, none found while every trial moved the frames placed again more than
-    TRIAL_SHIFT_PCT of the path, the flow confirming no placement; None otherwise."""
+    TRIAL_SHIFT_PCT of the path or left most of them outside the model (shift None), the flow confirming no
+    placement; None otherwise."""
     from seeu_data.ingest.motion import TRIAL_SHIFT_PCT
 
     if not trials or (carried and mode == "mask"):
         return None
     first, last = trials[-1]["frames"]
     shift = trials[-1]["shift_pct"]
-    moved = f"placed again against the rest, mapped frames {first} to {last} move {shift:.2g}% of the path"
+    moved = f"placed again against the rest, mapped frames {first} to {last} " + (
+        f"move {shift:.2g}% of the path" if shift is not None else "mostly end outside the model"
+    )
     if carried:
         return f"{moved}: a moving object carried their cameras (--dynamic off); re-run with --dynamic mask"
-    if all(t["shift_pct"] > TRIAL_SHIFT_PCT for t in trials):
+    if all(t["shift_pct"] is None or t["shift_pct"] > TRIAL_SHIFT_PCT for t in trials):
         return (
             f"{moved}, and the optical flow confirms neither placement: a moving object carried SfM, or the poses "
             "are wrong there"
@@ -345,8 +352,9 @@ def _model_masks(memo: FlowMemo, recs: dict, names: list[str]) -> tuple[dict, in
     for rec in recs.values():
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
         mine = [n for n in names if n in registered]
-        masks.update(model_pass(memo, mine, rec, on_frame=count))
-        judged += len(mine)
+        if mine:  # a model of other frames (a trial can leave one so)
+            masks.update(model_pass(memo, mine, rec, on_frame=count))
+            judged += len(mine)
     return masks, judged
 
 
