@@ -164,9 +164,9 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
 def static_job(job: Job, moving: Moving) -> Job | None:
     """--dynamic mask, a video: the job to map first, on a copy of the database (static.db) without the verified
     matches that touch what the best rigid motion of the flow leaves unexplained (`motion.rigid_pass` over every
-    frame, no cameras needed), its mapping runs in static_runs/; None when not wanted, or when that finds moving
-    content in fewer than MIN_MOVING_FRAMES frames (every match is then mapped). moving.facts["static_first"]:
-    {"frames_masked"[, "matches_dropped"]}.
+    frame, no cameras needed; in frames where it finds none, those matched to it: `drop_matches`), its mapping runs
+    in static_runs/; None when not wanted, or when that finds moving content in fewer than MIN_MOVING_FRAMES frames
+    (every match is then mapped). moving.facts["static_first"]: {"frames_masked"[, "matches_dropped"]}.
 
     A mover's matches make COLMAP follow it (cameras 15 % of the path off, the mapping runs agreeing) or try model
     after model (300 s on a 90-frame 320x180 clip that maps in 3 s without it); without them it maps as the
