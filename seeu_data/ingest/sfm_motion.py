@@ -206,13 +206,10 @@ def drop_matches(src: Path, dst: Path, masks: dict) -> int:
         moving: dict[int, np.ndarray] = {}
         for image in db.read_all_images():
             xy = np.asarray(db.read_keypoints(image.image_id))[:, :2]
-            camera = db.read_camera(image.camera_id)
-            found = masks.get(image.name)
-            moving[image.image_id] = (
-                moving_keypoints(xy, found, camera.width, camera.height)
-                if found is not None
-                else np.zeros(len(xy), bool)
-            )
+            moving[image.image_id] = np.zeros(len(xy), bool)
+            if image.name in masks:
+                camera = db.read_camera(image.camera_id)
+                moving[image.image_id] = moving_keypoints(xy, masks[image.name], camera.width, camera.height)
         verified = [
             (pycolmap.pair_id_to_image_pair(pair_id), geometry, np.asarray(geometry.inlier_matches).reshape(-1, 2))
             for pair_id, geometry in zip(*db.read_two_view_geometries())
