@@ -216,7 +216,7 @@ def train(run: TrainRunConfig) -> dict:
     from seeu_data.store.arrow_io import atomic_write_text
     from seeu_model.training import checkpoint as ckpt_io
     from seeu_model.training.config import apply_overrides, config_from_dict, load_config
-    from seeu_model.training.distributed import Watchdog, cleanup_distributed, setup_distributed
+    from seeu_model.training.distributed import Watchdog, barrier, cleanup_distributed, setup_distributed
     from seeu_model.training.effective_batch import plan_batches
     from seeu_model.training.factory import build_model, encode_context, make_render_fn, render_gaussians
     from seeu_model.training.loop import Trainer, autocast_context
@@ -318,6 +318,9 @@ def train(run: TrainRunConfig) -> dict:
         }
         if dist.is_main:
             atomic_write_text(out / "train_summary.json", json.dumps(summary, indent=2) + "\n")
+        if watchdog is not None:  # every rank's heartbeats end before rank 0 closes the store with the group
+            watchdog.stop()
+            barrier(dist)
         return summary
     finally:
         if watchdog is not None:

@@ -366,6 +366,30 @@ def test_a_frozen_or_dead_rank_ends_the_run_in_one_line(workspace, tmp_path, fau
         assert ours[0].startswith(("seeu train: error: rank 1 died", "seeu train: interrupted (SIGTERM)")), ours
 
 
+def test_a_stopped_watchdog_leaves_no_thread_in_a_store_call(monkeypatch):
+    """`Watchdog.stop` returns only once its thread has ended: a daemon thread still inside a store call
+    when the interpreter exits aborts the process (SIGABRT, "terminate called without an active
+    exception"), which once failed a two-rank run at its very end. A heartbeat without pause keeps the
+    thread inside store calls nearly all the time."""
+    from datetime import timedelta
+
+    import torch.distributed as tdist
+
+    from seeu_model.training.distributed import DistInfo, Watchdog
+
+    server = tdist.TCPStore("127.0.0.1", 0, is_master=True, timeout=timedelta(seconds=5), wait_for_workers=False)
+    monkeypatch.setenv("MASTER_ADDR", "127.0.0.1")
+    monkeypatch.setenv("MASTER_PORT", str(server.port))
+    silent = []
+    for _ in range(20):
+        dog = Watchdog(DistInfo(rank=0, world_size=2), 5.0, on_silent=lambda *a: silent.append(a), interval_s=0.0)
+        dog.start()
+        time.sleep(0.01)
+        dog.stop()
+        assert not dog._thread.is_alive()
+    assert not silent
+
+
 # ------------------------------------------------------------------------------------------ seeu view of a large .ply
 
 

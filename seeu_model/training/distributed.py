@@ -161,7 +161,11 @@ class Watchdog:
         return self
 
     def stop(self) -> None:
+        """End the heartbeats and wait for the thread: a daemon thread still inside a store call when the
+        interpreter exits aborts the process ("terminate called without an active exception", SIGABRT)."""
         self._stop.set()
+        if self._thread.is_alive() and self._thread is not threading.current_thread():
+            self._thread.join(self.timeout_s + self.interval_s)
 
     def _beat(self) -> None:
         """Add one to this rank's counter and read every rank's (`add 0` reads without waiting)."""
@@ -181,7 +185,8 @@ class Watchdog:
             try:
                 self._beat()
             except Exception:  # the store's host stopped answering within the timeout
-                self.on_silent(-1, self.timeout_s, True)
+                if not self._stop.is_set():  # not rank 0 closing the store at the end of the run
+                    self.on_silent(-1, self.timeout_s, True)
                 return
             silent = self.silent(self.timeout_s)
             if silent:
