@@ -148,18 +148,22 @@ class _Image:
 
 
 class _Camera:
-    params = np.array([300.0, 160, 90, 0.0])
+    def __init__(self, focal=300.0, width=320, height=180):
+        self.params, self.width, self.height = np.array([focal, width / 2, height / 2, 0.0]), width, height
 
     def has_bogus_params(self, *args):
         return False
+
+    def mean_focal_length(self):
+        return float(self.params[0])
 
 
 class _Rec:
     """The parts of pycolmap.Reconstruction the solution check reads; `c2w (N, 4, 4)`."""
 
-    def __init__(self, c2w):
+    def __init__(self, c2w, camera=None):
         self.images = {i + 1: _Image(f"{i:06d}.jpg", np.linalg.inv(m)) for i, m in enumerate(c2w)}
-        self.cameras = {1: _Camera()}
+        self.cameras = {1: camera or _Camera()}
 
     def num_reg_images(self):
         return len(self.images)
@@ -566,3 +570,29 @@ def test_progress_lines_stay_whole_while_colmap_logs_to_the_same_pipe(tmp_path):
     lines = out.stdout.decode().splitlines()
     assert lines.count(log) == 3000
     assert [ln for ln in lines if ln != log] == [f"@@seeu done {i}" for i in range(3000)]  # the child's marker
+
+
+def test_the_models_of_one_video_must_agree_on_its_focal_length():
+    """`solution_check.one_camera`: a video's models over FOCAL_SPREAD_PCT apart in focal length fail the check
+    (the `train` clip's two models: 0.93 and 0.71 of the longer side), within it they pass; a failed check keeps
+    its reason; one model, or the check not run, judges nothing."""
+    from seeu_data.ingest.solution_check import FOCAL_SPREAD_PCT, focal_spread_pct, one_camera
+
+    path = planar_camera_path(12)
+    train = {0: _Rec(path[:6], _Camera(0.933 * 320, 320, 180)), 1: _Rec(path[6:], _Camera(0.712 * 320, 320, 180))}
+    assert focal_spread_pct(train) == pytest.approx(100 * (0.933 / 0.712 - 1))
+    check = {"ran": True, "passed": True}
+    one_camera(train, check)
+    assert check["passed"] is False and check["focal_spread_pct"] > FOCAL_SPREAD_PCT
+    assert check["reason"].startswith("the 2 models of one video give its camera focal lengths 31% apart")
+    # the same camera turned (portrait frames): focal over the longer side, 5 % apart, passes
+    near = {0: _Rec(path[:6], _Camera(0.75 * 640, 640, 360)), 1: _Rec(path[6:], _Camera(0.7875 * 640, 360, 640))}
+    check = {"ran": True, "passed": True}
+    one_camera(near, check)
+    assert check == {"ran": True, "passed": True, "focal_spread_pct": pytest.approx(5.0)}
+    failed = {"ran": True, "passed": False, "reason": "the runs disagree"}
+    one_camera(train, failed)
+    assert failed["reason"] == "the runs disagree" and failed["focal_spread_pct"] > FOCAL_SPREAD_PCT
+    for models, check in (({0: train[0]}, {"ran": True, "passed": True}), (train, {"ran": False, "passed": None})):
+        one_camera(models, check)
+        assert check["passed"] in (True, None) and "reason" not in check

@@ -8,7 +8,8 @@ mapping_attempts: [{seed, registered, models, seconds, disagreement_pct, init ("
 models came from its forward-motion retry, `mapping.forward_below`)}], keyframes {stride, count, motion_px,
 target_px, registered_after}, resumed {images, pairs, map_runs: what the SfM run kept of an interrupted
 one of the same job: frames with features, matched pairs, finished mapping runs},
-solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed,
+solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed, focal_spread_pct (a
+video mapped into several models: how far apart their focal lengths are, `solution_check.one_camera`),
 planar_or_panoramic_pairs, verified_pairs (among the mapped frames), init ("forward motion": the model kept
 came from a forward-motion retry), reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
 too few matches; the likely causes a failed check names)}}, input_identity {path, fingerprint},

@@ -2,7 +2,8 @@
 `seeu_data.ingest.sfm.run_sfm`): its steps in turn, result.json last.
 
     database, extract, match with the keyframes chosen on the way (features.py, pairs.py, keyframes.py)
-    -> map, final BA, register the rest, keep models (mapping.py, solution_check.py) -> export (sfm_export.py),
+    -> map, final BA, register the rest, keep models (mapping.py, solution_check.py; a video's models must agree on
+    one focal length: `solution_check.one_camera`) -> export (sfm_export.py),
     with moving content looked for on the way (sfm_motion.py, `--dynamic`); with mask, mapped first without
     the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails
 
@@ -34,6 +35,7 @@ from seeu_data.ingest.sfm_motion import (
     motion_start,
     static_job,
 )
+from seeu_data.ingest.solution_check import one_camera
 
 
 def main(job_path: str) -> int:
@@ -106,6 +108,8 @@ def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
     register_rest(job, recs, kf, mapped.check["kept_seed"], *astray_plan(job, moving))
     motion_frames(job, recs, kf, moving, mapped.check)
     motion_rigid(job, recs, kf, moving, mapped.check)
+    if job.video:
+        one_camera(recs, mapped.check)
     return Posed(mapped, moving, facts)
 
 
