@@ -95,9 +95,10 @@ def exact_masks(video: Path, folder: Path) -> Path | None:
     return folder
 
 
-def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None) -> dict:
-    """One ingest of `video` with --dynamic `mode` (and `--masks masks`) into `out`: times, accuracy, check,
-    warnings, masks, the first try without the matches on moving content (report.json's motion.static_first)."""
+def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None, focal: float | None = None) -> dict:
+    """One ingest of `video` with --dynamic `mode` (and `--masks masks`, `--focal focal`) into `out`: times,
+    accuracy, check, warnings, masks, the first try without the matches on moving content (report.json's
+    motion.static_first), the focal length of each model over the image's longer side."""
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
@@ -106,7 +107,7 @@ def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None) -> di
     cfg = IngestConfig(
         out=out,
         inputs=(video,),
-        sfm=SfmConfig(dynamic=mode),
+        sfm=SfmConfig(dynamic=mode, focal=focal),
         run=IngestRunConfig(force=True),
         masks=None if masks is None else str(masks),
     )
@@ -129,6 +130,9 @@ def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None) -> di
         "frames_masked": motion.get("frames_masked", 0),
         "masks": mask_accuracy(report["output"], video) if mode == "mask" else None,
         "static_first": motion.get("static_first"),
+        "focal": [
+            m["camera"]["fx"] / max(m["camera"]["width"], m["camera"]["height"]) for m in report["sfm"]["models"]
+        ],
     }
 
 
@@ -140,7 +144,8 @@ def line(name: str, mode: str, r: dict, base: dict | None) -> str:
     centre = r["centre_rmse_pct_path"]
     out = (
         f"{name:8s} {mode:4s} {r['wall_s']:7.1f} s ({ratio:>6s}) CPU {r['cpu_s']:7.1f} s  "
-        f"centres {'-' if centre is None else f'{centre:.3f}'} % path  check {r['check']}"
+        f"centres {'-' if centre is None else f'{centre:.3f}'} % path  check {r['check']}  "
+        f"focal {', '.join(f'{f:.3f}' for f in r['focal'])}"
         f"{'  WARNING' if r['warnings'] else ''}"
     )
     static = (r.get("static_first") or {}).get("kept")
@@ -173,6 +178,11 @@ def main() -> int:
         action="store_true",
         help="give each clip with movers its exact masks as the user's own (seeu ingest --masks)",
     )
+    ap.add_argument(
+        "--known-focal",
+        action="store_true",
+        help="give ingest the renderer's own focal length, as a user who knows the lens (seeu ingest --focal)",
+    )
     ap.add_argument("--out", type=Path, default=Path("out/bench_dynamic"))
     args = ap.parse_args()
     if args.quick:
@@ -181,7 +191,7 @@ def main() -> int:
     from benchmarks.footage import render_kind
     from seeu_data.errors import SeeUError
     from seeu_data.settings import parse_dims
-    from seeu_data.synthetic import ClipConfig, write_clip
+    from seeu_data.synthetic import ClipConfig, load_ground_truth, write_clip
 
     height, width = parse_dims(args.size, "--size", minimum=16)
     if args.movers in SETS:
@@ -199,9 +209,10 @@ def main() -> int:
         write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed, movers=name))
         print(f"rendered {name}: {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s", flush=True)
         masks = exact_masks(video, args.out / "exact_masks" / name) if args.exact_masks else None
+        focal = float(load_ground_truth(video)["intrinsics_norm"][0][0]) * width / max(width, height)
         for mode in modes:
             try:
-                r = run_clip(video, args.out / "posed" / mode, mode, masks)
+                r = run_clip(video, args.out / "posed" / mode, mode, masks, focal if args.known_focal else None)
             except SeeUError as e:
                 r = {"error": str(e)}
             results.setdefault(name, {})[mode] = r

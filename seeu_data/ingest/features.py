@@ -33,8 +33,8 @@ def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmCo
     COLMAP's parallel extractor otherwise assigns image ids in completion order, which changes with the
     thread count and the machine's load; the ids fix the pair ids, the matching order and the mapper's
     tie-breaks. Each camera is the one the extractor would create (`default_focal_length_factor` x the
-    longer side, principal point at the centre): a portrait and a landscape photo of one phone get the
-    same focal length in pixels, as separate cameras. `extract` then adds the features of these images.
+    longer side, principal point at the centre; --focal instead, as a known prior): a portrait and a landscape
+    photo of one phone get the same focal length in pixels, as separate cameras. `extract` then adds the features of these images.
     """
     import pycolmap
 
@@ -49,8 +49,9 @@ def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmCo
             info = image_info(path.read_bytes(), str(path))
             size = (info.width, info.height)
             if size not in cameras:
-                focal = factor * max(size)
+                focal = (cfg.focal or factor) * max(size)
                 camera = pycolmap.Camera.create_from_model_name(len(cameras) + 1, cfg.camera_model, focal, *size)
+                camera.has_prior_focal_length = cfg.focal is not None
                 camera.camera_id = db.write_camera(camera)
                 rig = pycolmap.Rig()
                 rig.add_ref_sensor(camera.sensor_id)

@@ -247,6 +247,7 @@ def _map_run(run_path: str) -> int:
         global_options.num_threads = cfg.map_threads
         global_options.random_seed = run["seed"]
         global_options.image_names = run["image_names"]
+        global_options.mapper.bundle_adjustment.refine_focal_length = cfg.focal is None
         recs = pycolmap.global_mapping(run["db_path"], run["image_dir"], sparse, options=global_options)
     else:
         recs = _incremental(run, cfg, {})
@@ -282,6 +283,7 @@ def _incremental(run: dict, cfg: SfmConfig, init: dict) -> dict:
     options.image_path = run["image_dir"]
     options.extract_colors = False  # read once, for the kept run only (`map_frames`)
     options.ba_global_frames_ratio = options.ba_global_points_ratio = GLOBAL_BA_GROWTH
+    options.ba_refine_focal_length = options.mapper.abs_pose_refine_focal_length = cfg.focal is None
     for name, value in init.items():
         setattr(options.mapper, name, value)
     manager = pycolmap.ReconstructionManager()
@@ -303,7 +305,7 @@ def _incremental(run: dict, cfg: SfmConfig, init: dict) -> dict:
 def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     """One global bundle adjustment of `rec` with the robust loss `cfg.final_ba_loss` of scale
     `cfg.final_ba_loss_scale` px: every registered image, the points, the shared camera's focal
-    length and extra parameters (not the principal point), on `cfg.map_threads` threads, until an
+    length (unless --focal holds it) and extra parameters (not the principal point), on `cfg.map_threads` threads, until an
     iteration gains less than `FINAL_BA_FUNCTION_TOLERANCE` of the cost (at most 100 iterations;
     NO_CONVERGENCE then keeps the last, better, iterate).
 
@@ -323,6 +325,7 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     options.ceres.loss_function_scale = cfg.final_ba_loss_scale
     options.ceres.solver_options.num_threads = cfg.map_threads
     options.ceres.solver_options.function_tolerance = FINAL_BA_FUNCTION_TOLERANCE
+    options.refine_focal_length = cfg.focal is None
     config = pycolmap.BundleAdjustmentConfig()
     for i in sorted(rec.reg_image_ids()):
         config.add_image(i)

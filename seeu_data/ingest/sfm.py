@@ -107,6 +107,15 @@ class SfmConfig:
     camera_model: str = setting(
         "SIMPLE_RADIAL", "shared camera model; models with distortion are undistorted", choices=CAMERA_MODELS
     )
+    # A video's focal length is poorly observable when the camera turns little, and a moving object can carry SfM
+    # to another one while every test agrees with the cameras (docs/ingest.md, "Moving content").
+    focal: float | None = setting(
+        None,
+        "the camera's known focal length over the image's longer side (the 35 mm-equivalent focal length / 36: "
+        "0.72 for a phone's 26 mm main camera), held fixed in SfM (the distortion is still estimated); "
+        "default: estimated",
+        metavar="F",
+    )
     overlap: int = setting(10, "sequential matching: keyframes up to 2**(N-1) keyframes apart", metavar="N")
     # auto: a video sequential; an image folder exhaustive up to EXHAUSTIVE_MAX_IMAGES images, else
     # sequential over UNORDERED_OVERLAP neighbours in name order (seeu_data.ingest.match_graph.choose_matcher)
@@ -237,6 +246,8 @@ class SfmConfig:
             raise SeeUError(f"--matcher must be one of {', '.join(MATCHERS)}, got {self.matcher!r}")
         if self.features not in FEATURES:
             raise SeeUError(f"--features must be one of {', '.join(FEATURES)}, got {self.features!r}")
+        if self.focal is not None and not (math.isfinite(self.focal) and 0.1 <= self.focal <= 10):
+            raise SeeUError(f"--focal must be a focal length over the image's longer side, 0.1-10, got {self.focal}")
         if self.final_ba_loss not in FINAL_BA_LOSSES:
             raise SeeUError(f"--final-ba-loss must be one of {', '.join(FINAL_BA_LOSSES)}, got {self.final_ba_loss!r}")
         if not (self.final_ba_loss_scale > 0 and math.isfinite(self.final_ba_loss_scale)):
