@@ -209,10 +209,12 @@ def main() -> int:
         write_clip(video, ClipConfig(n_frames=args.frames, size=(height, width), seed=args.seed, movers=name))
         print(f"rendered {name}: {args.frames} frames {width}x{height} in {time.perf_counter() - t0:.1f} s", flush=True)
         masks = exact_masks(video, args.out / "exact_masks" / name) if args.exact_masks else None
-        focal = float(load_ground_truth(video)["intrinsics_norm"][0][0]) * width / max(width, height)
+        focal = None
+        if args.known_focal:  # the renderer's fx is over the width
+            focal = float(load_ground_truth(video)["intrinsics_norm"][0][0]) * width / max(width, height)
         for mode in modes:
             try:
-                r = run_clip(video, args.out / "posed" / mode, mode, masks, focal if args.known_focal else None)
+                r = run_clip(video, args.out / "posed" / mode, mode, masks, focal)
             except SeeUError as e:
                 r = {"error": str(e)}
             results.setdefault(name, {})[mode] = r

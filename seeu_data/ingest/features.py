@@ -33,8 +33,9 @@ def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmCo
     COLMAP's parallel extractor otherwise assigns image ids in completion order, which changes with the
     thread count and the machine's load; the ids fix the pair ids, the matching order and the mapper's
     tie-breaks. Each camera is the one the extractor would create (`default_focal_length_factor` x the
-    longer side, principal point at the centre; --focal instead, as a known prior): a portrait and a landscape
-    photo of one phone get the same focal length in pixels, as separate cameras. `extract` then adds the features of these images.
+    longer side, principal point at the centre; --focal instead, as a known prior): a portrait and a
+    landscape photo of one phone get the same focal length in pixels, as separate cameras. `extract` then
+    adds the features of these images.
     """
     import pycolmap
 

@@ -305,9 +305,9 @@ def _incremental(run: dict, cfg: SfmConfig, init: dict) -> dict:
 def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     """One global bundle adjustment of `rec` with the robust loss `cfg.final_ba_loss` of scale
     `cfg.final_ba_loss_scale` px: every registered image, the points, the shared camera's focal
-    length (unless --focal holds it) and extra parameters (not the principal point), on `cfg.map_threads` threads, until an
-    iteration gains less than `FINAL_BA_FUNCTION_TOLERANCE` of the cost (at most 100 iterations;
-    NO_CONVERGENCE then keeps the last, better, iterate).
+    length (unless --focal holds it) and extra parameters (not the principal point), on `cfg.map_threads`
+    threads, until an iteration gains less than `FINAL_BA_FUNCTION_TOLERANCE` of the cost (at most 100
+    iterations; NO_CONVERGENCE then keeps the last, better, iterate).
 
     COLMAP's own global adjustments use a plain squared loss; SIFT's residuals on a video have a heavy
     tail (a few % of observations above 1 px carry most of the squared error), which then pulls the
