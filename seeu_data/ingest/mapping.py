@@ -14,7 +14,7 @@ import subprocess
 import sys
 import time
 from collections.abc import Sequence
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 
 from seeu_data.ingest.features import Matches, copy_database
@@ -34,6 +34,12 @@ FINAL_BA_FUNCTION_TOLERANCE = 1e-6
 GLOBAL_BA_GROWTH = 1.1
 # A final adjustment whose mean reprojection error ends above this many times the start's (or 1 px) diverged.
 DIVERGED_FACTOR = 10.0
+# Whether the footage determines the focal length (`focal_hold`): the model adjusted again with the focal length
+# held FOCAL_STEP lower and higher, the poses, points and distortion free, for at most FOCAL_HOLD_ITERATIONS
+# iterations (5 come within 1 % of the converged cost's rise on the 640x360 clips of benchmarks/dynamic.py,
+# at about 1 s each against 12-28 s to converge).
+FOCAL_STEP = 0.15
+FOCAL_HOLD_ITERATIONS = 5
 # A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
 # along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair
 # (|t_z| >= init_max_forward_motion = 0.95, or a median triangulation angle below init_min_tri_angle =
@@ -302,6 +308,60 @@ def _incremental(run: dict, cfg: SfmConfig, init: dict) -> dict:
     return {i: manager.get(i) for i in range(manager.size())}
 
 
+def _ba_options(cfg: SfmConfig):
+    """Bundle adjustment options of the final adjustment: `cfg.final_ba_loss` of scale `cfg.final_ba_loss_scale`
+    px on `cfg.map_threads` threads, the focal length refined unless --focal holds it."""
+    import pycolmap
+
+    options = pycolmap.BundleAdjustmentOptions()
+    options.print_summary = False
+    options.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, cfg.final_ba_loss.upper())
+    options.ceres.loss_function_scale = cfg.final_ba_loss_scale
+    options.ceres.solver_options.num_threads = cfg.map_threads
+    options.ceres.solver_options.function_tolerance = FINAL_BA_FUNCTION_TOLERANCE
+    options.refine_focal_length = cfg.focal is None
+    return options
+
+
+def _adjust(rec, options):
+    """One global bundle adjustment of every registered image of `rec` (in place), the gauge fixed by three
+    points; the solver's summary."""
+    import pycolmap
+
+    config = pycolmap.BundleAdjustmentConfig()
+    for i in sorted(rec.reg_image_ids()):
+        config.add_image(i)
+    config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
+    return pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+
+
+def focal_hold(rec, cfg: SfmConfig, cost: float, residuals: int) -> float:
+    """How firmly the footage holds the focal length of `rec`'s camera (one camera: a video's), `rec` just adjusted
+    by `final_bundle_adjustment` to the robust `cost` over `residuals` residuals: the model adjusted again
+    (`FOCAL_HOLD_ITERATIONS`) with the focal length held `FOCAL_STEP` lower and higher; the smaller of the two
+    rises in cost, as the RMS reprojection change it amounts to (sqrt(2 rise / residuals)), in px per 1000 px
+    of the image's longer side (comparable across image sizes).
+
+    Where the camera turns little (a tripod pan, a walk straight ahead) the distortion and the poses absorb a
+    wrong focal length almost in full, and a moving object can then carry the camera to one."""
+    import numpy as np
+    import pycolmap
+
+    options = _ba_options(replace(cfg, focal=1.0))  # the focal length held
+    options.ceres.solver_options.max_num_iterations = FOCAL_HOLD_ITERATIONS
+    camera = next(iter(rec.cameras.values()))
+    rises = []
+    for scale in (1 - FOCAL_STEP, 1 + FOCAL_STEP):
+        moved = pycolmap.Reconstruction(rec)
+        for cam in moved.cameras.values():
+            params = np.array(cam.params)
+            params[list(cam.focal_length_idxs())] *= scale
+            cam.params = params
+        summary = _adjust(moved, options)
+        rises.append(max(0.0, summary.ceres_summary.final_cost - cost))
+    return 1000 * math.sqrt(2 * min(rises) / max(residuals, 1)) / max(camera.width, camera.height)
+
+
 def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     """One global bundle adjustment of `rec` with the robust loss `cfg.final_ba_loss` of scale
     `cfg.final_ba_loss_scale` px: every registered image, the points, the shared camera's focal
@@ -313,24 +373,13 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     tail (a few % of observations above 1 px carry most of the squared error), which then pulls the
     focal length and the poses. Returns (the adjusted reconstruction, or `rec` unchanged when Ceres
     calls its solution unusable or it diverged (`DIVERGED_FACTOR`); {"loss", "scale_px", "termination", "iterations", "residuals", "used",
-    "reprojection_before_px", "reprojection_after_px"})."""
+    "reprojection_before_px", "reprojection_after_px", "cost" (the robust cost reached; None unless used)})."""
     import pycolmap
 
     before = float(rec.compute_mean_reprojection_error())
     original = rec
     rec = pycolmap.Reconstruction(rec)  # adjusted on a copy: `original` stays when the solve fails
-    options = pycolmap.BundleAdjustmentOptions()
-    options.print_summary = False
-    options.ceres.loss_function_type = getattr(pycolmap.LossFunctionType, cfg.final_ba_loss.upper())
-    options.ceres.loss_function_scale = cfg.final_ba_loss_scale
-    options.ceres.solver_options.num_threads = cfg.map_threads
-    options.ceres.solver_options.function_tolerance = FINAL_BA_FUNCTION_TOLERANCE
-    options.refine_focal_length = cfg.focal is None
-    config = pycolmap.BundleAdjustmentConfig()
-    for i in sorted(rec.reg_image_ids()):
-        config.add_image(i)
-    config.fix_gauge(pycolmap.BundleAdjustmentGauge.THREE_POINTS)
-    summary = pycolmap.create_default_bundle_adjuster(options, config, rec).solve()
+    summary = _adjust(rec, _ba_options(cfg))
     used = bool(summary.is_solution_usable())
     if used:  # a solve that diverged (points sent far off: a mean error of 1e150 px) is no solution either
         rec.update_point_3d_errors()
@@ -349,11 +398,13 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
         "used": used,
         "reprojection_before_px": before,
         "reprojection_after_px": float(rec.compute_mean_reprojection_error()),
+        "cost": float(ceres.final_cost) if used and ceres is not None else None,
     }
 
 
 def final_ba(job: Job, recs: dict) -> list[dict] | None:
-    """`final_bundle_adjustment` of every model in `recs`, in place; result.json's "final_ba"."""
+    """`final_bundle_adjustment` of every model in `recs`, in place; result.json's "final_ba", with a video's
+    `focal_hold` ("focal_hold") unless --focal gives the focal length."""
     if job.cfg.final_ba_loss == "none":
         return None
     # On the mapped (key)frames, before the other frames are registered: a bundle adjustment of
@@ -364,6 +415,8 @@ def final_ba(job: Job, recs: dict) -> list[dict] | None:
     facts = []
     for k in sorted(recs):
         recs[k], f = final_bundle_adjustment(recs[k], job.cfg)
+        if job.video and job.cfg.focal is None and f["cost"] is not None:
+            f["focal_hold"] = focal_hold(recs[k], job.cfg, f["cost"], f["residuals"])
         facts.append({"index": int(k), **f})
     job.clock.add("final_ba_s", t0)
     return facts

@@ -3,7 +3,8 @@
 
     database, extract, match with the keyframes chosen on the way (features.py, pairs.py, keyframes.py)
     -> map, final BA, register the rest, keep models (mapping.py, solution_check.py; a video's models must agree on
-    one focal length: `solution_check.one_camera`) -> export (sfm_export.py),
+    one focal length, `solution_check.one_camera`, which the footage must hold, `focal_held`, without a
+    pincushion making up for it, `no_pincushion`) -> export (sfm_export.py),
     with moving content looked for on the way (sfm_motion.py, `--dynamic`); with mask, mapped first without
     the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails
 
@@ -35,7 +36,7 @@ from seeu_data.ingest.sfm_motion import (
     motion_start,
     static_job,
 )
-from seeu_data.ingest.solution_check import one_camera
+from seeu_data.ingest.solution_check import focal_held, no_pincushion, one_camera
 
 
 def main(job_path: str) -> int:
@@ -58,6 +59,9 @@ def main(job_path: str) -> int:
         matches = match(job)
         kf = matches.keyframes
         posed = _posed(job, matches, kf)
+        if job.video:
+            focal_held(posed.final_ba, posed.mapped.check)
+            no_pincushion(posed.mapped.recs, posed.mapped.check)
     except Failed as exc:
         failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu, "resumed": job.resumed}
         (out / "result.json").write_text(json.dumps(failed))
