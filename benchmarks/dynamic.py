@@ -98,7 +98,8 @@ def exact_masks(video: Path, folder: Path) -> Path | None:
 def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None, focal: float | None = None) -> dict:
     """One ingest of `video` with --dynamic `mode` (and `--masks masks`, `--focal focal`) into `out`: times,
     accuracy, check, warnings, masks, the first try without the matches on moving content (report.json's
-    motion.static_first), the focal length of each model over the image's longer side."""
+    motion.static_first), the focal length of each model over the image's longer side, how firmly the footage holds
+    it (`mapping.focal_hold`) and the fitted pincushion at the corners (`solution_check.corner_pincushion_pct`)."""
     from pipelines.ingest import IngestConfig, IngestRunConfig, ingest_scene
     from seeu_data.ingest.sfm import SfmConfig
     from seeu_data.ingest.video import discover_sources
@@ -118,13 +119,16 @@ def run_clip(video: Path, out: Path, mode: str, masks: Path | None = None, focal
     acc = ingest_accuracy(report["output"], video, report["registered"], report["frames_selected"])
     best = acc["largest"] or {}
     motion = report.get("motion") or {}
+    check = report["sfm"]["solution_check"]
     return {
         "wall_s": wall,
         "cpu_s": cpu,
         "sfm_timings_s": report["sfm"]["timings_s"],
         "registered_pct": acc["registered_pct"],
         "centre_rmse_pct_path": best.get("centre_rmse_pct_path"),
-        "check": report["sfm"]["solution_check"].get("state"),
+        "check": check.get("state"),
+        "focal_hold": check.get("focal_hold"),
+        "corner_pincushion_pct": check.get("corner_pincushion_pct"),
         "warnings": report["warnings"],
         "mean_masked_pct": motion.get("mean_masked_pct"),
         "frames_masked": motion.get("frames_masked", 0),
@@ -142,10 +146,12 @@ def line(name: str, mode: str, r: dict, base: dict | None) -> str:
         return f"{name:8s} {mode:4s} error: {r['error']}"
     ratio = f"{r['wall_s'] / base['wall_s']:.2f}x" if base else "-"
     centre = r["centre_rmse_pct_path"]
+    hold, pincushion = r.get("focal_hold"), r.get("corner_pincushion_pct")
     out = (
         f"{name:8s} {mode:4s} {r['wall_s']:7.1f} s ({ratio:>6s}) CPU {r['cpu_s']:7.1f} s  "
         f"centres {'-' if centre is None else f'{centre:.3f}'} % path  check {r['check']}  "
         f"focal {', '.join(f'{f:.3f}' for f in r['focal'])}"
+        f"{'' if hold is None else f' held {hold:.3f}'}{'' if pincushion is None else f' pincushion {pincushion:+.1f} %'}"
         f"{'  WARNING' if r['warnings'] else ''}"
     )
     static = (r.get("static_first") or {}).get("kept")

@@ -572,6 +572,107 @@ def test_progress_lines_stay_whole_while_colmap_logs_to_the_same_pipe(tmp_path):
     assert [ln for ln in lines if ln != log] == [f"@@seeu done {i}" for i in range(3000)]  # the child's marker
 
 
+def _observed(turn_deg: float):
+    """A pycolmap Reconstruction adjusted by `final_bundle_adjustment` (with its facts): 20 frames of a SIMPLE_RADIAL
+    camera (focal length 0.714 x W, no distortion) on a path 1.5 m sideways and 2 m ahead, turning `turn_deg`
+    degrees from end to end, that see 600 points 3-9 m ahead through 0.3 px of noise."""
+    import cv2
+    import pycolmap
+
+    from seeu_data.ingest.mapping import final_bundle_adjustment
+
+    rng = np.random.default_rng(0)
+    f = 0.714 * W
+    points = rng.uniform([-4, -2, 3], [4, 2, 9], (600, 3))
+    rec = pycolmap.Reconstruction()
+    rec.add_camera_with_trivial_rig(
+        pycolmap.Camera.create_from_model_id(1, pycolmap.CameraModelId.SIMPLE_RADIAL, f, W, H)
+    )
+    seen: dict[int, list] = {j: [] for j in range(len(points))}
+    for i, t in enumerate(np.linspace(0, 1, 20)):
+        R = cv2.Rodrigues(np.array([0.0, np.radians(turn_deg) * (t - 0.5), 0.0]))[0]  # world to camera
+        t_w = -R @ np.array([1.5 * t, 0.1 * np.sin(4 * t), 2.0 * t])
+        x = points @ R.T + t_w
+        uv = f * x[:, :2] / x[:, 2:] + [W / 2, H / 2] + rng.normal(0, 0.3, (len(points), 2))
+        inside = np.flatnonzero((x[:, 2] > 0.5) & (uv > 0).all(1) & (uv < [W, H]).all(1))
+        image = pycolmap.Image(
+            name=f"{i:06d}.jpg",
+            camera_id=1,
+            image_id=i + 1,
+            points2D=pycolmap.Point2DList([pycolmap.Point2D(p) for p in uv[inside]]),
+        )
+        rec.add_image_with_trivial_frame(image, pycolmap.Rigid3d(pycolmap.Rotation3d(R), t_w))
+        for k, j in enumerate(inside):
+            seen[j].append((i + 1, k))
+    for j, observations in seen.items():
+        if len(observations) >= 2:
+            track = pycolmap.Track()
+            for image_id, k in observations:
+                track.add_element(image_id, k)
+            rec.add_point3D(points[j], track)
+    rec.update_point_3d_errors()
+    return final_bundle_adjustment(rec, SfmConfig())
+
+
+def test_a_camera_that_never_turns_leaves_its_focal_length_unheld():
+    """`mapping.focal_hold` against the closed form: a camera that only moves (never turns) leaves its focal length
+    undetermined (the points (X/s, Y/s, Z) under focal length s f project as (X, Y, Z) under f; only the gauge's
+    three fixed points resist): the hold is under FOCAL_HOLD_MIN and `focal_held` fails the check; the same path
+    turning 30 degrees holds it over ten times as firmly and passes."""
+    from seeu_data.ingest.mapping import focal_hold
+    from seeu_data.ingest.solution_check import FOCAL_HOLD_MIN, focal_held
+
+    holds = []
+    for turn in (0.0, 30.0):
+        rec, facts = _observed(turn)
+        assert facts["used"] and rec.cameras[1].params[0] == pytest.approx(0.714 * W, rel=0.02)
+        holds.append(focal_hold(rec, SfmConfig(), facts["cost"], facts["residuals"]))
+    assert holds[0] < FOCAL_HOLD_MIN < holds[1] and holds[1] > 10 * holds[0], holds
+    slide, turning = ({"ran": True, "passed": True} for _ in range(2))
+    focal_held([{"focal_hold": holds[0]}], slide)
+    focal_held([{"focal_hold": holds[1]}, {"focal_hold": None}], turning)
+    assert slide["passed"] is False and slide["reason"].startswith("the footage hardly determines the camera's focal")
+    assert turning == {"ran": True, "passed": True, "focal_hold": holds[1]}
+
+
+def test_a_fitted_pincushion_fails_a_videos_check():
+    """`corner_pincushion_pct` against the closed form of SIMPLE_RADIAL (a corner at distorted radius r_d from the
+    principal point, in focal lengths, lies at r_u with r_u + k r_u^3 = r_d), the same for RADIAL and OPENCV, none
+    for PINHOLE, barrel negative; `no_pincushion` fails the check of the tripod pan's camera (k 0.254 at focal
+    length 1.076 of the longer side: 6.4 %), passes a camera within a % of it, keeps an earlier failure's reason."""
+    import pycolmap
+
+    from seeu_data.ingest.solution_check import PINCUSHION_MAX_PCT, corner_pincushion_pct, no_pincushion
+
+    r_d = np.hypot(320, 180) / 500
+    expected = {}
+    for k in (0.2, -0.2):
+        r_u = min(r.real for r in np.roots([k, 0, 1, -r_d]) if abs(r.imag) < 1e-9 and r.real > 0)
+        expected[k] = 100 * (r_d / r_u - 1)
+        simple = pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=360, params=[500, 320, 180, k])
+        assert corner_pincushion_pct(simple) == pytest.approx(expected[k], rel=1e-6)
+    assert expected[0.2] > 0 > expected[-0.2]
+    for model, params in (("RADIAL", [500, 320, 180, 0.2, 0.0]), ("OPENCV", [500, 500, 320, 180, 0.2, 0, 0, 0])):
+        camera = pycolmap.Camera(model=model, width=640, height=360, params=params)
+        assert corner_pincushion_pct(camera) == pytest.approx(expected[0.2], rel=1e-6)
+    pinhole = pycolmap.Camera(model="PINHOLE", width=640, height=360, params=[500, 500, 320, 180])
+    assert corner_pincushion_pct(pinhole) == pytest.approx(0.0, abs=1e-9)
+
+    path = planar_camera_path(6)
+    pan = pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=360, params=[1.076 * 640, 320, 180, 0.254])
+    walk = pycolmap.Camera(model="SIMPLE_RADIAL", width=640, height=360, params=[0.806 * 640, 320, 180, 0.020])
+    check = {"ran": True, "passed": True}
+    no_pincushion({0: _Rec(path, pan)}, check)
+    assert check["passed"] is False and check["corner_pincushion_pct"] == pytest.approx(6.4, abs=0.1)
+    assert check["reason"].startswith("the camera's fitted distortion pushes the image's corners 6.4% outwards")
+    check = {"ran": True, "passed": True}
+    no_pincushion({0: _Rec(path, walk)}, check)
+    assert check["passed"] is True and check["corner_pincushion_pct"] < PINCUSHION_MAX_PCT / 2
+    failed = {"ran": True, "passed": False, "reason": "the runs disagree"}
+    no_pincushion({0: _Rec(path, pan)}, failed)
+    assert failed["reason"] == "the runs disagree"
+
+
 def test_the_models_of_one_video_must_agree_on_its_focal_length():
     """`solution_check.one_camera`: a video's models over FOCAL_SPREAD_PCT apart in focal length fail the check
     (the `train` clip's two models: 0.93 and 0.71 of the longer side), within it they pass; a failed check keeps

@@ -9,7 +9,9 @@ models came from its forward-motion retry, `mapping.forward_below`)}], keyframes
 target_px, registered_after}, resumed {images, pairs, map_runs: what the SfM run kept of an interrupted
 one of the same job: frames with features, matched pairs, finished mapping runs},
 solution_check {ran, passed, state (passed | failed | not run), disagreement_pct, kept_seed, focal_spread_pct (a
-video mapped into several models: how far apart their focal lengths are, `solution_check.one_camera`),
+video mapped into several models: how far apart their focal lengths are, `solution_check.one_camera`), focal_hold
+(a video: how firmly the footage holds the focal length, `solution_check.focal_held`), corner_pincushion_pct (a
+video: the fitted distortion's push at the image corners, `solution_check.no_pincushion`),
 planar_or_panoramic_pairs, verified_pairs (among the mapped frames), init ("forward motion": the model kept
 came from a forward-motion retry), reason (why a failed check failed), weak_geometry [str] (`weak_geometry`: low parallax, a dominant plane,
 too few matches; the likely causes a failed check names)}}, input_identity {path, fingerprint},

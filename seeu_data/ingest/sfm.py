@@ -48,10 +48,12 @@ Output directory layout::
 "world_to_cam" (3x4), "camera" (index into "cameras")}], "num_points3D", "mean_reprojection_error"}], "discarded_models",
 "num_keypoints", "num_verified_pairs", "matcher": {"requested", "used", "overlap", "reason", "pairs_matched"}, "mapping_attempts": [{"seed", "registered", "models", "seconds"[, "disagreement_pct"][, "init": "forward motion"]}],
 "solution_check": {"ran", "passed", "disagreement_pct", "kept_seed"[, "reason"], "planar_or_panoramic_pairs",
-"verified_pairs"}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
+"verified_pairs"[, a video's "focal_spread_pct", "focal_hold", "corner_pincushion_pct" (solution_check.py)]}, "keyframes": {"stride", "count", "motion_px" (median image motion between consecutive
 frames, null when not a video), "target_px"[, "registered_after" (frames registered after mapping)]},
 "final_ba": [{"index", "loss", "scale_px", "termination", "iterations", "residuals", "used" (false: Ceres'
-solution unusable, the model kept as mapped), "reprojection_before_px", "reprojection_after_px"}] (null with `final_ba_loss` none),
+solution unusable, the model kept as mapped), "reprojection_before_px", "reprojection_after_px", "cost" (the robust
+cost reached, null unless used)[, "focal_hold" (a video without `focal`: `mapping.focal_hold`)]}] (null with
+`final_ba_loss` none),
 "motion": moving content (`dynamic`, seeu_data.ingest.sfm_motion.Moving; with `off`, found in the mapped
 frames, it fails "solution_check": "passed" false, "reason" and "moving_content" why),
 "timings": {"extract_s", "match_s", "map_s" (every mapping run), "register_s" (with a stride > 1),
