@@ -14,7 +14,8 @@
    and with masking the masks against the truth (`seeu_data.synthetic.mask_accuracy`: pooled IoU, the
    goal >= 0.7 on the box; recall; false positives, % of all pixels, mean and worst frame: on the clip
    without movers every masked pixel is one), and whether the try mapped first without the matches on moving
-   content was kept (else every match was mapped in a second try). Writes <out>/result.json.
+   content was kept (else it was mapped again with its focal length held, then with every match). Writes
+   <out>/result.json.
    With --exact-masks each clip with movers gets its exact masks as the user's own (`seeu ingest --masks`,
    which keeps SfM's features out of them).
 4. With --footage KINDS: static clips of `benchmarks/footage.py` (another renderer: a street walk, an orbit, a
@@ -154,9 +155,16 @@ def line(name: str, mode: str, r: dict, base: dict | None) -> str:
         f"{'' if hold is None else f' held {hold:.3f}'}{'' if pincushion is None else f' pincushion {pincushion:+.1f} %'}"
         f"{'  WARNING' if r['warnings'] else ''}"
     )
-    static = (r.get("static_first") or {}).get("kept")
+    first = r.get("static_first") or {}
+    static, held = first.get("kept"), (first.get("held") or {}).get("kept")
     if static is not None:  # mapped first without the matches on moving content
-        out += "  without the mover's matches" if static else "  with every match (a second try)"
+        out += (
+            "  without the mover's matches"
+            if static
+            else "  focal length held (a second try)"
+            if held
+            else f"  with every match (a {'third' if 'held' in first else 'second'} try)"
+        )
     m = r["masks"]
     if m:
         out += (

@@ -191,6 +191,24 @@ def _match_pairs(db_path: str, names: list[tuple[str, str]], features: str, seed
     list_path.unlink()
 
 
+def verify_again(job: Job) -> None:
+    """Every matched pair of `job`'s database verified again (its two-view geometries replaced) against the cameras
+    the database now holds: with a known focal length, an essential matrix."""
+    import pycolmap
+
+    db = pycolmap.Database.open(job.db_path)
+    try:
+        ids = {image.image_id: image.name for image in db.read_all_images()}
+        pairs = [pycolmap.pair_id_to_image_pair(pair_id) for pair_id in db.read_all_matches()[0]]
+        db.clear_two_view_geometries()
+    finally:
+        db.close()
+    list_path = Path(job.db_path).with_suffix(".pairs.txt")
+    list_path.write_text("".join(f"{ids[a]} {ids[b]}\n" for a, b in pairs))
+    pycolmap.verify_matches(job.db_path, list_path, _options(job.cfg.features, job.cfg.random_seed)[1])
+    list_path.unlink()
+
+
 def _end_with_parent() -> None:
     """A matching worker ends when the SfM child does (killed when ingest is interrupted)."""
     import signal

@@ -25,7 +25,9 @@ last), count, placed, shift_pct (null: most ended outside the model), unexplaine
 placed again on trial), carried (mapped frames a mover carried: with mask taken out and registered again),
 rigid_gap {max, pairs_judged, pairs_over, taken_out} (the final cameras against each pair's best rigid motion),
 leave_out (observations, centre_change_pct: the cameras adjusted without them), static_first {frames_masked,
-matches_dropped, kept, reason} (with mask, mapped first without the matches on moving content; not kept: mapped
+matches_dropped, kept, reason, focal (its models' focal lengths over the image's longer side), focal_held, held
+{frames_masked, matches_dropped, kept, reason} (not kept: the try with that focal length held, `sfm_motion.held_job`)}
+(with mask, mapped first without the matches on moving content; not kept: mapped
 again with every match), masked_pct [[source frame, % of the frame]] of the frames with a mask, frames_masked,
 mean_masked_pct} (seeu_data.ingest.motion),
 warnings [str] (a failed solution check, moving content not masked, a camera rotating in place, low parallax;
@@ -264,14 +266,16 @@ def summary_line(report: dict) -> str:
     check = report["sfm"].get("solution_check", {})
     expected = 2 if check.get("ran") else 1  # the solution check maps twice
     forward = check.get("init") == "forward motion"  # the model kept came from a forward-motion retry
-    static = ((report.get("motion") or {}).get("static_first") or {}).get("kept")  # sfm_motion.static_job
+    first = (report.get("motion") or {}).get("static_first") or {}  # sfm_motion.static_job, held_job
+    static, held = first.get("kept"), (first.get("held") or {}).get("kept")
     skipped = skipped_line([(f["name"], f["reason"]) for f in report.get("skipped_files", [])])
     line = (
         f"{report['scene']}: {report['registered']}/{report['frames_selected']} frames registered ({rate:.1f}%"
         + (f" after {attempts} mapping runs" if attempts > expected else "")
         + (", forward motion allowed for the initial pair" if forward else "")
         + (", mapped without a moving object's matches" if static else "")
-        + (", mapped again with every match" if static is False else "")
+        + (f", mapped again with the focal length held at {first['focal_held']:.3f}" if held else "")
+        + (", mapped again with every match" if static is False and not held else "")
         + "), "
         + (f"{skipped}, " if skipped else "")
         + f"{len(report['chunks'])} chunk(s) with {report['frames_in_chunks']} frames, "

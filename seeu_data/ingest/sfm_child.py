@@ -6,7 +6,8 @@
     one focal length, `solution_check.one_camera`, which the footage must hold, `focal_held`, without a
     pincushion making up for it, `no_pincushion`) -> export (sfm_export.py),
     with moving content looked for on the way (sfm_motion.py, `--dynamic`); with mask, mapped first without
-    the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails
+    the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails, else
+    every match mapped again, with that try's focal length held where its camera passed (`sfm_motion.held_job`)
 
 A child started on a directory where an interrupted one of the same job worked (`run_sfm` keeps it)
 continues from what that one finished: the database (its journal entry), each image's features, each
@@ -29,6 +30,7 @@ from seeu_data.ingest.sfm_export import export_models
 from seeu_data.ingest.sfm_motion import (
     Moving,
     astray_plan,
+    held_job,
     motion_export,
     motion_frames,
     motion_keyframes,
@@ -36,7 +38,15 @@ from seeu_data.ingest.sfm_motion import (
     motion_start,
     static_job,
 )
-from seeu_data.ingest.solution_check import focal_held, no_pincushion, one_camera
+from seeu_data.ingest.solution_check import (
+    FOCAL_HOLD_MIN,
+    FOCAL_SPREAD_PCT,
+    PINCUSHION_MAX_PCT,
+    focal_held,
+    focal_lengths,
+    no_pincushion,
+    one_camera,
+)
 
 
 def main(job_path: str) -> int:
@@ -59,9 +69,6 @@ def main(job_path: str) -> int:
         matches = match(job)
         kf = matches.keyframes
         posed = _posed(job, matches, kf)
-        if job.video:
-            focal_held(posed.final_ba, posed.mapped.check)
-            no_pincushion(posed.mapped.recs, posed.mapped.check)
     except Failed as exc:
         failed = {"error": str(exc), "timings": job.clock.wall, "cpu_timings": job.clock.cpu, "resumed": job.resumed}
         (out / "result.json").write_text(json.dumps(failed))
@@ -87,9 +94,10 @@ def main(job_path: str) -> int:
         "resumed": job.resumed,
     }
     (out / "result.json").write_text(json.dumps(result))
-    for runs in ("map_runs", "static_runs"):  # kept only for a re-run of an interrupted child
-        shutil.rmtree(out / runs, ignore_errors=True)
-    (out / "static.db").unlink(missing_ok=True)
+    for runs in ("map_runs", "static_map_runs", "held_runs", "static_held_runs"):  # kept for a re-run of an
+        shutil.rmtree(out / runs, ignore_errors=True)  # interrupted child only
+    for db in ("static-database.db", "held.db", "static-held.db"):
+        (out / db).unlink(missing_ok=True)
     return 0
 
 
@@ -114,13 +122,17 @@ def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
     motion_rigid(job, recs, kf, moving, mapped.check)
     if job.video:
         one_camera(recs, mapped.check)
+        focal_held(facts, mapped.check)
+        no_pincushion(recs, mapped.check)
     return Posed(mapped, moving, facts)
 
 
 def _posed(job: Job, matches: Matches, kf: Keyframes) -> Posed:
     """The poses: with `static_job`'s database (without the matches on moving content) first, that try kept when
-    its solution check does not fail, else (or without one) on every verified match. "static_first" in the kept
-    try's motion facts says whether the first was kept ("kept") and why not ("reason")."""
+    its solution check does not fail, else (or without one) on every verified match, with the first try's focal
+    length held (`held_job`) where its camera passed its tests (`_plausible_camera`) and no --focal is given.
+    "static_first" in the kept try's motion facts says whether the first was kept ("kept"), why not ("reason"), its
+    models' focal lengths over the image's longer side ("focal") and the one held ("focal_held")."""
     moving = motion_start(job)
     static = static_job(job, moving)
     if static is None:
@@ -131,13 +143,52 @@ def _posed(job: Job, matches: Matches, kf: Keyframes) -> Posed:
     except Failed as exc:
         facts.update(kept=False, reason=str(exc))
     else:
-        facts["kept"] = first.mapped.check.get("passed") is not False
+        check = first.mapped.check
+        facts["focal"] = focal_lengths(first.mapped.recs)
+        facts["kept"] = check.get("passed") is not False
         if facts["kept"]:
             return first
-        facts["reason"] = first.mapped.check.get("reason")
+        facts["reason"] = check.get("reason")
+        if _plausible_camera(check) and job.cfg.focal is None:  # mapped again with its focal length held
+            largest = max(first.mapped.recs.values(), key=lambda rec: rec.num_reg_images())
+            facts["focal_held"] = focal_lengths({0: largest})[0]
+            held = _held_try(job, matches, kf, moving, facts)
+            if held is not None:
+                return held
     second = _pose(job, matches, kf, motion_start(job, moving.memo))
     second.moving.facts["static_first"] = facts
     return second
+
+
+def _held_try(job: Job, matches: Matches, kf: Keyframes, moving: Moving, facts: dict) -> Posed | None:
+    """The try with the first try's focal length (`facts["focal_held"]`) held (`held_job`), without the matches on
+    moving content (`static_job` on its database): kept (returned) unless its solution check fails. Its facts
+    into `facts["held"]` {"frames_masked", "matches_dropped", "kept", "reason"}."""
+    retry = motion_start(job, moving.memo)
+    held_all = held_job(job, facts["focal_held"])
+    held_static = static_job(held_all, retry) or held_all
+    facts["held"] = retry.facts.pop("static_first", {})
+    try:
+        held = _pose(held_static, matches, kf, retry)
+    except Failed as exc:
+        facts["held"].update(kept=False, reason=str(exc))
+        return None
+    facts["held"]["kept"] = held.mapped.check.get("passed") is not False
+    held.moving.facts["static_first"] = facts
+    if facts["held"]["kept"]:
+        return held
+    facts["held"]["reason"] = held.mapped.check.get("reason")
+    return None
+
+
+def _plausible_camera(check: dict) -> bool:
+    """Whether a try's camera passed the tests of the camera in its solution `check`: one focal length across its
+    models, held firmly by the footage, no pincushion making up for it (`solution_check`)."""
+    return (
+        check.get("focal_spread_pct", 0.0) <= FOCAL_SPREAD_PCT
+        and check.get("focal_hold", FOCAL_HOLD_MIN) >= FOCAL_HOLD_MIN
+        and check.get("corner_pincushion_pct", 0.0) <= PINCUSHION_MAX_PCT
+    )
 
 
 if __name__ == "__main__":

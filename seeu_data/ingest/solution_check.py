@@ -150,10 +150,16 @@ def map_with_retries(
     return runs[keep][1], attempts, runs[keep][2], result
 
 
+def focal_lengths(models: dict) -> list[float]:
+    """The focal lengths of the models' cameras ({index: pycolmap.Reconstruction}), each over its image's longer
+    side."""
+    return [c.mean_focal_length() / max(c.width, c.height) for rec in models.values() for c in model_cameras(rec)]
+
+
 def focal_spread_pct(models: dict) -> float | None:
-    """How far apart the focal lengths of the models' cameras ({index: pycolmap.Reconstruction}) are, each over
-    its image's longer side: the largest over the smallest, less 1, in % (None with fewer than two cameras)."""
-    focals = [c.mean_focal_length() / max(c.width, c.height) for rec in models.values() for c in model_cameras(rec)]
+    """How far apart the `focal_lengths` of the models' cameras ({index: pycolmap.Reconstruction}) are: the largest
+    over the smallest, less 1, in % (None with fewer than two cameras)."""
+    focals = focal_lengths(models)
     return 100 * (max(focals) / min(focals) - 1) if len(focals) > 1 else None
 
 
