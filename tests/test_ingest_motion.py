@@ -169,27 +169,27 @@ def _ingested(tmp_path: Path, movers: str) -> tuple[Path, Path, dict]:
     return clip, run, json.loads((run / "report.json").read_text())
 
 
-def test_a_mover_the_flow_test_barely_sees_is_placed_again_on_trial(tmp_path):
-    """The mover crossing the room (`--movers large`) at 320x180 stays in the flow test's blind spot: both
-    mapping runs agree on cameras 7 % of the path off (frames 0-23 carried in scale), and its moving content is
-    found in a few frames at the start only. Placed again against the rest on trial (`motion.trial_frames`), those
-    frames move by more than TRIAL_SHIFT_PCT with the flow confirming them: they are carried, and the cameras
-    come to within 0.5 % of the path (0.047 % measured, frames 23-89). Mapped first without the matches on what
-    the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`), its check fails (where the
-    mover fills most of the view, the best rigid motion is its own): that try is not kept, every match is mapped."""
+def test_a_mover_the_flow_test_barely_sees_is_posed_with_the_first_tries_focal_length_held(tmp_path):
+    """The mover crossing the room (`--movers large`) at 320x180 stays in the flow test's blind spot: on every match
+    both mapping runs agree on cameras 7 % of the path off (frames 0-23 carried in scale). Mapped first without the
+    matches on what the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`), its check fails
+    (where the mover fills most of the view, the best rigid motion is its own). That try's camera passed its tests,
+    so the clip is mapped again with its focal length held (`sfm_motion.held_job`): that try passes, its cameras
+    within 0.5 % of the path (0.056 % measured, over 87 % of the frames). Its masks overshoot into the static scene where the
+    mover fills the view (IoU 0.56 measured, recall 0.92; mapped on every match, with its carried frames taken out,
+    0.047 % over frames 23-89 and IoU 0.84, in 2.1x the time of the walk without it against 1.9x)."""
     clip, run, report = _ingested(tmp_path, "large")
-    static = report["motion"]["static_first"]
-    assert static["matches_dropped"] > 0 and not static["kept"] and static["reason"], static
-    assert "mapped again with every match" in summary_line(report)
-    trial = report["motion"]["trials"][-1]
-    assert trial["shift_pct"] > 0.5 and not trial["unexplained"], report["motion"]["trials"]
-    assert len(report["motion"]["carried"]) == trial["count"]
+    first = report["motion"]["static_first"]
+    assert first["matches_dropped"] > 0 and not first["kept"] and first["reason"], first
+    assert first["held"]["kept"], first
+    assert "mapped again with the focal length held" in summary_line(report)
     acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
-    assert acc["largest"]["centre_rmse_pct_path"] < 0.5, acc
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5 and acc["registered_pct"] > 80, acc
     assert report["sfm"]["solution_check"]["state"] == "passed"
-    assert mask_accuracy(run, clip)["iou"] > 0.7
-    rigid = report["motion"]["rigid_gap"]  # the last check ran; carried frames that did not fit are out
-    assert rigid["pairs_judged"] > 30 and set(rigid["taken_out"]) <= set(report["motion"]["carried"])
+    masks = mask_accuracy(run, clip)
+    assert masks["iou"] > 0.5 and masks["recall"] > 0.85, masks
+    rigid = report["motion"]["rigid_gap"]  # the last check ran
+    assert rigid["pairs_judged"] > 30
 
 
 def test_a_mover_that_carries_sfm_is_mapped_without_its_matches(tmp_path):
@@ -205,7 +205,7 @@ def test_a_mover_that_carries_sfm_is_mapped_without_its_matches(tmp_path):
     acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
     assert acc["largest"]["centre_rmse_pct_path"] < 1.0, acc
     assert "mapped without a moving object's matches" in summary_line(report)
-    assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "static.db").exists()  # the work folder tidied
+    assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "static-database.db").exists()  # the work folder tidied
 
 
 @pytest.fixture
@@ -229,6 +229,23 @@ def test_a_person_walking_ahead_is_posed_without_the_matches_its_masks_missed(tm
     clip, run, report = _ingested(tmp_path, "follow")
     assert report["motion"]["static_first"]["kept"], report["motion"]["static_first"]
     assert report["sfm"]["solution_check"]["state"] == "passed"
+    acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5, acc
+
+
+def test_a_person_crossing_ahead_is_posed_with_the_first_tries_focal_length_held(tmp_path, benchmark_movers):
+    """`person_x` (benchmarks/dynamic.py's UNSEEN: a 0.5 x 1.7 m "person" crossing 4 m ahead; 320x180): mapped first
+    without the matches on what the rigid pass masks, its cameras of frames 8-23 disagree with the flow (the check
+    fails), and with every match SfM followed the person to a focal length of 0.760 (the truth 0.714) and cameras
+    3.2 % of the path off. That first try's camera passed its tests (its focal length 0.716), so the matches are
+    verified again with it held (`sfm_motion.held_job`: an essential matrix per pair) and mapped without the mover's:
+    that try passes and is kept, its cameras within 0.5 % of the path (0.065 % measured)."""
+    clip, run, report = _ingested(tmp_path, "person_x")
+    first = report["motion"]["static_first"]
+    assert not first["kept"] and first["focal_held"] == pytest.approx(0.714, rel=0.02), first
+    assert first["held"]["kept"] and first["held"]["matches_dropped"] > 0, first
+    assert report["sfm"]["solution_check"]["state"] == "passed", report["warnings"]
+    assert "mapped again with the focal length held at 0.71" in summary_line(report)
     acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
     assert acc["largest"]["centre_rmse_pct_path"] < 0.5, acc
 

@@ -31,8 +31,11 @@ Output directory layout::
 
     database.db  sfm.log  result.json  job.json  steps.jsonl (the child's finished steps)
     map_runs/run-<seed>/    a mapping run (kept for a re-run of an interrupted child; removed at the end)
-    static.db, static_runs/ --dynamic mask, moving content found: the database without the matches on it, and
+    static-database.db, static_map_runs/
+                            --dynamic mask, moving content found: the database without the matches on it, and
                             the mapping runs of the try on it (`sfm_motion.static_job`; removed at the end)
+    held.db, held_runs/, static-held.db, static_held_runs/
+                            the same with the first try's focal length held (`sfm_motion.held_job`; removed)
     sparse/<k>/             COLMAP binary model k (as mapped, adjusted, the other frames registered)
     undistorted/<k>/images/ the undistorted frames (same size, PINHOLE) when the camera model has distortion
     points_depth_<k>.npy    (M,) depth of every 3D-point observation in its camera, model k

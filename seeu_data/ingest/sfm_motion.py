@@ -163,11 +163,11 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
 
 
 def static_job(job: Job, moving: Moving) -> Job | None:
-    """--dynamic mask, a video: the job to map first, on a copy of the database (static-<its name>) without the verified
-    matches that touch what the best rigid motion of the flow leaves unexplained (`motion.rigid_pass` over every
-    frame, no cameras needed; in frames where it finds none, those matched to it: `drop_matches`), its mapping runs
-    in static_<its runs>/; None when not wanted, or when that finds moving content in fewer than MIN_MOVING_FRAMES frames
-    (every match is then mapped). moving.facts["static_first"]: {"frames_masked"[, "matches_dropped"]}.
+    """--dynamic mask, a video: the job to map first, on a copy of the database (static-<its name>) without the
+    verified matches that touch what the best rigid motion of the flow leaves unexplained (`motion.rigid_pass` over
+    every frame, no cameras needed; in frames where it finds none, those matched to it: `drop_matches`), its mapping
+    runs in static_<its runs>/; None when not wanted, or when that finds moving content in fewer than
+    MIN_MOVING_FRAMES frames (every match is then mapped). moving.facts["static_first"]: {"frames_masked"[, "matches_dropped"]}.
 
     A mover's matches make COLMAP follow it (cameras 15 % of the path off, the mapping runs agreeing) or try model
     after model (300 s on a 90-frame 320x180 clip that maps in 3 s without it); without them it maps as the
@@ -181,12 +181,13 @@ def static_job(job: Job, moving: Moving) -> Job | None:
     t0 = job.clock.mark()
     masks = rigid_pass(moving.memo, job.names, on_frame=_Counter())
     facts = moving.facts["static_first"] = {"frames_masked": len(masks)}
+    static = replace(
+        job, db_path=job.db_path.with_name(f"static-{job.db_path.name}"), map_runs=f"static_{job.map_runs}"
+    )
     if len(masks) >= MIN_MOVING_FRAMES:
-        facts["matches_dropped"] = drop_matches(job.db_path, job.db_path.with_name(f"static-{job.db_path.name}"), masks)
+        facts["matches_dropped"] = drop_matches(job.db_path, static.db_path, masks)
     job.clock.add("motion_s", t0)
-    if "matches_dropped" not in facts:
-        return None
-    return replace(job, db_path=job.db_path.with_name(f"static-{job.db_path.name}"), map_runs=f"static_{job.map_runs}")
+    return static if "matches_dropped" in facts else None
 
 
 def held_job(job: Job, focal: float) -> Job:
