@@ -357,7 +357,7 @@ def focal_hold(rec, cfg: SfmConfig, cost: float, residuals: int) -> float:
         for cam in moved.cameras.values():
             params = np.array(cam.params)
             params[list(cam.focal_length_idxs())] *= scale
-            cam.params = params
+            cam.params = params.tolist()
         summary = _adjust(moved, options)
         rises.append(max(0.0, summary.ceres_summary.final_cost - cost))
     return 1000 * math.sqrt(2 * min(rises) / max(residuals, 1)) / max(camera.width, camera.height)

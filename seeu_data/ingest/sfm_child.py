@@ -6,8 +6,9 @@
     one focal length, `solution_check.one_camera`, which the footage must hold, `focal_held`, without a
     pincushion making up for it, `no_pincushion`) -> export (sfm_export.py),
     with moving content looked for on the way (sfm_motion.py, `--dynamic`); with mask, mapped first without
-    the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails, else
-    every match mapped again, with that try's focal length held where its camera passed (`sfm_motion.held_job`)
+    the matches on moving content (`sfm_motion.static_job`), that try kept unless its solution check fails; else
+    mapped so again with that try's focal length held where its camera passed (`sfm_motion.held_job`), then on
+    every match
 
 A child started on a directory where an interrupted one of the same job worked (`run_sfm` keeps it)
 continues from what that one finished: the database (its journal entry), each image's features, each
@@ -129,8 +130,9 @@ def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
 
 def _posed(job: Job, matches: Matches, kf: Keyframes) -> Posed:
     """The poses: with `static_job`'s database (without the matches on moving content) first, that try kept when
-    its solution check does not fail, else (or without one) on every verified match, with the first try's focal
-    length held (`held_job`) where its camera passed its tests (`_plausible_camera`) and no --focal is given.
+    its solution check does not fail; else, where its camera passed its tests (`_plausible_camera`) and no --focal
+    is given, `_held_try` (its focal length held), kept when that check does not fail; else (or without a first
+    try) on every verified match.
     "static_first" in the kept try's motion facts says whether the first was kept ("kept"), why not ("reason"), its
     models' focal lengths over the image's longer side ("focal") and the one held ("focal_held")."""
     moving = motion_start(job)

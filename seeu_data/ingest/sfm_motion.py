@@ -3,9 +3,10 @@ order `sfm_child.main` calls them.
 
     before mapping:            static_job       (mask: the database without the matches on what the best
                                                  rigid motion of the flow leaves unexplained, mapped first;
-                                                 that try kept unless its solution check fails, else the
-                                                 steps from mapping run again on every verified match, with
-                                                 its focal length held where its camera is plausible: held_job)
+                                                 that try kept unless its solution check fails; else
+                                                 mapped so again with its focal length held where its
+                                                 camera passed (held_job), then the steps from mapping
+                                                 run again on every verified match)
                                motion_start     (the moving content found on the way, empty)
     after mapping:             motion_keyframes (frames whose camera alone is astray taken out; the
                                                  mapped frames against their SfM cameras; frames with
@@ -213,7 +214,7 @@ def held_job(job: Job, focal: float) -> Job:
         for camera in db.read_all_cameras():
             params = np.array(camera.params)
             params[list(camera.focal_length_idxs())] = focal * max(camera.width, camera.height)
-            camera.params = params
+            camera.params = params.tolist()
             camera.has_prior_focal_length = True
             db.update_camera(camera)
     finally:
