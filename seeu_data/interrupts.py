@@ -83,8 +83,24 @@ def raise_if_terminated() -> None:
         raise Terminated(_received[0])
 
 
+def end_with_parent() -> None:
+    """This process is killed (SIGKILL) when its parent ends (Linux; elsewhere nothing): a child must not outlive the
+    command, and one the cleanup missed would hold the command's stdout and stderr open after it exits (a worker
+    forked while a SIGTERM'd `seeu build` unwound kept a caller reading them waiting 120 s in CI). A child whose
+    parent ended before this call exits at once."""
+    if not sys.platform.startswith("linux"):
+        return
+    import ctypes
+
+    ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    if os.getppid() == 1:  # re-parented to init: the parent had ended already
+        os._exit(1)
+
+
 def quiet_worker() -> None:
-    """Pool initializer: SIGINT ignored (the parent ends the pool), SIGTERM raises `Terminated`."""
+    """Pool initializer: SIGINT ignored (the parent ends the pool), SIGTERM raises `Terminated`, killed when the
+    parent ends (`end_with_parent`)."""
+    end_with_parent()
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.signal(signal.SIGTERM, _raise_terminated)
     sys.unraisablehook = _quiet_unraisable(sys.unraisablehook)

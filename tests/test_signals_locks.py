@@ -266,3 +266,51 @@ def test_a_sigterm_python_cannot_raise_is_recorded_without_a_report():
     assert proc.stdout.strip() == "True"
     assert "Terminated" not in proc.stderr
     assert "ValueError: another error" in proc.stderr
+
+
+_ORPHAN = """
+import multiprocessing as mp, os, sys, time
+sys.path.insert(0, {root!r})
+from seeu_data.interrupts import end_with_parent
+
+def child(end):
+    null = os.open(os.devnull, os.O_WRONLY)
+    os.dup2(null, 1)  # not the caller's pipe: run() returns when the parent exits
+    os.dup2(null, 2)
+    if end:
+        end_with_parent()
+    time.sleep(60)
+
+p = mp.get_context("fork").Process(target=child, args=({end},))
+p.start()
+time.sleep(0.5)
+print(p.pid, flush=True)
+os._exit(0)  # the parent ends without ending its child
+"""
+
+
+def _alive(pid: int) -> bool:
+    """Whether process `pid` runs (a zombie, which nobody may reap in a container, does not)."""
+    try:
+        return Path(f"/proc/{pid}/stat").read_text().split(")")[-1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
+@pytest.mark.skipif(not sys.platform.startswith("linux"), reason="PR_SET_PDEATHSIG is Linux's")
+def test_a_child_that_ends_with_its_parent_never_outlives_it():
+    """`interrupts.end_with_parent` (pool workers, matching workers, mapping runs): a forked child that called it is
+    killed when its parent exits without ending it; one that did not outlives it (and would keep a caller reading
+    the command's stderr waiting: a SIGTERM'd `seeu build` once did, for 120 s)."""
+    root = str(Path(__file__).resolve().parents[1])
+    for end in (True, False):
+        out = subprocess.run([sys.executable, "-c", _ORPHAN.format(root=root, end=end)], capture_output=True, text=True)
+        pid = int(out.stdout.split()[0])
+        deadline = time.monotonic() + (10 if end else 1)  # long enough to see it die, short where it must not
+        while _alive(pid) and time.monotonic() < deadline:
+            time.sleep(0.05)
+        try:
+            assert _alive(pid) is (not end)
+        finally:
+            if _alive(pid):
+                os.kill(pid, signal.SIGKILL)

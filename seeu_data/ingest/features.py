@@ -16,6 +16,7 @@ from pathlib import Path
 
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import FEATURES, Failed, Job, SfmConfig, emit
+from seeu_data.interrupts import end_with_parent
 
 # A round of fewer pairs than this, before any is larger, is matched in this process: starting the matching
 # processes (Python and pycolmap, a copy of the database each) costs about a second of CPU; once they run,
@@ -209,17 +210,6 @@ def verify_again(job: Job) -> None:
     list_path.unlink()
 
 
-def _end_with_parent() -> None:
-    """A matching worker ends when the SfM child does (killed when ingest is interrupted)."""
-    import signal
-    import sys
-
-    if sys.platform.startswith("linux"):
-        import ctypes
-
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
-
-
 class _PairMatching:
     """Matches image pairs (frame numbers into `job.names`) with COLMAP, in batches, each committed to the
     database as it finishes; pairs the database already holds (an earlier, interrupted run's) are kept.
@@ -292,7 +282,7 @@ class _PairMatching:
                 copy.unlink(missing_ok=True)
                 copy_database(self.job.db_path, copy)
             ctx = multiprocessing.get_context("spawn")
-            self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=_end_with_parent)
+            self.pool = ProcessPoolExecutor(self.workers, mp_context=ctx, initializer=end_with_parent)
         k = -(-len(part) // self.workers)
         parts = [part[w * k : (w + 1) * k] for w in range(self.workers)]
         cfg = self.job.cfg

@@ -21,7 +21,7 @@ from seeu_data.ingest.features import Matches, copy_database
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import Failed, Job, SfmConfig, emit
 from seeu_data.ingest.solution_check import geometry_counts, map_with_retries, registered_frames, usable_models
-from seeu_data.interrupts import end_process
+from seeu_data.interrupts import end_process, end_with_parent
 
 # The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
 # (Ceres' default; COLMAP sets 0, iterating to the gradient tolerance): 12 iterations instead of 56 on
@@ -235,10 +235,7 @@ def _map_run(run_path: str) -> int:
     copy removed, then done.json {"models": [index], "seconds", "init" (null, or "forward motion": the
     retry's models)}."""
     run = json.loads(Path(run_path).read_text())
-    if sys.platform.startswith("linux"):  # end with the SfM child (killed when ingest is interrupted)
-        import ctypes
-
-        ctypes.CDLL(None).prctl(1, signal.SIGKILL)  # PR_SET_PDEATHSIG
+    end_with_parent()  # with the SfM child (killed when ingest is interrupted)
     if os.getppid() != run["parent"]:
         return 1
     import pycolmap
