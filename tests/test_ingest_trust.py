@@ -632,6 +632,7 @@ def test_a_camera_that_never_turns_leaves_its_focal_length_unheld():
     focal_held([{"focal_hold": holds[0]}], slide)
     focal_held([{"focal_hold": holds[1]}, {"focal_hold": None}], turning)
     assert slide["passed"] is False and slide["reason"].startswith("the footage hardly determines the camera's focal")
+    assert "held 15% off" in slide["reason"] and slide["camera_failed"] == ["focal_hold"]
     assert turning == {"ran": True, "passed": True, "focal_hold": holds[1]}
 
 
@@ -639,10 +640,16 @@ def test_a_fitted_pincushion_fails_a_videos_check():
     """`corner_pincushion_pct` against the closed form of SIMPLE_RADIAL (a corner at distorted radius r_d from the
     principal point, in focal lengths, lies at r_u with r_u + k r_u^3 = r_d), the same for RADIAL and OPENCV, none
     for PINHOLE, barrel negative; `no_pincushion` fails the check of the tripod pan's camera (k 0.254 at focal
-    length 1.076 of the longer side: 6.4 %), passes a camera within a % of it, keeps an earlier failure's reason."""
+    length 1.076 of the longer side: 6.4 %), passes a camera within a % of it, keeps an earlier failure's reason
+    while it lists the camera as failed (`camera_plausible`)."""
     import pycolmap
 
-    from seeu_data.ingest.solution_check import PINCUSHION_MAX_PCT, corner_pincushion_pct, no_pincushion
+    from seeu_data.ingest.solution_check import (
+        PINCUSHION_MAX_PCT,
+        camera_plausible,
+        corner_pincushion_pct,
+        no_pincushion,
+    )
 
     r_d = np.hypot(320, 180) / 500
     expected = {}
@@ -671,6 +678,8 @@ def test_a_fitted_pincushion_fails_a_videos_check():
     failed = {"ran": True, "passed": False, "reason": "the runs disagree"}
     no_pincushion({0: _Rec(path, pan)}, failed)
     assert failed["reason"] == "the runs disagree"
+    assert failed["camera_failed"] == ["corner_pincushion_pct"] and not camera_plausible(failed)
+    assert camera_plausible(check)
 
 
 def test_the_models_of_one_video_must_agree_on_its_focal_length():

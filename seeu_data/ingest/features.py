@@ -51,9 +51,8 @@ def create_database(db_path: Path, image_dir: Path, names: list[str], cfg: SfmCo
             info = image_info(path.read_bytes(), str(path))
             size = (info.width, info.height)
             if size not in cameras:
-                focal = (cfg.focal or factor) * max(size)
-                camera = pycolmap.Camera.create_from_model_name(len(cameras) + 1, cfg.camera_model, focal, *size)
-                camera.has_prior_focal_length = cfg.focal is not None
+                camera = pycolmap.Camera.create_from_model_name(len(cameras) + 1, cfg.camera_model, 1.0, *size)
+                set_focal(camera, cfg.focal or factor, known=cfg.focal is not None)
                 camera.camera_id = db.write_camera(camera)
                 rig = pycolmap.Rig()
                 rig.add_ref_sensor(camera.sensor_id)
@@ -79,6 +78,17 @@ class Matches:
     motion_px: float | None
     matcher: dict
     keyframes: Keyframes
+
+
+def set_focal(camera, focal: float, known: bool) -> None:
+    """Start the database `camera` (pycolmap.Camera, in place) at the focal length `focal` over the image's longer
+    side, as a prior that mapping holds (`known`, as --focal) or fits."""
+    import numpy as np
+
+    params = np.array(camera.params)
+    params[list(camera.focal_length_idxs())] = focal * max(camera.width, camera.height)
+    camera.params = params.tolist()
+    camera.has_prior_focal_length = known
 
 
 def open_database(job: Job) -> bool:

@@ -20,7 +20,13 @@ from pathlib import Path
 from seeu_data.ingest.features import Matches, copy_database
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.sfm import Failed, Job, SfmConfig, emit
-from seeu_data.ingest.solution_check import geometry_counts, map_with_retries, registered_frames, usable_models
+from seeu_data.ingest.solution_check import (
+    FOCAL_STEP,
+    geometry_counts,
+    map_with_retries,
+    registered_frames,
+    usable_models,
+)
 from seeu_data.interrupts import end_process, end_with_parent
 
 # The final bundle adjustment stops when an iteration lowers the cost by less than this fraction
@@ -35,11 +41,10 @@ GLOBAL_BA_GROWTH = 1.1
 # A final adjustment whose mean reprojection error ends above this many times the start's (or 1 px) diverged.
 DIVERGED_FACTOR = 10.0
 # Whether the footage determines the focal length (`focal_hold`): the model adjusted again with the focal length
-# held FOCAL_STEP lower and higher, the poses, points and distortion free, for at most FOCAL_HOLD_ITERATIONS
-# iterations (10 come within 6 % of the converged rise on the final models of the 640x360 clips of
+# held `solution_check.FOCAL_STEP` lower and higher, the poses, points and distortion free, for at most
+# FOCAL_HOLD_ITERATIONS iterations (10 come within 6 % of the converged rise on the final models of the 640x360 clips of
 # benchmarks/dynamic.py, at 1-2 s each against 12-28 s to converge; 5 left a camera that never turns, where the
 # rise converges to 0.025, at 0.053).
-FOCAL_STEP = 0.15
 FOCAL_HOLD_ITERATIONS = 10
 # A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
 # along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair

@@ -40,9 +40,7 @@ from seeu_data.ingest.sfm_motion import (
     static_job,
 )
 from seeu_data.ingest.solution_check import (
-    FOCAL_HOLD_MIN,
-    FOCAL_SPREAD_PCT,
-    PINCUSHION_MAX_PCT,
+    camera_plausible,
     focal_held,
     focal_lengths,
     no_pincushion,
@@ -130,7 +128,7 @@ def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
 
 def _posed(job: Job, matches: Matches, kf: Keyframes) -> Posed:
     """The poses: with `static_job`'s database (without the matches on moving content) first, that try kept when
-    its solution check does not fail; else, where its camera passed its tests (`_plausible_camera`) and no --focal
+    its solution check does not fail; else, where its camera passed its tests (`solution_check.camera_plausible`) and no --focal
     is given, `_held_try` (its focal length held), kept when that check does not fail; else (or without a first
     try) on every verified match.
     "static_first" in the kept try's motion facts says whether the first was kept ("kept"), why not ("reason"), its
@@ -151,7 +149,7 @@ def _posed(job: Job, matches: Matches, kf: Keyframes) -> Posed:
         if facts["kept"]:
             return first
         facts["reason"] = check.get("reason")
-        if _plausible_camera(check) and job.cfg.focal is None:  # mapped again with its focal length held
+        if camera_plausible(check) and job.cfg.focal is None:  # mapped again with its focal length held
             largest = max(first.mapped.recs.values(), key=lambda rec: rec.num_reg_images())
             facts["focal_held"] = focal_lengths({0: largest})[0]
             held = _held_try(job, matches, kf, moving, facts)
@@ -176,21 +174,11 @@ def _held_try(job: Job, matches: Matches, kf: Keyframes, moving: Moving, facts: 
         facts["held"].update(kept=False, reason=str(exc))
         return None
     facts["held"]["kept"] = held.mapped.check.get("passed") is not False
-    held.moving.facts["static_first"] = facts
     if facts["held"]["kept"]:
+        held.moving.facts["static_first"] = facts
         return held
     facts["held"]["reason"] = held.mapped.check.get("reason")
     return None
-
-
-def _plausible_camera(check: dict) -> bool:
-    """Whether a try's camera passed the tests of the camera in its solution `check`: one focal length across its
-    models, held firmly by the footage, no pincushion making up for it (`solution_check`)."""
-    return (
-        check.get("focal_spread_pct", 0.0) <= FOCAL_SPREAD_PCT
-        and check.get("focal_hold", FOCAL_HOLD_MIN) >= FOCAL_HOLD_MIN
-        and check.get("corner_pincushion_pct", 0.0) <= PINCUSHION_MAX_PCT
-    )
 
 
 if __name__ == "__main__":

@@ -201,10 +201,9 @@ def held_job(job: Job, focal: float) -> Job:
     does: `person_x` at 320x180 failed its first try (the focal length 0.716, the truth 0.714; the cameras carried
     over frames 8-23) and mapped with every match 3.2 % of the path off at 0.760; held, 0.065 % with the check
     passed. Held on the first try's verified matches instead, it failed as the first."""
-    import numpy as np
     import pycolmap
 
-    from seeu_data.ingest.features import copy_database, verify_again
+    from seeu_data.ingest.features import copy_database, set_focal, verify_again
 
     dst = job.out / "held.db"
     dst.unlink(missing_ok=True)
@@ -212,10 +211,7 @@ def held_job(job: Job, focal: float) -> Job:
     db = pycolmap.Database.open(dst)
     try:
         for camera in db.read_all_cameras():
-            params = np.array(camera.params)
-            params[list(camera.focal_length_idxs())] = focal * max(camera.width, camera.height)
-            camera.params = params.tolist()
-            camera.has_prior_focal_length = True
+            set_focal(camera, focal, known=True)
             db.update_camera(camera)
     finally:
         db.close()

@@ -28,13 +28,14 @@ _PLAUSIBLE_CAMERA = (0.1, 10.0, 1.0)
 # the check passed); the far mover at 640x360 (before the rigid pass) 1.19 and 1.43 (20 %). Every model of
 # the synthetic walks without movers came within 0.5 % of the truth.
 FOCAL_SPREAD_PCT = 15.0
-# The footage must hold a video's focal length: with it held 15 % lower or higher (`mapping.focal_hold`), the
-# reprojection must change by at least this many px per 1000 px of the image's longer side. Measured as ingest
+# The footage must hold a video's focal length: with it held FOCAL_STEP lower or higher (`mapping.focal_hold`), the
+# reprojection must change by at least FOCAL_HOLD_MIN px per 1000 px of the image's longer side. Measured as ingest
 # reports it (benchmarks/dynamic.py, every set; RESULTS.md): every synthetic walk that passes, without or with a
 # mover, 0.15-0.23; the street walk and the orbit of benchmarks/footage.py 0.082 and 0.46; its tripod pan 0.016 (the
 # focal length 1.145 against the truth's 0.785, the cameras turned by as much too little, every other test passed).
 # On the final models (converged): the 19-frame model `wall_follow` carried 0.044, the model of `train` at 0.97
 # (truth 0.714) 0.10.
+FOCAL_STEP = 0.15
 FOCAL_HOLD_MIN = 0.05
 # A video's fitted distortion may push the image's corners outwards (pincushion) by at most this many % of their
 # distance from the principal point (`corner_pincushion_pct`). A focal length fitted too long is made up for by
@@ -172,8 +173,9 @@ def one_camera(models: dict, check: dict) -> None:
         return
     check["focal_spread_pct"] = spread
     if spread > FOCAL_SPREAD_PCT:
-        _fail(
+        _camera_failed(
             check,
+            "focal_spread_pct",
             f"the {len(models)} models of one video give its camera focal lengths {spread:.0f}% apart: one "
             "model's camera and poses are wrong (a moving object filling much of the view can carry SfM)",
         )
@@ -187,9 +189,10 @@ def focal_held(final_ba: list[dict] | None, check: dict) -> None:
         return
     check["focal_hold"] = hold = min(holds)
     if hold < FOCAL_HOLD_MIN:
-        _fail(
+        _camera_failed(
             check,
-            f"the footage hardly determines the camera's focal length (held 15% off, the reprojection changes by "
+            "focal_hold",
+            f"the footage hardly determines the camera's focal length (held {100 * FOCAL_STEP:.0f}% off, the reprojection changes by "
             f"{hold:.3f} px per 1000 px): the focal length and the poses may be wrong (a camera that turns little, "
             "such as a tripod pan, or a moving object carrying it); give --focal if the lens is known",
         )
@@ -217,13 +220,27 @@ def no_pincushion(models: dict, check: dict) -> None:
         return
     check["corner_pincushion_pct"] = pct = max(pcts)
     if pct > PINCUSHION_MAX_PCT:
-        _fail(
+        _camera_failed(
             check,
+            "corner_pincushion_pct",
             f"the camera's fitted distortion pushes the image's corners {pct:.1f}% outwards (pincushion), which "
             "lenses of phones and action cameras do not have: its focal length is likely fitted too long and the "
             "poses wrong (a moving object carrying SfM, or a camera that turns little); give --focal if the lens "
             "is known",
         )
+
+
+def camera_plausible(check: dict) -> bool:
+    """Whether the camera passed its tests in the solution `check` (`one_camera`, `focal_held`, `no_pincushion`),
+    also where the check had failed already or did not run."""
+    return not check.get("camera_failed")
+
+
+def _camera_failed(check: dict, test: str, reason: str) -> None:
+    """The camera's `test` (the key of its figure) failed: listed in the solution `check` (in place) as
+    "camera_failed", which fails for `reason` (`_fail`)."""
+    check.setdefault("camera_failed", []).append(test)
+    _fail(check, reason)
 
 
 def _fail(check: dict, reason: str) -> None:
