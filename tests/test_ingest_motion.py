@@ -176,7 +176,7 @@ def test_a_mover_the_flow_test_barely_sees_is_posed_with_the_first_tries_focal_l
     (where the mover fills most of the view, the best rigid motion is its own). That try's camera passed its tests,
     so the clip is mapped again with its focal length held (`sfm_motion.held_job`): that try passes, its cameras
     within 0.5 % of the path (0.056 % measured, over 87 % of the frames). Its masks overshoot into the static scene where the
-    mover fills the view (IoU 0.56 measured, recall 0.92; mapped on every match, with its carried frames taken out,
+    mover fills the view (IoU 0.62 measured, recall 0.93; mapped on every match, with its carried frames taken out,
     0.047 % over frames 23-89 and IoU 0.84, in 2.1x the time of the walk without it against 1.9x)."""
     clip, run, report = _ingested(tmp_path, "large")
     first = report["motion"]["static_first"]
@@ -196,14 +196,17 @@ def test_a_mover_that_carries_sfm_is_mapped_without_its_matches(tmp_path):
     """The mover crossing far ahead (`--movers far`, 320x180) carries every mapping run on every match (16 % of the
     path off, the runs agreeing; the rigid check fails them). Ingest maps first on a database without the matches
     on what the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`): that try passes every
-    check and is kept, its cameras within 1 % of the path (0.55 % measured), mapped once."""
+    check and is kept, mapped once. Where the mover fills a third of the view, frames 60-71, the final masks find
+    its cameras wrong (0.5-2.8 % of the path off, 60-90 % of each frame unexplained): those frames are left out
+    (`motion.unexplained_frames`), and the rest is within 0.5 % of the path (0.096 % measured; 0.54 % with them)."""
     clip, run, report = _ingested(tmp_path, "far")
     static = report["motion"]["static_first"]
     assert static["kept"] and static["frames_masked"] >= 3 and static["matches_dropped"] > 0, static
     assert report["sfm"]["solution_check"]["state"] == "passed"
     assert len(report["sfm"]["mapping_attempts"]) == 2  # one run and the check's
     acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
-    assert acc["largest"]["centre_rmse_pct_path"] < 1.0, acc
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5 and acc["registered_pct"] > 80, acc
+    assert len(report["motion"]["frames"]["unexplained"]) >= 3, report["motion"]["frames"]
     assert "mapped without a moving object's matches" in summary_line(report)
     assert not (tmp_path / "posed" / ".work" / "far" / "sfm" / "static-database.db").exists()  # the work folder tidied
 

@@ -372,9 +372,9 @@ def _take_out(recs: Iterable, names: list[str]) -> None:
                 rec.deregister_frame(rec.image(i).frame_id)
 
 
-def _model_masks(memo: FlowMemo, recs: dict, names: list[str]) -> tuple[dict, int]:
-    """`motion.model_pass` over each model's frames among `names` (in time order): the masks found, and
-    how many frames were judged."""
+def _model_masks(memo: FlowMemo, recs: dict, names: list[str], reach: int = 1) -> tuple[dict, int]:
+    """`motion.model_pass` over each model's frames among `names` (in time order; `reach` of it): the masks found,
+    and how many frames were judged."""
     from seeu_data.ingest.motion import model_pass
 
     masks: dict = {}
@@ -384,7 +384,7 @@ def _model_masks(memo: FlowMemo, recs: dict, names: list[str]) -> tuple[dict, in
         registered = {rec.image(i).name for i in rec.reg_image_ids()}
         mine = [n for n in names if n in registered]
         if mine:  # a model of other frames (a trial can leave one so)
-            masks.update(model_pass(memo, mine, rec, on_frame=count))
+            masks.update(model_pass(memo, mine, rec, count, reach))
             judged += len(mine)
     return masks, judged
 
@@ -402,23 +402,33 @@ def _leave_out(job: Job, recs: dict, masks: dict) -> dict:
     return {"observations": dropped, "total": total, "centre_change_pct": model_disagreement_pct(with_all, without)}
 
 
-def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dict) -> None:
-    """--dynamic mask, keyframes or frames registered again (`astray_plan`): every registered frame against
-    the SfM cameras (the final masks), its observations in moving regions dropped (registered after the
-    final adjustment: no adjustment follows); frames astray now are taken out for good. Frames a mover
-    carried (`motion_keyframes`) still mostly unexplained now fail the solution `check` (in place)."""
-    if job.cfg.dynamic != "mask" or not job.video or (kf.stride <= 1 and not moving.astray):
+def motion_frames(job: Job, recs: dict, moving: Moving, check: dict) -> None:
+    """--dynamic mask: every registered frame against the SfM cameras, to neighbours `MODEL_REACH` times as far
+    as before (the final masks), its observations in moving regions dropped (registered after the final
+    adjustment: no adjustment follows); frames astray now, and stretches mostly unexplained where nothing was
+    carried (`motion.unexplained_frames`), are taken out for good. Frames mostly unexplained otherwise (a mover
+    carried them, `motion_keyframes`, or they are most of the clip) fail the solution `check` (in place)."""
+    if job.cfg.dynamic != "mask" or not job.video:
         return
-    from seeu_data.ingest.motion import cameras_disagree, drop_observations
+    from seeu_data.ingest.motion import MODEL_REACH, cameras_disagree, drop_observations, unexplained_frames
 
     emit("stage", "motion-frames", len(job.names), "frames")
     t0 = job.clock.mark()
     astray = _leave_astray(moving.memo, recs, job.names)  # registered astray, or again so
-    masks, _ = _model_masks(moving.memo, recs, job.names)
-    moving.masks = masks
-    dropped = sum(drop_observations(rec, masks) for rec in recs.values())
-    moving.facts["frames"] = {"frames_with_motion": len(masks), "observations_dropped": dropped, "astray": astray}
-    why = cameras_disagree(masks, job.names) if moving.facts.get("carried") else None
+    masks, _ = _model_masks(moving.memo, recs, job.names, MODEL_REACH)
+    registered = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+    judged = [n for n in job.names if n in registered]
+    gone = [] if moving.facts.get("carried") else unexplained_frames(masks, judged)
+    _take_out(recs.values(), gone)
+    moving.masks = {n: m for n, m in masks.items() if n not in gone}
+    dropped = sum(drop_observations(rec, moving.masks) for rec in recs.values())
+    moving.facts["frames"] = {
+        "frames_with_motion": len(masks),
+        "observations_dropped": dropped,
+        "astray": astray,
+        "unexplained": gone,
+    }
+    why = None if gone else cameras_disagree(masks, judged)
     if why:
         _fail(check, why)
     job.clock.add("motion_s", t0)
