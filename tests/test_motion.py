@@ -117,10 +117,13 @@ def _masks_with_true_cameras(frames, poses, reach: int = motion.MODEL_REACH):
     fx, fy, cx, cy = default_intrinsics_norm(W, H) * np.array([W, H, W, H])
     w2c = [cam.invert_rigid(p) for p in poses]
 
+    span = motion.MAX_OFFSET  # the farthest neighbour at reach 1 on these walks (`model_pass`)
+
     def residual(i, js, grid, lands, oks, avoid):
         cams = [((w2c[j] @ poses[i])[:3, :3], (w2c[j] @ poses[i])[:3, 3]) for j in js]
         norm = [(la - (cx, cy)) / (fx, fy) for la in lands]
-        return motion.static_residual((grid - (cx, cy)) / (fx, fy), norm, oks, cams, fx, [j - i for j in js])
+        per = [max(1.0, abs(j - i) / span) for j in js]
+        return motion.static_residual((grid - (cx, cy)) / (fx, fy), norm, oks, cams, fx, per)
 
     return np.stack(motion.detect(frames, residual, reach=reach))
 

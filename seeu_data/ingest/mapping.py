@@ -42,9 +42,9 @@ GLOBAL_BA_GROWTH = 1.1
 DIVERGED_FACTOR = 10.0
 # Whether the footage determines the focal length (`focal_hold`): the model adjusted again with the focal length
 # held `solution_check.FOCAL_STEP` lower and higher, the poses, points and distortion free, for at most
-# FOCAL_HOLD_ITERATIONS iterations (10 come within 6 % of the converged rise on the final models of the 640x360 clips of
-# benchmarks/dynamic.py, at 1-2 s each against 12-28 s to converge; 5 left a camera that never turns, where the
-# rise converges to 0.025, at 0.053).
+# FOCAL_HOLD_ITERATIONS iterations (10 come within 6 % of the converged rise on the final models of the 640x360
+# clips of benchmarks/dynamic.py, at 1-2 s each against 12-28 s to converge; 5 left a camera that never turns,
+# where the rise converges to 0.025, at 0.053).
 FOCAL_HOLD_ITERATIONS = 10
 # A camera carried straight ahead (a phone video of a walk) gives pairs whose translation lies almost
 # along the optical axis and whose rays meet at small angles; COLMAP refuses those as the initial pair

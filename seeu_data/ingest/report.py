@@ -19,10 +19,10 @@ chunks [{scene_id, num_frames, source_frames [first, last], near, far, sfm_model
 baseline over median point depth, on the SfM model as mapped: the same under every --scale), degeneracy (null, or
 why the chunk's depth is unreliable: the camera mostly rotated in place)}],
 motion (null for an SfM stage without it): {mode (--dynamic), judged (a video), keyframes, frames
-(each pass's frames_with_motion and observations dropped; frames.astray and frames.unexplained: taken out for good), astray (mapped
-frames whose camera alone disagreed with the flow, taken out; with mask registered again), trials [{frames (first,
-last), count, placed, shift_pct (null: most ended outside the model), unexplained}] (frames with moving content
-placed again on trial), carried (mapped frames a mover carried: with mask taken out and registered again),
+(each pass's frames_with_motion and observations dropped; frames.astray and frames.unexplained: taken out for
+good), astray (mapped frames whose camera alone disagreed with the flow, taken out; with mask registered again),
+trials [{frames (first, last), count, placed, shift_pct (null: most ended outside the model), unexplained}]
+(frames with moving content placed again on trial), carried (mapped frames a mover carried: with mask taken out and registered again),
 rigid_gap {max, pairs_judged, pairs_over, taken_out} (the final cameras against each pair's best rigid motion),
 leave_out (observations, centre_change_pct: the cameras adjusted without them), static_first {frames_masked,
 matches_dropped, kept, reason, focal (its models' focal lengths over the image's longer side), focal_held, held
