@@ -117,13 +117,10 @@ def _masks_with_true_cameras(frames, poses, reach: int = motion.MODEL_REACH):
     fx, fy, cx, cy = default_intrinsics_norm(W, H) * np.array([W, H, W, H])
     w2c = [cam.invert_rigid(p) for p in poses]
 
-    span = motion.MAX_OFFSET  # the farthest neighbour at reach 1 on these walks (`model_pass`)
-
     def residual(i, js, grid, lands, oks, avoid):
         cams = [((w2c[j] @ poses[i])[:3, :3], (w2c[j] @ poses[i])[:3, 3]) for j in js]
         norm = [(la - (cx, cy)) / (fx, fy) for la in lands]
-        per = [max(1.0, abs(j - i) / span) for j in js]
-        return motion.static_residual((grid - (cx, cy)) / (fx, fy), norm, oks, cams, fx, per)
+        return motion.static_residual((grid - (cx, cy)) / (fx, fy), norm, oks, cams, fx, [j - i for j in js])
 
     return np.stack(motion.detect(frames, residual, reach=reach))
 
@@ -138,10 +135,11 @@ def test_masks_find_the_rendered_box_and_nothing_on_the_static_walk(movers):
     _check_masks(np.stack([motion.full_size(m, W, H) for m in masks]), truth, movers, 0.005, 0.7)
 
 
-def test_a_box_carried_along_ahead_of_the_camera_is_found_over_eight_frames():
-    """The slow box of `seeu synth --movers slow` keeps 2.5 m ahead of the walking camera: over 4 frames its flow
-    is what a static point 3-5 m away would give (frames 21-27 of the walk: nothing found under exact cameras),
-    over 8 (`MODEL_REACH`) it is not (IoU 0.65 there; over the 90 frames 0.81 against 0.44)."""
+def test_a_box_carried_along_ahead_of_the_camera_is_found_over_twice_the_frames():
+    """The slow box of `seeu synth --movers slow` keeps 2.5 m ahead of the walking camera: over the usual neighbours
+    its flow is what a static point 3-5 m away would give (frames 21-27 of the walk: nothing found under exact
+    cameras), over twice as many frames (`MODEL_REACH`) it is not (IoU 0.65 there; over the 90 frames 0.81 against
+    0.44)."""
     frames, truth, poses = _render("slow", 45)
 
     def iou(reach: int) -> float:

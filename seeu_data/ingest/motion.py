@@ -63,13 +63,15 @@ MIN_AREA = 0.002  # smallest moving region kept, as a fraction of the frame
 # noise: the static street walk of benchmarks/footage.py had its sky masked in 85 of 90 frames (4.1 % of the
 # pixels), 0.9 % with this; 3.0 took it to 0.4 % but lost the large mover's carried frames (benchmarks/dynamic.py)
 TEXTURE_MIN = 2.0
-# The final masks (`model_pass` over every registered frame) compare each frame with neighbours up to MODEL_REACH
-# times as far (8 frames, 40 px, on the walks), each one's residual divided by how many times as far it is as the
-# farthest neighbour at reach 1. Over 4 frames a box carried along 2.5 m ahead of a walking camera moves as a
-# static point 3-5 m away would; over 8 it does not. Measured (benchmarks/dynamic.py, 320x180): its masks' IoU
-# 0.45 -> 0.79; the orbit of benchmarks/footage.py (2 -> 4 frames) masked 0.45 % of its static pixels with the
-# residuals per 4 frames, 0.04 % (under exact cameras) per 2. The passes that judge cameras (before the final
-# adjustment, the trials) keep 4: reaching 8 there, the large mover's carried frames were no longer repaired.
+# The final masks (`model_pass` over every registered frame) compare each frame with neighbours MODEL_REACH times
+# as far as the other passes (`neighbour_offsets`: on the 90-frame walks of benchmarks/dynamic.py 6 frames instead of
+# 3), a neighbour farther than MAX_OFFSET frames counting its residual per MAX_OFFSET frames (`static_residual`).
+# Over 3 frames a box carried along 2.5 m ahead of a walking camera moves as a static point 3-5 m away would; over
+# 6 it does not: its masks' IoU 0.44-0.45 -> 0.79-0.80 (320x180, 640x360), the static walks' false positives 0.04
+# -> 0.11-0.15 % of the pixels, the orbit of benchmarks/footage.py (2 -> 4 frames) 0.08 -> 0.45 %. (Counting the
+# residuals per reach-1 span instead, 0.04 % on the orbit, lost the slow box.) The passes that judge cameras (before
+# the final adjustment, the trials) keep their reach: doubled there, the large mover's carried frames were no
+# longer repaired.
 MODEL_REACH = 2
 MAX_ASTRAY_RUN = 3  # at most this many frames in a row are taken out as astray (`astray_runs`)
 MIN_MOVING_FRAMES = 3  # --dynamic off: moving regions in this many mapped frames fail the solution check ...
@@ -291,16 +293,18 @@ def static_residual(
     oks: Sequence[np.ndarray],
     cameras: Cameras,
     scale: float = 1.0,
-    per: Sequence[float] = (),
+    spans: Sequence[int] = (),
 ) -> np.ndarray:
-    """How far the flow of each pixel is from any static point's: `(...)` in pixels (0 where no neighbour's flow
-    is trusted).
+    """How far the flow of each pixel is from any static point's: `(...)` in pixels per MAX_OFFSET frames (0
+    where no neighbour's flow is trusted).
 
     x: `(..., 2)` the pixels of frame i; lands / oks: per neighbour, where they land `(..., 2)` and
     whether that is trusted `(...)`, in the coordinates of x; cameras: per neighbour (M, e) with
-    land ~ M x + rho e; scale: pixels per unit of those coordinates; per: per neighbour, what its distance is
-    divided by (none given: 1 each). rho is fitted to all trusted neighbours at once, the residual is the
-    largest reprojection distance among them."""
+    land ~ M x + rho e; scale: pixels per unit of those coordinates; spans: per neighbour, how many frames
+    away it is (none given: at most MAX_OFFSET each). rho is fitted to all trusted neighbours at once, the
+    residual is the largest reprojection distance among them, that of a neighbour farther than MAX_OFFSET
+    frames in proportion (a mover's distance from the static flow, and the chained flow's drift, grow with
+    it)."""
     num = np.zeros(x.shape[:-1])
     den = np.zeros(x.shape[:-1])
     for land, ok, (M, e) in zip(lands, oks, cameras):
@@ -309,7 +313,8 @@ def static_residual(
         den += np.where(ok, d, 0.0)
     rho = num / np.maximum(den, 1e-12)
     res = np.zeros(x.shape[:-1])
-    for land, ok, (M, e), p in zip(lands, oks, cameras, per or [1.0] * len(lands)):
+    per = [max(1.0, abs(k) / MAX_OFFSET) for k in spans] or [1.0] * len(lands)
+    for land, ok, (M, e), p in zip(lands, oks, cameras, per):
         dist = np.linalg.norm(_project(x, M, e, rho) - land, axis=-1) / p
         res = np.where(ok & np.isfinite(dist), np.maximum(res, dist), res)
     return res * scale
@@ -471,10 +476,8 @@ class _ModelCameras:
         full = pts.reshape(-1, 2) * (camera.width / self.w, camera.height / self.h)  # working px -> the camera's px
         return np.asarray(camera.cam_from_img(full.astype(np.float64)), np.float64).reshape(pts.shape)
 
-    def residual(
-        self, i: int, js: Sequence[int], grid: np.ndarray, lands, oks, per: Sequence[float] = ()
-    ) -> np.ndarray:
-        """`static_residual` of frame i's pixels `grid` against its neighbours `js` (see `Residual`; `per` of it)."""
+    def residual(self, i: int, js: Sequence[int], grid: np.ndarray, lands, oks) -> np.ndarray:
+        """`static_residual` of frame i's pixels `grid` against its neighbours `js` (see `Residual`)."""
         from seeu_data.cameras import invert_rigid
 
         cams: Cameras = []
@@ -487,7 +490,7 @@ class _ModelCameras:
             self.grids[camera_id] = self._normalised(cam_i, grid)
         seen = [self._normalised(self.rec.cameras[self.images[j].camera_id], la) for j, la in zip(js, lands)]
         scale = cam_i.mean_focal_length() * self.w / cam_i.width
-        return static_residual(self.grids[camera_id], seen, oks, cams, scale, per)
+        return static_residual(self.grids[camera_id], seen, oks, cams, scale, [j - i for j in js])
 
 
 def model_pass(
@@ -503,10 +506,9 @@ def model_pass(
     {name: (h, w) bool at the working size} for frames where some was found."""
     flows = _flows(source, names)
     cameras = _ModelCameras(rec, names, *flows.frames[0].shape)
-    span = max(neighbour_offsets(flows, len(names)))  # the neighbours' distances are counted per this many frames
 
     def residual(i, js, grid, lands, oks, avoid):
-        return cameras.residual(i, js, grid, lands, oks, [max(1.0, abs(j - i) / span) for j in js])
+        return cameras.residual(i, js, grid, lands, oks)
 
     found = detect(flows.frames, residual, on_frame, flows, reach)
     return {n: m for n, m in zip(names, found) if m.any()}
