@@ -281,34 +281,75 @@ def test_a_killed_build_worker_is_one_line(workspace, tmp_path):
     assert not (out / "manifest.json").exists()
 
 
+# The loader's side of `test_a_killed_loader_worker_is_one_line`, in a process of its own: PyTorch's SIGCHLD handler
+# raises its error in whatever the main thread does, and in the test process that once was pytest's own reporting
+# (an INTERNALERROR in CI). Prints {"pids": the workers, "line": `worker_death`'s line, "error": PyTorch's}.
+_KILL_A_LOADER_WORKER = """
+import json, os, signal, sys, time
+from pathlib import Path
+
+from seeu_data.interrupts import worker_death
+from seeu_data.loader import make_loader
+from tests.training_fixtures import synthetic_triples
+
+
+def children():
+    found = []
+    for d in Path("/proc").iterdir():
+        try:
+            if d.name.isdigit() and int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == os.getpid():
+                found.append(int(d.name))
+        except (OSError, IndexError, ValueError):
+            pass
+    return found
+
+
+# enough batches that the killed worker still owes some after the first (the workspace's 4 can all be prefetched)
+triples = synthetic_triples(Path(sys.argv[1]), n_frames=12, hw=(32, 32), samples_per_scene=40, gap=(3, 5))
+loader = make_loader(triples, 1, image_hw=(32, 32), num_workers=2, shuffle=False)
+before = set(children())  # other children (a resource tracker) are not workers
+batches = iter(loader)
+next(batches)
+pids = sorted(set(children()) - before)
+os.kill(pids[0], signal.SIGKILL)
+caught = None
+try:
+    for _ in batches:
+        time.sleep(0.1)
+except Exception as exc:  # PyTorch raises it in whatever the main thread does
+    caught = exc
+line = None
+for _ in range(3):  # the other worker's exit can raise PyTorch's error again (its SIGCHLD handler) meanwhile
+    try:
+        line = worker_death(caught) if caught is not None else None
+        break
+    except RuntimeError:
+        continue
+print(json.dumps({"pids": pids, "line": line, "error": str(caught)}), flush=True)
+os._exit(0)
+"""
+
+
 def test_a_killed_loader_worker_is_one_line(tmp_path):
     """A DataLoader worker killed while the loader runs: PyTorch's error becomes the one line the CLI
-    prints (`interrupts.worker_death`), naming the worker's pid and the signal."""
-    from seeu_data.interrupts import worker_death
-    from tests.training_fixtures import synthetic_triples
+    prints (`interrupts.worker_death`), naming the worker's pid and the signal (`_KILL_A_LOADER_WORKER`)."""
+    import json
 
-    # enough batches that the killed worker still owes some after the first (the workspace's 4 can all be prefetched)
-    triples = synthetic_triples(tmp_path, n_frames=12, hw=(32, 32), samples_per_scene=40, gap=(3, 5))
-    loader = make_loader(triples, 1, image_hw=(32, 32), num_workers=2, shuffle=False)
-    before = set(_children(os.getpid()))  # other children (a build pool's, a resource tracker) are not workers
-    batches = iter(loader)
-    next(batches)
-    pids = sorted(set(_children(os.getpid())) - before)
-    assert len(pids) == 2, pids
-    os.kill(pids[0], signal.SIGKILL)
-    with pytest.raises(Exception) as caught:  # noqa: B017 - PyTorch raises it in whatever the main thread does
-        for _ in batches:
-            time.sleep(0.1)
-    line, ok = None, False
-    for _ in range(3):  # the other worker's exit can raise PyTorch's error again (its SIGCHLD handler) meanwhile
-        try:
-            line = worker_death(caught.value)
-            # PyTorch names the signal when its SIGCHLD handler saw it, else says the worker "exited unexpectedly"
-            ok = line is not None and line.startswith(f"loader worker (pid {pids[0]}) died")
-            break
-        except RuntimeError:
-            continue
-    assert ok, (line, str(caught.value))
+    env = {**os.environ, "PYTHONPATH": str(ROOT)}
+    proc = subprocess.run(
+        [sys.executable, "-c", _KILL_A_LOADER_WORKER, str(tmp_path)],
+        cwd=ROOT,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    assert proc.returncode == 0, proc.stderr[-2000:]
+    seen = json.loads(proc.stdout.strip().splitlines()[-1])
+    assert len(seen["pids"]) == 2, seen
+    # PyTorch names the signal when its SIGCHLD handler saw it, else says the worker "exited unexpectedly"
+    line = seen["line"]
+    assert line is not None and line.startswith(f"loader worker (pid {seen['pids'][0]}) died"), seen
 
 
 # ------------------------------------------------------------------------------------------ ranks
