@@ -117,7 +117,7 @@ def _pose(job: Job, matches: Matches, kf: Keyframes, moving: Moving) -> Posed:
     motion_keyframes(job, recs, kf, moving, mapped.check)
     facts = final_ba(job, recs)
     register_rest(job, recs, kf, mapped.check["kept_seed"], *astray_plan(job, moving))
-    motion_frames(job, recs, moving, mapped.check)
+    motion_frames(job, recs, kf, moving, mapped.check)
     motion_rigid(job, recs, kf, moving, mapped.check)
     if job.video:
         one_camera(recs, mapped.check)
