@@ -259,7 +259,8 @@ def _state(pid: int) -> str:
 # ------------------------------------------------------------------------------------------ dead workers
 
 
-def _children(pid: int) -> list[int]:
+def children(pid: int) -> list[int]:
+    """Pids of the live processes whose parent is `pid` (read from /proc)."""
     return [int(d.name) for d in Path("/proc").iterdir() if d.name.isdigit() and _parent_of(d) == pid]
 
 
@@ -270,9 +271,9 @@ def test_a_killed_build_worker_is_one_line(workspace, tmp_path):
     proc = _seeu(
         *_build_argv(workspace["posed"], out, "--workers", "2", "--samples-per-scene", "40000", "--resize", "64x64")
     )
-    _wait_for(lambda: _children(proc.pid)[1:], proc)
+    _wait_for(lambda: children(proc.pid)[1:], proc)
     time.sleep(0.5)
-    victim = min(_children(proc.pid))
+    victim = min(children(proc.pid))
     os.kill(victim, signal.SIGKILL)
     _, err = proc.communicate(timeout=120)
     errors = _error_lines(err)
@@ -290,27 +291,16 @@ from pathlib import Path
 
 from seeu_data.interrupts import worker_death
 from seeu_data.loader import make_loader
+from tests.test_faults import children
 from tests.training_fixtures import synthetic_triples
-
-
-def children():
-    found = []
-    for d in Path("/proc").iterdir():
-        try:
-            if d.name.isdigit() and int((d / "stat").read_text().rsplit(")", 1)[1].split()[1]) == os.getpid():
-                found.append(int(d.name))
-        except (OSError, IndexError, ValueError):
-            pass
-    return found
-
 
 # enough batches that the killed worker still owes some after the first (the workspace's 4 can all be prefetched)
 triples = synthetic_triples(Path(sys.argv[1]), n_frames=12, hw=(32, 32), samples_per_scene=40, gap=(3, 5))
 loader = make_loader(triples, 1, image_hw=(32, 32), num_workers=2, shuffle=False)
-before = set(children())  # other children (a resource tracker) are not workers
+before = set(children(os.getpid()))  # other children (a resource tracker) are not workers
 batches = iter(loader)
 next(batches)
-pids = sorted(set(children()) - before)
+pids = sorted(set(children(os.getpid())) - before)
 os.kill(pids[0], signal.SIGKILL)
 caught = None
 try:
@@ -358,7 +348,7 @@ def test_a_killed_loader_worker_is_one_line(tmp_path):
 def _rank_pids(agent: int, world: int) -> dict[int, int]:
     """{rank: pid} of the torchrun agent's worker processes (their RANK environment variable)."""
     found = {}
-    for pid in _children(agent):
+    for pid in children(agent):
         try:
             env = dict(kv.split(b"=", 1) for kv in Path(f"/proc/{pid}/environ").read_bytes().split(b"\0") if b"=" in kv)
         except OSError:

@@ -25,6 +25,7 @@ from seeu_data.ingest.solution_check import (
     geometry_counts,
     map_with_retries,
     registered_frames,
+    registered_names,
     usable_models,
 )
 from seeu_data.interrupts import end_process, end_with_parent
@@ -435,7 +436,7 @@ def register_rest(
 
     if kf.stride <= 1 and not again:
         return
-    mapped = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+    mapped = registered_names(*recs.values())
     emit("stage", "register", len(job.names) - len(mapped), "frames")
     t0 = job.clock.mark()
     tried = iter(range(1, len(job.names) + 1))
@@ -453,7 +454,7 @@ def keep_models(recs: dict, rejected: list[dict]) -> tuple[list[int], list[dict]
     poor initial pair, with an implausible focal length): only models adding new frames are kept."""
     kept, discarded, seen = [], list(rejected), set[str]()
     for k in sorted(recs, key=lambda k: -recs[k].num_reg_images()):
-        names_k = {recs[k].image(i).name for i in recs[k].reg_image_ids()}
+        names_k = registered_names(recs[k])
         if len(names_k & seen) > 0.5 * len(names_k):
             discarded.append(
                 {"index": int(k), "registered": len(names_k), "reason": "mostly re-registers frames of a larger model"}

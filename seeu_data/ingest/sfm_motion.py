@@ -37,7 +37,7 @@ from typing import TYPE_CHECKING
 from seeu_data.ingest.keyframes import Keyframes
 from seeu_data.ingest.mapping import final_bundle_adjustment
 from seeu_data.ingest.sfm import Job, emit
-from seeu_data.ingest.solution_check import model_disagreement_pct
+from seeu_data.ingest.solution_check import model_disagreement_pct, registered_names
 
 if TYPE_CHECKING:
     from seeu_data.ingest.motion import FlowMemo
@@ -142,7 +142,7 @@ def motion_rigid(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: dic
     gaps: list[float] = []
     over: list[tuple[str, str, float]] = []  # the pairs over the line
     for rec in recs.values():
-        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        registered = registered_names(rec)
         mine = [n for n in kf.names if n in registered]
         found = rigid_gaps(moving.memo, mine, rec, moving.masks) if len(mine) > 1 else []
         gaps += [g for *_, g in found]
@@ -284,7 +284,7 @@ def _placed_on_trial(job: Job, recs: dict, kf: Keyframes, masks: dict, seed: int
         lo, hi = kf.names.index(names[0]), kf.names.index(names[-1])
         judged = kf.names[max(0, lo - REPAIR_MARGIN) : hi + REPAIR_MARGIN + 1]  # with neighbours on both sides
         found, _ = _model_masks(moving.memo, trial, judged)
-        placed = {n for rec in trial.values() for n in (rec.image(i).name for i in rec.reg_image_ids()) if n in names}
+        placed = registered_names(*trial.values()) & set(names)
         shift = model_disagreement_pct(recs, trial)
         unexplained = cameras_disagree({n: m for n, m in found.items() if n in names}, names)
         moving.facts.setdefault("trials", []).append(
@@ -356,7 +356,7 @@ def _leave_astray(memo: FlowMemo, recs: dict, names: list[str]) -> list[str]:
 
     out: list[str] = []
     for rec in recs.values():
-        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        registered = registered_names(rec)
         found = astray_frames(memo, [n for n in names if n in registered], rec)
         _take_out([rec], found)
         out += found
@@ -381,7 +381,7 @@ def _model_masks(memo: FlowMemo, recs: dict, names: list[str], reach: int = 1) -
     judged = 0
     count = _Counter()
     for rec in recs.values():
-        registered = {rec.image(i).name for i in rec.reg_image_ids()}
+        registered = registered_names(rec)
         mine = [n for n in names if n in registered]
         if mine:  # a model of other frames (a trial can leave one so)
             masks.update(model_pass(memo, mine, rec, count, reach))
@@ -418,7 +418,7 @@ def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: di
     t0 = job.clock.mark()
     astray = _leave_astray(moving.memo, recs, job.names)  # registered astray, or again so
     masks, _ = _model_masks(moving.memo, recs, job.names, MODEL_REACH)
-    registered = {rec.image(i).name for rec in recs.values() for i in rec.reg_image_ids()}
+    registered = registered_names(*recs.values())
     judged = [n for n in job.names if n in registered]
     gone = [] if moving.facts.get("carried") else unexplained_frames(masks, judged)
     _take_out(recs.values(), gone)

@@ -69,9 +69,14 @@ def usable_models(mapped: dict, cfg: SfmConfig, num_frames: int) -> tuple[dict, 
     return usable, rejected
 
 
+def registered_names(*recs) -> set[str]:
+    """The names of the frames the pycolmap.Reconstructions `recs` register."""
+    return {rec.image(i).name for rec in recs for i in rec.reg_image_ids()}
+
+
 def registered_frames(models: dict) -> int:
     """How many frames the models ({index: pycolmap.Reconstruction}) register, each counted once."""
-    return len({rec.image(j).name for rec in models.values() for j in rec.reg_image_ids()})
+    return len(registered_names(*models.values()))
 
 
 def map_with_retries(
