@@ -244,6 +244,26 @@ def test_a_stretch_the_final_masks_find_mostly_unexplained_is_left_out_unless_it
     assert motion.cameras_disagree({n: most for n in names}, names) is not None
 
 
+def test_frames_still_mostly_unexplained_after_a_repair_are_left_out_unless_they_are_much_of_it():
+    """`unexplained_frames` with the frames a mover carried (`repaired`): the mostly unexplained frames in the
+    stretch from the first to the last of them are left out while at most REPAIR_LEFT_MAX of it; more, and the
+    repair did not work: none (the check fails). Those outside the stretch do not count against it."""
+    names = [f"{i:06d}.jpg" for i in range(40)]
+    most = np.ones((90, 160), bool)
+    most[:, :60] = False  # 62 % of the frame
+    masks = {names[i]: most for i in (7, 8, 10)}
+    repaired = names[0:29:2]  # keyframes 0-28: a stretch of 29 frames
+    assert motion.unexplained_frames(masks, names, repaired) == [names[i] for i in (7, 8, 10)]
+    for i in range(11, 17):  # 9 of 29: more than a quarter
+        masks[names[i]] = most
+    assert int(motion.REPAIR_LEFT_MAX * 29) < 9
+    assert motion.unexplained_frames(masks, names, repaired) == []
+    assert motion.unexplained_frames(masks, names) == [names[i] for i in (7, 8, 10, *range(11, 17))]
+    outside = {names[i]: most for i in (2, 3, 30, 31, 32, 33)}  # 2 of the 8 frames 0-7: a quarter
+    assert motion.unexplained_frames(outside, names, names[0:8:2] + names[7:8]) == sorted(outside)
+    assert motion.unexplained_frames({**outside, names[5]: most}, names, names[0:8]) == []
+
+
 def test_masking_off_fails_the_check_only_for_moving_content_that_holds_observations():
     """`moving_content` (--dynamic off): regions in MIN_MOVING_FRAMES frames fail the check unless they
     hold less than MIN_MOVING_SHARE of the model's observations (the static walk's specks: 2 of 122,598)."""

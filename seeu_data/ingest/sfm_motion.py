@@ -407,9 +407,9 @@ def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: di
     SfM cameras, to neighbours `MODEL_REACH` times as far as before (the final masks; a clip mapped on every frame
     keeps the keyframe pass's: reaching as far on the 30-frame box clip of the tests, 1.6 % of its static pixels
     were masked), its observations in moving regions dropped (registered after the final
-    adjustment: no adjustment follows); frames astray now, and stretches mostly unexplained where nothing was
-    carried (`motion.unexplained_frames`), are taken out for good. Frames mostly unexplained otherwise (a mover
-    carried them, `motion_keyframes`, or they are most of the clip) fail the solution `check` (in place)."""
+    adjustment: no adjustment follows); frames astray now, and frames mostly unexplained (`motion.unexplained_frames`:
+    not most of the clip, nor much of the stretch a mover carried, `motion_keyframes`) are taken out for good.
+    Frames mostly unexplained otherwise fail the solution `check` (in place)."""
     if job.cfg.dynamic != "mask" or not job.video or (kf.stride <= 1 and not moving.astray):
         return
     from seeu_data.ingest.motion import MODEL_REACH, cameras_disagree, drop_observations, unexplained_frames
@@ -420,7 +420,7 @@ def motion_frames(job: Job, recs: dict, kf: Keyframes, moving: Moving, check: di
     masks, _ = _model_masks(moving.memo, recs, job.names, MODEL_REACH)
     registered = registered_names(*recs.values())
     judged = [n for n in job.names if n in registered]
-    gone = [] if moving.facts.get("carried") else unexplained_frames(masks, judged)
+    gone = unexplained_frames(masks, judged, moving.facts.get("carried", ()))
     _take_out(recs.values(), gone)
     moving.masks = {n: m for n, m in masks.items() if n not in gone}
     dropped = sum(drop_observations(rec, moving.masks) for rec in recs.values())
