@@ -762,9 +762,7 @@ def cameras_disagree(masks: dict[str, np.ndarray], judged: Sequence[str]) -> str
     )
 
 
-def unexplained_frames(
-    masks: dict[str, np.ndarray], judged: Sequence[str], repaired: Sequence[str] = ()
-) -> list[str]:
+def unexplained_frames(masks: dict[str, np.ndarray], judged: Sequence[str], repaired: Sequence[str] = ()) -> list[str]:
     """The frames of `judged` (registered, in time order) that the final masks find mostly unexplained (`masks`
     over MOSTLY_MOVING), to be left out of the output: all of them when there are at least MIN_MOVING_FRAMES and at
     most half of `judged`, and at most REPAIR_LEFT_MAX of the stretch of `judged` from the first to the last of the
