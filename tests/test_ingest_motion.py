@@ -169,25 +169,26 @@ def _ingested(tmp_path: Path, movers: str) -> tuple[Path, Path, dict]:
     return clip, run, json.loads((run / "report.json").read_text())
 
 
-def test_a_mover_the_flow_test_barely_sees_is_posed_with_the_first_tries_focal_length_held(tmp_path):
+def test_a_mover_the_flow_test_barely_sees_is_posed_on_the_first_try_without_the_frames_it_fills(tmp_path):
     """The mover crossing the room (`--movers large`) at 320x180 stays in the flow test's blind spot: on every match
     both mapping runs agree on cameras 7 % of the path off (frames 0-23 carried in scale). Mapped first without the
-    matches on what the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`), its check fails
-    (where the mover fills most of the view, the best rigid motion is its own). That try's camera passed its tests,
-    so the clip is mapped again with its focal length held (`sfm_motion.held_job`): that try passes, its cameras
-    within 0.5 % of the path (0.056 % measured, over 87 % of the frames). Its masks overshoot into the static scene where the
-    mover fills the view (IoU 0.62 measured, recall 0.93; mapped on every match, with its carried frames taken out,
-    0.047 % over frames 23-89 and IoU 0.84, in 2.1x the time of the walk without it against 1.9x)."""
+    matches on what the best rigid motion of the flow leaves unexplained (`sfm_motion.static_job`), the keyframes
+    it carried (0-28) are repaired, placed again against the rest; where it fills a third of the view, 3 frames
+    (7-10) are still mostly unexplained, under a quarter of that stretch (`motion.REPAIR_LEFT_MAX`): they are left
+    out and that try is kept, mapped once, its cameras within 0.5 % of the path (0.063 % measured over 84 % of the
+    frames; with them, the check failed and a second try with the focal length held took 1.83x the time of the walk
+    without the mover, against 1.47x now). Its masks: IoU 0.82, recall 0.87 measured."""
     clip, run, report = _ingested(tmp_path, "large")
     first = report["motion"]["static_first"]
-    assert first["matches_dropped"] > 0 and not first["kept"] and first["reason"], first
-    assert first["held"]["kept"], first
-    assert "mapped again with the focal length held" in summary_line(report)
-    acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
-    assert acc["largest"]["centre_rmse_pct_path"] < 0.5 and acc["registered_pct"] > 80, acc
+    assert first["matches_dropped"] > 0 and first["kept"] and "held" not in first, first
+    left = report["motion"]["frames"]["unexplained"]
+    carried = report["motion"]["carried"]
+    assert len(left) >= 3 and carried[0] <= left[0] and left[-1] <= carried[-1], (left, carried)
     assert report["sfm"]["solution_check"]["state"] == "passed"
+    acc = ingest_accuracy(run, clip, report["registered"], report["frames_selected"])
+    assert acc["largest"]["centre_rmse_pct_path"] < 0.5 and acc["registered_pct"] > 75, acc
     masks = mask_accuracy(run, clip)
-    assert masks["iou"] > 0.5 and masks["recall"] > 0.85, masks
+    assert masks["iou"] > 0.7 and masks["recall"] > 0.8, masks
     rigid = report["motion"]["rigid_gap"]  # the last check ran
     assert rigid["pairs_judged"] > 30
 

@@ -97,8 +97,8 @@ MIN_SOUND_RUN = 8
 # unexplained by the final masks did not work: the solution check fails (and ingest tries again with the focal length
 # held, `sfm_child`); a smaller share is left out (`unexplained_frames`). Measured at 320x180 (benchmarks/dynamic.py):
 # the large crossing mover, 3 frames of 29 (a mover filling a third of the view; cameras 0.063 % of the path with
-# them out, mapped once: 1.4x the walk without it, against 1.9x for the try with the focal length held); the person
-# crossing ahead (`person_x`), 14 of 45 (left out: 74 % of the frames written; held: 100 %, 0.065 %).
+# them out, mapped once: 1.47x the walk without it, against 1.83x for the try with the focal length held); the
+# person crossing ahead (`person_x`), 14 of 45 (left out: 74 % of the frames written; held: 100 %, 0.065 %).
 REPAIR_LEFT_MAX = 0.25
 # The rigid pass misses a mover in some frames: one walking straight ahead of the camera moves along the epipolar
 # lines. Before the database mapped first (`sfm_motion.drop_matches`) loses the matches on moving content, in each
