@@ -573,13 +573,18 @@ def test_progress_lines_stay_whole_while_colmap_logs_to_the_same_pipe(tmp_path):
 
 
 def _observed(turn_deg: float):
-    """A pycolmap Reconstruction adjusted by `final_bundle_adjustment` (with its facts): 20 frames of a SIMPLE_RADIAL
-    camera (focal length 0.714 x W, no distortion) on a path 1.5 m sideways and 2 m ahead, turning `turn_deg`
-    degrees from end to end, that see 600 points 3-9 m ahead through 0.3 px of noise."""
+    """`_observed_model(turn_deg)` adjusted by `final_bundle_adjustment` (and its facts)."""
+    from seeu_data.ingest.mapping import final_bundle_adjustment
+
+    return final_bundle_adjustment(_observed_model(turn_deg), SfmConfig())
+
+
+def _observed_model(turn_deg: float):
+    """A pycolmap Reconstruction: 20 frames of a SIMPLE_RADIAL camera (focal length 0.714 x W, no distortion) on a
+    path 1.5 m sideways and 2 m ahead, turning `turn_deg` degrees from end to end, that see 600 points 3-9 m ahead
+    through 0.3 px of noise."""
     import cv2
     import pycolmap
-
-    from seeu_data.ingest.mapping import final_bundle_adjustment
 
     rng = np.random.default_rng(0)
     f = 0.714 * W
@@ -611,7 +616,47 @@ def _observed(turn_deg: float):
                 track.add_element(image_id, k)
             rec.add_point3D(points[j], track)
     rec.update_point_3d_errors()
-    return final_bundle_adjustment(rec, SfmConfig())
+    return rec
+
+
+@pytest.mark.parametrize("moved", ["behind a camera", "far off"])
+def test_a_final_adjustment_that_leaves_a_point_behind_a_camera_is_used_one_that_sends_it_far_off_is_not(
+    monkeypatch, moved
+):
+    """`final_bundle_adjustment` on `_observed_model(30)`, points moved after the solve: one behind the first camera
+    that sees it (COLMAP's reprojection error then 1.3e154 px), its observations are dropped and the solution is used
+    (the other points kept); every point 3 m to the side (errors of about 100 px, in front of the cameras), the solve
+    diverged and the model is kept as it was."""
+    import pycolmap
+
+    from seeu_data.ingest import mapping
+
+    model = _observed_model(30.0)
+    pid = min(model.points3D)
+    first = min(el.image_id for el in model.points3D[pid].track.elements)
+    adjust = mapping._adjust
+
+    def adjust_and_move(rec, options):
+        summary = adjust(rec, options)
+        cam_from_world = rec.image(first).cam_from_world()
+        centre = cam_from_world.inverse().translation
+        axis = cam_from_world.rotation.matrix()[2]  # the camera's optical axis in the world
+        if moved == "behind a camera":
+            rec.point3D(pid).xyz = centre - 2.0 * axis
+        else:
+            for point in rec.points3D.values():
+                point.xyz = point.xyz + 3.0 * cam_from_world.rotation.matrix()[0]
+        return summary
+
+    monkeypatch.setattr(mapping, "_adjust", adjust_and_move)
+    kept, facts = mapping.final_bundle_adjustment(pycolmap.Reconstruction(model), SfmConfig())
+    if moved == "behind a camera":
+        assert facts["used"] and facts["reprojection_after_px"] < 1.0, facts
+        assert pid not in kept.points3D or all(el.image_id != first for el in kept.points3D[pid].track.elements)
+        assert kept.num_points3D() >= model.num_points3D() - 1
+    else:
+        assert not facts["used"] and facts["cost"] is None, facts
+        assert kept.point3D(pid).xyz.tolist() == model.point3D(pid).xyz.tolist()
 
 
 def test_a_camera_that_never_turns_leaves_its_focal_length_unheld():
