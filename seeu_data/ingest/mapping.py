@@ -376,7 +376,8 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     COLMAP's own global adjustments use a plain squared loss; SIFT's residuals on a video have a heavy
     tail (a few % of observations above 1 px carry most of the squared error), which then pulls the
     focal length and the poses. Returns (the adjusted reconstruction, or `rec` unchanged when Ceres
-    calls its solution unusable or it diverged (`DIVERGED_FACTOR`); {"loss", "scale_px", "termination", "iterations", "residuals", "used",
+    calls its solution unusable or it diverged (`DIVERGED_FACTOR`, once the observations it left behind their camera
+    are dropped); {"loss", "scale_px", "termination", "iterations", "residuals", "used",
     "reprojection_before_px", "reprojection_after_px", "cost" (the robust cost reached; None unless used)})."""
     import pycolmap
 
@@ -385,7 +386,7 @@ def final_bundle_adjustment(rec, cfg: SfmConfig) -> tuple:
     rec = pycolmap.Reconstruction(rec)  # adjusted on a copy: `original` stays when the solve fails
     summary = _adjust(rec, _ba_options(cfg))
     used = bool(summary.is_solution_usable())
-    if used:  # a solve that diverged (points sent far off: a mean error of 1e150 px) is no solution either
+    if used:  # a solve that diverged (its mean reprojection error far over the start's) is no solution either;
         # but first, as COLMAP's mapper does after each global adjustment, the observations of points the solve
         # moved behind a camera that sees them are dropped: such a point has no reprojection (COLMAP's error
         # 1.3e154 px), and 3 of 2,090 (tracks of 2-6 frames) had made a sound solve look diverged (the mover
